@@ -1,0 +1,54 @@
+# sonarmap: `make demo` and `make test` are the two commands a new user needs.
+# Every target depends on `setup`, so a fresh clone needs nothing done by hand.
+SHELL := /bin/bash
+.SHELLFLAGS := -eu -o pipefail -c
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.sonarmap-setup
+APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0
+TORCH_VERSION := 2.13.0
+PYTEST_ARGS ?=
+
+.PHONY: setup system-deps test demo bench lint study clean-store
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	@$(MAKE) --no-print-directory system-deps
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	@# torch first: a bare `torch` requirement would pull a multi-GB CUDA build.
+	$(BIN)/python -m pip install -q torch==$(TORCH_VERSION)
+	$(BIN)/python -m pip install -q -e '.[dev,ray]'
+	@touch $(STAMP)
+
+system-deps:
+	@missing=""; for p in $(APT_PACKAGES); do \
+	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
+	done; \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages open3d needs:$$missing"; \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
+	  elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
+	  else echo "error: open3d needs Debian packages:$$missing; run: sudo apt-get install -y$$missing" >&2; exit 2; fi; \
+	fi
+
+test: setup
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+demo: setup
+	$(BIN)/sonarmap demo
+
+bench: setup
+	$(BIN)/python benchmarks/run_all.py
+
+study: setup
+	$(BIN)/sonarmap study
+
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/mypy pipeline schemas
+
+clean-store:
+	rm -rf data/store
