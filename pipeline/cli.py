@@ -1,0 +1,68 @@
+"""The `sonarmap` command line (typer). Known errors become one line and exit 2 (or 1)."""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import logging
+import sys
+
+import typer
+
+from pipeline import __version__
+from pipeline.commands import COMMAND_MODULES
+from pipeline.errors import PipelineError
+
+__all__ = ["app", "main"]
+
+app = typer.Typer(
+    name="sonarmap",
+    help="Predictive 3D sonar mapping: a staged, cached MCAP/Parquet pipeline.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"sonarmap {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+    verbose: int = typer.Option(0, "--verbose", "-v", count=True, help="More logging on stderr."),
+) -> None:
+    """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
+    level = logging.WARNING - 10 * min(verbose, 2)
+    logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+
+
+for _name in COMMAND_MODULES:
+    if importlib.util.find_spec(f"pipeline.commands.{_name}") is not None:
+        importlib.import_module(f"pipeline.commands.{_name}").register(app)
+
+
+def main() -> None:
+    """Console-script entry point: map known errors to one line and an exit code."""
+    try:
+        app(standalone_mode=False)
+    except PipelineError as err:
+        typer.echo(f"error: {err}", err=True)
+        sys.exit(err.exit_code)
+    except typer.Exit as ex:
+        sys.exit(ex.exit_code)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
+        sys.exit(1)
+    except Exception as err:  # click usage errors carry their own exit code
+        import click
+
+        if isinstance(err, click.ClickException):
+            err.show()
+            sys.exit(err.exit_code)
+        raise

@@ -1,0 +1,22 @@
+"""CLI commands, one module each; every module exposes `register(app)`.
+
+Modules must keep heavy imports (torch, open3d, gtsam, mcap, pyarrow) inside the
+command functions so `sonarmap --help` starts fast.
+"""
+
+COMMAND_MODULES: tuple[str, ...] = (
+    "run",
+    "status",
+    "show",
+    "store_admin",
+    "config_cmd",
+    "simulate",
+    "topics",
+    "convert",
+    "train",
+    "demo",
+    "sweep",
+    "study",
+    "share",
+)
+"""Order in which commands appear in `sonarmap --help`."""

@@ -1,0 +1,135 @@
+"""ROS message types and a fast, deterministic ROS 2 MCAP writer.
+
+Serialisation uses rosbags' CDR serde (numpy arrays in and out) around the raw
+`mcap` writer, the fast path measured in reference/ecosystem.md section 2. Every
+message gets explicit log/publish times so the same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import resources
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any
+
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+__all__ = ["Ros2McapWriter", "custom_msg_texts", "msgdef", "ros1_typestore", "ros2_typestore"]
+
+
+def custom_msg_texts() -> dict[str, str]:
+    """The .msg texts shipped in `schemas/msg`, keyed by type name ("pkg/msg/Type")."""
+    root = resources.files("schemas") / "msg"
+    texts: dict[str, str] = {}
+    for pkg in sorted(p for p in root.iterdir() if p.is_dir()):
+        for msg in sorted((pkg / "msg").iterdir(), key=lambda p: p.name):
+            if msg.name.endswith(".msg"):
+                texts[f"{pkg.name}/msg/{msg.name[:-4]}"] = msg.read_text()
+    return texts
+
+
+def _register_custom(store: Typestore) -> Typestore:
+    types: dict[str, Any] = {}
+    for name, text in custom_msg_texts().items():
+        types.update(get_types_from_msg(text, name))
+    store.register(types)
+    return store
+
+
+@functools.cache
+def ros2_typestore() -> Typestore:
+    """ROS 2 Humble types plus marine_acoustic_msgs and sonar_oculus."""
+    return _register_custom(get_typestore(Stores.ROS2_HUMBLE))
+
+
+@functools.cache
+def ros1_typestore() -> Typestore:
+    """ROS 1 Noetic types plus marine_acoustic_msgs and sonar_oculus."""
+    return _register_custom(get_typestore(Stores.ROS1_NOETIC))
+
+
+@functools.cache
+def msgdef(typename: str) -> str:
+    """The concatenated ROS 2 message definition MCAP stores as the schema."""
+    text, _ = ros2_typestore().generate_msgdef(typename, ros_version=2)
+    return text
+
+
+class Ros2McapWriter:
+    """Write ROS 2 (CDR) messages into one MCAP file with zstd chunks.
+
+    Usage:
+        with Ros2McapWriter(stream, metadata={"sonarmap": {...}}) as w:
+            w.write("/topic", "nav_msgs/msg/Odometry", msg_object, t_ns)
+
+    Messages are rosbags message objects (see `ros2_typestore().types`).
+    """
+
+    def __init__(self, stream: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024) -> None:
+        self._writer = McapWriter(
+            stream, chunk_size=chunk_size, compression=CompressionType.ZSTD
+        )
+        self._writer.start(profile="ros2", library="sonarmap")
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._sequence = 0
+        self._store = ros2_typestore()
+
+    def _channel(self, topic: str, typename: str) -> int:
+        if topic in self._channels:
+            return self._channels[topic]
+        if typename not in self._schemas:
+            self._schemas[typename] = self._writer.register_schema(
+                name=typename, encoding="ros2msg", data=msgdef(typename).encode()
+            )
+        cid = self._writer.register_channel(
+            topic=topic, message_encoding="cdr", schema_id=self._schemas[typename]
+        )
+        self._channels[topic] = cid
+        return cid
+
+    def write(self, topic: str, typename: str, message: object, t_ns: int) -> None:
+        """Serialise `message` and append it with log and publish time `t_ns`."""
+        data = self._store.serialize_cdr(message, typename)
+        self.write_raw(topic, typename, bytes(data), t_ns)
+
+    def write_raw(self, topic: str, typename: str, cdr: bytes, t_ns: int) -> None:
+        """Append an already CDR-serialised message."""
+        cid = self._channel(topic, typename)
+        self._writer.add_message(
+            channel_id=cid, log_time=t_ns, publish_time=t_ns, sequence=self._sequence, data=cdr
+        )
+        self._sequence += 1
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record (string -> string map), e.g. provenance."""
+        self._writer.add_metadata(name=name, data=data)
+
+    def add_attachment(self, name: str, data: bytes, media_type: str, t_ns: int = 0) -> None:
+        """An attachment (e.g. the ground-truth scene mesh as PLY)."""
+        self._writer.add_attachment(
+            create_time=t_ns, log_time=t_ns, name=name, media_type=media_type, data=data
+        )
+
+    def finish(self) -> None:
+        self._writer.finish()
+
+    def __enter__(self) -> Ros2McapWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.finish()
+
+
+def open_for_write(path: Path) -> IO[bytes]:
+    """Open a path for binary writing (kept here so callers need not know about buffering)."""
+    return path.open("wb")

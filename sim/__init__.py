@@ -1,0 +1,1 @@
+"""Pure-Python orthogonal sonar-pair simulator (scenes, sonar model, missions)."""

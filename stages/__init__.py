@@ -1,0 +1,1 @@
+"""Algorithms of sonarmap, one module per pipeline stage (pure functions over arrays)."""
