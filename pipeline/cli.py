@@ -7,7 +7,9 @@ import importlib.util
 import logging
 import sys
 
+import click
 import typer
+from typer.core import TyperGroup
 
 from pipeline import __version__
 from pipeline.commands import COMMAND_MODULES
@@ -15,8 +17,20 @@ from pipeline.errors import PipelineError
 
 __all__ = ["app", "main"]
 
+class _ErrorMappingGroup(TyperGroup):
+    """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1)."""
+
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except PipelineError as err:
+            typer.echo(f"error: {err}", err=True)
+            raise typer.Exit(err.exit_code) from err
+
+
 app = typer.Typer(
     name="sonarmap",
+    cls=_ErrorMappingGroup,
     help="Predictive 3D sonar mapping: a staged, cached MCAP/Parquet pipeline.",
     no_args_is_help=True,
     add_completion=False,
@@ -39,7 +53,9 @@ def _root(
 ) -> None:
     """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
     level = logging.WARNING - 10 * min(verbose, 2)
-    logging.basicConfig(level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s"
+    )
 
 
 for _name in COMMAND_MODULES:
@@ -48,21 +64,5 @@ for _name in COMMAND_MODULES:
 
 
 def main() -> None:
-    """Console-script entry point: map known errors to one line and an exit code."""
-    try:
-        app(standalone_mode=False)
-    except PipelineError as err:
-        typer.echo(f"error: {err}", err=True)
-        sys.exit(err.exit_code)
-    except typer.Exit as ex:
-        sys.exit(ex.exit_code)
-    except typer.Abort:
-        typer.echo("aborted", err=True)
-        sys.exit(1)
-    except Exception as err:  # click usage errors carry their own exit code
-        import click
-
-        if isinstance(err, click.ClickException):
-            err.show()
-            sys.exit(err.exit_code)
-        raise
+    """Console-script entry point."""
+    app()
