@@ -45,6 +45,9 @@ class Output:
     kind: OutputKind
     filename: str
     optional: bool = False
+    schema: Any = None
+    """For parquet outputs: the `pyarrow.Schema` from `schemas/` the table must match
+    (the engine validates column names and types before committing)."""
 
 
 @dataclass(frozen=True)
