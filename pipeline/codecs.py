@@ -1,0 +1,90 @@
+"""Writing and reading stage outputs by kind (parquet, json, bytes, frames).
+
+Parquet files are written deterministically: the table as the stage returns it
+(stages sort their rows), zstd, and only key-derived metadata (stage, version, key)
+in the schema, never timestamps, so the same inputs give the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from pipeline.errors import InternalError, StageFailed
+from stages.base import Output
+
+__all__ = ["read_output", "validate_table", "write_output"]
+
+
+def validate_table(stage: str, output: Output, table: Any) -> pa.Table:
+    """Check a parquet output against its declared schema (names and types)."""
+    if not isinstance(table, pa.Table):
+        raise StageFailed(
+            f"stage {stage}: output '{output.name}' must be a pyarrow.Table, "
+            f"got {type(table).__name__}"
+        )
+    expected = output.schema
+    if expected is None:
+        return table
+    missing = [f.name for f in expected if f.name not in table.column_names]
+    if missing:
+        raise StageFailed(f"stage {stage}: output '{output.name}' lacks columns {missing}")
+    wrong = [
+        f"{f.name}: {table.schema.field(f.name).type} != {f.type}"
+        for f in expected
+        if not table.schema.field(f.name).type.equals(f.type)
+    ]
+    if wrong:
+        raise StageFailed(f"stage {stage}: output '{output.name}' column types {wrong}")
+    return table
+
+
+def write_output(
+    directory: Path, stage: str, output: Output, value: Any, provenance: Mapping[str, str]
+) -> dict[str, Any]:
+    """Write one output into an artifact directory; returns manifest facts (rows, ...)."""
+    path = directory / output.filename
+    if output.kind == "parquet":
+        table = validate_table(stage, output, value)
+        meta = dict(table.schema.metadata or {})
+        meta[b"sonarmap"] = json.dumps(dict(provenance), sort_keys=True).encode()
+        pq.write_table(table.replace_schema_metadata(meta), path, compression="zstd")
+        return {"rows": table.num_rows}
+    if output.kind == "json":
+        path.write_text(json.dumps(value, indent=2, sort_keys=True, allow_nan=False) + "\n")
+        return {}
+    if output.kind == "bytes":
+        if not isinstance(value, (bytes, bytearray, memoryview)):
+            raise StageFailed(f"stage {stage}: output '{output.name}' must be bytes")
+        path.write_bytes(bytes(value))
+        return {"bytes": len(value)}
+    if output.kind == "frames":
+        from pipeline.frames_io import write_frames
+
+        return {"frames": write_frames(value, path)}
+    raise InternalError(f"stage {stage}: unknown output kind {output.kind!r}")
+
+
+def read_output(directory: Path, output: Output) -> Any:
+    """Read one output back; an optional output that was not written reads as None."""
+    path = directory / output.filename
+    if not path.exists():
+        if output.optional:
+            return None
+        raise InternalError(f"{directory}: output file '{output.filename}' missing")
+    if output.kind == "parquet":
+        return pq.read_table(path)
+    if output.kind == "json":
+        return json.loads(path.read_text())
+    if output.kind == "bytes":
+        return path.read_bytes()
+    if output.kind == "frames":
+        from pipeline.frames_io import read_frames
+
+        return read_frames(path)
+    raise InternalError(f"unknown output kind {output.kind!r}")

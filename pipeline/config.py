@@ -1,0 +1,185 @@
+"""Pipeline configuration: one YAML file, one section per stage, CLI overrides.
+
+The effective config is a frozen pydantic model whose fields are the stages' own
+config models (defaults are documented once, in those models). A stage's key
+hashes only its own section, so changing `fuse.*` never recomputes `features`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import types
+import typing
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError, create_model
+
+from pipeline.errors import ConfigError
+from stages.base import Stage, StageConfig
+
+__all__ = [
+    "PipelineConfig",
+    "apply_overrides",
+    "config_model_for",
+    "dump_yaml",
+    "load_config",
+    "parse_override",
+    "section_dict",
+]
+
+PipelineConfig = BaseModel
+"""Alias used in annotations: an instance of the model built by `config_model_for`."""
+
+
+@functools.cache
+def _model_for(stages: tuple[Stage, ...]) -> type[BaseModel]:
+    fields: dict[str, Any] = {s.name: (s.config, s.config()) for s in stages}
+    return create_model(  # type: ignore[call-overload, no-any-return]
+        "PipelineConfig",
+        __config__=ConfigDict(frozen=True, extra="forbid"),
+        **fields,
+    )
+
+
+def config_model_for(stages: Sequence[Stage]) -> type[BaseModel]:
+    """The frozen pydantic model with one section per stage (cached per stage tuple)."""
+    return _model_for(tuple(stages))
+
+
+def section_dict(config: BaseModel, stage: str) -> dict[str, Any]:
+    """A stage's resolved section as plain JSON-compatible data (what its key hashes)."""
+    section = getattr(config, stage)
+    data: dict[str, Any] = section.model_dump(mode="json")
+    return data
+
+
+def _closest(name: str, candidates: Iterable[str]) -> str:
+    match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.5)
+    return f" (did you mean '{match[0]}'?)" if match else ""
+
+
+def _field_annotation(model: type[BaseModel], path: list[str], where: str) -> Any:
+    """Walk nested models along `path`; ConfigError naming the closest key on a miss."""
+    current: Any = model
+    for i, part in enumerate(path):
+        fields = getattr(current, "model_fields", None)
+        dotted = ".".join(path[: i + 1])
+        if fields is None:
+            raise ConfigError(f"{where}: '{dotted}' is not a config section")
+        if part not in fields:
+            prefix = ".".join(path[:i])
+            names = [f"{prefix}.{f}" if prefix else f for f in fields]
+            raise ConfigError(f"{where}: unknown key '{dotted}'{_closest(dotted, names)}")
+        current = fields[part].annotation
+    return current
+
+
+def _is_sequence_type(annotation: Any) -> bool:
+    origin = typing.get_origin(annotation)
+    if origin in (list, tuple, set, frozenset, Sequence):
+        return True
+    if origin in (typing.Union, types.UnionType):
+        return any(_is_sequence_type(a) for a in typing.get_args(annotation) if a is not type(None))
+    return False
+
+
+def parse_override(model: type[BaseModel], text: str) -> tuple[list[str], Any]:
+    """Parse `section.field=value` into (path, typed value); lists are written `a,b`.
+
+    Values are read as YAML scalars (`4` -> int, `true` -> bool, `null` -> None) and
+    pydantic then coerces them to the field's type.
+    """
+    key, sep, raw = text.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"override '{text}': expected section.field=value")
+    path = key.strip().split(".")
+    annotation = _field_annotation(model, path, f"override '{text}'")
+    if _is_sequence_type(annotation) and not raw.strip().startswith("["):
+        return path, [_scalar(v) for v in raw.split(",") if v.strip() != ""]
+    return path, _scalar(raw)
+
+
+def _scalar(raw: str) -> Any:
+    try:
+        return yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        return raw
+
+
+def apply_overrides(data: dict[str, Any], overrides: Iterable[tuple[list[str], Any]]) -> None:
+    """Set each (path, value) in the nested dict `data` in place."""
+    for path, value in overrides:
+        node = data
+        for part in path[:-1]:
+            child = node.get(part)
+            if not isinstance(child, dict):
+                child = {}
+                node[part] = child
+            node = child
+        node[path[-1]] = value
+
+
+def _check_keys(model: type[BaseModel], data: Mapping[str, Any], where: str, prefix: str) -> None:
+    fields = model.model_fields
+    for key, value in data.items():
+        dotted = f"{prefix}{key}"
+        if key not in fields:
+            names = [f"{prefix}{f}" for f in fields]
+            raise ConfigError(f"{where}: unknown key '{dotted}'{_closest(dotted, names)}")
+        sub = fields[key].annotation
+        if isinstance(value, Mapping) and isinstance(sub, type) and issubclass(sub, BaseModel):
+            _check_keys(sub, value, where, f"{dotted}.")
+
+
+def _validation_message(err: ValidationError, where: str) -> str:
+    first = err.errors()[0]
+    loc = ".".join(str(p) for p in first["loc"])
+    got = first.get("input")
+    return f"{where}: {loc}: {first['msg']} (got {got!r})"
+
+
+def load_config(
+    stages: Sequence[Stage], path: Path | None = None, overrides: Sequence[str] = ()
+) -> BaseModel:
+    """Read the YAML file (optional), apply `--set` overrides, validate.
+
+    Raises:
+        ConfigError: unreadable file, unknown section/key (with the closest valid
+            name), or a value of the wrong type; the message names file and key.
+    """
+    model = config_model_for(stages)
+    where = str(path) if path else "config"
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            loaded = yaml.safe_load(path.read_text())
+        except OSError as err:
+            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
+        except yaml.YAMLError as err:
+            raise ConfigError(f"{path}: not valid YAML ({err})") from err
+        if loaded is not None and not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: expected a mapping of stage sections")
+        data = loaded or {}
+        _check_keys(model, data, where, "")
+    apply_overrides(data, [parse_override(model, o) for o in overrides])
+    try:
+        return model.model_validate(data)
+    except ValidationError as err:
+        raise ConfigError(_validation_message(err, where)) from err
+
+
+def dump_yaml(config: BaseModel) -> str:
+    """The effective config as YAML (one section per stage, in stage order)."""
+    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+
+
+def validate_section(stage: Stage, data: Mapping[str, Any]) -> StageConfig:
+    """Validate one section on its own (used by tests and `config check`)."""
+    try:
+        return stage.config.model_validate(dict(data))
+    except ValidationError as err:
+        raise ConfigError(_validation_message(err, stage.name)) from err

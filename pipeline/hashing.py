@@ -1,0 +1,140 @@
+"""Canonical JSON, artifact keys and dataset fingerprints.
+
+Key recipe (DESIGN.md): sha256 of the canonical JSON of stage name, stage version,
+the stage's own resolved config section, the keys of its inputs, the schema version
+and the store-format version, plus the dataset's content fingerprint for a stage that
+reads the raw dataset. Never Python's salted `hash()`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from filelock import FileLock
+
+from pipeline.errors import ConfigError, SourceError
+
+__all__ = [
+    "STORE_FORMAT_VERSION",
+    "FingerprintCache",
+    "canonical_json",
+    "recipe_key",
+    "sha256_file",
+    "stage_recipe",
+]
+
+STORE_FORMAT_VERSION = 1
+_CHUNK = 4 * 1024 * 1024
+
+
+def _reject_nan(obj: Any, where: str = "") -> None:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise ConfigError(f"{where or 'value'}: NaN/inf cannot be hashed")
+    if isinstance(obj, Mapping):
+        for k, v in obj.items():
+            _reject_nan(v, f"{where}.{k}" if where else str(k))
+    elif isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            _reject_nan(v, f"{where}[{i}]")
+
+
+def canonical_json(obj: Any) -> bytes:
+    """Sorted keys, no whitespace, floats as repr, NaN refused, UTF-8."""
+    _reject_nan(obj)
+    return json.dumps(
+        obj, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False
+    ).encode()
+
+
+def recipe_key(recipe: Mapping[str, Any]) -> str:
+    """sha256 hex digest of the canonical JSON of a key recipe."""
+    return hashlib.sha256(canonical_json(recipe)).hexdigest()
+
+
+def stage_recipe(
+    *,
+    stage: str,
+    version: int,
+    config: Mapping[str, Any],
+    input_keys: Mapping[str, str],
+    schema_version: int,
+    dataset_fingerprint: str | None = None,
+) -> dict[str, Any]:
+    """The dict whose canonical JSON hash is the artifact key (also stored in the manifest)."""
+    recipe: dict[str, Any] = {
+        "stage": stage,
+        "version": version,
+        "config": dict(config),
+        "inputs": dict(sorted(input_keys.items())),
+        "schema_version": schema_version,
+        "store_format": STORE_FORMAT_VERSION,
+    }
+    if dataset_fingerprint is not None:
+        recipe["dataset"] = dataset_fingerprint
+    return recipe
+
+
+def sha256_file(path: Path) -> str:
+    """Streaming sha256 of one file."""
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        while chunk := f.read(_CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+class FingerprintCache:
+    """Content fingerprints of dataset files, cached by (path, size, mtime_ns, inode).
+
+    A 10 GB bag is hashed once; `status` afterwards only stats it. The cache is a
+    JSON file guarded by a file lock so concurrent runs do not clobber it.
+    """
+
+    def __init__(self, cache_file: Path) -> None:
+        self._file = cache_file
+        self._lock = FileLock(str(cache_file) + ".lock")
+
+    def _load(self) -> dict[str, Any]:
+        try:
+            data: dict[str, Any] = json.loads(self._file.read_text())
+            return data
+        except (OSError, ValueError):
+            return {}
+
+    def file_digest(self, path: Path) -> str:
+        """sha256 of `path`, from the cache when its size, mtime and inode are unchanged."""
+        try:
+            st = path.stat()
+        except OSError as err:
+            raise SourceError(f"{path}: cannot read dataset ({err.strerror})") from err
+        ident = [st.st_size, st.st_mtime_ns, st.st_ino]
+        entry = self._load().get(str(path.resolve()))
+        if entry and entry.get("stat") == ident:
+            return str(entry["sha256"])
+        digest = sha256_file(path)
+        self._file.parent.mkdir(parents=True, exist_ok=True)
+        with self._lock:
+            data = self._load()
+            data[str(path.resolve())] = {"stat": ident, "sha256": digest}
+            tmp = self._file.with_suffix(f".tmp{os.getpid()}")
+            tmp.write_text(json.dumps(data, sort_keys=True))
+            tmp.replace(self._file)
+        return digest
+
+    def dataset_fingerprint(self, parts: Sequence[Path], root: Path) -> str:
+        """Fingerprint of a dataset made of several files (a bag directory, split bags).
+
+        Names are taken relative to `root` so moving the dataset keeps its fingerprint.
+        """
+        entries = sorted(
+            (str(p.relative_to(root)) if p != root else p.name, self.file_digest(p)) for p in parts
+        )
+        if len(entries) == 1:
+            return entries[0][1]
+        return hashlib.sha256(canonical_json(entries)).hexdigest()

@@ -1,0 +1,323 @@
+"""Planner and runner: decide hit or miss per stage (with the reason), then execute.
+
+The planner computes every stage's key from its config section, version, input keys
+and (first stage) the dataset fingerprint, without touching artifacts' contents.
+The runner computes the misses in order under a per-key lock, binds upstream
+artifacts to stage inputs, validates outputs and commits them atomically.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import shutil
+import time
+import uuid
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from pipeline.codecs import read_output, write_output
+from pipeline.config import section_dict
+from pipeline.errors import ConfigError, PipelineError, StageFailed
+from pipeline.hashing import canonical_json, recipe_key, stage_recipe
+from pipeline.store import ArtifactRef, ArtifactStore
+from schemas import SCHEMA_VERSION
+from stages.base import Stage
+
+__all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
+
+log = logging.getLogger(__name__)
+_VERSIONED = ("sonarmap", "numpy", "pyarrow", "mcap", "rosbags", "torch", "gtsam", "open3d-cpu")
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """The raw dataset a run reads: its path, content fingerprint and an opener.
+
+    `open(stage_config)` returns what the first stage's "dataset" input binds to
+    (a `Recording` for real runs); it is only called when that stage must run.
+    """
+
+    path: Path
+    fingerprint: str
+    open: Callable[[Any], Any]
+
+
+@dataclass(frozen=True)
+class PlannedStage:
+    stage: Stage
+    key: str
+    recipe: dict[str, Any]
+    hit: bool
+    reason: str
+
+
+@dataclass(frozen=True)
+class StageResult:
+    stage: str
+    key: str
+    status: str  # "hit" | "computed"
+    seconds: float
+    path: str
+    reason: str = ""
+
+
+@dataclass
+class RunResult:
+    dataset: str
+    store: str
+    stages: list[StageResult] = field(default_factory=list)
+    artifacts: dict[str, ArtifactRef] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "dataset": self.dataset,
+            "store": self.store,
+            "stages": [r.__dict__ for r in self.stages],
+        }
+
+
+def _software_versions() -> dict[str, str]:
+    versions = {}
+    for name in _VERSIONED:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return versions
+
+
+def run_id(dataset: Path, config: BaseModel) -> str:
+    """Identity of a run record: the dataset path and the whole effective config."""
+    digest = hashlib.sha256(
+        canonical_json(
+            {"dataset": str(dataset.resolve()), "config": config.model_dump(mode="json")}
+        )
+    )
+    return digest.hexdigest()[:20]
+
+
+def _previous_recipes(store: ArtifactStore, dataset: Path) -> dict[str, dict[str, Any]]:
+    """Recipes of the most recent run on the same dataset path (to explain misses)."""
+    target = str(dataset.resolve())
+    for record in reversed(store.run_records()):
+        if record.get("dataset") == target:
+            return {name: info.get("recipe", {}) for name, info in record.get("stages", {}).items()}
+    return {}
+
+
+def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
+    changes = []
+    for k in sorted(set(old) | set(new)):
+        if old.get(k) != new.get(k):
+            changes.append(f"{stage}.{k} {old.get(k)!r} -> {new.get(k)!r}")
+    return changes
+
+
+def _miss_reason(
+    name: str, recipe: Mapping[str, Any], previous: Mapping[str, Any] | None, changed: set[str]
+) -> str:
+    if not previous:
+        return "not computed yet"
+    if previous.get("version") != recipe["version"]:
+        return f"version {previous.get('version')} -> {recipe['version']}"
+    diff = _config_diff(name, previous.get("config", {}), recipe["config"])
+    if diff:
+        return "config changed: " + ", ".join(diff)
+    if previous.get("dataset") != recipe.get("dataset"):
+        return "dataset content changed"
+    upstream = [s for s in recipe["inputs"] if s.split(".")[0] in changed]
+    if previous.get("inputs") != recipe["inputs"]:
+        names = sorted({u.split(".")[0] for u in upstream}) or sorted(
+            {k.split(".")[0] for k in recipe["inputs"]}
+        )
+        return "upstream " + ", ".join(names) + " recomputed"
+    return "artifact missing (removed or never committed)"
+
+
+def plan(
+    stages: Sequence[Stage],
+    config: BaseModel,
+    dataset: DatasetSpec,
+    store: ArtifactStore,
+    *,
+    until: str | None = None,
+    force: Sequence[str] = (),
+    external: Mapping[str, tuple[Stage, ArtifactRef]] | None = None,
+) -> list[PlannedStage]:
+    """Hit or miss, with the reason, for each stage up to and including `until`."""
+    names = [s.name for s in stages]
+    for name in [until, *force]:
+        if name is not None and name not in names:
+            raise ConfigError(f"unknown stage '{name}' (stages: {', '.join(names)})")
+    external = dict(external or {})
+    keys: dict[str, str] = {name: ref.key for name, (_, ref) in external.items()}
+    previous = _previous_recipes(store, dataset.path)
+    changed: set[str] = set()
+    planned: list[PlannedStage] = []
+    for stage in stages:
+        input_keys = {}
+        for item in stage.inputs:
+            if item == "dataset":
+                continue
+            upstream = item.split(".", 1)[0]
+            if upstream not in keys:
+                raise ConfigError(f"stage {stage.name}: input '{item}' has no producer in this run")
+            input_keys[item] = keys[upstream]
+        recipe = stage_recipe(
+            stage=stage.name,
+            version=stage.version,
+            config=section_dict(config, stage.name),
+            input_keys=input_keys,
+            schema_version=SCHEMA_VERSION,
+            dataset_fingerprint=dataset.fingerprint if "dataset" in stage.inputs else None,
+        )
+        key = recipe_key(recipe)
+        keys[stage.name] = key
+        exists = store.get(stage.name, key) is not None
+        if stage.name in force:
+            hit, reason = False, "forced"
+        elif exists:
+            hit, reason = True, "cached"
+        else:
+            hit = False
+            reason = _miss_reason(stage.name, recipe, previous.get(stage.name), changed)
+        if not hit:
+            changed.add(stage.name)
+        planned.append(PlannedStage(stage, key, recipe, hit, reason))
+        if stage.name == until:
+            break
+    return planned
+
+
+def _bind_inputs(
+    item: PlannedStage,
+    refs: Mapping[str, ArtifactRef],
+    outputs_of: Mapping[str, Stage],
+    dataset: DatasetSpec,
+    section: Any,
+) -> dict[str, Any]:
+    inputs: dict[str, Any] = {}
+    for name in item.stage.inputs:
+        if name == "dataset":
+            inputs[name] = dataset.open(section)
+            continue
+        upstream, _, out_name = name.partition(".")
+        producer = outputs_of[upstream]
+        output = next((o for o in producer.outputs if o.name == out_name), None)
+        if output is None:
+            raise ConfigError(f"stage {item.stage.name}: {upstream} has no output '{out_name}'")
+        inputs[name] = read_output(refs[upstream].path, output)
+    return inputs
+
+
+def _build(
+    item: PlannedStage, section: Any, inputs: Mapping[str, Any]
+) -> Callable[[Path], Mapping[str, Any]]:
+    stage = item.stage
+    provenance = {"stage": stage.name, "version": str(stage.version), "key": item.key}
+
+    def build(tmp: Path) -> Mapping[str, Any]:
+        try:
+            values = stage.run(section, inputs)
+            facts: dict[str, Any] = {}
+            for output in stage.outputs:
+                value = values.get(output.name)
+                if value is None:
+                    if not output.optional:
+                        raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
+                    continue
+                facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
+        except PipelineError:
+            raise
+        except Exception as err:
+            raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
+        return {"outputs": facts}
+
+    return build
+
+
+def execute(
+    planned: Sequence[PlannedStage],
+    config: BaseModel,
+    dataset: DatasetSpec,
+    store: ArtifactStore,
+    *,
+    external: Mapping[str, tuple[Stage, ArtifactRef]] | None = None,
+    on_stage: Callable[[StageResult], None] | None = None,
+    on_start: Callable[[PlannedStage], None] | None = None,
+) -> RunResult:
+    """Compute the misses in order and commit them; hits are only looked up."""
+    external = dict(external or {})
+    outputs_of: dict[str, Stage] = {n: s for n, (s, _) in external.items()}
+    refs: dict[str, ArtifactRef] = {n: r for n, (_, r) in external.items()}
+    result = RunResult(dataset=str(dataset.path), store=str(store.root))
+    versions = _software_versions()
+    for item in planned:
+        name = item.stage.name
+        outputs_of[name] = item.stage
+        t0 = time.perf_counter()
+        if on_start is not None:
+            on_start(item)
+        ref = None if not item.hit else store.get(name, item.key)
+        status = "hit"
+        if ref is None:
+            if item.reason == "forced":
+                _discard(store, name, item.key)
+            section = getattr(config, name)
+            inputs = _bind_inputs(item, refs, outputs_of, dataset, section)
+            manifest_extra = {
+                "version": item.stage.version,
+                "recipe": item.recipe,
+                "config": item.recipe["config"],
+                "inputs": {k: v for k, v in item.recipe["inputs"].items()},
+                "dataset_path": str(dataset.path),
+                "software": versions,
+            }
+            log.info("computing %s (%s)", name, item.reason)
+            ref = store.commit(name, item.key, _build(item, section, inputs), manifest_extra)
+            status = "computed"
+        refs[name] = ref
+        result.artifacts[name] = ref
+        stage_result = StageResult(
+            stage=name,
+            key=item.key,
+            status=status,
+            seconds=round(time.perf_counter() - t0, 3),
+            path=str(ref.path),
+            reason=item.reason,
+        )
+        result.stages.append(stage_result)
+        if on_stage is not None:
+            on_stage(stage_result)
+    _record(store, dataset, config, planned)
+    return result
+
+
+def _discard(store: ArtifactStore, stage: str, key: str) -> None:
+    """Move a forced artifact out of sight atomically, then delete it."""
+    with store.lock(stage, key):
+        path = store.artifact_dir(stage, key)
+        if path.exists():
+            trash = store.root / ".tmp" / f"forced-{stage}-{uuid.uuid4().hex[:8]}"
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            path.rename(trash)
+            shutil.rmtree(trash, ignore_errors=True)
+
+
+def _record(
+    store: ArtifactStore, dataset: DatasetSpec, config: BaseModel, planned: Sequence[PlannedStage]
+) -> None:
+    record = {
+        "dataset": str(dataset.path.resolve()),
+        "fingerprint": dataset.fingerprint,
+        "updated_at": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime())
+        + f".{time.time_ns() % 10**9:09d}Z",
+        "stages": {p.stage.name: {"key": p.key, "recipe": p.recipe} for p in planned},
+    }
+    store.record_run(run_id(dataset.path, config), record)
