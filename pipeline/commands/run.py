@@ -1,0 +1,48 @@
+"""`sonarmap run`: run (or reuse) every stage for one dataset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
+
+__all__ = ["register"]
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("run")
+    def run(
+        dataset: Path = typer.Argument(
+            ..., help="Recording: ROS 2 MCAP, bag directory, ROS 1 bag."
+        ),
+        config: Path | None = CONFIG_OPT,
+        set_: list[str] | None = SET_OPT,
+        until: str | None = typer.Option(None, "--until", help="Stop after this stage."),
+        force: list[str] | None = typer.Option(None, "--force", help="Recompute this stage."),
+        store: Path = STORE_OPT,
+        json_: bool = JSON_OPT,
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
+    ) -> None:
+        """Run the mapping pipeline on DATASET, reusing every cached stage."""
+        from pipeline.api import run_dataset
+        from pipeline.progress import StageProgress
+
+        with StageProgress(enabled=not quiet) as progress:
+            result, summary = run_dataset(
+                dataset,
+                config_path=config,
+                overrides=set_ or (),
+                store_dir=store,
+                until=until,
+                force=force or (),
+                on_start=progress.on_start,
+                on_stage=progress.on_stage,
+            )
+        if json_:
+            emit_json({**result.to_json(), "summary": summary})
+            return
+        from pipeline.report_cli import print_summary
+
+        print_summary(result, summary)

@@ -1,0 +1,63 @@
+"""`sonarmap show`: an artifact's manifest and a preview of its files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+
+__all__ = ["register"]
+
+
+def _preview(path: Path) -> str:
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+
+        table = pq.read_table(path)
+        head = table.slice(0, 5).to_pylist()
+        return (
+            f"{table.num_rows} rows\n{table.schema.to_string(show_schema_metadata=False)}\n"
+            + "\n".join(json.dumps(r, default=str) for r in head)
+        )
+    if path.suffix in (".json", ".md", ".tum", ".yaml"):
+        text = path.read_text()
+        return text if len(text) < 4000 else text[:4000] + "\n..."
+    return f"{path.stat().st_size} bytes"
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("show")
+    def show(
+        target: str = typer.Argument(
+            ..., help="A stage name (its newest artifact) or a key prefix."
+        ),
+        store: Path = STORE_OPT,
+        verify: bool = typer.Option(
+            False, "--verify", help="Re-hash every file against the manifest."
+        ),
+        json_: bool = JSON_OPT,
+    ) -> None:
+        """Print an artifact's manifest and a preview of each file."""
+        from pipeline.store import ArtifactStore
+
+        st = ArtifactStore(store)
+        ref = st.find(target)
+        if verify:
+            st.verify(ref)
+        if json_:
+            emit_json({"path": str(ref.path), "verified": verify, "manifest": ref.manifest})
+            return
+        from rich.console import Console
+
+        console = Console()
+        console.rule(f"{ref.stage} {ref.key}")
+        console.print(f"path: {ref.path}")
+        if verify:
+            console.print("[green]verified[/]: every file matches its sha256")
+        console.print_json(json.dumps(ref.manifest, default=str))
+        for name in ref.manifest.get("files", {}):
+            console.rule(name)
+            console.print(_preview(ref.file(name)), markup=False, highlight=False)

@@ -1,0 +1,56 @@
+"""`sonarmap status`: which stages are cached, which would run, and why."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
+
+__all__ = ["register"]
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("status")
+    def status(
+        dataset: Path = typer.Argument(..., help="Recording to plan for."),
+        config: Path | None = CONFIG_OPT,
+        set_: list[str] | None = SET_OPT,
+        until: str | None = typer.Option(None, "--until", help="Plan up to this stage."),
+        store: Path = STORE_OPT,
+        json_: bool = JSON_OPT,
+    ) -> None:
+        """Show, without computing anything, which stages hit the cache and why others miss."""
+        from pipeline.api import plan_dataset
+
+        ctx, planned, _ = plan_dataset(
+            dataset,
+            config_path=config,
+            overrides=set_ or (),
+            store_dir=store,
+            until=until,
+            with_external=False,
+        )
+        rows = [
+            {
+                "stage": p.stage.name,
+                "key": p.key,
+                "status": "hit" if p.hit else "miss",
+                "reason": p.reason,
+            }
+            for p in planned
+        ]
+        if json_:
+            emit_json({"dataset": str(dataset), "store": str(store), "stages": rows})
+            return
+        from rich.console import Console
+        from rich.table import Table
+
+        table = Table(title=f"{dataset} ({ctx.dataset.fingerprint[:12]})")
+        for col in ("stage", "status", "key", "reason"):
+            table.add_column(col)
+        for r in rows:
+            colour = "green" if r["status"] == "hit" else "yellow"
+            table.add_row(r["stage"], f"[{colour}]{r['status']}[/]", r["key"][:12], r["reason"])
+        Console().print(table)

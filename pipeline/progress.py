@@ -1,0 +1,58 @@
+"""Rich progress on stderr for stage runs: one line per stage, spinner while computing."""
+
+from __future__ import annotations
+
+from types import TracebackType
+from typing import Any
+
+from pipeline.runner import PlannedStage, StageResult
+
+__all__ = ["StageProgress"]
+
+
+class StageProgress:
+    """Context manager giving `on_start`/`on_stage` callbacks for `execute`."""
+
+    def __init__(self, enabled: bool = True) -> None:
+        from rich.console import Console
+        from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+        self._progress = Progress(
+            SpinnerColumn(),
+            TextColumn("{task.description}"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            disable=not enabled,
+            transient=False,
+        )
+        self._tasks: dict[str, Any] = {}
+
+    def on_start(self, item: PlannedStage) -> None:
+        verb = "cached" if item.hit else f"computing ({item.reason})"
+        self._tasks[item.stage.name] = self._progress.add_task(
+            f"{item.stage.name:<10} {verb}", total=1
+        )
+
+    def on_stage(self, result: StageResult) -> None:
+        task = self._tasks.get(result.stage)
+        if task is None:
+            return
+        mark = "[green]✓[/]" if result.status == "computed" else "[blue]=[/]"
+        self._progress.update(
+            task,
+            completed=1,
+            description=f"{mark} {result.stage:<10} {result.status:<8} {result.seconds:7.2f} s  "
+            f"{result.key[:12]}",
+        )
+
+    def __enter__(self) -> StageProgress:
+        self._progress.__enter__()
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._progress.__exit__(exc_type, exc, tb)
