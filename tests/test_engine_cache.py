@@ -143,7 +143,7 @@ def test_unknown_override_names_closest_key(tmp_path: Path) -> None:
     data, store = _dataset(tmp_path), tmp_path / "store"
     with pytest.raises(ConfigError, match=r"unknown key 'double\.factr'.*'double\.factor'"):
         run_toy(data, store, ("double.factr=3",))
-    with pytest.raises(ConfigError, match="double.factor"):
+    with pytest.raises(ConfigError, match=r"double\.factor"):
         run_toy(data, store, ("double.factor=abc",))
 
 

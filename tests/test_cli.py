@@ -1,0 +1,133 @@
+"""CLI contract: exit codes, one JSON document with --json, --help everywhere."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import toy_stages
+from typer.testing import CliRunner
+
+import pipeline.registry
+import pipeline.session
+from pipeline.cli import app
+
+runner = CliRunner()
+
+
+@pytest.fixture
+def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
+    """Point the CLI's registry at the toy stages and the dataset opener at raw bytes."""
+    monkeypatch.setattr(pipeline.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.session, "_default_parts", lambda p: [p])
+    monkeypatch.setattr(
+        pipeline.session, "_default_open", lambda p: lambda _section: p.read_bytes()
+    )
+    data = tmp_path / "raw.bin"
+    data.write_bytes(bytes(range(256)) * 4)
+    return data
+
+
+def test_run_json_then_status_reports_hits(toy_cli: Path, tmp_path: Path) -> None:
+    store = str(tmp_path / "store")
+    first = runner.invoke(app, ["run", str(toy_cli), "--store", store, "--json", "-q"])
+    assert first.exit_code == 0, first.output
+    doc = json.loads(first.stdout)
+    assert [s["status"] for s in doc["stages"]] == ["computed"] * 4
+    assert all(Path(s["path"]).is_dir() for s in doc["stages"])
+    assert set(doc) >= {"dataset", "store", "stages", "summary"}
+    status = runner.invoke(
+        app, ["status", str(toy_cli), "--store", store, "--json", "--set", "count.bins=9"]
+    )
+    assert status.exit_code == 0, status.output
+    rows = {r["stage"]: r for r in json.loads(status.stdout)["stages"]}
+    assert rows["source"]["status"] == "hit"
+    assert rows["count"]["status"] == "miss"
+    assert rows["count"]["reason"] == "config changed: count.bins 4 -> 9"
+
+
+def test_show_ls_gc_json(toy_cli: Path, tmp_path: Path) -> None:
+    store = str(tmp_path / "store")
+    assert runner.invoke(app, ["run", str(toy_cli), "--store", store, "-q"]).exit_code == 0
+    shown = runner.invoke(app, ["show", "double", "--store", store, "--verify", "--json"])
+    assert shown.exit_code == 0, shown.output
+    assert json.loads(shown.stdout)["manifest"]["stage"] == "double"
+    listed = json.loads(runner.invoke(app, ["ls", "--store", store, "--json"]).stdout)
+    assert len(listed["artifacts"]) == 4
+    collected = json.loads(runner.invoke(app, ["gc", "--store", store, "--json"]).stdout)
+    assert collected["removed"] == [] and collected["kept"] == 4
+
+
+def test_bad_input_exit_2_one_line(toy_cli: Path, tmp_path: Path) -> None:
+    store = str(tmp_path / "store")
+    missing = runner.invoke(app, ["run", str(tmp_path / "nope.mcap"), "--store", store])
+    assert missing.exit_code == 2
+    assert missing.stderr.strip().count("\n") == 0 and "nope.mcap" in missing.stderr
+    bad_key = runner.invoke(app, ["run", str(toy_cli), "--store", store, "--set", "double.fctor=1"])
+    assert bad_key.exit_code == 2 and "double.factor" in bad_key.stderr
+    assert "Traceback" not in bad_key.output
+    unknown = runner.invoke(app, ["show", "nothing", "--store", store])
+    assert unknown.exit_code == 2
+
+
+def test_stage_failure_exit_1_names_stage(toy_cli: Path, tmp_path: Path) -> None:
+    store = str(tmp_path / "store")
+    res = runner.invoke(app, ["run", str(toy_cli), "--store", store, "--set", "summary.fail=true"])
+    assert res.exit_code == 1
+    assert "stage summary failed" in res.stderr
+
+
+def test_config_dump_and_check(toy_cli: Path, tmp_path: Path) -> None:
+    dumped = runner.invoke(app, ["config", "dump", "--json"])
+    assert dumped.exit_code == 0
+    assert json.loads(dumped.stdout)["double"]["factor"] == 2
+    good = tmp_path / "good.yaml"
+    good.write_text("double:\n  factor: 5\n")
+    assert runner.invoke(app, ["config", "check", str(good)]).exit_code == 0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("doubel:\n  factor: 5\n")
+    res = runner.invoke(app, ["config", "check", str(bad)])
+    assert res.exit_code == 2 and "'double'" in res.stderr
+
+
+def _commands() -> list[list[str]]:
+    import typer.main
+
+    group = typer.main.get_command(app)
+    names: list[list[str]] = [[]]
+    for name, cmd in group.commands.items():  # type: ignore[attr-defined]
+        names.append([name])
+        for sub in getattr(cmd, "commands", {}):
+            names.append([name, sub])
+    return names
+
+
+@pytest.mark.parametrize("cmd", _commands(), ids=lambda c: " ".join(c) or "root")
+def test_every_command_has_help(cmd: list[str]) -> None:
+    res = runner.invoke(app, [*cmd, "--help"])
+    assert res.exit_code == 0, res.output
+    assert "Usage" in res.output
+
+
+def test_version_and_fast_help_subprocess() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "pipeline", "--version"], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.startswith("sonarmap ")
+    # --help must not import the heavy libraries.
+    probe = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from pipeline.cli import app; "
+            "print(sorted(m for m in ('torch','open3d','gtsam','pyarrow','mcap') if m in sys.modules))",
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert probe.stdout.strip() == "[]"
