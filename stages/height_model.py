@@ -1,0 +1,227 @@
+"""Object-class height model P(z | range, bearing) (paper Sec. IV.D-E, Eq. 7-9).
+
+One `HeightModel` per object class holds, for every cell of a sparse 2D grid over
+the class's reference frame (`stages.object_frame`), a discrete posterior over the
+height z of the return, stored as log probabilities on a fixed z grid.
+
+- Cells: the reference frame is metric and aligned with the reference line of sight,
+  so its first axis u is the range offset from the reference origin and its second
+  axis v the arc length of the bearing offset (positive left, like the bearing).
+  Cell (i, j) = (floor(u / range_cell_m), floor(v / cross_range_cell_m)); both
+  indices may be negative, and only cells that received a measurement are stored
+  (sorted int64 keys + rows of a growing array), so memory is bounded by the cells
+  actually seen, not by a bounding box.
+- Update (Eq. 7, Bayes' rule): the likelihood of a fused height z_k is a Gaussian
+  N(z; z_k, sigma^2); all measurements of one call (one keyframe) that fall into the
+  same cell are combined as a max-mixture L(z) = max_k N(z; z_k, sigma^2), so a cell
+  seeing both the top and the bottom of an object keeps both modes. The prior is the
+  cell's current posterior (uniform for a new cell). Log space throughout.
+- Query (Eq. 8-9): MAP height separately over z <= 0 and z > 0. The confidence of
+  each MAP value is its posterior probability P(|z - z_MAP| <= window), and only
+  values above a threshold are returned (the original code declared but never used
+  its threshold). A half's maximum that is not a local maximum of the whole
+  posterior (it sits on the flank of a mode in the other half, e.g. at z = +step
+  for a mode at z = 0) is not returned: it would duplicate that mode.
+
+z is the Cartesian height in the horizontal sonar frame (z up), not the elevation
+angle, as the paper says ("we estimate Cartesian z").
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import logsumexp
+
+__all__ = ["HeightModel", "HeightQuery", "z_grid"]
+
+logger = logging.getLogger(__name__)
+
+_OFFSET = 1 << 30
+_STRIDE = 1 << 31
+
+
+def z_grid(z_min_m: float, z_max_m: float, z_step_m: float) -> np.ndarray:
+    """Fixed height grid (n_z,) [m], from z_min_m to z_max_m inclusive, spacing z_step_m.
+
+    The bin values and the bin -> metre conversion are the same array (the original
+    code used two inconsistent conversions).
+    """
+    if not z_max_m > z_min_m or z_step_m <= 0:
+        raise ValueError(f"bad z grid: [{z_min_m}, {z_max_m}] step {z_step_m}")
+    n = round((z_max_m - z_min_m) / z_step_m) + 1
+    return np.linspace(z_min_m, z_max_m, n)
+
+
+@dataclass(frozen=True)
+class HeightQuery:
+    """MAP heights of Eq. 8 (z <= 0) and Eq. 9 (z > 0) for n query positions.
+
+    Attributes:
+        z_low_m, z_high_m: (n,) MAP height in each half [m]; NaN where the cell was
+            never updated or the value's confidence is below the threshold.
+        conf_low, conf_high: (n,) posterior probability of each value (NaN like z).
+    """
+
+    z_low_m: np.ndarray
+    conf_low: np.ndarray
+    z_high_m: np.ndarray
+    conf_high: np.ndarray
+
+
+class HeightModel:
+    """Sparse per-class grid of log posteriors over height (paper Eq. 7-9).
+
+    Args:
+        z_m: (n_z,) ascending height grid [m] (see `z_grid`).
+        sigma_m: standard deviation of the Gaussian height likelihood [m].
+        range_cell_m: cell size along the reference range axis u [m].
+        cross_range_cell_m: cell size along the reference cross-range axis v [m].
+        window_m: half-width of the interval whose posterior mass is a MAP value's
+            confidence [m].
+    """
+
+    def __init__(
+        self,
+        z_m: np.ndarray,
+        sigma_m: float = 0.08,
+        range_cell_m: float = 0.05,
+        cross_range_cell_m: float = 0.1,
+        window_m: float = 0.08,
+    ) -> None:
+        if sigma_m <= 0 or range_cell_m <= 0 or cross_range_cell_m <= 0 or window_m < 0:
+            raise ValueError("sigma_m, cell sizes must be > 0 and window_m >= 0")
+        self.z_m = np.asarray(z_m, dtype=np.float64)
+        self.sigma_m = float(sigma_m)
+        self.cell_m = np.array([range_cell_m, cross_range_cell_m], dtype=np.float64)
+        self.window_m = float(window_m)
+        self._keys = np.empty(0, dtype=np.int64)
+        self._sorted_keys = np.empty(0, dtype=np.int64)
+        self._order = np.empty(0, dtype=np.int64)
+        self._log_post = np.empty((16, self.z_m.size), dtype=np.float64)
+        self.n_updates = 0
+
+    @property
+    def n_cells(self) -> int:
+        """Number of cells that received at least one measurement."""
+        return int(self._keys.size)
+
+    @property
+    def updated(self) -> bool:
+        """True once Eq. 7 has been applied at least once."""
+        return self.n_updates > 0
+
+    def cell_keys(self, uv_m: np.ndarray) -> np.ndarray:
+        """Packed int64 cell keys of (n, 2) reference-frame points (u, v) [m]."""
+        ij = np.floor(np.asarray(uv_m, dtype=np.float64).reshape(-1, 2) / self.cell_m)
+        if ij.size and np.abs(ij).max() >= _OFFSET:
+            raise ValueError("reference-frame coordinates out of the cell index range")
+        ij = ij.astype(np.int64) + _OFFSET
+        return ij[:, 0] * _STRIDE + ij[:, 1]
+
+    def log_posterior(self, uv_m: np.ndarray) -> np.ndarray:
+        """(n, n_z) log posteriors at (n, 2) points; rows of unseen cells are NaN."""
+        rows = self._find(self.cell_keys(uv_m))
+        out = np.full((rows.size, self.z_m.size), np.nan)
+        seen = rows >= 0
+        out[seen] = self._log_post[rows[seen]]
+        return out
+
+    def update(self, uv_m: np.ndarray, z_m: np.ndarray) -> int:
+        """Apply Eq. 7 with one keyframe's fused heights of this class.
+
+        Args:
+            uv_m: (n, 2) reference-frame positions (u, v) of the fused points [m].
+            z_m: (n,) measured heights in the horizontal sonar frame [m].
+
+        Returns:
+            Number of cells updated. Heights outside the z grid are ignored.
+        """
+        uv = np.asarray(uv_m, dtype=np.float64).reshape(-1, 2)
+        z = np.asarray(z_m, dtype=np.float64).reshape(-1)
+        inside = np.isfinite(z) & (z >= self.z_m[0]) & (z <= self.z_m[-1])
+        if not inside.all():
+            logger.debug("ignoring %d heights outside the z grid", int((~inside).sum()))
+        uv, z = uv[inside], z[inside]
+        if z.size == 0:
+            return 0
+        # Max-mixture of the measurements that share a cell (one keyframe).
+        keys, inverse = np.unique(self.cell_keys(uv), return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        log_lik = -0.5 * ((self.z_m[None, :] - z[order, None]) / self.sigma_m) ** 2
+        starts = np.flatnonzero(np.r_[True, np.diff(inverse[order]) != 0])
+        cell_log_lik = np.maximum.reduceat(log_lik, starts, axis=0)
+        # Bayes' rule: posterior = likelihood x prior, normalised (log space).
+        rows = self._find_or_insert(keys)
+        post = self._log_post[rows] + cell_log_lik
+        self._log_post[rows] = post - logsumexp(post, axis=1, keepdims=True)
+        self.n_updates += 1
+        return int(keys.size)
+
+    def query(self, uv_m: np.ndarray, threshold: float) -> HeightQuery:
+        """MAP heights over z <= 0 (Eq. 8) and z > 0 (Eq. 9) at (n, 2) positions.
+
+        Args:
+            uv_m: (n, 2) reference-frame positions [m].
+            threshold: minimum confidence (posterior probability) of a returned value.
+        """
+        log_post = self.log_posterior(uv_m)
+        prob = np.exp(log_post)
+        low = self.z_m <= 0.0
+        z_low, conf_low = self._half_map(prob, low, threshold)
+        z_high, conf_high = self._half_map(prob, ~low, threshold)
+        return HeightQuery(z_low, conf_low, z_high, conf_high)
+
+    def _half_map(
+        self, prob: np.ndarray, half: np.ndarray, threshold: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """MAP height within one half of the z grid and its windowed posterior mass."""
+        n = prob.shape[0]
+        if n == 0 or not half.any():
+            return np.full(n, np.nan), np.full(n, np.nan)
+        idx = np.flatnonzero(half)
+        p = np.where(np.isnan(prob), -1.0, prob)
+        best = idx[np.argmax(p[:, idx], axis=1)]
+        z_map = self.z_m[best]
+        # A half's maximum on the flank of a mode of the other half is not a mode.
+        padded = np.pad(p, ((0, 0), (1, 1)), constant_values=-1.0)
+        rows = np.arange(n)
+        is_mode = (p[rows, best] >= padded[rows, best]) & (p[rows, best] >= padded[rows, best + 2])
+        near = np.abs(self.z_m[None, :] - z_map[:, None]) <= self.window_m + 1e-9
+        conf = np.where(near, prob, 0.0).sum(axis=1)
+        conf[np.isnan(prob[:, 0])] = np.nan
+        keep = (conf > threshold) & is_mode
+        return np.where(keep, z_map, np.nan), np.where(keep, conf, np.nan)
+
+    def _find(self, keys: np.ndarray) -> np.ndarray:
+        """Row of each key in the posterior array, -1 for keys never seen."""
+        if self._sorted_keys.size == 0:
+            return np.full(keys.size, -1, dtype=np.int64)
+        pos = np.searchsorted(self._sorted_keys, keys)
+        pos_c = np.minimum(pos, self._sorted_keys.size - 1)
+        hit = self._sorted_keys[pos_c] == keys
+        return np.where(hit, self._order[pos_c], -1)
+
+    def _find_or_insert(self, keys: np.ndarray) -> np.ndarray:
+        """Rows of unique keys, adding uniform-prior rows for new ones."""
+        rows = self._find(keys)
+        new = rows < 0
+        if new.any():
+            n_old, n_new = self._keys.size, int(new.sum())
+            self._reserve(n_old + n_new)
+            self._log_post[n_old : n_old + n_new] = -np.log(self.z_m.size)
+            self._keys = np.concatenate([self._keys, keys[new]])
+            self._order = np.argsort(self._keys, kind="stable")
+            self._sorted_keys = self._keys[self._order]
+            rows[new] = np.arange(n_old, n_old + n_new)
+        return rows
+
+    def _reserve(self, n_rows: int) -> None:
+        """Grow the posterior array geometrically to hold n_rows cells."""
+        if n_rows <= self._log_post.shape[0]:
+            return
+        grown = np.empty((max(n_rows, 2 * self._log_post.shape[0]), self.z_m.size))
+        grown[: self._keys.size] = self._log_post[: self._keys.size]
+        self._log_post = grown
