@@ -1,0 +1,44 @@
+"""Run every benchmark script (`bench_*.py`) and print one table of their JSON figures.
+
+Each benchmark prints one JSON object on its last stdout line. Results are also
+written to `data/bench/results.json` so closing notes can cite them.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main() -> int:
+    only = sys.argv[1:]
+    results = {}
+    for script in sorted(HERE.glob("bench_*.py")):
+        name = script.stem.removeprefix("bench_")
+        if only and name not in only:
+            continue
+        t0 = time.perf_counter()
+        proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if proc.returncode != 0:
+            results[name] = {
+                "error": proc.stderr.strip().splitlines()[-1:] or ["failed"],
+                "wall_s": wall,
+            }
+        else:
+            lines = [ln for ln in proc.stdout.strip().splitlines() if ln.startswith("{")]
+            results[name] = {**json.loads(lines[-1]), "wall_s": round(wall, 1)} if lines else {}
+        print(f"{name:>16}: {json.dumps(results[name])}", flush=True)
+    out = Path("data/bench")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(results, indent=2, sort_keys=True))
+    return 1 if any("error" in r for r in results.values()) else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
