@@ -60,7 +60,7 @@ class SonarConfig(_Model):
     aperture_edge_gain: float = Field(
         0.5, gt=0.0, le=1.0, description="beam pattern at +-aperture/2"
     )
-    saturation_intensity: float = Field(0.3, gt=0.0, description="intensity mapped to 255")
+    saturation_intensity: float = Field(0.05, gt=0.0, description="intensity mapped to 255")
     display_gamma: float = Field(
         0.5, gt=0.0, le=1.0, description="8-bit level = 255 (I/I_sat)^gamma"
     )

@@ -27,6 +27,9 @@ from sim.world import World
 
 __all__ = ["SonarModel"]
 
+_NOISE_TABLE_SIZE = 65536
+"""Rayleigh noise is drawn by inverse CDF from this many quantiles (uint16 indices)."""
+
 
 class SonarModel:
     """Renders `SonarPing`s of one sonar (config + which sonar it is)."""
@@ -48,6 +51,9 @@ class SonarModel:
         self._refl = refl
         half = self.aperture_rad / 2
         self._bp_k = -np.log(cfg.aperture_edge_gain) / half**2
+        p = (np.arange(_NOISE_TABLE_SIZE) + 0.5) / _NOISE_TABLE_SIZE
+        sigma = cfg.noise_mean_level * np.sqrt(2.0 / np.pi)
+        self._noise_table = (sigma * np.sqrt(-2.0 * np.log1p(-p))).astype(np.float32)
 
     def ray_directions(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Jittered ray fan in the sensor frame.
@@ -115,20 +121,27 @@ class SonarModel:
         ps = pix[order]
         last = np.flatnonzero(np.r_[ps[1:] != ps[:-1], True]) if len(ps) else np.zeros(0, np.int64)
         top_pix, top_ray = ps[last], rep[order[last]]
-        clean = 255.0 * (intensity / cfg.saturation_intensity) ** cfg.display_gamma
-        visible = clean[top_pix] >= cfg.label_min_level
+        gain = 255.0 / cfg.saturation_intensity**cfg.display_gamma
+        visible = gain * intensity[top_pix] ** cfg.display_gamma >= cfg.label_min_level
         labels = np.zeros(size, dtype=np.uint8)
         truth_img = np.full(size, np.nan, dtype=np.float32)
         labels[top_pix[visible]] = cls[top_ray[visible]]
         truth_img[top_pix[visible]] = truth[top_ray[visible]]
         # Speckle (multiplicative Rayleigh, unit mean) and additive Rayleigh noise.
-        level = clean
+        nz = np.flatnonzero(intensity)
+        level_nz = gain * intensity[nz] ** cfg.display_gamma
         if cfg.speckle:
-            nz = np.flatnonzero(intensity)
-            level[nz] *= rng.rayleigh(np.sqrt(2.0 / np.pi), len(nz))
+            level_nz *= rng.rayleigh(np.sqrt(2.0 / np.pi), len(nz))
         if cfg.noise_mean_level > 0:
-            level += rng.rayleigh(cfg.noise_mean_level * np.sqrt(2.0 / np.pi), size)
-        image = np.clip(np.rint(level), 0, 255).astype(np.uint8)
+            level = self._noise_table[
+                rng.integers(0, len(self._noise_table), size, dtype=np.uint16)
+            ]
+        else:
+            level = np.zeros(size, dtype=np.float32)
+        level[nz] += level_nz
+        level += 0.5
+        np.minimum(level, 255.0, out=level)
+        image = level.astype(np.uint8)
         shape = (self.n_ranges, self.n_beams)
         return SonarPing(
             t_ns=int(t_ns),

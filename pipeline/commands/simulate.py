@@ -1,0 +1,81 @@
+"""`sonarmap simulate`: simulate an orthogonal sonar pair in a scene and write a ROS 2 MCAP."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+__all__ = ["DEFAULT_SCENE", "register"]
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "configs" / "scenes" / "marina.yaml"
+
+
+def simulate_cmd(
+    output: Path = typer.Option(..., "--output", "-o", help="Output .mcap path."),
+    scene: Path = typer.Option(DEFAULT_SCENE, "--scene", help="Scene YAML (configs/scenes/)."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed (same seed, same bytes)."),
+    goals: int | None = typer.Option(None, "--goals", min=1, help="Number of mission goals."),
+    duration_s: float | None = typer.Option(
+        None, "--duration-s", min=0.001, help="Cut the mission after this many seconds."
+    ),
+    preview: Path | None = typer.Option(
+        None, "--preview", help="Also write a PNG of one horizontal and one vertical ping."
+    ),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Simulate a mission (scene, seed) and write it as a ROS 2 MCAP dataset with ground truth."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from pipeline.commands._common import stderr_console
+    from pipeline.errors import ConfigError, SourceError
+    from pipeline.simulate import render_preview, write_simulation
+    from sim.config import SimConfig
+    from sim.dataset import simulate
+    from sim.scene import SceneError, load_scene
+
+    try:
+        scene_obj = load_scene(scene)
+    except SceneError as err:
+        raise ConfigError(str(err)) from err
+    if not output.parent.is_dir():
+        raise SourceError(f"output directory {output.parent} does not exist")
+    base = SimConfig()
+    mission = base.mission.model_copy(
+        update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
+    )
+    config = base.model_copy(update={"mission": mission})
+    try:
+        run = simulate(scene_obj, config, seed)
+    except ValueError as err:
+        raise ConfigError(f"scene {scene}: {err}") from err
+    console = stderr_console()
+    with Progress(
+        TextColumn("simulate"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} frames"),
+        TimeRemainingColumn(),
+        console=console,
+        disable=quiet,
+        transient=False,
+    ) as bar:
+        task = bar.add_task("frames", total=run.n_frames)
+        info = write_simulation(
+            run,
+            output,
+            scene_yaml=scene.read_text(),
+            progress=lambda done, _n: bar.update(task, completed=done),
+        )
+    if preview is not None:
+        if not preview.parent.is_dir():
+            raise SourceError(f"preview directory {preview.parent} does not exist")
+        preview.write_bytes(render_preview(run))
+    console.print(
+        f"wrote {info['path']}: {info['n_frames']} frames, {info['bytes'] / 1e6:.1f} MB, "
+        f"{info['frames_per_s']:.1f} frames/s"
+    )
+
+
+def register(app: typer.Typer) -> None:
+    """Add the `simulate` command."""
+    app.command("simulate")(simulate_cmd)

@@ -1,0 +1,376 @@
+"""Write a simulated mission (`sim.dataset.SimRun`) as a ROS 2 MCAP dataset.
+
+Topics (schemas/topics.py): ProjectedSonarImage per sonar, mono8 label images, 32FC1
+truth-angle images, dead-reckoning and ground-truth Odometry, /tf_static with both
+sonar mountings. Attachments: `scene.ply` (ground-truth mesh with per-vertex object and
+class ids) and `scene.yaml`. Metadata record "sonarmap": simulator version, seed, scene
+name and the full simulator config as JSON strings. Log times are the ping times, so the
+same (scene, config, seed) gives the same bytes. The file is written to a temporary
+name next to `path` and renamed into place.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import SourceError
+from pipeline.rosmsg import Ros2McapWriter, ros2_typestore
+from schemas.sonar import SonarPing, beam_directions_from_angles
+from schemas.topics import (
+    FRAME_BASE,
+    FRAME_ODOM,
+    FRAME_SONAR,
+    IMAGE_TYPE,
+    LABEL_TOPIC,
+    ODOMETRY_TYPE,
+    PROJECTED_SONAR_TYPE,
+    SONAR_TOPIC,
+    SONARS,
+    TOPIC_DEAD_RECKONING,
+    TOPIC_GROUND_TRUTH,
+    TOPIC_TF_STATIC,
+    TRUTH_ANGLE_TOPIC,
+)
+from sim.dataset import SIM_VERSION, SimRun
+from sim.geometry import rot_rpy
+
+__all__ = ["TF_TYPE", "quaternion_from_matrix", "write_simulation"]
+
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+def quaternion_from_matrix(r: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> unit quaternion (x, y, z, w) with w >= 0."""
+    m = np.asarray(r, dtype=np.float64)
+    tr = np.trace(m)
+    if tr > 0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
+        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
+        q[i] = s / 4
+        q[j] = (m[j, i] + m[i, j]) / s
+        q[k] = (m[k, i] + m[i, k]) / s
+    qa = np.asarray(q)
+    qa /= np.linalg.norm(qa)
+    return -qa if qa[3] < 0 else qa
+
+
+class _Messages:
+    """Builds rosbags message objects; per-sonar constant parts are built once."""
+
+    def __init__(self, run: SimRun) -> None:
+        self.t = ros2_typestore().types
+        self._static: dict[str, tuple[Any, list[Any], np.ndarray]] = {}
+        for s in SONARS:
+            cfg = run.config.sonar(s)
+            dirs = beam_directions_from_angles(cfg.angles_rad())
+            vec = [self.t["geometry_msgs/msg/Vector3"](x=d[0], y=d[1], z=d[2]) for d in dirs]
+            bw = np.full(cfg.n_beams, np.deg2rad(cfg.fan_width_deg) / cfg.n_beams, np.float32)
+            info = self.t["marine_acoustic_msgs/msg/PingInfo"](
+                frequency=float(cfg.frequency_hz),
+                sound_speed=float(cfg.sound_speed_m_s),
+                tx_beamwidths=np.full(cfg.n_beams, np.deg2rad(cfg.aperture_deg), np.float32),
+                rx_beamwidths=bw,
+            )
+            self._static[s] = (info, vec, cfg.ranges_m().astype(np.float32))
+
+    def header(self, t_ns: int, frame: str) -> Any:
+        stamp = self.t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+        return self.t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+    def sonar(self, ping: SonarPing) -> Any:
+        info, vec, ranges = self._static[ping.sonar]
+        img = self.t["marine_acoustic_msgs/msg/SonarImageData"](
+            is_bigendian=False,
+            dtype=0,
+            beam_count=ping.image.shape[1],
+            data=np.ascontiguousarray(ping.image, dtype=np.uint8).reshape(-1),
+        )
+        return self.t[PROJECTED_SONAR_TYPE](
+            header=self.header(ping.t_ns, FRAME_SONAR[ping.sonar]),
+            ping_info=info,
+            beam_directions=vec,
+            ranges=ranges,
+            image=img,
+        )
+
+    def image(self, t_ns: int, frame: str, arr: np.ndarray, encoding: str) -> Any:
+        a = np.ascontiguousarray(arr)
+        return self.t[IMAGE_TYPE](
+            header=self.header(t_ns, frame),
+            height=a.shape[0],
+            width=a.shape[1],
+            encoding=encoding,
+            is_bigendian=0,
+            step=a.shape[1] * a.itemsize,
+            data=a.view(np.uint8).reshape(-1),
+        )
+
+    def odometry(self, t_ns: int, pose: np.ndarray, vel_b: np.ndarray, sigma: float) -> Any:
+        t = self.t
+        q = quaternion_from_matrix(rot_rpy(*pose[3:6]))
+        p = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=pose[0], y=pose[1], z=pose[2]),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+        )
+        cov = np.diag(np.full(6, sigma**2)).reshape(-1)
+        zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+        tw = t["geometry_msgs/msg/Twist"](
+            linear=t["geometry_msgs/msg/Vector3"](x=vel_b[0], y=vel_b[1], z=0.0), angular=zero
+        )
+        return t[ODOMETRY_TYPE](
+            header=self.header(t_ns, FRAME_ODOM),
+            child_frame_id=FRAME_BASE,
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=cov),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=tw, covariance=cov.copy()),
+        )
+
+    def tf_static(self, t_ns: int, mounts: dict[str, np.ndarray]) -> Any:
+        t = self.t
+        tfs = []
+        for s in SONARS:
+            m = mounts[s]
+            q = quaternion_from_matrix(m[:3, :3])
+            tr = t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=m[0, 3], y=m[1, 3], z=m[2, 3]),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            )
+            tfs.append(
+                t["geometry_msgs/msg/TransformStamped"](
+                    header=self.header(t_ns, FRAME_BASE),
+                    child_frame_id=FRAME_SONAR[s],
+                    transform=tr,
+                )
+            )
+        return t[TF_TYPE](transforms=tfs)
+
+
+def _body_velocity(t_ns: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """(n, 2) body-frame planar velocity [m/s] by forward differences (last repeats)."""
+    n = len(t_ns)
+    v = np.zeros((n, 2))
+    if n > 1:
+        dt = np.diff(t_ns).astype(np.float64) / 1e9
+        v[:-1] = np.diff(pose[:, :2], axis=0) / dt[:, None]
+        v[-1] = v[-2]
+    c, s = np.cos(pose[:, 5]), np.sin(pose[:, 5])
+    return np.stack([c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1]], axis=1)
+
+
+def simulation_metadata(run: SimRun) -> dict[str, str]:
+    """The "sonarmap" metadata record: string -> string."""
+    return {
+        "generator": "sonarmap.sim",
+        "simulator_version": SIM_VERSION,
+        "seed": str(run.seed),
+        "scene": run.world.scene.name,
+        "n_frames": str(run.n_frames),
+        "config": run.config.model_dump_json(),
+        "sonars": json.dumps({s: run.config.sonar(s).model_dump(mode="json") for s in SONARS}),
+        "navigation_noise": run.config.navigation.model_dump_json(),
+        "mission": run.config.mission.model_dump_json(),
+        "has_ground_truth": "true",
+        "has_labels": "true",
+    }
+
+
+def write_simulation(
+    run: SimRun,
+    path: Path,
+    *,
+    scene_yaml: str,
+    progress: Callable[[int, int], None] | None = None,
+) -> dict[str, Any]:
+    """Render every frame of `run` and write the MCAP atomically.
+
+    Args:
+        run: the simulated mission.
+        path: output .mcap path (parent must exist).
+        scene_yaml: text of the scene file, stored as the `scene.yaml` attachment.
+        progress: optional callback (frames_done, n_frames).
+
+    Returns:
+        {"path", "n_frames", "bytes", "seconds", "frames_per_s", "messages"}.
+
+    Raises:
+        SourceError: the output directory does not exist or is not writable.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise SourceError(f"output directory {path.parent} does not exist")
+    t0 = time.perf_counter()
+    build = _Messages(run)
+    traj = run.trajectory
+    t_ns_all = traj["t_ns"]
+    v_gt = _body_velocity(t_ns_all, traj["gt_pose"])
+    v_dr = _body_velocity(t_ns_all, traj["dr_pose"])
+    sigma_dr = max(run.config.navigation.dvl_noise_m_s, 1e-3)
+    t_first = int(t_ns_all[0])
+    n_msgs = 0
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:
+        raise SourceError(f"cannot write to {path.parent}: {err}") from err
+    try:
+        with os.fdopen(fd, "wb") as f, Ros2McapWriter(f) as w:
+            w.write(TOPIC_TF_STATIC, TF_TYPE, build.tf_static(t_first, run.T_base_sonar), t_first)
+            n_msgs += 1
+            for frame in run.frames():
+                t = frame.t_ns
+                for ping in (frame.horizontal, frame.vertical):
+                    s = ping.sonar
+                    w.write(SONAR_TOPIC[s], PROJECTED_SONAR_TYPE, build.sonar(ping), t)
+                    assert ping.labels is not None and ping.truth_angle_rad is not None
+                    w.write(
+                        LABEL_TOPIC[s],
+                        IMAGE_TYPE,
+                        build.image(t, FRAME_SONAR[s], ping.labels, "mono8"),
+                        t,
+                    )
+                    truth = ping.truth_angle_rad.astype(np.float32)
+                    w.write(
+                        TRUTH_ANGLE_TOPIC[s],
+                        IMAGE_TYPE,
+                        build.image(t, FRAME_SONAR[s], truth, "32FC1"),
+                        t,
+                    )
+                i = frame.index
+                w.write(
+                    TOPIC_DEAD_RECKONING,
+                    ODOMETRY_TYPE,
+                    build.odometry(t, frame.dr_pose, v_dr[i], sigma_dr),
+                    t,
+                )
+                w.write(
+                    TOPIC_GROUND_TRUTH,
+                    ODOMETRY_TYPE,
+                    build.odometry(t, frame.gt_pose, v_gt[i], 0.0),
+                    t,
+                )
+                n_msgs += 8
+                if progress is not None:
+                    progress(i + 1, run.n_frames)
+            w.add_attachment("scene.ply", run.world.to_ply_bytes(), "application/x-ply", t_first)
+            w.add_attachment("scene.yaml", scene_yaml.encode(), "application/yaml", t_first)
+            w.add_metadata("sonarmap", simulation_metadata(run))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    seconds = time.perf_counter() - t0
+    return {
+        "path": str(path),
+        "n_frames": run.n_frames,
+        "bytes": path.stat().st_size,
+        "seconds": seconds,
+        "frames_per_s": run.n_frames / seconds if seconds > 0 else float("inf"),
+        "messages": n_msgs,
+    }
+
+
+def _pick_preview_frame(run: SimRun, candidates: int = 16) -> int:
+    """Frame index with the most labelled object (non-seafloor) pixels in both sonars."""
+    idx = np.unique(np.linspace(0, run.n_frames - 1, min(candidates, run.n_frames)).astype(int))
+    score = []
+    for i in idx:
+        f = run.frame(int(i))
+        h = f.horizontal.labels
+        v = f.vertical.labels
+        assert h is not None and v is not None
+        score.append(int(((h > 0) & (h < 6)).sum()) + int(((v > 0) & (v < 6)).sum()))
+    return int(idx[int(np.argmax(score))])
+
+
+def render_preview(run: SimRun, index: int | None = None) -> bytes:
+    """PNG (bytes): polar and Cartesian views of one horizontal and one vertical ping,
+    plus their label images (matplotlib Agg)."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    from schemas.classes import CLASS_NAMES
+
+    i = _pick_preview_frame(run) if index is None else index
+    frame = run.frame(i)
+    colors = ["#000000", "#e41a1c", "#ff7f00", "#4daf4a", "#377eb8", "#984ea3", "#a6a6a6"]
+    cmap_l = ListedColormap(colors)
+    fig, axes = plt.subplots(2, 3, figsize=(16, 9.5), dpi=90)
+    for row, ping in enumerate((frame.horizontal, frame.vertical)):
+        r, a = ping.ranges_m, ping.angles_rad
+        extent = (np.rad2deg(a[0]), np.rad2deg(a[-1]), r[0], r[-1])
+        ax = axes[row, 0]
+        ax.imshow(
+            ping.image,
+            origin="lower",
+            aspect="auto",
+            cmap="copper",
+            extent=extent,
+            vmin=0,
+            vmax=255,
+        )
+        ax.set_xlabel("bearing [deg] (+left)" if ping.sonar == "horizontal" else "elevation [deg]")
+        if ping.sonar == "horizontal":
+            ax.invert_xaxis()
+        ax.set_ylabel("range [m]")
+        ax.set_title(f"{ping.sonar}: polar image")
+        re = np.r_[r - (r[1] - r[0]) / 2, r[-1] + (r[1] - r[0]) / 2]
+        ae = np.r_[a[0] - (a[1] - a[0]) / 2, (a[1:] + a[:-1]) / 2, a[-1] + (a[-1] - a[-2]) / 2]
+        rr, aa = np.meshgrid(re, ae, indexing="ij")
+        if ping.sonar == "horizontal":
+            xx, yy = -rr * np.sin(aa), rr * np.cos(aa)
+            xl, yl = "right [m]", "forward [m]"
+        else:
+            xx, yy = rr * np.cos(aa), rr * np.sin(aa)
+            xl, yl = "forward [m]", "up [m]"
+        ax = axes[row, 1]
+        ax.pcolormesh(
+            xx, yy, ping.image, cmap="copper", vmin=0, vmax=255, shading="flat", rasterized=True
+        )
+        ax.set_aspect("equal")
+        ax.set_facecolor("black")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.set_title(f"{ping.sonar}: Cartesian")
+        ax = axes[row, 2]
+        ax.pcolormesh(
+            xx,
+            yy,
+            ping.labels,
+            cmap=cmap_l,
+            vmin=-0.5,
+            vmax=6.5,
+            shading="flat",
+            rasterized=True,
+        )
+        ax.set_aspect("equal")
+        ax.set_facecolor("black")
+        ax.set_xlabel(xl)
+        ax.set_title(f"{ping.sonar}: labels")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colors[1:]]
+    fig.legend(handles, CLASS_NAMES[1:], loc="lower center", ncol=6)
+    g = frame.gt_pose
+    fig.suptitle(
+        f"{run.world.scene.name} seed {run.seed} frame {i}: x={g[0]:.1f} m y={g[1]:.1f} m "
+        f"yaw={np.rad2deg(g[5]):.0f} deg"
+    )
+    fig.tight_layout(rect=(0, 0.05, 1, 0.96))
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    return buf.getvalue()
