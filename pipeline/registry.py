@@ -3,10 +3,39 @@
 from __future__ import annotations
 
 import functools
+import importlib
+import os
+from typing import Any
 
+from pipeline.errors import ConfigError
 from stages.base import Stage
 
-__all__ = ["STAGE_NAMES", "all_stages", "pipeline_stages", "stage_by_name"]
+__all__ = [
+    "GRAPH_ENV",
+    "STAGE_NAMES",
+    "all_stages",
+    "alternative_graph",
+    "pipeline_stages",
+    "stage_by_name",
+]
+
+GRAPH_ENV = "SONARMAP_GRAPH"
+"""`module:attribute` of an alternative graph object (with `.stages`, `.parts(path)` and
+`.open(path, section)`): lets tests and experiments run other stage graphs through the
+same engine, also in sweep workers (environment variables reach every process)."""
+
+
+def alternative_graph() -> Any | None:
+    """The graph named by $SONARMAP_GRAPH, or None for the real pipeline."""
+    spec = os.environ.get(GRAPH_ENV)
+    if not spec:
+        return None
+    module, _, attr = spec.partition(":")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as err:
+        raise ConfigError(f"${GRAPH_ENV}={spec}: cannot load ({err})") from err
+
 
 STAGE_NAMES: tuple[str, ...] = (
     "keyframes",
@@ -24,6 +53,9 @@ STAGE_NAMES: tuple[str, ...] = (
 @functools.cache
 def pipeline_stages() -> tuple[Stage, ...]:
     """The stages `sonarmap run` executes, in order."""
+    alt = alternative_graph()
+    if alt is not None:
+        return tuple(alt.stages)
     from stages.classify import STAGE as classify
     from stages.evaluate import STAGE as evaluate
     from stages.features import STAGE as features
@@ -47,6 +79,8 @@ def training_stage() -> Stage:
 @functools.cache
 def all_stages() -> tuple[Stage, ...]:
     """Every stage with a config section: the mapping graph plus training."""
+    if alternative_graph() is not None:
+        return pipeline_stages()
     return (*pipeline_stages(), training_stage())
 
 

@@ -22,6 +22,11 @@ DEFAULT_STORE = Path("data/store")
 
 
 def _default_parts(path: Path) -> list[Path]:
+    from pipeline.registry import alternative_graph
+
+    alt = alternative_graph()
+    if alt is not None:
+        return list(alt.parts(path))
     from pipeline.readers import dataset_fingerprint_parts
 
     return list(dataset_fingerprint_parts(path))
@@ -29,6 +34,11 @@ def _default_parts(path: Path) -> list[Path]:
 
 def _default_open(path: Path) -> Callable[[Any], Any]:
     def opener(section: Any) -> Any:
+        from pipeline.registry import alternative_graph
+
+        alt = alternative_graph()
+        if alt is not None:
+            return alt.open(path, section)
         from pipeline.readers import open_recording
 
         return open_recording(path, section)

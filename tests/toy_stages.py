@@ -92,3 +92,20 @@ COUNT = Stage(
     "count", 1, CountConfig, ("source.table",), (Output("hist", "parquet", "h.parquet"),), _count
 )
 TOY_STAGES = (SOURCE, DOUBLE, SUMMARY, COUNT)
+
+
+class ToyGraph:
+    """The toy graph as an alternative graph for $SONARMAP_GRAPH (CLI, sweep workers)."""
+
+    stages = TOY_STAGES
+
+    @staticmethod
+    def parts(path: Path) -> list[Path]:
+        return [path]
+
+    @staticmethod
+    def open(path: Path, _section: Any) -> bytes:
+        return path.read_bytes()
+
+
+GRAPH = ToyGraph()

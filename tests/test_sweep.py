@@ -1,0 +1,96 @@
+"""Sweeps: cross product, shared artifacts computed once, failures isolated, local and Ray."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+import pipeline.registry
+from pipeline.sweep import expand, run_sweep
+from pipeline.sweep_output import write_sweep
+
+TESTS = Path(__file__).resolve().parent
+
+
+@pytest.fixture
+def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[Path]:
+    monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS.parent)]))
+    monkeypatch.setenv("TOY_CALL_LOG", str(tmp_path / "calls.log"))
+    for fn in (pipeline.registry.pipeline_stages, pipeline.registry.all_stages):
+        fn.cache_clear()
+    datasets = []
+    for i in range(2):
+        d = tmp_path / f"d{i}.bin"
+        d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
+        datasets.append(d)
+    yield datasets
+    for fn in (pipeline.registry.pipeline_stages, pipeline.registry.all_stages):
+        fn.cache_clear()
+
+
+def _calls(tmp_path: Path) -> list[str]:
+    return [ln.split()[0] for ln in (tmp_path / "calls.log").read_text().splitlines() if ln]
+
+
+def test_expand_is_the_cross_product(tmp_path: Path) -> None:
+    specs = expand([tmp_path / "a", tmp_path / "b"], ["x.k=1,2", "y.j=a,b,c"])
+    assert len(specs) == 12
+    assert specs[0].override_args == ["x.k=1", "y.j=a"]
+
+
+def test_local_sweep_shares_artifacts_and_isolates_failures(
+    toy_env: list[Path], tmp_path: Path
+) -> None:
+    specs = expand(
+        toy_env, ["double.factor=2,3", "summary.fail=false,true"], store=tmp_path / "store"
+    )
+    outcomes = run_sweep(specs, executor="local", jobs=2)
+    assert [o.status for o in outcomes].count("failed") == 4
+    assert all("summary" in (o.error or "") for o in outcomes if o.status == "failed")
+    calls = _calls(tmp_path)
+    assert calls.count("source") == 2  # once per dataset, shared by its 4 runs
+    assert calls.count("double") == 4  # once per (dataset, factor)
+    doc = write_sweep(outcomes, tmp_path / "out")
+    assert len(doc["runs"]) == 8 and len(doc["groups"]) == 4
+    assert (tmp_path / "out" / "sweep.parquet").stat().st_size > 0
+    assert "double.factor=2" in (tmp_path / "out" / "table.md").read_text()
+
+
+def test_cli_sweep_json(toy_env: list[Path], tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    res = CliRunner().invoke(
+        app,
+        [
+            "sweep",
+            *map(str, toy_env),
+            "--set",
+            "count.bins=3,5",
+            "--store",
+            str(tmp_path / "s"),
+            "--out",
+            str(tmp_path / "o"),
+            "--json",
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert {r["status"] for r in doc["runs"]} == {"ok"}
+    assert all(r["summary"] is not None for r in doc["runs"])
+
+
+def test_ray_sweep_runs_on_a_real_local_ray_instance(toy_env: list[Path], tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    specs = expand(toy_env, ["double.factor=2,3"], store=tmp_path / "store")
+    outcomes = run_sweep(specs, executor="ray", jobs=2)
+    assert [o.status for o in outcomes] == ["ok"] * 4
+    calls = _calls(tmp_path)
+    assert calls.count("source") == 2 and calls.count("double") == 4
+    pids = {ln.split()[1] for ln in (tmp_path / "calls.log").read_text().splitlines()}
+    assert str(os.getpid()) not in pids  # computed in Ray worker processes
