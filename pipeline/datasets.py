@@ -1,0 +1,87 @@
+"""Simulated datasets on demand, reused when their recipe is unchanged.
+
+`demo`, `study` and classifier training all need simulated missions. Each MCAP gets a
+sidecar `<name>.recipe.json` (scene text hash, seed, mission options, simulator
+version); an existing file with the same recipe is reused instead of re-simulated.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import ConfigError
+
+__all__ = ["SCENES_DIR", "ensure_simulation", "scene_path"]
+
+SCENES_DIR = Path(__file__).resolve().parents[1] / "configs" / "scenes"
+
+
+def scene_path(name_or_path: str | Path) -> Path:
+    """A scene by file path, or by name in `configs/scenes/` ("marina", "pier.yaml")."""
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    for candidate in (SCENES_DIR / p.name, SCENES_DIR / f"{p.name}.yaml"):
+        if candidate.is_file():
+            return candidate
+    raise ConfigError(
+        f"scene '{name_or_path}' not found (scenes: {sorted(x.stem for x in SCENES_DIR.glob('*.yaml'))})"
+    )
+
+
+def _recipe(scene: Path, seed: int, goals: int | None, duration_s: float | None) -> dict[str, Any]:
+    from sim.dataset import SIM_VERSION as sim_version
+
+    return {
+        "scene_sha256": hashlib.sha256(scene.read_bytes()).hexdigest(),
+        "seed": seed,
+        "goals": goals,
+        "duration_s": duration_s,
+        "simulator": sim_version,
+    }
+
+
+def ensure_simulation(
+    scene: Path,
+    seed: int,
+    out: Path,
+    *,
+    goals: int | None = None,
+    duration_s: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Simulate `scene` with `seed` into `out` unless an identical one is already there."""
+    from pipeline.errors import SourceError
+    from pipeline.simulate import write_simulation
+    from sim.config import SimConfig
+    from sim.dataset import simulate
+    from sim.scene import SceneError, load_scene
+
+    recipe = _recipe(scene, seed, goals, duration_s)
+    sidecar = out.with_suffix(".recipe.json")
+    if out.is_file() and sidecar.is_file():
+        try:
+            if json.loads(sidecar.read_text()) == recipe:
+                return out
+        except ValueError:
+            pass
+    try:
+        scene_obj = load_scene(scene)
+    except SceneError as err:
+        raise ConfigError(str(err)) from err
+    base = SimConfig()
+    mission = base.mission.model_copy(
+        update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
+    )
+    run = simulate(scene_obj, base.model_copy(update={"mission": mission}), seed)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        write_simulation(run, out, scene_yaml=scene.read_text(), progress=progress)
+    except OSError as err:
+        raise SourceError(f"{out}: cannot write ({err.strerror})") from err
+    sidecar.write_text(json.dumps(recipe, sort_keys=True))
+    return out
