@@ -1,0 +1,66 @@
+"""`sonarmap demo`: simulate the default marina, train if needed, run every stage, report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from pipeline.commands._common import JSON_OPT, SET_OPT, STORE_OPT, emit_json
+
+__all__ = ["register"]
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("demo")
+    def demo(
+        out: Path = typer.Option(
+            Path("data/demo"), "--out", help="Where the dataset and report go."
+        ),
+        scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
+        seed: int = typer.Option(0, "--seed", min=0, help="Simulation seed."),
+        goals: int | None = typer.Option(
+            None, "--goals", min=1, help="Mission goals (default 20)."
+        ),
+        duration_s: float | None = typer.Option(
+            None, "--duration-s", help="Cut the mission short."
+        ),
+        set_: list[str] | None = SET_OPT,
+        store: Path = STORE_OPT,
+        json_: bool = JSON_OPT,
+    ) -> None:
+        """The whole pipeline on a simulated marina, ending with the coverage table and report."""
+        import shutil
+
+        from pipeline.api import run_dataset
+        from pipeline.commands._common import stderr_console
+        from pipeline.datasets import ensure_simulation, scene_path
+        from pipeline.progress import StageProgress
+
+        console = stderr_console()
+        scene_file = scene_path(scene)
+        dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
+        console.print(f"dataset: {dataset}")
+        ensure_simulation(scene_file, seed, dataset, goals=goals, duration_s=duration_s)
+        with StageProgress(enabled=True) as progress:
+            result, summary = run_dataset(
+                dataset,
+                overrides=set_ or (),
+                store_dir=store,
+                on_start=progress.on_start,
+                on_stage=progress.on_stage,
+            )
+        evaluate = result.artifacts.get("evaluate")
+        if evaluate is not None:
+            report_dir = out / "report"
+            shutil.rmtree(report_dir, ignore_errors=True)
+            report_dir.mkdir(parents=True)
+            for name in evaluate.manifest.get("files", {}):
+                shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
+            summary["report"] = str(report_dir / "report.md")
+        if json_:
+            emit_json({**result.to_json(), "summary": summary})
+            return
+        from pipeline.report_cli import print_summary
+
+        print_summary(result, summary)
