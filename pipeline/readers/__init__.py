@@ -1,0 +1,39 @@
+"""Readers: any supported recording -> a `schemas.recording.Recording`.
+
+Formats: ROS 2 MCAP files, rosbag2 directories (mcap or sqlite3 storage, split),
+ROS 1 bags (plain, bz2, lz4 chunks) and raw Oculus `SimplePingResult` captures.
+Sonar types: ProjectedSonarImage, sonar_oculus OculusPing/OculusPingUncompressed,
+polar sensor_msgs Image/CompressedImage (beam table from config). Navigation:
+Odometry, PoseStamped, PoseWithCovarianceStamped, or DVL + IMU + depth dead reckoning.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from pipeline.readers.recording import ReaderOptions, SourceRecording
+from pipeline.readers.sources import Source, TopicInfo, dataset_fingerprint_parts, open_source
+
+__all__ = [
+    "ReaderOptions",
+    "Source",
+    "SourceRecording",
+    "TopicInfo",
+    "dataset_fingerprint_parts",
+    "open_recording",
+    "open_source",
+]
+
+
+def open_recording(path: Path, config: Any = None) -> SourceRecording:
+    """Open a recording for the keyframes stage.
+
+    Args:
+        path: MCAP file, rosbag2 directory, ROS 1 bag or raw Oculus capture.
+        config: the keyframes config (or any object/dict with ReaderOptions' field names).
+
+    Raises:
+        SourceError: unreadable file, no/ambiguous sonar or navigation topics.
+    """
+    return SourceRecording(open_source(Path(path)), ReaderOptions.from_config(config))

@@ -1,0 +1,159 @@
+"""Lenient sequential MCAP scanning: every complete record before a cut or corruption.
+
+A recording cut by a power loss has no summary and ends inside a record, usually inside
+a compressed chunk. `scan_records` yields every Schema, Channel and Message record that
+can be read, decompresses the readable prefix of a cut chunk, and reports how many bytes
+at the end could not be read.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.exceptions import McapError
+from mcap.records import Channel, Chunk, Message, Schema
+
+__all__ = ["ScanResult", "scan_records"]
+
+_OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
+MAGIC = b"\x89MCAP0\r\n"
+
+
+@dataclass
+class ScanResult:
+    """Filled in while `scan_records` runs.
+
+    Attributes:
+        size: file size [bytes].
+        good_until: offset after the last complete top-level record.
+        recovered: messages recovered from a cut chunk.
+        complete: True when the file ended normally (footer and closing magic read).
+    """
+
+    size: int = 0
+    good_until: int = 0
+    recovered: int = 0
+    complete: bool = False
+
+    @property
+    def unreadable_bytes(self) -> int:
+        return 0 if self.complete else self.size - self.good_until
+
+
+def _inner_records(data: bytes) -> Iterator[Schema | Channel | Message]:
+    """Complete records of an (uncompressed, possibly cut) chunk payload."""
+    from mcap.data_stream import ReadDataStream
+
+    pos = 0
+    while pos + 9 <= len(data):
+        opcode = data[pos]
+        (length,) = struct.unpack_from("<Q", data, pos + 1)
+        end = pos + 9 + length
+        if end > len(data):
+            return
+        stream = ReadDataStream(io.BytesIO(data[pos + 9 : end]))
+        if opcode == _OP_SCHEMA:
+            yield Schema.read(stream)
+        elif opcode == _OP_CHANNEL:
+            yield Channel.read(stream)
+        elif opcode == _OP_MESSAGE:
+            yield Message.read(stream, length)
+        pos = end
+
+
+def _partial_chunk(f: io.BufferedReader, offset: int) -> Iterator[Schema | Channel | Message]:
+    """Records from the readable prefix of a chunk cut at the end of the file."""
+    f.seek(offset)
+    head = f.read(9 + 8 + 8 + 8 + 4 + 4)
+    if len(head) < 41 or head[0] != _OP_CHUNK:
+        return
+    (name_len,) = struct.unpack_from("<I", head, 37)
+    compression = f.read(name_len).decode(errors="replace")
+    f.read(8)  # records length
+    payload = f.read()
+    try:
+        if compression == "zstd":
+            import zstandard
+
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(payload)
+        elif compression == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.LZ4FrameDecompressor().decompress(payload)
+        elif compression == "":
+            data = payload
+        else:
+            return
+    except Exception:  # a corrupt block: nothing more can be read
+        return
+    yield from _inner_records(data)
+
+
+def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | Message]:
+    """Yield Schema/Channel/Message records in file order, tolerating a cut end.
+
+    Args:
+        path: MCAP file.
+        result: filled with the file size, the last good offset and what was recovered.
+    """
+    from mcap.data_stream import ReadDataStream
+
+    result.size = size = path.stat().st_size
+    with path.open("rb") as f:
+        if f.read(8) != MAGIC:
+            return
+        result.good_until = pos = 8
+        while True:
+            head = f.read(9)
+            if len(head) < 9:
+                break
+            opcode = head[0]
+            (length,) = struct.unpack_from("<Q", head, 1)
+            if pos + 9 + length > size:
+                break
+            body = f.read(length)
+            stream = ReadDataStream(io.BytesIO(body))
+            try:
+                if opcode == _OP_CHUNK:
+                    inner = list(_inner_records(_decompress(Chunk.read(stream))))
+                elif opcode == _OP_SCHEMA:
+                    inner = [Schema.read(stream)]
+                elif opcode == _OP_CHANNEL:
+                    inner = [Channel.read(stream)]
+                elif opcode == _OP_MESSAGE:
+                    inner = [Message.read(stream, length)]
+                else:
+                    inner = []
+            except (McapError, struct.error, ValueError, EOFError):
+                break
+            pos = result.good_until = pos + 9 + length
+            yield from inner
+            if opcode == _OP_FOOTER:
+                result.complete = f.read(8) == MAGIC
+                if result.complete:
+                    result.good_until = size
+                return
+        for rec in _partial_chunk(f, result.good_until):
+            if isinstance(rec, Message):
+                result.recovered += 1
+            yield rec
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    if chunk.compression == "zstd":
+        import zstandard
+
+        return zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
+    if chunk.compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(chunk.data))
+    if chunk.compression == "":
+        return bytes(chunk.data)
+    raise ValueError(f"unsupported chunk compression {chunk.compression!r}")

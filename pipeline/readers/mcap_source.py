@@ -1,0 +1,214 @@
+"""ROS 2 MCAP files (one file, or the split files of a rosbag2 directory).
+
+Indexed files are read through their summary: message times come from the message
+indexes (no decompression) and wanted messages are fetched by time window. A file
+without a summary (a recording cut by a power loss) is scanned sequentially with
+`mcap_scan`, which keeps every complete message and reports the unreadable tail.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+from collections import defaultdict
+from collections.abc import Collection, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import SeekingReader
+from mcap.records import Channel, Message, Schema
+from mcap.summary import Summary
+
+from pipeline.errors import SourceError
+from pipeline.readers.mcap_scan import ScanResult, scan_records
+from pipeline.readers.sources import TopicInfo, check_counts
+from pipeline.readers.typestores import Ros2Decoder
+
+__all__ = ["McapSource"]
+
+log = logging.getLogger(__name__)
+
+
+def _summary(path: Path) -> Summary | None:
+    try:
+        with path.open("rb") as f:
+            return SeekingReader(f).get_summary()
+    except (McapError, struct.error, ValueError, EOFError):
+        return None
+
+
+def _index_times(path: Path, summary: Summary) -> dict[int, np.ndarray]:
+    """(channel id -> ascending int64 log times) from the chunks' message indexes."""
+    parts: dict[int, list[np.ndarray]] = defaultdict(list)
+    with path.open("rb") as f:
+        for chunk in summary.chunk_indexes:
+            for cid, offset in chunk.message_index_offsets.items():
+                f.seek(offset)
+                head = f.read(9)
+                (length,) = struct.unpack_from("<Q", head, 1)
+                body = f.read(length)
+                entries = np.frombuffer(body, dtype="<u8", offset=6).reshape(-1, 2)
+                parts[cid].append(entries[:, 0].astype(np.int64))
+    return {cid: np.sort(np.concatenate(p)) for cid, p in parts.items()}
+
+
+class _McapFile:
+    """One MCAP file: channels, schemas, per-channel times, and how to fetch messages."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.summary = _summary(path)
+        self.scan = ScanResult()
+        if self.summary is not None and self.summary.chunk_indexes:
+            self.channels = dict(self.summary.channels)
+            self.schemas = dict(self.summary.schemas)
+            self.times = _index_times(path, self.summary)
+            counts = (
+                self.summary.statistics.channel_message_counts if self.summary.statistics else {}
+            )
+            if any(counts.get(c, 0) != len(self.times.get(c, ())) for c in self.channels):
+                self.summary = None
+        if self.summary is None or not self.summary.chunk_indexes:
+            self.summary = None
+            self._scan_index()
+
+    def _scan_index(self) -> None:
+        self.channels: dict[int, Channel] = {}
+        self.schemas: dict[int, Schema] = {}
+        times: dict[int, list[int]] = defaultdict(list)
+        for rec in scan_records(self.path, self.scan):
+            if isinstance(rec, Message):
+                times[rec.channel_id].append(rec.log_time)
+            elif isinstance(rec, Channel):
+                self.channels[rec.id] = rec
+            elif isinstance(rec, Schema):
+                self.schemas[rec.id] = rec
+        self.times = {c: np.sort(np.asarray(t, dtype=np.int64)) for c, t in times.items()}
+
+    def raw(
+        self, channel_ids: set[int], times: Collection[int] | None
+    ) -> Iterator[tuple[int, int, bytes]]:
+        """(channel id, log time, CDR bytes) of the wanted messages (log-time order when
+        indexed, file order when scanned)."""
+        if self.summary is not None:
+            topics = [self.channels[c].topic for c in channel_ids]
+            with self.path.open("rb") as f:
+                reader = SeekingReader(f)
+                if times is None:
+                    for _, ch, msg in reader.iter_messages(topics=topics):
+                        yield ch.id, msg.log_time, msg.data
+                    return
+                for t in sorted(set(times)):
+                    for _, ch, msg in reader.iter_messages(
+                        topics=topics, starting_at=t, ending_before=t + 1
+                    ):
+                        yield ch.id, msg.log_time, msg.data
+            return
+        wanted = None if times is None else set(times)
+        for rec in scan_records(self.path, ScanResult()):
+            if (
+                isinstance(rec, Message)
+                and rec.channel_id in channel_ids
+                and (wanted is None or rec.log_time in wanted)
+            ):
+                yield rec.channel_id, rec.log_time, rec.data
+
+
+class McapSource:
+    """A ROS 2 recording stored as one or more MCAP files (in time order)."""
+
+    kind = "mcap"
+
+    def __init__(
+        self, path: Path, files: Sequence[Path], indexed: dict[str, int] | None = None
+    ) -> None:
+        self.path = path
+        self.warnings: list[str] = []
+        try:
+            self._files = [_McapFile(f) for f in files]
+        except OSError as err:
+            raise SourceError(f"{path}: cannot read ({err})") from err
+        for f in self._files:
+            if f.summary is None and f.scan.unreadable_bytes:
+                msg = (
+                    f"{f.path}: truncated or corrupt MCAP: {f.scan.unreadable_bytes} of "
+                    f"{f.scan.size} bytes after offset {f.scan.good_until} were unreadable "
+                    f"({f.scan.recovered} messages recovered from a cut chunk)"
+                )
+                self.warnings.append(msg)
+                log.warning(msg)
+            elif f.summary is None and not f.channels and f.scan.good_until <= 8:
+                raise SourceError(f"{f.path}: not a readable MCAP file")
+        self._decoder = Ros2Decoder(self._schema_texts())
+        self._topics = self._topic_infos(indexed)
+        check_counts(path, self._topics, self.warnings)
+
+    def _schema_texts(self) -> dict[str, tuple[str, str]]:
+        texts: dict[str, tuple[str, str]] = {}
+        for f in self._files:
+            for s in f.schemas.values():
+                texts[s.name] = (s.encoding, s.data.decode(errors="replace"))
+        return texts
+
+    def _msgtype(self, f: _McapFile, ch: Channel) -> str:
+        schema = f.schemas.get(ch.schema_id)
+        return schema.name if schema is not None else ""
+
+    def _topic_infos(self, indexed: dict[str, int] | None) -> list[TopicInfo]:
+        types: dict[str, str] = {}
+        times: dict[str, list[np.ndarray]] = defaultdict(list)
+        for f in self._files:
+            for cid, ch in f.channels.items():
+                types.setdefault(ch.topic, self._msgtype(f, ch))
+                times[ch.topic].append(f.times.get(cid, np.zeros(0, np.int64)))
+        infos = []
+        for topic in sorted(types):
+            t = np.concatenate(times[topic])
+            infos.append(
+                TopicInfo(
+                    topic=topic,
+                    msgtype=types[topic],
+                    count=len(t),
+                    first_ns=int(t.min()) if len(t) else None,
+                    last_ns=int(t.max()) if len(t) else None,
+                    indexed_count=None if indexed is None else indexed.get(topic, 0),
+                )
+            )
+        return infos
+
+    def topics(self) -> list[TopicInfo]:
+        return list(self._topics)
+
+    def times(self, topic: str) -> np.ndarray:
+        parts = [
+            f.times.get(cid, np.zeros(0, np.int64))
+            for f in self._files
+            for cid, ch in f.channels.items()
+            if ch.topic == topic
+        ]
+        return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
+
+    def messages(
+        self, topics: Sequence[str], times: Collection[int] | None = None
+    ) -> Iterator[tuple[str, int, Any]]:
+        for f in self._files:
+            ids = {cid for cid, ch in f.channels.items() if ch.topic in topics}
+            if not ids:
+                continue
+            for cid, t, data in f.raw(ids, times):
+                ch = f.channels[cid]
+                msg = self._decoder.decode(data, self._msgtype(f, ch), ch.topic)
+                if msg is not None:
+                    yield ch.topic, t, msg
+
+    def attachments(self) -> dict[str, bytes]:
+        out: dict[str, bytes] = {}
+        for f in self._files:
+            if f.summary is None:
+                continue
+            with f.path.open("rb") as fh:
+                for att in SeekingReader(fh).iter_attachments():
+                    out[att.name] = bytes(att.data)
+        return out

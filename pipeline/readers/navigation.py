@@ -1,0 +1,112 @@
+"""Navigation messages -> `PoseTrack`, and DVL + IMU + depth dead reckoning.
+
+Dead reckoning follows the authors' vehicle (original-implementation.md section 6.7):
+body-frame DVL velocity, gated at `dvl_max_velocity_mps` (a gated sample reuses the last
+good velocity), integrated with the trapezoid rule in x and y only, rotated by the IMU
+yaw made relative to its first sample; roll and pitch from the IMU; z = -depth (REP 103,
+z up). The IMU is assumed mounted aligned with base_link (the authors' -90 deg roll
+`imu_pose` is a property of their vehicle, not of the recipe).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+
+from schemas.recording import PoseTrack
+
+__all__ = [
+    "NAV_TYPES",
+    "dead_reckon",
+    "nav_pose",
+    "pose_track",
+    "quat_to_rpy",
+]
+
+NAV_TYPES: tuple[str, ...] = (
+    "nav_msgs/msg/Odometry",
+    "geometry_msgs/msg/PoseStamped",
+    "geometry_msgs/msg/PoseWithCovarianceStamped",
+)
+
+
+def quat_to_rpy(q_xyzw: np.ndarray) -> np.ndarray:
+    """(n, 4) quaternions (x, y, z, w) -> (n, 3) roll, pitch, yaw [rad], R = Rz Ry Rx."""
+    q = np.asarray(q_xyzw, np.float64).reshape(-1, 4)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x, y, z, w = q.T
+    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return np.stack([roll, pitch, yaw], axis=1)
+
+
+def nav_pose(msg: Any) -> tuple[float, float, float, float, float, float, float]:
+    """Position and orientation (x, y, z, qx, qy, qz, qw) of any NAV_TYPES message."""
+    pose = msg.pose
+    if hasattr(pose, "pose"):  # Odometry / PoseWithCovarianceStamped
+        pose = pose.pose
+    p, o = pose.position, pose.orientation
+    return (p.x, p.y, p.z, o.x, o.y, o.z, o.w)
+
+
+def pose_track(samples: Iterable[tuple[int, Any]]) -> PoseTrack:
+    """(t_ns, nav message) samples -> PoseTrack sorted by time, duplicate times dropped."""
+    rows = [(t, *nav_pose(m)) for t, m in samples]
+    if not rows:
+        return PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    t = np.array([r[0] for r in rows], np.int64)
+    v = np.array([r[1:] for r in rows], np.float64)
+    t, first = np.unique(t, return_index=True)
+    v = v[first]
+    return PoseTrack(t, v[:, :3], quat_to_rpy(v[:, 3:]))
+
+
+def dead_reckon(
+    dvl_t_ns: np.ndarray,
+    dvl_v_mps: np.ndarray,
+    imu_t_ns: np.ndarray,
+    imu_q_xyzw: np.ndarray,
+    depth_t_ns: np.ndarray,
+    depth_m: np.ndarray,
+    max_velocity_mps: float,
+) -> PoseTrack:
+    """Planar DVL/IMU dead reckoning with depth (original-implementation.md section 6.7).
+
+    Args:
+        dvl_t_ns: (n,) int64 DVL times [ns], ascending.
+        dvl_v_mps: (n, 3) body-frame velocity [m/s] (x forward, y left).
+        imu_t_ns: (m,) int64 IMU times [ns], ascending.
+        imu_q_xyzw: (m, 4) IMU orientation quaternions.
+        depth_t_ns: (k,) int64 depth times [ns]; may be empty (z = 0 then).
+        depth_m: (k,) depth below the surface [m], positive down.
+        max_velocity_mps: a sample with any |component| above it reuses the last good one.
+
+    Returns:
+        PoseTrack at the DVL times within the IMU's time span.
+    """
+    keep = (dvl_t_ns >= imu_t_ns[0]) & (dvl_t_ns <= imu_t_ns[-1])
+    t = dvl_t_ns[keep]
+    v = np.asarray(dvl_v_mps, np.float64)[keep, :2]
+    # Velocity gate: forward-fill the last good sample (zero before the first good one).
+    good = np.all(np.abs(np.asarray(dvl_v_mps)[keep]) <= max_velocity_mps, axis=1)
+    last_good = np.maximum.accumulate(np.where(good, np.arange(len(t)), -1))
+    v = np.where((last_good >= 0)[:, None], v[np.maximum(last_good, 0)], 0.0)
+    # Attitude at the DVL times; yaw relative to the first IMU sample.
+    rpy = quat_to_rpy(imu_q_xyzw)
+    yaw = np.unwrap(rpy[:, 2]) - rpy[0, 2]
+    att = np.stack([np.interp(t, imu_t_ns, c) for c in (rpy[:, 0], rpy[:, 1], yaw)], axis=1)
+    # Trapezoid propagation of the body velocity rotated by the planar yaw.
+    dt = np.diff(t).astype(np.float64) * 1e-9
+    v_mean = 0.5 * (v[1:] + v[:-1])
+    c, s = np.cos(att[1:, 2]), np.sin(att[1:, 2])
+    step = np.stack([c * v_mean[:, 0] - s * v_mean[:, 1], s * v_mean[:, 0] + c * v_mean[:, 1]], 1)
+    xy = np.vstack([np.zeros((1, 2)), np.cumsum(step * dt[:, None], axis=0)])
+    if len(depth_t_ns):
+        z = -np.interp(t, depth_t_ns, np.asarray(depth_m, np.float64))
+    else:
+        z = np.zeros(len(t))
+    att[:, 2] = np.arctan2(np.sin(att[:, 2]), np.cos(att[:, 2]))
+    return PoseTrack(t.astype(np.int64), np.column_stack([xy, z]), att)

@@ -1,0 +1,182 @@
+"""Raw Oculus network captures: concatenated `SimplePingResult` messages.
+
+Layout (Blueprint Subsea protocol, little-endian, packed; liboculus `Oculus.h`):
+a 16-byte `OculusMessageHeader` (oculusId 0x4f53, srcDeviceId, dstDeviceId, msgId,
+msgVersion, payloadSize u32, spare), the `OculusSimpleFireMessage` body (masterMode,
+pingRate, networkSpeed, gammaCorrection, flags: u8; range, gainPercent, speedOfSound,
+salinity: f64), then pingId, status (u32), frequency, temperature, pressure,
+speedOfSoundUsed (f64), pingStartTime (u32), dataSize (u8), rangeResolution (f64),
+nRanges, nBeams (u16), imageOffset, imageSize, messageSize (u32), then nBeams int16
+bearings [0.01 deg] at byte 122 and the image at `imageOffset`: nRanges rows of nBeams
+samples, each row preceded by a u32 gain when flag bit 2 (send gain) is set.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import SourceError
+from pipeline.readers.sources import TopicInfo
+
+__all__ = ["OCULUS_RAW_TOPIC", "OCULUS_RAW_TYPE", "OculusRawPing", "OculusRawSource", "parse_ping"]
+
+OCULUS_RAW_TOPIC = "/oculus/ping"
+OCULUS_RAW_TYPE = "oculus/SimplePingResult"
+_HEADER = np.dtype(
+    [
+        ("oculus_id", "<u2"),
+        ("src", "<u2"),
+        ("dst", "<u2"),
+        ("msg_id", "<u2"),
+        ("version", "<u2"),
+        ("payload_size", "<u4"),
+        ("spare", "<u2"),
+    ]
+)
+_PING = np.dtype(
+    [
+        ("head", _HEADER),
+        ("master_mode", "u1"),
+        ("ping_rate", "u1"),
+        ("network_speed", "u1"),
+        ("gamma", "u1"),
+        ("flags", "u1"),
+        ("range", "<f8"),
+        ("gain_percent", "<f8"),
+        ("speed_of_sound", "<f8"),
+        ("salinity", "<f8"),
+        ("ping_id", "<u4"),
+        ("status", "<u4"),
+        ("frequency", "<f8"),
+        ("temperature", "<f8"),
+        ("pressure", "<f8"),
+        ("speed_of_sound_used", "<f8"),
+        ("ping_start_time", "<u4"),
+        ("data_size", "u1"),
+        ("range_resolution", "<f8"),
+        ("n_ranges", "<u2"),
+        ("n_beams", "<u2"),
+        ("image_offset", "<u4"),
+        ("image_size", "<u4"),
+        ("message_size", "<u4"),
+    ]
+)
+_OCULUS_ID = 0x4F53
+_SIMPLE_PING_RESULT = 0x23
+_SAMPLE_DTYPES = {0: np.uint8, 1: np.uint16, 2: np.uint32, 3: np.uint32}
+
+
+@dataclass(frozen=True)
+class OculusRawPing:
+    """One decoded SimplePingResult (Oculus conventions: bearings positive to starboard).
+
+    Attributes:
+        ping_id: sonar ping counter.
+        image: (n_ranges, n_beams) samples, rows near -> far, columns port -> starboard.
+        bearings_cdeg: (n_beams,) int16 bearings [0.01 deg], ascending.
+        range_resolution_m: bin length [m].
+        frequency_hz: operating frequency [Hz].
+    """
+
+    ping_id: int
+    image: np.ndarray
+    bearings_cdeg: np.ndarray
+    range_resolution_m: float
+    frequency_hz: float
+
+
+def parse_ping(buf: bytes, offset: int = 0) -> tuple[OculusRawPing, int]:
+    """Decode the SimplePingResult at `offset`; returns it and the offset after it.
+
+    Raises:
+        ValueError: not a SimplePingResult (v1) or a message cut short.
+    """
+    if len(buf) - offset < _PING.itemsize:
+        raise ValueError(f"{len(buf) - offset} bytes left, a ping header needs {_PING.itemsize}")
+    h = np.frombuffer(buf, _PING, 1, offset)[0]
+    head = h["head"]
+    if head["oculus_id"] != _OCULUS_ID or head["msg_id"] != _SIMPLE_PING_RESULT:
+        raise ValueError(
+            f"message id {int(head['msg_id']):#x} at byte {offset} is not SimplePingResult"
+        )
+    if head["version"] == 2:
+        raise ValueError("SimplePingResult2 (msgVersion 2) is not supported")
+    end = offset + 16 + int(head["payload_size"])
+    n_r, n_b = int(h["n_ranges"]), int(h["n_beams"])
+    if end > len(buf):
+        raise ValueError(
+            f"ping at byte {offset} is cut short ({len(buf) - offset} of {end - offset} bytes)"
+        )
+    sample = np.dtype(_SAMPLE_DTYPES.get(int(h["data_size"]), np.uint8)).newbyteorder("<")
+    gain = 4 if int(h["flags"]) & 0x04 else 0
+    stride = n_b * sample.itemsize + gain
+    start = offset + int(h["image_offset"])
+    rows = np.frombuffer(buf, np.uint8, n_r * stride, start).reshape(n_r, stride)
+    image = rows[:, gain:].copy().view(sample).reshape(n_r, n_b)
+    bearings = np.frombuffer(buf, "<i2", n_b, offset + _PING.itemsize).astype(np.int16)
+    ping = OculusRawPing(
+        ping_id=int(h["ping_id"]),
+        image=image,
+        bearings_cdeg=bearings,
+        range_resolution_m=float(h["range_resolution"]),
+        frequency_hz=float(h["frequency"]),
+    )
+    return ping, end
+
+
+class OculusRawSource:
+    """A file of concatenated SimplePingResult messages: one sonar topic.
+
+    Captures carry no wall-clock stamp per message; ping k gets t_ns = k * 1e8 (10 Hz),
+    enough to order pings (there is no navigation in such a file).
+    """
+
+    kind = "oculus-raw"
+    period_ns = 100_000_000
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.warnings: list[str] = []
+        self._buf = path.read_bytes()
+        self._offsets: list[int] = []
+        pos = 0
+        while pos < len(self._buf):
+            try:
+                _, nxt = parse_ping(self._buf, pos)
+            except ValueError as err:
+                if not self._offsets:
+                    raise SourceError(f"{path}: not a raw Oculus capture ({err})") from err
+                self.warnings.append(
+                    f"{path}: {len(self._buf) - pos} trailing bytes unreadable ({err})"
+                )
+                break
+            self._offsets.append(pos)
+            pos = nxt
+
+    def topics(self) -> list[TopicInfo]:
+        n = len(self._offsets)
+        return [TopicInfo(OCULUS_RAW_TOPIC, OCULUS_RAW_TYPE, n, 0, (n - 1) * self.period_ns, n)]
+
+    def times(self, topic: str) -> np.ndarray:
+        if topic != OCULUS_RAW_TOPIC:
+            return np.zeros(0, np.int64)
+        return np.arange(len(self._offsets), dtype=np.int64) * self.period_ns
+
+    def messages(
+        self, topics: Sequence[str], times: Collection[int] | None = None
+    ) -> Iterator[tuple[str, int, Any]]:
+        if OCULUS_RAW_TOPIC not in topics:
+            return
+        wanted = None if times is None else set(times)
+        for k, off in enumerate(self._offsets):
+            t = k * self.period_ns
+            if wanted is None or t in wanted:
+                yield OCULUS_RAW_TOPIC, t, parse_ping(self._buf, off)[0]
+
+    def attachments(self) -> dict[str, bytes]:
+        return {}

@@ -1,0 +1,251 @@
+"""`SourceRecording`: a `schemas.recording.Recording` over any `Source`."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import SourceError
+from pipeline.readers.navigation import dead_reckon, pose_track
+from pipeline.readers.roles import Roles, detect_roles
+from pipeline.readers.sonar_decode import decode_image, decode_sonar
+from pipeline.readers.sources import Source
+from schemas.recording import PoseTrack
+from schemas.sonar import SonarPing, beam_angles_from_directions
+from schemas.topics import FRAME_BASE, FRAME_SONAR, SONARS
+
+__all__ = ["ReaderOptions", "SourceRecording", "mounting_matrix"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReaderOptions:
+    """What the readers take from the keyframes config (same field names).
+
+    Defaults: topics found by type; polar-image beam table 130 deg over 30 m (the
+    paper's Oculus settings); the authors' DVL gate 0.5 m/s; the project's default
+    sonar mountings (DESIGN conventions) when the recording has no /tf_static.
+    """
+
+    horizontal_topic: str | None = None
+    vertical_topic: str | None = None
+    navigation_topic: str | None = None
+    ground_truth_topic: str | None = None
+    dvl_topic: str | None = None
+    imu_topic: str | None = None
+    depth_topic: str | None = None
+    dvl_max_velocity_mps: float = 0.5
+    image_fov_deg: float = 130.0
+    image_max_range_m: float = 30.0
+    horizontal_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
+    horizontal_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vertical_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.1)
+    vertical_mount_rpy_deg: tuple[float, float, float] = (90.0, 0.0, 0.0)
+
+    @classmethod
+    def from_config(cls, config: Any) -> ReaderOptions:
+        """Pick the fields of the same name from a config object or mapping (others ignored)."""
+        if config is None:
+            return cls()
+        if isinstance(config, ReaderOptions):
+            return config
+        get = config.get if isinstance(config, dict) else lambda k, d: getattr(config, k, d)
+        values = {f.name: get(f.name, None) for f in fields(cls)}
+        return cls(
+            **{
+                k: (tuple(v) if isinstance(v, list) else v)
+                for k, v in values.items()
+                if v is not None
+            }
+        )
+
+
+def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
+    """(4, 4) T_parent_child from a translation [m] and roll/pitch/yaw [rad] (R = Rz Ry Rx)."""
+    r, p, y = rpy_rad
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    rot = np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = rot, np.asarray(xyz, np.float64)
+    return T
+
+
+def _quat_matrix(q: Any) -> np.ndarray:
+    x, y, z, w = q.x, q.y, q.z, q.w
+    n = np.sqrt(x * x + y * y + z * z + w * w)
+    x, y, z, w = x / n, y / n, z / n, w / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+class SourceRecording:
+    """The keyframes stage's view of a recording (implements `schemas.recording.Recording`)."""
+
+    def __init__(self, source: Source, options: ReaderOptions, roles: Roles | None = None) -> None:
+        self.source = source
+        self.options = options
+        self._topics = source.topics()
+        self.roles = roles or detect_roles(source.path, self._topics, options)
+        self._types = {t.topic: t.msgtype for t in self._topics}
+        self._nav: PoseTrack | None = None
+
+    @property
+    def name(self) -> str:
+        return self.source.path.name
+
+    @property
+    def has_labels(self) -> bool:
+        return all(s in self.roles.labels for s in self.roles.sonar)
+
+    @property
+    def has_ground_truth(self) -> bool:
+        return self.roles.ground_truth is not None
+
+    def ping_times_ns(self, sonar: str) -> np.ndarray:
+        return np.unique(self.source.times(self.roles.sonar[sonar]))
+
+    def _track(self, topic: str) -> PoseTrack:
+        return pose_track((t, m) for _, t, m in self.source.messages([topic]))
+
+    def navigation(self) -> PoseTrack:
+        if self._nav is None:
+            if self.roles.navigation is not None:
+                self._nav = self._track(self.roles.navigation)
+            elif self.roles.dvl is not None:
+                self._nav = self._dead_reckoning()
+            else:
+                self._nav = PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+        return self._nav
+
+    def _dead_reckoning(self) -> PoseTrack:
+        dvl_t, dvl_v, imu_t, imu_q, dep_t, dep = [], [], [], [], [], []
+        topics = [t for t in (self.roles.dvl, self.roles.imu, self.roles.depth) if t]
+        for topic, t, m in self.source.messages(topics):
+            if topic == self.roles.dvl:
+                dvl_t.append(t)
+                dvl_v.append((m.velocity.x, m.velocity.y, m.velocity.z))
+            elif topic == self.roles.imu:
+                imu_t.append(t)
+                imu_q.append((m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w))
+            else:
+                dep_t.append(t)
+                dep.append(m.depth)
+        if not dvl_t or not imu_t:
+            raise SourceError(
+                f"{self.source.path}: DVL {self.roles.dvl} or IMU {self.roles.imu} has no messages"
+            )
+        return dead_reckon(
+            np.asarray(dvl_t, np.int64),
+            np.asarray(dvl_v),
+            np.asarray(imu_t, np.int64),
+            np.asarray(imu_q),
+            np.asarray(dep_t, np.int64),
+            np.asarray(dep, np.float64),
+            self.options.dvl_max_velocity_mps,
+        )
+
+    def ground_truth(self) -> PoseTrack | None:
+        return None if self.roles.ground_truth is None else self._track(self.roles.ground_truth)
+
+    def pings(self, sonar: str, indices: Sequence[int]) -> Iterator[SonarPing]:
+        """Decode the requested pings (with their label/truth images), streaming."""
+        idx = np.asarray(indices, np.int64)
+        if len(idx) == 0:
+            return
+        if np.any(np.diff(idx) < 0):
+            raise ValueError("ping indices must be non-decreasing")
+        times = self.ping_times_ns(sonar)[idx]
+        topic = self.roles.sonar[sonar]
+        extra = {self.roles.labels.get(sonar): "labels", self.roles.truth_angle.get(sonar): "truth"}
+        extra.pop(None, None)
+        groups: dict[int, dict[str, Any]] = {}
+        cursor = 0
+        where = f"{self.source.path} topic {topic}"
+        for name, t, msg in self.source.messages([topic, *extra], set(times.tolist())):
+            while cursor < len(times) and times[cursor] < t:
+                yield self._assemble(groups, int(times[cursor]), sonar, where)
+                cursor += 1
+            groups = {k: v for k, v in groups.items() if k >= t}
+            groups.setdefault(t, {})["ping" if name == topic else extra[name]] = msg
+        for k in range(cursor, len(times)):
+            yield self._assemble(groups, int(times[k]), sonar, where)
+
+    def _assemble(
+        self, groups: dict[int, dict[str, Any]], t: int, sonar: str, where: str
+    ) -> SonarPing:
+        parts = groups.get(t, {})
+        if "ping" not in parts:
+            raise SourceError(f"{where}: the ping at t_ns={t} could not be read")
+        msgtype = self._types[self.roles.sonar[sonar]]
+        ping = decode_sonar(parts["ping"], msgtype, t, sonar, self.options, where)
+        if "labels" not in parts and "truth" not in parts:
+            return ping
+        order = self._column_order(parts["ping"], msgtype)
+        labels = truth = None
+        if "labels" in parts:
+            labels = np.ascontiguousarray(decode_image(parts["labels"]).astype(np.uint8)[:, order])
+        if "truth" in parts:
+            truth = np.ascontiguousarray(decode_image(parts["truth"]).astype(np.float32)[:, order])
+        return SonarPing(
+            ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
+        )
+
+    @staticmethod
+    def _column_order(msg: Any, msgtype: str) -> np.ndarray:
+        """The column permutation the sonar decoder applied (to apply to label images)."""
+        if msgtype.endswith("ProjectedSonarImage"):
+            d = np.array([(v.x, v.y, v.z) for v in msg.beam_directions], np.float64).reshape(-1, 3)
+            return np.argsort(beam_angles_from_directions(d), kind="stable")
+        n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
+        return np.arange(n)[::-1]
+
+    def mountings(self) -> dict[str, np.ndarray]:
+        o = self.options
+        out = {
+            s: mounting_matrix(
+                getattr(o, f"{s}_mount_xyz_m"), np.deg2rad(getattr(o, f"{s}_mount_rpy_deg"))
+            )
+            for s in SONARS
+        }
+        if self.roles.tf_static is None:
+            return out
+        for _, _, msg in self.source.messages([self.roles.tf_static]):
+            for tf in msg.transforms:
+                for s in SONARS:
+                    if (
+                        tf.header.frame_id.lstrip("/") == FRAME_BASE
+                        and tf.child_frame_id.lstrip("/") == FRAME_SONAR[s]
+                    ):
+                        T = np.eye(4)
+                        T[:3, :3] = _quat_matrix(tf.transform.rotation)
+                        tr = tf.transform.translation
+                        T[:3, 3] = (tr.x, tr.y, tr.z)
+                        out[s] = T
+        return out
+
+    def attachments(self) -> dict[str, bytes]:
+        return self.source.attachments()
+
+    def describe(self) -> dict[str, object]:
+        return {
+            "path": str(self.source.path),
+            "format": self.source.kind,
+            "topics": self.roles.as_dict(),
+            "warnings": list(self.source.warnings),
+        }

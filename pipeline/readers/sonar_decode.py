@@ -1,0 +1,184 @@
+"""Sonar message -> `SonarPing` decoders, one per supported message type.
+
+Every decoder returns the project's polar convention: rows = range bins near -> far
+(`ranges_m` = bin centres), columns = beams with `angles_rad` ascending and positive to
+the sensor's left (bearing for the horizontal sonar, elevation for the vertical one).
+Oculus bearings are positive to starboard, so Oculus images are mirrored left-right.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import SourceError
+from schemas.sonar import SonarPing, beam_angles_from_directions
+
+__all__ = [
+    "IMAGE_SONAR_TYPES",
+    "SONAR_TYPES",
+    "decode_image",
+    "decode_sonar",
+    "oculus_arrays",
+]
+
+PROJECTED = "marine_acoustic_msgs/msg/ProjectedSonarImage"
+OCULUS = "sonar_oculus/msg/OculusPing"
+OCULUS_RAW_MSG = "sonar_oculus/msg/OculusPingUncompressed"
+OCULUS_FILE = "oculus/SimplePingResult"
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"
+
+SONAR_TYPES: tuple[str, ...] = (PROJECTED, OCULUS, OCULUS_RAW_MSG, OCULUS_FILE)
+"""Types recognised as sonar automatically."""
+IMAGE_SONAR_TYPES: tuple[str, ...] = (IMAGE, COMPRESSED)
+"""Polar images accepted as sonar only when a topic is configured (beam table from config)."""
+
+_IMAGE_DTYPES = {
+    "mono8": np.uint8,
+    "8UC1": np.uint8,
+    "mono16": np.uint16,
+    "16UC1": np.uint16,
+    "32FC1": np.float32,
+    "64FC1": np.float64,
+}
+
+
+def decode_image(msg: Any) -> np.ndarray:
+    """sensor_msgs Image (single channel) or CompressedImage -> (h, w) array."""
+    if hasattr(msg, "format"):
+        from PIL import Image
+
+        with Image.open(io.BytesIO(bytes(msg.data))) as im:
+            return np.asarray(im.convert("L"))
+    dtype = np.dtype(_IMAGE_DTYPES.get(msg.encoding, np.uint8))
+    dtype = dtype.newbyteorder(">" if msg.is_bigendian else "<")
+    rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
+    width_bytes = msg.width * dtype.itemsize
+    return (
+        rows[:, :width_bytes]
+        .copy()
+        .view(dtype)
+        .reshape(msg.height, msg.width)
+        .astype(dtype.newbyteorder("="))
+    )
+
+
+def _to_uint8(image: np.ndarray) -> np.ndarray:
+    if image.dtype == np.uint8:
+        return image
+    if np.issubdtype(image.dtype, np.integer):
+        shift = 8 * (image.dtype.itemsize - 1)
+        return (image.astype(np.uint64) >> shift).astype(np.uint8)
+    return np.clip(image * 255.0, 0, 255).astype(np.uint8)
+
+
+def _ping(
+    t_ns: int, sonar: str, image: np.ndarray, ranges: np.ndarray, angles: np.ndarray
+) -> SonarPing:
+    order = np.argsort(angles, kind="stable")
+    if np.any(order != np.arange(len(order))):
+        image, angles = image[:, order], angles[order]
+    return SonarPing(
+        t_ns=int(t_ns),
+        sonar=sonar,
+        image=np.ascontiguousarray(_to_uint8(image)),
+        ranges_m=np.asarray(ranges, np.float32),
+        angles_rad=np.asarray(angles, np.float32),
+    )
+
+
+def oculus_arrays(
+    image: np.ndarray, bearings_cdeg: np.ndarray, range_resolution_m: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Oculus polar image -> (image, ranges_m, angles_rad) in the project convention.
+
+    Row k covers [k, k + 1) * range_resolution_m (row 0 starts at the transducer); its
+    centre is returned. Bearings (0.01 deg, positive starboard) become angles positive
+    left, and the columns are mirrored so the angles ascend.
+    """
+    n_r = image.shape[0]
+    ranges = (np.arange(n_r) + 0.5) * range_resolution_m
+    angles = -np.asarray(bearings_cdeg, np.float64)[::-1] * np.pi / 18000.0
+    return image[:, ::-1], ranges, angles
+
+
+def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
+    dirs = np.array([(v.x, v.y, v.z) for v in msg.beam_directions], np.float64).reshape(-1, 3)
+    ranges = np.asarray(msg.ranges, np.float32)
+    n_b = int(msg.image.beam_count)
+    if msg.image.dtype != 0:
+        raise ValueError(f"ProjectedSonarImage dtype {msg.image.dtype} (only DTYPE_UINT8 = 0)")
+    data = np.frombuffer(bytes(msg.image.data), np.uint8)
+    if n_b != len(dirs) or data.size != len(ranges) * n_b:
+        raise ValueError(
+            f"ProjectedSonarImage with {len(dirs)} beam directions, beam_count {n_b}, "
+            f"{len(ranges)} ranges and {data.size} bytes"
+        )
+    return _ping(
+        t_ns, sonar, data.reshape(len(ranges), n_b), ranges, beam_angles_from_directions(dirs)
+    )
+
+
+def _oculus(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
+    image = decode_image(msg.ping)
+    n_r, n_b = int(msg.num_ranges), int(msg.num_beams)
+    if image.shape != (n_r, n_b) or len(msg.bearings) != n_b:
+        raise ValueError(
+            f"OculusPing image {image.shape} != (num_ranges {n_r}, num_beams {n_b}) "
+            f"or {len(msg.bearings)} bearings"
+        )
+    return _ping(t_ns, sonar, *oculus_arrays(image, msg.bearings, float(msg.range_resolution)))
+
+
+def _oculus_file(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
+    return _ping(t_ns, sonar, *oculus_arrays(msg.image, msg.bearings_cdeg, msg.range_resolution_m))
+
+
+def _polar_image(msg: Any, t_ns: int, sonar: str, beam_table: Any) -> SonarPing:
+    image = decode_image(msg)
+    n_r, n_b = image.shape
+    fov = np.deg2rad(beam_table.image_fov_deg)
+    angles = np.linspace(fov / 2, -fov / 2, n_b)  # column 0 = port (left), as Oculus images
+    ranges = (np.arange(n_r) + 0.5) * (beam_table.image_max_range_m / n_r)
+    return _ping(t_ns, sonar, image, ranges, angles)
+
+
+_DECODERS: dict[str, Callable[[Any, int, str, Any], SonarPing]] = {
+    PROJECTED: _projected,
+    OCULUS: _oculus,
+    OCULUS_RAW_MSG: _oculus,
+    OCULUS_FILE: _oculus_file,
+    IMAGE: _polar_image,
+    COMPRESSED: _polar_image,
+}
+
+
+def decode_sonar(
+    msg: Any, msgtype: str, t_ns: int, sonar: str, options: Any, where: str
+) -> SonarPing:
+    """Decode one sonar message of any supported type.
+
+    Args:
+        msg: deserialised message.
+        msgtype: its type name.
+        t_ns: ping time [ns].
+        sonar: "horizontal" or "vertical".
+        options: reader options (`image_fov_deg`, `image_max_range_m` for polar images).
+        where: "file topic" for error messages.
+
+    Raises:
+        SourceError: unsupported type or inconsistent message.
+    """
+    decoder = _DECODERS.get(msgtype)
+    if decoder is None:
+        raise SourceError(
+            f"{where}: type {msgtype} is not a supported sonar type {sorted(_DECODERS)}"
+        )
+    try:
+        return decoder(msg, t_ns, sonar, options)
+    except (ValueError, OSError) as err:
+        raise SourceError(f"{where}: bad {msgtype} message at t_ns={t_ns} ({err})") from err

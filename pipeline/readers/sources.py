@@ -1,0 +1,199 @@
+"""Raw message sources: one interface over MCAP files, rosbag2 directories, ROS 1 bags
+and raw Oculus captures.
+
+A source lists its topics (type, count, time span) and streams `(topic, t_ns, message)`
+in log-time order, deserialising only the messages asked for. Times are log (receive)
+times in integer nanoseconds; they are what pairs the sonars and the navigation.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Collection, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from pipeline.errors import SourceError
+
+__all__ = [
+    "Source",
+    "TopicInfo",
+    "dataset_fingerprint_parts",
+    "open_source",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """One topic of a recording.
+
+    Attributes:
+        topic: topic name.
+        msgtype: ROS 2 style type name ("pkg/msg/Type").
+        count: messages actually present (read from the data or a verified index).
+        first_ns, last_ns: first/last log time [ns], None when the topic is empty.
+        indexed_count: the count the file's own index/metadata claims (None if it has none).
+    """
+
+    topic: str
+    msgtype: str
+    count: int
+    first_ns: int | None
+    last_ns: int | None
+    indexed_count: int | None = None
+
+    @property
+    def rate_hz(self) -> float:
+        """Mean message rate over the topic's time span (0 for fewer than two messages)."""
+        if self.count < 2 or self.first_ns is None or self.last_ns is None:
+            return 0.0
+        span = (self.last_ns - self.first_ns) * 1e-9
+        return (self.count - 1) / span if span > 0 else 0.0
+
+
+class Source(Protocol):
+    """What every reader backend offers."""
+
+    path: Path
+    kind: str
+    warnings: list[str]
+
+    def topics(self) -> list[TopicInfo]:
+        """Every topic with its type and counts, sorted by name."""
+        ...
+
+    def times(self, topic: str) -> np.ndarray:
+        """(n,) int64 log times [ns] of the topic's messages, ascending."""
+        ...
+
+    def messages(
+        self, topics: Sequence[str], times: Collection[int] | None = None
+    ) -> Iterator[tuple[str, int, Any]]:
+        """Deserialised `(topic, t_ns, message)` in log-time order.
+
+        Args:
+            topics: topics to read.
+            times: when given, only messages with these log times are deserialised.
+        """
+        ...
+
+    def attachments(self) -> dict[str, bytes]:
+        """Named attachments (e.g. "scene.ply"); empty when the format has none."""
+        ...
+
+
+def _sniff(path: Path) -> str:
+    if path.is_dir():
+        if (path / "metadata.yaml").is_file():
+            return "rosbag2"
+        raise SourceError(f"{path}: a directory without metadata.yaml is not a ROS 2 bag")
+    if not path.is_file():
+        raise SourceError(f"{path}: no such file")
+    size = path.stat().st_size
+    if size == 0:
+        raise SourceError(f"{path}: empty file (0 bytes), no topics")
+    with path.open("rb") as f:
+        head = f.read(16)
+    if head.startswith(b"\x89MCAP"):
+        return "mcap"
+    if head.startswith(b"#ROSBAG V2.0"):
+        return "rosbag1"
+    if head[:2] == b"SO":
+        return "oculus-raw"
+    if head.startswith(b"SQLite format 3"):
+        return "sqlite3"
+    raise SourceError(
+        f"{path}: not a recording sonarmap can read (expected MCAP, ROS 1 bag, ROS 2 bag "
+        "directory or raw Oculus capture)"
+    )
+
+
+def open_source(path: Path) -> Source:
+    """Open any supported recording as a `Source` (SourceError when it cannot be read)."""
+    path = Path(path)
+    kind = _sniff(path)
+    if kind == "mcap":
+        from pipeline.readers.mcap_source import McapSource
+
+        return McapSource(path, [path])
+    if kind == "rosbag1":
+        from pipeline.readers.ros1_source import Ros1Source
+
+        return Ros1Source(path)
+    if kind == "oculus-raw":
+        from pipeline.readers.oculus_raw import OculusRawSource
+
+        return OculusRawSource(path)
+    if kind == "sqlite3":
+        from pipeline.readers.sqlite_source import SqliteSource
+
+        return SqliteSource(path, [path], None)
+    return _open_rosbag2(path)
+
+
+def _bag_metadata(path: Path) -> dict[str, Any]:
+    import yaml
+
+    try:
+        doc = yaml.safe_load((path / "metadata.yaml").read_text())
+        return dict(doc["rosbag2_bagfile_information"])
+    except (OSError, KeyError, TypeError, yaml.YAMLError) as err:
+        raise SourceError(f"{path / 'metadata.yaml'}: not a rosbag2 metadata file ({err})") from err
+
+
+def _open_rosbag2(path: Path) -> Source:
+    meta = _bag_metadata(path)
+    files = [path / name for name in meta.get("relative_file_paths", [])]
+    missing = [str(f) for f in files if not f.is_file()]
+    if not files or missing:
+        raise SourceError(f"{path}: bag files listed in metadata.yaml are missing: {missing}")
+    indexed = {
+        t["topic_metadata"]["name"]: int(t.get("message_count", 0))
+        for t in meta.get("topics_with_message_count", [])
+    }
+    storage = meta.get("storage_identifier", "")
+    if storage == "mcap":
+        from pipeline.readers.mcap_source import McapSource
+
+        return McapSource(path, files, indexed)
+    if storage == "sqlite3":
+        from pipeline.readers.sqlite_source import SqliteSource
+
+        return SqliteSource(path, files, indexed)
+    raise SourceError(f"{path}: unsupported rosbag2 storage {storage!r} (mcap or sqlite3)")
+
+
+def dataset_fingerprint_parts(path: Path) -> list[Path]:
+    """The files whose content makes up a dataset, sorted (a bag directory has several).
+
+    Args:
+        path: a recording file or a rosbag2 directory.
+
+    Returns:
+        Absolute paths of every data file (and `metadata.yaml` for a bag directory).
+    """
+    path = Path(path)
+    if path.is_dir():
+        meta = _bag_metadata(path)
+        files = [path / "metadata.yaml"] + [path / n for n in meta.get("relative_file_paths", [])]
+        return sorted(f.resolve() for f in files)
+    if not path.is_file():
+        raise SourceError(f"{path}: no such file")
+    return [path.resolve()]
+
+
+def check_counts(path: Path, topics: list[TopicInfo], warnings: list[str]) -> None:
+    """Warn about topics whose index claims more (or fewer) messages than are present."""
+    for info in topics:
+        if info.indexed_count is not None and info.indexed_count != info.count:
+            msg = (
+                f"{path}: topic {info.topic} has {info.count} readable messages but the "
+                f"bag's index says {info.indexed_count}"
+            )
+            warnings.append(msg)
+            log.warning(msg)

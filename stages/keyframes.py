@@ -1,0 +1,293 @@
+"""Keyframes: pair the two sonars in time, pose each pair, keep pairs by spacing.
+
+Pure logic over arrays; the recording (a `schemas.recording.Recording`, bound by the
+engine as the "dataset" input) supplies ping times, the navigation stream and, for the
+selected keyframes only, the decoded images, so memory stays flat in mission length.
+
+Steps:
+1. Pair every horizontal ping with the nearest vertical ping within
+   `pair_tolerance_s` (each vertical ping used at most once).
+2. Interpolate the navigation pose at each pair's time (the horizontal ping time):
+   SE(2) (x, y, yaw on the shortest arc) plus depth z, roll and pitch linearly; pairs
+   outside the navigation stream are dropped, never extrapolated.
+3. Keep a pair as keyframe when, since the last keyframe, at least `min_gap_s` has
+   passed and the vehicle has moved `spacing_m` (3D distance) or turned `rotation_deg`
+   (|delta yaw|); the first posed pair is always kept (the paper keeps keyframes every
+   2 m or 4 m; the authors' rule in original-implementation.md section 6.2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
+from schemas.recording import PoseTrack, Recording
+from schemas.sonar import KeyframeImages
+from stages.base import Output, Stage, StageConfig
+
+__all__ = [
+    "STAGE",
+    "KeyframesConfig",
+    "PingPairs",
+    "interpolate_poses",
+    "pair_pings",
+    "select_keyframes",
+]
+
+
+class KeyframesConfig(StageConfig):
+    """Config section `keyframes`.
+
+    Attributes:
+        spacing_m: new keyframe after this much travel (3D) since the last one [m].
+        rotation_deg: ... or after this much |yaw change| [deg].
+        min_gap_s: never two keyframes closer in time than this [s].
+        pair_tolerance_s: largest |t_h - t_v| of a sonar pair [s].
+        horizontal_topic, vertical_topic: sonar topics (None: found by type/name).
+        navigation_topic: Odometry/PoseStamped/PoseWithCovarianceStamped topic (None: found).
+        ground_truth_topic: true pose topic (None: /ground_truth/odometry if present).
+        dvl_topic, imu_topic, depth_topic: dead-reckoning inputs when no navigation topic.
+        dvl_max_velocity_mps: DVL velocity gate of the dead reckoning [m/s].
+        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images.
+        *_mount_xyz_m, *_mount_rpy_deg: T_base_sonar when the data has no /tf_static.
+    """
+
+    spacing_m: float = 2.0
+    rotation_deg: float = 30.0
+    min_gap_s: float = 1.0
+    pair_tolerance_s: float = 0.1
+    horizontal_topic: str | None = None
+    vertical_topic: str | None = None
+    navigation_topic: str | None = None
+    ground_truth_topic: str | None = None
+    dvl_topic: str | None = None
+    imu_topic: str | None = None
+    depth_topic: str | None = None
+    dvl_max_velocity_mps: float = 0.5
+    image_fov_deg: float = 130.0
+    image_max_range_m: float = 30.0
+    horizontal_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
+    horizontal_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    vertical_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.1)
+    vertical_mount_rpy_deg: tuple[float, float, float] = (90.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class PingPairs:
+    """Result of `pair_pings`.
+
+    Attributes:
+        horizontal: (k,) int64 indices into the horizontal ping times, ascending.
+        vertical: (k,) int64 matching vertical indices (non-decreasing, unique).
+        unpaired_horizontal, unpaired_vertical: pings left without a partner.
+    """
+
+    horizontal: np.ndarray
+    vertical: np.ndarray
+    unpaired_horizontal: int
+    unpaired_vertical: int
+
+
+def pair_pings(h_t_ns: np.ndarray, v_t_ns: np.ndarray, tolerance_ns: int) -> PingPairs:
+    """Pair each horizontal ping with the nearest vertical ping within a tolerance.
+
+    Args:
+        h_t_ns: (n,) int64 ascending horizontal ping times [ns].
+        v_t_ns: (m,) int64 ascending vertical ping times [ns].
+        tolerance_ns: largest accepted |t_h - t_v| [ns].
+
+    Returns:
+        PingPairs; a vertical ping claimed by two horizontal pings goes to the closer one.
+    """
+    h = np.asarray(h_t_ns, np.int64)
+    v = np.asarray(v_t_ns, np.int64)
+    if len(h) == 0 or len(v) == 0:
+        empty = np.zeros(0, np.int64)
+        return PingPairs(empty, empty, len(h), len(v))
+    right = np.clip(np.searchsorted(v, h), 0, len(v) - 1)
+    left = np.clip(right - 1, 0, len(v) - 1)
+    pick_left = np.abs(h - v[left]) <= np.abs(v[right] - h)
+    nearest = np.where(pick_left, left, right)
+    dt = np.abs(h - v[nearest])
+    ok = np.flatnonzero(dt <= tolerance_ns)
+    # One vertical ping per pair: keep the closest horizontal ping for each.
+    order = np.lexsort((dt[ok], nearest[ok]))
+    _, first = np.unique(nearest[ok][order], return_index=True)
+    keep = np.sort(ok[order][first])
+    return PingPairs(
+        keep.astype(np.int64),
+        nearest[keep].astype(np.int64),
+        len(h) - len(keep),
+        len(v) - len(keep),
+    )
+
+
+def interpolate_poses(track: PoseTrack, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poses at query times, SE(2) + depth, without extrapolation.
+
+    Args:
+        track: navigation stream (ascending t_ns).
+        t_ns: (k,) int64 query times [ns].
+
+    Returns:
+        (poses, valid): (k, 6) float64 x, y, z [m], roll, pitch, yaw [rad] (NaN where
+        invalid) and (k,) bool, False outside [track.t_ns[0], track.t_ns[-1]].
+    """
+    t = np.asarray(t_ns, np.int64)
+    out = np.full((len(t), 6), np.nan)
+    if len(track) == 0:
+        return out, np.zeros(len(t), bool)
+    valid = (t >= track.t_ns[0]) & (t <= track.t_ns[-1])
+    ref = track.t_ns[0]
+    tq = (t[valid] - ref).astype(np.float64)
+    tt = (track.t_ns - ref).astype(np.float64)
+    for c in range(3):
+        out[valid, c] = np.interp(tq, tt, track.xyz_m[:, c])
+        angle = np.interp(tq, tt, np.unwrap(track.rpy_rad[:, c]))
+        out[valid, 3 + c] = np.arctan2(np.sin(angle), np.cos(angle))
+    return out, valid
+
+
+def select_keyframes(
+    t_ns: np.ndarray, poses: np.ndarray, spacing_m: float, rotation_rad: float, min_gap_ns: int
+) -> tuple[np.ndarray, list[str]]:
+    """Keyframe selection by travel / turn since the last keyframe.
+
+    Args:
+        t_ns: (k,) int64 ascending candidate times [ns].
+        poses: (k, 6) x, y, z, roll, pitch, yaw of each candidate.
+        spacing_m: travel threshold [m].
+        rotation_rad: |yaw change| threshold [rad].
+        min_gap_ns: minimum time between keyframes [ns].
+
+    Returns:
+        (indices of the selected candidates, reason per keyframe: "first",
+        "translation" or "rotation").
+    """
+    if len(t_ns) == 0:
+        return np.zeros(0, np.int64), []
+    chosen, reasons = [0], ["first"]
+    last = 0
+    for i in range(1, len(t_ns)):
+        if t_ns[i] - t_ns[last] < min_gap_ns:
+            continue
+        moved = float(np.linalg.norm(poses[i, :3] - poses[last, :3]))
+        dyaw = float(np.abs(np.angle(np.exp(1j * (poses[i, 5] - poses[last, 5])))))
+        if moved >= spacing_m or dyaw >= rotation_rad:
+            chosen.append(i)
+            reasons.append("translation" if moved >= spacing_m else "rotation")
+            last = i
+    return np.asarray(chosen, np.int64), reasons
+
+
+def _table(
+    t_h: np.ndarray,
+    t_v: np.ndarray,
+    h_idx: np.ndarray,
+    v_idx: np.ndarray,
+    pose: np.ndarray,
+    gt: np.ndarray | None,
+    reasons: list[str],
+) -> pa.Table:
+    n = len(t_h)
+    cols: dict[str, Any] = {
+        "keyframe_id": np.arange(n, dtype=np.int64),
+        "t_ns": t_h,
+        "t_vertical_ns": t_v,
+        "ping_index_horizontal": h_idx,
+        "ping_index_vertical": v_idx,
+    }
+    for c, name in enumerate(POSE_COLUMNS):
+        cols[name] = pose[:, c]
+    for c, name in enumerate(GT_POSE_COLUMNS):
+        values = None if gt is None else gt[:, c]
+        cols[name] = pa.array(
+            values if values is not None else [None] * n, pa.float64(), from_pandas=True
+        )
+    cols["reason"] = pa.array(reasons, pa.string())
+    return pa.table(cols, schema=KEYFRAMES_SCHEMA)
+
+
+def _frames(
+    rec: Recording, t_h: np.ndarray, t_v: np.ndarray, h_idx: np.ndarray, v_idx: np.ndarray
+) -> Iterator[KeyframeImages]:
+    pairs = zip(rec.pings("horizontal", h_idx), rec.pings("vertical", v_idx), strict=True)
+    for k, (hp, vp) in enumerate(pairs):
+        yield KeyframeImages(
+            int(k), int(t_h[k]), hp, vp, {"pair_dt_s": float(t_v[k] - t_h[k]) * 1e-9}
+        )
+
+
+def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    """Stage entry point: {"dataset": Recording} -> keyframes, frames, sensors, scene_mesh."""
+    rec: Recording = inputs["dataset"]
+    h_t, v_t = rec.ping_times_ns("horizontal"), rec.ping_times_ns("vertical")
+    pairs = pair_pings(h_t, v_t, round(config.pair_tolerance_s * 1e9))
+    t_pair = h_t[pairs.horizontal]
+    pose, valid = interpolate_poses(rec.navigation(), t_pair)
+    cand = np.flatnonzero(valid)
+    sel, reasons = select_keyframes(
+        t_pair[cand],
+        pose[cand],
+        config.spacing_m,
+        np.deg2rad(config.rotation_deg),
+        round(config.min_gap_s * 1e9),
+    )
+    if len(sel) == 0:
+        raise ValueError(
+            f"{rec.name}: no keyframe: {len(pairs.horizontal)} sonar pairs "
+            f"({len(h_t)} horizontal, {len(v_t)} vertical pings), {len(cand)} inside the navigation stream"
+        )
+    k = cand[sel]
+    h_idx, v_idx = pairs.horizontal[k], pairs.vertical[k]
+    t_h, t_v = h_t[h_idx], v_t[v_idx]
+    truth = rec.ground_truth()
+    gt = None
+    if truth is not None:
+        gt, _ = interpolate_poses(truth, t_h)
+    mounts = rec.mountings()
+    sensors = {
+        s: {"T_base_sonar": np.asarray(mounts[s], np.float64).round(12).tolist()}
+        for s in ("horizontal", "vertical")
+    }
+    sensors.update(
+        has_ground_truth=truth is not None,
+        has_labels=bool(rec.has_labels),
+        source={**{k2: v for k2, v in rec.describe().items() if k2 != "path"}, "name": rec.name},
+        pairing={
+            "horizontal_pings": len(h_t),
+            "vertical_pings": len(v_t),
+            "pairs": len(pairs.horizontal),
+            "unpaired_horizontal": pairs.unpaired_horizontal,
+            "unpaired_vertical": pairs.unpaired_vertical,
+            "pairs_outside_navigation": int(len(pairs.horizontal) - len(cand)),
+            "keyframes": len(k),
+        },
+    )
+    return {
+        "keyframes": _table(t_h, t_v, h_idx, v_idx, pose[k], gt, reasons),
+        "frames": _frames(rec, t_h, t_v, h_idx, v_idx),
+        "sensors": sensors,
+        "scene_mesh": rec.attachments().get("scene.ply"),
+    }
+
+
+STAGE = Stage(
+    name="keyframes",
+    version=1,
+    config=KeyframesConfig,
+    inputs=("dataset",),
+    outputs=(
+        Output("keyframes", "parquet", "keyframes.parquet", schema=KEYFRAMES_SCHEMA),
+        Output("frames", "frames", "keyframes.mcap"),
+        Output("sensors", "json", "sensors.json"),
+        Output("scene_mesh", "bytes", "scene.ply", optional=True),
+    ),
+    run=run,
+    description="pair sonar pings, pose them from navigation, select keyframes by spacing",
+)
