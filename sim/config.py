@@ -68,8 +68,14 @@ class SonarConfig(_Model):
     noise_mean_level: float = Field(
         4.0, ge=0.0, description="mean additive Rayleigh noise [levels]"
     )
-    label_min_level: float = Field(6.0, ge=0.0, description="noise-free level for a labelled pixel")
-    max_splat_bins: int = Field(32, ge=1, description="max range bins one ray's footprint covers")
+    label_min_level: float = Field(
+        10.0, ge=0.0, description="noise-free level for a labelled pixel"
+    )
+    max_splat_bins: int = Field(
+        32,
+        ge=1,
+        description="max range gap (bins) between aperture neighbours that still share a surface",
+    )
 
     @property
     def n_ranges(self) -> int:

@@ -8,7 +8,8 @@ unresolved angle) with stratified sub-beam jitter across the beam width, all in 
 
 rho = class reflectivity, b(e) a Gaussian beam pattern across the aperture (edge gain at
 +-aperture/2), alpha the residual absorption after TVG, K the rays per beam. A ray's
-energy is spread over the range extent of its footprint (r tan(incidence) de), then
+energy is spread over the range interval its aperture stratum covers (halfway to the
+ranges of its neighbours across the aperture that hit the same object), then
 accumulated per (range bin, beam) with `np.bincount`. So elevation ambiguity is real:
 a vertical piling at horizontal distance d fills ranges d .. d / cos(aperture / 2).
 The 8-bit level is 255 (I / I_sat)^gamma times Rayleigh speckle plus Rayleigh noise.
@@ -72,6 +73,27 @@ class SonarModel:
         dirs = np.stack([ce * np.cos(a), ce * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
         return dirs, e.ravel()
 
+    def _footprint(
+        self, t: np.ndarray, obj: np.ndarray, max_gap_m: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Range interval [lo, hi] (n,) each ray's aperture stratum covers [m].
+
+        Rays of a beam are ordered across the aperture; the interval reaches halfway to
+        each neighbour's range where the neighbour hits the same object within max_gap_m.
+        """
+        tt = t.reshape(self.n_beams, self.k)
+        oo = obj.reshape(self.n_beams, self.k)
+        with np.errstate(invalid="ignore"):
+            gap = np.abs(tt[:, 1:] - tt[:, :-1])
+        same = (oo[:, 1:] == oo[:, :-1]) & (oo[:, 1:] >= 0) & (gap < max_gap_m)
+        mid = np.where(same, 0.5 * (tt[:, 1:] + tt[:, :-1]), np.nan)
+        lo, hi = tt.copy(), tt.copy()
+        lo[:, 1:] = np.fmin(lo[:, 1:], mid)
+        lo[:, :-1] = np.fmin(lo[:, :-1], mid)
+        hi[:, 1:] = np.fmax(hi[:, 1:], mid)
+        hi[:, :-1] = np.fmax(hi[:, :-1], mid)
+        return lo.ravel(), hi.ravel()
+
     def render(
         self, world: World, T_world_sonar: np.ndarray, rng: np.random.Generator, t_ns: int
     ) -> SonarPing:
@@ -101,12 +123,13 @@ class SonarModel:
             truth = np.arcsin(np.clip(d_u[:, 2], -1.0, 1.0))
         else:
             truth = np.arctan2(d_u[:, 1], d_u[:, 0])
-        # Spread each ray over its range footprint r tan(inc) de.
-        tan_inc = np.sqrt(1.0 - cos_inc**2) / cos_inc
+        # Spread each ray over its footprint: halfway to the ranges of its aperture
+        # neighbours when they hit the same object (one-sided at silhouettes).
         res = cfg.range_resolution_m
-        extent = np.minimum(r * tan_inc * (self.aperture_rad / self.k), cfg.max_splat_bins * res)
-        lo = np.floor((r - extent / 2) / res).astype(np.int64)
-        n = np.floor((r + extent / 2) / res).astype(np.int64) - lo + 1
+        r_lo, r_hi = self._footprint(t, hit["object_id"], cfg.max_splat_bins * res)
+        r_lo, r_hi = r_lo[ok], r_hi[ok]
+        lo = np.floor(r_lo / res).astype(np.int64)
+        n = np.floor(r_hi / res).astype(np.int64) - lo + 1
         rep = np.repeat(np.arange(len(r)), n)
         first = np.repeat(np.cumsum(n) - n, n)
         bins = lo[rep] + (np.arange(len(rep)) - first)

@@ -1,0 +1,133 @@
+"""Sonar image geometry against ground truth on one-object scenes (sim.sonar)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from schemas.classes import CLASS_IDS
+from schemas.sonar import SonarPing
+from sim.config import SimConfig
+from sim.geometry import pose_to_matrix
+from sim.scene import Scene
+from sim.sonar import SonarModel
+from sim.world import World
+
+CFG = SimConfig()
+PILING = CLASS_IDS["cylindrical_piling"]
+APERTURE_HALF = np.deg2rad(10.0)
+
+
+def _scene(*objects: dict) -> Scene:
+    return Scene.model_validate(
+        {"area_m": [-20, 20, -20, 20], "seafloor_depth_m": 8.0, "objects": list(objects)}
+    )
+
+
+def _ping(scene: Scene, sonar: str, seed: int = 0) -> SonarPing:
+    """A ping with base_link at (0, 0, -2) facing +x."""
+    cfg = CFG.sonar(sonar)
+    T = pose_to_matrix(np.array([0.0, 0.0, -2.0, 0.0, 0.0, 0.0])) @ cfg.mounting.matrix()
+    return SonarModel(cfg, sonar).render(World(scene), T, np.random.default_rng(seed), 0)
+
+
+def _pixels(ping: SonarPing, cls: int) -> tuple[np.ndarray, np.ndarray]:
+    assert ping.labels is not None
+    rows, cols = np.nonzero(ping.labels == cls)
+    return ping.ranges_m[rows].astype(float), ping.angles_rad[cols].astype(float)
+
+
+def test_piling_lands_at_its_range_and_bearing_with_elevation_smear() -> None:
+    # Front face at horizontal distance d = 9.75 m from the sonar (x = 0.5 m), bearing 0.
+    ping = _ping(
+        _scene({"class": "cylindrical_piling", "position_m": [10.5, 0.0], "radius_m": 0.25}),
+        "horizontal",
+    )
+    r, a = _pixels(ping, PILING)
+    d, res = 9.75, 0.05
+    central = np.abs(a) < np.deg2rad(0.3)
+    assert central.sum() > 0
+    assert r[central].min() == pytest.approx(d, abs=res)
+    assert r[central].max() == pytest.approx(d / np.cos(APERTURE_HALF), abs=2 * res)
+    half_width = np.arcsin(0.25 / 10.0)
+    assert a.min() == pytest.approx(-half_width, abs=np.deg2rad(0.6))
+    assert a.max() == pytest.approx(half_width, abs=np.deg2rad(0.6))
+    # The image is bright where the labels are, dark elsewhere.
+    assert ping.image[ping.labels == PILING].mean() > 5 * ping.image[ping.labels == 0].mean()
+
+
+def test_piling_spans_its_true_elevations_in_the_vertical_image() -> None:
+    ping = _ping(
+        _scene({"class": "cylindrical_piling", "position_m": [10.5, 0.0], "radius_m": 0.25}),
+        "vertical",
+    )
+    r, a = _pixels(ping, PILING)
+    d, z_sonar = 9.75, -1.9
+    assert a.min() == pytest.approx(np.arctan2(-8.0 - z_sonar, d), abs=np.deg2rad(1.0))
+    assert a.max() == pytest.approx(np.arctan2(1.0 - z_sonar, d), abs=np.deg2rad(1.0))
+    # Per beam, the nearest return is at d / cos(elevation).
+    beams = np.unique(a)
+    nearest = np.array([r[a == b].min() for b in beams])
+    np.testing.assert_allclose(nearest, d / np.cos(beams), atol=0.1)
+    # Truth angle (bearing) of the piling pixels is within the piling's angular half-width.
+    assert ping.truth_angle_rad is not None
+    truth = ping.truth_angle_rad[ping.labels == PILING]
+    assert np.all(np.abs(truth) < np.arcsin(0.25 / 9.75) + 0.01)
+
+
+def test_target_above_the_sonar_plane_at_slant_range_and_true_elevation() -> None:
+    # A small floating frame centred 1.2 m above the horizontal sonar, 7.5 m ahead of it.
+    frame = {
+        "class": "truss",
+        "start_m": [8.0, -0.4],
+        "end_m": [8.0, 0.4],
+        "top_z_m": -0.7,
+        "bottom_z_m": -0.9,
+        "member_width_m": 0.1,
+        "bays": 1,
+    }
+    truss = CLASS_IDS["truss"]
+    h = _ping(_scene(frame), "horizontal")
+    r, a = _pixels(h, truss)
+    assert len(r) > 0
+    assert abs(np.median(a)) < np.deg2rad(1.0)
+    assert np.median(r) == pytest.approx(np.hypot(7.45, 1.2), abs=0.15)
+    assert h.truth_angle_rad is not None
+    elev = h.truth_angle_rad[h.labels == truss]
+    assert np.median(elev) == pytest.approx(np.arctan2(1.2, 7.45), abs=np.deg2rad(1.0))
+    v = _ping(_scene(frame), "vertical")
+    r_v, a_v = _pixels(v, truss)
+    assert np.median(a_v) == pytest.approx(np.arctan2(1.1, 7.45), abs=np.deg2rad(1.0))
+    assert np.median(r_v) == pytest.approx(np.hypot(7.45, 1.1), abs=0.15)
+
+
+def test_labels_name_the_object_classes() -> None:
+    scene = _scene(
+        {"class": "cylindrical_piling", "position_m": [8.0, 3.0], "radius_m": 0.3},
+        {"class": "rectangular_piling", "position_m": [8.0, -3.0], "width_m": 0.5, "depth_m": 0.5},
+    )
+    ping = _ping(scene, "horizontal")
+    _, a_round = _pixels(ping, PILING)
+    _, a_square = _pixels(ping, CLASS_IDS["rectangular_piling"])
+    assert np.median(a_round) == pytest.approx(np.arctan2(3.0, 7.5), abs=np.deg2rad(2))
+    assert np.median(a_square) == pytest.approx(np.arctan2(-3.0, 7.5), abs=np.deg2rad(2))
+    assert set(np.unique(ping.labels)) <= {0, PILING, CLASS_IDS["rectangular_piling"]}
+
+
+def test_overlap_region_target_in_both_fans_only_there() -> None:
+    scene = _scene(
+        {"class": "cylindrical_piling", "position_m": [10.5, 0.0], "radius_m": 0.25},
+        {"class": "rectangular_piling", "position_m": [5.0, 6.0]},
+    )
+    h, v = _ping(scene, "horizontal"), _ping(scene, "vertical")
+    assert (h.labels == PILING).any() and (v.labels == PILING).any()
+    square = CLASS_IDS["rectangular_piling"]
+    assert (h.labels == square).any()
+    assert not (v.labels == square).any()
+
+
+def test_seafloor_seen_by_vertical_sonar_at_depth() -> None:
+    v = _ping(_scene(), "vertical")
+    r, a = _pixels(v, CLASS_IDS["seafloor"])
+    h_below = 8.0 - 1.9
+    np.testing.assert_allclose(r * np.sin(-a), h_below, atol=0.2)
