@@ -115,7 +115,7 @@ class HeightModel:
 
     def cell_keys(self, uv_m: np.ndarray) -> np.ndarray:
         """Packed int64 cell keys of (n, 2) reference-frame points (u, v) [m]."""
-        ij = np.floor(np.asarray(uv_m, dtype=np.float64).reshape(-1, 2) / self.cell_m)
+        ij = np.floor(np.asarray(uv_m, dtype=np.float64).reshape(-1, 2) / self.cell_m + 0.5)
         if ij.size and np.abs(ij).max() >= _OFFSET:
             raise ValueError("reference-frame coordinates out of the cell index range")
         ij = ij.astype(np.int64) + _OFFSET

@@ -37,7 +37,7 @@ import itertools
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -78,8 +78,11 @@ class InferConfig(StageConfig):
     z_max_m: float = Field(4.0, description="highest height of the z grid")
     z_step_m: float = Field(0.05, gt=0.0, description="z grid spacing")
     sigma_m: float = Field(0.08, gt=0.0, description="std of the Gaussian height likelihood")
-    range_cell_m: float = Field(0.05, gt=0.0, description="model cell size along range")
-    cross_range_cell_m: float = Field(0.1, gt=0.0, description="model cell size across range")
+    range_axis: Literal["offset", "height_equivalent"] = Field(
+        "height_equivalent", description="model cell axis along range (see _model_coords)"
+    )
+    range_cell_m: float = Field(0.1, gt=0.0, description="model cell size along range")
+    cross_range_cell_m: float = Field(0.05, gt=0.0, description="model cell size across range")
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
     )
@@ -244,7 +247,24 @@ def _sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarr
     return out
 
 
-def _update_class(state: _ClassState, sightings: list[_Sighting]) -> dict[int, np.ndarray]:
+def _model_coords(uv_ref: np.ndarray, origin: ObjectOrigin, range_axis: str) -> np.ndarray:
+    """Model-cell coordinates of (n, 2) reference-frame points of a sighting.
+
+    "offset": (u, v) as is (the paper). "height_equivalent": u is replaced by
+    sign(u) sqrt(|u^2 + 2 R0 u|), R0 the sighting's own minimum range: the height at
+    which a vertical surface through the object's nearest point returns at range
+    R0 + u, so one structure fills the same cells whatever distance it is seen from.
+    """
+    if range_axis == "offset":
+        return uv_ref
+    u = uv_ref[:, 0]
+    s = np.sign(u) * np.sqrt(np.abs(u * u + 2.0 * origin.range_m * u))
+    return np.stack([s, uv_ref[:, 1]], axis=1)
+
+
+def _update_class(
+    state: _ClassState, sightings: list[_Sighting], range_axis: str
+) -> dict[int, np.ndarray]:
     """Eq. 7 for one class and keyframe; returns successful registrations by object id."""
     uv, z, transforms = [], [], {}
     for s in sightings:
@@ -255,7 +275,7 @@ def _update_class(state: _ClassState, sightings: list[_Sighting]) -> dict[int, n
             logger.debug("object %d: registration failed, update skipped", s.object_id)
             continue
         transforms[s.object_id] = reg.T_ref_obj
-        uv.append(apply_se2(reg.T_ref_obj, s.fused_uv_m))
+        uv.append(_model_coords(apply_se2(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
         z.append(s.fused_z_m)
     if uv:
         state.model.update(np.vstack(uv), np.concatenate(z))
@@ -267,7 +287,8 @@ def _query_sighting(
 ) -> dict[str, np.ndarray]:
     """Eq. 8-9 for the 2D-only returns of one registered sighting (0-2 points each)."""
     only2d = ~s.is_fused
-    q = state.model.query(apply_se2(T, s.uv_m[only2d]), config.confidence_threshold)
+    uv = _model_coords(apply_se2(T, s.uv_m[only2d]), s.origin, config.range_axis)
+    q = state.model.query(uv, config.confidence_threshold)
     r = np.tile(s.range_m[only2d], 2)
     z = np.concatenate([q.z_low_m, q.z_high_m])
     conf = np.concatenate([q.conf_low, q.conf_high])
@@ -343,7 +364,7 @@ def infer_points(
         for c in config.classes:
             state = states[c]
             of_class = [s for s in sightings if s.class_name == c]
-            transforms = _update_class(state, of_class)
+            transforms = _update_class(state, of_class, config.range_axis)
             if not state.model.updated:
                 continue
             for s in of_class:

@@ -1,0 +1,394 @@
+"""Stage `infer` (paper Sec. IV.D-E): frames, accuracy and coverage against simulator truth."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute
+import pytest
+from scipy import ndimage
+
+import stages.infer as infer_module
+from schemas.classes import CLASS_NAMES
+from schemas.points import POINTS_SCHEMA
+from sim.config import SimConfig
+from sim.dataset import SimRun, simulate
+from sim.geometry import pose_to_matrix
+from sim.scene import load_scene
+from stages.infer import STAGE, InferConfig, infer_points
+from stages.object_frame import object_origin, to_object_frame
+
+REPO = Path(__file__).resolve().parents[1]
+OBJECT_CLASSES = (1, 2, 3, 4, 5)
+
+
+@dataclass
+class TruthTables:
+    """Inputs of `infer` built from simulator truth, plus each keyframe's T_world_sonar."""
+
+    objects: pa.Table
+    object_features: pa.Table
+    features: pa.Table
+    fused: pa.Table
+    T_world_sonar: dict[int, np.ndarray]
+
+
+def keyframe_indices(run: SimRun, spacing_m: float) -> list[int]:
+    """Frames whose true position moved >= spacing_m since the previous keyframe."""
+    xy = run.trajectory["gt_pose"][:, :2]
+    out = [0]
+    for i in range(1, len(xy)):
+        if np.linalg.norm(xy[i] - xy[out[-1]]) >= spacing_m:
+            out.append(i)
+    return out
+
+
+def truth_tables(
+    run: SimRun,
+    frames: list[int],
+    *,
+    fused_fraction: float = 0.1,
+    overlap_deg: float = 10.0,
+    elevation_noise_deg: float = 0.5,
+    min_cells: int = 10,
+    seed: int = 0,
+) -> TruthTables:
+    """Objects = connected label regions of the horizontal image (one class each);
+    features = their cells; fused = a random fraction of the cells inside the +-overlap
+    wedge, with the true elevation plus Gaussian noise (paper Eq. 1 for x, y, z)."""
+    rng = np.random.default_rng(seed)
+    cols: dict[str, dict[str, list]] = {k: {} for k in ("obj", "of", "feat", "fused")}
+
+    def add(table: str, **values: object) -> None:
+        for k, v in values.items():
+            cols[table].setdefault(k, []).append(np.atleast_1d(v))
+
+    T_world_sonar = {}
+    for kf, index in enumerate(frames):
+        f = run.frame(index)
+        h = f.horizontal
+        T_world_sonar[kf] = pose_to_matrix(f.gt_pose) @ f.T_base_sonar["horizontal"]
+        feature_id = np.full(h.labels.shape, -1, dtype=np.int64)
+        rows, beams = np.nonzero(np.isin(h.labels, OBJECT_CLASSES))
+        feature_id[rows, beams] = np.arange(rows.size)
+        r = h.ranges_m[rows].astype(np.float64)
+        b = h.angles_rad[beams].astype(np.float64)
+        add(
+            "feat",
+            keyframe_id=np.full(rows.size, kf),
+            feature_id=feature_id[rows, beams],
+            sonar=np.full(rows.size, "horizontal"),
+            range_bin=rows,
+            beam=beams,
+            range_m=r,
+            angle_rad=b,
+            intensity=h.image[rows, beams].astype(np.float64),
+        )
+        object_id = 0
+        for cid in OBJECT_CLASSES:
+            regions, n = ndimage.label(h.labels == cid, structure=np.ones((3, 3)))
+            for k in range(1, n + 1):
+                ids = feature_id[regions == k]
+                if ids.size < min_cells:
+                    continue
+                add(
+                    "obj",
+                    keyframe_id=kf,
+                    object_id=object_id,
+                    class_name=CLASS_NAMES[cid],
+                    probability=1.0,
+                    n_features=ids.size,
+                )
+                add(
+                    "of",
+                    keyframe_id=np.full(ids.size, kf),
+                    object_id=np.full(ids.size, object_id),
+                    feature_id=ids,
+                )
+                object_id += 1
+        truth = h.truth_angle_rad[rows, beams].astype(np.float64)
+        pick = (np.abs(b) <= np.deg2rad(overlap_deg)) & np.isfinite(truth)
+        pick &= rng.random(rows.size) < fused_fraction
+        el = truth[pick] + rng.normal(0.0, np.deg2rad(elevation_noise_deg), pick.sum())
+        rr, bb = r[pick], b[pick]
+        add(
+            "fused",
+            keyframe_id=np.full(rr.size, kf),
+            feature_id_horizontal=feature_id[rows, beams][pick],
+            range_m=rr,
+            bearing_rad=bb,
+            elevation_rad=el,
+            x_m=rr * np.cos(el) * np.cos(bb),
+            y_m=rr * np.cos(el) * np.sin(bb),
+            z_m=rr * np.sin(el),
+            confidence=np.ones(rr.size),
+        )
+
+    def table(name: str) -> pa.Table:
+        return pa.table({k: np.concatenate(v) for k, v in cols[name].items()})
+
+    return TruthTables(table("obj"), table("of"), table("feat"), table("fused"), T_world_sonar)
+
+
+def to_world(points: pa.Table, T_world_sonar: dict[int, np.ndarray]) -> np.ndarray:
+    """(n, 3) world coordinates of sonar-frame rows (x_m, y_m, z_m, keyframe_id)."""
+    xyz = np.c_[[points.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")]].T
+    kf = points.column("keyframe_id").to_numpy()
+    out = np.empty_like(xyz)
+    for k in np.unique(kf):
+        T = T_world_sonar[int(k)]
+        out[kf == k] = xyz[kf == k] @ T[:3, :3].T + T[:3, 3]
+    return out
+
+
+def n_voxels(xyz: np.ndarray, size_m: float = 0.1) -> int:
+    return int(np.unique(np.floor(xyz / size_m).astype(np.int64), axis=0).shape[0])
+
+
+# ---------------------------------------------------------------------------------------
+# Synthetic asymmetric object: catches mirrored bearing axes and mismatched origins.
+
+
+def _l_object() -> tuple[np.ndarray, np.ndarray]:
+    """World points (n, 3) of an L-shaped wall at x ~ 8 m and their true heights.
+
+    The left half (y > 0) returns from z = +0.6 m, the right half from z = -0.6 m
+    (sonar at z = 0), and a short leg runs back from the left end: asymmetric in both
+    footprint and height.
+    """
+    y = np.linspace(-0.6, 0.6, 49)
+    wall = np.c_[np.full(y.size, 8.0), y]
+    leg = np.c_[np.linspace(8.05, 8.5, 10), np.full(10, 0.6)]
+    xy = np.vstack([wall, wall + np.array([0.05, 0.0]), leg])
+    z = np.where(xy[:, 1] > 0, 0.6, -0.6)
+    return np.c_[xy, z], z
+
+
+def _sighting(
+    kf: int, pose_xy_yaw: tuple[float, float, float], fused_mask: np.ndarray | None
+) -> dict[str, pa.Table]:
+    """One keyframe's infer inputs for the L object seen from a planar sonar pose."""
+    pts, _ = _l_object()
+    x0, y0, yaw = pose_xy_yaw
+    c, s = np.cos(yaw), np.sin(yaw)
+    d = pts - [x0, y0, 0.0]
+    p = np.c_[c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1], d[:, 2]]  # sonar frame
+    r = np.linalg.norm(p, axis=1)
+    b = np.arctan2(p[:, 1], p[:, 0])
+    n = r.size
+    fid = np.arange(n, dtype=np.int64)
+    out = {
+        "objects": pa.table(
+            {
+                "keyframe_id": [kf],
+                "object_id": [0],
+                "class_name": ["cylindrical_piling"],
+                "probability": [1.0],
+                "n_features": [n],
+            }
+        ),
+        "object_features": pa.table(
+            {"keyframe_id": np.full(n, kf), "object_id": np.zeros(n, np.int64), "feature_id": fid}
+        ),
+        "features": pa.table(
+            {
+                "keyframe_id": np.full(n, kf),
+                "feature_id": fid,
+                "sonar": ["horizontal"] * n,
+                "range_m": r,
+                "angle_rad": b,
+            }
+        ),
+    }
+    m = np.zeros(n, bool) if fused_mask is None else fused_mask
+    el = np.arcsin(p[m, 2] / r[m])
+    out["fused"] = pa.table(
+        {
+            "keyframe_id": np.full(m.sum(), kf),
+            "feature_id_horizontal": fid[m],
+            "range_m": r[m],
+            "bearing_rad": b[m],
+            "elevation_rad": el,
+            "x_m": p[m, 0],
+            "y_m": p[m, 1],
+            "z_m": p[m, 2],
+            "confidence": np.ones(m.sum()),
+        }
+    )
+    return out
+
+
+def _concat(parts: list[dict[str, pa.Table]]) -> dict[str, pa.Table]:
+    return {k: pa.concat_tables([p[k] for p in parts]) for k in parts[0]}
+
+
+def _asymmetric_mission() -> dict[str, pa.Table]:
+    """kf 0 and 1 fuse the right and the left part of the object from different poses,
+    kf 2 sees it from a third pose (at a negative bearing) with no fused point."""
+    pts, _ = _l_object()
+    right, left = pts[:, 1] < 0.15, pts[:, 1] > -0.15
+    return _concat(
+        [
+            _sighting(0, (0.0, 0.0, np.deg2rad(-25.0)), right),
+            _sighting(1, (1.0, 0.3, np.deg2rad(20.0)), left),
+            _sighting(2, (-0.5, 0.0, np.deg2rad(35.0)), None),
+        ]
+    )
+
+
+def _sign_agreement(points: pa.Table, keyframe_id: int) -> tuple[float, int]:
+    """Fraction of inferred points of a keyframe with the true height sign, and count."""
+    sel = points.filter(
+        pa.compute.and_(
+            pa.compute.equal(points.column("source"), "inferred"),
+            pa.compute.equal(points.column("keyframe_id"), keyframe_id),
+        )
+    )
+    _, z_true = _l_object()
+    inputs = _asymmetric_mission()
+    feats = inputs["features"].filter(
+        pa.compute.equal(inputs["features"].column("keyframe_id"), keyframe_id)
+    )
+    b_all = feats.column("angle_rad").to_numpy()
+    r_all = feats.column("range_m").to_numpy()
+    # match each inferred point to its feature by (range, bearing) of the correct geometry
+    idx = np.array(
+        [
+            int(np.argmin(np.abs(r_all - r) + np.abs(b_all - b)))
+            for r, b in zip(
+                sel.column("range_m").to_numpy(), sel.column("bearing_rad").to_numpy(), strict=True
+            )
+        ]
+    )
+    agree = (
+        np.sign(sel.column("z_m").to_numpy()) == np.sign(z_true[idx]) if idx.size else np.array([])
+    )
+    return float(np.mean(agree)) if idx.size else 0.0, int(idx.size)
+
+
+def test_asymmetric_object_from_other_bearings_gets_the_right_heights() -> None:
+    inputs = _asymmetric_mission()
+    points = infer_points(
+        inputs["objects"],
+        inputs["object_features"],
+        inputs["features"],
+        inputs["fused"],
+        InferConfig(),
+    )
+    agree, n = _sign_agreement(points, 2)
+    n_features = int(np.sum(inputs["features"].column("keyframe_id").to_numpy() == 2))
+    assert n >= 0.5 * n_features
+    assert agree >= 0.95
+    z = points.filter(pa.compute.equal(points.column("keyframe_id"), 2)).column("z_m").to_numpy()
+    np.testing.assert_allclose(np.abs(z), 0.6, atol=0.1)
+
+
+def _run_with_bug(monkeypatch: pytest.MonkeyPatch, bug: str) -> pa.Table:
+    """Re-introduce one of the original code's frame bugs into the stage's sightings."""
+    original = infer_module._sightings
+
+    def buggy(*args: object, **kwargs: object) -> list:
+        out = []
+        for s in original(*args, **kwargs):
+            if bug == "mirrored_query" and s.fused_z_m.size == 0:
+                s = replace(s, uv_m=s.uv_m * [1.0, -1.0])
+            if bug == "fused_origin" and s.fused_z_m.size:
+                r, b = s.range_m[s.is_fused], s.bearing_rad[s.is_fused]
+                s = replace(s, fused_uv_m=to_object_frame(r, b, object_origin(r, b)))
+            out.append(s)
+        return out
+
+    monkeypatch.setattr(infer_module, "_sightings", buggy)
+    inputs = _asymmetric_mission()
+    return infer_points(
+        inputs["objects"],
+        inputs["object_features"],
+        inputs["features"],
+        inputs["fused"],
+        InferConfig(),
+    )
+
+
+@pytest.mark.parametrize("bug", ["mirrored_query", "fused_origin"])
+def test_the_original_frame_bugs_would_be_caught(monkeypatch: pytest.MonkeyPatch, bug: str) -> None:
+    agree, n = _sign_agreement(_run_with_bug(monkeypatch, bug), 2)
+    assert n == 0 or agree < 0.9
+
+
+# ---------------------------------------------------------------------------------------
+# Simulated pier: accuracy and coverage against the true mesh.
+
+
+@pytest.fixture(scope="module")
+def pier() -> tuple[SimRun, TruthTables]:
+    run = simulate(load_scene(REPO / "configs" / "scenes" / "pier.yaml"), SimConfig(), 0)
+    return run, truth_tables(run, keyframe_indices(run, 4.0))
+
+
+def _infer(tt: TruthTables, config: InferConfig | None = None) -> pa.Table:
+    return infer_points(
+        tt.objects, tt.object_features, tt.features, tt.fused, config or InferConfig()
+    )
+
+
+def test_pier_inferred_points_are_accurate_and_multiply_coverage(pier) -> None:
+    run, tt = pier
+    points = _infer(tt)
+    inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
+    fused_world = to_world(tt.fused, tt.T_world_sonar)
+    inferred_world = to_world(inferred, tt.T_world_sonar)
+    d_fused = np.median(run.world.distance(fused_world))
+    d_inferred = np.median(run.world.distance(inferred_world))
+    assert inferred.num_rows > 5 * tt.fused.num_rows
+    assert d_inferred <= 0.15
+    assert d_inferred <= 1.5 * d_fused
+    assert n_voxels(np.vstack([fused_world, inferred_world])) >= 5 * n_voxels(fused_world)
+
+
+def test_pier_output_contract_and_determinism(pier) -> None:
+    _, tt = pier
+    a, b = _infer(tt), _infer(tt)
+    assert a.equals(b)
+    assert a.schema.equals(POINTS_SCHEMA)
+    kf = a.column("keyframe_id").to_numpy()
+    assert np.all(np.diff(kf) >= 0)
+    fused = a.filter(pa.compute.equal(a.column("source"), "fused"))
+    assert fused.num_rows == tt.fused.num_rows  # every fused point lies on an object here
+    inferred = a.filter(pa.compute.equal(a.column("source"), "inferred"))
+    assert set(inferred.column("class_name").to_pylist()) <= {
+        "cylindrical_piling",
+        "rectangular_piling",
+    }
+    # Eq. 1 and the elevation limit of the aperture.
+    r, b, e = (inferred.column(c).to_numpy() for c in ("range_m", "bearing_rad", "elevation_rad"))
+    np.testing.assert_allclose(inferred.column("x_m").to_numpy(), r * np.cos(e) * np.cos(b))
+    np.testing.assert_allclose(inferred.column("z_m").to_numpy(), r * np.sin(e))
+    assert np.all(np.abs(e) <= np.deg2rad(10.0) + 1e-12)
+    assert np.all(inferred.column("confidence").to_numpy() > InferConfig().confidence_threshold)
+    # No prediction before the first keyframe with fused points of the class (time order).
+    first_fused = int(fused.column("keyframe_id").to_numpy().min())
+    assert int(inferred.column("keyframe_id").to_numpy().min()) >= first_fused
+    # At most two points (one per half) per 2D feature.
+    keys = np.c_[inferred.column("keyframe_id").to_numpy(), r, b]
+    _, counts = np.unique(keys, axis=0, return_counts=True)
+    assert counts.max() <= 2
+
+
+def test_stage_object_runs_from_bound_inputs(pier) -> None:
+    _, tt = pier
+    out = STAGE.run(
+        InferConfig(classes=("rectangular_piling",)),
+        {
+            "classify.objects": tt.objects,
+            "classify.object_features": tt.object_features,
+            "features.features": tt.features,
+            "fuse.fused": tt.fused,
+        },
+    )
+    points = out["points"]
+    inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
+    assert set(inferred.column("class_name").to_pylist()) <= {"rectangular_piling"}
+    assert STAGE.outputs[0].schema.equals(points.schema)
