@@ -7,7 +7,9 @@ height z of the return, stored as log probabilities on a fixed z grid.
 - Cells: the reference frame is metric and aligned with the reference line of sight,
   so its first axis u is the range offset from the reference origin and its second
   axis v the arc length of the bearing offset (positive left, like the bearing).
-  Cell (i, j) = (floor(u / range_cell_m), floor(v / cross_range_cell_m)); both
+  Cell (i, j) = (round(u / range_cell_m), round(v / cross_range_cell_m)) (cells
+  centred on the origin, so range bins that sit on multiples of the cell size do not
+  straddle cell borders); both
   indices may be negative, and only cells that received a measurement are stored
   (sorted int64 keys + rows of a growing array), so memory is bounded by the cells
   actually seen, not by a bounding box.

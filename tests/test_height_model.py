@@ -24,8 +24,8 @@ def test_z_grid_is_inclusive_and_evenly_spaced() -> None:
 
 def test_single_measurement_gives_its_height_in_its_half_only() -> None:
     m = _model()
-    m.update(np.array([[0.27, 0.02]]), np.array([0.52]))
-    q = m.query(np.array([[0.28, 0.05]]), threshold=0.3)
+    m.update(np.array([[0.26, 0.02]]), np.array([0.52]))
+    q = m.query(np.array([[0.27, 0.03]]), threshold=0.3)  # same cell
     assert q.z_high_m[0] == pytest.approx(0.5)
     assert q.conf_high[0] > 0.6
     assert np.isnan(q.z_low_m[0])  # lower half has no mass near its MAP
@@ -76,7 +76,7 @@ def test_update_matches_dense_reference_loop() -> None:
         z = rng.normal(0.2, 0.6, 40)
         m.update(uv, z)
         # Slow reference: per cell, max-mixture of Gaussians times prior, normalised.
-        ij = np.floor(uv / [0.05, 0.1]).astype(int)
+        ij = np.floor(uv / [0.05, 0.1] + 0.5).astype(int)  # cells centred on multiples
         inside = (z >= Z[0]) & (z <= Z[-1])
         for key in {tuple(k) for k in ij[inside]}:
             sel = inside & (ij == key).all(axis=1)
@@ -84,7 +84,7 @@ def test_update_matches_dense_reference_loop() -> None:
             prior = cells.get(key, np.full(Z.size, 1.0 / Z.size))
             cells[key] = lik * prior / np.sum(lik * prior)
     keys = list(cells)
-    centres = (np.array(keys) + 0.5) * [0.05, 0.1]
+    centres = np.array(keys) * [0.05, 0.1]
     got = np.exp(m.log_posterior(centres))
     np.testing.assert_allclose(got, np.array([cells[k] for k in keys]), atol=1e-9)
     assert m.n_cells == len(cells)
