@@ -1,0 +1,226 @@
+"""`sonarmap convert INPUT -o OUT.mcap`: any supported recording -> a ROS 2 MCAP.
+
+Sonars become `marine_acoustic_msgs/msg/ProjectedSonarImage` on /sonar/horizontal and
+/sonar/vertical (with their label/truth images when present), navigation becomes
+`nav_msgs/msg/Odometry` on /odometry/dead_reckoning (dead reckoning computed when the
+input has only DVL + IMU + depth), ground truth on /ground_truth/odometry, mountings on
+/tf_static, attachments copied. Streaming: memory does not grow with the recording.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from pipeline.commands._common import JSON_OPT, emit_json
+
+__all__ = ["convert_recording", "register"]
+
+
+def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
+    import numpy as np
+
+    from pipeline.rosmsg import ros2_typestore
+    from schemas.topics import FRAME_ODOM
+
+    t = ros2_typestore().types
+    r, p, y = (float(v) / 2 for v in rpy)
+    q = (
+        np.sin(r) * np.cos(p) * np.cos(y) - np.cos(r) * np.sin(p) * np.sin(y),
+        np.cos(r) * np.sin(p) * np.cos(y) + np.sin(r) * np.cos(p) * np.sin(y),
+        np.cos(r) * np.cos(p) * np.sin(y) - np.sin(r) * np.sin(p) * np.cos(y),
+        np.cos(r) * np.cos(p) * np.cos(y) + np.sin(r) * np.sin(p) * np.sin(y),
+    )
+    vec = t["geometry_msgs/msg/Vector3"]
+    return t["nav_msgs/msg/Odometry"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9),
+            frame_id=FRAME_ODOM,
+        ),
+        child_frame_id=child,
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](
+            pose=t["geometry_msgs/msg/Pose"](
+                position=t["geometry_msgs/msg/Point"](
+                    x=float(xyz[0]), y=float(xyz[1]), z=float(xyz[2])
+                ),
+                orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            ),
+            covariance=np.zeros(36),
+        ),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](
+                linear=vec(x=0.0, y=0.0, z=0.0), angular=vec(x=0.0, y=0.0, z=0.0)
+            ),
+            covariance=np.zeros(36),
+        ),
+    )
+
+
+def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
+    from scipy.spatial.transform import Rotation
+
+    from pipeline.rosmsg import ros2_typestore
+    from schemas.topics import FRAME_BASE, FRAME_SONAR
+
+    t = ros2_typestore().types
+    stamp = t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    transforms = []
+    for sonar, T in sorted(mounts.items()):
+        qx, qy, qz, qw = Rotation.from_matrix(T[:3, :3]).as_quat()
+        transforms.append(
+            t["geometry_msgs/msg/TransformStamped"](
+                header=t["std_msgs/msg/Header"](stamp=stamp, frame_id=FRAME_BASE),
+                child_frame_id=FRAME_SONAR[sonar],
+                transform=t["geometry_msgs/msg/Transform"](
+                    translation=t["geometry_msgs/msg/Vector3"](x=T[0, 3], y=T[1, 3], z=T[2, 3]),
+                    rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+                ),
+            )
+        )
+    return t["tf2_msgs/msg/TFMessage"](transforms=transforms)
+
+
+def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
+    import numpy as np
+
+    from pipeline.frames_io import image_message, sonar_message
+    from schemas.topics import (
+        FRAME_SONAR,
+        IMAGE_TYPE,
+        LABEL_TOPIC,
+        PROJECTED_SONAR_TYPE,
+        SONAR_TOPIC,
+        TRUTH_ANGLE_TOPIC,
+    )
+
+    n = len(rec.ping_times_ns(sonar))
+    frame = FRAME_SONAR[sonar]
+    for ping in rec.pings(sonar, np.arange(n)):
+        yield ping.t_ns, order, SONAR_TOPIC[sonar], PROJECTED_SONAR_TYPE, sonar_message(ping, frame)
+        if ping.labels is not None:
+            yield (
+                ping.t_ns,
+                order + 1,
+                LABEL_TOPIC[sonar],
+                IMAGE_TYPE,
+                image_message(ping.labels, ping.t_ns, frame),
+            )
+        if ping.truth_angle_rad is not None:
+            msg = image_message(ping.truth_angle_rad.astype(np.float32), ping.t_ns, frame)
+            yield ping.t_ns, order + 2, TRUTH_ANGLE_TOPIC[sonar], IMAGE_TYPE, msg
+
+
+def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
+    from schemas.topics import FRAME_BASE, ODOMETRY_TYPE
+
+    for k in range(len(track)):
+        t = int(track.t_ns[k])
+        yield (
+            t,
+            order,
+            topic,
+            ODOMETRY_TYPE,
+            _odometry(t, track.xyz_m[k], track.rpy_rad[k], FRAME_BASE),
+        )
+
+
+def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, Any]:
+    """Convert any supported recording into a ROS 2 MCAP; returns counts per topic."""
+    from pipeline.errors import SourceError
+    from pipeline.readers import ReaderOptions, SourceRecording, open_source
+    from pipeline.readers.roles import detect_roles
+    from pipeline.rosmsg import Ros2McapWriter
+    from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH, TOPIC_TF_STATIC
+
+    opts = ReaderOptions.from_config(options)
+    source = open_source(src)
+    roles = detect_roles(src, source.topics(), opts, require_pair=False)
+    if not roles.sonar:
+        from pipeline.readers.roles import topic_listing
+
+        raise SourceError(
+            f"{src}: no sonar topic found (topics: {topic_listing(source.topics())}); "
+            "set keyframes.horizontal_topic / keyframes.vertical_topic"
+        )
+    rec = SourceRecording(source, opts, roles)
+    streams = [_sonar_events(rec, s, 10 * i) for i, s in enumerate(sorted(roles.sonar))]
+    streams.append(_track_events(rec.navigation(), TOPIC_DEAD_RECKONING, 30))
+    truth = rec.ground_truth()
+    if truth is not None:
+        streams.append(_track_events(truth, TOPIC_GROUND_TRUTH, 31))
+    counts: dict[str, int] = {}
+    first = True
+    with dst.open("wb") as f, Ros2McapWriter(f) as w:
+        for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
+            if first:
+                mounts = {s: rec.mountings()[s] for s in roles.sonar}
+                w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
+                counts[TOPIC_TF_STATIC] = 1
+                first = False
+            w.write(topic, typ, msg, t)
+            counts[topic] = counts.get(topic, 0) + 1
+        for name, data in sorted(rec.attachments().items()):
+            w.add_attachment(name, data, "application/octet-stream")
+        w.add_metadata("sonarmap.convert", {"source": src.name, "format": source.kind})
+    return {
+        "input": str(src),
+        "output": str(dst),
+        "format": source.kind,
+        "roles": roles.as_dict(),
+        "topics": dict(sorted(counts.items())),
+        "warnings": list(source.warnings),
+    }
+
+
+def _parse_sets(items: list[str] | None) -> dict[str, Any]:
+    from pipeline.errors import ConfigError
+
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ConfigError(
+                f"--set {item!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
+            )
+        key = key.removeprefix("keyframes.")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
+    return out
+
+
+def register(app: typer.Typer) -> None:
+    """Add the `convert` command."""
+
+    @app.command("convert")
+    def convert(
+        source: Path = typer.Argument(
+            ..., help="MCAP file, ROS 2 bag directory, ROS 1 bag or raw Oculus capture."
+        ),
+        output: Path = typer.Option(..., "--output", "-o", help="Output .mcap path."),
+        set_: list[str] | None = typer.Option(
+            None,
+            "--set",
+            "-s",
+            help="Reader option, e.g. keyframes.horizontal_topic=/ping. Repeatable.",
+        ),
+        json_: bool = JSON_OPT,
+    ) -> None:
+        """Convert a recording into a ROS 2 MCAP with ProjectedSonarImage sonar topics."""
+        from pipeline.errors import SourceError
+
+        if not output.parent.is_dir():
+            raise SourceError(f"output directory {output.parent} does not exist")
+        report = convert_recording(source, output, _parse_sets(set_))
+        if json_:
+            emit_json(report)
+            return
+        typer.echo(
+            f"wrote {output}: " + ", ".join(f"{k} {v}" for k, v in report["topics"].items()),
+            err=True,
+        )
