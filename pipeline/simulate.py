@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import tempfile
 import time
 from collections.abc import Callable
@@ -119,8 +120,13 @@ class _Messages:
         )
 
     def odometry(self, t_ns: int, pose: np.ndarray, vel_b: np.ndarray, sigma: float) -> Any:
-        t = self.t
         q = quaternion_from_matrix(rot_rpy(*pose[3:6]))
+        return self.odometry_raw(t_ns, np.concatenate([pose[:3], q, vel_b[:2]]), sigma)
+
+    def odometry_raw(self, t_ns: int, v: np.ndarray, sigma: float) -> Any:
+        """Odometry from (x, y, z, qx, qy, qz, qw, vx_body, vy_body)."""
+        t = self.t
+        pose, q, vel_b = v[:3], v[3:7], v[7:9]
         p = t["geometry_msgs/msg/Pose"](
             position=t["geometry_msgs/msg/Point"](x=pose[0], y=pose[1], z=pose[2]),
             orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
@@ -155,6 +161,66 @@ class _Messages:
                 )
             )
         return t[TF_TYPE](transforms=tfs)
+
+
+class _TemplateCdr:
+    """CDR bytes of one topic's messages from a serialised template.
+
+    Per message only header.stamp (payload offset 0: int32 sec, uint32 nanosec), an
+    optional trailing uint8[] payload of fixed length and optional float64 fields change;
+    float64 slots are located once by serialising unique sentinel values. Equality with
+    rosbags' `serialize_cdr` is checked in tests/test_sim_mcap.py.
+    """
+
+    _STAMP = struct.Struct("<iI")
+
+    def __init__(self, typename: str, message: Any, data_len: int = 0, slots: int = 0) -> None:
+        cdr = bytes(ros2_typestore().serialize_cdr(message, typename))
+        self._prefix = bytearray(cdr[: len(cdr) - data_len])
+        self._offsets = np.array(
+            [self._prefix.find(struct.pack("<d", _sentinel(k))) for k in range(slots)], np.int64
+        )
+        if np.any(self._offsets < 0):
+            raise RuntimeError(f"CDR template for {typename}: sentinel not found")
+
+    def encode(self, t_ns: int, data: bytes = b"", values: np.ndarray | None = None) -> bytes:
+        self._STAMP.pack_into(self._prefix, 4, t_ns // 10**9, t_ns % 10**9)
+        if values is not None:
+            for off, v in zip(self._offsets.tolist(), values.tolist(), strict=True):
+                struct.pack_into("<d", self._prefix, off, v)
+        return bytes(self._prefix) + data
+
+
+def _sentinel(k: int) -> float:
+    return 1.2345678901234567e17 + 4096.0 * k
+
+
+class _FastEncoder:
+    """Template-based CDR for every per-frame topic of a simulated run."""
+
+    def __init__(self, run: SimRun, build: _Messages, sigma_dr: float) -> None:
+        self.tpl: dict[str, _TemplateCdr] = {}
+        for s in SONARS:
+            cfg = run.config.sonar(s)
+            shape = (cfg.n_ranges, cfg.n_beams)
+            ping = SonarPing(0, s, np.zeros(shape, np.uint8), cfg.ranges_m(), cfg.angles_rad())
+            size = shape[0] * shape[1]
+            self.tpl[SONAR_TOPIC[s]] = _TemplateCdr(PROJECTED_SONAR_TYPE, build.sonar(ping), size)
+            lab = build.image(0, FRAME_SONAR[s], np.zeros(shape, np.uint8), "mono8")
+            self.tpl[LABEL_TOPIC[s]] = _TemplateCdr(IMAGE_TYPE, lab, size)
+            ang = build.image(0, FRAME_SONAR[s], np.zeros(shape, np.float32), "32FC1")
+            self.tpl[TRUTH_ANGLE_TOPIC[s]] = _TemplateCdr(IMAGE_TYPE, ang, 4 * size)
+        for topic, sigma in ((TOPIC_DEAD_RECKONING, sigma_dr), (TOPIC_GROUND_TRUTH, 0.0)):
+            msg = build.odometry_raw(0, np.array([_sentinel(k) for k in range(9)]), sigma)
+            self.tpl[topic] = _TemplateCdr(ODOMETRY_TYPE, msg, 0, slots=9)
+
+    def image(self, topic: str, t_ns: int, arr: np.ndarray) -> bytes:
+        return self.tpl[topic].encode(t_ns, np.ascontiguousarray(arr).tobytes())
+
+    def odometry(self, topic: str, t_ns: int, pose: np.ndarray, vel_b: np.ndarray) -> bytes:
+        q = quaternion_from_matrix(rot_rpy(*pose[3:6]))
+        values = np.concatenate([pose[:3], q, vel_b[:2]])
+        return self.tpl[topic].encode(t_ns, b"", values)
 
 
 def _body_velocity(t_ns: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -218,6 +284,7 @@ def write_simulation(
     v_dr = _body_velocity(t_ns_all, traj["dr_pose"])
     sigma_dr = max(run.config.navigation.dvl_noise_m_s, 1e-3)
     t_first = int(t_ns_all[0])
+    fast = _FastEncoder(run, build, sigma_dr)
     n_msgs = 0
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -228,37 +295,22 @@ def write_simulation(
             w.write(TOPIC_TF_STATIC, TF_TYPE, build.tf_static(t_first, run.T_base_sonar), t_first)
             n_msgs += 1
             for frame in run.frames():
-                t = frame.t_ns
+                t, i = frame.t_ns, frame.index
                 for ping in (frame.horizontal, frame.vertical):
                     s = ping.sonar
-                    w.write(SONAR_TOPIC[s], PROJECTED_SONAR_TYPE, build.sonar(ping), t)
                     assert ping.labels is not None and ping.truth_angle_rad is not None
-                    w.write(
-                        LABEL_TOPIC[s],
-                        IMAGE_TYPE,
-                        build.image(t, FRAME_SONAR[s], ping.labels, "mono8"),
-                        t,
-                    )
                     truth = ping.truth_angle_rad.astype(np.float32)
-                    w.write(
-                        TRUTH_ANGLE_TOPIC[s],
-                        IMAGE_TYPE,
-                        build.image(t, FRAME_SONAR[s], truth, "32FC1"),
-                        t,
-                    )
-                i = frame.index
-                w.write(
-                    TOPIC_DEAD_RECKONING,
-                    ODOMETRY_TYPE,
-                    build.odometry(t, frame.dr_pose, v_dr[i], sigma_dr),
-                    t,
-                )
-                w.write(
-                    TOPIC_GROUND_TRUTH,
-                    ODOMETRY_TYPE,
-                    build.odometry(t, frame.gt_pose, v_gt[i], 0.0),
-                    t,
-                )
+                    for topic, typename, arr in (
+                        (SONAR_TOPIC[s], PROJECTED_SONAR_TYPE, ping.image),
+                        (LABEL_TOPIC[s], IMAGE_TYPE, ping.labels),
+                        (TRUTH_ANGLE_TOPIC[s], IMAGE_TYPE, truth),
+                    ):
+                        w.write_raw(topic, typename, fast.image(topic, t, arr), t)
+                for topic, pose, vel in (
+                    (TOPIC_DEAD_RECKONING, frame.dr_pose, v_dr[i]),
+                    (TOPIC_GROUND_TRUTH, frame.gt_pose, v_gt[i]),
+                ):
+                    w.write_raw(topic, ODOMETRY_TYPE, fast.odometry(topic, t, pose, vel), t)
                 n_msgs += 8
                 if progress is not None:
                     progress(i + 1, run.n_frames)

@@ -29,6 +29,8 @@ from sim.world import World
 __all__ = ["SonarModel"]
 
 _NOISE_TABLE_SIZE = 65536
+_N_PATTERNS = 16
+"""Number of precomputed jittered ray fans per sonar; each ping draws one."""
 """Rayleigh noise is drawn by inverse CDF from this many quantiles (uint16 indices)."""
 
 
@@ -54,10 +56,19 @@ class SonarModel:
         self._bp_k = -np.log(cfg.aperture_edge_gain) / half**2
         p = (np.arange(_NOISE_TABLE_SIZE) + 0.5) / _NOISE_TABLE_SIZE
         sigma = cfg.noise_mean_level * np.sqrt(2.0 / np.pi)
-        self._noise_table = (sigma * np.sqrt(-2.0 * np.log1p(-p))).astype(np.float32)
+        self._noise_table = np.minimum(np.rint(sigma * np.sqrt(-2.0 * np.log1p(-p))), 255).astype(
+            np.uint8
+        )
+        pattern_rng = np.random.default_rng([12345, cfg.n_beams, cfg.aperture_samples])
+        self._patterns = [self._jittered_fan(pattern_rng) for _ in range(_N_PATTERNS)]
 
     def ray_directions(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Jittered ray fan in the sensor frame.
+        """One of the precomputed jittered fans, drawn with `rng` (see `_jittered_fan`)."""
+        return self._patterns[int(rng.integers(_N_PATTERNS))]
+
+    def _jittered_fan(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """Stratified jittered ray fan in the sensor frame: per beam, K aperture strata, each
+        with a fan offset from a different stratum of the beam width (Latin hypercube).
 
         Returns:
             dirs (B*K, 3) unit vectors (sensor frame), aperture angle e (B*K,) [rad].
@@ -156,15 +167,10 @@ class SonarModel:
         if cfg.speckle:
             level_nz *= rng.rayleigh(np.sqrt(2.0 / np.pi), len(nz))
         if cfg.noise_mean_level > 0:
-            level = self._noise_table[
-                rng.integers(0, len(self._noise_table), size, dtype=np.uint16)
-            ]
+            image = self._noise_table[rng.integers(0, _NOISE_TABLE_SIZE, size, dtype=np.uint16)]
         else:
-            level = np.zeros(size, dtype=np.float32)
-        level[nz] += level_nz
-        level += 0.5
-        np.minimum(level, 255.0, out=level)
-        image = level.astype(np.uint8)
+            image = np.zeros(size, dtype=np.uint8)
+        image[nz] = np.minimum(image[nz] + level_nz + 0.5, 255.0).astype(np.uint8)
         shape = (self.n_ranges, self.n_beams)
         return SonarPing(
             t_ns=int(t_ns),

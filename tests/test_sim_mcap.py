@@ -167,3 +167,29 @@ def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
     )
     assert (r1.exit_code, r2.exit_code, r3.exit_code) == (2, 2, 2)
     assert "area_m" in r1.output
+
+
+def test_template_cdr_equals_rosbags_serialisation() -> None:
+    from pipeline.rosmsg import ros2_typestore
+    from pipeline.simulate import _FastEncoder, _Messages
+
+    run = _run(seed=1, duration_s=1.0)
+    frame = run.frame(1)
+    build = _Messages(run)
+    fast = _FastEncoder(run, build, 0.02)
+    ts = ros2_typestore()
+    t = frame.t_ns + 123
+    ping = frame.vertical
+    ref = ts.serialize_cdr(
+        build.sonar(ping.__class__(t, "vertical", ping.image, ping.ranges_m, ping.angles_rad)),
+        "marine_acoustic_msgs/msg/ProjectedSonarImage",
+    )
+    assert fast.image(SONAR_TOPIC["vertical"], t, ping.image) == bytes(ref)
+    ref = ts.serialize_cdr(
+        build.image(t, FRAME_SONAR["vertical"], ping.truth_angle_rad, "32FC1"),
+        "sensor_msgs/msg/Image",
+    )
+    assert fast.image(TRUTH_ANGLE_TOPIC["vertical"], t, ping.truth_angle_rad) == bytes(ref)
+    vel = np.array([0.3, -0.1])
+    ref = ts.serialize_cdr(build.odometry(t, frame.dr_pose, vel, 0.02), "nav_msgs/msg/Odometry")
+    assert fast.odometry(TOPIC_DEAD_RECKONING, t, frame.dr_pose, vel) == bytes(ref)
