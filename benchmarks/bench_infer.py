@@ -1,0 +1,114 @@
+"""Benchmark of the `infer` stage: update + query keyframes per second, memory, accuracy.
+
+Inputs are built from simulator truth (tests/test_infer.py: label regions = objects,
+a 10 % subset of the +-10 deg overlap cells = fused points with 0.5 deg elevation noise),
+so the figures isolate the inference stage from feature extraction and fusion.
+
+    .venv/bin/python benchmarks/bench_infer.py --scene marina --spacing-m 2 --seed 0
+
+Prints one JSON document: keyframes/s (best of --repeat), tracemalloc peak of the
+stage for growing mission prefixes (flat = memory bounded by the model, not the
+mission), model cells, and the accuracy / coverage figures of the issue.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from sim.config import SimConfig  # noqa: E402
+from sim.dataset import simulate  # noqa: E402
+from sim.scene import load_scene  # noqa: E402
+from stages.infer import InferConfig, infer_points  # noqa: E402
+from tests.test_infer import (  # noqa: E402
+    TruthTables,
+    keyframe_indices,
+    n_voxels,
+    to_world,
+    truth_tables,
+)
+
+
+def _prefix(tt: TruthTables, n_kf: int) -> list[pa.Table]:
+    """The four infer inputs restricted to keyframes < n_kf."""
+    return [
+        t.filter(pc.less(t.column("keyframe_id"), n_kf))
+        for t in (tt.objects, tt.object_features, tt.features, tt.fused)
+    ]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="marina")
+    ap.add_argument("--spacing-m", type=float, default=2.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+
+    run = simulate(
+        load_scene(REPO / "configs" / "scenes" / f"{args.scene}.yaml"), SimConfig(), args.seed
+    )
+    t0 = time.perf_counter()
+    tt = truth_tables(run, keyframe_indices(run, args.spacing_m))
+    build_s = time.perf_counter() - t0
+    n_kf = len(tt.T_world_sonar)
+    config = InferConfig()
+
+    times = []
+    for _ in range(args.repeat):
+        t0 = time.perf_counter()
+        points = infer_points(*_prefix(tt, n_kf), config)
+        times.append(time.perf_counter() - t0)
+
+    memory = {}
+    for frac in (0.25, 0.5, 1.0):
+        k = max(1, round(frac * n_kf))
+        inputs = _prefix(tt, k)
+        tracemalloc.start()
+        out = infer_points(*inputs, config)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        memory[f"{k}_keyframes"] = {"peak_mib": peak / 2**20, "output_mib": out.nbytes / 2**20}
+
+    inferred = points.filter(pc.equal(points.column("source"), "inferred"))
+    fused_w = to_world(tt.fused, tt.T_world_sonar)
+    inferred_w = to_world(inferred, tt.T_world_sonar)
+    d_fused = float(np.median(run.world.distance(fused_w)))
+    d_inferred = float(np.median(run.world.distance(inferred_w)))
+    report = {
+        "scene": args.scene,
+        "spacing_m": args.spacing_m,
+        "seed": args.seed,
+        "keyframes": n_kf,
+        "object_features": tt.object_features.num_rows,
+        "fused_points": tt.fused.num_rows,
+        "inferred_points": inferred.num_rows,
+        "truth_build_s": build_s,
+        "infer_s_best": min(times),
+        "keyframes_per_s": n_kf / min(times),
+        "memory": memory,
+        "median_distance_m": {"fused": d_fused, "inferred": d_inferred},
+        "inferred_over_fused": d_inferred / d_fused,
+        "voxels_10cm": {
+            "fused": n_voxels(fused_w),
+            "fused_plus_inferred": n_voxels(np.vstack([fused_w, inferred_w])),
+        },
+    }
+    v = report["voxels_10cm"]
+    report["coverage_ratio"] = v["fused_plus_inferred"] / max(v["fused"], 1)
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
