@@ -33,7 +33,6 @@ aperture (`max_elevation_deg`) are dropped, since no return can come from there.
 
 from __future__ import annotations
 
-import itertools
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -41,6 +40,7 @@ from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 from pydantic import Field
 
 from schemas.classes import PILING_CLASSES
@@ -60,14 +60,9 @@ __all__ = ["STAGE", "InferConfig", "infer_points"]
 
 logger = logging.getLogger(__name__)
 
-FUSED_FEATURE_COLUMNS: tuple[str, ...] = (
-    "feature_id_horizontal",
-    "horizontal_feature_id",
-    "feature_id_h",
-    "h_feature_id",
-    "feature_id",
-)
-"""Accepted names of the fused table's horizontal-feature id column (first present wins)."""
+FUSED_FEATURE_COLUMN = "feature_id_horizontal"
+"""Column of `fuse.fused` naming the horizontal feature of a fused point."""
+_FUSED_COLUMNS = ("range_m", "bearing_rad", "elevation_rad", "x_m", "y_m", "z_m", "confidence")
 
 
 class InferConfig(StageConfig):
@@ -161,13 +156,6 @@ def _lookup(keys_sorted: np.ndarray, keys: np.ndarray) -> np.ndarray:
     return np.where(keys_sorted[pos] == keys, pos, -1)
 
 
-def _fused_feature_column(fused: pa.Table) -> str:
-    for name in FUSED_FEATURE_COLUMNS:
-        if name in fused.column_names:
-            return name
-    raise ValueError(f"infer: fused table has none of the columns {FUSED_FEATURE_COLUMNS}")
-
-
 def _object_feature_rows(
     objects: pa.Table, object_features: pa.Table, features: pa.Table, fused: pa.Table
 ) -> dict[str, np.ndarray]:
@@ -183,9 +171,6 @@ def _object_feature_rows(
     order = np.lexsort((of_fid, of_obj, of_kf))
     of_kf, of_obj, of_fid = of_kf[order], of_obj[order], of_fid[order]
     # Feature geometry (horizontal sonar: angle = bearing).
-    if "sonar" in features.column_names:
-        horizontal = np.asarray(_col(features, "sonar", "features"), dtype=str) == "horizontal"
-        features = features.filter(pa.array(horizontal))
     f_key = _key(
         _col(features, "keyframe_id", "features"), _col(features, "feature_id", "features")
     )
@@ -204,8 +189,7 @@ def _object_feature_rows(
         np.asarray(_col(objects, "class_name", "objects"), dtype=str), return_inverse=True
     )
     # Fused point of each horizontal feature (if any).
-    h_col = _fused_feature_column(fused)
-    fu_key = _key(_col(fused, "keyframe_id", "fused"), _col(fused, h_col, "fused"))
+    fu_key = _key(_col(fused, "keyframe_id", "fused"), _col(fused, FUSED_FEATURE_COLUMN, "fused"))
     fu_order = np.argsort(fu_key, kind="stable")
     fu_row = _lookup(fu_key[fu_order], _key(of_kf, of_fid))
     return {
@@ -214,7 +198,7 @@ def _object_feature_rows(
         "class_index": class_index.reshape(-1)[o_order[o_row]],
         "range_m": _col(features, "range_m", "features").astype(np.float64)[f_row],
         "bearing_rad": _col(features, "angle_rad", "features").astype(np.float64)[f_row],
-        "fused_row": np.where(fu_row >= 0, fu_order[np.maximum(fu_row, 0)], -1),
+        "fused_row": np.where(fu_row >= 0, np.r_[fu_order, -1][fu_row], -1),
         "classes": classes,
     }
 
@@ -334,11 +318,6 @@ def infer_points(
         Table with `POINTS_SCHEMA`, sorted by (keyframe_id, object_id, source,
         range_m, bearing_rad, z_m).
     """
-    rows = _object_feature_rows(objects, object_features, features, fused)
-    fused_cols = {
-        c: _col(fused, c, "fused").astype(np.float64)
-        for c in ("range_m", "bearing_rad", "elevation_rad", "x_m", "y_m", "z_m", "confidence")
-    }
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     states = {
         c: _ClassState(
@@ -353,29 +332,74 @@ def infer_points(
         )
         for c in config.classes
     }
+    index = {
+        name: _KeyframeIndex(table, name)
+        for name, table in (
+            ("objects", objects),
+            ("object_features", object_features),
+            ("features", features),
+            ("fused", fused),
+        )
+    }
     parts: list[dict[str, Any]] = []
-    kf = rows["keyframe_id"]
-    bounds = np.flatnonzero(np.r_[True, np.diff(kf) != 0, True])
-    for a, b in itertools.pairwise(bounds):
-        sightings = _sightings(rows, slice(int(a), int(b)), fused_cols)
-        for s in sightings:
-            pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-            parts.append(_tag(pts, int(kf[a]), s, "fused"))
-        for c in config.classes:
-            state = states[c]
-            of_class = [s for s in sightings if s.class_name == c]
-            transforms = _update_class(state, of_class, config.range_axis)
-            if not state.model.updated:
-                continue
-            for s in of_class:
-                T = transforms.get(s.object_id)
-                if T is None:
-                    reg = state.frame.register(s.uv_m)
-                    if not reg.ok:
-                        continue
-                    T = reg.T_ref_obj
-                parts.append(_tag(_query_sighting(state, s, T, config), int(kf[a]), s, "inferred"))
+    for k in index["object_features"].keyframe_ids:
+        tables = {name: ix.rows(int(k)) for name, ix in index.items()}
+        parts.extend(_process_keyframe(int(k), tables, states, config))
     return _table(parts)
+
+
+class _KeyframeIndex:
+    """Rows of one keyframe of a table (zero-copy slices when sorted by keyframe)."""
+
+    def __init__(self, table: pa.Table, what: str) -> None:
+        self.table = table
+        kf = _col(table, "keyframe_id", what).astype(np.int64)
+        self.order = None if np.all(kf[1:] >= kf[:-1]) else np.argsort(kf, kind="stable")
+        self.kf_sorted = kf if self.order is None else kf[self.order]
+        self.keyframe_ids = np.unique(self.kf_sorted)
+
+    def rows(self, keyframe_id: int) -> pa.Table:
+        a = int(np.searchsorted(self.kf_sorted, keyframe_id, side="left"))
+        b = int(np.searchsorted(self.kf_sorted, keyframe_id, side="right"))
+        if self.order is None:
+            return self.table.slice(a, b - a)
+        return self.table.take(pa.array(self.order[a:b]))
+
+
+def _process_keyframe(
+    keyframe_id: int,
+    tables: dict[str, pa.Table],
+    states: dict[str, _ClassState],
+    config: InferConfig,
+) -> list[dict[str, Any]]:
+    """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
+    features = tables["features"]
+    if "sonar" in features.column_names:
+        features = features.filter(pc.equal(features.column("sonar"), "horizontal"))
+    rows = _object_feature_rows(
+        tables["objects"], tables["object_features"], features, tables["fused"]
+    )
+    fused_cols = {c: _col(tables["fused"], c, "fused").astype(np.float64) for c in _FUSED_COLUMNS}
+    sightings = _sightings(rows, slice(0, rows["object_id"].size), fused_cols)
+    parts = []
+    for s in sightings:
+        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
+        parts.append(_tag(pts, keyframe_id, s, "fused"))
+    for c in config.classes:
+        state = states[c]
+        of_class = [s for s in sightings if s.class_name == c]
+        transforms = _update_class(state, of_class, config.range_axis)
+        if not state.model.updated:
+            continue
+        for s in of_class:
+            T = transforms.get(s.object_id)
+            if T is None:
+                reg = state.frame.register(s.uv_m)
+                if not reg.ok:
+                    continue
+                T = reg.T_ref_obj
+            parts.append(_tag(_query_sighting(state, s, T, config), keyframe_id, s, "inferred"))
+    return parts
 
 
 def _tag(pts: dict[str, np.ndarray], keyframe_id: int, s: _Sighting, source: str) -> dict:

@@ -356,7 +356,16 @@ def test_pier_output_contract_and_determinism(pier) -> None:
     kf = a.column("keyframe_id").to_numpy()
     assert np.all(np.diff(kf) >= 0)
     fused = a.filter(pa.compute.equal(a.column("source"), "fused"))
-    assert fused.num_rows == tt.fused.num_rows  # every fused point lies on an object here
+    of_keys = {
+        tuple(k)
+        for k in np.c_[
+            [tt.object_features.column(c).to_numpy() for c in ("keyframe_id", "feature_id")]
+        ].T
+    }
+    fused_keys = np.c_[
+        [tt.fused.column(c).to_numpy() for c in ("keyframe_id", "feature_id_horizontal")]
+    ].T
+    assert fused.num_rows == sum(tuple(k) in of_keys for k in fused_keys)  # fused points on objects
     inferred = a.filter(pa.compute.equal(a.column("source"), "inferred"))
     assert set(inferred.column("class_name").to_pylist()) <= {
         "cylindrical_piling",
