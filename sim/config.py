@@ -50,6 +50,9 @@ class SonarConfig(_Model):
     n_beams: int = Field(512, ge=2, le=2048)
     range_max_m: float = Field(30.0, gt=0.0)
     range_resolution_m: float = Field(0.05, gt=0.0)
+    beam_width_deg: float = Field(
+        1.0, gt=0.0, le=10.0, description="-3 dB beam width across the fan (M750d 1, M1200d 0.6)"
+    )
     aperture_samples: int = Field(48, ge=1, le=512, description="rays per beam across the aperture")
     mounting: Mounting = Mounting()
     frequency_hz: float = 750e3
@@ -76,6 +79,16 @@ class SonarConfig(_Model):
         ge=1,
         description="max range gap (bins) between aperture neighbours that still share a surface",
     )
+
+    @model_validator(mode="after")
+    def _beam_width_covers_spacing(self) -> SonarConfig:
+        spacing = self.fan_width_deg / self.n_beams
+        if self.beam_width_deg < spacing:
+            raise ValueError(
+                f"beam_width_deg {self.beam_width_deg} is below the beam spacing {spacing:.3f} deg;"
+                " targets could fall between beams"
+            )
+        return self
 
     @property
     def n_ranges(self) -> int:

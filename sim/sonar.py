@@ -1,7 +1,8 @@
 """Image formation of a wide-aperture imaging sonar by ray casting (paper Sec. V.B analogue).
 
 Per ping, every beam casts `aperture_samples` rays spread across the aperture (the
-unresolved angle) with stratified sub-beam jitter across the beam width, all in one
+unresolved angle) with stratified fan offsets drawn from the beam's across-fan pattern
+(Gaussian, FWHM `beam_width_deg`, wider than the beam spacing), all in one
 `cast_rays` call. Each first hit returns
 
     I_ray = rho_class * cos(incidence)^n * b(e) * 10^(-2 alpha r / 10) / K,
@@ -19,6 +20,7 @@ Labels and the true unresolved angle come from the strongest contribution per pi
 from __future__ import annotations
 
 import numpy as np
+from scipy.special import ndtri
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import SonarPing
@@ -43,7 +45,7 @@ class SonarModel:
         self.ranges_m = cfg.ranges_m()
         self.angles_rad = cfg.angles_rad()
         self.n_ranges, self.n_beams, self.k = cfg.n_ranges, cfg.n_beams, cfg.aperture_samples
-        self.beam_width_rad = np.deg2rad(cfg.fan_width_deg) / cfg.n_beams
+        self._fan_sigma_rad = np.deg2rad(cfg.beam_width_deg) / (2.0 * np.sqrt(2.0 * np.log(2.0)))
         self.aperture_rad = np.deg2rad(cfg.aperture_deg)
         self._perm = np.random.default_rng(12345).permutation(self.k)
         roll = np.deg2rad(cfg.mounting.rpy_deg[0])
@@ -68,7 +70,9 @@ class SonarModel:
 
     def _jittered_fan(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """Stratified jittered ray fan in the sensor frame: per beam, K aperture strata, each
-        with a fan offset from a different stratum of the beam width (Latin hypercube).
+        with a fan offset from a different stratum of the beam's across-fan pattern (Latin
+        hypercube). Offsets follow a Gaussian of FWHM `beam_width_deg` (inverse CDF of the
+        stratified uniforms), so each beam integrates the scene with its beam pattern.
 
         Returns:
             dirs (B*K, 3) unit vectors (sensor frame), aperture angle e (B*K,) [rad].
@@ -78,7 +82,7 @@ class SonarModel:
         e = -self.aperture_rad / 2 + (np.arange(k)[None] + u1) / k * self.aperture_rad
         a = (
             self.angles_rad[:, None].astype(np.float64)
-            + ((self._perm[None] + u2) / k - 0.5) * self.beam_width_rad
+            + ndtri(np.clip((self._perm[None] + u2) / k, 0.005, 0.995)) * self._fan_sigma_rad
         )
         ce = np.cos(e)
         dirs = np.stack([ce * np.cos(a), ce * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
