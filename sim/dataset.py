@@ -59,6 +59,7 @@ class SimRun:
     seed: int
     trajectory: dict[str, np.ndarray]
     path: Trajectory
+    _models: dict[str, SonarModel] = field(default_factory=dict, init=False, repr=False)
 
     @property
     def n_frames(self) -> int:
@@ -73,7 +74,7 @@ class SimRun:
         """Frame `index`, identical whenever it is generated (per-frame seeded RNG)."""
         if not 0 <= index < self.n_frames:
             raise IndexError(f"frame {index} outside 0..{self.n_frames - 1}")
-        models = self._models()
+        models = self.sonar_models()
         mounts = self.T_base_sonar
         gt = self.trajectory["gt_pose"][index]
         t_ns = int(self.trajectory["t_ns"][index])
@@ -98,12 +99,12 @@ class SimRun:
         for i in range(self.n_frames):
             yield self.frame(i)
 
-    def _models(self) -> dict[str, SonarModel]:
-        cache = self.__dict__.setdefault("_model_cache", {})
-        if not cache:
+    def sonar_models(self) -> dict[str, SonarModel]:
+        """The two sonar image models (built once)."""
+        if not self._models:
             for s in ("horizontal", "vertical"):
-                cache[s] = SonarModel(self.config.sonar(s), s)
-        return cache
+                self._models[s] = SonarModel(self.config.sonar(s), s)
+        return self._models
 
 
 def simulate(scene: Scene, config: SimConfig, seed: int) -> SimRun:

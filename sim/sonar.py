@@ -115,73 +115,103 @@ class SonarModel:
         """One ping from sonar pose `T_world_sonar` (4, 4); randomness only from `rng`."""
         cfg = self.cfg
         dirs_s, e = self.ray_directions(rng)
-        R = T_world_sonar[:3, :3]
-        dirs_w = dirs_s @ R.T
-        origins = np.broadcast_to(T_world_sonar[:3, 3], dirs_w.shape)
-        hit = world.cast(origins, dirs_w)
+        dirs_w = dirs_s @ T_world_sonar[:3, :3].T
+        hit = world.cast(np.broadcast_to(T_world_sonar[:3, 3], dirs_w.shape), dirs_w)
         t = hit["t_hit"]
-        ok = np.flatnonzero(t < cfg.range_max_m + cfg.max_splat_bins * cfg.range_resolution_m)
-        beam = ok // self.k
-        r, cls, e_ok = t[ok], hit["class_id"][ok], e[ok]
-        # Per-ray intensity: reflectivity, incidence, beam pattern, absorption.
-        cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", hit["normal"][ok], dirs_w[ok])), 1e-3, 1.0)
-        contrib = (
-            self._refl[cls]
-            * cos_inc**cfg.incidence_exponent
-            * np.exp(-self._bp_k * e_ok**2)
-            * 10.0 ** (-2.0 * cfg.absorption_db_per_m * r / 10.0)
-            / self.k
-        )
-        # Unresolved angle (truth) in the unrolled frame at the sonar origin.
-        d_u = dirs_s[ok] @ self.R_unrolled_sensor.T
-        if self.sonar == "horizontal":
-            truth = np.arcsin(np.clip(d_u[:, 2], -1.0, 1.0))
-        else:
-            truth = np.arctan2(d_u[:, 1], d_u[:, 0])
-        # Spread each ray over its footprint: halfway to the ranges of its aperture
-        # neighbours when they hit the same object (one-sided at silhouettes).
         res = cfg.range_resolution_m
+        ok = np.flatnonzero(t < cfg.range_max_m + cfg.max_splat_bins * res)
+        cls = hit["class_id"][ok]
+        contrib = self._ray_intensity(t[ok], cls, e[ok], hit["normal"][ok], dirs_w[ok])
+        truth = self._unresolved_angle(dirs_s[ok])
         r_lo, r_hi = self._footprint(t, hit["object_id"], cfg.max_splat_bins * res)
-        r_lo, r_hi = r_lo[ok], r_hi[ok]
-        lo = np.floor(r_lo / res).astype(np.int64)
-        n = np.floor(r_hi / res).astype(np.int64) - lo + 1
-        rep = np.repeat(np.arange(len(r)), n)
-        first = np.repeat(np.cumsum(n) - n, n)
-        bins = lo[rep] + (np.arange(len(rep)) - first)
-        w = (contrib / n)[rep]
-        keep = (bins >= 0) & (bins < self.n_ranges)
-        rep, bins, w = rep[keep], bins[keep], w[keep]
-        pix = bins * self.n_beams + beam[rep]
+        pix, w, ray = self._splat(r_lo[ok], r_hi[ok], ok // self.k, contrib)
         size = self.n_ranges * self.n_beams
         intensity = np.bincount(pix, weights=w, minlength=size)
-        # Strongest contribution per pixel -> label and truth angle.
-        order = np.lexsort((w, pix))
-        ps = pix[order]
-        last = np.flatnonzero(np.r_[ps[1:] != ps[:-1], True]) if len(ps) else np.zeros(0, np.int64)
-        top_pix, top_ray = ps[last], rep[order[last]]
-        gain = 255.0 / cfg.saturation_intensity**cfg.display_gamma
-        visible = gain * intensity[top_pix] ** cfg.display_gamma >= cfg.label_min_level
+        # Strongest contribution per visible pixel -> label and truth angle.
+        top_pix, top_ray = _strongest(pix, w, ray)
+        visible = self._level(intensity[top_pix]) >= cfg.label_min_level
         labels = np.zeros(size, dtype=np.uint8)
         truth_img = np.full(size, np.nan, dtype=np.float32)
         labels[top_pix[visible]] = cls[top_ray[visible]]
         truth_img[top_pix[visible]] = truth[top_ray[visible]]
-        # Speckle (multiplicative Rayleigh, unit mean) and additive Rayleigh noise.
-        nz = np.flatnonzero(intensity)
-        level_nz = gain * intensity[nz] ** cfg.display_gamma
-        if cfg.speckle:
-            level_nz *= rng.rayleigh(np.sqrt(2.0 / np.pi), len(nz))
-        if cfg.noise_mean_level > 0:
-            image = self._noise_table[rng.integers(0, _NOISE_TABLE_SIZE, size, dtype=np.uint16)]
-        else:
-            image = np.zeros(size, dtype=np.uint8)
-        image[nz] = np.minimum(image[nz] + level_nz + 0.5, 255.0).astype(np.uint8)
         shape = (self.n_ranges, self.n_beams)
         return SonarPing(
             t_ns=int(t_ns),
             sonar=self.sonar,
-            image=image.reshape(shape),
+            image=self._to_uint8(intensity, rng).reshape(shape),
             ranges_m=self.ranges_m,
             angles_rad=self.angles_rad,
             labels=labels.reshape(shape),
             truth_angle_rad=truth_img.reshape(shape),
         )
+
+    def _ray_intensity(
+        self, r: np.ndarray, cls: np.ndarray, e: np.ndarray, normal: np.ndarray, d: np.ndarray
+    ) -> np.ndarray:
+        """Per-ray return: reflectivity, cos(incidence)^n, aperture beam pattern, absorption."""
+        cfg = self.cfg
+        cos_inc = np.clip(np.abs(np.einsum("ij,ij->i", normal, d)), 1e-3, 1.0)
+        return (
+            self._refl[cls]
+            * cos_inc**cfg.incidence_exponent
+            * np.exp(-self._bp_k * e**2)
+            * 10.0 ** (-2.0 * cfg.absorption_db_per_m * r / 10.0)
+            / self.k
+        )
+
+    def _unresolved_angle(self, dirs_s: np.ndarray) -> np.ndarray:
+        """Elevation (horizontal sonar) or bearing (vertical) of sensor-frame directions,
+        in the unrolled frame at the sonar origin [rad]."""
+        d_u = dirs_s @ self.R_unrolled_sensor.T
+        if self.sonar == "horizontal":
+            return np.arcsin(np.clip(d_u[:, 2], -1.0, 1.0))
+        return np.arctan2(d_u[:, 1], d_u[:, 0])
+
+    def _splat(
+        self, r_lo: np.ndarray, r_hi: np.ndarray, beam: np.ndarray, contrib: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Share each ray's return evenly over the range bins of [r_lo, r_hi].
+
+        Returns:
+            pixel index bin * n_beams + beam, weight, ray index (all (m,)).
+        """
+        res = self.cfg.range_resolution_m
+        lo = np.floor(r_lo / res).astype(np.int64)
+        n = np.floor(r_hi / res).astype(np.int64) - lo + 1
+        ray = np.repeat(np.arange(len(lo)), n)
+        first = np.repeat(np.cumsum(n) - n, n)
+        bins = lo[ray] + (np.arange(len(ray)) - first)
+        w = (contrib / n)[ray]
+        keep = (bins >= 0) & (bins < self.n_ranges)
+        ray, bins, w = ray[keep], bins[keep], w[keep]
+        return bins * self.n_beams + beam[ray], w, ray
+
+    def _level(self, intensity: np.ndarray) -> np.ndarray:
+        """Noise-free 8-bit level 255 (I / I_sat)^gamma (unclipped)."""
+        cfg = self.cfg
+        return 255.0 * (intensity / cfg.saturation_intensity) ** cfg.display_gamma
+
+    def _to_uint8(self, intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Speckle (multiplicative Rayleigh, unit mean), additive Rayleigh noise, uint8."""
+        cfg = self.cfg
+        nz = np.flatnonzero(intensity)
+        level_nz = self._level(intensity[nz])
+        if cfg.speckle:
+            level_nz *= rng.rayleigh(np.sqrt(2.0 / np.pi), len(nz))
+        if cfg.noise_mean_level > 0:
+            idx = rng.integers(0, _NOISE_TABLE_SIZE, len(intensity), dtype=np.uint16)
+            image = self._noise_table[idx]
+        else:
+            image = np.zeros(len(intensity), dtype=np.uint8)
+        image[nz] = np.minimum(image[nz] + level_nz + 0.5, 255.0).astype(np.uint8)
+        return image
+
+
+def _strongest(pix: np.ndarray, w: np.ndarray, ray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per distinct pixel, the ray with the largest weight: (pixels (p,), rays (p,))."""
+    if len(pix) == 0:
+        return pix, ray
+    order = np.lexsort((w, pix))
+    ps = pix[order]
+    last = np.flatnonzero(np.r_[ps[1:] != ps[:-1], True])
+    return ps[last], ray[order[last]]
