@@ -1,0 +1,302 @@
+"""Stage `evaluate`: map and trajectory quality against ground truth, figures and the
+report (paper Sec. V: absolute error per map as in Fig. 4, voxel counts as in Table I).
+
+With a ground-truth mesh (`keyframes.scene_mesh`, the simulator's PLY attachment):
+absolute error of every map point (distance to the mesh), its statistics per map
+(standard, semantic) and per source (fused, inferred), precision and completeness
+within `tolerance_m` (definitions and the visible-surface choice:
+`stages.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
+poses in `keyframes.keyframes`: ATE of the SLAM and dead-reckoning trajectories after
+SE(2) alignment. Without them, the counts and the top-down map are still reported and
+`metrics["skipped"]` says what was left out and why.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from pydantic import Field
+
+from schemas.classes import CLASS_IDS, PILING_CLASSES
+from schemas.map import ERRORS_SCHEMA, MAP_NAMES
+from stages.base import Output, Stage, StageConfig
+from stages.mesh_metrics import (
+    ate_se2,
+    error_stats,
+    fraction_within,
+    mesh_distance,
+    nearest_distance,
+    surface_samples,
+    visible_mask,
+)
+from stages.ply import Mesh, decode_mesh_ply
+from stages.report import (
+    SidePanel,
+    error_boxplot_png,
+    render_markdown,
+    side_view_png,
+    topdown_png,
+)
+from stages.voxelize import map_xyz, pose_matrices
+
+__all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
+
+logger = logging.getLogger(__name__)
+
+FIGURES: dict[str, str] = {
+    "plot_errors": "errors.png",
+    "plot_map_topdown": "map_topdown.png",
+    "plot_side_view": "side_view.png",
+}
+"""Output name -> file name of each figure."""
+
+
+class EvaluateConfig(StageConfig):
+    """Config section `evaluate`."""
+
+    tolerance_m: float = Field(0.1, gt=0.0, description="precision/completeness distance")
+    completeness_classes: tuple[str, ...] = Field(
+        PILING_CLASSES, description="classes whose surface completeness measures"
+    )
+    surface_samples_per_m2: float = Field(400.0, gt=0.0, description="completeness sampling")
+    seed: int = Field(0, description="seed of the surface sampling")
+    max_range_m: float = Field(30.0, gt=0.0, description="sonar range for the visible surface")
+    fan_width_deg: float = Field(130.0, gt=0.0, le=360.0, description="horizontal sonar fan")
+    aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
+    side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
+
+
+def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any]]:
+    """Absolute error of every map point and its statistics (paper Fig. 4).
+
+    Returns:
+        errors.parquet (`ERRORS_SCHEMA`: the map rows with `error_m`) and
+        {"standard"|"semantic"|"fused"|"inferred": error_stats(...)}.
+    """
+    err = mesh_distance(mesh, map_xyz(map_table, "semantic"))
+    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
+    groups = {
+        "standard": source == "fused",
+        "semantic": np.ones(len(source), dtype=bool),
+        "fused": source == "fused",
+        "inferred": source == "inferred",
+    }
+    table = map_table.append_column("error_m", pa.array(err, pa.float64()))
+    return table.cast(ERRORS_SCHEMA), {k: error_stats(err[m]) for k, m in groups.items()}
+
+
+def surface_metrics(
+    map_table: pa.Table,
+    errors: pa.Table,
+    mesh: Mesh,
+    T_world_sonar: np.ndarray,
+    config: EvaluateConfig,
+) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
+    """Completeness and precision of both maps (definitions: `stages.mesh_metrics`).
+
+    Returns:
+        completeness {"standard", "semantic", "n_samples", "classes", "tolerance_m"},
+        precision {"standard", "semantic", "fused", "inferred", "tolerance_m"}, and the
+        (s, 3) surface samples of the completeness classes before the visibility cut.
+    """
+    ids = np.array([CLASS_IDS[c] for c in config.completeness_classes if c in CLASS_IDS])
+    samples = surface_samples(mesh, ids, config.surface_samples_per_m2, config.seed)
+    seen = samples[
+        visible_mask(
+            samples,
+            T_world_sonar,
+            config.max_range_m,
+            np.deg2rad(config.fan_width_deg) / 2,
+            np.deg2rad(config.aperture_deg) / 2,
+        )
+    ]
+    tol = config.tolerance_m
+    completeness: dict[str, Any] = {
+        name: fraction_within(nearest_distance(seen, map_xyz(map_table, name), tol), tol)
+        for name in MAP_NAMES
+    }
+    completeness.update(
+        n_samples=len(seen), classes=list(config.completeness_classes), tolerance_m=tol
+    )
+    err = errors.column("error_m").to_numpy()
+    source = np.asarray(errors.column("source").to_pylist(), dtype=object)
+    precision: dict[str, Any] = {
+        "standard": fraction_within(err[source == "fused"], tol),
+        "semantic": fraction_within(err, tol),
+        "fused": fraction_within(err[source == "fused"], tol),
+        "inferred": fraction_within(err[source == "inferred"], tol),
+        "tolerance_m": tol,
+    }
+    return completeness, precision, samples
+
+
+def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float | None] | None:
+    """ATE [m] of SLAM and dead reckoning vs ground truth (None without ground truth)."""
+    gt_x = keyframes.column("gt_x_m").to_numpy(zero_copy_only=False).astype(np.float64)
+    gt_y = keyframes.column("gt_y_m").to_numpy(zero_copy_only=False).astype(np.float64)
+    has = np.isfinite(gt_x) & np.isfinite(gt_y)
+    if not has.any():
+        return None
+    kf = keyframes.column("keyframe_id").to_numpy()[has]
+    gt = np.stack([gt_x[has], gt_y[has]], axis=1)
+    dr = np.stack([keyframes.column(c).to_numpy()[has] for c in ("x_m", "y_m")], axis=1)
+    pid = poses.column("keyframe_id").to_numpy()
+    order = np.argsort(pid, kind="stable")
+    idx = np.clip(np.searchsorted(pid[order], kf), 0, max(len(pid) - 1, 0))
+    found = (pid[order][idx] == kf) if len(pid) else np.zeros(len(kf), bool)
+    slam = np.stack([poses.column(c).to_numpy()[order][idx] for c in ("x_m", "y_m")], axis=1)
+    return {
+        "slam_ate_m": ate_se2(slam[found], gt[found]),
+        "dead_reckoning_ate_m": ate_se2(dr, gt),
+        "n_keyframes": int(found.sum()),
+    }
+
+
+def _visibility_poses(keyframes: pa.Table, poses: pa.Table, T_base_sonar: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) T_world_sonar of every keyframe: ground truth when complete, else SLAM."""
+    gt = keyframes.column("gt_x_m")
+    table, prefix = (keyframes, "gt_") if gt.null_count == 0 and len(gt) else (poses, "")
+    _, T = pose_matrices(table, prefix)
+    return T @ T_base_sonar
+
+
+def _side_panels(
+    map_table: pa.Table, mesh: Mesh, samples: np.ndarray, n_panels: int
+) -> list[SidePanel]:
+    """Side views (x - centre vs z) of the pilings with the most map points nearby."""
+    oid = mesh.vertex_properties.get("object_id")
+    cls = mesh.vertex_properties.get("class_id")
+    if oid is None or cls is None:
+        return []
+    piling = np.isin(cls, [CLASS_IDS[c] for c in PILING_CLASSES])
+    pts = map_xyz(map_table, "semantic")
+    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
+    candidates = []
+    for obj in np.unique(oid[piling]):
+        v = mesh.vertices[oid == obj]
+        centre = v[:, :2].mean(axis=0)
+        radius = float(np.max(np.linalg.norm(v[:, :2] - centre, axis=1))) + 0.3
+        near = np.linalg.norm(pts[:, :2] - centre, axis=1) <= radius
+        candidates.append((-int(near.sum()), int(obj), centre, radius, near))
+    candidates.sort(key=lambda c: (c[0], c[1]))
+    panels = []
+    for count, obj, centre, radius, near in candidates[:n_panels]:
+        if count == 0:
+            break
+        truth = samples[np.linalg.norm(samples[:, :2] - centre, axis=1) <= radius]
+        truth = truth[truth[:, 2] <= 0.0]
+
+        def hz(p: np.ndarray, c: np.ndarray = centre) -> np.ndarray:
+            return np.stack([p[:, 0] - c[0], p[:, 2]], axis=1)
+
+        panels.append(
+            SidePanel(
+                f"object {obj} at ({centre[0]:.1f}, {centre[1]:.1f})",
+                "x - centre",
+                hz(pts[near & (source == "fused")]),
+                hz(pts[near & (source == "inferred")]),
+                hz(truth),
+            )
+        )
+    return panels
+
+
+def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    map_table: pa.Table = inputs["voxelize.map"]
+    summary: dict[str, Any] = inputs["voxelize.summary"]
+    keyframes: pa.Table = inputs["keyframes.keyframes"]
+    poses: pa.Table = inputs["slam.poses"]
+    sensors: dict[str, Any] = inputs["keyframes.sensors"] or {}
+    mesh_bytes: bytes | None = inputs.get("keyframes.scene_mesh")
+    T_base_sonar = np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
+    metrics: dict[str, Any] = {
+        "voxel_size_m": summary.get("voxel_size_m"),
+        "voxels": summary.get("voxels", {}),
+        "points": summary.get("points", {}),
+        "has_ground_truth": mesh_bytes is not None,
+        "errors": {},
+        "completeness": {},
+        "precision": {},
+        "trajectory": {},
+        "skipped": [],
+    }
+    outputs: dict[str, Any] = {"errors": None, **{k: None for k in FIGURES}}
+    mesh = decode_mesh_ply(mesh_bytes) if mesh_bytes is not None else None
+    traj = trajectory_errors(keyframes, poses)
+    if traj is None:
+        metrics["skipped"].append("trajectory error: keyframes carry no ground-truth poses")
+    else:
+        metrics["trajectory"] = traj
+    if mesh is None:
+        metrics["skipped"] += [
+            f"{what}: no ground-truth mesh (keyframes.scene_mesh)"
+            for what in ("map errors", "completeness", "precision", "error plot", "side view")
+        ]
+    else:
+        errors, metrics["errors"] = map_errors(map_table, mesh)
+        T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
+        metrics["completeness"], metrics["precision"], samples = surface_metrics(
+            map_table, errors, mesh, T_ws, config
+        )
+        outputs["errors"] = errors
+        err = errors.column("error_m").to_numpy()
+        source = np.asarray(errors.column("source").to_pylist(), dtype=object)
+        outputs["plot_errors"] = error_boxplot_png(
+            {
+                "standard": err[source == "fused"],
+                "semantic": err,
+                "inferred only": err[source == "inferred"],
+            }
+        )
+        panels = _side_panels(map_table, mesh, samples, config.side_view_pilings)
+        if panels:
+            outputs["plot_side_view"] = side_view_png(panels)
+        else:
+            metrics["skipped"].append("side view: no map points near a piling of the mesh")
+    truth_xy = None if mesh is None else _truth_xy(mesh)
+    outputs["plot_map_topdown"] = topdown_png(
+        {name: map_xyz(map_table, name) for name in MAP_NAMES},
+        truth_xy,
+        np.stack([poses.column("x_m").to_numpy(), poses.column("y_m").to_numpy()], axis=1),
+    )
+    figures = [FIGURES[k] for k in FIGURES if outputs[k] is not None]
+    dataset = str((sensors.get("source") or {}).get("name", "unknown"))
+    outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
+    outputs["metrics"] = metrics
+    return outputs
+
+
+def _truth_xy(mesh: Mesh) -> np.ndarray:
+    """(v, 2) xy of the non-seafloor mesh vertices below the surface (for plots)."""
+    cls = mesh.vertex_properties.get("class_id")
+    keep = mesh.vertices[:, 2] <= 0.0
+    if cls is not None:
+        keep &= cls != CLASS_IDS["seafloor"]
+    return mesh.vertices[keep, :2]
+
+
+STAGE = Stage(
+    name="evaluate",
+    version=1,
+    config=EvaluateConfig,
+    inputs=(
+        "voxelize.map",
+        "voxelize.summary",
+        "keyframes.keyframes",
+        "keyframes.scene_mesh",
+        "keyframes.sensors",
+        "slam.poses",
+    ),
+    outputs=(
+        Output("metrics", "json", "metrics.json"),
+        Output("errors", "parquet", "errors.parquet", optional=True, schema=ERRORS_SCHEMA),
+        Output("report", "bytes", "report.md"),
+        *(Output(k, "bytes", f, optional=True) for k, f in FIGURES.items()),
+    ),
+    run=_run,
+    description="map error to the ground-truth mesh, completeness, ATE, figures and report",
+)

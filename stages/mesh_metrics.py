@@ -1,0 +1,168 @@
+"""Map quality against a ground-truth mesh and trajectory error (paper Sec. V metrics).
+
+- Absolute error of a map point: unsigned distance to the nearest ground-truth surface
+  (open3d `RaycastingScene.compute_distance`), as in the paper's Fig. 4.
+- Precision: fraction of map points within `tolerance_m` of the surface.
+- Completeness: fraction of ground-truth surface samples of the mapped object classes
+  within `tolerance_m` of a map point. Which part of the surface the vehicle could have
+  seen is not known exactly; samples are kept when they are below the water surface
+  (z <= 0), on a near-vertical face (|n_z| <= 0.5: pile caps and undersides face
+  neither sonar) and inside the horizontal sonar's field of view (range <= max range,
+  |bearing| <= fan / 2, |elevation| <= aperture / 2) from at least one keyframe. Occlusion
+  is ignored, so completeness is a lower bound of the fraction of the seen surface mapped.
+- Trajectory: absolute trajectory error (RMSE of the horizontal position) after the
+  least-squares SE(2) alignment of the estimate to the ground truth (Umeyama without
+  scale, in the plane).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from stages.ply import Mesh
+
+__all__ = [
+    "ate_se2",
+    "error_stats",
+    "fraction_within",
+    "mesh_distance",
+    "nearest_distance",
+    "surface_samples",
+    "visible_mask",
+]
+
+
+def mesh_distance(mesh: Mesh, points_m: np.ndarray) -> np.ndarray:
+    """(n,) float64 unsigned distance [m] from (n, 3) world points to the mesh surface."""
+    pts = np.asarray(points_m, dtype=np.float32).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.empty(0)
+    if len(mesh.triangles) == 0:
+        raise ValueError("ground-truth mesh has no triangles")
+    tm = o3d.t.geometry.TriangleMesh()
+    tm.vertex.positions = o3d.core.Tensor(mesh.vertices.astype(np.float32))
+    tm.triangle.indices = o3d.core.Tensor(mesh.triangles.astype(np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(tm)
+    return scene.compute_distance(o3d.core.Tensor(pts), nthreads=0).numpy().astype(np.float64)
+
+
+def error_stats(error_m: np.ndarray) -> dict[str, float | int | None]:
+    """Mean, median, 90th and 95th percentile [m] and count of errors (None when empty)."""
+    e = np.asarray(error_m, dtype=np.float64)
+    if e.size == 0:
+        return {"mean_m": None, "median_m": None, "p90_m": None, "p95_m": None, "n": 0}
+    return {
+        "mean_m": float(e.mean()),
+        "median_m": float(np.median(e)),
+        "p90_m": float(np.percentile(e, 90)),
+        "p95_m": float(np.percentile(e, 95)),
+        "n": int(e.size),
+    }
+
+
+def fraction_within(distance_m: np.ndarray, tolerance_m: float) -> float | None:
+    """Fraction of distances <= tolerance (None when there are none)."""
+    d = np.asarray(distance_m)
+    return float(np.mean(d <= tolerance_m)) if d.size else None
+
+
+def surface_samples(
+    mesh: Mesh,
+    class_ids: np.ndarray,
+    samples_per_m2: float,
+    seed: int,
+    max_abs_normal_z: float = 0.5,
+) -> np.ndarray:
+    """Uniform random points on the faces of the given classes.
+
+    A face's class is its first vertex's `class_id`; faces with |normal z| above
+    `max_abs_normal_z` (caps, undersides) are left out. The number of samples is
+    round(area * samples_per_m2); faces are drawn by area, points uniformly inside.
+
+    Returns:
+        (s, 3) float64 world points [m]; the same inputs give the same points.
+    """
+    tri = mesh.triangles
+    cls = mesh.vertex_properties.get("class_id")
+    if cls is None or len(tri) == 0:
+        return np.empty((0, 3))
+    a, b, c = (mesh.vertices[tri[:, i]] for i in range(3))
+    cross = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    nz = np.abs(cross[:, 2]) / np.maximum(2.0 * area, 1e-12)
+    keep = np.isin(cls[tri[:, 0]], class_ids) & (nz <= max_abs_normal_z) & (area > 0)
+    total = float(area[keep].sum())
+    n = round(total * samples_per_m2)
+    if n == 0:
+        return np.empty((0, 3))
+    rng = np.random.default_rng(seed)
+    faces = np.flatnonzero(keep)[rng.choice(int(keep.sum()), size=n, p=area[keep] / total)]
+    u, v = rng.random(n), rng.random(n)
+    flip = u + v > 1.0
+    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
+    return a[faces] + u[:, None] * (b[faces] - a[faces]) + v[:, None] * (c[faces] - a[faces])
+
+
+def visible_mask(
+    points_m: np.ndarray,
+    T_world_sonar: np.ndarray,
+    max_range_m: float,
+    half_fan_rad: float,
+    half_aperture_rad: float,
+) -> np.ndarray:
+    """(n,) bool: below the surface and inside the sonar's field of view of some keyframe.
+
+    Args:
+        points_m: (n, 3) world points [m].
+        T_world_sonar: (k, 4, 4) horizontal sonar poses, one per keyframe.
+        max_range_m: sonar maximum range [m].
+        half_fan_rad: half the horizontal field of view (bearing) [rad].
+        half_aperture_rad: half the vertical aperture (elevation) [rad].
+    """
+    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    seen = np.zeros(len(p), dtype=bool)
+    below = p[:, 2] <= 0.0
+    for T in T_world_sonar:
+        local = (p - T[:3, 3]) @ T[:3, :3]
+        r = np.linalg.norm(local, axis=1)
+        ok = (r <= max_range_m) & (r > 0)
+        bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
+        elevation = np.abs(np.arcsin(np.clip(local[:, 2] / np.maximum(r, 1e-12), -1.0, 1.0)))
+        seen |= ok & (bearing <= half_fan_rad) & (elevation <= half_aperture_rad)
+    return seen & below
+
+
+def nearest_distance(query_m: np.ndarray, cloud_m: np.ndarray, upper_m: float) -> np.ndarray:
+    """(n,) distance [m] from each query point to its nearest cloud point (inf beyond upper_m)."""
+    q = np.asarray(query_m, dtype=np.float64).reshape(-1, 3)
+    if len(cloud_m) == 0 or len(q) == 0:
+        return np.full(len(q), np.inf)
+    d, _ = cKDTree(np.asarray(cloud_m, dtype=np.float64)).query(q, distance_upper_bound=upper_m)
+    return np.asarray(d, dtype=np.float64)
+
+
+def ate_se2(estimate_xy_m: np.ndarray, truth_xy_m: np.ndarray) -> float | None:
+    """ATE RMSE [m] after the least-squares SE(2) alignment of estimate to truth.
+
+    Args:
+        estimate_xy_m: (n, 2) estimated positions [m].
+        truth_xy_m: (n, 2) true positions at the same times [m].
+
+    Returns:
+        sqrt(mean ||R e_i + t - g_i||^2) with (R, t) the optimal planar rigid transform
+        (Umeyama 1991 without scale); None when n == 0.
+    """
+    e = np.asarray(estimate_xy_m, dtype=np.float64).reshape(-1, 2)
+    g = np.asarray(truth_xy_m, dtype=np.float64).reshape(-1, 2)
+    if len(e) == 0:
+        return None
+    me, mg = e.mean(axis=0), g.mean(axis=0)
+    cov = (g - mg).T @ (e - me)
+    u, _, vt = np.linalg.svd(cov)
+    s = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    R = u @ s @ vt
+    aligned = (e - me) @ R.T + mg
+    return float(np.sqrt(np.mean(np.sum((aligned - g) ** 2, axis=1))))
