@@ -341,26 +341,41 @@ def infer_points(
             ("fused", fused),
         )
     }
-    parts: list[dict[str, Any]] = []
-    for k in index["object_features"].keyframe_ids:
-        tables = {name: ix.rows(int(k)) for name, ix in index.items()}
-        parts.extend(_process_keyframe(int(k), tables, states, config))
-    return _table(parts)
+    out = [
+        _table(
+            _process_keyframe(
+                int(k), {n: ix.rows(int(k)) for n, ix in index.items()}, states, config
+            )
+        )
+        for k in index["object_features"].keyframe_ids
+    ]
+    if not out:
+        return POINTS_SCHEMA.empty_table()
+    return pa.concat_tables(out).combine_chunks()
 
 
 class _KeyframeIndex:
-    """Rows of one keyframe of a table (zero-copy slices when sorted by keyframe)."""
+    """Rows of each keyframe of a table (zero-copy slices when sorted by keyframe).
+
+    Keeps only per-keyframe row bounds (plus a row order if the table is not sorted
+    by keyframe), so the index is small compared with the table.
+    """
 
     def __init__(self, table: pa.Table, what: str) -> None:
         self.table = table
-        kf = _col(table, "keyframe_id", what).astype(np.int64)
+        kf = np.asarray(_col(table, "keyframe_id", what), dtype=np.int64)
         self.order = None if np.all(kf[1:] >= kf[:-1]) else np.argsort(kf, kind="stable")
-        self.kf_sorted = kf if self.order is None else kf[self.order]
-        self.keyframe_ids = np.unique(self.kf_sorted)
+        if self.order is not None:
+            kf = kf[self.order]
+        starts = np.flatnonzero(np.r_[True, kf[1:] != kf[:-1]]) if kf.size else np.empty(0, int)
+        self.keyframe_ids = kf[starts]
+        self.bounds = np.r_[starts, kf.size]
 
     def rows(self, keyframe_id: int) -> pa.Table:
-        a = int(np.searchsorted(self.kf_sorted, keyframe_id, side="left"))
-        b = int(np.searchsorted(self.kf_sorted, keyframe_id, side="right"))
+        i = int(np.searchsorted(self.keyframe_ids, keyframe_id))
+        if i >= self.keyframe_ids.size or self.keyframe_ids[i] != keyframe_id:
+            return self.table.slice(0, 0)
+        a, b = int(self.bounds[i]), int(self.bounds[i + 1])
         if self.order is None:
             return self.table.slice(a, b - a)
         return self.table.take(pa.array(self.order[a:b]))
