@@ -13,7 +13,10 @@ Per keyframe:
    L_2 = the cheapest alternative of either feature (row i without j, column j without i),
    sum L = the sum of the costs of those candidates and L_ij. C < 0 when the solution had
    to give a feature a worse partner than its best; C = 1 when neither feature had an
-   alternative. Associations with C < `min_confidence` are culled.
+   alternative. Associations with C < `min_confidence` are culled. The default (-1) culls
+   none: on the simulator the patch cost does not predict 3D accuracy (low-cost pairs are
+   mostly dim, weak detections), and culling at C >= 0 raised the median distance to the
+   mesh of the test scene in tests/test_fuse.py from 0.07 m to 0.105 m.
 4. Point, Eq. 3: range R = (R_h + R_v) / 2, bearing theta from the horizontal feature,
    elevation from the vertical feature, as below; then Eq. 1 to Cartesian.
 
@@ -64,7 +67,7 @@ class FuseConfig(StageConfig):
         patch_size_px: side of the square patch of Eq. 5 (odd) [pixels].
         horizontal_aperture_deg: vertical extent of the horizontal sonar's beams [deg].
         vertical_aperture_deg: horizontal extent of the vertical sonar's beams [deg].
-        min_confidence: associations with Eq. 6 confidence below this are culled.
+        min_confidence: associations with Eq. 6 confidence below this are culled (-1: none).
         rotate_vertical_patch: rotate the vertical patch 90 deg before comparing (paper).
     """
 
@@ -111,7 +114,6 @@ def _same_bin_pairs(bin_h: np.ndarray, bin_v: np.ndarray) -> tuple[np.ndarray, n
 
 def _confidence(block: np.ndarray, r: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Eq. 6 per assigned pair (r, c) of a (nh, nv) cost block."""
-    nh, nv = block.shape
     chosen = block[r, c]
     row = block[r].copy()
     row[np.arange(len(r)), c] = np.inf
