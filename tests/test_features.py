@@ -129,4 +129,4 @@ def test_empty_sequence_and_decreasing_ids() -> None:
 @pytest.mark.parametrize("method", ["ca", "go", "os"])
 def test_other_variants_run_through_config(method: str) -> None:
     table = features_table(_frames()[:2], FeaturesConfig(method=method))  # type: ignore[arg-type]
-    assert 0 < table.num_rows
+    assert table.num_rows > 0
