@@ -128,7 +128,7 @@ class SonarModel:
         size = self.n_ranges * self.n_beams
         intensity = np.bincount(pix, weights=w, minlength=size)
         # Strongest contribution per visible pixel -> label and truth angle.
-        top_pix, top_ray = _strongest(pix, w, ray)
+        top_pix, top_ray = _strongest(pix, w, ray, size)
         visible = self._level(intensity[top_pix]) >= cfg.label_min_level
         labels = np.zeros(size, dtype=np.uint8)
         truth_img = np.full(size, np.nan, dtype=np.float32)
@@ -207,11 +207,18 @@ class SonarModel:
         return image
 
 
-def _strongest(pix: np.ndarray, w: np.ndarray, ray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per distinct pixel, the ray with the largest weight: (pixels (p,), rays (p,))."""
-    if len(pix) == 0:
-        return pix, ray
-    order = np.lexsort((w, pix))
-    ps = pix[order]
-    last = np.flatnonzero(np.r_[ps[1:] != ps[:-1], True])
-    return ps[last], ray[order[last]]
+def _strongest(
+    pix: np.ndarray, w: np.ndarray, ray: np.ndarray, size: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per distinct pixel, the ray with the largest weight (ties: the later entry).
+
+    Returns:
+        pixels (p,) ascending and their strongest rays (p,).
+    """
+    best = np.zeros(size)
+    np.maximum.at(best, pix, w)
+    win = np.flatnonzero(w == best[pix])
+    top = np.full(size, -1, dtype=np.int64)
+    top[pix[win]] = ray[win]
+    top_pix = np.flatnonzero(top >= 0)
+    return top_pix, top[top_pix]
