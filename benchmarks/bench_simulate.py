@@ -27,6 +27,7 @@ def main() -> None:
     ap.add_argument("--scene", default=str(ROOT / "configs" / "scenes" / "marina.yaml"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration-s", type=float, default=None)
+    ap.add_argument("--workers", type=int, default=2, help="render threads (as the CLI uses)")
     args = ap.parse_args()
 
     from pipeline.simulate import write_simulation
@@ -42,7 +43,9 @@ def main() -> None:
     run = simulate(load_scene(scene_path), config, args.seed)
     t_plan = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
-        info = write_simulation(run, Path(tmp) / "bench.mcap", scene_yaml=scene_path.read_text())
+        info = write_simulation(
+            run, Path(tmp) / "bench.mcap", scene_yaml=scene_path.read_text(), workers=args.workers
+        )
     total = time.perf_counter() - t0
     cpu = time.process_time() - cpu0
     rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -51,6 +54,7 @@ def main() -> None:
             {
                 "benchmark": "simulate",
                 "scene": run.world.scene.name,
+                "workers": args.workers,
                 "n_frames": run.n_frames,
                 "mission_s": round(run.path.duration_s, 1),
                 "plan_s": round(t_plan, 3),

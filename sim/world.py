@@ -68,6 +68,9 @@ class World:
         self._object_of_gid = np.full(max(gids) + 1, -1, dtype=np.int64)
         self._object_of_gid[np.asarray(gids)] = np.arange(len(gids))
         self._n_obstacles = len(meshes) - 1
+        # Build the BVHs now, so later queries (possibly from threads) only read them.
+        self.cast(np.zeros((1, 3)), np.array([[1.0, 0.0, 0.0]]))
+        self.distance(np.zeros((1, 3)), include_seafloor=False)
 
     @property
     def class_of_object(self) -> np.ndarray:

@@ -65,6 +65,7 @@ def simulate_cmd(
             output,
             scene_yaml=scene.read_text(),
             progress=lambda done, _n: bar.update(task, completed=done),
+            workers=2,
         )
     if preview is not None:
         if not preview.parent.is_dir():
