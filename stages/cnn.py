@@ -1,0 +1,163 @@
+"""The object classifier: a small CNN over 40x40 sonar patches with Monte-Carlo dropout.
+
+Paper Sec. IV.C: "a CNN that accepts 40x40 pixel sonar image patches in grayscale,
+with two convolutional layers", with m stochastic predictions per object (MC dropout,
+Loquercio et al. 2020) so uncertain objects can be labelled "unknown".
+
+Two convolutional layers, as the paper says (the authors' saved Keras models had
+three, 80 filters each; original-implementation.md §4.2). Why two: the patch content
+is a handful of bright strokes (an arc, a corner, a line) whose shape two 3x3 conv +
+2x2 pool stages already see at a 10x10-pixel receptive field, two layers reach the
+accuracy targets on simulated scenes (tests/test_train.py), and a lean network is what
+lets classify run at >= 50 keyframes/s with m = 20 passes on a 2-core CPU.
+
+Shape chain: 40 -> conv 38 -> pool 19 -> conv 17 -> pool 8 -> flatten c2*8*8 -> dense
+-> n_classes. Dropout (active in training and at inference) sits after the second conv
+block (channel-wise, as spatial dropout for correlated conv features) and after the
+dense layer. Unlike the original, the first conv block has none: both conv blocks are
+then deterministic, computed once per patch, and only the dense head runs m times in
+one batched call (pass-major), which is ~10x cheaper than m full passes (measured 64 ms
+vs ~6 ms for 10 objects x 20 passes on one core). Masks come from an explicit
+`torch.Generator`, so a seed fixes every prediction.
+"""
+
+from __future__ import annotations
+
+import io
+import pickle
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+__all__ = ["PatchCNN", "mc_predict", "model_from_bytes", "model_to_bytes"]
+
+
+def _dropout(x: torch.Tensor, p: float, generator: torch.Generator | None) -> torch.Tensor:
+    """Inverted dropout that is always active, masks drawn from `generator`.
+
+    For (n, c, h, w) inputs whole channels are dropped (spatial dropout); for (n, f)
+    inputs single units.
+    """
+    if p <= 0.0:
+        return x
+    shape = x.shape[:2] + (1,) * (x.dim() - 2)
+    keep = torch.rand(shape, generator=generator, dtype=x.dtype) >= p
+    return x * keep / (1.0 - p)
+
+
+class PatchCNN(nn.Module):
+    """Two conv blocks + one hidden dense layer; MC dropout after conv 2 and the dense layer.
+
+    Args:
+        n_classes: number of outputs.
+        channels: filters of the two 3x3 conv layers.
+        hidden: width of the dense layer.
+        dropout_p: dropout probability of every dropout layer.
+        size_px: input patch side [px].
+    """
+
+    def __init__(
+        self,
+        n_classes: int,
+        channels: Sequence[int] = (16, 32),
+        hidden: int = 64,
+        dropout_p: float = 0.1,
+        size_px: int = 40,
+    ) -> None:
+        super().__init__()
+        c1, c2 = (int(c) for c in channels)
+        self.dropout_p = float(dropout_p)
+        self.conv1 = nn.Conv2d(1, c1, 3)
+        self.conv2 = nn.Conv2d(c1, c2, 3)
+        side = ((size_px - 2) // 2 - 2) // 2
+        self.fc1 = nn.Linear(c2 * side * side, hidden)
+        self.fc2 = nn.Linear(hidden, n_classes)
+        for layer in (self.conv1, self.conv2, self.fc1, self.fc2):
+            nn.init.xavier_uniform_(layer.weight)
+            nn.init.zeros_(layer.bias)
+
+    def forward(
+        self, x: torch.Tensor, passes: int = 1, generator: torch.Generator | None = None
+    ) -> torch.Tensor:
+        """Logits of `passes` stochastic passes over a batch.
+
+        Args:
+            x: (n, 1, size, size) float patches.
+            passes: number of MC passes m (the deterministic conv blocks run once).
+            generator: source of the dropout masks (None: torch's global generator).
+
+        Returns:
+            (passes * n, n_classes) logits, pass-major (row p * n + i = pass p, patch i).
+        """
+        h = F.max_pool2d(F.relu(self.conv1(x)), 2)
+        h = F.max_pool2d(F.relu(self.conv2(h)), 2)
+        if passes > 1:
+            h = h.repeat(passes, 1, 1, 1)
+        h = _dropout(h, self.dropout_p, generator)
+        h = _dropout(F.relu(self.fc1(h.flatten(1))), self.dropout_p, generator)
+        return self.fc2(h)
+
+
+def mc_predict(
+    model: PatchCNN, patches: np.ndarray, passes: int, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Monte-Carlo dropout prediction: mean and variance of m softmax outputs.
+
+    Args:
+        model: the classifier.
+        patches: (n, size, size) float32 patches in [0, 1].
+        passes: number of stochastic passes m (>= 1), batched into one forward call.
+        seed: seed of the dropout masks (same seed + same patches -> same output).
+
+    Returns:
+        mean (n, n_classes) float64 and variance (n, n_classes) float64 (population
+        variance over the passes) of the class probabilities.
+    """
+    n = len(patches)
+    if n == 0:
+        c = model.fc2.out_features
+        return np.zeros((0, c)), np.zeros((0, c))
+    gen = torch.Generator().manual_seed(int(seed))
+    x = torch.from_numpy(np.ascontiguousarray(patches, dtype=np.float32))[:, None]
+    with torch.inference_mode():
+        prob = torch.softmax(model(x, passes=passes, generator=gen), dim=1)
+    prob = prob.reshape(passes, n, -1).double()
+    return prob.mean(0).numpy(), prob.var(0, unbiased=False).numpy()
+
+
+def model_to_bytes(model: PatchCNN, class_names: Sequence[str], config: dict[str, Any]) -> bytes:
+    """Serialise {"state_dict", "class_names", "config"} with torch.save (weights_only-safe).
+
+    `config` must hold the architecture keys `channels`, `hidden`, `dropout_p`,
+    `size_px` plus anything the patch extraction needs (plain JSON-like values only).
+    """
+    buf = io.BytesIO()
+    state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    torch.save({"state_dict": state, "class_names": list(class_names), "config": config}, buf)
+    return buf.getvalue()
+
+
+def model_from_bytes(data: bytes) -> tuple[PatchCNN, list[str], dict[str, Any]]:
+    """Inverse of `model_to_bytes`, loading with `weights_only=True`.
+
+    Returns:
+        (model in eval mode, class names, config).
+
+    Raises:
+        ValueError: when the bytes are not a model file of this project.
+    """
+    try:
+        blob = torch.load(io.BytesIO(data), weights_only=True, map_location="cpu")
+        names = [str(s) for s in blob["class_names"]]
+        cfg = dict(blob["config"])
+        model = PatchCNN(
+            len(names), cfg["channels"], cfg["hidden"], cfg["dropout_p"], cfg["size_px"]
+        )
+        model.load_state_dict(blob["state_dict"])
+    except (KeyError, TypeError, RuntimeError, EOFError, pickle.UnpicklingError) as err:
+        raise ValueError(f"not a sonarmap classifier model file: {err}") from err
+    return model.eval(), names, cfg

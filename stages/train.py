@@ -1,0 +1,389 @@
+"""The "train" stage: fit the object classifier on labelled keyframes (paper Sec. IV.C).
+
+Samples are the objects the classify stage itself would see: DBSCAN clusters of
+horizontal features (CFAR features when given, else the label image's labelled cells),
+each cropped to a 40x40 aspect-preserving patch; the label is the majority
+label-image class of the cluster's cells (simulator labels give classes for free).
+
+Training follows the paper: augmentation with Gaussian noise, random flips and random
+rotations; classes balanced by sampling each epoch uniformly over classes; Adam with a
+one-cycle learning-rate schedule; fixed seeds.
+Validation holds out whole blocks of consecutive keyframes with a guard gap, so the same
+view of an object never lands on both sides (with several datasets, the last one is
+the validation set when `split` is "dataset", which also keeps objects apart).
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import pyarrow as pa
+import torch
+from pydantic import Field
+from torch.nn import functional as F
+
+from schemas.classes import CLASS_IDS, CLASS_NAMES
+from schemas.sonar import KeyframeImages
+from stages.base import Output, Stage, StageConfig
+from stages.cnn import PatchCNN, mc_predict, model_to_bytes
+from stages.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+
+__all__ = [
+    "TRAIN_STAGE",
+    "Samples",
+    "TrainConfig",
+    "augment",
+    "collect_samples",
+    "confusion_png",
+    "evaluate",
+    "features_from_labels",
+    "fit",
+    "split_train_val",
+    "train_classifier",
+]
+
+log = logging.getLogger(__name__)
+
+
+class TrainConfig(StageConfig):
+    """Classifier training. Clustering/crop fields must match what classify will see."""
+
+    eps_m: float = Field(0.25, gt=0, description="DBSCAN radius [m]")
+    min_samples: int = Field(2, ge=1, description="DBSCAN core neighbourhood size")
+    min_features: int = Field(10, ge=1, description="smallest object (paper's n)")
+    margin_m: float = Field(0.2, ge=0, description="bounding-box margin on each side [m]")
+    min_side_m: float = Field(0.5, ge=0, description="smallest crop side [m]")
+    channels: tuple[int, int] = (16, 32)
+    hidden: int = Field(64, ge=1)
+    dropout_p: float = Field(0.1, ge=0, lt=1)
+    epochs: int = Field(30, ge=1)
+    batch_size: int = Field(64, ge=1)
+    learning_rate: float = Field(1e-3, gt=0)
+    noise_std: float = Field(0.05, ge=0, description="Gaussian noise on [0, 1] patches")
+    max_rotation_deg: float = Field(20.0, ge=0, le=180, description="uniform in +-this")
+    flips: bool = Field(
+        True, description="random left-right flips (mirror across the line of sight)"
+    )
+    flip_near_far: bool = Field(False, description="also flip near/far (unphysical for sonar)")
+    min_class_samples: int = Field(10, ge=1, description="rarer classes are not learned")
+    split: Literal["keyframes", "dataset"] = "keyframes"
+    val_block_keyframes: int = Field(10, ge=1, description="keyframes per split block")
+    val_every_blocks: int = Field(5, ge=2, description="every n-th block validates")
+    guard_keyframes: int = Field(3, ge=0, description="training keyframes dropped beside val")
+    mc_passes: int = Field(20, ge=1, description="MC passes for the validation metrics")
+    threshold: float = Field(0.99, ge=0, le=1, description="acceptance of the mean probability")
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Training samples: patches (n, 40, 40) float32, class ids (n,) int64 (label-image
+    ids), keyframe ids (n,) int64, dataset index (n,) int64."""
+
+    patches: np.ndarray
+    class_id: np.ndarray
+    keyframe_id: np.ndarray
+    dataset: np.ndarray
+
+
+def features_from_labels(frame: KeyframeImages) -> dict[str, np.ndarray]:
+    """Stand-in features of a labelled keyframe: every horizontal cell with a label > 0.
+
+    Returns:
+        {feature_id, range_bin, beam, range_m, angle_rad}: (n,) arrays, row-major order.
+    """
+    ping = frame.horizontal
+    if ping.labels is None:
+        raise ValueError(f"keyframe {frame.keyframe_id} has no label image")
+    rb, bm = np.nonzero(ping.labels > 0)
+    return {
+        "feature_id": np.arange(len(rb), dtype=np.int64),
+        "range_bin": rb.astype(np.int64),
+        "beam": bm.astype(np.int64),
+        "range_m": ping.ranges_m[rb].astype(np.float64),
+        "angle_rad": ping.angles_rad[bm].astype(np.float64),
+    }
+
+
+def collect_samples(
+    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
+) -> Samples:
+    """Objects of labelled keyframes -> patches and majority classes.
+
+    Args:
+        datasets: (keyframes, features table or None) per dataset; None uses
+            `features_from_labels`.
+        cfg: clustering and crop parameters.
+
+    Raises:
+        ValueError: a keyframe without a label image.
+    """
+    parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    for d, (frames, table) in enumerate(datasets):
+        by_kf = horizontal_features(table) if table is not None else None
+        for frame in frames:
+            if frame.horizontal.labels is None:
+                raise ValueError(f"keyframe {frame.keyframe_id} has no label image")
+            if by_kf is None:
+                f = features_from_labels(frame)
+            elif frame.keyframe_id in by_kf:
+                f = by_kf[frame.keyframe_id]
+            else:
+                continue
+            objs = extract_objects(
+                frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
+                eps_m=cfg.eps_m, min_samples=cfg.min_samples, min_features=cfg.min_features,
+                margin_m=cfg.margin_m, min_side_m=cfg.min_side_m,
+            )  # fmt: skip
+            assert objs.true_class_id is not None
+            k = objs.count
+            parts.append(
+                (
+                    objs.patches,
+                    objs.true_class_id,
+                    np.full(k, frame.keyframe_id, np.int64),
+                    np.full(k, d, np.int64),
+                )
+            )
+    if not parts:
+        z = np.zeros(0, np.int64)
+        return Samples(np.zeros((0, PATCH_SIZE_PX, PATCH_SIZE_PX), np.float32), z, z, z)
+    cols = [np.concatenate(c) for c in zip(*parts, strict=True)]
+    return Samples(*cols)
+
+
+def split_train_val(samples: Samples, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean (train, val) masks: blocks of keyframes (or the last dataset) validate.
+
+    With split="keyframes", block b = keyframe_id // val_block_keyframes of each dataset
+    validates when b % val_every_blocks == val_every_blocks - 1; training keyframes within
+    `guard_keyframes` of a validation block are used by neither side.
+    """
+    if cfg.split == "dataset" and samples.dataset.max(initial=0) > 0:
+        val = samples.dataset == samples.dataset.max()
+        return ~val, val
+    kf = samples.keyframe_id
+    block = kf // cfg.val_block_keyframes
+    val = block % cfg.val_every_blocks == cfg.val_every_blocks - 1
+    pos = kf % cfg.val_block_keyframes
+    near_next = (block % cfg.val_every_blocks == cfg.val_every_blocks - 2) & (
+        pos >= cfg.val_block_keyframes - cfg.guard_keyframes
+    )
+    near_prev = (block % cfg.val_every_blocks == 0) & (block > 0) & (pos < cfg.guard_keyframes)
+    return ~val & ~near_next & ~near_prev, val
+
+
+def augment(x: torch.Tensor, cfg: TrainConfig, gen: torch.Generator) -> torch.Tensor:
+    """Paper's augmentation on a batch: random flips, random rotations, Gaussian noise.
+
+    Patches are cut in the line-of-sight frame, so the default flips mirror left-right
+    only and rotations are small (an object's own yaw); near/far flips are optional.
+
+    Args:
+        x: (n, 1, s, s) patches in [0, 1].
+
+    Returns:
+        (n, 1, s, s) augmented patches clipped to [0, 1].
+    """
+    n = x.shape[0]
+    sx = torch.ones(n)
+    sy = torch.ones(n)
+    if cfg.flips:
+        sx = torch.where(torch.rand(n, generator=gen) < 0.5, -1.0, 1.0)
+    if cfg.flip_near_far:
+        sy = torch.where(torch.rand(n, generator=gen) < 0.5, -1.0, 1.0)
+    ang = (torch.rand(n, generator=gen) * 2 - 1) * np.deg2rad(cfg.max_rotation_deg)
+    c, s = torch.cos(ang), torch.sin(ang)
+    theta = torch.stack(
+        [torch.stack([c * sx, -s * sy, torch.zeros(n)], 1), torch.stack([s * sx, c * sy, torch.zeros(n)], 1)],
+        1,
+    )  # fmt: skip
+    grid = F.affine_grid(theta, list(x.shape), align_corners=False)
+    out = F.grid_sample(x, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+    out = out + cfg.noise_std * torch.randn(out.shape, generator=gen)
+    return out.clamp_(0.0, 1.0)
+
+
+def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfig) -> PatchCNN:
+    """Train a `PatchCNN` with Adam on class-balanced, augmented epochs.
+
+    Args:
+        patches: (n, s, s) float32 in [0, 1].
+        target: (n,) int64 model class indices 0..n_classes-1.
+        n_classes: number of outputs.
+        cfg: hyper-parameters and seed.
+
+    Returns:
+        The trained model in eval mode (its dropout stays active: MC dropout).
+    """
+    torch.manual_seed(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    model = PatchCNN(n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate, eps=1e-7)
+    steps = cfg.epochs * -(-len(target) // cfg.batch_size)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.learning_rate, total_steps=max(steps, 1))
+    x_all = torch.from_numpy(np.ascontiguousarray(patches, np.float32))[:, None]
+    y_all = torch.from_numpy(target.astype(np.int64))
+    counts = torch.bincount(y_all, minlength=n_classes).double()
+    weights = (1.0 / counts.clamp(min=1))[y_all]
+    n = len(y_all)
+    model.train()
+    for epoch in range(cfg.epochs):
+        idx = torch.multinomial(weights, n, replacement=True, generator=gen)
+        total = 0.0
+        for start in range(0, n, cfg.batch_size):
+            b = idx[start : start + cfg.batch_size]
+            xb = augment(x_all[b], cfg, gen)
+            loss = F.cross_entropy(model(xb, generator=gen), y_all[b])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            sched.step()
+            total += float(loss.detach()) * len(b)
+        log.debug("epoch %d loss %.4f", epoch, total / max(n, 1))
+    return model.eval()
+
+
+def evaluate(
+    model: PatchCNN, patches: np.ndarray, target: np.ndarray, class_names: Sequence[str],
+    cfg: TrainConfig,
+) -> dict[str, Any]:  # fmt: skip
+    """Validation metrics with MC dropout (m = cfg.mc_passes, seeded).
+
+    Returns:
+        {"n": int, "accuracy": float, "confusion": [[int]] (rows = true, cols = argmax),
+        "classes": {name: {"support", "precision", "recall", "accepted",
+        "accepted_precision", "accepted_recall"}}, "accepted_fraction": float}; a ratio
+        with an empty denominator is None. "accepted" = mean probability > threshold.
+    """
+    k = len(class_names)
+    mean, _ = mc_predict(model, patches, cfg.mc_passes, cfg.seed)
+    pred = mean.argmax(axis=1) if len(mean) else np.zeros(0, np.int64)
+    acc = mean.max(axis=1) > cfg.threshold if len(mean) else np.zeros(0, bool)
+    cm = np.bincount(target * k + pred, minlength=k * k).reshape(k, k)
+    cm_acc = np.bincount(target[acc] * k + pred[acc], minlength=k * k).reshape(k, k)
+
+    def ratio(a: float, b: float) -> float | None:
+        return float(a / b) if b > 0 else None
+
+    classes = {
+        name: {
+            "support": int(cm[i].sum()),
+            "precision": ratio(cm[i, i], cm[:, i].sum()),
+            "recall": ratio(cm[i, i], cm[i].sum()),
+            "accepted": int(cm_acc[:, i].sum()),
+            "accepted_precision": ratio(cm_acc[i, i], cm_acc[:, i].sum()),
+            "accepted_recall": ratio(cm_acc[i, i], cm[i].sum()),
+        }
+        for i, name in enumerate(class_names)
+    }
+    n = len(target)
+    return {
+        "n": n,
+        "accuracy": ratio(np.trace(cm), n),
+        "accepted_fraction": ratio(acc.sum(), n),
+        "confusion": cm.tolist(),
+        "class_names": list(class_names),
+        "classes": classes,
+    }
+
+
+def confusion_png(confusion: Sequence[Sequence[int]], class_names: Sequence[str]) -> bytes:
+    """Confusion matrix (rows = true, columns = predicted) as PNG bytes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    cm = np.asarray(confusion, dtype=np.int64).reshape(len(class_names), len(class_names))
+    fig = Figure(figsize=(1.2 * len(class_names) + 2, 1.0 * len(class_names) + 1.5), dpi=100)
+    ax = fig.add_subplot()
+    ax.imshow(cm / np.maximum(cm.sum(axis=1, keepdims=True), 1), cmap="Blues", vmin=0, vmax=1)
+    for (i, j), v in np.ndenumerate(cm):
+        ax.text(j, i, str(v), ha="center", va="center", fontsize=8)
+    ax.set_xticks(range(len(class_names)), class_names, rotation=45, ha="right", fontsize=8)
+    ax.set_yticks(range(len(class_names)), class_names, fontsize=8)
+    ax.set_xlabel("predicted (argmax of MC mean)")
+    ax.set_ylabel("true (label image)")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    return buf.getvalue()
+
+
+def _learned_classes(class_id: np.ndarray, min_samples: int) -> list[int]:
+    counts = np.bincount(class_id, minlength=len(CLASS_NAMES))
+    return [int(c) for c in np.flatnonzero(counts >= min_samples)]
+
+
+def train_classifier(
+    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
+) -> dict[str, Any]:
+    """Samples -> split -> fit -> validation metrics -> model file.
+
+    Args:
+        datasets: (labelled keyframes, features table or None) per dataset.
+        cfg: training config.
+
+    Returns:
+        {"model": bytes (model.pt), "metrics": dict, "confusion": bytes (PNG)}.
+
+    Raises:
+        ValueError: fewer than two classes with `min_class_samples` training samples.
+    """
+    samples = collect_samples(datasets, cfg)
+    train, val = split_train_val(samples, cfg)
+    ids = _learned_classes(samples.class_id[train], cfg.min_class_samples)
+    if len(ids) < 2:
+        raise ValueError(
+            f"need two classes with >= {cfg.min_class_samples} training objects, "
+            f"have {np.bincount(samples.class_id[train], minlength=len(CLASS_NAMES)).tolist()}"
+        )
+    lut = np.full(len(CLASS_NAMES), -1, np.int64)
+    lut[ids] = np.arange(len(ids))
+    names = [CLASS_NAMES[i] for i in ids]
+    target = lut[samples.class_id]
+    train &= target >= 0
+    val &= target >= 0
+    model = fit(samples.patches[train], target[train], len(ids), cfg)
+    metrics = evaluate(model, samples.patches[val], target[val], names, cfg)
+    metrics["n_train"] = int(train.sum())
+    metrics["train_support"] = {
+        n: int(c)
+        for n, c in zip(names, np.bincount(target[train], minlength=len(ids)), strict=True)
+    }
+    model_cfg = {
+        "channels": list(cfg.channels), "hidden": cfg.hidden, "dropout_p": cfg.dropout_p,
+        "size_px": PATCH_SIZE_PX, "margin_m": cfg.margin_m, "min_side_m": cfg.min_side_m,
+        "eps_m": cfg.eps_m, "min_samples": cfg.min_samples, "min_features": cfg.min_features,
+        "class_ids": [CLASS_IDS[n] for n in names],
+    }  # fmt: skip
+    return {
+        "model": model_to_bytes(model, names, model_cfg),
+        "metrics": metrics,
+        "confusion": confusion_png(metrics["confusion"], names),
+    }
+
+
+def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    return train_classifier([(inputs["keyframes.frames"], inputs["features.features"])], config)
+
+
+TRAIN_STAGE = Stage(
+    name="train",
+    version=1,
+    config=TrainConfig,
+    inputs=("keyframes.frames", "features.features"),
+    outputs=(
+        Output("model", "bytes", "model.pt"),
+        Output("metrics", "json", "metrics.json"),
+        Output("confusion", "bytes", "confusion.png"),
+    ),
+    run=_run,
+    description="train the MC-dropout object classifier on labelled keyframes",
+)

@@ -1,0 +1,182 @@
+"""The classify stage on simulated keyframes: objects, links to features, truth, determinism."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+import torch
+
+from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
+from schemas.sonar import KeyframeImages
+from stages.classify import CLASSIFY_STAGE, ClassifyConfig
+from stages.cnn import PatchCNN, model_to_bytes
+
+ROOT = Path(__file__).resolve().parents[1]
+NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
+
+
+@pytest.fixture(scope="module")
+def keyframes() -> list[KeyframeImages]:
+    from sim.config import MissionConfig, SimConfig
+    from sim.dataset import simulate
+    from sim.scene import load_scene
+
+    run = simulate(
+        load_scene(ROOT / "configs/scenes/tiny.yaml"),
+        SimConfig(mission=MissionConfig(n_goals=2)),
+        5,
+    )
+    out = []
+    for i in range(0, run.n_frames, 6):
+        f = run.frame(i)
+        if (f.horizontal.labels > 0).sum() > 50:
+            out.append(KeyframeImages(len(out), f.t_ns, f.horizontal, f.vertical))
+        if len(out) == 6:
+            break
+    assert len(out) >= 3
+    return out
+
+
+def _features(frames: list[KeyframeImages]) -> pa.Table:
+    """Features as CFAR would give them: labelled cells plus isolated noise cells."""
+    rng = np.random.default_rng(0)
+    cols: dict[str, list[np.ndarray]] = {
+        k: [] for k in ("keyframe_id", "feature_id", "sonar", "range_bin", "beam")
+    }
+    for fr in frames:
+        h = fr.horizontal
+        rb, bm = np.nonzero(h.labels > 0)
+        nr, nb = rng.integers(0, h.image.shape[0], 15), rng.integers(0, h.image.shape[1], 15)
+        rb, bm = np.concatenate([rb, nr]), np.concatenate([bm, nb])
+        n = len(rb)
+        cols["keyframe_id"].append(np.full(n + 3, fr.keyframe_id))
+        cols["feature_id"].append(np.arange(n + 3) + 100_000 * fr.keyframe_id)
+        cols["sonar"].append(np.array(["horizontal"] * n + ["vertical"] * 3))
+        cols["range_bin"].append(np.concatenate([rb, [5, 6, 7]]))
+        cols["beam"].append(np.concatenate([bm, [5, 6, 7]]))
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    h = frames[0].horizontal
+    return pa.table(
+        {
+            **{k: pa.array(v, pa.int64()) for k, v in out.items() if k != "sonar"},
+            "sonar": pa.array(out["sonar"]),
+            "range_m": h.ranges_m[out["range_bin"]].astype(np.float64),
+            "angle_rad": h.angles_rad[out["beam"]].astype(np.float64),
+            "intensity": pa.array(np.full(len(out["beam"]), 200, np.uint8)),
+        }
+    )
+
+
+def _model_bytes() -> bytes:
+    torch.manual_seed(0)
+    model = PatchCNN(len(NAMES), (8, 16), 32, 0.2)
+    cfg = {
+        "channels": [8, 16],
+        "hidden": 32,
+        "dropout_p": 0.2,
+        "size_px": 40,
+        "margin_m": 0.2,
+        "min_side_m": 0.5,
+    }
+    return model_to_bytes(model, NAMES, cfg)
+
+
+def _run(frames: list[KeyframeImages], features: pa.Table, **cfg: object) -> dict:
+    torch.set_num_threads(1)
+    inputs = {
+        "keyframes.frames": frames,
+        "features.features": features,
+        "train.model": _model_bytes(),
+    }
+    return dict(CLASSIFY_STAGE.run(ClassifyConfig(**cfg), inputs))
+
+
+def test_objects_link_to_their_features_and_carry_the_majority_truth(
+    keyframes: list[KeyframeImages],
+) -> None:
+    features = _features(keyframes)
+    out = _run(keyframes, features, threshold=0.0)
+    objects, links = out["objects"], out["object_features"]
+    assert objects.schema.equals(OBJECTS_SCHEMA) and links.schema.equals(OBJECT_FEATURES_SCHEMA)
+    assert objects.num_rows >= len(keyframes)
+    np.testing.assert_array_equal(objects["object_id"].to_numpy(), np.arange(objects.num_rows))
+    # Every link points at a horizontal feature of the same keyframe.
+    fid = features["feature_id"].to_numpy()
+    row_of = {int(v): i for i, v in enumerate(fid)}
+    sonar = np.asarray(features["sonar"].to_pylist())
+    f_kf, f_rb, f_bm = (features[c].to_numpy() for c in ("keyframe_id", "range_bin", "beam"))
+    f_r, f_a = features["range_m"].to_numpy(), features["angle_rad"].to_numpy()
+    l_obj, l_kf = links["object_id"].to_numpy(), links["keyframe_id"].to_numpy()
+    l_rows = np.array([row_of[int(v)] for v in links["feature_id"].to_numpy()])
+    assert (sonar[l_rows] == "horizontal").all()
+    np.testing.assert_array_equal(f_kf[l_rows], l_kf)
+    # n_features, centroid and true class follow from the linked features and the labels.
+    by_kf = {fr.keyframe_id: fr for fr in keyframes}
+    for row in objects.to_pylist():
+        rows = l_rows[l_obj == row["object_id"]]
+        assert len(rows) == row["n_features"] >= 10
+        lab = by_kf[row["keyframe_id"]].horizontal.labels[f_rb[rows], f_bm[rows]]
+        assert row["true_class_name"] == CLASS_NAMES[np.bincount(lab).argmax()]
+        x = f_r[rows] * np.cos(f_a[rows])
+        assert row["x_m"] == pytest.approx(x.mean(), abs=1e-9)
+        assert row["x_min_m"] == pytest.approx(x.min(), abs=1e-9)
+        assert row["class_name"] == row["argmax_class_name"]  # threshold 0 accepts all
+        assert row["class_id"] == CLASS_IDS[row["class_name"]]
+    # The isolated noise cells never make an object: every object is a labelled target.
+    assert set(objects["true_class_name"].to_pylist()) <= {
+        "cylindrical_piling",
+        "rectangular_piling",
+        "seafloor",
+    }
+    assert out["overlay"][:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_uncertain_objects_are_unknown(keyframes: list[KeyframeImages]) -> None:
+    objects = _run(keyframes, _features(keyframes), threshold=1.0)["objects"]
+    assert objects.num_rows > 0
+    assert set(objects["class_name"].to_pylist()) == {UNKNOWN_CLASS}
+    assert set(objects["class_id"].to_pylist()) == {UNKNOWN_CLASS_ID}
+    assert min(objects["probability"].to_pylist()) > 1.0 / len(NAMES) - 1e-9
+
+
+def test_same_inputs_same_outputs_and_the_seed_changes_the_masks(
+    keyframes: list[KeyframeImages],
+) -> None:
+    features = _features(keyframes)
+    a = _run(keyframes, features)
+    b = _run(keyframes, features)
+    c = _run(keyframes, features, seed=1)
+    assert a["objects"].equals(b["objects"]) and a["object_features"].equals(b["object_features"])
+    assert a["overlay"] == b["overlay"]
+    assert a["objects"]["probability"] != c["objects"]["probability"]
+    assert a["objects"]["probability_var"].to_numpy().min() > 0.0
+
+
+def test_without_labels_truth_is_null_and_without_features_no_objects(
+    keyframes: list[KeyframeImages],
+) -> None:
+    unlabelled = [
+        dataclasses.replace(fr, horizontal=dataclasses.replace(fr.horizontal, labels=None))
+        for fr in keyframes
+    ]
+    features = _features(keyframes)
+    objects = _run(unlabelled, features)["objects"]
+    assert objects.num_rows > 0 and objects["true_class_name"].null_count == objects.num_rows
+    empty = _run(keyframes, features.slice(0, 0))
+    assert empty["objects"].num_rows == 0 and empty["object_features"].num_rows == 0
+    assert empty["overlay"] is None
+
+
+def test_bad_model_bytes_are_a_value_error(keyframes: list[KeyframeImages]) -> None:
+    inputs = {
+        "keyframes.frames": keyframes,
+        "features.features": _features(keyframes),
+        "train.model": b"xx",
+    }
+    with pytest.raises(ValueError, match="model"):
+        CLASSIFY_STAGE.run(ClassifyConfig(), inputs)

@@ -1,0 +1,168 @@
+"""Objects of one horizontal image: DBSCAN clusters, boxes, aspect-preserving crops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from schemas.sonar import SonarPing
+from stages.objects import (
+    cluster_boxes,
+    cluster_features,
+    crop_patches,
+    extract_objects,
+    fan_xy,
+    horizontal_features,
+    los_rotate,
+    majority_class,
+)
+
+RANGES_M = ((np.arange(400) + 0.5) * 0.05).astype(np.float32)
+
+
+def _polar_of_rect(
+    angles_rad: np.ndarray, x0: float, x1: float, y0: float, y1: float
+) -> np.ndarray:
+    """Polar uint8 image whose cells are 255 inside the Cartesian rectangle, else 0."""
+    r = RANGES_M[:, None].astype(np.float64)
+    a = angles_rad[None, :].astype(np.float64)
+    x, y = r * np.cos(a), r * np.sin(a)
+    inside = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    return np.where(inside, 255, 0).astype(np.uint8)
+
+
+def test_dbscan_keeps_clusters_of_min_features_and_numbers_them_in_order() -> None:
+    rng = np.random.default_rng(0)
+    blob_a = rng.normal([5.0, 1.0], 0.05, (30, 2))
+    blob_b = rng.normal([8.0, -2.0], 0.05, (20, 2))
+    small = rng.normal([3.0, 3.0], 0.02, (4, 2))
+    noise = np.array([[1.0, -4.0], [12.0, 6.0], [6.0, 5.0]])
+    xy = np.concatenate([blob_b, noise, blob_a, small])
+    labels = cluster_features(xy, eps_m=0.25, min_samples=2, min_features=10)
+    assert set(labels[:20]) == {0}  # blob_b comes first
+    assert set(labels[20:23]) == {-1}
+    assert set(labels[23:53]) == {1}
+    assert set(labels[53:]) == {-1}  # 4 < min_features
+    assert len(cluster_features(np.zeros((0, 2)), 0.25, 2, 10)) == 0
+
+
+def test_cluster_boxes_match_a_reference_loop() -> None:
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(-5, 5, (200, 2))
+    labels = rng.integers(-1, 6, 200)
+    boxes = cluster_boxes(xy, labels, 6)
+    for k in range(6):
+        p = xy[labels == k]
+        np.testing.assert_allclose(
+            boxes[k], [p[:, 0].min(), p[:, 0].max(), p[:, 1].min(), p[:, 1].max()]
+        )
+
+
+def test_majority_class_counts_the_cells_of_each_object() -> None:
+    label_image = np.zeros((10, 10), np.uint8)
+    label_image[0, :6] = 1
+    label_image[1, :] = 2
+    rb = np.array([0, 0, 0, 1, 1, 1, 1, 2, 2, 0])
+    bm = np.array([0, 1, 7, 0, 1, 2, 3, 0, 1, 2])
+    obj = np.array([0, 0, 0, 1, 1, 1, 1, 2, 2, -1])
+    np.testing.assert_array_equal(majority_class(label_image, rb, bm, obj, 3), [1, 2, 0])
+
+
+@pytest.mark.parametrize("uneven", [False, True])
+def test_crop_preserves_aspect_ratio_and_pads_outside_the_box(uneven: bool) -> None:
+    angles = np.linspace(-1.1, 1.1, 512)
+    if uneven:  # denser beams near the centre: the angle table, not its spacing, must be used
+        angles = 1.1 * np.sign(angles) * np.abs(angles / 1.1) ** 1.5
+    angles = angles.astype(np.float32)
+    # A 1.0 m (forward) x 0.25 m (across) bright rectangle at 10 m straight ahead.
+    image = _polar_of_rect(angles, 9.5, 10.5, -0.125, 0.125)
+    box = np.array([[9.5, 10.5, -0.125, 0.125]])
+    patch = crop_patches(image, RANGES_M, angles, box, margin_m=0.1, size_px=40)[0]
+    assert patch.shape == (40, 40) and patch.dtype == np.float32
+    assert patch.max() == pytest.approx(1.0)
+    bright = patch > 0.5
+    rows = np.flatnonzero(bright.any(axis=1))
+    cols = np.flatnonzero(bright.any(axis=0))
+    height, width = np.ptp(rows) + 1, np.ptp(cols) + 1
+    # Square side = 1.0 + 2 * 0.1 m over 40 px: the rectangle spans ~33 x ~8 px.
+    assert height == pytest.approx(40 * 1.0 / 1.2, abs=2)
+    assert width == pytest.approx(40 * 0.25 / 1.2, abs=2)
+    assert abs((cols.min() + cols.max()) / 2 - 19.5) <= 1.0
+    # Outside the box grown by its margin (0.1 m = 3.3 px) everything is padding.
+    assert not patch[:, : int(cols.min() - 5)].any()
+    assert not patch[:, int(cols.max() + 6) :].any()
+
+
+def test_line_of_sight_crop_looks_the_same_at_any_bearing() -> None:
+    angles = np.linspace(-1.1, 1.1, 1024).astype(np.float32)
+    # The same 1.0 x 0.25 m rectangle, seen straight ahead and at a 40 degree bearing,
+    # built as a set of dense features so the rotated image is exact in the LOS frame.
+    uv = np.stack(np.meshgrid(np.linspace(9.5, 10.5, 60), np.linspace(-0.125, 0.125, 15)), -1)
+    uv = uv.reshape(-1, 2)
+    patches = []
+    for bearing in (0.0, np.deg2rad(40.0)):
+        xy = los_rotate(uv, np.full(len(uv), -bearing))  # LOS -> sonar frame
+        r, a = np.hypot(xy[:, 0], xy[:, 1]), np.arctan2(xy[:, 1], xy[:, 0])
+        image = np.zeros((len(RANGES_M), len(angles)), np.uint8)
+        image[np.searchsorted(RANGES_M, r), np.searchsorted(angles, a)] = 255
+        box = np.array([[9.5, 10.5, -0.125, 0.125]])
+        patches.append(
+            crop_patches(image, RANGES_M, angles, box, np.array([bearing]), margin_m=0.1)[0]
+        )
+    cols = [np.flatnonzero((p > 0.3).any(axis=0)) for p in patches]
+    rows = [np.flatnonzero((p > 0.3).any(axis=1)) for p in patches]
+    assert abs(np.ptp(cols[0]) - np.ptp(cols[1])) <= 2
+    assert abs(np.ptp(rows[0]) - np.ptp(rows[1])) <= 2
+    assert np.ptp(cols[1]) < np.ptp(rows[1]) / 2  # still tall and thin, not rotated by 40 deg
+
+
+def test_extract_objects_on_two_targets_with_labels() -> None:
+    angles = np.linspace(-1.1, 1.1, 512).astype(np.float32)
+    image = _polar_of_rect(angles, 6.0, 6.4, 1.0, 1.4) | _polar_of_rect(
+        angles, 12.0, 12.3, -3.0, -2.0
+    )
+    labels = np.where(_polar_of_rect(angles, 6.0, 6.4, 1.0, 1.4) > 0, 1, 0).astype(np.uint8)
+    labels |= np.where(_polar_of_rect(angles, 12.0, 12.3, -3.0, -2.0) > 0, 2, 0).astype(np.uint8)
+    ping = SonarPing(0, "horizontal", image, RANGES_M, angles, labels=labels)
+    rb, bm = np.nonzero(image)
+    rb = np.concatenate([rb, [50, 300]])  # two isolated noise cells
+    bm = np.concatenate([bm, [10, 400]])
+    objs = extract_objects(
+        ping, rb, bm, RANGES_M[rb], angles[bm],
+        eps_m=0.25, min_samples=2, min_features=10, margin_m=0.2, min_side_m=0.5,
+    )  # fmt: skip
+    assert objs.count == 2
+    np.testing.assert_array_equal(objs.true_class_id, [1, 2])
+    np.testing.assert_allclose(objs.centroid_xy, [[6.2, 1.2], [12.15, -2.5]], atol=0.06)
+    np.testing.assert_allclose(objs.boxes[0], [6.0, 6.4, 1.0, 1.4], atol=0.06)
+    assert objs.n_features.sum() == len(rb) - 2
+    assert len(objs.feature_index) == len(rb) - 2
+    assert objs.patches.shape == (2, 40, 40)
+
+
+def test_horizontal_features_splits_by_keyframe_and_drops_vertical_rows() -> None:
+    table = pa.table(
+        {
+            "keyframe_id": pa.array([3, 1, 1, 3, 1], pa.int64()),
+            "feature_id": pa.array([7, 2, 1, 5, 0], pa.int64()),
+            "sonar": ["horizontal", "horizontal", "horizontal", "vertical", "vertical"],
+            "range_bin": pa.array([1, 2, 3, 4, 5], pa.int64()),
+            "beam": pa.array([1, 2, 3, 4, 5], pa.int64()),
+            "range_m": [1.0, 2.0, 3.0, 4.0, 5.0],
+            "angle_rad": [0.1, 0.2, 0.3, 0.4, 0.5],
+            "intensity": pa.array([9, 9, 9, 9, 9], pa.uint8()),
+        }
+    )
+    split = horizontal_features(table)
+    assert sorted(split) == [1, 3]
+    np.testing.assert_array_equal(split[1]["feature_id"], [1, 2])
+    np.testing.assert_array_equal(split[1]["range_bin"], [3, 2])
+    np.testing.assert_array_equal(split[3]["feature_id"], [7])
+    with pytest.raises(ValueError, match="range_m"):
+        horizontal_features(table.drop(["range_m"]))
+
+
+def test_fan_xy_follows_eq1_with_zero_elevation() -> None:
+    xy = fan_xy(np.array([2.0, 3.0]), np.array([0.0, np.pi / 2]))
+    np.testing.assert_allclose(xy, [[2.0, 0.0], [0.0, 3.0]], atol=1e-12)
