@@ -69,8 +69,8 @@ def detect_ping(ping: SonarPing, config: FeaturesConfig) -> tuple[np.ndarray, np
         config.os_rank,
         config.intensity_floor,
     )
-    rows, cols = np.nonzero(mask)
-    return rows.astype(np.int64), cols.astype(np.int64)
+    flat = np.flatnonzero(mask).astype(np.int64)
+    return flat // mask.shape[1], flat % mask.shape[1]
 
 
 def keyframe_features(frame: KeyframeImages, config: FeaturesConfig) -> dict[str, np.ndarray]:

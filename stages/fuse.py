@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 from pydantic import Field
 from scipy.optimize import linear_sum_assignment
 
@@ -92,11 +93,12 @@ def image_patches(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, size: i
     if size % 2 == 0:
         raise ValueError(f"patch size must be odd, got {size}")
     h = size // 2
-    img = np.asarray(image, dtype=np.float32)
+    img = np.asarray(image)
     peak = float(img.max()) if img.size else 0.0
-    padded = np.pad(img / peak if peak > 0 else img, h)
     d = np.arange(size)
-    return padded[rows[:, None, None] + d[None, :, None], cols[:, None, None] + d[None, None, :]]
+    padded = np.pad(img, h)
+    patches = padded[rows[:, None, None] + d[None, :, None], cols[:, None, None] + d[None, None, :]]
+    return patches.astype(np.float32) / np.float32(peak if peak > 0 else 1.0)
 
 
 def _same_bin_pairs(bin_h: np.ndarray, bin_v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -112,20 +114,33 @@ def _same_bin_pairs(bin_h: np.ndarray, bin_v: np.ndarray) -> tuple[np.ndarray, n
     return i.astype(np.int64), j.astype(np.int64)
 
 
-def _confidence(block: np.ndarray, r: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Eq. 6 per assigned pair (r, c) of a (nh, nv) cost block."""
-    chosen = block[r, c]
-    row = block[r].copy()
-    row[np.arange(len(r)), c] = np.inf
-    col = block[:, c].T.copy()
-    col[np.arange(len(c)), r] = np.inf
-    second = np.minimum(row.min(axis=1, initial=np.inf), col.min(axis=1, initial=np.inf))
-    total = (
-        np.where(np.isfinite(row), row, 0.0).sum(axis=1)
-        + np.where(np.isfinite(col), col, 0.0).sum(axis=1)
-        + chosen
-    )
-    conf = np.where(total > 0, (second - chosen) / np.maximum(total, 1e-12), 0.0)
+def _confidence(
+    i: np.ndarray, j: np.ndarray, cost: np.ndarray, chosen: np.ndarray, nh: int, nv: int
+) -> np.ndarray:
+    """Eq. 6 for the chosen candidate pairs (vectorised over all subproblems).
+
+    Args:
+        i, j, cost: (m,) all candidate pairs and their costs.
+        chosen: (k,) indices into the candidates of the assigned pairs.
+        nh, nv: numbers of horizontal / vertical features.
+
+    Returns:
+        (k,) (L_2 - L_ij) / sum L, L_2 = cheapest alternative of either feature, sum over
+        both features' candidates (the pair once); 1 where there is no alternative.
+    """
+    others = np.ones(len(cost), dtype=bool)
+    others[chosen] = False
+    alt = np.where(others, cost, np.inf)
+    row_min = np.full(nh, np.inf)
+    col_min = np.full(nv, np.inf)
+    np.minimum.at(row_min, i, alt)
+    np.minimum.at(col_min, j, alt)
+    row_sum = np.bincount(i, weights=cost, minlength=nh)
+    col_sum = np.bincount(j, weights=cost, minlength=nv)
+    ci, cj, cc = i[chosen], j[chosen], cost[chosen]
+    second = np.minimum(row_min[ci], col_min[cj])
+    total = row_sum[ci] + col_sum[cj] - cc
+    conf = np.where(total > 0, (second - cc) / np.maximum(total, 1e-12), 0.0)
     return np.where(np.isfinite(second), conf, 1.0)
 
 
@@ -139,7 +154,7 @@ def assign_subproblems(
         cost_fn: cost_fn(i, j) -> (m,) costs of candidate pairs (index arrays).
 
     Returns:
-        i, j (k,) int64 assigned feature indices, cost (k,), confidence (k,).
+        i, j (k,) int64 assigned feature indices (by bin, then i), cost (k,), confidence (k,).
     """
     i, j = _same_bin_pairs(bin_h, bin_v)
     if len(i) == 0:
@@ -149,23 +164,14 @@ def assign_subproblems(
     bins = bin_h[i]
     starts = np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
     ends = np.r_[starts[1:], len(i)]
-    out_i, out_j, out_c, out_conf = [], [], [], []
-    for s, e in zip(starts, ends, strict=True):
-        hi, vj = i[s:e], j[s:e]
-        h0, v0 = hi[0], vj.min()
-        nh, nv = hi[-1] - h0 + 1, vj.max() - v0 + 1
-        block = cost[s:e].reshape(nh, nv)
-        r, c = linear_sum_assignment(block)
-        out_i.append(r + h0)
-        out_j.append(c + v0)
-        out_c.append(block[r, c])
-        out_conf.append(_confidence(block, r, c))
-    return (
-        np.concatenate(out_i).astype(np.int64),
-        np.concatenate(out_j).astype(np.int64),
-        np.concatenate(out_c),
-        np.concatenate(out_conf),
-    )
+    n_v = np.searchsorted(bin_v, bins[starts], "right") - np.searchsorted(bin_v, bins[starts])
+    chosen = []
+    for s, e, nv in zip(starts.tolist(), ends.tolist(), n_v.tolist(), strict=True):
+        r, c = linear_sum_assignment(cost[s:e].reshape(-1, nv))
+        chosen.append(s + r * nv + c)
+    sel = np.concatenate(chosen)
+    conf = _confidence(i, j, cost, sel, len(bin_h), len(bin_v))
+    return i[sel], j[sel], cost[sel], conf
 
 
 def sonar_offset(sensors: Mapping[str, Any]) -> np.ndarray:
@@ -224,8 +230,8 @@ def fuse_keyframe(
 
     Args:
         frame: the keyframe's two polar images.
-        feats: this keyframe's features columns ("feature_id", "sonar", "range_bin", "beam",
-            "range_m", "angle_rad"), `sonar` as a str array.
+        feats: this keyframe's features columns ("feature_id", "range_bin", "beam",
+            "range_m", "angle_rad") and "is_horizontal" (bool, from `sonar`).
         T_h_v: vertical sonar pose in the horizontal sonar frame.
 
     Returns:
@@ -234,7 +240,7 @@ def fuse_keyframe(
     """
     half_v = np.deg2rad(config.vertical_aperture_deg) / 2
     half_h = np.deg2rad(config.horizontal_aperture_deg) / 2
-    is_h = feats["sonar"] == "horizontal"
+    is_h = feats["is_horizontal"]
     sel_h = np.flatnonzero(is_h & (np.abs(feats["angle_rad"]) <= half_v))
     sel_v = np.flatnonzero(~is_h & (np.abs(feats["angle_rad"]) <= half_h))
     sel_h = sel_h[np.argsort(feats["range_bin"][sel_h], kind="stable")]
@@ -287,12 +293,21 @@ _FEATURE_COLUMNS = (
 
 
 def _feature_arrays(features: pa.Table) -> dict[str, np.ndarray]:
+    """Feature columns as numpy, sorted by (keyframe_id, feature_id), `sonar` as a bool
+    `is_horizontal`."""
     missing = [c for c in _FEATURE_COLUMNS if c not in features.column_names]
     if missing:
         raise ValueError(f"fuse: features table lacks columns {missing}")
-    cols = {c: features.column(c).to_numpy(zero_copy_only=False) for c in _FEATURE_COLUMNS}
-    cols["sonar"] = np.asarray(cols["sonar"], dtype=str)
-    order = np.lexsort((cols["feature_id"], cols["keyframe_id"]))
+    cols = {c: features.column(c).to_numpy() for c in _FEATURE_COLUMNS if c != "sonar"}
+    is_h = pc.equal(features.column("sonar"), "horizontal")
+    cols["is_horizontal"] = is_h.to_numpy(zero_copy_only=False).astype(bool)
+    kf, fid = cols["keyframe_id"], cols["feature_id"]
+    ordered = len(kf) < 2 or bool(
+        np.all((kf[1:] > kf[:-1]) | ((kf[1:] == kf[:-1]) & (fid[1:] > fid[:-1])))
+    )
+    if ordered:
+        return cols
+    order = np.lexsort((fid, kf))
     return {c: v[order] for c, v in cols.items()}
 
 
