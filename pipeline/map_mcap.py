@@ -38,13 +38,10 @@ SOURCE_IDS: dict[str, int] = {"fused": 0, "inferred": 1}
 UNKNOWN_CLASS_ID = 255
 
 _POINT_DTYPE = np.dtype(
-    {
-        "names": ["x", "y", "z", "source", "class_id"],
-        "formats": ["<f4", "<f4", "<f4", "u1", "u1"],
-        "offsets": [0, 4, 8, 12, 13],
-        "itemsize": 16,
-    }
+    [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("source", "u1"), ("class_id", "u1"), ("pad", "<u2")]
 )
+"""One PointCloud2 record, 16 bytes; the padding is an explicit zero field so that copies
+never carry uninitialised bytes into the file."""
 
 
 def point_cloud_bytes(map_table: pa.Table) -> np.ndarray:

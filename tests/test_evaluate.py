@@ -1,0 +1,223 @@
+"""evaluate: errors against the simulator's ground-truth mesh, completeness/precision,
+ATE, the report and figures, and the no-ground-truth path."""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from schemas.classes import CLASS_IDS
+from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
+from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sim.geometry import rot_z
+from sim.scene import load_scene
+from sim.world import World
+from stages.evaluate import STAGE, EvaluateConfig, map_errors, surface_metrics
+from stages.mesh_metrics import ate_se2, mesh_distance, surface_samples, visible_mask
+from stages.ply import decode_mesh_ply
+
+SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+T_BASE_SONAR = np.eye(4)
+T_BASE_SONAR[0, 3] = 0.5
+YAWS = np.arange(4) * np.pi / 2
+"""Four keyframes at (0, 0, -2) m looking along +x, +y, -x, -y: every tiny-scene piling is seen."""
+
+
+@functools.cache
+def tiny_world() -> World:
+    return World(load_scene(SCENES / "tiny.yaml"))
+
+
+@functools.cache
+def tiny_ply() -> bytes:
+    return tiny_world().to_ply_bytes()
+
+
+def map_table(xyz: np.ndarray, source: np.ndarray) -> pa.Table:
+    n = len(xyz)
+    t = pa.table(
+        {
+            "keyframe_id": np.zeros(n, np.int64),
+            "x_m": xyz[:, 0],
+            "y_m": xyz[:, 1],
+            "z_m": xyz[:, 2],
+            "source": source,
+            "class_name": ["cylindrical_piling"] * n,
+        },
+        schema=MAP_SCHEMA,
+    )
+    return t.sort_by([(k, "ascending") for k in MAP_SORT_KEYS])
+
+
+def poses_table(xy: np.ndarray, yaw: np.ndarray) -> pa.Table:
+    k = len(yaw)
+    cols: dict[str, object] = {"keyframe_id": np.arange(k), "t_ns": np.arange(k) * 10**9}
+    cols.update(x_m=xy[:, 0], y_m=xy[:, 1], z_m=np.full(k, -2.0), roll_rad=np.zeros(k))
+    cols.update(pitch_rad=np.zeros(k), yaw_rad=yaw, **{c: np.zeros(k) for c in COVARIANCE_COLUMNS})
+    return pa.table(cols, schema=POSES_SCHEMA)
+
+
+def keyframes_table(dr_xy: np.ndarray, gt_xy: np.ndarray | None, yaw: np.ndarray) -> pa.Table:
+    k = len(yaw)
+    cols: dict[str, object] = {"keyframe_id": np.arange(k), "t_ns": np.arange(k) * 10**9}
+    cols.update(x_m=dr_xy[:, 0], y_m=dr_xy[:, 1], z_m=np.full(k, -2.0), roll_rad=np.zeros(k))
+    cols.update(pitch_rad=np.zeros(k), yaw_rad=yaw)
+    truth = {
+        "x_m": None,
+        "y_m": None,
+        "z_m": None,
+        "roll_rad": None,
+        "pitch_rad": None,
+        "yaw_rad": None,
+    }
+    if gt_xy is not None:
+        truth.update(x_m=gt_xy[:, 0], y_m=gt_xy[:, 1], z_m=np.full(k, -2.0), yaw_rad=yaw)
+        truth.update(roll_rad=np.zeros(k), pitch_rad=np.zeros(k))
+    for c, value in truth.items():
+        cols[f"gt_{c}"] = pa.array([None] * k if value is None else value, pa.float64())
+    cols["reason"] = ["first"] + ["rotation"] * (k - 1)
+    return pa.table(cols)
+
+
+def stage_inputs(m: pa.Table, with_truth: bool) -> dict[str, object]:
+    xy = np.zeros((4, 2))
+    return {
+        "voxelize.map": m,
+        "voxelize.summary": {
+            "voxel_size_m": 0.1,
+            "voxels": {"standard": 100, "semantic": 250},
+            "points": {"fused": 10, "inferred": 20},
+        },
+        "keyframes.keyframes": keyframes_table(xy + 0.2, xy if with_truth else None, YAWS),
+        "keyframes.scene_mesh": tiny_ply() if with_truth else None,
+        "keyframes.sensors": {
+            "horizontal": {"T_base_sonar": T_BASE_SONAR.tolist()},
+            "vertical": {"T_base_sonar": T_BASE_SONAR.tolist()},
+            "has_ground_truth": with_truth,
+            "has_labels": True,
+            "source": {"name": "tiny-test"},
+        },
+        "slam.poses": poses_table(xy, YAWS),
+    }
+
+
+def square_piling_faces() -> tuple[np.ndarray, np.ndarray]:
+    """Centroids and outward unit normals of the square piling's side faces below z = -1."""
+    v, t, _, cls = tiny_world().mesh_arrays()
+    faces = t[cls[t[:, 0]] == CLASS_IDS["rectangular_piling"]]
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    centroid = (a + b + c) / 3
+    centre = np.r_[v[faces.ravel()][:, :2].mean(axis=0), 0.0]
+    n *= np.sign(np.sum((centroid - centre) * n, axis=1))[:, None]  # outward
+    side = (np.abs(n[:, 2]) < 1e-6) & (centroid[:, 2] < -1)
+    return centroid[side], n[side]
+
+
+def test_point_on_the_mesh_has_error_zero_and_one_30cm_off_has_0_3() -> None:
+    centroid, normal = square_piling_faces()
+    mesh = decode_mesh_ply(tiny_ply())
+    np.testing.assert_allclose(mesh_distance(mesh, centroid), 0.0, atol=1e-5)
+    np.testing.assert_allclose(mesh_distance(mesh, centroid + 0.3 * normal), 0.3, atol=1e-5)
+
+
+def test_stage_errors_and_precision_follow_the_offsets() -> None:
+    centroid, normal = square_piling_faces()
+    xyz = np.r_[centroid, centroid + 0.3 * normal]
+    source = np.array(["fused"] * len(centroid) + ["inferred"] * len(centroid))
+    out = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
+    errors: pa.Table = out["errors"]
+    assert errors.schema.equals(ERRORS_SCHEMA) and errors.num_rows == len(xyz)
+    e = out["metrics"]["errors"]
+    assert e["fused"]["median_m"] == pytest.approx(0.0, abs=1e-5)
+    assert e["inferred"]["median_m"] == pytest.approx(0.3, abs=1e-5)
+    assert e["standard"]["n"] == len(centroid) and e["semantic"]["n"] == len(xyz)
+    p = out["metrics"]["precision"]
+    assert p["standard"] == 1.0 and p["inferred"] == 0.0 and p["semantic"] == 0.5
+
+
+def completeness(xyz: np.ndarray) -> dict[str, object]:
+    mesh = decode_mesh_ply(tiny_ply())
+    m = map_table(xyz, np.array(["fused"] * len(xyz)))
+    errors, _ = map_errors(m, mesh)
+    T_world_sonar = np.stack([np.r_[np.c_[rot_z(y), [0, 0, -2]], [[0, 0, 0, 1]]] for y in YAWS])
+    comp, _, _ = surface_metrics(m, errors, mesh, T_world_sonar @ T_BASE_SONAR, EvaluateConfig())
+    return comp
+
+
+def test_completeness_of_a_full_surface_sampling_is_one_and_of_one_piling_less() -> None:
+    dense = surface_samples(decode_mesh_ply(tiny_ply()), np.array([1, 2]), 2000.0, seed=7)
+    dense = dense[(dense[:, 2] <= 0) & (dense[:, 2] > -4)]  # covers the visible band
+    full = completeness(dense)
+    assert full["standard"] > 0.99 and full["semantic"] > 0.99 and full["n_samples"] > 1000
+    # Drop the round piling at (6, 3): its share of the visible samples goes missing.
+    part = completeness(dense[np.linalg.norm(dense[:, :2] - [6.0, 3.0], axis=1) > 1.0])
+    assert 0.2 < part["standard"] < 0.8
+
+
+def test_visibility_respects_range_fan_aperture_and_surface() -> None:
+    T = np.eye(4)[None].copy()  # sonar at the origin looking along +x
+    pts = np.array(
+        [
+            [10.0, 0.0, 0.0],  # ahead, on the surface plane: visible
+            [10.0, 0.0, 0.5],  # above the surface
+            [31.0, 0.0, 0.0],  # beyond 30 m
+            [-10.0, 0.0, 0.0],  # behind, outside the 130 deg fan
+            [10.0, 0.0, -3.0],  # 16.7 deg down, outside +-10 deg
+            [5.0, 8.0, -0.5],  # 58 deg left, 3 deg down: visible
+        ]
+    )
+    seen = visible_mask(pts, T, 30.0, np.deg2rad(65), np.deg2rad(10))
+    assert seen.tolist() == [True, False, False, False, False, True]
+
+
+def test_ate_is_zero_after_a_rigid_motion_and_the_rms_of_what_is_left() -> None:
+    rng = np.random.default_rng(3)
+    truth = rng.uniform(-20, 20, (50, 2))
+    moved = truth @ rot_z(0.7)[:2, :2].T + [4.0, -2.0]
+    assert ate_se2(moved, truth) == pytest.approx(0.0, abs=1e-9)
+    noise = rng.normal(0, 0.2, (50, 2))
+    noise -= noise.mean(axis=0)
+    assert ate_se2(truth + noise, truth) == pytest.approx(
+        np.sqrt(np.mean(np.sum(noise**2, 1))), rel=0.05
+    )
+
+
+def test_report_and_figures_are_written_with_ground_truth() -> None:
+    centroid, normal = square_piling_faces()
+    xyz = np.r_[centroid, centroid + 0.05 * normal]
+    source = np.array(["fused"] * len(centroid) + ["inferred"] * len(centroid))
+    out = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
+    for name in ("plot_errors", "plot_map_topdown", "plot_side_view"):
+        assert out[name][:8] == PNG_SIGNATURE and len(out[name]) > 5000
+    report = out["report"].decode()
+    assert "tiny-test" in report and "| standard | 10 | 100 |" in report
+    assert "side_view.png" in report and "## Skipped" not in report
+    traj = out["metrics"]["trajectory"]
+    assert traj["slam_ate_m"] == pytest.approx(0.0, abs=1e-9)
+    assert out["metrics"]["skipped"] == []
+    again = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
+    assert again["report"] == out["report"] and again["plot_errors"] == out["plot_errors"]
+
+
+def test_without_ground_truth_counts_and_topdown_remain_and_skips_are_listed() -> None:
+    centroid, _ = square_piling_faces()
+    out = STAGE.run(
+        EvaluateConfig(),
+        stage_inputs(map_table(centroid, np.array(["fused"] * len(centroid))), False),
+    )
+    m = out["metrics"]
+    assert m["has_ground_truth"] is False and m["voxels"] == {"standard": 100, "semantic": 250}
+    assert m["errors"] == {} and m["trajectory"] == {}
+    skipped = " ".join(m["skipped"])
+    for what in ("map errors", "completeness", "precision", "trajectory"):
+        assert what in skipped
+    assert out["errors"] is None and out["plot_errors"] is None and out["plot_side_view"] is None
+    assert out["plot_map_topdown"][:8] == PNG_SIGNATURE
+    assert "## Skipped" in out["report"].decode()
