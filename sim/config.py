@@ -45,37 +45,44 @@ class SonarConfig(_Model):
     Defaults: M750d-like, 130 deg fan, 20 deg aperture, 512 beams, 30 m at 5 cm bins.
     """
 
-    fan_width_deg: float = Field(130.0, gt=0.0, lt=180.0)
-    aperture_deg: float = Field(20.0, gt=0.0, lt=90.0)
-    n_beams: int = Field(512, ge=2, le=2048)
-    range_max_m: float = Field(30.0, gt=0.0)
-    range_resolution_m: float = Field(0.05, gt=0.0)
+    fan_width_deg: float = Field(default=130.0, gt=0.0, lt=180.0)
+    aperture_deg: float = Field(default=20.0, gt=0.0, lt=90.0)
+    n_beams: int = Field(default=512, ge=2, le=2048)
+    range_max_m: float = Field(default=30.0, gt=0.0)
+    range_resolution_m: float = Field(default=0.05, gt=0.0)
     beam_width_deg: float = Field(
-        1.0, gt=0.0, le=10.0, description="-3 dB beam width across the fan (M750d 1, M1200d 0.6)"
+        default=1.0,
+        gt=0.0,
+        le=10.0,
+        description="-3 dB beam width across the fan (M750d 1, M1200d 0.6)",
     )
-    aperture_samples: int = Field(48, ge=1, le=512, description="rays per beam across the aperture")
+    aperture_samples: int = Field(
+        default=48, ge=1, le=512, description="rays per beam across the aperture"
+    )
     mounting: Mounting = Mounting()
     frequency_hz: float = 750e3
     sound_speed_m_s: float = 1500.0
     reflectivity: dict[str, float] = Field(default_factory=lambda: dict(_DEFAULT_REFLECTIVITY))
-    incidence_exponent: float = Field(1.0, ge=0.0, description="cos(incidence)^n backscatter")
-    absorption_db_per_m: float = Field(0.05, ge=0.0, description="one-way loss after TVG")
-    aperture_edge_gain: float = Field(
-        0.5, gt=0.0, le=1.0, description="beam pattern at +-aperture/2"
+    incidence_exponent: float = Field(
+        default=1.0, ge=0.0, description="cos(incidence)^n backscatter"
     )
-    saturation_intensity: float = Field(0.05, gt=0.0, description="intensity mapped to 255")
+    absorption_db_per_m: float = Field(default=0.05, ge=0.0, description="one-way loss after TVG")
+    aperture_edge_gain: float = Field(
+        default=0.5, gt=0.0, le=1.0, description="beam pattern at +-aperture/2"
+    )
+    saturation_intensity: float = Field(default=0.05, gt=0.0, description="intensity mapped to 255")
     display_gamma: float = Field(
-        0.5, gt=0.0, le=1.0, description="8-bit level = 255 (I/I_sat)^gamma"
+        default=0.5, gt=0.0, le=1.0, description="8-bit level = 255 (I/I_sat)^gamma"
     )
     speckle: bool = True
     noise_mean_level: float = Field(
-        4.0, ge=0.0, description="mean additive Rayleigh noise [levels]"
+        default=4.0, ge=0.0, description="mean additive Rayleigh noise [levels]"
     )
     label_min_level: float = Field(
-        10.0, ge=0.0, description="noise-free level for a labelled pixel"
+        default=10.0, ge=0.0, description="noise-free level for a labelled pixel"
     )
     max_splat_bins: int = Field(
-        32,
+        default=32,
         ge=1,
         description="max range gap (bins) between aperture neighbours that still share a surface",
     )
@@ -110,29 +117,35 @@ class MissionConfig(_Model):
     """The paper's protocol: random start, random free-water goals in nearest-neighbour order,
     A* paths on a 2D grid with clearance, constant speed and depth."""
 
-    n_goals: int = Field(20, ge=1, le=1000)
-    speed_m_s: float = Field(0.5, gt=0.0, le=5.0)
-    depth_m: float = Field(2.0, ge=0.0)
-    clearance_m: float = Field(2.0, ge=0.0)
-    grid_resolution_m: float = Field(0.5, gt=0.0)
+    n_goals: int = Field(default=20, ge=1, le=1000)
+    speed_m_s: float = Field(default=0.5, gt=0.0, le=5.0)
+    depth_m: float = Field(default=2.0, ge=0.0)
+    clearance_m: float = Field(default=2.0, ge=0.0)
+    grid_resolution_m: float = Field(default=0.5, gt=0.0)
     heading_mode: Literal["path", "constant"] = "path"
     yaw_rate_deg_s: float = Field(
-        20.0, gt=0.0, description="turn-in-place rate (heading_mode=path)"
+        default=20.0, gt=0.0, description="turn-in-place rate (heading_mode=path)"
     )
-    duration_s: float | None = Field(None, gt=0.0, description="cut the mission after this time")
-    min_goal_separation_m: float = Field(4.0, ge=0.0)
+    duration_s: float | None = Field(
+        default=None, gt=0.0, description="cut the mission after this time"
+    )
+    min_goal_separation_m: float = Field(default=4.0, ge=0.0)
 
 
 class NavigationNoise(_Model):
     """Dead-reckoning sensors: DVL body velocity, IMU yaw (biased), depth sensor."""
 
-    rate_hz: float = Field(10.0, gt=0.0)
-    dvl_noise_m_s: float = Field(0.02, ge=0.0, description="white noise per axis per sample")
-    dvl_scale_error: float = Field(0.01, ge=0.0, description="std of fixed per-axis scale error")
-    yaw_noise_deg: float = Field(0.3, ge=0.0)
-    yaw_bias_deg: float = Field(1.0, ge=0.0, description="std of the initial yaw bias")
-    yaw_bias_walk_deg_sqrt_s: float = Field(0.02, ge=0.0, description="bias random walk")
-    depth_noise_m: float = Field(0.02, ge=0.0)
+    rate_hz: float = Field(default=10.0, gt=0.0)
+    dvl_noise_m_s: float = Field(
+        default=0.02, ge=0.0, description="white noise per axis per sample"
+    )
+    dvl_scale_error: float = Field(
+        default=0.01, ge=0.0, description="std of fixed per-axis scale error"
+    )
+    yaw_noise_deg: float = Field(default=0.3, ge=0.0)
+    yaw_bias_deg: float = Field(default=1.0, ge=0.0, description="std of the initial yaw bias")
+    yaw_bias_walk_deg_sqrt_s: float = Field(default=0.02, ge=0.0, description="bias random walk")
+    depth_noise_m: float = Field(default=0.02, ge=0.0)
 
 
 class SimConfig(_Model):
@@ -145,8 +158,8 @@ class SimConfig(_Model):
     )
     mission: MissionConfig = MissionConfig()
     navigation: NavigationNoise = NavigationNoise()
-    ping_rate_hz: float = Field(2.0, gt=0.0, le=50.0)
-    start_time_ns: int = Field(1_700_000_000_000_000_000, ge=0)
+    ping_rate_hz: float = Field(default=2.0, gt=0.0, le=50.0)
+    start_time_ns: int = Field(default=1_700_000_000_000_000_000, ge=0)
 
     @model_validator(mode="after")
     def _check_vertical(self) -> SimConfig:

@@ -58,34 +58,34 @@ class _Model(BaseModel):
 class CylindricalPiling(_Model):
     """Round vertical piling standing on the seafloor."""
 
-    kind: Literal["cylindrical_piling"] = Field("cylindrical_piling", alias="class")
+    kind: Literal["cylindrical_piling"] = Field(default="cylindrical_piling", alias="class")
     name: str | None = None
     position_m: Vec2
-    radius_m: float = Field(0.2, gt=0.0, le=5.0)
-    height_m: float | None = Field(None, gt=0.0)
+    radius_m: float = Field(default=0.2, gt=0.0, le=5.0)
+    height_m: float | None = Field(default=None, gt=0.0)
 
 
 class RectangularPiling(_Model):
     """Square/rectangular vertical piling; `width_m` along x and `depth_m` along y before yaw."""
 
-    kind: Literal["rectangular_piling"] = Field("rectangular_piling", alias="class")
+    kind: Literal["rectangular_piling"] = Field(default="rectangular_piling", alias="class")
     name: str | None = None
     position_m: Vec2
-    width_m: float = Field(0.4, gt=0.0, le=10.0)
-    depth_m: float = Field(0.4, gt=0.0, le=10.0)
+    width_m: float = Field(default=0.4, gt=0.0, le=10.0)
+    depth_m: float = Field(default=0.4, gt=0.0, le=10.0)
     yaw_deg: float = 0.0
-    height_m: float | None = Field(None, gt=0.0)
+    height_m: float | None = Field(default=None, gt=0.0)
 
 
 class Seawall(_Model):
     """Corrugated (sheet-pile) wall along a polyline, from the seafloor up."""
 
-    kind: Literal["seawall"] = Field("seawall", alias="class")
+    kind: Literal["seawall"] = Field(default="seawall", alias="class")
     name: str | None = None
     polyline_m: list[Vec2] = Field(min_length=2)
-    height_m: float | None = Field(None, gt=0.0)
-    corrugation_period_m: float = Field(1.2, gt=0.0)
-    corrugation_depth_m: float = Field(0.3, ge=0.0)
+    height_m: float | None = Field(default=None, gt=0.0)
+    corrugation_period_m: float = Field(default=1.2, gt=0.0)
+    corrugation_depth_m: float = Field(default=0.3, ge=0.0)
 
     @model_validator(mode="after")
     def _segments_nonzero(self) -> Seawall:
@@ -98,27 +98,27 @@ class Seawall(_Model):
 class BoatHull(_Model):
     """Floating hull: a half ellipsoid of the given draft plus freeboard, at the surface."""
 
-    kind: Literal["boat_hull"] = Field("boat_hull", alias="class")
+    kind: Literal["boat_hull"] = Field(default="boat_hull", alias="class")
     name: str | None = None
     position_m: Vec2
     yaw_deg: float = 0.0
-    length_m: float = Field(8.0, gt=0.0)
-    beam_m: float = Field(3.0, gt=0.0)
-    draft_m: float = Field(1.2, gt=0.0)
-    freeboard_m: float = Field(0.8, ge=0.0)
+    length_m: float = Field(default=8.0, gt=0.0)
+    beam_m: float = Field(default=3.0, gt=0.0)
+    draft_m: float = Field(default=1.2, gt=0.0)
+    freeboard_m: float = Field(default=0.8, ge=0.0)
 
 
 class Truss(_Model):
     """Planar Warren truss between two plan points: chords at top/bottom z plus diagonals."""
 
-    kind: Literal["truss"] = Field("truss", alias="class")
+    kind: Literal["truss"] = Field(default="truss", alias="class")
     name: str | None = None
     start_m: Vec2
     end_m: Vec2
     top_z_m: float = -0.5
     bottom_z_m: float = -1.5
-    member_width_m: float = Field(0.15, gt=0.0)
-    bays: int = Field(4, ge=1, le=200)
+    member_width_m: float = Field(default=0.15, gt=0.0)
+    bays: int = Field(default=4, ge=1, le=200)
 
     @model_validator(mode="after")
     def _check(self) -> Truss:
@@ -133,11 +133,11 @@ class PilingSpec(_Model):
     """Shape of the pilings a row/grid helper creates."""
 
     shape: Literal["cylindrical", "rectangular"] = "cylindrical"
-    radius_m: float = Field(0.2, gt=0.0, le=5.0)
-    width_m: float = Field(0.4, gt=0.0, le=10.0)
-    depth_m: float = Field(0.4, gt=0.0, le=10.0)
+    radius_m: float = Field(default=0.2, gt=0.0, le=5.0)
+    width_m: float = Field(default=0.4, gt=0.0, le=10.0)
+    depth_m: float = Field(default=0.4, gt=0.0, le=10.0)
     yaw_deg: float = 0.0
-    height_m: float | None = Field(None, gt=0.0)
+    height_m: float | None = Field(default=None, gt=0.0)
 
     def make(self, xy: Vec2, name: str | None) -> CylindricalPiling | RectangularPiling:
         """One piling of this shape at `xy`."""
@@ -158,7 +158,7 @@ class PilingSpec(_Model):
 class PilingRow(_Model):
     """`count` pilings evenly spaced from `start_m` to `end_m` (inclusive)."""
 
-    kind: Literal["piling_row"] = Field("piling_row", alias="class")
+    kind: Literal["piling_row"] = Field(default="piling_row", alias="class")
     name: str | None = None
     start_m: Vec2
     end_m: Vec2
@@ -178,7 +178,7 @@ class PilingRow(_Model):
 class PilingGrid(_Model):
     """rows x cols pilings from `origin_m`, spacing (dx, dy) rotated by `yaw_deg`."""
 
-    kind: Literal["piling_grid"] = Field("piling_grid", alias="class")
+    kind: Literal["piling_grid"] = Field(default="piling_grid", alias="class")
     name: str | None = None
     origin_m: Vec2
     rows: int = Field(ge=1, le=200)
@@ -210,11 +210,13 @@ class Scene(_Model):
     """A validated scene: seafloor depth, working area and objects (world frame, metres)."""
 
     name: str = "scene"
-    seafloor_depth_m: float = Field(8.0, gt=0.5, le=200.0)
+    seafloor_depth_m: float = Field(default=8.0, gt=0.5, le=200.0)
     area_m: tuple[float, float, float, float] = Field(
         description="working area (x_min, x_max, y_min, y_max) [m]; missions stay inside"
     )
-    seafloor_margin_m: float = Field(40.0, ge=0.0, description="seafloor extends past the area")
+    seafloor_margin_m: float = Field(
+        default=40.0, ge=0.0, description="seafloor extends past the area"
+    )
     objects: list[SceneObject] = Field(default_factory=list)
 
     @model_validator(mode="after")

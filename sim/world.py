@@ -49,8 +49,8 @@ class World:
         gids = []
         for oid, (v, t) in enumerate(meshes):
             tm = o3d.t.geometry.TriangleMesh()
-            tm.vertex.positions = o3d.core.Tensor(v.astype(np.float32))
-            tm.triangle.indices = o3d.core.Tensor(t.astype(np.int32))
+            tm.vertex.positions = o3d.core.Tensor(v.astype(np.float32))  # type: ignore[call-overload]
+            tm.triangle.indices = o3d.core.Tensor(t.astype(np.int32))  # type: ignore[call-overload]
             gids.append(self._rc.add_triangles(tm))
             if classes[oid] != CLASS_IDS["seafloor"]:
                 self._rc_obstacles.add_triangles(tm)
@@ -89,7 +89,7 @@ class World:
             normal (0 on a miss), object_id (n,) int64 (-1 on a miss), class_id (n,) int64 (0).
         """
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
-        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=0)
+        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=0)  # type: ignore[call-overload]
         t_hit = ans["t_hit"].numpy().astype(np.float64)
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t_hit)
@@ -109,7 +109,7 @@ class World:
         rc = self._rc if include_seafloor else self._rc_obstacles
         if not include_seafloor and self._n_obstacles == 0:
             return np.full(len(points), np.inf)
-        q = o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))
+        q = o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))  # type: ignore[call-overload]
         return rc.compute_distance(q, nthreads=0).numpy().astype(np.float64)
 
     def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
