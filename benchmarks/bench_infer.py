@@ -6,7 +6,8 @@ so the figures isolate the inference stage from feature extraction and fusion.
 
     .venv/bin/python benchmarks/bench_infer.py --scene marina --spacing-m 2 --seed 0
 
-Prints one JSON document: keyframes/s (best of --repeat), tracemalloc peak of the
+Prints one JSON document: keyframes/s (best of --repeat, wall and process CPU time,
+with the load average: the 2-core development box is shared), tracemalloc peak of the
 stage for growing mission prefixes (flat = memory bounded by the model, not the
 mission), model cells, and the accuracy / coverage figures of the issue.
 """
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 import tracemalloc
@@ -65,11 +67,12 @@ def main() -> None:
     n_kf = len(tt.T_world_sonar)
     config = InferConfig()
 
-    times = []
+    times, cpu = [], []
     for _ in range(args.repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         points = infer_points(*_prefix(tt, n_kf), config)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
 
     memory = {}
     for frac in (0.25, 0.5, 1.0):
@@ -97,6 +100,8 @@ def main() -> None:
         "truth_build_s": build_s,
         "infer_s_best": min(times),
         "keyframes_per_s": n_kf / min(times),
+        "keyframes_per_cpu_s": n_kf / min(cpu),
+        "load_average_1min": os.getloadavg()[0],
         "memory": memory,
         "median_distance_m": {"fused": d_fused, "inferred": d_inferred},
         "inferred_over_fused": d_inferred / d_fused,

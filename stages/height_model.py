@@ -169,31 +169,43 @@ class HeightModel:
             uv_m: (n, 2) reference-frame positions [m].
             threshold: minimum confidence (posterior probability) of a returned value.
         """
-        log_post = self.log_posterior(uv_m)
-        prob = np.exp(log_post)
-        low = self.z_m <= 0.0
-        z_low, conf_low = self._half_map(prob, low, threshold)
-        z_high, conf_high = self._half_map(prob, ~low, threshold)
-        return HeightQuery(z_low, conf_low, z_high, conf_high)
+        rows = self._find(self.cell_keys(uv_m))
+        seen = rows >= 0
+        prob = np.exp(self._log_post[rows[seen]])
+        cdf = np.concatenate([np.zeros((prob.shape[0], 1)), np.cumsum(prob, axis=1)], axis=1)
+        out = []
+        for half in (self.z_m <= 0.0, self.z_m > 0.0):
+            z = np.full(rows.size, np.nan)
+            conf = np.full(rows.size, np.nan)
+            z[seen], conf[seen] = self._half_map(prob, cdf, half, threshold)
+            out += [z, conf]
+        return HeightQuery(*out)
 
     def _half_map(
-        self, prob: np.ndarray, half: np.ndarray, threshold: float
+        self, prob: np.ndarray, cdf: np.ndarray, half: np.ndarray, threshold: float
     ) -> tuple[np.ndarray, np.ndarray]:
-        """MAP height within one half of the z grid and its windowed posterior mass."""
-        n = prob.shape[0]
-        if n == 0 or not half.any():
-            return np.full(n, np.nan), np.full(n, np.nan)
+        """MAP height within one half of the z grid and its windowed posterior mass.
+
+        Args:
+            prob: (n, n_z) posteriors; cdf: (n, n_z + 1) their cumulative sums.
+            half: (n_z,) bool mask of the half.
+        """
+        n, n_z = prob.shape
         idx = np.flatnonzero(half)
-        p = np.where(np.isnan(prob), -1.0, prob)
-        best = idx[np.argmax(p[:, idx], axis=1)]
-        z_map = self.z_m[best]
-        # A half's maximum on the flank of a mode of the other half is not a mode.
-        padded = np.pad(p, ((0, 0), (1, 1)), constant_values=-1.0)
+        if n == 0 or idx.size == 0:
+            return np.full(n, np.nan), np.full(n, np.nan)
+        best = idx[np.argmax(prob[:, idx], axis=1)]
         rows = np.arange(n)
-        is_mode = (p[rows, best] >= padded[rows, best]) & (p[rows, best] >= padded[rows, best + 2])
-        near = np.abs(self.z_m[None, :] - z_map[:, None]) <= self.window_m + 1e-9
-        conf = np.where(near, prob, 0.0).sum(axis=1)
-        conf[np.isnan(prob[:, 0])] = np.nan
+        p_best = prob[rows, best]
+        # A half's maximum on the flank of a mode of the other half is not a mode.
+        below = np.where(best > 0, prob[rows, np.maximum(best - 1, 0)], -1.0)
+        above = np.where(best < n_z - 1, prob[rows, np.minimum(best + 1, n_z - 1)], -1.0)
+        is_mode = (p_best >= below) & (p_best >= above)
+        # Posterior mass of [z_MAP - window, z_MAP + window] (grid is uniform).
+        z_map = self.z_m[best]
+        lo = np.searchsorted(self.z_m, z_map - self.window_m - 1e-9, side="left")
+        hi = np.searchsorted(self.z_m, z_map + self.window_m + 1e-9, side="right")
+        conf = cdf[rows, hi] - cdf[rows, lo]
         keep = (conf > threshold) & is_mode
         return np.where(keep, z_map, np.nan), np.where(keep, conf, np.nan)
 

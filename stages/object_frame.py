@@ -79,7 +79,9 @@ def voxel_downsample_2d(points: np.ndarray, voxel_m: float) -> np.ndarray:
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if pts.shape[0] == 0:
         return pts
-    _, inverse = np.unique(np.floor(pts / voxel_m), axis=0, return_inverse=True)
+    ij = np.floor(pts / voxel_m).astype(np.int64)
+    ij -= ij.min(axis=0)
+    _, inverse = np.unique(ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1], return_inverse=True)
     inverse = inverse.reshape(-1)
     counts = np.bincount(inverse)
     return np.stack([np.bincount(inverse, pts[:, k]) / counts for k in range(2)], axis=1)
@@ -96,6 +98,7 @@ class IcpParams:
     max_translation_m: float = 1.5
     max_rotation_rad: float = np.deg2rad(30.0)
     voxel_m: float = 0.05
+    relative_tolerance: float = 1e-4
 
 
 @dataclass(frozen=True)
@@ -131,7 +134,11 @@ def register_2d(source: np.ndarray, target: np.ndarray, params: IcpParams) -> Re
         params.max_correspondence_m,
         np.eye(4),
         reg.TransformationEstimationPointToPoint(),
-        reg.ICPConvergenceCriteria(max_iteration=params.max_iterations),
+        reg.ICPConvergenceCriteria(
+            relative_fitness=params.relative_tolerance,
+            relative_rmse=params.relative_tolerance,
+            max_iteration=params.max_iterations,
+        ),
     )
     T4 = np.asarray(result.transformation)
     yaw = float(np.arctan2(T4[1, 0], T4[0, 0]))
