@@ -401,3 +401,50 @@ def test_stage_object_runs_from_bound_inputs(pier) -> None:
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     assert set(inferred.column("class_name").to_pylist()) <= {"rectangular_piling"}
     assert STAGE.outputs[0].schema.equals(points.schema)
+
+
+def test_pier_through_real_features_and_fusion(pier) -> None:
+    """CFAR features and orthogonal fusion from the real stages; objects from DBSCAN
+    with their majority true class standing in for the CNN."""
+    from schemas.sonar import KeyframeImages
+    from stages.features import FeaturesConfig, features_table
+    from stages.fuse import FuseConfig, fuse_table
+    from stages.objects import extract_objects, horizontal_features
+
+    run, tt = pier
+    frames = [
+        KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)
+        for k, f in enumerate(run.frame(i) for i in keyframe_indices(run, 4.0))
+    ]
+    features = features_table(frames, FeaturesConfig())
+    sensors = {s: {"T_base_sonar": m.tolist()} for s, m in run.T_base_sonar.items()}
+    fused = fuse_table(frames, features, sensors, FuseConfig())
+    by_kf = horizontal_features(features)
+    objects, links = [], []
+    for frame in frames:
+        f = by_kf.get(frame.keyframe_id)
+        if f is None:
+            continue
+        o = extract_objects(
+            frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
+            eps_m=0.25, min_samples=2, min_features=10, margin_m=0.2, min_side_m=0.5,
+        )  # fmt: skip
+        for j in range(o.count):
+            ids = f["feature_id"][o.feature_index[o.object_index == j]]
+            object_id = len(objects)
+            objects.append({"keyframe_id": frame.keyframe_id, "object_id": object_id,
+                            "class_name": CLASS_NAMES[o.true_class_id[j]]})  # fmt: skip
+            links.append(pa.table({"keyframe_id": np.full(ids.size, frame.keyframe_id),
+                                   "object_id": np.full(ids.size, object_id), "feature_id": ids}))  # fmt: skip
+    points = infer_points(
+        pa.Table.from_pylist(objects), pa.concat_tables(links), features, fused, InferConfig()
+    )
+    inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
+    fused_world = to_world(fused, tt.T_world_sonar)
+    inferred_world = to_world(inferred, tt.T_world_sonar)
+    d_fused = np.median(run.world.distance(fused_world))
+    d_inferred = np.median(run.world.distance(inferred_world))
+    assert inferred.num_rows > fused.num_rows
+    assert d_inferred <= 0.15
+    assert d_inferred <= 1.5 * d_fused
+    assert n_voxels(np.vstack([fused_world, inferred_world])) >= 3 * n_voxels(fused_world)
