@@ -29,7 +29,7 @@ from stages.base import Output, Stage, StageConfig
 from stages.cnn import PatchCNN, mc_predict, model_from_bytes
 from stages.objects import KeyframeObjects, extract_objects, horizontal_features
 
-__all__ = ["CLASSIFY_STAGE", "ClassifyConfig", "classify_keyframes", "overlay_png"]
+__all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "overlay_png"]
 
 log = logging.getLogger(__name__)
 
@@ -199,7 +199,7 @@ def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     return {"objects": objects, "object_features": links, "overlay": overlay}
 
 
-CLASSIFY_STAGE = Stage(
+STAGE = Stage(
     name="classify",
     version=1,
     config=ClassifyConfig,
@@ -208,7 +208,7 @@ CLASSIFY_STAGE = Stage(
         Output("objects", "parquet", "objects.parquet", schema=OBJECTS_SCHEMA),
         Output(
             "object_features", "parquet", "object_features.parquet", schema=OBJECT_FEATURES_SCHEMA
-        ),  # fmt: skip
+        ),
         Output("overlay", "bytes", "overlay.png", optional=True),
     ),
     run=_run,

@@ -34,7 +34,7 @@ from stages.cnn import PatchCNN, mc_predict, model_to_bytes
 from stages.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 
 __all__ = [
-    "TRAIN_STAGE",
+    "STAGE",
     "Samples",
     "TrainConfig",
     "augment",
@@ -374,7 +374,7 @@ def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     return train_classifier([(inputs["keyframes.frames"], inputs["features.features"])], config)
 
 
-TRAIN_STAGE = Stage(
+STAGE = Stage(
     name="train",
     version=1,
     config=TrainConfig,

@@ -13,7 +13,7 @@ import torch
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
-from stages.classify import CLASSIFY_STAGE, ClassifyConfig
+from stages.classify import STAGE, ClassifyConfig
 from stages.cnn import PatchCNN, model_to_bytes
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -93,7 +93,7 @@ def _run(frames: list[KeyframeImages], features: pa.Table, **cfg: object) -> dic
         "features.features": features,
         "train.model": _model_bytes(),
     }
-    return dict(CLASSIFY_STAGE.run(ClassifyConfig(**cfg), inputs))
+    return dict(STAGE.run(ClassifyConfig(**cfg), inputs))
 
 
 def test_objects_link_to_their_features_and_carry_the_majority_truth(
@@ -179,4 +179,4 @@ def test_bad_model_bytes_are_a_value_error(keyframes: list[KeyframeImages]) -> N
         "train.model": b"xx",
     }
     with pytest.raises(ValueError, match="model"):
-        CLASSIFY_STAGE.run(ClassifyConfig(), inputs)
+        STAGE.run(ClassifyConfig(), inputs)
