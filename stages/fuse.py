@@ -15,8 +15,10 @@ Per keyframe:
    to give a feature a worse partner than its best; C = 1 when neither feature had an
    alternative. Associations with C < `min_confidence` are culled. The default (-1) culls
    none: on the simulator the patch cost does not predict 3D accuracy (low-cost pairs are
-   mostly dim, weak detections), and culling at C >= 0 raised the median distance to the
-   mesh of the test scene in tests/test_fuse.py from 0.07 m to 0.105 m.
+   mostly dim, weak detections), and culling at C >= 0 kept 593 of 3377 points of the
+   test scene in tests/test_fuse.py and raised their median distance to the mesh from
+   0.072 m to 0.113 m (within 0.3 m: 92.9 % -> 86.5 %). The paper-literal per-row form
+   (best vs second-best candidate of the horizontal feature) did not predict it either.
 4. Point, Eq. 3: range R = (R_h + R_v) / 2, bearing theta from the horizontal feature,
    elevation from the vertical feature, as below; then Eq. 1 to Cartesian.
 
