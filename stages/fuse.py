@@ -4,7 +4,8 @@ Per keyframe:
 1. Overlap: only horizontal features with |bearing| <= vertical aperture / 2 and vertical
    features with |fan angle| <= horizontal aperture / 2 take part.
 2. Subproblems: features in the same range bin of both images (paper: "features at the
-   same range"); each is solved optimally (minimum total cost) with
+   same range"; the vertical features' ranges are binned with the horizontal sonar's
+   range table, so the two images may differ in resolution); each is solved optimally (minimum total cost) with
    `scipy.optimize.linear_sum_assignment` over the cost of Eq. 5,
        L(z_h, z_v) = || nu_h - rot90(nu_v) ||_F,
    nu = square patch (5x5 by default) around the feature in the image normalised per
@@ -225,6 +226,17 @@ def fused_points(
     return xyz, elevation
 
 
+def _common_bins(range_m: np.ndarray, ranges_h_m: np.ndarray) -> np.ndarray:
+    """Index of the horizontal range bin whose centre is nearest to each range [m].
+
+    Subproblems pair features "at the same range" in the horizontal sonar's bins, so the
+    vertical image may have its own range table (e.g. an M1200d beside an M750d); with
+    equal tables this is the vertical feature's own range_bin.
+    """
+    mid = 0.5 * (ranges_h_m[1:] + ranges_h_m[:-1])
+    return np.searchsorted(mid, range_m).astype(np.int64)
+
+
 def fuse_keyframe(
     frame: KeyframeImages, feats: Mapping[str, np.ndarray], T_h_v: np.ndarray, config: FuseConfig
 ) -> dict[str, np.ndarray]:
@@ -245,8 +257,10 @@ def fuse_keyframe(
     is_h = feats["is_horizontal"]
     sel_h = np.flatnonzero(is_h & (np.abs(feats["angle_rad"]) <= half_v))
     sel_v = np.flatnonzero(~is_h & (np.abs(feats["angle_rad"]) <= half_h))
-    sel_h = sel_h[np.argsort(feats["range_bin"][sel_h], kind="stable")]
-    sel_v = sel_v[np.argsort(feats["range_bin"][sel_v], kind="stable")]
+    bin_h_all = feats["range_bin"]
+    bin_v_all = _common_bins(feats["range_m"], np.asarray(frame.horizontal.ranges_m, np.float64))
+    sel_h = sel_h[np.argsort(bin_h_all[sel_h], kind="stable")]
+    sel_v = sel_v[np.argsort(bin_v_all[sel_v], kind="stable")]
     size = config.patch_size_px
     p_h = image_patches(
         frame.horizontal.image, feats["range_bin"][sel_h], feats["beam"][sel_h], size
@@ -259,9 +273,7 @@ def fuse_keyframe(
         diff = p_h[i] - p_v[j]
         return np.sqrt(np.einsum("nab,nab->n", diff, diff, dtype=np.float64))
 
-    i, j, cost, conf = assign_subproblems(
-        feats["range_bin"][sel_h], feats["range_bin"][sel_v], cost_fn
-    )
+    i, j, cost, conf = assign_subproblems(bin_h_all[sel_h], bin_v_all[sel_v], cost_fn)
     keep = conf >= config.min_confidence
     fh, fv = sel_h[i[keep]], sel_v[j[keep]]
     order = np.argsort(feats["feature_id"][fh], kind="stable")

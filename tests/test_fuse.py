@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+from dataclasses import replace
 from functools import cache
 from typing import Any
 
@@ -328,3 +329,31 @@ def test_confidence_threshold_culls_and_no_features_gives_an_empty_table() -> No
     empty = inputs["features.features"].slice(0, 0)
     out = fuse_table(inputs["keyframes.frames"], empty, inputs["keyframes.sensors"], FuseConfig())
     assert out.num_rows == 0 and out.schema.equals(FUSED_SCHEMA)
+
+
+def test_vertical_image_with_its_own_coarser_range_table_still_fuses() -> None:
+    """Vertical image at 10 cm bins (pairs of rows, max) beside the 5 cm horizontal one."""
+    run, sim_frames = _scene_run()
+    frames = []
+    for f in sim_frames:
+        v = f.vertical
+        n = v.image.shape[0] // 2 * 2
+        coarse = replace(
+            v,
+            image=v.image[:n].reshape(n // 2, 2, -1).max(axis=1),
+            ranges_m=v.ranges_m[:n].reshape(-1, 2).mean(axis=1).astype(np.float32),
+            labels=None,
+            truth_angle_rad=None,
+        )
+        frames.append(KeyframeImages(f.index, f.t_ns, f.horizontal, coarse))
+    features = features_table(frames, FeaturesConfig())
+    fused = fuse_table(frames, features, _inputs()["keyframes.sensors"], FuseConfig())
+    d = run.world.distance(_world_points(fused))
+    logger.info(
+        "coarse vertical: n=%d median %.3f m, within 0.3 m %.3f",
+        len(d),
+        np.median(d),
+        np.mean(d <= 0.3),
+    )
+    assert fused.num_rows > 300
+    assert np.median(d) <= 0.15
