@@ -110,7 +110,7 @@ def _window_sums(image: np.ndarray, train_hs: int, guard_hs: int) -> tuple[np.nd
         acc = np.int64
     else:
         acc = np.float64
-    box = image[: n_r - train_hs + 1].astype(acc)
+    box: np.ndarray = image[: n_r - train_hs + 1].astype(acc)
     for k in range(1, train_hs):
         box += image[k : n_r - train_hs + 1 + k]
     leading = box[: n_r - 2 * w]
