@@ -69,16 +69,17 @@ class SonarModel:
         return self._patterns[int(rng.integers(_N_PATTERNS))]
 
     def _jittered_fan(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        """Stratified jittered ray fan in the sensor frame: per beam, K aperture strata, each
-        with a fan offset from a different stratum of the beam's across-fan pattern (Latin
-        hypercube). Offsets follow a Gaussian of FWHM `beam_width_deg` (inverse CDF of the
+        """Jittered ray fan in the sensor frame: per beam, K aperture angles evenly spaced
+        (aperture / K apart, random phase per beam, so any target wider than aperture / K
+        is hit), each with a fan offset from a different stratum of the beam's across-fan
+        pattern (Latin hypercube). Offsets follow a Gaussian of FWHM `beam_width_deg` (inverse CDF of the
         stratified uniforms), so each beam integrates the scene with its beam pattern.
 
         Returns:
             dirs (B*K, 3) unit vectors (sensor frame), aperture angle e (B*K,) [rad].
         """
         b, k = self.n_beams, self.k
-        u1, u2 = rng.random((b, k)), rng.random((b, k))
+        u1, u2 = rng.random((b, 1)), rng.random((b, k))
         e = -self.aperture_rad / 2 + (np.arange(k)[None] + u1) / k * self.aperture_rad
         a = (
             self.angles_rad[:, None].astype(np.float64)
