@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import logging
 from pathlib import Path
 from typing import Any
@@ -300,3 +301,59 @@ def test_truncated_mcap_keeps_every_message_before_the_cut(
     assert f"of {cut} bytes" in caplog.text and "unreadable" in caplog.text
     unreadable = int(caplog.text.split("truncated or corrupt MCAP: ")[1].split(" of")[0])
     assert 0 < unreadable < cut
+
+
+def test_polar_images_need_configured_topics_and_take_the_beam_table_from_config(
+    tmp_path: Path,
+) -> None:
+    from PIL import Image as PILImage
+
+    t = ros2_typestore().types
+    path = tmp_path / "img.mcap"
+    rng = np.random.default_rng(1)
+    images = [rng.integers(0, 255, (N_RANGES, N_BEAMS), dtype=np.uint8) for _ in range(6)]
+    with path.open("wb") as f, Ros2McapWriter(f) as w:
+        for k in range(6):
+            tk = T0 + k * 500_000_000
+            header = t["std_msgs/msg/Header"](
+                stamp=t["builtin_interfaces/msg/Time"](sec=tk // 10**9, nanosec=tk % 10**9),
+                frame_id="s",
+            )
+            raw = t["sensor_msgs/msg/Image"](
+                header=header,
+                height=N_RANGES,
+                width=N_BEAMS,
+                encoding="mono8",
+                is_bigendian=0,
+                step=N_BEAMS,
+                data=images[k].reshape(-1),
+            )
+            w.write("/rexrov/forward_sonar_horiz/raw_sonar", "sensor_msgs/msg/Image", raw, tk)
+            buf = io.BytesIO()
+            PILImage.fromarray(images[k]).save(buf, format="PNG")
+            comp = t["sensor_msgs/msg/CompressedImage"](
+                header=header, format="png", data=np.frombuffer(buf.getvalue(), np.uint8)
+            )
+            w.write(
+                "/rexrov/forward_sonar_vert/raw_sonar_compressed",
+                "sensor_msgs/msg/CompressedImage",
+                comp,
+                tk,
+            )
+            w.write(TOPIC_DEAD_RECKONING, ODOMETRY_TYPE, odom_msg(tk, 0.5 * k, 0.0, -2.0, 0.0), tk)
+    with pytest.raises(
+        SourceError, match=r"img\.mcap: no sonar topic found .*raw_sonar \[sensor_msgs/msg/Image\]"
+    ):
+        open_recording(path)
+    options = {
+        "horizontal_topic": "/rexrov/forward_sonar_horiz/raw_sonar",
+        "vertical_topic": "/rexrov/forward_sonar_vert/raw_sonar_compressed",
+        "image_fov_deg": 60.0,
+        "image_max_range_m": 10.0,
+    }
+    rec = open_recording(path, options)
+    h, v = next(rec.pings("horizontal", [2])), next(rec.pings("vertical", [2]))
+    for ping in (h, v):
+        np.testing.assert_allclose(np.rad2deg(ping.angles_rad[[0, -1]]), [-30.0, 30.0], atol=1e-4)
+        np.testing.assert_allclose(ping.ranges_m[[0, -1]], [0.125, 9.875], atol=1e-6)
+        np.testing.assert_array_equal(ping.image, images[2][:, ::-1])  # column 0 = port = +30 deg

@@ -17,7 +17,7 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, Message, Schema
 
-__all__ = ["ScanResult", "scan_records"]
+__all__ = ["ScanResult", "decompress_chunk", "scan_records"]
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 MAGIC = b"\x89MCAP0\r\n"
@@ -119,7 +119,7 @@ def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | 
             stream = ReadDataStream(io.BytesIO(body))
             try:
                 if opcode == _OP_CHUNK:
-                    inner = list(_inner_records(_decompress(Chunk.read(stream))))
+                    inner = list(_inner_records(decompress_chunk(Chunk.read(stream))))
                 elif opcode == _OP_SCHEMA:
                     inner = [Schema.read(stream)]
                 elif opcode == _OP_CHANNEL:
@@ -143,7 +143,7 @@ def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | 
             yield rec
 
 
-def _decompress(chunk: Chunk) -> bytes:
+def decompress_chunk(chunk: Chunk) -> bytes:
     if chunk.compression == "zstd":
         import zstandard
 

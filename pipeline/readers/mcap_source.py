@@ -10,19 +10,21 @@ from __future__ import annotations
 
 import logging
 import struct
-from collections import defaultdict
+from collections import OrderedDict, defaultdict
 from collections.abc import Collection, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Message, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
 from mcap.summary import Summary
 
 from pipeline.errors import SourceError
-from pipeline.readers.mcap_scan import ScanResult, scan_records
+from pipeline.readers.mcap_scan import ScanResult, decompress_chunk, scan_records
 from pipeline.readers.sources import TopicInfo, check_counts
 from pipeline.readers.typestores import Ros2Decoder
 
@@ -39,19 +41,34 @@ def _summary(path: Path) -> Summary | None:
         return None
 
 
-def _index_times(path: Path, summary: Summary) -> dict[int, np.ndarray]:
-    """(channel id -> ascending int64 log times) from the chunks' message indexes."""
-    parts: dict[int, list[np.ndarray]] = defaultdict(list)
+@dataclass(frozen=True)
+class _Locations:
+    """Where one channel's messages are: (n,) log times [ns] ascending, chunk numbers
+    (into the file's chunks sorted by offset) and byte offsets inside the uncompressed chunk."""
+
+    t: np.ndarray
+    chunk: np.ndarray
+    offset: np.ndarray
+
+
+def _index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, _Locations]:
+    """Per channel, every message's time and place, from the chunks' message indexes."""
+    parts: dict[int, list[tuple[np.ndarray, int]]] = defaultdict(list)
     with path.open("rb") as f:
-        for chunk in summary.chunk_indexes:
+        for k, chunk in enumerate(chunks):
             for cid, offset in chunk.message_index_offsets.items():
                 f.seek(offset)
-                head = f.read(9)
-                (length,) = struct.unpack_from("<Q", head, 1)
-                body = f.read(length)
-                entries = np.frombuffer(body, dtype="<u8", offset=6).reshape(-1, 2)
-                parts[cid].append(entries[:, 0].astype(np.int64))
-    return {cid: np.sort(np.concatenate(p)) for cid, p in parts.items()}
+                (length,) = struct.unpack_from("<Q", f.read(9), 1)
+                entries = np.frombuffer(f.read(length), dtype="<u8", offset=6).reshape(-1, 2)
+                parts[cid].append((entries, k))
+    out = {}
+    for cid, items in parts.items():
+        t = np.concatenate([e[:, 0] for e, _ in items]).astype(np.int64)
+        chunk_no = np.concatenate([np.full(len(e), k, np.int64) for e, k in items])
+        off = np.concatenate([e[:, 1] for e, _ in items]).astype(np.int64)
+        order = np.lexsort((off, chunk_no, t))
+        out[cid] = _Locations(t[order], chunk_no[order], off[order])
+    return out
 
 
 class _McapFile:
@@ -64,7 +81,10 @@ class _McapFile:
         if self.summary is not None and self.summary.chunk_indexes:
             self.channels = dict(self.summary.channels)
             self.schemas = dict(self.summary.schemas)
-            self.times = _index_times(path, self.summary)
+            self.chunks = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+            self.locations = _index_locations(path, self.chunks)
+            self.times = {cid: loc.t for cid, loc in self.locations.items()}
+            self._cache: OrderedDict[int, bytes] = OrderedDict()
             counts = (
                 self.summary.statistics.channel_message_counts if self.summary.statistics else {}
             )
@@ -93,18 +113,7 @@ class _McapFile:
         """(channel id, log time, CDR bytes) of the wanted messages (log-time order when
         indexed, file order when scanned)."""
         if self.summary is not None:
-            topics = [self.channels[c].topic for c in channel_ids]
-            with self.path.open("rb") as f:
-                reader = SeekingReader(f)
-                if times is None:
-                    for _, ch, msg in reader.iter_messages(topics=topics):
-                        yield ch.id, msg.log_time, msg.data
-                    return
-                for t in sorted(set(times)):
-                    for _, ch, msg in reader.iter_messages(
-                        topics=topics, starting_at=t, ending_before=t + 1
-                    ):
-                        yield ch.id, msg.log_time, msg.data
+            yield from self._indexed(channel_ids, times)
             return
         wanted = None if times is None else set(times)
         for rec in scan_records(self.path, ScanResult()):
@@ -114,6 +123,45 @@ class _McapFile:
                 and (wanted is None or rec.log_time in wanted)
             ):
                 yield rec.channel_id, rec.log_time, rec.data
+
+    def _chunk(self, f: BinaryIO, k: int) -> bytes:
+        """Uncompressed chunk k (the last two are cached: both sonars of a keyframe
+        usually live in the same chunk)."""
+        if k in self._cache:
+            self._cache.move_to_end(k)
+            return self._cache[k]
+        f.seek(self.chunks[k].chunk_start_offset + 9)
+        data = decompress_chunk(Chunk.read(ReadDataStream(f)))
+        self._cache[k] = data
+        while len(self._cache) > 2:
+            self._cache.popitem(last=False)
+        return data
+
+    def _indexed(
+        self, channel_ids: set[int], times: Collection[int] | None
+    ) -> Iterator[tuple[int, int, bytes]]:
+        """Fetch messages by their index entries; only chunks holding them are decompressed."""
+        picks = []
+        wanted = None if times is None else np.fromiter(times, np.int64)
+        for cid in sorted(channel_ids):
+            loc = self.locations.get(cid)
+            if loc is None:
+                continue
+            keep = slice(None) if wanted is None else np.isin(loc.t, wanted)
+            picks.append(
+                np.column_stack(
+                    [loc.t[keep], loc.chunk[keep], loc.offset[keep], np.full(len(loc.t[keep]), cid)]
+                )
+            )
+        if not picks:
+            return
+        rows = np.concatenate(picks)
+        rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
+        with self.path.open("rb") as f:
+            for t, k, off, cid in rows.tolist():
+                data = self._chunk(f, k)
+                (length,) = struct.unpack_from("<Q", data, off + 1)
+                yield cid, t, data[off + 9 + 22 : off + 9 + length]
 
 
 class McapSource:

@@ -1,0 +1,160 @@
+"""Keyframe extraction speed and memory (issue 4 targets).
+
+Targets: at least 200 sonar frame pairs read per second (keyframes at 2 m spacing),
+and peak memory flat in recording length (a 3,000-pair recording under 500 MB RSS).
+
+A recording like the simulator's (512 beams x 600 range bins per sonar, 2 Hz, vehicle
+at 0.5 m/s, odometry at every ping) is written with `Ros2McapWriter`; its images are
+simulator pings (tiny scene) reused cyclically, so zstd sees realistic content. Each
+measurement runs in a fresh subprocess: open the recording, run the keyframes stage,
+and stream its frames into keyframes.mcap with `write_frames` (what the engine does).
+Peak RSS is that subprocess's ru_maxrss.
+
+    .venv/bin/python benchmarks/bench_keyframes.py            # all figures
+    .venv/bin/python benchmarks/bench_keyframes.py --one PATH # one measurement (internal)
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from schemas.sonar import SonarPing
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+RATE_HZ, SPEED = 2.0, 0.5
+
+
+def _bank(n: int = 8) -> list[tuple[SonarPing, SonarPing]]:
+    """Ping pairs rendered by the simulator (tiny scene), reused cyclically."""
+    from sim.config import SimConfig
+    from sim.dataset import simulate
+    from sim.scene import load_scene
+
+    run = simulate(load_scene(ROOT / "configs" / "scenes" / "tiny.yaml"), SimConfig(), 0)
+    picks = np.linspace(0, run.n_frames - 1, n).astype(int)
+    return [(f.horizontal, f.vertical) for f in (run.frame(int(i)) for i in picks)]
+
+
+def write_recording(path: Path, n_pairs: int, labels: bool) -> None:
+    """A 2 Hz recording: odometry and both sonars at every ping, vehicle at 0.5 m/s on a
+    circle of 50 m radius; with `labels`, also the label and truth-angle images."""
+    from dataclasses import replace
+
+    from test_readers_mcap import odom_msg
+
+    from pipeline.frames_io import image_message, sonar_message
+    from pipeline.rosmsg import Ros2McapWriter
+    from schemas.topics import (
+        IMAGE_TYPE,
+        LABEL_TOPIC,
+        ODOMETRY_TYPE,
+        PROJECTED_SONAR_TYPE,
+        SONAR_TOPIC,
+        TOPIC_DEAD_RECKONING,
+        TRUTH_ANGLE_TOPIC,
+    )
+
+    bank = _bank()
+    t0 = 1_700_000_000_000_000_000
+    radius = 50.0
+    with path.open("wb") as f, Ros2McapWriter(f) as w:
+        for k in range(n_pairs):
+            t = t0 + round(k * 1e9 / RATE_HZ)
+            a = SPEED * (k / RATE_HZ) / radius
+            odom = odom_msg(t, radius * np.sin(a), radius * (1 - np.cos(a)), -2.0, a)
+            w.write(TOPIC_DEAD_RECKONING, ODOMETRY_TYPE, odom, t)
+            for ping in bank[k % len(bank)]:
+                s = ping.sonar
+                w.write(
+                    SONAR_TOPIC[s], PROJECTED_SONAR_TYPE, sonar_message(replace(ping, t_ns=t), s), t
+                )
+                if labels:
+                    assert ping.labels is not None and ping.truth_angle_rad is not None
+                    w.write(LABEL_TOPIC[s], IMAGE_TYPE, image_message(ping.labels, t, s), t)
+                    truth = image_message(ping.truth_angle_rad.astype(np.float32), t, s)
+                    w.write(TRUTH_ANGLE_TOPIC[s], IMAGE_TYPE, truth, t)
+
+
+def measure_one(path: Path) -> dict[str, float]:
+    from pipeline.frames_io import write_frames
+    from pipeline.readers import open_recording
+    from stages.keyframes import STAGE, KeyframesConfig
+
+    cfg = KeyframesConfig(spacing_m=2.0)
+    t0, c0 = time.perf_counter(), time.process_time()
+    rec = open_recording(path, cfg)
+    out = STAGE.run(cfg, {"dataset": rec})
+    with tempfile.TemporaryDirectory() as tmp:
+        n_kf = write_frames(out["frames"], Path(tmp) / "keyframes.mcap")
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
+    pairs = out["sensors"]["pairing"]["pairs"]
+    return {
+        "pairs": pairs,
+        "keyframes": n_kf,
+        "seconds": round(seconds, 3),
+        "pairs_per_s": round(pairs / seconds, 1),
+        "cpu_s": round(cpu, 3),
+        "pairs_per_cpu_s": round(pairs / cpu, 1),
+        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+    }
+
+
+def _run_child(path: Path) -> dict[str, float]:
+    env_path = f"{ROOT}:{ROOT / 'tests'}"
+    proc = subprocess.run(
+        [sys.executable, __file__, "--one", str(path)],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={"PYTHONPATH": env_path, "OMP_NUM_THREADS": "1"},
+    )
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    sys.path.insert(0, str(ROOT / "tests"))
+    figures: dict[str, object] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n, labels in ((300, False), (3000, False), (300, True), (3000, True)):
+            path = Path(tmp) / f"rec_{n}_{int(labels)}.mcap"
+            t0 = time.perf_counter()
+            write_recording(path, n, labels)
+            write_s = time.perf_counter() - t0
+            res = _run_child(path)
+            res["file_mb"] = round(path.stat().st_size / 1e6, 1)
+            res["write_s"] = round(write_s, 1)
+            figures[f"{n}_pairs{'_with_labels' if labels else ''}"] = res
+            print(json.dumps({f"{n}{'L' if labels else ''}": res}), file=sys.stderr, flush=True)
+            path.unlink()
+    big = figures["3000_pairs"]
+    small = figures["300_pairs"]
+    print(
+        json.dumps(
+            {
+                "keyframe_pairs_per_s": big["pairs_per_s"],  # type: ignore[index]
+                "keyframe_pairs_per_cpu_s": big["pairs_per_cpu_s"],  # type: ignore[index]
+                "peak_rss_mb_3000_pairs": big["peak_rss_mb"],  # type: ignore[index]
+                "peak_rss_mb_300_pairs": small["peak_rss_mb"],  # type: ignore[index]
+                "details": figures,
+            }
+        )
+    )
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 3 and sys.argv[1] == "--one":
+        print(json.dumps(measure_one(Path(sys.argv[2]))))
+    else:
+        main()
