@@ -30,6 +30,7 @@ from stages.mesh_metrics import (
     fraction_within,
     mesh_distance,
     nearest_distance,
+    raycasting_scene,
     surface_samples,
     visible_mask,
 )
@@ -77,7 +78,7 @@ def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any
         errors.parquet (`ERRORS_SCHEMA`: the map rows with `error_m`) and
         {"standard"|"semantic"|"fused"|"inferred": error_stats(...)}.
     """
-    err = mesh_distance(mesh, map_xyz(map_table, "semantic"))
+    err = mesh_distance(raycasting_scene(mesh), map_xyz(map_table, "semantic"))
     source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
     groups = {
         "standard": source == "fused",
@@ -112,6 +113,7 @@ def surface_metrics(
             config.max_range_m,
             np.deg2rad(config.fan_width_deg) / 2,
             np.deg2rad(config.aperture_deg) / 2,
+            raycasting_scene(mesh),
         )
     ]
     tol = config.tolerance_m

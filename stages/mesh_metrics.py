@@ -7,9 +7,10 @@
   within `tolerance_m` of a map point. Which part of the surface the vehicle could have
   seen is not known exactly; samples are kept when they are below the water surface
   (z <= 0), on a near-vertical face (|n_z| <= 0.5: pile caps and undersides face
-  neither sonar) and inside the horizontal sonar's field of view (range <= max range,
-  |bearing| <= fan / 2, |elevation| <= aperture / 2) from at least one keyframe. Occlusion
-  is ignored, so completeness is a lower bound of the fraction of the seen surface mapped.
+  neither sonar) and, from at least one keyframe, inside the horizontal sonar's field of
+  view (range <= max range, |bearing| <= fan / 2, |elevation| <= aperture / 2) and not
+  hidden behind any ground-truth surface (a ray cast from the sonar). Acoustic shadows
+  are geometric only: a return too weak to detect still counts as visible.
 - Trajectory: absolute trajectory error (RMSE of the horizontal position) after the
   least-squares SE(2) alignment of the estimate to the ground truth (Umeyama without
   scale, in the plane).
@@ -29,16 +30,14 @@ __all__ = [
     "fraction_within",
     "mesh_distance",
     "nearest_distance",
+    "raycasting_scene",
     "surface_samples",
     "visible_mask",
 ]
 
 
-def mesh_distance(mesh: Mesh, points_m: np.ndarray) -> np.ndarray:
-    """(n,) float64 unsigned distance [m] from (n, 3) world points to the mesh surface."""
-    pts = np.asarray(points_m, dtype=np.float32).reshape(-1, 3)
-    if len(pts) == 0:
-        return np.empty(0)
+def raycasting_scene(mesh: Mesh) -> o3d.t.geometry.RaycastingScene:
+    """An open3d raycasting scene of the mesh's triangles (float32)."""
     if len(mesh.triangles) == 0:
         raise ValueError("ground-truth mesh has no triangles")
     tm = o3d.t.geometry.TriangleMesh()
@@ -46,6 +45,15 @@ def mesh_distance(mesh: Mesh, points_m: np.ndarray) -> np.ndarray:
     tm.triangle.indices = o3d.core.Tensor(mesh.triangles.astype(np.int32))
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(tm)
+    return scene
+
+
+def mesh_distance(mesh: Mesh | o3d.t.geometry.RaycastingScene, points_m: np.ndarray) -> np.ndarray:
+    """(n,) float64 unsigned distance [m] from (n, 3) world points to the mesh surface."""
+    pts = np.asarray(points_m, dtype=np.float32).reshape(-1, 3)
+    if len(pts) == 0:
+        return np.empty(0)
+    scene = raycasting_scene(mesh) if isinstance(mesh, Mesh) else mesh
     return scene.compute_distance(o3d.core.Tensor(pts), nthreads=0).numpy().astype(np.float64)
 
 
@@ -112,26 +120,42 @@ def visible_mask(
     max_range_m: float,
     half_fan_rad: float,
     half_aperture_rad: float,
+    scene: o3d.t.geometry.RaycastingScene | None = None,
+    occlusion_tolerance_m: float = 0.02,
 ) -> np.ndarray:
-    """(n,) bool: below the surface and inside the sonar's field of view of some keyframe.
+    """(n,) bool: below the surface, inside the sonar's field of view of some keyframe and,
+    with `scene`, not hidden behind another surface from that keyframe.
 
     Args:
-        points_m: (n, 3) world points [m].
+        points_m: (n, 3) world points [m] (surface samples).
         T_world_sonar: (k, 4, 4) horizontal sonar poses, one per keyframe.
         max_range_m: sonar maximum range [m].
         half_fan_rad: half the horizontal field of view (bearing) [rad].
         half_aperture_rad: half the vertical aperture (elevation) [rad].
+        scene: the ground-truth surfaces; a point counts as seen from a keyframe only
+            if the ray from the sonar origin first hits a surface no nearer than its
+            range minus `occlusion_tolerance_m` (back faces are hidden by front faces).
+        occlusion_tolerance_m: slack for float32 ray casting [m].
     """
     p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-    seen = np.zeros(len(p), dtype=bool)
     below = p[:, 2] <= 0.0
+    seen = np.zeros(len(p), dtype=bool)
+    cos_fan, sin_aperture = np.cos(half_fan_rad), np.sin(half_aperture_rad)
     for T in T_world_sonar:
-        local = (p - T[:3, 3]) @ T[:3, :3]
+        todo = np.flatnonzero(below & ~seen)
+        local = (p[todo] - T[:3, 3]) @ T[:3, :3]
         r = np.linalg.norm(local, axis=1)
-        ok = (r <= max_range_m) & (r > 0)
-        bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
-        elevation = np.abs(np.arcsin(np.clip(local[:, 2] / np.maximum(r, 1e-12), -1.0, 1.0)))
-        seen |= ok & (bearing <= half_fan_rad) & (elevation <= half_aperture_rad)
+        in_fan = local[:, 0] >= cos_fan * np.hypot(local[:, 0], local[:, 1])
+        in_aperture = np.abs(local[:, 2]) <= sin_aperture * r
+        cand = (r <= max_range_m) & (r > 0) & in_fan & in_aperture
+        todo, r = todo[cand], r[cand]
+        if scene is not None and len(todo):
+            dirs = (p[todo] - T[:3, 3]) / r[:, None]
+            rays = np.concatenate([np.broadcast_to(T[:3, 3], dirs.shape), dirs], axis=1)
+            hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
+            t_hit = hit["t_hit"].numpy().astype(np.float64)
+            todo = todo[t_hit >= r - occlusion_tolerance_m]
+        seen[todo] = True
     return seen & below
 
 

@@ -227,8 +227,9 @@ def render_markdown(
         lines += [
             f"Completeness: fraction of {comp.get('n_samples')} visible ground-truth surface"
             f" samples of {', '.join(comp.get('classes', []))} within {comp.get('tolerance_m')} m"
-            " of a map point; precision: fraction of map points within the same distance of"
-            " the surface.",
+            " of a map point (visible: below the water surface, inside the horizontal sonar's"
+            " field of view from some keyframe and not occluded); precision: fraction of map"
+            " points within the same distance of the surface.",
             "",
         ]
     traj = metrics.get("trajectory", {})

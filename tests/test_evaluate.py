@@ -17,7 +17,13 @@ from sim.geometry import rot_z
 from sim.scene import load_scene
 from sim.world import World
 from stages.evaluate import STAGE, EvaluateConfig, map_errors, surface_metrics
-from stages.mesh_metrics import ate_se2, mesh_distance, surface_samples, visible_mask
+from stages.mesh_metrics import (
+    ate_se2,
+    mesh_distance,
+    raycasting_scene,
+    surface_samples,
+    visible_mask,
+)
 from stages.ply import decode_mesh_ply
 
 SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
@@ -175,6 +181,20 @@ def test_visibility_respects_range_fan_aperture_and_surface() -> None:
     )
     seen = visible_mask(pts, T, 30.0, np.deg2rad(65), np.deg2rad(10))
     assert seen.tolist() == [True, False, False, False, False, True]
+
+
+def test_the_far_side_of_a_piling_is_hidden_behind_its_near_side() -> None:
+    centre = np.array([6.0, 3.0, -2.0])  # the tiny scene's round piling, radius 0.25 m
+    u = centre / np.linalg.norm(centre[:2]) * [1, 1, 0]
+    T = np.eye(4)
+    T[:3, :3] = rot_z(np.arctan2(3.0, 6.0))
+    T[2, 3] = -2.0
+    near, far = centre - 0.25 * u, centre + 0.25 * u
+    scene = raycasting_scene(decode_mesh_ply(tiny_ply()))
+    pts = np.array([near, far])
+    seen = visible_mask(pts, T[None], 30.0, np.deg2rad(65), np.deg2rad(10), scene)
+    assert seen.tolist() == [True, False]
+    assert visible_mask(pts, T[None], 30.0, np.deg2rad(65), np.deg2rad(10)).tolist() == [True, True]
 
 
 def test_ate_is_zero_after_a_rigid_motion_and_the_rms_of_what_is_left() -> None:

@@ -95,5 +95,3 @@ def test_same_tables_same_bytes(tmp_path: Path) -> None:
     write_map_mcap(m, poses, tmp_path / "a.mcap")
     write_map_mcap(m, poses, tmp_path / "b.mcap")
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
-
-
