@@ -164,3 +164,12 @@ def test_thin_far_pilings_are_never_missed() -> None:
         lo, hi = np.arctan2(-8.0 + 1.9, 25.9) + 0.01, np.arctan2(1.0 + 1.9, 25.9) - 0.01
         cols = np.flatnonzero((v.angles_rad > lo) & (v.angles_rad < hi))
         assert np.all((v.labels[:, cols] == PILING).any(axis=0))
+
+
+@pytest.mark.parametrize("y_m", [-1.0, 1.0])
+def test_vertical_truth_bearing_sign_follows_rep103(y_m: float) -> None:
+    scene = _scene({"class": "cylindrical_piling", "position_m": [10.5, y_m], "radius_m": 0.2})
+    v = _ping(scene, "vertical")
+    assert v.truth_angle_rad is not None and v.labels is not None
+    truth = v.truth_angle_rad[v.labels == PILING]
+    assert np.median(truth) == pytest.approx(np.arctan2(y_m, 10.0), abs=np.deg2rad(0.7))
