@@ -448,3 +448,10 @@ def test_pier_through_real_features_and_fusion(pier) -> None:
     assert d_inferred <= 0.15
     assert d_inferred <= 1.5 * d_fused
     assert n_voxels(np.vstack([fused_world, inferred_world])) >= 3 * n_voxels(fused_world)
+
+
+def test_config_refuses_unknown_classes_and_keys() -> None:
+    with pytest.raises(ValueError):
+        InferConfig(classes=("pilling",))
+    with pytest.raises(ValueError):
+        InferConfig(sigma=0.1)
