@@ -36,6 +36,9 @@ MAP_TOPICS: dict[str, str] = {"standard": "/map/standard", "semantic": "/map/sem
 TF_TOPIC = "/tf"
 SOURCE_IDS: dict[str, int] = {"fused": 0, "inferred": 1}
 UNKNOWN_CLASS_ID = 255
+POINTFIELD_UINT8 = 2
+POINTFIELD_FLOAT32 = 7
+"""sensor_msgs/msg/PointField datatype constants."""
 
 _POINT_DTYPE = np.dtype(
     [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("source", "u1"), ("class_id", "u1"), ("pad", "<u2")]
@@ -73,11 +76,11 @@ def _cloud(rec: np.ndarray, t_ns: int) -> Any:
     fields = [
         field(name=n, offset=o, datatype=d, count=1)
         for n, o, d in (
-            ("x", 0, field.FLOAT32),
-            ("y", 4, field.FLOAT32),
-            ("z", 8, field.FLOAT32),
-            ("source", 12, field.UINT8),
-            ("class_id", 13, field.UINT8),
+            ("x", 0, POINTFIELD_FLOAT32),
+            ("y", 4, POINTFIELD_FLOAT32),
+            ("z", 8, POINTFIELD_FLOAT32),
+            ("source", 12, POINTFIELD_UINT8),
+            ("class_id", 13, POINTFIELD_UINT8),
         )
     ]
     return t["sensor_msgs/msg/PointCloud2"](
