@@ -4,6 +4,7 @@ ATE, the report and figures, and the no-ground-truth path."""
 from __future__ import annotations
 
 import functools
+import json
 from pathlib import Path
 
 import numpy as np
@@ -222,6 +223,7 @@ def test_report_and_figures_are_written_with_ground_truth() -> None:
     traj = out["metrics"]["trajectory"]
     assert traj["slam_ate_m"] == pytest.approx(0.0, abs=1e-9)
     assert out["metrics"]["skipped"] == []
+    json.dumps(out["metrics"], allow_nan=False)  # what the engine writes
     again = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
     assert again["report"] == out["report"] and again["plot_errors"] == out["plot_errors"]
 
@@ -241,3 +243,4 @@ def test_without_ground_truth_counts_and_topdown_remain_and_skips_are_listed() -
     assert out["errors"] is None and out["plot_errors"] is None and out["plot_side_view"] is None
     assert out["plot_map_topdown"][:8] == PNG_SIGNATURE
     assert "## Skipped" in out["report"].decode()
+    json.dumps(m, allow_nan=False)
