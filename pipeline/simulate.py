@@ -80,7 +80,8 @@ class _Messages:
             cfg = run.config.sonar(s)
             dirs = beam_directions_from_angles(cfg.angles_rad())
             vec = [self.t["geometry_msgs/msg/Vector3"](x=d[0], y=d[1], z=d[2]) for d in dirs]
-            bw = np.full(cfg.n_beams, np.deg2rad(cfg.fan_width_deg) / cfg.n_beams, np.float32)
+            # tx: the aperture (unresolved direction); rx: the -3 dB width across the fan.
+            bw = np.full(cfg.n_beams, np.deg2rad(cfg.beam_width_deg), np.float32)
             info = self.t["marine_acoustic_msgs/msg/PingInfo"](
                 frequency=float(cfg.frequency_hz),
                 sound_speed=float(cfg.sound_speed_m_s),

@@ -67,6 +67,8 @@ def test_every_message_decodes_with_rosbags_anyreader(written: tuple[SimRun, Pat
                     beam_angles_from_directions(dirs), ping.angles_rad, atol=1e-6
                 )
                 assert msg.header.frame_id == FRAME_SONAR["horizontal"]
+                np.testing.assert_allclose(msg.ping_info.tx_beamwidths, np.deg2rad(20.0), rtol=1e-6)
+                np.testing.assert_allclose(msg.ping_info.rx_beamwidths, np.deg2rad(1.0), rtol=1e-6)
                 assert msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec == t_ns
     n = run.n_frames
     expected = {TOPIC_TF_STATIC: 1, TOPIC_DEAD_RECKONING: n, TOPIC_GROUND_TRUTH: n}
