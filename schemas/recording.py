@@ -71,7 +71,7 @@ class Recording(Protocol):
         """The true pose stream (simulator), or None."""
         ...
 
-    def pings(self, sonar: str, indices: Sequence[int]) -> Iterator[SonarPing]:
+    def pings(self, sonar: str, indices: Sequence[int] | np.ndarray) -> Iterator[SonarPing]:
         """Decode only the requested pings, streaming, one `SonarPing` per index.
 
         Args:

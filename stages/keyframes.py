@@ -251,7 +251,7 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     if truth is not None:
         gt, _ = interpolate_poses(truth, t_h)
     mounts = rec.mountings()
-    sensors = {
+    sensors: dict[str, Any] = {
         s: {"T_base_sonar": np.asarray(mounts[s], np.float64).round(12).tolist()}
         for s in ("horizontal", "vertical")
     }

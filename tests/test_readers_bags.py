@@ -116,3 +116,27 @@ def test_open_recording_without_sonar_is_source_error(shared_data: Path) -> None
         SourceError, match=r"example-lz4\.bag: no sonar topic found \(topics: .*/turtle1/pose"
     ):
         open_recording(shared_data / "bags" / "ros1" / "example-lz4.bag")
+
+
+@pytest.mark.parametrize("name", ["ros1/example-bz2.bag", "ros2/wbag_split", "ros2/talker_sqlite3"])
+def test_run_until_keyframes_on_a_bag_without_sonar_exits_2(
+    shared_data: Path, name: str, tmp_path: Path
+) -> None:
+    try:
+        from pipeline.registry import all_stages
+
+        all_stages()
+    except ImportError as err:
+        pytest.skip(f"the full stage registry is not importable yet ({err})")
+    path = shared_data / "bags" / name
+    res = CliRunner().invoke(
+        app, ["run", str(path), "--until", "keyframes", "--store", str(tmp_path / "s")]
+    )
+    assert res.exit_code == 2, res.output
+    [line] = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert "Traceback" not in res.output
+    assert (
+        str(path) in line
+        and "no sonar topic found" in line
+        and "keyframes.horizontal_topic" in line
+    )

@@ -210,3 +210,49 @@ def test_truncated_ros1_bag_is_a_clear_error(tmp_path: Path) -> None:
     cut.write_bytes(bag_path.read_bytes()[: bag_path.stat().st_size // 2])
     with pytest.raises(SourceError, match=r"cut\.bag: cannot read ROS 1 bag .*reindex"):
         open_source(cut)
+
+
+def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    try:
+        from pipeline.registry import all_stages
+
+        all_stages()
+    except ImportError as err:
+        pytest.skip(f"the full stage registry is not importable yet ({err})")
+    mcap_path, bag_path = tmp_path / "d.mcap", tmp_path / "d.bag"
+    write_synthetic(mcap_path, n_pings=30, labels=False)
+    write_oculus_bag(mcap_path, bag_path)
+    store = str(tmp_path / "store")
+    res = CliRunner().invoke(
+        app, ["run", str(bag_path), "--until", "keyframes", "--store", store, "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    art = Path(doc["stages"][0]["path"])
+    assert doc["stages"][0]["stage"] == "keyframes" and (art / "keyframes.mcap").is_file()
+    sensors = json.loads((art / "sensors.json").read_text())
+    assert sensors["source"]["format"] == "rosbag1" and sensors["pairing"]["pairs"] == 30
+    # A wrong topic in config: exit 2, one line naming the file, the topics and the key.
+    res = CliRunner().invoke(
+        app,
+        [
+            "run",
+            str(bag_path),
+            "--until",
+            "keyframes",
+            "--store",
+            store,
+            "--set",
+            "keyframes.vertical_topic=/nope",
+        ],
+    )
+    assert res.exit_code == 2
+    [line] = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert "Traceback" not in res.output and "d.bag: configured topic /nope not found" in line
+    assert H_TOPIC in line and "keyframes.vertical_topic" in line

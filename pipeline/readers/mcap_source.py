@@ -78,6 +78,9 @@ class _McapFile:
         self.path = path
         self.summary = _summary(path)
         self.scan = ScanResult()
+        self.channels: dict[int, Channel] = {}
+        self.schemas: dict[int, Schema] = {}
+        self.times: dict[int, np.ndarray] = {}
         if self.summary is not None and self.summary.chunk_indexes:
             self.channels = dict(self.summary.channels)
             self.schemas = dict(self.summary.schemas)
@@ -95,8 +98,7 @@ class _McapFile:
             self._scan_index()
 
     def _scan_index(self) -> None:
-        self.channels: dict[int, Channel] = {}
-        self.schemas: dict[int, Schema] = {}
+        self.channels, self.schemas = {}, {}
         times: dict[int, list[int]] = defaultdict(list)
         for rec in scan_records(self.path, self.scan):
             if isinstance(rec, Message):

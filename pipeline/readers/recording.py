@@ -55,14 +55,11 @@ class ReaderOptions:
         if isinstance(config, ReaderOptions):
             return config
         get = config.get if isinstance(config, dict) else lambda k, d: getattr(config, k, d)
-        values = {f.name: get(f.name, None) for f in fields(cls)}
-        return cls(
-            **{
-                k: (tuple(v) if isinstance(v, list) else v)
-                for k, v in values.items()
-                if v is not None
-            }
-        )
+        values: dict[str, Any] = {f.name: get(f.name, None) for f in fields(cls)}
+        kwargs: dict[str, Any] = {
+            k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items() if v is not None
+        }
+        return cls(**kwargs)
 
 
 def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
@@ -163,7 +160,7 @@ class SourceRecording:
     def ground_truth(self) -> PoseTrack | None:
         return None if self.roles.ground_truth is None else self._track(self.roles.ground_truth)
 
-    def pings(self, sonar: str, indices: Sequence[int]) -> Iterator[SonarPing]:
+    def pings(self, sonar: str, indices: Sequence[int] | np.ndarray) -> Iterator[SonarPing]:
         """Decode the requested pings (with their label/truth images), streaming."""
         idx = np.asarray(indices, np.int64)
         if len(idx) == 0:
@@ -172,8 +169,14 @@ class SourceRecording:
             raise ValueError("ping indices must be non-decreasing")
         times = self.ping_times_ns(sonar)[idx]
         topic = self.roles.sonar[sonar]
-        extra = {self.roles.labels.get(sonar): "labels", self.roles.truth_angle.get(sonar): "truth"}
-        extra.pop(None, None)
+        extra = {
+            name: part
+            for name, part in (
+                (self.roles.labels.get(sonar), "labels"),
+                (self.roles.truth_angle.get(sonar), "truth"),
+            )
+            if name is not None
+        }
         groups: dict[int, dict[str, Any]] = {}
         cursor = 0
         where = f"{self.source.path} topic {topic}"

@@ -57,7 +57,7 @@ class Ros1Source:
 
     def _index_times(self, conns: list[Any]) -> np.ndarray:
         """Message times from the bag's index (no chunk is decompressed)."""
-        bag = self._reader.readers[0]
+        bag: Any = self._reader.readers[0]
         parts = [np.fromiter((entry.time for entry in bag.indexes[c.id]), np.int64) for c in conns]
         return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
 
