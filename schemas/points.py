@@ -33,6 +33,6 @@ POINTS_SCHEMA = pa.schema(
         pa.field("confidence", pa.float64(), nullable=False),
     ]
 )
-"""`points.parquet`: confidence is the fusion confidence (paper Eq. 5) for fused rows
+"""`points.parquet`: confidence is the fusion confidence (paper Eq. 6) for fused rows
 and the posterior probability of the predicted height (see `stages.height_model`)
 for inferred rows."""

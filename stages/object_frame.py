@@ -99,6 +99,7 @@ class IcpParams:
     max_rotation_rad: float = np.deg2rad(30.0)
     voxel_m: float = 0.05
     relative_tolerance: float = 1e-4
+    min_points: int = 3
 
 
 @dataclass(frozen=True)
@@ -126,7 +127,12 @@ def _cloud(points_2d: np.ndarray) -> o3d.geometry.PointCloud:
 
 
 def register_2d(source: np.ndarray, target: np.ndarray, params: IcpParams) -> Registration:
-    """Point-to-point ICP of (n, 2) source onto (m, 2) target, projected to SE(2)."""
+    """Point-to-point ICP of (n, 2) source onto (m, 2) target, projected to SE(2).
+
+    Fewer than `min_points` points on either side is a failed registration.
+    """
+    if min(len(source), len(target)) < params.min_points:
+        return Registration(np.eye(3), 0.0, np.inf, False)
     reg = o3d.pipelines.registration
     result = reg.registration_icp(
         _cloud(source),

@@ -72,6 +72,7 @@ def test_icp_failure_is_reported() -> None:
     ref = _l_shape(seed=1)
     far = _l_shape(seed=2) + np.array([3.0, 3.0])  # nothing within the correspondence distance
     assert not register_2d(far, ref, IcpParams()).ok
+    assert not register_2d(ref[:2], ref, IcpParams()).ok  # too few points
     rng = np.random.default_rng(0)
     blob = rng.uniform(-2, 2, (200, 2))  # poor fit: low fitness
     assert not register_2d(blob, ref, IcpParams(max_correspondence_m=0.05)).ok
