@@ -56,7 +56,7 @@ from typing import Any, Literal
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from schemas.classes import CLASS_NAMES, PILING_CLASSES
 from schemas.points import POINTS_SCHEMA
@@ -106,12 +106,24 @@ class InferConfig(StageConfig):
         10.0, gt=0.0, le=90.0, description="drop predictions outside +-this elevation"
     )
     reference_voxel_m: float = Field(0.05, gt=0.0, description="reference cloud voxel size")
-    icp_max_correspondence_m: float = Field(0.5, gt=0.0)
-    icp_max_iterations: int = Field(30, ge=1)
-    icp_min_fitness: float = Field(0.6, ge=0.0, le=1.0)
-    icp_max_rmse_m: float = Field(0.15, gt=0.0)
-    icp_max_translation_m: float = Field(1.5, gt=0.0)
-    icp_max_rotation_deg: float = Field(30.0, gt=0.0)
+    icp_max_correspondence_m: float = Field(0.5, gt=0.0, description="ICP pairing distance")
+    icp_max_iterations: int = Field(30, ge=1, description="ICP iteration cap")
+    icp_min_fitness: float = Field(
+        0.6, ge=0.0, le=1.0, description="min fraction of points paired for a good ICP"
+    )
+    icp_max_rmse_m: float = Field(0.15, gt=0.0, description="max inlier RMSE of a good ICP")
+    icp_max_translation_m: float = Field(
+        1.5, gt=0.0, description="max ICP shift from the object-frame alignment"
+    )
+    icp_max_rotation_deg: float = Field(
+        30.0, gt=0.0, description="max ICP rotation from the object-frame alignment"
+    )
+
+    @model_validator(mode="after")
+    def _z_grid(self) -> InferConfig:
+        if self.z_max_m <= self.z_min_m:
+            raise ValueError(f"z_max_m ({self.z_max_m}) must exceed z_min_m ({self.z_min_m})")
+        return self
 
     @field_validator("classes")
     @classmethod

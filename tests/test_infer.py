@@ -455,3 +455,5 @@ def test_config_refuses_unknown_classes_and_keys() -> None:
         InferConfig(classes=("pilling",))
     with pytest.raises(ValueError):
         InferConfig(sigma=0.1)
+    with pytest.raises(ValueError):
+        InferConfig(z_min_m=1.0, z_max_m=-1.0)
