@@ -63,7 +63,9 @@ class EvaluateConfig(StageConfig):
     completeness_classes: tuple[str, ...] = Field(
         PILING_CLASSES, description="classes whose surface completeness measures"
     )
-    surface_samples_per_m2: float = Field(400.0, gt=0.0, description="completeness sampling")
+    surface_samples_per_m2: float = Field(
+        100.0, gt=0.0, description="completeness sampling density (10 cm spacing)"
+    )
     seed: int = Field(0, description="seed of the surface sampling")
     max_range_m: float = Field(30.0, gt=0.0, description="sonar range for the visible surface")
     fan_width_deg: float = Field(130.0, gt=0.0, le=360.0, description="horizontal sonar fan")

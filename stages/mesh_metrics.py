@@ -137,24 +137,27 @@ def visible_mask(
             range minus `occlusion_tolerance_m` (back faces are hidden by front faces).
         occlusion_tolerance_m: slack for float32 ray casting [m].
     """
-    p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
+    p = np.asarray(points_m, dtype=np.float32).reshape(-1, 3)
     below = p[:, 2] <= 0.0
     seen = np.zeros(len(p), dtype=bool)
     cos_fan, sin_aperture = np.cos(half_fan_rad), np.sin(half_aperture_rad)
-    for T in T_world_sonar:
+    for T in np.asarray(T_world_sonar, dtype=np.float32):
         todo = np.flatnonzero(below & ~seen)
-        local = (p[todo] - T[:3, 3]) @ T[:3, :3]
-        r = np.linalg.norm(local, axis=1)
-        in_fan = local[:, 0] >= cos_fan * np.hypot(local[:, 0], local[:, 1])
-        in_aperture = np.abs(local[:, 2]) <= sin_aperture * r
-        cand = (r <= max_range_m) & (r > 0) & in_fan & in_aperture
-        todo, r = todo[cand], r[cand]
+        d = p[todo] - T[:3, 3]
+        local = d @ T[:3, :3]
+        r2_xy = local[:, 0] ** 2 + local[:, 1] ** 2
+        r2 = r2_xy + local[:, 2] ** 2
+        cand = (
+            (r2 <= max_range_m**2)
+            & (r2 > 0)
+            & (local[:, 0] >= cos_fan * np.sqrt(r2_xy))
+            & (local[:, 2] ** 2 <= sin_aperture**2 * r2)
+        )
+        todo, d, r = todo[cand], d[cand], np.sqrt(r2[cand])
         if scene is not None and len(todo):
-            dirs = (p[todo] - T[:3, 3]) / r[:, None]
-            rays = np.concatenate([np.broadcast_to(T[:3, 3], dirs.shape), dirs], axis=1)
-            hit = scene.cast_rays(o3d.core.Tensor(rays.astype(np.float32)), nthreads=0)
-            t_hit = hit["t_hit"].numpy().astype(np.float64)
-            todo = todo[t_hit >= r - occlusion_tolerance_m]
+            rays = np.concatenate([np.broadcast_to(T[:3, 3], d.shape), d / r[:, None]], axis=1)
+            hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays)), nthreads=0)
+            todo = todo[hit["t_hit"].numpy() >= r - occlusion_tolerance_m]
         seen[todo] = True
     return seen & below
 

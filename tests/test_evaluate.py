@@ -162,7 +162,7 @@ def test_completeness_of_a_full_surface_sampling_is_one_and_of_one_piling_less()
     dense = surface_samples(decode_mesh_ply(tiny_ply()), np.array([1, 2]), 2000.0, seed=7)
     dense = dense[(dense[:, 2] <= 0) & (dense[:, 2] > -4)]  # covers the visible band
     full = completeness(dense)
-    assert full["standard"] > 0.99 and full["semantic"] > 0.99 and full["n_samples"] > 1000
+    assert full["standard"] > 0.99 and full["semantic"] > 0.99 and full["n_samples"] > 300
     # Drop the round piling at (6, 3): its share of the visible samples goes missing.
     part = completeness(dense[np.linalg.norm(dense[:, :2] - [6.0, 3.0], axis=1) > 1.0])
     assert 0.2 < part["standard"] < 0.8
