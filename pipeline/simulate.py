@@ -286,7 +286,7 @@ def write_simulation(
 
     Args:
         run: the simulated mission.
-        path: output .mcap path (parent must exist).
+        path: output .mcap path (missing parent directories are created).
         scene_yaml: text of the scene file, stored as the `scene.yaml` attachment.
         progress: optional callback (frames_done, n_frames).
         workers: threads rendering frames ahead of the writer (1 = serial); the bytes
@@ -296,11 +296,13 @@ def write_simulation(
         {"path", "n_frames", "bytes", "seconds", "frames_per_s", "messages"}.
 
     Raises:
-        SourceError: the output directory does not exist or is not writable.
+        SourceError: the output directory cannot be created or written.
     """
     path = Path(path)
-    if not path.parent.is_dir():
-        raise SourceError(f"output directory {path.parent} does not exist")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise SourceError(f"cannot create output directory {path.parent}: {err}") from err
     t0 = time.perf_counter()
     build = _Messages(run)
     traj = run.trajectory

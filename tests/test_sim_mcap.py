@@ -146,7 +146,7 @@ def test_frames_regenerate_identically() -> None:
 def test_cli_simulate_writes_mcap_and_preview(tmp_path: Path) -> None:
     from pipeline.cli import app
 
-    out, png = tmp_path / "x.mcap", tmp_path / "p.png"
+    out, png = tmp_path / "new" / "x.mcap", tmp_path / "p.png"
     args = ["simulate", "-o", str(out), "--scene", str(TINY), "--seed", "3", "--goals", "2"]
     result = CliRunner().invoke(app, [*args, "--duration-s", "1.5", "--preview", str(png), "-q"])
     assert result.exit_code == 0, result.output
@@ -165,7 +165,7 @@ def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
         app, ["simulate", "-o", str(tmp_path / "x.mcap"), "--scene", str(tmp_path / "no.yaml")]
     )
     r3 = runner.invoke(
-        app, ["simulate", "-o", str(tmp_path / "nodir" / "x.mcap"), "--scene", str(TINY)]
+        app, ["simulate", "-o", str(tmp_path / "bad.yaml" / "x.mcap"), "--scene", str(TINY)]
     )
     assert (r1.exit_code, r2.exit_code, r3.exit_code) == (2, 2, 2)
     assert "area_m" in r1.output

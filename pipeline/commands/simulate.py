@@ -38,8 +38,8 @@ def simulate_cmd(
         scene_obj = load_scene(scene)
     except SceneError as err:
         raise ConfigError(str(err)) from err
-    if not output.parent.is_dir():
-        raise SourceError(f"output directory {output.parent} does not exist")
+    if output.parent.exists() and not output.parent.is_dir():
+        raise SourceError(f"output directory {output.parent} is not a directory")
     base = SimConfig()
     mission = base.mission.model_copy(
         update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
@@ -68,9 +68,11 @@ def simulate_cmd(
             workers=2,
         )
     if preview is not None:
-        if not preview.parent.is_dir():
-            raise SourceError(f"preview directory {preview.parent} does not exist")
-        preview.write_bytes(render_preview(run))
+        try:
+            preview.parent.mkdir(parents=True, exist_ok=True)
+            preview.write_bytes(render_preview(run))
+        except OSError as err:
+            raise SourceError(f"cannot write preview {preview}: {err}") from err
     console.print(
         f"wrote {info['path']}: {info['n_frames']} frames, {info['bytes'] / 1e6:.1f} MB, "
         f"{info['frames_per_s']:.1f} frames/s"
