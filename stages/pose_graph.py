@@ -1,0 +1,139 @@
+"""Planar pose graph on GTSAM iSAM2, and vectorised SE(2) algebra on (x, y, theta) arrays.
+
+The factor graph of paper Sec. IV.A (unnumbered equation): a prior on the first pose,
+odometry factors, sequential scan-matching (SSM) factors and loop-closure (NSSM) factors,
+all `BetweenFactorPose2` with Gaussian noise, solved incrementally with iSAM2.
+
+SE(2) conventions follow GTSAM's `Pose2`: a pose is (x_m, y_m, theta_rad), noise and
+covariances are in the body frame with tangent order (x, y, theta) (right perturbation
+``T Exp(xi)``).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+__all__ = [
+    "PlanarPoseGraph",
+    "se2_adjoint",
+    "se2_between",
+    "se2_compose",
+    "se2_inverse",
+    "se2_log",
+    "wrap_angle",
+]
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Wrap angles [rad] into [-pi, pi)."""
+    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a * b`` for (..., 3) poses (x_m, y_m, theta_rad); broadcasts."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [
+            a[..., 0] + c * b[..., 0] - s * b[..., 1],
+            a[..., 1] + s * b[..., 0] + c * b[..., 1],
+            wrap_angle(a[..., 2] + b[..., 2]),
+        ],
+        axis=-1,
+    )
+
+
+def se2_inverse(a: np.ndarray) -> np.ndarray:
+    """``a^{-1}`` for (..., 3) poses."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [-(c * a[..., 0] + s * a[..., 1]), s * a[..., 0] - c * a[..., 1], -a[..., 2]], axis=-1
+    )
+
+
+def se2_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a^{-1} b``: pose b in the frame of a, for (..., 3) poses."""
+    return se2_compose(se2_inverse(a), b)
+
+
+def se2_log(a: np.ndarray) -> np.ndarray:
+    """GTSAM's `Pose2.Logmap` for (..., 3) poses -> (..., 3) tangent vectors (x, y, theta)."""
+    w = wrap_angle(a[..., 2])
+    small = np.abs(w) < 1e-9
+    ws = np.where(small, 1.0, w)
+    sa = np.where(small, 1.0, np.sin(ws) / ws)
+    sb = np.where(small, 0.5 * w, (1.0 - np.cos(ws)) / ws)
+    det = sa * sa + sb * sb
+    x, y = a[..., 0], a[..., 1]
+    return np.stack([(sa * x + sb * y) / det, (-sb * x + sa * y) / det, w], axis=-1)
+
+
+def se2_adjoint(a: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) adjoint maps of (..., 3) poses: ``T Exp(xi) = Exp(Ad_T xi) T``."""
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    out = np.zeros((*a.shape[:-1], 3, 3))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c, -s, a[..., 1]
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = s, c, -a[..., 0]
+    out[..., 2, 2] = 1.0
+    return out
+
+
+def _pose2(p: np.ndarray) -> gtsam.Pose2:
+    return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
+
+
+class PlanarPoseGraph:
+    """Incremental Pose2 graph (iSAM2) keyed by keyframe index 0..K-1."""
+
+    def __init__(self, relinearize_threshold: float = 0.01, relinearize_skip: int = 1) -> None:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(relinearize_threshold)
+        params.relinearizeSkip = relinearize_skip
+        self._isam = gtsam.ISAM2(params)
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._estimate = gtsam.Values()
+        self.size = 0
+
+    def add_pose(self, index: int, initial: np.ndarray) -> None:
+        """Declare pose `index` (must be the next one) with an initial guess (3,)."""
+        if index != self.size:
+            raise ValueError(f"poses must be added in order: expected {self.size}, got {index}")
+        self._values.insert(gtsam.symbol("x", index), _pose2(initial))
+        self.size += 1
+
+    def add_prior(self, index: int, pose: np.ndarray, cov: np.ndarray) -> None:
+        """Prior factor on pose `index` with (3, 3) covariance (body frame)."""
+        noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
+        self._graph.add(gtsam.PriorFactorPose2(gtsam.symbol("x", index), _pose2(pose), noise))
+
+    def add_between(self, i: int, j: int, z: np.ndarray, cov: np.ndarray) -> None:
+        """Between factor: pose j measured in the frame of pose i, (3, 3) covariance."""
+        noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
+        self._graph.add(
+            gtsam.BetweenFactorPose2(gtsam.symbol("x", i), gtsam.symbol("x", j), _pose2(z), noise)
+        )
+
+    def update(self, extra_iterations: int = 0) -> None:
+        """Push pending factors and values into iSAM2, then refresh the estimate."""
+        self._isam.update(self._graph, self._values)
+        for _ in range(extra_iterations):
+            self._isam.update()
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._estimate = self._isam.calculateEstimate()
+
+    def poses(self) -> np.ndarray:
+        """(K, 3) current estimate (x_m, y_m, theta_rad) of every pose, in key order."""
+        if self.size == 0:
+            return np.zeros((0, 3))
+        return np.asarray(gtsam.utilities.extractPose2(self._estimate), dtype=np.float64)
+
+    def pose(self, index: int) -> np.ndarray:
+        """(3,) current estimate of one pose."""
+        p = self._estimate.atPose2(gtsam.symbol("x", index))
+        return np.array([p.x(), p.y(), p.theta()])
+
+    def marginal_covariance(self, index: int) -> np.ndarray:
+        """(3, 3) marginal covariance of one pose (body frame, order x, y, theta)."""
+        return np.asarray(self._isam.marginalCovariance(gtsam.symbol("x", index)))

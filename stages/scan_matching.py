@@ -1,0 +1,284 @@
+"""2D scan matching of horizontal-sonar features (paper Sec. IV.A, SSM and NSSM).
+
+Features are taken at elevation 0 (the paper assigns the unknown angle phi = 0), so each
+keyframe is a planar point set in its base_link frame. A match has two steps:
+
+1. Global initialisation by consensus-set maximisation: the target points are rasterised
+   onto a grid and dilated by the point noise; every candidate pose on a coarse-to-fine
+   lattice around the odometry guess scores the number of source points that land on
+   occupied cells, and the best one seeds ICP (so ICP does not start in a wrong basin).
+2. Point-to-point ICP with kiss-icp's `Registration` on the points padded with z = 0,
+   projected back to SE(2); then the overlap (source points with a target neighbour within
+   `overlap_radius_m`) and a covariance from the ICP Hessian.
+
+All poses are (x_m, y_m, yaw_rad); "the pose of the source in the target frame" maps
+source-frame points into the target frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from kiss_icp.mapping import VoxelHashMap
+from kiss_icp.registration import Registration
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
+
+from stages.pose_graph import wrap_angle
+
+__all__ = [
+    "MatchResult",
+    "OccupancyScorer",
+    "global_search",
+    "icp_2d",
+    "icp_covariance",
+    "match_scans",
+    "polar_to_base",
+    "transform_points",
+    "voxel_downsample",
+]
+
+_CHUNK_ELEMENTS = 2_000_000
+
+
+def polar_to_base(
+    range_m: np.ndarray, bearing_rad: np.ndarray, T_base_sonar: np.ndarray
+) -> np.ndarray:
+    """Horizontal-sonar features at elevation 0 -> (N, 2) points in base_link (Eq. 1, phi = 0).
+
+    Args:
+        range_m: (N,) ranges [m].
+        bearing_rad: (N,) bearings theta [rad], positive left.
+        T_base_sonar: (4, 4) mounting of the horizontal sonar in base_link.
+    """
+    r = np.asarray(range_m, np.float64)
+    th = np.asarray(bearing_rad, np.float64)
+    p = np.stack([r * np.cos(th), r * np.sin(th), np.zeros_like(r), np.ones_like(r)], axis=1)
+    return (p @ np.asarray(T_base_sonar, np.float64).T)[:, :2]
+
+
+def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Map (N, 2) points by a (3,) pose (x_m, y_m, yaw_rad): ``R p + t``."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return points @ np.array([[c, s], [-s, c]]) + pose[:2]
+
+
+def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """(N, 2) points -> (M, 2) centroids of occupied voxels, sorted by voxel (deterministic)."""
+    if len(points) == 0:
+        return np.zeros((0, 2))
+    keys = np.floor(points / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    sums = np.zeros((len(counts), 2))
+    np.add.at(sums, inverse, points)
+    return sums / counts[:, None]
+
+
+class OccupancyScorer:
+    """Dilated occupancy grid of a target point set; scores candidate source poses."""
+
+    def __init__(self, target: np.ndarray, resolution_m: float, radius_m: float) -> None:
+        """Args: target (M, 2) points [m]; grid resolution [m]; dilation radius [m]."""
+        self.resolution_m = resolution_m
+        margin = 2.0 * radius_m
+        self.origin = target.min(axis=0) - margin
+        shape = np.ceil((target.max(axis=0) + margin - self.origin) / resolution_m).astype(int) + 1
+        cells = np.floor((target - self.origin) / resolution_m).astype(int)
+        empty = np.ones(shape, dtype=bool)
+        empty[cells[:, 0], cells[:, 1]] = False
+        self.grid = distance_transform_edt(empty) * resolution_m <= radius_m
+        self.grid[[0, -1], :] = False
+        self.grid[:, [0, -1]] = False
+        self._flat = self.grid.ravel()
+
+    def score(self, poses: np.ndarray, source: np.ndarray) -> np.ndarray:
+        """(K,) number of source points (N, 2) that land on occupied cells, per (K, 3) pose.
+
+        The grid's border cells are kept empty, so points outside are clipped onto them.
+        """
+        out = np.zeros(len(poses), dtype=np.int64)
+        step = max(1, _CHUNK_ELEMENTS // max(1, len(source)))
+        nx, ny = self.grid.shape
+        inv = 1.0 / self.resolution_m
+        for start in range(0, len(poses), step):
+            p = poses[start : start + step]
+            c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+            x = (c * source[:, 0] - s * source[:, 1] + (p[:, 0:1] - self.origin[0])) * inv
+            y = (s * source[:, 0] + c * source[:, 1] + (p[:, 1:2] - self.origin[1])) * inv
+            ix = np.clip(x, 0, nx - 1).astype(np.int64)
+            iy = np.clip(y, 0, ny - 1).astype(np.int64)
+            out[start : start + step] = self._flat[ix * ny + iy].sum(axis=1)
+        return out
+
+
+def _lattice(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> np.ndarray:
+    axes = [c + np.arange(-h, h + 1e-9, s) for c, h, s in zip(center, half, steps, strict=True)]
+    grid = np.meshgrid(*axes, indexing="ij")
+    return np.stack([g.ravel() for g in grid], axis=1)
+
+
+def global_search(
+    source: np.ndarray,
+    scorer: OccupancyScorer,
+    guess: np.ndarray,
+    half_window: np.ndarray,
+    levels: int = 3,
+    points_per_axis: int = 9,
+) -> tuple[np.ndarray, int]:
+    """Consensus-set maximisation over a window around a guess, coarse to fine.
+
+    Each level evaluates a `points_per_axis`^3 lattice over (x, y, yaw) centred on the best
+    pose so far; the next level shrinks the window to two lattice steps. Ties go to the
+    candidate nearest the guess (in window-normalised units), which keeps the result
+    deterministic and on the odometry side of flat cost regions.
+
+    Args:
+        source: (N, 2) source points in the source frame.
+        scorer: occupancy of the target, in the target frame.
+        guess: (3,) pose of the source in the target frame (odometry).
+        half_window: (3,) search half-widths (x_m, y_m, yaw_rad).
+        levels: refinement levels.
+        points_per_axis: lattice points per axis and level (odd).
+
+    Returns:
+        The best (3,) pose and its consensus (number of source points on occupied cells).
+    """
+    best, best_score = np.asarray(guess, np.float64), -1
+    half = np.asarray(half_window, np.float64)
+    for _ in range(levels):
+        steps = 2.0 * half / (points_per_axis - 1)
+        candidates = _lattice(best, half, steps)
+        scores = scorer.score(candidates, source)
+        distance = np.linalg.norm((candidates - guess) / np.asarray(half_window), axis=1)
+        order = np.lexsort((distance, -scores))
+        if scores[order[0]] > best_score:
+            best, best_score = candidates[order[0]], int(scores[order[0]])
+        half = 2.0 * steps
+    best = best.copy()
+    best[2] = float(wrap_angle(best[2]))
+    return best, best_score
+
+
+@dataclass(frozen=True)
+class MatchResult:
+    """One scan match.
+
+    Attributes:
+        pose: (3,) pose of the source in the target frame after ICP.
+        initial: (3,) pose after the global search (ICP seed).
+        consensus: points on occupied cells at `initial`.
+        overlap: source points with a target neighbour within the overlap radius after ICP.
+        rmse_m: RMS distance of those overlapping points to their neighbours [m].
+        covariance: (3, 3) covariance of `pose` (source frame, order x, y, yaw).
+    """
+
+    pose: np.ndarray
+    initial: np.ndarray
+    consensus: int
+    overlap: int
+    rmse_m: float
+    covariance: np.ndarray
+
+
+def _pad(points: np.ndarray) -> np.ndarray:
+    return np.column_stack([points, np.zeros(len(points))])
+
+
+def _to_matrix(pose: np.ndarray) -> np.ndarray:
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    m = np.eye(4)
+    m[:2, :2] = [[c, -s], [s, c]]
+    m[:2, 3] = pose[:2]
+    return m
+
+
+def icp_2d(
+    source: np.ndarray,
+    target: np.ndarray,
+    initial: np.ndarray,
+    max_correspondence_m: float = 1.0,
+    max_iterations: int = 40,
+    voxel_m: float = 0.25,
+) -> np.ndarray:
+    """Point-to-point ICP with kiss-icp on (N, 2)/(M, 2) points padded with z = 0.
+
+    Returns:
+        (3,) pose of the source in the target frame (projection of kiss-icp's 4x4 to SE(2)).
+    """
+    voxel_map = VoxelHashMap(voxel_size=voxel_m, max_distance=1e6, max_points_per_voxel=20)
+    voxel_map.add_points(_pad(target))
+    registration = Registration(max_iterations, 1e-4, max_num_threads=1)
+    T = registration.align_points_to_map(
+        points=_pad(source),
+        voxel_map=voxel_map,
+        initial_guess=_to_matrix(initial),
+        max_correspondance_distance=max_correspondence_m,
+        kernel=max_correspondence_m / 3.0,
+    )
+    return np.array([T[0, 3], T[1, 3], np.arctan2(T[1, 0], T[0, 0])])
+
+
+def icp_covariance(
+    source: np.ndarray, target_tree: cKDTree, pose: np.ndarray, radius_m: float
+) -> tuple[int, float, np.ndarray]:
+    """Overlap, RMSE and Hessian covariance of a point-to-point alignment.
+
+    For inlier pairs (distance < radius_m) the residual Jacobian with respect to a body-frame
+    perturbation is ``R [I | (-p_y, p_x)]``; the covariance is ``sigma^2 (J^T J)^{-1}`` with
+    sigma^2 the mean squared inlier residual (at least (0.05 m)^2).
+
+    Returns:
+        (overlap count, rmse_m, (3, 3) covariance; infinite diagonal if under 3 inliers).
+    """
+    moved = transform_points(pose, source)
+    dist, _ = target_tree.query(moved, distance_upper_bound=radius_m)
+    inlier = np.isfinite(dist)
+    n = int(inlier.sum())
+    if n < 3:
+        return n, float("inf"), np.diag([np.inf, np.inf, np.inf])
+    rmse = float(np.sqrt(np.mean(dist[inlier] ** 2)))
+    p = source[inlier]
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    rot = np.array([[c, -s], [s, c]])
+    local = np.zeros((n, 2, 3))
+    local[:, 0, 0] = local[:, 1, 1] = 1.0
+    local[:, 0, 2], local[:, 1, 2] = -p[:, 1], p[:, 0]
+    jac = rot @ local
+    hessian = np.einsum("nij,nik->jk", jac, jac)
+    sigma2 = max(rmse**2, 0.05**2)
+    return n, rmse, sigma2 * np.linalg.pinv(hessian)
+
+
+def match_scans(
+    source: np.ndarray,
+    target: np.ndarray,
+    guess: np.ndarray,
+    half_window: np.ndarray,
+    grid_resolution_m: float = 0.1,
+    radius_m: float = 0.5,
+    max_correspondence_m: float = 1.0,
+    max_iterations: int = 40,
+    max_search_points: int = 400,
+) -> MatchResult:
+    """Global initialisation (consensus) then ICP, then overlap and covariance.
+
+    Args:
+        source: (N, 2) points in the source frame.
+        target: (M, 2) points in the target frame.
+        guess: (3,) odometry guess of the source pose in the target frame.
+        half_window: (3,) search half-widths around the guess (x_m, y_m, yaw_rad).
+        grid_resolution_m: occupancy grid cell size.
+        radius_m: dilation radius of the grid and overlap radius (the point noise).
+        max_correspondence_m: ICP correspondence gate.
+        max_iterations: ICP iterations.
+        max_search_points: the global search scores an even subsample of at most this many
+            source points (ICP uses all).
+    """
+    scorer = OccupancyScorer(target, grid_resolution_m, radius_m)
+    sample = source[:: max(1, -(-len(source) // max_search_points))]
+    initial, consensus = global_search(sample, scorer, guess, half_window)
+    pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
+    overlap, rmse, cov = icp_covariance(source, cKDTree(target), pose, radius_m)
+    return MatchResult(pose, initial, consensus, overlap, rmse, cov)

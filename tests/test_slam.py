@@ -1,0 +1,195 @@
+"""slam stage on simulated missions: accuracy against ground truth, modes and outputs.
+
+Features come from the simulator's horizontal label images (every labelled cell, at its
+bin-centre range and beam bearing), i.e. what a perfect detector would report, with the
+sonar's real elevation smear.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from schemas.classes import CLASS_IDS
+from schemas.features import FEATURES_SCHEMA
+from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
+from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from stages.slam import STAGE, SlamConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+SEAFLOOR = CLASS_IDS["seafloor"]
+
+
+def _select(dr: np.ndarray, spacing_m: float, rotation_rad: float) -> list[int]:
+    chosen = [0]
+    for i in range(1, len(dr)):
+        last = dr[chosen[-1]]
+        dyaw = abs(np.angle(np.exp(1j * (dr[i, 5] - last[5]))))
+        if np.hypot(*(dr[i, :2] - last[:2])) >= spacing_m or dyaw >= rotation_rad:
+            chosen.append(i)
+    return chosen
+
+
+def simulated_slam_inputs(
+    scene: str = "pier",
+    n_goals: int = 6,
+    seed: int = 0,
+    spacing_m: float = 2.0,
+    navigation: dict[str, float] | None = None,
+) -> dict[str, object]:
+    """Stage inputs (keyframes table, sensors, features) from a simulated mission.
+
+    `navigation` overrides fields of the simulator's `NavigationNoise`.
+    """
+    from sim.config import MissionConfig, NavigationNoise, SimConfig
+    from sim.dataset import simulate
+    from sim.scene import load_scene
+
+    config = SimConfig(
+        mission=MissionConfig(n_goals=n_goals), navigation=NavigationNoise(**(navigation or {}))
+    )
+    run = simulate(load_scene(ROOT / "configs" / "scenes" / f"{scene}.yaml"), config, seed)
+    tr = run.trajectory
+    sel = _select(tr["dr_pose"], spacing_m, np.deg2rad(30.0))
+    n = len(sel)
+    cols: dict[str, object] = {
+        "keyframe_id": np.arange(n, dtype=np.int64),
+        "t_ns": tr["t_ns"][sel],
+        "t_vertical_ns": tr["t_ns"][sel],
+        "ping_index_horizontal": np.array(sel, dtype=np.int64),
+        "ping_index_vertical": np.array(sel, dtype=np.int64),
+    }
+    for c, name in enumerate(POSE_COLUMNS):
+        cols[name] = tr["dr_pose"][sel, c]
+    for c, name in enumerate(GT_POSE_COLUMNS):
+        cols[name] = tr["gt_pose"][sel, c]
+    cols["reason"] = ["first"] + ["translation"] * (n - 1)
+    keyframes = pa.table(cols, schema=KEYFRAMES_SCHEMA)
+    parts = []
+    for k, i in enumerate(sel):
+        ping = run.frame(i).horizontal
+        rows, beams = np.nonzero((ping.labels > 0) & (ping.labels != SEAFLOOR))
+        parts.append((k, rows, beams, ping))
+    features = pa.table(
+        {
+            "keyframe_id": np.concatenate([np.full(len(r), k) for k, r, _, _ in parts]),
+            "feature_id": np.concatenate([np.arange(len(r)) for _, r, _, _ in parts]),
+            "sonar": ["horizontal"] * sum(len(r) for _, r, _, _ in parts),
+            "range_bin": np.concatenate([r for _, r, _, _ in parts]).astype(np.int64),
+            "beam": np.concatenate([b for _, _, b, _ in parts]).astype(np.int64),
+            "range_m": np.concatenate([p.ranges_m[r] for _, r, _, p in parts]).astype(float),
+            "angle_rad": np.concatenate([p.angles_rad[b] for _, _, b, p in parts]).astype(float),
+            "intensity": np.concatenate([p.image[r, b] for _, r, b, p in parts]).astype(np.float32),
+        },
+        schema=FEATURES_SCHEMA,
+    )
+    sensors = {s: {"T_base_sonar": m.tolist()} for s, m in run.T_base_sonar.items()}
+    return {
+        "keyframes.keyframes": keyframes,
+        "keyframes.sensors": sensors,
+        "features.features": features,
+    }
+
+
+def ate_se2(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """RMSE of (K, 2) positions after the best rigid SE(2) alignment (Umeyama, no scale)."""
+    mu_e, mu_t = estimate.mean(axis=0), truth.mean(axis=0)
+    u, _, vt = np.linalg.svd((truth - mu_t).T @ (estimate - mu_e))
+    d = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])
+    rot = u @ d @ vt
+    aligned = (estimate - mu_e) @ rot.T + mu_t
+    return float(np.sqrt(np.mean(np.sum((aligned - truth) ** 2, axis=1))))
+
+
+NOISY_NAVIGATION = {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}
+"""A low-cost DVL/IMU that drifts a few percent of distance (3 % scale, 3 deg yaw bias)."""
+
+
+@pytest.fixture(scope="module")
+def pier_inputs() -> dict[str, object]:
+    return simulated_slam_inputs("pier", n_goals=6, seed=0, navigation=NOISY_NAVIGATION)
+
+
+def _columns(table: pa.Table, names: list[str]) -> np.ndarray:
+    return np.column_stack([table.column(n).to_numpy() for n in names])
+
+
+def test_slam_halves_dead_reckoning_error_on_simulated_pier(pier_inputs) -> None:
+    kf = pier_inputs["keyframes.keyframes"]
+    truth = _columns(kf, ["gt_x_m", "gt_y_m"])
+    out = STAGE.run(SlamConfig(), pier_inputs)
+    ate_slam = ate_se2(_columns(out["poses"], ["x_m", "y_m"]), truth)
+    ate_dr = ate_se2(_columns(kf, ["x_m", "y_m"]), truth)
+    factors = out["factors"]
+    kinds = zip(
+        factors.column("type").to_pylist(), factors.column("status").to_pylist(), strict=True
+    )
+    loops = [k for k in kinds if k == ("loop", "accepted")]
+    assert len(loops) >= 5
+    assert ate_slam <= 0.5 * ate_dr, (ate_slam, ate_dr)
+    assert ate_slam <= 0.5
+    again = STAGE.run(SlamConfig(), pier_inputs)
+    assert again["poses"].equals(out["poses"]) and again["trajectory"] == out["trajectory"]
+
+
+def test_outputs_follow_their_contracts(pier_inputs) -> None:
+    out = STAGE.run(SlamConfig(mode="dead_reckoning"), pier_inputs)
+    kf = pier_inputs["keyframes.keyframes"]
+    assert out["poses"].schema.equals(POSES_SCHEMA)
+    assert out["factors"].schema.equals(FACTORS_SCHEMA)
+    names = ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"]
+    np.testing.assert_allclose(_columns(out["poses"], names), _columns(kf, names), atol=1e-6)
+    upper = _columns(out["poses"], list(COVARIANCE_COLUMNS))
+    cov = np.zeros((len(upper), 3, 3))
+    rows, cols = np.triu_indices(3)
+    cov[:, rows, cols] = upper
+    cov[:, cols, rows] = upper
+    assert np.all(np.diff(np.linalg.det(cov)) > 0)  # volume grows along pure dead reckoning
+    assert np.all(np.diff(cov[:, 2, 2]) > 0)
+    lines = out["trajectory"].decode().splitlines()
+    assert len(lines) == kf.num_rows
+    first = np.array(lines[0].split(), dtype=float)
+    assert first.shape == (8,) and abs(np.linalg.norm(first[4:]) - 1.0) < 1e-5
+    t0 = kf.column("t_ns")[0].as_py()
+    assert lines[0].split()[0] == f"{t0 // 10**9}.{t0 % 10**9:09d}"
+    assert out["plot"][:8] == b"\x89PNG\r\n\x1a\n"
+    from PIL import Image
+
+    assert Image.open(io.BytesIO(out["plot"])).size[0] > 300
+
+
+def test_ground_truth_mode_returns_truth_and_refuses_missing_truth(pier_inputs) -> None:
+    kf = pier_inputs["keyframes.keyframes"]
+    out = STAGE.run(SlamConfig(mode="ground_truth"), pier_inputs)
+    np.testing.assert_allclose(
+        _columns(out["poses"], ["x_m", "y_m", "yaw_rad"]),
+        _columns(kf, ["gt_x_m", "gt_y_m", "gt_yaw_rad"]),
+        atol=1e-9,
+    )
+    nulls = pa.nulls(kf.num_rows, pa.float64())
+    for name in GT_POSE_COLUMNS:
+        kf = kf.set_column(kf.schema.get_field_index(name), name, nulls)
+    with pytest.raises(ValueError, match="ground truth"):
+        STAGE.run(SlamConfig(mode="ground_truth"), {**pier_inputs, "keyframes.keyframes": kf})
+
+
+def test_leading_edges_keep_the_first_cell_of_each_run() -> None:
+    from stages.slam import leading_edges
+
+    rng = np.random.default_rng(3)
+    kf = rng.integers(0, 3, 400)
+    beam = rng.integers(0, 5, 400)
+    rbin = rng.integers(0, 40, 400)
+    cells = {(int(k), int(b), int(r)) for k, b, r in zip(kf, beam, rbin, strict=True)}
+    expected = [
+        (int(k), int(b), int(r) - 1) not in cells for k, b, r in zip(kf, beam, rbin, strict=True)
+    ]
+    uniq = np.unique(np.column_stack([kf, beam, rbin]), axis=0)
+    got = leading_edges(uniq[:, 0], uniq[:, 1], uniq[:, 2])
+    ref = [(int(k), int(b), int(r) - 1) not in cells for k, b, r in uniq]
+    np.testing.assert_array_equal(got, ref)
+    assert len(expected) == 400
