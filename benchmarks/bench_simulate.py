@@ -27,7 +27,7 @@ def main() -> None:
     ap.add_argument("--scene", default=str(ROOT / "configs" / "scenes" / "marina.yaml"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration-s", type=float, default=None)
-    ap.add_argument("--workers", type=int, default=2, help="render threads (as the CLI uses)")
+    ap.add_argument("--workers", type=int, default=1, help="render threads (the CLI uses 1)")
     args = ap.parse_args()
 
     from pipeline.simulate import write_simulation

@@ -65,7 +65,7 @@ def simulate_cmd(
             output,
             scene_yaml=scene.read_text(),
             progress=lambda done, _n: bar.update(task, completed=done),
-            workers=2,
+            workers=1,
         )
     if preview is not None:
         try:
