@@ -82,6 +82,18 @@ def scores(objects: pa.Table) -> dict[str, object]:
         }
     pil = np.isin(truth, PILING_CLASSES)
     out["piling_recall"] = float((pred[pil] == truth[pil]).mean()) if pil.any() else None
+    prob = objects["probability"].to_numpy()
+    curve = {}
+    for t in (0.5, 0.8, 0.9, 0.95, 0.98, 0.99):
+        acc = prob > t
+        row: dict[str, object] = {}
+        for name in PILING_CLASSES:
+            sel = acc & (argmax == name)
+            row[f"{name}_precision"] = float((truth[sel] == name).mean()) if sel.any() else None
+            row[f"{name}_accepted"] = int(sel.sum())
+        row["piling_recall"] = float((acc & (argmax == truth))[pil].mean()) if pil.any() else None
+        curve[str(t)] = row
+    out["threshold_curve"] = curve
     return out
 
 

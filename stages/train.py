@@ -57,11 +57,12 @@ class TrainConfig(StageConfig):
     min_samples: int = Field(2, ge=1, description="DBSCAN core neighbourhood size")
     min_features: int = Field(10, ge=1, description="smallest object (paper's n)")
     margin_m: float = Field(0.2, ge=0, description="bounding-box margin on each side [m]")
-    min_side_m: float = Field(0.5, ge=0, description="smallest crop side [m]")
+    min_side_m: float = Field(1.0, ge=0, description="smallest crop side [m] (keeps piling scale)")
     channels: tuple[int, int] = (16, 32)
     hidden: int = Field(64, ge=1)
     dropout_p: float = Field(0.1, ge=0, lt=1)
-    epochs: int = Field(30, ge=1)
+    spatial_dropout: bool = Field(False, description="drop whole conv channels, not units")
+    epochs: int = Field(60, ge=1)
     batch_size: int = Field(64, ge=1)
     learning_rate: float = Field(1e-3, gt=0)
     noise_std: float = Field(0.05, ge=0, description="Gaussian noise on [0, 1] patches")
@@ -223,7 +224,9 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
     """
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
-    model = PatchCNN(n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX)
+    model = PatchCNN(
+        n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX, cfg.spatial_dropout
+    )
     opt = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate, eps=1e-7)
     steps = cfg.epochs * -(-len(target) // cfg.batch_size)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.learning_rate, total_steps=max(steps, 1))
@@ -359,7 +362,7 @@ def train_classifier(
     }
     model_cfg = {
         "channels": list(cfg.channels), "hidden": cfg.hidden, "dropout_p": cfg.dropout_p,
-        "size_px": PATCH_SIZE_PX, "margin_m": cfg.margin_m, "min_side_m": cfg.min_side_m,
+        "size_px": PATCH_SIZE_PX, "spatial_dropout": cfg.spatial_dropout, "margin_m": cfg.margin_m, "min_side_m": cfg.min_side_m,
         "eps_m": cfg.eps_m, "min_samples": cfg.min_samples, "min_features": cfg.min_features,
         "class_ids": [CLASS_IDS[n] for n in names],
     }  # fmt: skip

@@ -61,7 +61,7 @@ def test_batched_passes_equal_separate_passes_with_the_same_masks() -> None:
     with torch.no_grad():
         h = torch.nn.functional.max_pool2d(torch.relu(model.conv1(xt)), 2)
         h = torch.nn.functional.max_pool2d(torch.relu(model.conv2(h)), 2)
-        keep1 = torch.rand((12, h.shape[1], 1, 1), generator=gen) >= model.dropout_p
+        keep1 = torch.rand((12, *h.shape[1:]), generator=gen) >= model.dropout_p
         keep2 = torch.rand((12, model.fc1.out_features), generator=gen) >= model.dropout_p
         probs = []
         for p in range(4):

