@@ -276,6 +276,10 @@ def execute(
                 "recipe": item.recipe,
                 "config": item.recipe["config"],
                 "inputs": {k: v for k, v in item.recipe["inputs"].items()},
+                "input_artifacts": {
+                    k: f"{outputs_of[k.split('.', 1)[0]].name}/{v}"
+                    for k, v in item.recipe["inputs"].items()
+                },
                 "dataset_path": str(dataset.path),
                 "software": versions,
             }

@@ -49,8 +49,15 @@ def _upstream_closure(
         seen.add((stage, key))
         manifest = manifest_of(stage, key)
         if with_upstream:
-            for name, up_key in sorted(manifest.get("inputs", {}).items()):
-                visit(name.split(".", 1)[0], up_key)
+            # `input_artifacts` names the producing stage ("keyframes/<key>") even when the
+            # input is bound under another name (training reads several datasets).
+            addresses = manifest.get("input_artifacts") or {
+                name: f"{name.split('.', 1)[0]}/{k}"
+                for name, k in manifest.get("inputs", {}).items()
+            }
+            for address in sorted(set(addresses.values())):
+                up_stage, _, up_key = address.partition("/")
+                visit(up_stage, up_key)
         order.append((stage, key))
 
     for stage, key in refs:

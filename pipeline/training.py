@@ -1,0 +1,92 @@
+"""The default classifier: trained on simulated scenes other than the one being mapped.
+
+Training is an ordinary cached stage. Each training dataset goes through the graph up
+to `features` (cached per dataset like any run); the `train` stage then reads all of
+them, so its key covers every dataset's keyframes and features, the train config, and
+the stage version. `sonarmap run` binds the resulting `model.pt` to `classify`'s
+"train.model" input; a warm store trains nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from pipeline.runner import execute, plan
+from pipeline.session import dataset_spec
+from pipeline.store import ArtifactRef, ArtifactStore
+from stages.base import Stage
+
+__all__ = ["DEFAULT_TRAINING_SETS", "resolve_model", "train_on", "training_stage_for"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_TRAINING_SETS: tuple[tuple[str, int, int], ...] = (("harbour", 100, 12), ("pier", 101, 6))
+"""(scene, seed, goals) of the simulated missions the default model learns from. The
+default marina is mapped, never trained on; seeds are far from the study's 0..N-1."""
+
+TRAINING_DIR = Path("data/training")
+
+
+def training_stage_for(n_datasets: int) -> Stage:
+    """The `train` stage reading `n_datasets` (keyframes, features) pairs.
+
+    Inputs are bound as "keyframes_i.frames" / "features_i.features" so one stage run
+    sees every dataset; its outputs and config are those of `stages.train`.
+    """
+    from pipeline.registry import training_stage
+    from stages.train import train_classifier
+
+    base = training_stage()
+    inputs = tuple(
+        name
+        for i in range(n_datasets)
+        for name in (f"keyframes_{i}.frames", f"features_{i}.features")
+    )
+
+    def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
+        pairs = [
+            (bound[f"keyframes_{i}.frames"], bound[f"features_{i}.features"])
+            for i in range(n_datasets)
+        ]
+        return train_classifier(pairs, config)
+
+    return Stage(base.name, base.version, base.config, inputs, base.outputs, run, base.description)
+
+
+def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> ArtifactRef:
+    """Run keyframes + features on each dataset, then the train stage; return the model artifact."""
+    from pipeline.registry import pipeline_stages
+
+    upstream = pipeline_stages()[:2]
+    external: dict[str, tuple[Stage, ArtifactRef]] = {}
+    first = None
+    for i, path in enumerate(datasets):
+        spec = dataset_spec(path, store)
+        first = first or spec
+        result = execute(plan(upstream, config, spec, store), config, spec, store)
+        for stage in upstream:
+            external[f"{stage.name}_{i}"] = (stage, result.artifacts[stage.name])
+    assert first is not None
+    train = training_stage_for(len(datasets))
+    planned = plan((train,), config, first, store, external=external)
+    log.info("classifier: %s (%s)", "cached" if planned[0].hit else "training", planned[0].reason)
+    return execute(planned, config, first, store, external=external).artifacts["train"]
+
+
+def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, ArtifactRef]:
+    """The default model for `classify`: simulate the training scenes if needed, train if needed."""
+    from pipeline.datasets import ensure_simulation, scene_path
+
+    paths = [
+        ensure_simulation(
+            scene_path(scene), seed, TRAINING_DIR / f"{scene}-seed{seed}.mcap", goals=goals
+        )
+        for scene, seed, goals in DEFAULT_TRAINING_SETS
+    ]
+    ref = train_on(paths, config, store)
+    return training_stage_for(len(paths)), ref
