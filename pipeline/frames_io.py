@@ -19,6 +19,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from pipeline.errors import ArtifactCorrupt
+from pipeline.readers.sonar_decode import ProjectedArrays, serialize_projected_cdr
 from pipeline.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.sonar import (
     KeyframeImages,
@@ -36,7 +37,14 @@ from schemas.topics import (
     TRUTH_ANGLE_TOPIC,
 )
 
-__all__ = ["FramesSequence", "read_frames", "write_frames"]
+__all__ = [
+    "FramesSequence",
+    "image_message",
+    "read_frames",
+    "sonar_cdr",
+    "sonar_message",
+    "write_frames",
+]
 
 _META = "sonarmap.keyframes"
 
@@ -74,6 +82,12 @@ def sonar_message(ping: SonarPing, frame_id: str) -> Any:
     )
 
 
+def sonar_cdr(ping: SonarPing, frame_id: str) -> bytes:
+    """SonarPing -> CDR bytes of the ProjectedSonarImage `sonar_message` would give (fast path)."""
+    dirs = beam_directions_from_angles(np.asarray(ping.angles_rad, np.float64))
+    return serialize_projected_cdr(ping.t_ns, frame_id, dirs, ping.ranges_m, ping.image)
+
+
 def image_message(array: np.ndarray, t_ns: int, frame_id: str) -> Any:
     """(h, w) uint8 -> mono8 or float32 -> 32FC1 sensor_msgs/Image."""
     a = np.ascontiguousarray(array)
@@ -105,8 +119,8 @@ def write_frames(frames: Iterable[KeyframeImages], path: Path) -> int:
             last_t = kf.t_ns
             for sonar, ping in ((s, getattr(kf, s)) for s in SONARS):
                 frame = FRAME_SONAR[sonar]
-                w.write(
-                    SONAR_TOPIC[sonar], PROJECTED_SONAR_TYPE, sonar_message(ping, frame), kf.t_ns
+                w.write_raw(
+                    SONAR_TOPIC[sonar], PROJECTED_SONAR_TYPE, sonar_cdr(ping, frame), kf.t_ns
                 )
                 if ping.labels is not None:
                     w.write(
@@ -131,14 +145,11 @@ def write_frames(frames: Iterable[KeyframeImages], path: Path) -> int:
     return len(index)
 
 
-def _ping(msg: Any, sonar: str) -> SonarPing:
-    dirs = np.array([(v.x, v.y, v.z) for v in msg.beam_directions], np.float64).reshape(-1, 3)
-    ranges = np.asarray(msg.ranges, np.float32)
-    image = np.frombuffer(bytes(msg.image.data), np.uint8).reshape(
-        len(ranges), msg.image.beam_count
-    )
-    t = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
-    return SonarPing(t, sonar, image, ranges, beam_angles_from_directions(dirs).astype(np.float32))
+def _ping(msg: ProjectedArrays, sonar: str) -> SonarPing:
+    ranges = np.array(msg.ranges, np.float32)
+    image = msg.data.reshape(len(ranges), len(msg.directions)).copy()
+    angles = beam_angles_from_directions(msg.directions).astype(np.float32)
+    return SonarPing(msg.stamp_ns, sonar, image, ranges, angles)
 
 
 def _image(msg: Any) -> np.ndarray:
@@ -181,8 +192,11 @@ class FramesSequence(Sequence[KeyframeImages]):
 
     def _messages(self, reader: Any, **kw: Any) -> Iterator[tuple[int, tuple[str, str], Any]]:
         for schema, channel, message in reader.iter_messages(topics=list(self._topics), **kw):
-            msg = self._store.deserialize_cdr(message.data, schema.name)
-            yield message.log_time, self._topics[channel.topic], msg
+            key = self._topics[channel.topic]
+            if key[1] == "ping":
+                yield message.log_time, key, ProjectedArrays.from_cdr(message.data)
+            else:
+                yield message.log_time, key, self._store.deserialize_cdr(message.data, schema.name)
 
     @overload
     def __getitem__(self, i: int) -> KeyframeImages: ...

@@ -87,7 +87,7 @@ def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
 def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
     import numpy as np
 
-    from pipeline.frames_io import image_message, sonar_message
+    from pipeline.frames_io import image_message, sonar_cdr
     from schemas.topics import (
         FRAME_SONAR,
         IMAGE_TYPE,
@@ -100,7 +100,7 @@ def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, 
     n = len(rec.ping_times_ns(sonar))
     frame = FRAME_SONAR[sonar]
     for ping in rec.pings(sonar, np.arange(n)):
-        yield ping.t_ns, order, SONAR_TOPIC[sonar], PROJECTED_SONAR_TYPE, sonar_message(ping, frame)
+        yield ping.t_ns, order, SONAR_TOPIC[sonar], PROJECTED_SONAR_TYPE, sonar_cdr(ping, frame)
         if ping.labels is not None:
             yield (
                 ping.t_ns,
@@ -161,7 +161,10 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
                 w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
                 counts[TOPIC_TF_STATIC] = 1
                 first = False
-            w.write(topic, typ, msg, t)
+            if isinstance(msg, bytes):
+                w.write_raw(topic, typ, msg, t)
+            else:
+                w.write(topic, typ, msg, t)
             counts[topic] = counts.get(topic, 0) + 1
         for name, data in sorted(rec.attachments().items()):
             w.add_attachment(name, data, "application/octet-stream")

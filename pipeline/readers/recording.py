@@ -12,7 +12,7 @@ import numpy as np
 from pipeline.errors import SourceError
 from pipeline.readers.navigation import dead_reckon, pose_track
 from pipeline.readers.roles import Roles, detect_roles
-from pipeline.readers.sonar_decode import decode_image, decode_sonar
+from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
 from pipeline.readers.sources import Source
 from schemas.recording import PoseTrack
 from schemas.sonar import SonarPing, beam_angles_from_directions
@@ -213,7 +213,7 @@ class SourceRecording:
     def _column_order(msg: Any, msgtype: str) -> np.ndarray:
         """The column permutation the sonar decoder applied (to apply to label images)."""
         if msgtype.endswith("ProjectedSonarImage"):
-            d = np.array([(v.x, v.y, v.z) for v in msg.beam_directions], np.float64).reshape(-1, 3)
+            d = beam_directions(msg)
             return np.argsort(beam_angles_from_directions(d), kind="stable")
         n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
         return np.arange(n)[::-1]

@@ -8,11 +8,13 @@ from typing import Any
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pipeline.readers.sonar_decode import ProjectedArrays
 from pipeline.rosmsg import custom_msg_texts, ros2_typestore
 
 __all__ = ["Ros2Decoder"]
 
 log = logging.getLogger(__name__)
+_PROJECTED = "marine_acoustic_msgs/msg/ProjectedSonarImage"
 
 
 class Ros2Decoder:
@@ -55,6 +57,11 @@ class Ros2Decoder:
 
     def decode(self, data: bytes | memoryview, msgtype: str, topic: str = "") -> Any | None:
         """Deserialise one message (None when its type is unknown or the bytes are bad)."""
+        if msgtype == _PROJECTED:
+            try:
+                return ProjectedArrays.from_cdr(data)
+            except (ValueError, IndexError, TypeError):
+                pass  # big-endian or unusual: the generic path below
         if not self._ensure(msgtype):
             return None
         try:
