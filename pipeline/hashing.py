@@ -132,8 +132,11 @@ class FingerprintCache:
 
         Names are taken relative to `root` so moving the dataset keeps its fingerprint.
         """
+        root = root.resolve()
+        resolved = [p.resolve() for p in parts]
         entries = sorted(
-            (str(p.relative_to(root)) if p != root else p.name, self.file_digest(p)) for p in parts
+            (str(p.relative_to(root)) if p != root else p.name, self.file_digest(p))
+            for p in resolved
         )
         if len(entries) == 1:
             return entries[0][1]
