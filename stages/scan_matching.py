@@ -126,13 +126,16 @@ def global_search(
     half_window: np.ndarray,
     levels: int = 3,
     points_per_axis: int = 9,
+    tie_fraction: float = 1.0,
 ) -> tuple[np.ndarray, int]:
     """Consensus-set maximisation over a window around a guess, coarse to fine.
 
     Each level evaluates a `points_per_axis`^3 lattice over (x, y, yaw) centred on the best
-    pose so far; the next level shrinks the window to two lattice steps. Ties go to the
-    candidate nearest the guess (in window-normalised units), which keeps the result
-    deterministic and on the odometry side of flat cost regions.
+    pose so far; the next level shrinks the window to two lattice steps. Among candidates
+    scoring at least `tie_fraction` of the best, the one nearest the guess (in
+    window-normalised units) wins: repeated structure (rows of pilings) gives near-equal
+    peaks one spacing apart, and the odometry prior decides between them; this also keeps
+    the result deterministic.
 
     Args:
         source: (N, 2) source points in the source frame.
@@ -141,6 +144,7 @@ def global_search(
         half_window: (3,) search half-widths (x_m, y_m, yaw_rad).
         levels: refinement levels.
         points_per_axis: lattice points per axis and level (odd).
+        tie_fraction: fraction of the best consensus that counts as a tie.
 
     Returns:
         The best (3,) pose and its consensus (number of source points on occupied cells).
@@ -152,9 +156,10 @@ def global_search(
         candidates = _lattice(best, half, steps)
         scores = scorer.score(candidates, source)
         distance = np.linalg.norm((candidates - guess) / np.asarray(half_window), axis=1)
-        order = np.lexsort((distance, -scores))
-        if scores[order[0]] > best_score:
-            best, best_score = candidates[order[0]], int(scores[order[0]])
+        near_best = scores >= tie_fraction * scores.max()
+        pick = int(np.flatnonzero(near_best)[np.argmin(distance[near_best])])
+        if scores[pick] > best_score:
+            best, best_score = candidates[pick], int(scores[pick])
         half = 2.0 * steps
     best = best.copy()
     best[2] = float(wrap_angle(best[2]))
@@ -261,6 +266,7 @@ def match_scans(
     max_correspondence_m: float = 1.0,
     max_iterations: int = 40,
     max_search_points: int = 400,
+    tie_fraction: float = 1.0,
 ) -> MatchResult:
     """Global initialisation (consensus) then ICP, then overlap and covariance.
 
@@ -275,10 +281,13 @@ def match_scans(
         max_iterations: ICP iterations.
         max_search_points: the global search scores an even subsample of at most this many
             source points (ICP uses all).
+        tie_fraction: see `global_search`.
     """
     scorer = OccupancyScorer(target, grid_resolution_m, radius_m)
     sample = source[:: max(1, -(-len(source) // max_search_points))]
-    initial, consensus = global_search(sample, scorer, guess, half_window)
+    initial, consensus = global_search(
+        sample, scorer, guess, half_window, tie_fraction=tie_fraction
+    )
     pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
     overlap, rmse, cov = icp_covariance(source, cKDTree(target), pose, radius_m)
     return MatchResult(pose, initial, consensus, overlap, rmse, cov)

@@ -82,6 +82,9 @@ class SlamConfig(StageConfig):
     grid_resolution_m: float = Field(0.25, gt=0, description="consensus grid cell")
     max_correspondence_m: float = Field(1.0, gt=0, description="ICP correspondence gate")
     search_max_points: int = Field(150, ge=10, description="source points scored in the search")
+    search_tie_fraction: float = Field(
+        0.9, gt=0, le=1, description="consensus within this of the best: nearest the guess wins"
+    )
     icp_max_iterations: int = Field(40, ge=1)
     min_points: int = Field(30, ge=3, description="points needed in source and target")
     min_overlap_points: int = Field(30, ge=3, description="overlapping points to accept")
@@ -95,6 +98,9 @@ class SlamConfig(StageConfig):
     nssm_target_frames: int = Field(5, ge=1, description="target frames around the best one")
     nssm_min_frame_points: int = Field(10, ge=1)
     nssm_max_range_m: float = Field(30.0, gt=0)
+    nssm_max_heading_change_deg: float = Field(
+        180.0, gt=0, description="loop targets seen with a heading within this of the current"
+    )
     nssm_aperture_deg: float = Field(130.0, gt=0)
     nssm_window_xy_m: tuple[float, float] = (1.0, 5.0)
     nssm_window_yaw_deg: tuple[float, float] = (5.73, 20.0)
@@ -196,6 +202,7 @@ class _FrontEnd:
             c.max_correspondence_m,
             c.icp_max_iterations,
             c.search_max_points,
+            c.search_tie_fraction,
         )
 
     def _check(self, m: MatchResult, guess: np.ndarray, max_t: float, max_deg: float) -> str:
@@ -263,6 +270,8 @@ class _FrontEnd:
         visible = (r < c.nssm_max_range_m + 5 * sigma_xy) & (
             bearing < np.deg2rad(c.nssm_aperture_deg) / 2 + 5 * sigma_yaw
         )
+        heading = np.abs(wrap_angle(self.est[owner, 2] - self.est[k, 2]))
+        visible &= heading <= np.deg2rad(c.nssm_max_heading_change_deg)
         counts = np.bincount(owner[visible], minlength=k)
         best = int(np.argmax(counts))
         return best if counts[best] > c.nssm_min_frame_points else None
