@@ -18,6 +18,7 @@ Steps:
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -38,6 +39,9 @@ __all__ = [
     "pair_pings",
     "select_keyframes",
 ]
+
+
+log = logging.getLogger(__name__)
 
 
 class KeyframesConfig(StageConfig):
@@ -244,6 +248,17 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             f"({len(h_t)} horizontal, {len(v_t)} vertical pings), {len(cand)} inside the navigation stream"
         )
     k = cand[sel]
+    log.info(
+        "%s: %d/%d horizontal pings paired (%d horizontal, %d vertical unpaired), "
+        "%d pairs outside the navigation stream, %d keyframes",
+        rec.name,
+        len(pairs.horizontal),
+        len(h_t),
+        pairs.unpaired_horizontal,
+        pairs.unpaired_vertical,
+        len(pairs.horizontal) - len(cand),
+        len(k),
+    )
     h_idx, v_idx = pairs.horizontal[k], pairs.vertical[k]
     t_h, t_v = h_t[h_idx], v_t[v_idx]
     truth = rec.ground_truth()
