@@ -256,3 +256,33 @@ def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
     [line] = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
     assert "Traceback" not in res.output and "d.bag: configured topic /nope not found" in line
     assert H_TOPIC in line and "keyframes.vertical_topic" in line
+
+
+def test_convert_ros1_oculus_bag_and_raw_capture_to_projected_sonar_mcap(
+    shared_data: Path, tmp_path: Path
+) -> None:
+    from pipeline.commands.convert import convert_recording
+
+    mcap_path, bag_path, out = tmp_path / "d.mcap", tmp_path / "d.bag", tmp_path / "conv.mcap"
+    write_synthetic(mcap_path, n_pings=30, labels=False)
+    write_oculus_bag(mcap_path, bag_path)
+    report = convert_recording(bag_path, out)
+    assert report["topics"]["/sonar/horizontal"] == report["topics"]["/sonar/vertical"] == 30
+    assert report["topics"]["/odometry/dead_reckoning"] == 160  # 10 Hz over 16 s
+    cfg = KeyframesConfig()
+    a = STAGE.run(cfg, {"dataset": open_recording(bag_path, cfg)})
+    b = STAGE.run(cfg, {"dataset": open_recording(out, cfg)})
+    ta, tb = a["keyframes"], b["keyframes"]
+    assert ta.column("t_ns").equals(tb.column("t_ns")) and ta.column("reason").equals(
+        tb.column("reason")
+    )
+    np.testing.assert_allclose(ta["x_m"].to_numpy(), tb["x_m"].to_numpy(), atol=1e-9)
+    for fa, fb in zip(a["frames"], b["frames"], strict=True):
+        np.testing.assert_array_equal(fa.horizontal.image, fb.horizontal.image)
+        np.testing.assert_allclose(fa.vertical.angles_rad, fb.vertical.angles_rad, atol=1e-6)
+    raw_out = tmp_path / "raw.mcap"
+    convert_recording(shared_data / "oculus" / "one_ping_8bit.raw", raw_out)
+    src = open_source(raw_out)
+    assert {t.topic: t.count for t in src.topics()}["/sonar/horizontal"] == 1
+    [(_, _, msg)] = list(src.messages(["/sonar/horizontal"]))
+    assert len(msg.directions) == 256 and len(msg.ranges) == 703
