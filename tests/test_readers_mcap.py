@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import logging
+import struct
 from pathlib import Path
 from typing import Any
 
@@ -357,3 +358,33 @@ def test_polar_images_need_configured_topics_and_take_the_beam_table_from_config
         np.testing.assert_allclose(np.rad2deg(ping.angles_rad[[0, -1]]), [-30.0, 30.0], atol=1e-4)
         np.testing.assert_allclose(ping.ranges_m[[0, -1]], [0.125, 9.875], atol=1e-6)
         np.testing.assert_array_equal(ping.image, images[2][:, ::-1])  # column 0 = port = +30 deg
+
+
+def test_mcap_whose_statistics_disagree_with_its_index_is_read_sequentially(tmp_path: Path) -> None:
+    """A writer that lost index entries: counts are checked, the mismatch reported, and
+    every message is still read."""
+    path = tmp_path / "d.mcap"
+    write_synthetic(path, n_pings=6, labels=False)
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    cid = next(c for c, ch in summary.channels.items() if ch.topic == "/sonar/horizontal")
+    offset = next(
+        ci.message_index_offsets[cid]
+        for ci in summary.chunk_indexes
+        if cid in ci.message_index_offsets
+    )
+    data = bytearray(path.read_bytes())
+    (length,) = struct.unpack_from("<Q", data, offset + 1)
+    # Drop the last entry of one message index (records length 16 bytes shorter).
+    (records_length,) = struct.unpack_from("<I", data, offset + 9 + 2)
+    assert records_length == length - 6
+    data[offset + 9 + 2 : offset + 9 + 6] = struct.pack("<I", records_length - 16)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    src = open_source(bad)
+    assert any(
+        "statistics and message indexes disagree for /sonar/horizontal" in w for w in src.warnings
+    )
+    assert len(src.times("/sonar/horizontal")) == 6
+    assert len(list(src.messages(["/sonar/horizontal"]))) == 6

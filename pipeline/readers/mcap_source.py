@@ -59,7 +59,9 @@ def _index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, _Locatio
             for cid, offset in chunk.message_index_offsets.items():
                 f.seek(offset)
                 (length,) = struct.unpack_from("<Q", f.read(9), 1)
-                entries = np.frombuffer(f.read(length), dtype="<u8", offset=6).reshape(-1, 2)
+                body = f.read(length)
+                (n_bytes,) = struct.unpack_from("<I", body, 2)
+                entries = np.frombuffer(body, "<u8", n_bytes // 8, 6).reshape(-1, 2)
                 parts[cid].append((entries, k))
     out = {}
     for cid, items in parts.items():
@@ -78,6 +80,7 @@ class _McapFile:
         self.path = path
         self.summary = _summary(path)
         self.scan = ScanResult()
+        self.index_problem: str | None = None
         self.channels: dict[int, Channel] = {}
         self.schemas: dict[int, Schema] = {}
         self.times: dict[int, np.ndarray] = {}
@@ -91,7 +94,16 @@ class _McapFile:
             counts = (
                 self.summary.statistics.channel_message_counts if self.summary.statistics else {}
             )
-            if any(counts.get(c, 0) != len(self.times.get(c, ())) for c in self.channels):
+            bad = [
+                f"{ch.topic} ({counts.get(c, 0)} counted, {len(self.times.get(c, ()))} indexed)"
+                for c, ch in sorted(self.channels.items())
+                if counts and counts.get(c, 0) != len(self.times.get(c, ()))
+            ]
+            if bad:
+                self.index_problem = (
+                    f"{path}: the MCAP statistics and message indexes disagree for "
+                    f"{', '.join(bad)}; read sequentially instead"
+                )
                 self.summary = None
         if self.summary is None or not self.summary.chunk_indexes:
             self.summary = None
@@ -181,6 +193,9 @@ class McapSource:
         except OSError as err:
             raise SourceError(f"{path}: cannot read ({err})") from err
         for f in self._files:
+            if f.index_problem:
+                self.warnings.append(f.index_problem)
+                log.warning(f.index_problem)
             if f.summary is None and f.scan.unreadable_bytes:
                 msg = (
                     f"{f.path}: truncated or corrupt MCAP: {f.scan.unreadable_bytes} of "
