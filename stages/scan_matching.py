@@ -226,13 +226,20 @@ def icp_2d(
 
 
 def icp_covariance(
-    source: np.ndarray, target_tree: cKDTree, pose: np.ndarray, radius_m: float
+    source: np.ndarray,
+    target_tree: cKDTree,
+    pose: np.ndarray,
+    radius_m: float,
+    effective_samples: float | None = None,
 ) -> tuple[int, float, np.ndarray]:
     """Overlap, RMSE and Hessian covariance of a point-to-point alignment.
 
     For inlier pairs (distance < radius_m) the residual Jacobian with respect to a body-frame
     perturbation is ``R [I | (-p_y, p_x)]``; the covariance is ``sigma^2 (J^T J)^{-1}`` with
-    sigma^2 the mean squared inlier residual (at least (0.05 m)^2).
+    sigma^2 the mean squared inlier residual (at least (0.05 m)^2). Sonar residuals are
+    not independent (a piling seen from another side shifts all of its points together);
+    `effective_samples` (e.g. the number of objects) scales the covariance by
+    n / effective_samples, None treats every inlier as independent.
 
     Returns:
         (overlap count, rmse_m, (3, 3) covariance; infinite diagonal if under 3 inliers).
@@ -253,7 +260,8 @@ def icp_covariance(
     jac = rot @ local
     hessian = np.einsum("nij,nik->jk", jac, jac)
     sigma2 = max(rmse**2, 0.05**2)
-    return n, rmse, sigma2 * np.linalg.pinv(hessian)
+    scale = 1.0 if effective_samples is None else n / min(n, effective_samples)
+    return n, rmse, sigma2 * scale * np.linalg.pinv(hessian)
 
 
 def match_scans(
@@ -267,6 +275,7 @@ def match_scans(
     max_iterations: int = 40,
     max_search_points: int = 400,
     tie_fraction: float = 1.0,
+    effective_samples: float | None = None,
 ) -> MatchResult:
     """Global initialisation (consensus) then ICP, then overlap and covariance.
 
@@ -282,6 +291,7 @@ def match_scans(
         max_search_points: the global search scores an even subsample of at most this many
             source points (ICP uses all).
         tie_fraction: see `global_search`.
+        effective_samples: see `icp_covariance`.
     """
     scorer = OccupancyScorer(target, grid_resolution_m, radius_m)
     sample = source[:: max(1, -(-len(source) // max_search_points))]
@@ -289,5 +299,5 @@ def match_scans(
         sample, scorer, guess, half_window, tie_fraction=tie_fraction
     )
     pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
-    overlap, rmse, cov = icp_covariance(source, cKDTree(target), pose, radius_m)
+    overlap, rmse, cov = icp_covariance(source, cKDTree(target), pose, radius_m, effective_samples)
     return MatchResult(pose, initial, consensus, overlap, rmse, cov)

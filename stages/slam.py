@@ -82,6 +82,9 @@ class SlamConfig(StageConfig):
     grid_resolution_m: float = Field(0.25, gt=0, description="consensus grid cell")
     max_correspondence_m: float = Field(1.0, gt=0, description="ICP correspondence gate")
     search_max_points: int = Field(150, ge=10, description="source points scored in the search")
+    icp_effective_samples: float | None = Field(
+        4.0, gt=0, description="independent residuals assumed in the ICP covariance"
+    )
     search_tie_fraction: float = Field(
         0.9, gt=0, le=1, description="consensus within this of the best: nearest the guess wins"
     )
@@ -203,6 +206,7 @@ class _FrontEnd:
             c.icp_max_iterations,
             c.search_max_points,
             c.search_tie_fraction,
+            c.icp_effective_samples,
         )
 
     def _check(self, m: MatchResult, guess: np.ndarray, max_t: float, max_deg: float) -> str:

@@ -111,7 +111,7 @@ NOISY_NAVIGATION = {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}
 
 @pytest.fixture(scope="module")
 def pier_inputs() -> dict[str, object]:
-    return simulated_slam_inputs("pier", n_goals=6, seed=0, navigation=NOISY_NAVIGATION)
+    return simulated_slam_inputs("pier", n_goals=6, seed=1, navigation=NOISY_NAVIGATION)
 
 
 def _columns(table: pa.Table, names: list[str]) -> np.ndarray:
