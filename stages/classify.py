@@ -165,7 +165,9 @@ def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
     a = ping.angles_rad[None, ::step_b].astype(np.float64)
     fig = Figure(figsize=(8, 6), dpi=100)
     ax = fig.add_subplot()
-    ax.pcolormesh(-r * np.sin(a), r * np.cos(a), ping.image[::step_r, ::step_b], cmap="gray",
+    img = ping.image[::step_r, ::step_b]
+    vmin, vmax = float(np.percentile(img, 90)), max(float(img.max()), 1.0)
+    ax.pcolormesh(-r * np.sin(a), r * np.cos(a), img, cmap="gray", vmin=vmin, vmax=vmax,
                   shading="auto", rasterized=True)  # fmt: skip
     cmap = matplotlib.colormaps["tab10"]
     for row in objects.to_pylist():
