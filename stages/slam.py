@@ -193,7 +193,9 @@ class _FrontEnd:
             floor if self.cfg.covariance_floor == "replace" else cov * (det_floor / det) ** (1 / 3)
         )
 
-    def _match(self, source: np.ndarray, target: np.ndarray, guess: np.ndarray, half: np.ndarray):
+    def _match(
+        self, source: np.ndarray, target: np.ndarray, guess: np.ndarray, half: np.ndarray
+    ) -> MatchResult:
         c = self.cfg
         return match_scans(
             source,
