@@ -24,12 +24,13 @@ log = logging.getLogger(__name__)
 def _context(
     dataset: Path, config_path: Path | None, overrides: Sequence[str], store_dir: Path
 ) -> RunContext:
-    from pipeline.registry import all_stages, pipeline_stages
+    from pipeline.registry import all_stages, extra_sections, pipeline_stages
 
     return make_context(
         dataset,
         stages=pipeline_stages(),
         config_stages=all_stages(),
+        extra_sections=extra_sections(),
         config_path=config_path,
         overrides=overrides,
         store_dir=store_dir,

@@ -17,6 +17,7 @@ from pipeline.errors import PipelineError
 
 __all__ = ["app", "main"]
 
+
 class _ErrorMappingGroup(TyperGroup):
     """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1)."""
 

@@ -36,8 +36,11 @@ PipelineConfig = BaseModel
 
 
 @functools.cache
-def _model_for(stages: tuple[Stage, ...]) -> type[BaseModel]:
+def _model_for(
+    stages: tuple[Stage, ...], extras: tuple[tuple[str, type[BaseModel]], ...] = ()
+) -> type[BaseModel]:
     fields: dict[str, Any] = {s.name: (s.config, s.config()) for s in stages}
+    fields.update({name: (model, model()) for name, model in extras})
     return create_model(  # type: ignore[call-overload, no-any-return]
         "PipelineConfig",
         __config__=ConfigDict(frozen=True, extra="forbid"),
@@ -45,9 +48,15 @@ def _model_for(stages: tuple[Stage, ...]) -> type[BaseModel]:
     )
 
 
-def config_model_for(stages: Sequence[Stage]) -> type[BaseModel]:
-    """The frozen pydantic model with one section per stage (cached per stage tuple)."""
-    return _model_for(tuple(stages))
+def config_model_for(
+    stages: Sequence[Stage], extra_sections: Mapping[str, type[BaseModel]] | None = None
+) -> type[BaseModel]:
+    """The frozen pydantic model with one section per stage (cached per stage tuple).
+
+    `extra_sections` are engine-level sections that are not stages (e.g. `training`,
+    the datasets the default classifier learns from).
+    """
+    return _model_for(tuple(stages), tuple(sorted((extra_sections or {}).items())))
 
 
 def section_dict(config: BaseModel, stage: str) -> dict[str, Any]:
@@ -143,7 +152,10 @@ def _validation_message(err: ValidationError, where: str) -> str:
 
 
 def load_config(
-    stages: Sequence[Stage], path: Path | None = None, overrides: Sequence[str] = ()
+    stages: Sequence[Stage],
+    path: Path | None = None,
+    overrides: Sequence[str] = (),
+    extra_sections: Mapping[str, type[BaseModel]] | None = None,
 ) -> BaseModel:
     """Read the YAML file (optional), apply `--set` overrides, validate.
 
@@ -151,7 +163,7 @@ def load_config(
         ConfigError: unreadable file, unknown section/key (with the closest valid
             name), or a value of the wrong type; the message names file and key.
     """
-    model = config_model_for(stages)
+    model = config_model_for(stages, extra_sections)
     where = str(path) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:

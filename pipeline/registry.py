@@ -84,6 +84,15 @@ def all_stages() -> tuple[Stage, ...]:
     return (*pipeline_stages(), training_stage())
 
 
+def extra_sections() -> dict[str, Any]:
+    """Config sections of the engine that are not stages (none for alternative graphs)."""
+    if alternative_graph() is not None:
+        return {}
+    from pipeline.training import TrainingDataConfig
+
+    return {"training": TrainingDataConfig}
+
+
 def stage_by_name(name: str) -> Stage:
     for stage in all_stages():
         if stage.name == name:

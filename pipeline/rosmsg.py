@@ -70,9 +70,7 @@ class Ros2McapWriter:
     """
 
     def __init__(self, stream: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024) -> None:
-        self._writer = McapWriter(
-            stream, chunk_size=chunk_size, compression=CompressionType.ZSTD
-        )
+        self._writer = McapWriter(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library="sonarmap")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -80,12 +80,13 @@ def make_context(
     config_stages: Sequence[Stage] | None = None,
     config_path: Path | None = None,
     overrides: Sequence[str] = (),
+    extra_sections: Mapping[str, type[BaseModel]] | None = None,
     store_dir: Path = DEFAULT_STORE,
     parts: Callable[[Path], list[Path]] | None = None,
     opener: Callable[[Any], Any] | None = None,
 ) -> RunContext:
     """Validate config first (cheap), then fingerprint the dataset."""
-    config = load_config(config_stages or stages, config_path, overrides)
+    config = load_config(config_stages or stages, config_path, overrides, extra_sections)
     store = ArtifactStore(store_dir)
     spec = dataset_spec(dataset, store, parts=parts, opener=opener)
     return RunContext(tuple(stages), config, store, spec)

@@ -14,22 +14,51 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict, Field
 
 from pipeline.runner import execute, plan
 from pipeline.session import dataset_spec
 from pipeline.store import ArtifactRef, ArtifactStore
 from stages.base import Stage
 
-__all__ = ["DEFAULT_TRAINING_SETS", "resolve_model", "train_on", "training_stage_for"]
+__all__ = [
+    "DEFAULT_TRAINING_SETS",
+    "TrainingDataConfig",
+    "TrainingSet",
+    "resolve_model",
+    "train_on",
+    "training_stage_for",
+]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_TRAINING_SETS: tuple[tuple[str, int, int], ...] = (("harbour", 100, 12), ("pier", 101, 6))
-"""(scene, seed, goals) of the simulated missions the default model learns from. The
-default marina is mapped, never trained on; seeds are far from the study's 0..N-1."""
 
-TRAINING_DIR = Path("data/training")
+class TrainingSet(BaseModel):
+    """One simulated mission the default classifier learns from."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    scene: str
+    seed: int = Field(ge=0)
+    goals: int = Field(ge=1)
+    duration_s: float | None = Field(None, gt=0)
+
+
+class TrainingDataConfig(BaseModel):
+    """Config section `training`: which labelled datasets the default model is trained on.
+
+    The mapped scene should not be among them (the default marina never is). Seeds are
+    far from the study's 0..N-1. Simulated files go to `directory` and are reused.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    sets: tuple[TrainingSet, ...] = (
+        TrainingSet(scene="harbour", seed=100, goals=12),
+        TrainingSet(scene="pier", seed=101, goals=6),
+    )
+    directory: str = "data/training"
+
+
+DEFAULT_TRAINING_SETS = TrainingDataConfig().sets
 
 
 def training_stage_for(n_datasets: int) -> Stage:
@@ -82,11 +111,17 @@ def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, Artif
     """The default model for `classify`: simulate the training scenes if needed, train if needed."""
     from pipeline.datasets import ensure_simulation, scene_path
 
-    paths = [
-        ensure_simulation(
-            scene_path(scene), seed, TRAINING_DIR / f"{scene}-seed{seed}.mcap", goals=goals
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    paths = []
+    for item in training.sets:
+        scene = scene_path(item.scene)
+        suffix = f"-{item.duration_s:g}s" if item.duration_s else ""
+        out = (
+            Path(training.directory)
+            / f"{scene.stem}-seed{item.seed}-goals{item.goals}{suffix}.mcap"
         )
-        for scene, seed, goals in DEFAULT_TRAINING_SETS
-    ]
+        paths.append(
+            ensure_simulation(scene, item.seed, out, goals=item.goals, duration_s=item.duration_s)
+        )
     ref = train_on(paths, config, store)
     return training_stage_for(len(paths)), ref

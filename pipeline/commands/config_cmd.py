@@ -25,9 +25,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Print the effective config (defaults, then the file, then --set)."""
         from pipeline.config import dump_yaml, load_config
-        from pipeline.registry import all_stages
+        from pipeline.registry import all_stages, extra_sections
 
-        cfg = load_config(all_stages(), config, set_ or ())
+        cfg = load_config(all_stages(), config, set_ or (), extra_sections())
         if json_:
             emit_json(cfg.model_dump(mode="json"))
         else:
@@ -37,7 +37,7 @@ def register(app: typer.Typer) -> None:
     def check(file: Path = typer.Argument(..., help="Config YAML to validate.")) -> None:
         """Validate a config file; exit 2 with the offending key on error."""
         from pipeline.config import load_config
-        from pipeline.registry import all_stages
+        from pipeline.registry import all_stages, extra_sections
 
-        load_config(all_stages(), file)
+        load_config(all_stages(), file, (), extra_sections())
         typer.echo(f"{file}: ok")
