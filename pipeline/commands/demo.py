@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, SET_OPT, STORE_OPT, emit_json
+from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
 
 __all__ = ["register"]
 
@@ -25,6 +25,7 @@ def register(app: typer.Typer) -> None:
         duration_s: float | None = typer.Option(
             None, "--duration-s", help="Cut the mission short."
         ),
+        config: Path | None = CONFIG_OPT,
         set_: list[str] | None = SET_OPT,
         store: Path = STORE_OPT,
         json_: bool = JSON_OPT,
@@ -45,6 +46,7 @@ def register(app: typer.Typer) -> None:
         with StageProgress(enabled=True) as progress:
             result, summary = run_dataset(
                 dataset,
+                config_path=config,
                 overrides=set_ or (),
                 store_dir=store,
                 on_start=progress.on_start,

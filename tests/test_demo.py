@@ -1,0 +1,71 @@
+"""The demo path end to end on a small scene: simulate, train, every stage, report, cache."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+
+CONFIG = """
+training:
+  sets:
+    - {scene: pier, seed: 7, goals: 3, duration_s: 70}
+  directory: {training_dir}
+train:
+  epochs: 8
+classify:
+  mc_passes: 8
+"""
+
+
+def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
+    config = tmp_path / "demo.yaml"
+    config.write_text(CONFIG.replace("{training_dir}", str(tmp_path / "training")))
+    args = [
+        "demo", "--scene", "tiny", "--seed", "2", "--duration-s", "45",
+        "--out", str(tmp_path / "demo"), "--store", str(tmp_path / "store"),
+        "--config", str(config), "--json",
+    ]  # fmt: skip
+    runner = CliRunner()
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0, first.output
+    doc = json.loads(first.stdout)
+    stages = [s["stage"] for s in doc["stages"]]
+    assert stages == [
+        "keyframes",
+        "features",
+        "fuse",
+        "classify",
+        "slam",
+        "infer",
+        "voxelize",
+        "evaluate",
+    ]
+    summary = doc["summary"]
+    # The counts in summary.json match an independent count from map.parquet.
+    voxelize = next(s for s in doc["stages"] if s["stage"] == "voxelize")
+    world = pq.read_table(Path(voxelize["path"]) / "map.parquet")
+    xyz = np.stack([world.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")], axis=1)
+    fused = np.array(world.column("source").to_pylist()) == "fused"
+    for name, rows in (("standard", xyz[fused]), ("semantic", xyz)):
+        cells = {tuple(v) for v in np.floor(rows / 0.1).astype(np.int64)}
+        assert summary["voxels"][name] == len(cells)
+    assert summary["voxels"]["standard"] > 0
+    metrics = summary["metrics"]
+    assert metrics["errors"]["standard"]["n"] > 0
+    assert metrics["errors"]["standard"]["median_m"] < 0.3
+    report = Path(summary["report"])
+    assert report.is_file() and report.stat().st_size > 200
+    assert any(p.suffix == ".png" and p.stat().st_size > 1000 for p in report.parent.iterdir())
+    # Everything cached: nothing is computed the second time.
+    t0 = time.perf_counter()
+    second = runner.invoke(app, args)
+    assert second.exit_code == 0, second.output
+    assert {s["status"] for s in json.loads(second.stdout)["stages"]} == {"hit"}
+    assert time.perf_counter() - t0 < 30
