@@ -1,12 +1,13 @@
 """`sonarmap train D1.mcap D2.mcap ...`: train the object classifier on labelled datasets.
 
 Each dataset runs through the cached graph up to `features` (keyframes with label
-images, CFAR features); the classifier is then fitted by `stages.train.train_classifier`
-and `model.pt`, `metrics.json` and `confusion.png` are written to --out.
+images, CFAR features), then the cached `train` stage (`pipeline.training.train_on`);
+`model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 """
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -40,54 +41,33 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
-        import json
+        import shutil
 
-        from pipeline.api import run_dataset
-        from pipeline.codecs import read_output
-        from pipeline.config import section_dict
+        from pipeline.api import plan_dataset
         from pipeline.errors import SourceError
-        from pipeline.registry import stage_by_name
-        from stages.train import TrainConfig, train_classifier
+        from pipeline.training import train_on
 
         t0 = time.perf_counter()
-        inputs = []
-        train_cfg: TrainConfig | None = None
         for path in datasets:
             if not path.exists():
                 raise SourceError(f"{path}: no such dataset")
-            result, _ = run_dataset(
-                path, config_path=config, overrides=set_ or (), store_dir=store, until="features"
-            )
-            if train_cfg is None:
-                from pipeline.api import plan_dataset
-
-                ctx, _, _ = plan_dataset(
-                    path, config_path=config, overrides=set_ or (), store_dir=store,
-                    until="features", with_external=False,
-                )  # fmt: skip
-                train_cfg = TrainConfig(**section_dict(ctx.config, "train"))
-            kf_stage, ft_stage = stage_by_name("keyframes"), stage_by_name("features")
-            frames = read_output(
-                result.artifacts["keyframes"].path,
-                next(o for o in kf_stage.outputs if o.name == "frames"),
-            )
-            features = read_output(
-                result.artifacts["features"].path,
-                next(o for o in ft_stage.outputs if o.name == "features"),
-            )
-            inputs.append((frames, features))
-        assert train_cfg is not None
+        ctx, _, _ = plan_dataset(
+            datasets[0], config_path=config, overrides=set_ or (), store_dir=store,
+            until="features", with_external=False,
+        )  # fmt: skip
         try:
-            trained = train_classifier(inputs, train_cfg)
+            ref = train_on(datasets, ctx.config, ctx.store)
         except ValueError as err:
             raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
         out.mkdir(parents=True, exist_ok=True)
-        (out / "model.pt").write_bytes(trained["model"])
-        (out / "metrics.json").write_text(json.dumps(trained["metrics"], indent=2, sort_keys=True))
-        (out / "confusion.png").write_bytes(trained["confusion"])
+        for name in ("model.pt", "metrics.json", "confusion.png"):
+            shutil.copyfile(ref.path / name, out / name)
+        metrics = json.loads((ref.path / "metrics.json").read_text())
+        trained = {"metrics": metrics}
         doc = {
             "datasets": [str(p) for p in datasets],
             "out": str(out),
+            "artifact": str(ref.path),
             "seconds": round(time.perf_counter() - t0, 3),
             "metrics": trained["metrics"],
         }
