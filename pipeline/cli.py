@@ -21,9 +21,9 @@ __all__ = ["app", "main"]
 class _ErrorMappingGroup(TyperGroup):
     """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1)."""
 
-    def invoke(self, ctx: click.Context) -> object:
+    def invoke(self, ctx: click.Context) -> object:  # type: ignore[override]
         try:
-            return super().invoke(ctx)
+            return super().invoke(ctx)  # type: ignore[arg-type]
         except PipelineError as err:
             typer.echo(f"error: {err}", err=True)
             raise typer.Exit(err.exit_code) from err

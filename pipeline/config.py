@@ -41,7 +41,7 @@ def _model_for(
 ) -> type[BaseModel]:
     fields: dict[str, Any] = {s.name: (s.config, s.config()) for s in stages}
     fields.update({name: (model, model()) for name, model in extras})
-    return create_model(  # type: ignore[call-overload, no-any-return]
+    return create_model(
         "PipelineConfig",
         __config__=ConfigDict(frozen=True, extra="forbid"),
         **fields,

@@ -25,7 +25,7 @@ def custom_msg_texts() -> dict[str, str]:
     """The .msg texts shipped in `schemas/msg`, keyed by type name ("pkg/msg/Type")."""
     root = resources.files("schemas") / "msg"
     texts: dict[str, str] = {}
-    for pkg in sorted(p for p in root.iterdir() if p.is_dir()):
+    for pkg in sorted((p for p in root.iterdir() if p.is_dir()), key=lambda p: p.name):
         for msg in sorted((pkg / "msg").iterdir(), key=lambda p: p.name):
             if msg.name.endswith(".msg"):
                 texts[f"{pkg.name}/msg/{msg.name[:-4]}"] = msg.read_text()

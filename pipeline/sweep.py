@@ -202,7 +202,7 @@ def _flat(summary: dict[str, Any]) -> dict[str, float | int | None]:
         "slam_ate_m": trajectory.get("slam_ate_m"),
     }
     if row["voxels_standard"] and row["voxels_semantic"] is not None:
-        row["ratio"] = float(row["voxels_semantic"]) / float(row["voxels_standard"])  # type: ignore[arg-type]
+        row["ratio"] = float(row["voxels_semantic"]) / float(row["voxels_standard"])
     return row
 
 
@@ -213,7 +213,7 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
     import numpy as np
     import pyarrow as pa
 
-    rows = []
+    rows: list[dict[str, Any]] = []
     for o in outcomes:
         rows.append(
             {

@@ -52,8 +52,8 @@ class TrainingDataConfig(BaseModel):
 
     model_config = ConfigDict(frozen=True, extra="forbid")
     sets: tuple[TrainingSet, ...] = (
-        TrainingSet(scene="harbour", seed=100, goals=12),
-        TrainingSet(scene="pier", seed=101, goals=6),
+        TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
+        TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
     )
     directory: str = "data/training"
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -17,7 +18,7 @@ def register(app: typer.Typer) -> None:
         """List the artifacts in the store."""
         from pipeline.store import ArtifactStore
 
-        rows = [
+        rows: list[dict[str, Any]] = [
             {
                 "stage": r.stage,
                 "key": r.key,
