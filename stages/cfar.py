@@ -32,8 +32,11 @@ from functools import lru_cache
 from typing import Literal
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.special import gammaln
+
+from stages._lazy import lazy
+
+optimize = lazy("scipy.optimize")
+special = lazy("scipy.special")
 
 __all__ = ["CfarMethod", "cfar_detect", "cfar_noise", "threshold_factor"]
 
@@ -44,7 +47,12 @@ def _soca_core(tau: float, half: int) -> float:
     """SOCA sum of the Pfa formula (N/2 = half cells per side)."""
     k = np.arange(half, dtype=np.float64)
     base = 2.0 + tau / half
-    log_terms = gammaln(half + k) - gammaln(k + 1) - gammaln(half) - (half + k) * np.log(base)
+    log_terms = (
+        special.gammaln(half + k)
+        - special.gammaln(k + 1)
+        - special.gammaln(half)
+        - (half + k) * np.log(base)
+    )
     return float(np.exp(log_terms).sum())
 
 
@@ -92,7 +100,9 @@ def threshold_factor(method: CfarMethod, n_train: int, pfa: float, rank: int = 0
             raise ValueError(f"{method} CFAR cannot reach pfa={pfa} with {n_train} cells")
     if _pfa(method, lo, n_train, rank) < pfa:
         raise ValueError(f"{method} CFAR cannot reach pfa={pfa} with {n_train} cells")
-    return float(brentq(lambda t: _pfa(method, t, n_train, rank) - pfa, lo, hi, xtol=1e-10))
+    return float(
+        optimize.brentq(lambda t: _pfa(method, t, n_train, rank) - pfa, lo, hi, xtol=1e-10)
+    )
 
 
 def _window_sums(image: np.ndarray, train_hs: int, guard_hs: int) -> tuple[np.ndarray, np.ndarray]:

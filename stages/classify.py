@@ -16,7 +16,7 @@ from __future__ import annotations
 import io
 import logging
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
@@ -25,9 +25,14 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
+from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
-from stages.cnn import PatchCNN, mc_predict, model_from_bytes
 from stages.objects import KeyframeObjects, extract_objects, horizontal_features
+
+if TYPE_CHECKING:
+    from stages.cnn import PatchCNN
+
+cnn = lazy("stages.cnn")
 
 __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "overlay_png"]
 
@@ -117,7 +122,7 @@ def classify_keyframes(
             size_px=int(model_config["size_px"]),
         )  # fmt: skip
         seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
-        mean, var = mc_predict(model, objs.patches, cfg.mc_passes, seed)
+        mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)
         cols = _object_rows(frame, objs, mean, var, class_ids, class_names, next_id, cfg.threshold)
         table = pa.Table.from_pydict(cols, schema=OBJECTS_SCHEMA)
         obj_parts.append(table)
@@ -193,7 +198,7 @@ def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     model_bytes = inputs["train.model"]
     if not isinstance(model_bytes, bytes | bytearray):
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
-    model, names, mcfg = model_from_bytes(bytes(model_bytes))
+    model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
     objects, links, busiest = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, mcfg, config
     )

@@ -47,11 +47,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 from pydantic import Field
-from scipy.optimize import linear_sum_assignment
 
 from schemas.fused import FUSED_SCHEMA
 from schemas.sonar import KeyframeImages
+from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
+
+optimize = lazy("scipy.optimize")
 
 __all__ = [
     "STAGE",
@@ -170,7 +172,7 @@ def assign_subproblems(
     n_v = np.searchsorted(bin_v, bins[starts], "right") - np.searchsorted(bin_v, bins[starts])
     chosen = []
     for s, e, nv in zip(starts.tolist(), ends.tolist(), n_v.tolist(), strict=True):
-        r, c = linear_sum_assignment(cost[s:e].reshape(-1, nv))
+        r, c = optimize.linear_sum_assignment(cost[s:e].reshape(-1, nv))
         chosen.append(s + r * nv + c)
     sel = np.concatenate(chosen)
     conf = _confidence(i, j, cost, sel, len(bin_h), len(bin_v))

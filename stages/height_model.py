@@ -35,7 +35,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import logsumexp
+
+from stages._lazy import lazy
+
+special = lazy("scipy.special")
 
 __all__ = ["HeightModel", "HeightQuery", "z_grid"]
 
@@ -158,7 +161,7 @@ class HeightModel:
         # Bayes' rule: posterior = likelihood x prior, normalised (log space).
         rows = self._find_or_insert(keys)
         post = self._log_post[rows] + cell_log_lik
-        self._log_post[rows] = post - logsumexp(post, axis=1, keepdims=True)
+        self._log_post[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
         self.n_updates += 1
         return int(keys.size)
 

@@ -19,10 +19,12 @@
 from __future__ import annotations
 
 import numpy as np
-import open3d as o3d
-from scipy.spatial import cKDTree
 
+from stages._lazy import lazy
 from stages.ply import Mesh
+
+o3d = lazy("open3d")
+spatial = lazy("scipy.spatial")
 
 __all__ = [
     "ate_se2",
@@ -167,7 +169,9 @@ def nearest_distance(query_m: np.ndarray, cloud_m: np.ndarray, upper_m: float) -
     q = np.asarray(query_m, dtype=np.float64).reshape(-1, 3)
     if len(cloud_m) == 0 or len(q) == 0:
         return np.full(len(q), np.inf)
-    d, _ = cKDTree(np.asarray(cloud_m, dtype=np.float64)).query(q, distance_upper_bound=upper_m)
+    d, _ = spatial.cKDTree(np.asarray(cloud_m, dtype=np.float64)).query(
+        q, distance_upper_bound=upper_m
+    )
     return np.asarray(d, dtype=np.float64)
 
 

@@ -29,7 +29,10 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-import open3d as o3d
+
+from stages._lazy import lazy
+
+o3d = lazy("open3d")
 
 __all__ = [
     "ClassFrame",

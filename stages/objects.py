@@ -20,10 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from scipy.ndimage import map_coordinates
-from sklearn.cluster import DBSCAN
 
 from schemas.sonar import SonarPing
+from stages._lazy import lazy
+
+ndimage = lazy("scipy.ndimage")
+sk_cluster = lazy("sklearn.cluster")
 
 __all__ = [
     "PATCH_SIZE_PX",
@@ -75,7 +77,7 @@ def cluster_features(
     n = len(xy_m)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    raw = DBSCAN(eps=eps_m, min_samples=min_samples).fit_predict(xy_m)
+    raw = sk_cluster.DBSCAN(eps=eps_m, min_samples=min_samples).fit_predict(xy_m)
     out = np.full(n, -1, dtype=np.int64)
     valid = raw >= 0
     if not valid.any():
@@ -214,7 +216,7 @@ def crop_patches(
     n_r, n_b = len(ranges_m), len(angles_rad)
     row = np.interp(r, ranges_m, np.arange(n_r), left=-2.0, right=n_r + 1.0)
     col = np.interp(a, angles_rad, np.arange(n_b), left=-2.0, right=n_b + 1.0)
-    vals = map_coordinates(
+    vals = ndimage.map_coordinates(
         image.astype(np.float32), [row.ravel(), col.ravel()], order=1, mode="constant", cval=0.0
     ).reshape(k, size_px, size_px)
     vals *= inside

@@ -11,8 +11,11 @@ covariances are in the body frame with tangent order (x, y, theta) (right pertur
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
+
+from stages._lazy import lazy
+
+gtsam = lazy("gtsam")
 
 __all__ = [
     "PlanarPoseGraph",

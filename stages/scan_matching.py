@@ -18,14 +18,20 @@ source-frame points into the target frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-from kiss_icp.mapping import VoxelHashMap
-from kiss_icp.registration import Registration
-from scipy.ndimage import distance_transform_edt
-from scipy.spatial import cKDTree
 
+from stages._lazy import lazy
 from stages.pose_graph import wrap_angle
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
+
+kiss_mapping = lazy("kiss_icp.mapping")
+kiss_registration = lazy("kiss_icp.registration")
+ndimage = lazy("scipy.ndimage")
+spatial = lazy("scipy.spatial")
 
 __all__ = [
     "MatchResult",
@@ -88,7 +94,7 @@ class OccupancyScorer:
         cells = np.floor((target - self.origin) / resolution_m).astype(int)
         empty = np.ones(shape, dtype=bool)
         empty[cells[:, 0], cells[:, 1]] = False
-        self.grid = distance_transform_edt(empty) * resolution_m <= radius_m
+        self.grid = ndimage.distance_transform_edt(empty) * resolution_m <= radius_m
         self.grid[[0, -1], :] = False
         self.grid[:, [0, -1]] = False
         self._flat = self.grid.ravel()
@@ -212,9 +218,11 @@ def icp_2d(
     Returns:
         (3,) pose of the source in the target frame (projection of kiss-icp's 4x4 to SE(2)).
     """
-    voxel_map = VoxelHashMap(voxel_size=voxel_m, max_distance=1e6, max_points_per_voxel=20)
+    voxel_map = kiss_mapping.VoxelHashMap(
+        voxel_size=voxel_m, max_distance=1e6, max_points_per_voxel=20
+    )
     voxel_map.add_points(_pad(target))
-    registration = Registration(max_iterations, 1e-4, max_num_threads=1)
+    registration = kiss_registration.Registration(max_iterations, 1e-4, max_num_threads=1)
     T = registration.align_points_to_map(
         points=_pad(source),
         voxel_map=voxel_map,
@@ -299,5 +307,7 @@ def match_scans(
         sample, scorer, guess, half_window, tie_fraction=tie_fraction
     )
     pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
-    overlap, rmse, cov = icp_covariance(source, cKDTree(target), pose, radius_m, effective_samples)
+    overlap, rmse, cov = icp_covariance(
+        source, spatial.cKDTree(target), pose, radius_m, effective_samples
+    )
     return MatchResult(pose, initial, consensus, overlap, rmse, cov)

@@ -19,19 +19,24 @@ import io
 import logging
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pyarrow as pa
-import torch
 from pydantic import Field
-from torch.nn import functional as F
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import KeyframeImages
+from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
-from stages.cnn import PatchCNN, mc_predict, model_to_bytes
 from stages.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+
+if TYPE_CHECKING:
+    from stages.cnn import PatchCNN
+
+torch = lazy("torch")
+F = lazy("torch.nn.functional")
+cnn = lazy("stages.cnn")
 
 __all__ = [
     "STAGE",
@@ -224,7 +229,7 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
     """
     torch.manual_seed(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
-    model = PatchCNN(
+    model = cnn.PatchCNN(
         n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX, cfg.spatial_dropout
     )
     opt = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate, eps=1e-7)
@@ -265,7 +270,7 @@ def evaluate(
         with an empty denominator is None. "accepted" = mean probability > threshold.
     """
     k = len(class_names)
-    mean, _ = mc_predict(model, patches, cfg.mc_passes, cfg.seed)
+    mean, _ = cnn.mc_predict(model, patches, cfg.mc_passes, cfg.seed)
     pred = mean.argmax(axis=1) if len(mean) else np.zeros(0, np.int64)
     acc = mean.max(axis=1) > cfg.threshold if len(mean) else np.zeros(0, bool)
     cm = np.bincount(target * k + pred, minlength=k * k).reshape(k, k)
@@ -367,7 +372,7 @@ def train_classifier(
         "class_ids": [CLASS_IDS[n] for n in names],
     }  # fmt: skip
     return {
-        "model": model_to_bytes(model, names, model_cfg),
+        "model": cnn.model_to_bytes(model, names, model_cfg),
         "metrics": metrics,
         "confusion": confusion_png(metrics["confusion"], names),
     }

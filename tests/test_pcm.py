@@ -113,3 +113,11 @@ def test_pcm_on_intel_rejects_injected_false_loops() -> None:
     kept, rejected = accepted[truth].mean(), 1.0 - accepted[~truth].mean()
     assert rejected >= 0.95, rejected
     assert kept >= 0.90, kept
+
+
+def test_chi2_constant_matches_scipy() -> None:
+    from scipy.stats import chi2
+
+    from stages.pcm import CHI2_99_3DOF
+
+    assert CHI2_99_3DOF == pytest.approx(chi2.ppf(0.99, 3), rel=1e-12)
