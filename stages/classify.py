@@ -195,6 +195,11 @@ def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
 
 
 def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    with cnn.fixed_threads(1):
+        return _classify(config, inputs)
+
+
+def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     model_bytes = inputs["train.model"]
     if not isinstance(model_bytes, bytes | bytearray):
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
@@ -208,7 +213,7 @@ def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="classify",
-    version=1,
+    version=2,
     config=ClassifyConfig,
     inputs=("keyframes.frames", "features.features", "train.model"),
     outputs=(

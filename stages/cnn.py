@@ -22,9 +22,10 @@ vs ~6 ms for 10 objects x 20 passes on one core). Masks come from an explicit
 
 from __future__ import annotations
 
+import contextlib
 import io
 import pickle
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -103,6 +104,23 @@ class PatchCNN(nn.Module):
         h = _dropout(h, self.dropout_p, generator, self.spatial_dropout)
         h = _dropout(F.relu(self.fc1(h.flatten(1))), self.dropout_p, generator)
         return self.fc2(h)
+
+
+@contextlib.contextmanager
+def fixed_threads(n: int) -> Iterator[None]:
+    """Run torch with exactly `n` CPU threads, then restore the previous count.
+
+    Floating-point reductions in torch depend on the thread count, and MC-dropout
+    means sit right at the acceptance threshold: without this a Ray worker (one
+    thread) and a local run (all cores) accepted different objects from the same
+    inputs. A fixed count keeps classify and train byte-deterministic on any machine.
+    """
+    previous = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def mc_predict(

@@ -344,6 +344,13 @@ def train_classifier(
     Raises:
         ValueError: fewer than two classes with `min_class_samples` training samples.
     """
+    with cnn.fixed_threads(2):
+        return _train_classifier(datasets, cfg)
+
+
+def _train_classifier(
+    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
+) -> dict[str, Any]:
     samples = collect_samples(datasets, cfg)
     train, val = split_train_val(samples, cfg)
     ids = _learned_classes(samples.class_id[train], cfg.min_class_samples)
@@ -384,7 +391,7 @@ def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="train",
-    version=1,
+    version=2,
     config=TrainConfig,
     inputs=("keyframes.frames", "features.features"),
     outputs=(
