@@ -25,41 +25,43 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class ReaderOptions:
-    """What the readers take from the keyframes config (same field names).
+    """What the readers take from the keyframes config (same field names; defaults are
+    `stages.keyframes.KeyframesConfig`'s).
 
     Defaults: topics found by type; polar-image beam table 130 deg over 30 m (the
     paper's Oculus settings); the authors' DVL gate 0.5 m/s; the project's default
     sonar mountings (DESIGN conventions) when the recording has no /tf_static.
     """
 
-    horizontal_topic: str | None = None
-    vertical_topic: str | None = None
-    navigation_topic: str | None = None
-    ground_truth_topic: str | None = None
-    dvl_topic: str | None = None
-    imu_topic: str | None = None
-    depth_topic: str | None = None
-    dvl_max_velocity_mps: float = 0.5
-    image_fov_deg: float = 130.0
-    image_max_range_m: float = 30.0
-    horizontal_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
-    horizontal_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    vertical_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.1)
-    vertical_mount_rpy_deg: tuple[float, float, float] = (90.0, 0.0, 0.0)
+    horizontal_topic: str | None
+    vertical_topic: str | None
+    navigation_topic: str | None
+    ground_truth_topic: str | None
+    dvl_topic: str | None
+    imu_topic: str | None
+    depth_topic: str | None
+    dvl_max_velocity_mps: float
+    image_fov_deg: float
+    image_max_range_m: float
+    horizontal_mount_xyz_m: tuple[float, float, float]
+    horizontal_mount_rpy_deg: tuple[float, float, float]
+    vertical_mount_xyz_m: tuple[float, float, float]
+    vertical_mount_rpy_deg: tuple[float, float, float]
 
     @classmethod
     def from_config(cls, config: Any) -> ReaderOptions:
         """Pick the fields of the same name from a config object or mapping (others ignored)."""
-        if config is None:
-            return cls()
+        from stages.keyframes import KeyframesConfig
+
         if isinstance(config, ReaderOptions):
             return config
-        get = config.get if isinstance(config, dict) else lambda k, d: getattr(config, k, d)
-        values: dict[str, Any] = {f.name: get(f.name, None) for f in fields(cls)}
-        kwargs: dict[str, Any] = {
-            k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items() if v is not None
+        defaults = KeyframesConfig()  # the defaults live once, in the stage's config model
+        source = {} if config is None else config
+        get = source.get if isinstance(source, dict) else lambda k, d: getattr(source, k, d)
+        values: dict[str, Any] = {
+            f.name: get(f.name, getattr(defaults, f.name)) for f in fields(cls)
         }
-        return cls(**kwargs)
+        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items()})
 
 
 def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
