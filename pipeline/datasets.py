@@ -34,7 +34,7 @@ def scene_path(name_or_path: str | Path) -> Path:
 
 
 def _recipe(scene: Path, seed: int, goals: int | None, duration_s: float | None) -> dict[str, Any]:
-    from sim.dataset import SIM_VERSION as sim_version
+    from sim.version import SIM_VERSION as sim_version
 
     return {
         "scene_sha256": hashlib.sha256(scene.read_bytes()).hexdigest(),
@@ -55,12 +55,6 @@ def ensure_simulation(
     progress: Callable[[int, int], None] | None = None,
 ) -> Path:
     """Simulate `scene` with `seed` into `out` unless an identical one is already there."""
-    from pipeline.errors import SourceError
-    from pipeline.simulate import write_simulation
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import SceneError, load_scene
-
     recipe = _recipe(scene, seed, goals, duration_s)
     sidecar = out.with_suffix(".recipe.json")
     if out.is_file() and sidecar.is_file():
@@ -69,6 +63,13 @@ def ensure_simulation(
                 return out
         except ValueError:
             pass
+    # Only a miss pays for the simulator's imports (open3d).
+    from pipeline.errors import SourceError
+    from pipeline.simulate import write_simulation
+    from sim.config import SimConfig
+    from sim.dataset import simulate
+    from sim.scene import SceneError, load_scene
+
     try:
         scene_obj = load_scene(scene)
     except SceneError as err:

@@ -13,12 +13,11 @@ from sim.geometry import pose_to_matrix
 from sim.mission import Trajectory, dead_reckoning, plan_mission
 from sim.scene import Scene
 from sim.sonar import SonarModel
+from sim.version import SIM_VERSION
 from sim.world import World
 
 __all__ = ["SIM_VERSION", "SimFrame", "SimRun", "simulate"]
 
-SIM_VERSION = "1.0.0"
-"""Bumped whenever the same (scene, config, seed) would give different data."""
 
 _MISSION_STREAM = 1
 _NAV_STREAM = 2
