@@ -61,7 +61,10 @@ class ReaderOptions:
         values: dict[str, Any] = {
             f.name: get(f.name, getattr(defaults, f.name)) for f in fields(cls)
         }
-        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items()})
+        kwargs: dict[str, Any] = {
+            k: (tuple(v) if isinstance(v, list) else v) for k, v in values.items()
+        }
+        return cls(**kwargs)
 
 
 def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
