@@ -62,6 +62,7 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
     assert metrics["errors"]["standard"]["median_m"] < 0.3
     report = Path(summary["report"])
     assert report.is_file() and report.stat().st_size > 200
+    assert "## Stages" in report.read_text() and "| evaluate |" in report.read_text()
     assert any(p.suffix == ".png" and p.stat().st_size > 1000 for p in report.parent.iterdir())
     # Everything cached: nothing is computed the second time.
     t0 = time.perf_counter()

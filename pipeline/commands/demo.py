@@ -3,12 +3,32 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
 from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
 
 __all__ = ["register"]
+
+
+def _stage_section(result: Any) -> str:
+    """Markdown of the run's stages: key, status now, and the compute time of the artifact.
+
+    The evaluate stage cannot see this (its key must not depend on timings), so the
+    demo appends it to its copy of the report.
+    """
+    lines = [
+        "",
+        "## Stages",
+        "",
+        "| stage | key | this run | compute time s |",
+        "|---|---|---|---:|",
+    ]
+    for r in result.stages:
+        built = result.artifacts[r.stage].manifest.get("build_seconds")
+        lines.append(f"| {r.stage} | `{r.key[:16]}` | {r.status} | {built} |")
+    return "\n".join(lines) + "\n"
 
 
 def register(app: typer.Typer) -> None:
@@ -59,6 +79,8 @@ def register(app: typer.Typer) -> None:
             report_dir.mkdir(parents=True)
             for name in evaluate.manifest.get("files", {}):
                 shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
+            with (report_dir / "report.md").open("a") as report:
+                report.write(_stage_section(result))
             summary["report"] = str(report_dir / "report.md")
         if json_:
             emit_json({**result.to_json(), "summary": summary})
