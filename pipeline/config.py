@@ -13,16 +13,15 @@ import types
 import typing
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
 from pipeline.errors import ConfigError
-from stages.base import Stage, StageConfig
+from stages.base import Stage
 
 __all__ = [
-    "PipelineConfig",
     "apply_overrides",
     "config_model_for",
     "dump_yaml",
@@ -31,9 +30,6 @@ __all__ = [
     "section_dict",
 ]
 
-PipelineConfig = BaseModel
-"""Alias used in annotations: an instance of the model built by `config_model_for`."""
-
 
 @functools.cache
 def _model_for(
@@ -41,11 +37,12 @@ def _model_for(
 ) -> type[BaseModel]:
     fields: dict[str, Any] = {s.name: (s.config, s.config()) for s in stages}
     fields.update({name: (model, model()) for name, model in extras})
-    return create_model(
+    model: type[BaseModel] = cast(Any, create_model)(
         "PipelineConfig",
         __config__=ConfigDict(frozen=True, extra="forbid"),
         **fields,
     )
+    return model
 
 
 def config_model_for(
@@ -187,11 +184,3 @@ def load_config(
 def dump_yaml(config: BaseModel) -> str:
     """The effective config as YAML (one section per stage, in stage order)."""
     return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
-
-
-def validate_section(stage: Stage, data: Mapping[str, Any]) -> StageConfig:
-    """Validate one section on its own (used by tests and `config check`)."""
-    try:
-        return stage.config.model_validate(dict(data))
-    except ValidationError as err:
-        raise ConfigError(_validation_message(err, stage.name)) from err

@@ -12,7 +12,6 @@ from stages.base import Stage
 
 __all__ = [
     "GRAPH_ENV",
-    "STAGE_NAMES",
     "all_stages",
     "alternative_graph",
     "pipeline_stages",
@@ -35,19 +34,6 @@ def alternative_graph() -> Any | None:
         return getattr(importlib.import_module(module), attr)
     except (ImportError, AttributeError) as err:
         raise ConfigError(f"${GRAPH_ENV}={spec}: cannot load ({err})") from err
-
-
-STAGE_NAMES: tuple[str, ...] = (
-    "keyframes",
-    "features",
-    "fuse",
-    "classify",
-    "slam",
-    "infer",
-    "voxelize",
-    "evaluate",
-)
-"""The mapping graph in execution order (a topological order of DESIGN.md's graph)."""
 
 
 @functools.cache

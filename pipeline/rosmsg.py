@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 from importlib import resources
-from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
@@ -126,8 +125,3 @@ class Ros2McapWriter:
         tb: TracebackType | None,
     ) -> None:
         self.finish()
-
-
-def open_for_write(path: Path) -> IO[bytes]:
-    """Open a path for binary writing (kept here so callers need not know about buffering)."""
-    return path.open("wb")

@@ -22,7 +22,6 @@ from pipeline.store import ArtifactRef, ArtifactStore
 from stages.base import Stage
 
 __all__ = [
-    "DEFAULT_TRAINING_SETS",
     "TrainingDataConfig",
     "TrainingSet",
     "resolve_model",
@@ -56,9 +55,6 @@ class TrainingDataConfig(BaseModel):
         TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
     )
     directory: str = "data/training"
-
-
-DEFAULT_TRAINING_SETS = TrainingDataConfig().sets
 
 
 def training_stage_for(n_datasets: int) -> Stage:
