@@ -3,6 +3,8 @@
 Each dataset runs through the cached graph up to `features` (keyframes with label
 images, CFAR features), then the cached `train` stage (`pipeline.training.train_on`);
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
+A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
+file instead of label images (format: README, `schemas.annotations`).
 """
 
 from __future__ import annotations
@@ -28,7 +30,11 @@ __all__ = ["register"]
 def register(app: typer.Typer) -> None:
     @app.command("train")
     def train(
-        datasets: list[Path] = typer.Argument(..., help="Labelled recordings (e.g. simulated)."),
+        datasets: list[Path] = typer.Argument(
+            ...,
+            help="Labelled recordings: simulated (label images) or with "
+            "<stem>.annotations.yaml beside them.",
+        ),
         out: Path = typer.Option(
             Path("data/model"),
             "--out",
@@ -43,6 +49,7 @@ def register(app: typer.Typer) -> None:
         """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
         import shutil
 
+        from pipeline.annotations import annotation_path
         from pipeline.api import plan_dataset
         from pipeline.errors import SourceError
         from pipeline.training import train_on
@@ -66,6 +73,9 @@ def register(app: typer.Typer) -> None:
         trained = {"metrics": metrics}
         doc = {
             "datasets": [str(p) for p in datasets],
+            "annotations": {
+                str(p): str(a) if (a := annotation_path(p)) else None for p in datasets
+            },
             "out": str(out),
             "artifact": str(ref.path),
             "seconds": round(time.perf_counter() - t0, 3),

@@ -1,0 +1,115 @@
+"""Annotation files beside field recordings: find, read, validate, and key them.
+
+`<stem>.annotations.yaml` (or `.json`) next to a recording labels its keyframes for
+classifier training (format: `schemas.annotations`). The validated content is
+committed to the store as a small "annotations" artifact keyed by its hash, which
+`train` takes as an input: editing the shapes retrains, reformatting the file or
+editing its comments does not.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import ValidationError
+
+from pipeline.codecs import write_output
+from pipeline.errors import SourceError
+from pipeline.hashing import recipe_key
+from pipeline.store import ArtifactRef, ArtifactStore
+from schemas.annotations import AnnotationFile
+from stages.annotations import RASTER_VERSION
+from stages.base import Output, Stage, StageConfig
+
+__all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_annotations"]
+
+SUFFIXES = (".annotations.yaml", ".annotations.yml", ".annotations.json")
+
+
+def _never_run(config: Any, inputs: Any) -> dict[str, Any]:  # pragma: no cover
+    raise AssertionError("annotations artifacts are committed by commit_annotations")
+
+
+ANNOTATIONS_STAGE = Stage(
+    name="annotations",
+    version=RASTER_VERSION,
+    config=StageConfig,
+    inputs=(),
+    outputs=(Output("annotations", "json", "annotations.json"),),
+    run=_never_run,
+    description="a validated annotation file (bound to train as an external input)",
+)
+"""Describes the artifact for the engine's input binding; it is never planned."""
+
+
+def annotation_path(dataset: Path) -> Path | None:
+    """The annotation file beside a recording (`<stem>.annotations.yaml`), if any.
+
+    Raises:
+        SourceError: more than one of the accepted names exists.
+    """
+    found = [p for p in (dataset.parent / f"{dataset.stem}{s}" for s in SUFFIXES) if p.is_file()]
+    if len(found) > 1:
+        raise SourceError(f"{dataset}: several annotation files ({', '.join(map(str, found))})")
+    return found[0] if found else None
+
+
+def _message(err: ValidationError, path: Path) -> str:
+    first = err.errors()[0]
+    loc = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in first["loc"]).lstrip(".")
+    msg = str(first["msg"]).removeprefix("Value error, ")
+    more = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
+    return f"{path}: {loc or 'file'}: {msg}{more}"
+
+
+def load_annotations(path: Path) -> AnnotationFile:
+    """Read and validate an annotation file.
+
+    Raises:
+        SourceError: unreadable, not YAML/JSON, or invalid; one line naming the file
+            and the field (e.g. `keyframes[2].objects[0].class_name`).
+    """
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise SourceError(f"{path}: cannot read annotations ({err.strerror})") from err
+    except yaml.YAMLError as err:
+        where = getattr(err, "problem_mark", None)
+        line = f" at line {where.line + 1}" if where is not None else ""
+        raise SourceError(f"{path}: not valid YAML/JSON{line}") from err
+    if not isinstance(raw, dict):
+        raise SourceError(f"{path}: expected a mapping with 'format' and 'keyframes'")
+    try:
+        return AnnotationFile.model_validate(raw)
+    except ValidationError as err:
+        raise SourceError(_message(err, path)) from err
+
+
+def commit_annotations(path: Path, store: ArtifactStore) -> ArtifactRef:
+    """Validate an annotation file and store its content as an "annotations" artifact.
+
+    The key hashes the validated content and the rasterisation version, so the train
+    stage reading it retrains exactly when a shape, class or time changes.
+    """
+    doc = load_annotations(path).model_dump(mode="json")
+    key = recipe_key({"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc})
+    output = ANNOTATIONS_STAGE.outputs[0]
+
+    def build(tmp: Path) -> dict[str, Any]:
+        write_output(tmp, ANNOTATIONS_STAGE.name, output, doc, {"key": key})
+        return {}
+
+    extra = {"version": RASTER_VERSION, "source": str(path)}
+    ref = store.commit(ANNOTATIONS_STAGE.name, key, build, extra)
+    # A run record per file keeps its newest artifact from `sonarmap gc`, like any run's.
+    source = str(path.resolve())
+    record = {
+        "dataset": source,
+        "updated_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "stages": {ANNOTATIONS_STAGE.name: {"key": key, "recipe": {"source": source}}},
+    }
+    store.record_run(recipe_key({"annotations": source})[:20], record)
+    return ref

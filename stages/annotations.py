@@ -1,0 +1,108 @@
+"""Hand-drawn annotations -> label images on the horizontal sonar's polar grid.
+
+Field recordings have no simulator label images. `label_keyframes` rasterises an
+annotation file's boxes and polygons (`schemas.annotations`, drawn in the fan-plane
+Cartesian frame x = R cos(theta), y = R sin(theta), paper Eq. 1 with phi = 0) onto
+each annotated keyframe's polar cells, so training takes the majority class of each
+DBSCAN cluster's cells (paper Sec. IV.C) exactly as it does from simulated labels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Iterable, Iterator
+
+import numpy as np
+
+from schemas.annotations import AnnotatedObject, AnnotationFile
+from schemas.classes import CLASS_IDS
+from schemas.sonar import KeyframeImages, SonarPing
+from stages._lazy import lazy
+
+mpath = lazy("matplotlib.path")
+
+__all__ = ["RASTER_VERSION", "label_keyframes", "rasterise"]
+
+log = logging.getLogger(__name__)
+
+RASTER_VERSION = 1
+"""Bumped whenever rasterisation could label a cell differently (it enters the train key)."""
+
+
+def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray:
+    """Label image of one horizontal ping from its annotated shapes.
+
+    A cell takes the class of the last shape that contains its centre (range bin
+    centre, beam angle); cells in no shape are 0 ("none").
+
+    Args:
+        ping: the horizontal sonar image (its ranges and beam angles define the grid).
+        objects: shapes in the sonar frame (x forward, y left) [m].
+
+    Returns:
+        (n_ranges, n_beams) uint8 class ids.
+    """
+    r = np.asarray(ping.ranges_m, np.float64)[:, None]
+    a = np.asarray(ping.angles_rad, np.float64)[None, :]
+    x, y = (r * np.cos(a)).ravel(), (r * np.sin(a)).ravel()
+    out = np.zeros(x.shape, np.uint8)
+    for obj in objects:
+        poly = np.asarray(obj.vertices_m(), np.float64)
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        # The bounding-box test is cheap on every cell; the exact test only runs near the shape.
+        near = np.flatnonzero((x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1]))
+        if len(near) == 0:
+            continue
+        inside = mpath.Path(poly).contains_points(np.stack([x[near], y[near]], axis=1))
+        out[near[inside]] = CLASS_IDS[obj.class_name]
+    return out.reshape(len(ping.ranges_m), len(ping.angles_rad))
+
+
+def label_keyframes(
+    frames: Iterable[KeyframeImages], annotations: AnnotationFile, *, source: str = "annotations"
+) -> Iterator[KeyframeImages]:
+    """The annotated keyframes, their horizontal label images replaced by the annotations.
+
+    A keyframe is annotated when an entry's t_ns lies within `time_tolerance_ms` of its
+    t_ns (the nearest entry wins); other keyframes are skipped. Any label image the
+    recording carried is discarded, so annotations are the only truth.
+
+    Args:
+        frames: keyframes in any order (read lazily, one at a time).
+        annotations: the validated annotation file.
+        source: name used in messages (the file).
+
+    Yields:
+        Annotated keyframes with `horizontal.labels` set (uint8 class ids).
+
+    Raises:
+        ValueError: after the last keyframe, if no entry matched any keyframe.
+    """
+    entries = sorted(annotations.keyframes, key=lambda k: k.t_ns)
+    times = np.array([k.t_ns for k in entries], np.int64)
+    tol_ns = annotations.time_tolerance_ms * 1e6
+    used: set[int] = set()
+    n_frames = 0
+    for frame in frames:
+        n_frames += 1
+        i = int(np.searchsorted(times, frame.t_ns))
+        near = [j for j in (i - 1, i) if 0 <= j < len(times)]
+        j = min(near, key=lambda j: abs(int(times[j]) - frame.t_ns))
+        if abs(int(times[j]) - frame.t_ns) > tol_ns:
+            continue
+        used.add(j)
+        labels = rasterise(frame.horizontal, entries[j].objects)
+        yield dataclasses.replace(
+            frame, horizontal=dataclasses.replace(frame.horizontal, labels=labels)
+        )
+    if not used:
+        raise ValueError(
+            f"{source}: none of its {len(times)} annotated times is within "
+            f"{annotations.time_tolerance_ms:g} ms of one of the {n_frames} keyframes' t_ns"
+        )
+    if len(used) < len(times):
+        log.info(
+            "%s: %d of %d annotated times match no keyframe (not selected by the keyframe spacing)",
+            source, len(times) - len(used), len(times),
+        )  # fmt: skip
