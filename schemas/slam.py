@@ -49,8 +49,9 @@ POSES_SCHEMA = pa.schema(
 """poses.parquet: keyframe id, time [ns], base_link pose in the world frame [m, rad],
 marginal covariance of (x, y, yaw) [m^2, m rad, rad^2]."""
 
-FACTOR_TYPES: tuple[str, ...] = ("prior", "odometry", "ssm", "loop")
+FACTOR_TYPES: tuple[str, ...] = ("prior", "odometry", "heading", "ssm", "loop")
 """prior on the first pose; odometry (dead reckoning between consecutive keyframes);
+heading (the navigation yaw as an absolute heading, key_from == key_to, x and y free);
 ssm (sequential scan matching); loop (non-sequential scan matching, after PCM)."""
 
 FACTOR_STATUSES: tuple[str, ...] = ("accepted", "rejected", "unused")
@@ -74,7 +75,8 @@ FACTORS_SCHEMA = pa.schema(
 )
 """factors.parquet: factor id (creation order), type (FACTOR_TYPES), keyframe ids (the
 measurement is the pose of key_to in the frame of key_from; key_from == key_to for the
-prior, whose measurement is the world pose), measurement [m, rad], its covariance, status
-(FACTOR_STATUSES), reason (why rejected, or for an odometry factor that was not used
-because scan matching replaced it (status "unused"); empty otherwise), ICP overlap
-(source points with a target neighbour; 0 without scan matching) and ICP RMSE [m]."""
+prior and heading factors, whose measurement is the world pose), measurement [m, rad],
+its covariance, status (FACTOR_STATUSES), reason (why rejected, or for an odometry factor
+that was not used because scan matching replaced it (status "unused"); empty otherwise),
+ICP overlap (source points with a target neighbour; 0 without scan matching) and ICP
+RMSE [m]."""

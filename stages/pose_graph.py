@@ -110,9 +110,19 @@ class PlanarPoseGraph:
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
         self._graph.add(gtsam.PriorFactorPose2(gtsam.symbol("x", index), _pose2(pose), noise))
 
-    def add_between(self, i: int, j: int, z: np.ndarray, cov: np.ndarray) -> None:
-        """Between factor: pose j measured in the frame of pose i, (3, 3) covariance."""
+    def add_between(
+        self, i: int, j: int, z: np.ndarray, cov: np.ndarray, cauchy_k: float | None = None
+    ) -> None:
+        """Between factor: pose j measured in the frame of pose i, (3, 3) covariance.
+
+        `cauchy_k` wraps the Gaussian in a Cauchy M-estimator with that scale (in units of
+        the whitened error): a residual of k sigma weighs half as much as under the Gaussian.
+        """
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
+        if cauchy_k is not None:
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy_k), noise
+            )
         self._graph.add(
             gtsam.BetweenFactorPose2(gtsam.symbol("x", i), gtsam.symbol("x", j), _pose2(z), noise)
         )
