@@ -1,0 +1,92 @@
+"""Config of the `slam` stage (paper Sec. IV.A; defaults after the authors' `slam.yaml`,
+`icp.yaml`, changed where the factor-level diagnostic against ground truth says so)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from stages.base import StageConfig
+from stages.pcm import CHI2_99_3DOF
+
+__all__ = ["SlamConfig"]
+
+
+class SlamConfig(StageConfig):
+    """Config of the `slam` stage.
+
+    Defaults are the authors' (`slam.yaml`, `icp.yaml`) except the heading factor, the SSM
+    covariance floor and its mode, and the loops' Cauchy kernel, which the per-factor error
+    against simulator ground truth set (`benchmarks/bench_slam.py`).
+    """
+
+    mode: Literal["slam", "dead_reckoning", "ground_truth"] = "slam"
+    prior_sigma_xy_m: float = Field(0.1, gt=0)
+    prior_sigma_yaw_deg: float = Field(0.573, gt=0, description="0.01 rad")
+    odom_sigma_xy_m: float = Field(0.05, gt=0, description="per keyframe step")
+    odom_sigma_yaw_deg: float = Field(0.6, gt=0, description="per keyframe step")
+    heading_sigma_deg: float | None = Field(
+        0.5,
+        gt=0,
+        description="mode slam: absolute heading factor per keyframe from the navigation yaw"
+        " (AHRS heading: white noise, its bias is a common rotation); None: off",
+    )
+    ssm_replaces_odometry: bool = Field(
+        False, description="authors: SSM replaces odometry; default: both factors are fused"
+    )
+    icp_sigma_xy_m: float = Field(
+        0.03, gt=0, description="floor of an SSM covariance (measured SSM error 0.02-0.05 m)"
+    )
+    icp_sigma_yaw_deg: float = Field(0.2, gt=0, description="measured SSM error 0.16-0.21 deg")
+    covariance_floor: Literal["replace", "scale"] = Field(
+        "scale", description="scale keeps the ICP Hessian's x-yaw correlation (lever arm)"
+    )
+    loop_sigma_xy_m: float = Field(0.1, gt=0, description="floor of a loop's covariance")
+    loop_sigma_yaw_deg: float = Field(0.573, gt=0)
+    point_resolution_m: float = Field(0.25, gt=0, description="voxel size of keyframe clouds")
+    leading_edge_only: bool = Field(True, description="first cell of each run along a beam")
+    point_noise_m: float = Field(0.5, gt=0, description="grid dilation and overlap radius")
+    grid_resolution_m: float = Field(0.25, gt=0, description="consensus grid cell")
+    max_correspondence_m: float = Field(1.0, gt=0, description="ICP correspondence gate")
+    search_max_points: int = Field(150, ge=10, description="source points scored in the search")
+    icp_effective_samples: float | None = Field(
+        4.0, gt=0, description="independent residuals assumed in the ICP covariance"
+    )
+    search_tie_fraction: float = Field(
+        0.9, gt=0, le=1, description="consensus within this of the best: nearest the guess wins"
+    )
+    icp_max_iterations: int = Field(40, ge=1)
+    min_points: int = Field(30, ge=3, description="points needed in source and target")
+    min_overlap_points: int = Field(30, ge=3, description="overlapping points to accept")
+    ssm_target_frames: int = Field(3, ge=1)
+    ssm_window_xy_m: float = Field(1.0, gt=0, description="global search half-width")
+    ssm_window_yaw_deg: float = Field(5.73, gt=0)
+    ssm_max_translation_m: float = Field(2.0, gt=0, description="max deviation from odometry")
+    ssm_max_rotation_deg: float = Field(30.0, gt=0)
+    nssm_min_separation: int = Field(8, ge=1, description="keyframes between loop ends")
+    nssm_source_frames: int = Field(5, ge=1)
+    nssm_target_frames: int = Field(5, ge=1, description="target frames around the best one")
+    nssm_min_frame_points: int = Field(10, ge=1)
+    nssm_max_range_m: float = Field(30.0, gt=0)
+    nssm_max_heading_change_deg: float = Field(
+        180.0, gt=0, description="loop targets seen with a heading within this of the current"
+    )
+    nssm_aperture_deg: float = Field(130.0, gt=0)
+    nssm_window_xy_m: tuple[float, float] = (1.0, 5.0)
+    nssm_window_yaw_deg: tuple[float, float] = (5.73, 20.0)
+    nssm_max_translation_m: float = Field(10.0, gt=0)
+    nssm_max_rotation_deg: float = Field(60.0, gt=0)
+    nssm_gate_chi2: float = Field(
+        16.27, gt=0, description="chi2(0.999, 3) gate of a loop against the odometry chain"
+    )
+    loop_cauchy_k: float | None = Field(
+        1.0,
+        gt=0,
+        description="Cauchy kernel scale on loop factors (whitened error): loop errors are"
+        " heavy-tailed (viewpoint-dependent sonar returns); None: Gaussian",
+    )
+    pcm_queue_keyframes: int = Field(5, ge=0)
+    pcm_min_clique: int = Field(2, ge=1)
+    pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, description="chi2(0.99, 3)")
+    plot_max_points: int = Field(30000, ge=0)

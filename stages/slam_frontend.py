@@ -1,0 +1,292 @@
+"""Incremental SLAM front end: SSM, NSSM and PCM over keyframes on one iSAM2 graph.
+
+Per keyframe (paper Sec. IV.A): an odometry factor, an absolute heading factor (mode
+slam), sequential scan matching against the previous few keyframes and, once far enough
+from the start, non-sequential scan matching (loop closure) against the older keyframe
+whose features could overlap; a loop enters the graph only as a member of a pairwise
+consistent set (PCM, `stages.pcm`), under a Cauchy kernel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from stages.pcm import chain_covariance, maximum_clique, pairwise_consistency
+from stages.pose_graph import (
+    PlanarPoseGraph,
+    se2_adjoint,
+    se2_between,
+    se2_compose,
+    se2_inverse,
+    se2_log,
+    wrap_angle,
+)
+from stages.scan_matching import MatchResult, match_scans, transform_points, voxel_downsample
+from stages.slam_config import SlamConfig
+
+__all__ = ["SlamResult", "run_slam"]
+
+_FREE_M2 = 1e6
+"""Variance [m^2] of the position part of a heading-only prior (unconstrained)."""
+
+
+def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
+    return np.diag([sigma_xy_m**2, sigma_xy_m**2, np.deg2rad(sigma_yaw_deg) ** 2])
+
+
+@dataclass
+class _Candidate:
+    src: int
+    dst: int
+    match: MatchResult
+    covariance: np.ndarray
+    row: int
+    accepted: bool = False
+
+
+@dataclass
+class SlamResult:
+    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts)."""
+
+    poses: np.ndarray
+    covariances: np.ndarray
+    factors: list[dict[str, Any]] = field(default_factory=list)
+
+
+class _FrontEnd:
+    """Incremental SSM + NSSM + PCM over keyframes, feeding one `PlanarPoseGraph`."""
+
+    def __init__(self, config: SlamConfig, points: list[np.ndarray]) -> None:
+        self.cfg = config
+        self.points = points
+        self.graph = PlanarPoseGraph()
+        self.est = np.zeros((0, 3))
+        self.edge_covs: list[np.ndarray] = []
+        self.rows: list[dict[str, Any]] = []
+        self.queue: list[_Candidate] = []
+        self.icp_cov = _diag_cov(config.icp_sigma_xy_m, config.icp_sigma_yaw_deg)
+        self.odom_cov = _diag_cov(config.odom_sigma_xy_m, config.odom_sigma_yaw_deg)
+        self.odom_info = np.linalg.inv(self.odom_cov)
+        self.loop_cov = _diag_cov(config.loop_sigma_xy_m, config.loop_sigma_yaw_deg)
+
+    def _row(self, kind: str, a: int, b: int, z: np.ndarray, cov: np.ndarray, **kw: Any) -> int:
+        row = {"type": kind, "key_from": a, "key_to": b, "z": np.asarray(z, float), "cov": cov}
+        row.update({"status": "accepted", "reason": "", "overlap": 0, "rmse": None, **kw})
+        self.rows.append(row)
+        return len(self.rows) - 1
+
+    def _update(self, extra_iterations: int = 0) -> None:
+        self.graph.update(extra_iterations)
+        self.est = self.graph.poses()
+
+    def _cloud(self, frames: range, anchor: int) -> np.ndarray:
+        parts = [
+            transform_points(se2_between(self.est[anchor], self.est[j]), self.points[j])
+            for j in frames
+            if len(self.points[j])
+        ]
+        if not parts:
+            return np.zeros((0, 2))
+        return voxel_downsample(np.concatenate(parts), self.cfg.point_resolution_m)
+
+    def _floor(self, cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
+        """Scale an ICP covariance up to at least the determinant of `floor`.
+
+        The authors replace a too-small covariance by the default (`floor_mode` "replace");
+        "scale" keeps the Hessian's shape, whose x-yaw correlation carries the lever arm
+        between the keyframe and the matched structure.
+        """
+        det, det_floor = np.linalg.det(cov), np.linalg.det(floor)
+        if not np.all(np.isfinite(cov)) or det <= 0:
+            return floor
+        if det >= det_floor:
+            return cov
+        return (
+            floor if self.cfg.covariance_floor == "replace" else cov * (det_floor / det) ** (1 / 3)
+        )
+
+    def _match(
+        self, source: np.ndarray, target: np.ndarray, guess: np.ndarray, half: np.ndarray
+    ) -> MatchResult:
+        c = self.cfg
+        return match_scans(
+            source,
+            target,
+            guess,
+            half,
+            c.grid_resolution_m,
+            c.point_noise_m,
+            c.max_correspondence_m,
+            c.icp_max_iterations,
+            c.search_max_points,
+            c.search_tie_fraction,
+            c.icp_effective_samples,
+        )
+
+    def _check(self, m: MatchResult, guess: np.ndarray, max_t: float, max_deg: float) -> str:
+        dev = se2_between(guess, m.pose)
+        if np.hypot(dev[0], dev[1]) > max_t or abs(dev[2]) > np.deg2rad(max_deg):
+            return "deviation from odometry"
+        if m.overlap < self.cfg.min_overlap_points:
+            return "overlap"
+        return ""
+
+    def start(self, pose: np.ndarray) -> None:
+        cov = _diag_cov(self.cfg.prior_sigma_xy_m, self.cfg.prior_sigma_yaw_deg)
+        self.graph.add_pose(0, pose)
+        self.graph.add_prior(0, pose, cov)
+        self._row("prior", 0, 0, pose, cov)
+        self._update()
+
+    def step(self, k: int, odometry: np.ndarray, loops: bool, nav: np.ndarray) -> None:
+        """Add keyframe k with the dead-reckoning motion (3,) from k-1 and its nav pose (3,)."""
+        c = self.cfg
+        self.graph.add_pose(k, se2_compose(self.est[k - 1], odometry))
+        if loops and c.heading_sigma_deg is not None:
+            # The navigation yaw is an absolute (AHRS) heading whose error does not grow;
+            # odometry factors alone would let it random-walk. x, y stay free.
+            cov = np.diag([_FREE_M2, _FREE_M2, np.deg2rad(c.heading_sigma_deg) ** 2])
+            self.graph.add_prior(k, nav, cov)
+            self._row("heading", k, k, nav, cov)
+        odo_row = self._row("odometry", k - 1, k, odometry, self.odom_cov)
+        source = self.points[k]
+        target = self._cloud(range(max(0, k - c.ssm_target_frames), k), k - 1)
+        reason = "too few points"
+        match = None
+        if len(source) >= c.min_points and len(target) >= c.min_points:
+            half = np.array(
+                [c.ssm_window_xy_m, c.ssm_window_xy_m, np.deg2rad(c.ssm_window_yaw_deg)]
+            )
+            match = self._match(source, target, odometry, half)
+            reason = self._check(match, odometry, c.ssm_max_translation_m, c.ssm_max_rotation_deg)
+        if match is not None and not reason:
+            cov = self._floor(match.covariance, self.icp_cov)
+            self.graph.add_between(k - 1, k, match.pose, cov)
+            self._row("ssm", k - 1, k, match.pose, cov, overlap=match.overlap, rmse=match.rmse_m)
+            if c.ssm_replaces_odometry:
+                self.rows[odo_row]["status"] = "unused"
+                self.edge_covs.append(cov)
+            else:
+                self.graph.add_between(k - 1, k, odometry, self.odom_cov)
+                self.edge_covs.append(np.linalg.inv(np.linalg.inv(cov) + self.odom_info))
+        else:
+            self.graph.add_between(k - 1, k, odometry, self.odom_cov)
+            z = odometry if match is None else match.pose
+            overlap = 0 if match is None else match.overlap
+            self._row(
+                "ssm", k - 1, k, z, self.icp_cov, status="rejected", reason=reason, overlap=overlap
+            )
+            self.edge_covs.append(self.odom_cov)
+        self._update()
+        if loops and k >= c.nssm_min_separation + 1:
+            self._loop_closure(k)
+
+    def _footprint_target(self, k: int, sigma_xy: float, sigma_yaw: float) -> int | None:
+        c = self.cfg
+        old = [i for i in range(k - c.nssm_min_separation) if len(self.points[i])]
+        if not old:
+            return None
+        world = np.concatenate([transform_points(self.est[i], self.points[i]) for i in old])
+        owner = np.concatenate([np.full(len(self.points[i]), i) for i in old])
+        local = transform_points(se2_between(self.est[k], np.zeros(3)), world)
+        r = np.hypot(local[:, 0], local[:, 1])
+        bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
+        visible = (r < c.nssm_max_range_m + 5 * sigma_xy) & (
+            bearing < np.deg2rad(c.nssm_aperture_deg) / 2 + 5 * sigma_yaw
+        )
+        heading = np.abs(wrap_angle(self.est[owner, 2] - self.est[k, 2]))
+        visible &= heading <= np.deg2rad(c.nssm_max_heading_change_deg)
+        counts = np.bincount(owner[visible], minlength=k)
+        best = int(np.argmax(counts))
+        return best if counts[best] > c.nssm_min_frame_points else None
+
+    def _relative_covariance(self, t: int, k: int) -> np.ndarray:
+        """(3, 3) covariance of pose k in the frame of t along the chain (frame of k)."""
+        chain = chain_covariance(self.est[: k + 1], np.array(self.edge_covs[:k]))
+        ad = se2_adjoint(se2_inverse(self.est[k]))
+        return ad @ (chain[k] - chain[t]) @ ad.T
+
+    def _loop_closure(self, k: int) -> None:
+        c = self.cfg
+        rel = self._relative_covariance(0, k)
+        t = self._footprint_target(
+            k, float(np.sqrt(np.linalg.eigvalsh(rel[:2, :2])[-1])), float(np.sqrt(rel[2, 2]))
+        )
+        if t is None:
+            return
+        source = self._cloud(range(max(0, k - c.nssm_source_frames + 1), k + 1), k)
+        half_t = c.nssm_target_frames // 2
+        limit = k - c.nssm_min_separation
+        target = self._cloud(range(max(0, t - half_t), min(limit, t + half_t + 1)), t)
+        if len(source) < c.min_points or len(target) < c.min_points:
+            return
+        rel = self._relative_covariance(t, k)
+        xy = np.clip(5 * np.sqrt(np.linalg.eigvalsh(rel[:2, :2])[-1]), *c.nssm_window_xy_m)
+        yaw = np.clip(5 * np.sqrt(rel[2, 2]), *np.deg2rad(c.nssm_window_yaw_deg))
+        guess = se2_between(self.est[t], self.est[k])
+        match = self._match(source, target, guess, np.array([xy, xy, yaw]))
+        reason = self._check(match, guess, c.nssm_max_translation_m, c.nssm_max_rotation_deg)
+        cov = self._floor(match.covariance, self.loop_cov)
+        dev = se2_log(se2_between(guess, match.pose))
+        if not reason and dev @ np.linalg.solve(rel + cov, dev) > c.nssm_gate_chi2:
+            reason = "inconsistent with odometry"
+        row = self._row(
+            "loop",
+            t,
+            k,
+            match.pose,
+            cov,
+            overlap=match.overlap,
+            rmse=match.rmse_m,
+            status="rejected",
+            reason=reason or "pcm: not in a consistent set",
+        )
+        if reason:
+            return
+        self.queue.append(_Candidate(t, k, match, cov, row))
+        self._pcm(k)
+
+    def _pcm(self, k: int) -> None:
+        c = self.cfg
+        self.queue = [q for q in self.queue if q.dst >= k - c.pcm_queue_keyframes]
+        src = np.array([q.src for q in self.queue])
+        dst = np.array([q.dst for q in self.queue])
+        z = np.array([q.match.pose for q in self.queue])
+        cov = np.array([q.covariance for q in self.queue])
+        chain = chain_covariance(self.est, np.array(self.edge_covs))
+        adjacency = pairwise_consistency(self.est, chain, src, dst, z, cov, c.pcm_chi2_threshold)
+        clique = maximum_clique(adjacency)
+        if len(clique) < c.pcm_min_clique:
+            return
+        added = False
+        for i in clique:
+            q = self.queue[int(i)]
+            if not q.accepted:
+                q.accepted, added = True, True
+                self.graph.add_between(q.src, q.dst, q.match.pose, q.covariance, c.loop_cauchy_k)
+                self.rows[q.row].update(status="accepted", reason="")
+        if added:
+            self._update(extra_iterations=2)
+
+    def result(self) -> SlamResult:
+        covs = np.array([self.graph.marginal_covariance(k) for k in range(self.graph.size)])
+        return SlamResult(self.est.copy(), covs, self.rows)
+
+
+def run_slam(config: SlamConfig, dr_se2: np.ndarray, points: list[np.ndarray]) -> SlamResult:
+    """Planar SLAM (mode "slam") or dead reckoning through the same graph ("dead_reckoning").
+
+    Args:
+        config: stage config.
+        dr_se2: (K, 3) dead-reckoning poses (x_m, y_m, yaw_rad) of the keyframes, world frame.
+        points: K arrays (N_k, 2) of horizontal features in base_link.
+    """
+    use_sonar = config.mode == "slam"
+    front = _FrontEnd(config, points if use_sonar else [np.zeros((0, 2))] * len(points))
+    front.start(dr_se2[0])
+    for k in range(1, len(dr_se2)):
+        front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k])
+    return front.result()
