@@ -118,7 +118,15 @@ def _columns(table: pa.Table, names: list[str]) -> np.ndarray:
     return np.column_stack([table.column(n).to_numpy() for n in names])
 
 
-def test_slam_halves_dead_reckoning_error_on_simulated_pier(pier_inputs) -> None:
+@pytest.fixture(scope="module")
+def pier_default_nav_inputs() -> dict[str, object]:
+    return simulated_slam_inputs("pier", n_goals=6, seed=1)
+
+
+@pytest.mark.parametrize("fixture", ["pier_default_nav_inputs", "pier_inputs"])
+def test_slam_halves_dead_reckoning_error_on_simulated_pier(fixture, request) -> None:
+    """Default navigation noise (the issue's criterion) and a low-cost navigation."""
+    pier_inputs = request.getfixturevalue(fixture)
     kf = pier_inputs["keyframes.keyframes"]
     truth = _columns(kf, ["gt_x_m", "gt_y_m"])
     out = STAGE.run(SlamConfig(), pier_inputs)
