@@ -42,15 +42,37 @@ _SEED_STRIDE = 1_000_003
 
 
 class ClassifyConfig(StageConfig):
-    """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C)."""
+    """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
 
-    eps_m: float = Field(0.25, gt=0, description="DBSCAN radius [m] (original: 5 px = 0.25 m)")
-    min_samples: int = Field(2, ge=1, description="DBSCAN core neighbourhood size (original: 2)")
-    min_features: int = Field(10, ge=1, description="smallest object kept (paper's n)")
+    The clustering defaults live once, in `stages.train.TrainConfig`: a model is trained
+    on the objects its clustering produces, so classify reads them from the model file
+    and these fields only override them (an override outside what the model saw in
+    training changes what it is shown).
+    """
+
+    eps_m: float | None = Field(
+        None, gt=0, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
+    )
+    min_samples: int | None = Field(
+        None, ge=1, description="DBSCAN core neighbourhood; None: the model's (train.min_samples)"
+    )
+    min_features: int | None = Field(
+        None, ge=1, description="smallest object kept; None: the model's (train.min_features)"
+    )
     mc_passes: int = Field(20, ge=1, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
     seed: int = Field(0, description="dropout-mask seed (combined with keyframe_id)")
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
+
+
+def _clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any], name: str) -> float:
+    """A clustering parameter: the config's override, else the model file's."""
+    value = getattr(cfg, name)
+    if value is not None:
+        return float(value)
+    if name not in model_config:
+        raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
+    return float(model_config[name])
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -100,7 +122,8 @@ def classify_keyframes(
         frames: keyframe images in keyframe order (held one at a time).
         features: features.parquet (only horizontal rows are used).
         model: the classifier; class_names: its output names; model_config: the
-            model file's config (patch `margin_m`, `min_side_m`, `size_px`).
+            model file's config (clustering `eps_m`, `min_samples`, `min_features`;
+            patch `margin_m`, `min_side_m`, `size_px`).
         cfg: clustering and acceptance config.
 
     Returns:
@@ -108,6 +131,9 @@ def classify_keyframes(
         the busiest keyframe has the most accepted objects.
     """
     by_kf = horizontal_features(features)
+    eps_m = float(_clustering(cfg, model_config, "eps_m"))
+    min_samples = int(_clustering(cfg, model_config, "min_samples"))
+    min_features = int(_clustering(cfg, model_config, "min_features"))
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
     obj_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
@@ -117,7 +143,7 @@ def classify_keyframes(
         f = by_kf.get(frame.keyframe_id) or _empty_features()
         objs = extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
-            eps_m=cfg.eps_m, min_samples=cfg.min_samples, min_features=cfg.min_features,
+            eps_m=eps_m, min_samples=min_samples, min_features=min_features,
             margin_m=float(model_config["margin_m"]), min_side_m=float(model_config["min_side_m"]),
             size_px=int(model_config["size_px"]),
         )  # fmt: skip
@@ -213,7 +239,7 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
 
 STAGE = Stage(
     name="classify",
-    version=2,
+    version=3,
     config=ClassifyConfig,
     inputs=("keyframes.frames", "features.features", "train.model"),
     outputs=(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import io
 from pathlib import Path
 
 import numpy as np
@@ -82,6 +83,9 @@ def _model_bytes() -> bytes:
         "size_px": 40,
         "margin_m": 0.2,
         "min_side_m": 0.5,
+        "eps_m": 0.25,
+        "min_samples": 2,
+        "min_features": 10,
     }
     return model_to_bytes(model, NAMES, cfg)
 
@@ -180,3 +184,22 @@ def test_bad_model_bytes_are_a_value_error(keyframes: list[KeyframeImages]) -> N
     }
     with pytest.raises(ValueError, match="model"):
         STAGE.run(ClassifyConfig(), inputs)
+
+
+def test_clustering_comes_from_the_model_and_the_config_overrides_it(
+    keyframes: list[KeyframeImages],
+) -> None:
+    features = _features(keyframes)
+    default = _run(keyframes, features, threshold=0.0)["objects"]
+    sizes = default["n_features"].to_numpy()
+    cut = int(np.median(sizes)) + 1
+    stricter = _run(keyframes, features, threshold=0.0, min_features=cut)["objects"]
+    assert stricter.num_rows == (sizes >= cut).sum() < default.num_rows
+    blob = torch.load(io.BytesIO(_model_bytes()), weights_only=True)
+    del blob["config"]["eps_m"]
+    buf = io.BytesIO()
+    torch.save(blob, buf)
+    inputs = {"keyframes.frames": keyframes, "features.features": features}
+    with pytest.raises(ValueError, match=r"no 'eps_m'; set classify.eps_m"):
+        STAGE.run(ClassifyConfig(), {**inputs, "train.model": buf.getvalue()})
+    assert STAGE.run(ClassifyConfig(eps_m=0.25), {**inputs, "train.model": buf.getvalue()})
