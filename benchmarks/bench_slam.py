@@ -10,7 +10,8 @@ excluded), as a perfect detector would report them (`tests/test_slam.py`). A sec
 mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing covers
 `STAGE.run` only (all four outputs, the PNG included).
 
-    .venv/bin/python benchmarks/bench_slam.py
+    .venv/bin/python benchmarks/bench_slam.py                # seed 0, low-cost nav, PCM
+    .venv/bin/python benchmarks/bench_slam.py --seeds 0,1,2  # robustness over seeds
 
 Measured (2 shared cores, slam stage version 2): default marina 175 keyframes at ~45
 keyframes/s, ATE SLAM 0.087 m vs dead reckoning 0.185 m (ratio 0.47; version 1: 0.116 m,
@@ -19,10 +20,23 @@ pipeline (CFAR features) on the default marina (`sonarmap simulate -o marina.mca
 `sonarmap run marina.mcap --until slam`): 0.093 m vs 0.185 m (0.50; version 1: 0.124 m).
 Other seeds of the default marina (perfect features): seed 1 0.152 vs 0.306 m (0.50),
 seed 2 0.099 vs 0.165 m (0.60; version 1: 0.668 m, a failed run).
+
+`--seeds 0,1,2` (slam version 2, 2 shared cores, 32 s in all): ratios 0.468 / 0.498 /
+0.600 at 46 / 49 / 55 keyframes/s (worst 0.60: the halving is not robust yet). Real
+pipeline (CFAR features, `sonarmap simulate --seed S`, `sonarmap run --until slam`):
+0.503 / 0.589 / 0.634 (0.093/0.185, 0.180/0.306, 0.105/0.165 m). True loop measurements
+(oracle) would give 0.26 / 0.25 on seeds 2 / 1: loop accuracy is the limit. Tried without
+a robust gain (single runs move by +-0.03 on tie-breaks alone): point-to-line ICP
+(isolated loop error 0.19 -> 0.34 m), line-aware ICP covariance on loops (0.41 / 0.49 /
+0.61), fewer or larger loop clouds, nearest target, distance cap, stronger Cauchy; a
+viewpoint-gated ICP (pairs only between points seen from similar directions: the far
+side of a hull or piling is another surface) halves the isolated median loop error
+but drifts from the odometry-guessed initialisation in the full run (0.73 on seed 0).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import resource
 import sys
@@ -35,11 +49,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 
-def _mission(label: str, navigation: dict[str, float] | None) -> dict[str, float]:
+def _mission(label: str, navigation: dict[str, float] | None, seed: int = 0) -> dict[str, float]:
     from stages.slam import STAGE, SlamConfig
     from tests.test_slam import ate_se2, simulated_slam_inputs
 
-    inputs = simulated_slam_inputs("marina", n_goals=20, seed=0, navigation=navigation)
+    inputs = simulated_slam_inputs("marina", n_goals=20, seed=seed, navigation=navigation)
     kf = inputs["keyframes.keyframes"]
     t0 = time.perf_counter()
     out = STAGE.run(SlamConfig(), inputs)
@@ -83,10 +97,23 @@ def _pcm_intel() -> dict[str, float]:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument(
+        "--seeds",
+        default="0",
+        help="comma-separated seeds of the default marina, e.g. 0,1,2 (seed 0 also runs the"
+        " low-cost navigation mission and PCM on Intel)",
+    )
+    seeds = [int(s) for s in parser.parse_args().seeds.split(",")]
     figures: dict[str, object] = {}
-    figures.update(_mission("marina", None))
-    figures.update(_mission("marina_lowcost_nav", {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}))
-    figures.update(_pcm_intel())
+    for seed in seeds:
+        figures.update(_mission("marina" if seed == 0 else f"marina_seed{seed}", None, seed))
+    if 0 in seeds:
+        lowcost = {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}
+        figures.update(_mission("marina_lowcost_nav", lowcost))
+        figures.update(_pcm_intel())
+    ratios = [v for k, v in figures.items() if k.endswith("_ate_ratio") and "lowcost" not in k]
+    figures["marina_worst_ate_ratio"] = max(ratios)
     figures["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     print(json.dumps(figures))
 
