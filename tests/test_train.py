@@ -120,7 +120,12 @@ def test_split_never_puts_a_keyframe_on_both_sides_and_keeps_a_guard_gap() -> No
 @pytest.fixture(scope="module")
 def trained() -> dict:
     frames = _keyframes("marina", 1, 6, 6, 72)
-    cfg = TrainConfig(epochs=20, val_block_keyframes=10)
+    # A small, fast model. On 72 keyframes and 20 epochs the paper's stronger augmentation
+    # regularises (recall at 0.8: 0.86 vs 0.81 with the defaults tuned for the full set).
+    cfg = TrainConfig(
+        epochs=20, channels=(16, 32), hidden=64, noise_std=0.05, max_rotation_deg=20,
+        val_block_keyframes=10,
+    )  # fmt: skip
     t0 = time.perf_counter()
     out = dict(
         TRAIN.run(cfg, {"keyframes.frames": frames, "features.features": _label_features(frames)})
