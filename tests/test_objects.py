@@ -166,3 +166,24 @@ def test_horizontal_features_splits_by_keyframe_and_drops_vertical_rows() -> Non
 def test_fan_xy_follows_eq1_with_zero_elevation() -> None:
     xy = fan_xy(np.array([2.0, 3.0]), np.array([0.0, np.pi / 2]))
     np.testing.assert_allclose(xy, [[2.0, 0.0], [0.0, 3.0]], atol=1e-12)
+
+
+def test_linked_components_match_scikit_learn_dbscan() -> None:
+    from sklearn.cluster import DBSCAN
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(-10, 10, (25, 2))
+    xy = np.concatenate(
+        [rng.normal(c, rng.uniform(0.02, 0.3), (rng.integers(1, 40), 2)) for c in centres]
+    )
+    xy = np.concatenate([xy, rng.uniform(-12, 12, (60, 2))])[rng.permutation(len(xy) + 60)]
+    for min_samples in (1, 2, 3):
+        for min_features in (1, 5, 10):
+            ours = cluster_features(xy, 0.25, min_samples, min_features)
+            raw = DBSCAN(eps=0.25, min_samples=min_samples).fit_predict(xy)
+            # Same partition: the same points are noise, and labels map one-to-one.
+            sizes = np.bincount(raw[raw >= 0])
+            kept = (raw >= 0) & (sizes[np.maximum(raw, 0)] >= min_features)
+            np.testing.assert_array_equal(ours >= 0, kept)
+            pairs = set(zip(ours[kept].tolist(), raw[kept].tolist(), strict=True))
+            assert len(pairs) == len({a for a, _ in pairs}) == len({b for _, b in pairs})
