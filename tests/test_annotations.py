@@ -235,5 +235,5 @@ def test_a_recorded_training_set_without_annotations_is_refused(tmp_path: Path) 
     rec = tmp_path / "harbour-field.mcap"
     rec.write_bytes(b"")
     config = SimpleNamespace(training=TrainingDataConfig(sets=(), recorded=(str(rec),)))
-    with pytest.raises(SourceError, match="has no harbour-field.annotations.yaml beside it"):
+    with pytest.raises(SourceError, match=r"has no harbour-field\.annotations\.yaml beside it"):
         resolve_model(ArtifactStore(tmp_path / "store"), config)  # type: ignore[arg-type]
