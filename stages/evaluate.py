@@ -31,6 +31,7 @@ from stages.mesh_metrics import (
     mesh_distance,
     nearest_distance,
     raycasting_scene,
+    se2_alignment,
     surface_samples,
     visible_mask,
 )
@@ -138,8 +139,10 @@ def surface_metrics(
     return completeness, precision, samples
 
 
-def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float | None] | None:
-    """ATE [m] of SLAM and dead reckoning vs ground truth (None without ground truth)."""
+def _matched_xy(
+    keyframes: pa.Table, poses: pa.Table
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """(SLAM xy, true xy, dead-reckoning xy) of the keyframes with both; None without truth."""
     gt_x = keyframes.column("gt_x_m").to_numpy(zero_copy_only=False).astype(np.float64)
     gt_y = keyframes.column("gt_y_m").to_numpy(zero_copy_only=False).astype(np.float64)
     has = np.isfinite(gt_x) & np.isfinite(gt_y)
@@ -153,10 +156,48 @@ def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float |
     idx = np.clip(np.searchsorted(pid[order], kf), 0, max(len(pid) - 1, 0))
     found = (pid[order][idx] == kf) if len(pid) else np.zeros(len(kf), bool)
     slam = np.stack([poses.column(c).to_numpy()[order][idx] for c in ("x_m", "y_m")], axis=1)
+    return slam[found], gt[found], dr
+
+
+def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float | None] | None:
+    """ATE [m] of SLAM and dead reckoning vs ground truth (None without ground truth)."""
+    matched = _matched_xy(keyframes, poses)
+    if matched is None:
+        return None
+    slam, gt, dr = matched
     return {
-        "slam_ate_m": ate_se2(slam[found], gt[found]),
+        "slam_ate_m": ate_se2(slam, gt),
         "dead_reckoning_ate_m": ate_se2(dr, gt),
-        "n_keyframes": int(found.sum()),
+        "n_keyframes": len(slam),
+    }
+
+
+def aligned_map_errors(
+    map_table: pa.Table, mesh: Mesh, keyframes: pa.Table, poses: pa.Table
+) -> dict[str, Any] | None:
+    """Map errors after moving the map by the SLAM trajectory's SE(2) alignment to truth.
+
+    A common rotation and offset of the whole map is unobservable to sonar-only SLAM (a
+    constant bias of the navigation heading rotates every pose alike); ATE removes it by
+    alignment, and this judges the map the same way. None without ground-truth poses.
+
+    Returns:
+        {"standard": error_stats, "semantic": error_stats, "rotation_deg": float,
+        "translation_m": [x, y]}.
+    """
+    matched = _matched_xy(keyframes, poses)
+    if matched is None or len(matched[0]) == 0:
+        return None
+    R, t = se2_alignment(matched[0], matched[1])
+    xyz = map_xyz(map_table, "semantic").copy()
+    xyz[:, :2] = xyz[:, :2] @ R.T + t
+    err = mesh_distance(raycasting_scene(mesh), xyz)
+    fused = np.asarray(map_table.column("source").to_pylist(), dtype=object) == "fused"
+    return {
+        "standard": error_stats(err[fused]),
+        "semantic": error_stats(err),
+        "rotation_deg": float(np.degrees(np.arctan2(R[1, 0], R[0, 0]))),
+        "translation_m": [float(t[0]), float(t[1])],
     }
 
 
@@ -242,6 +283,9 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         ]
     else:
         errors, metrics["errors"] = map_errors(map_table, mesh)
+        aligned = aligned_map_errors(map_table, mesh, keyframes, poses)
+        if aligned is not None:
+            metrics["errors_aligned"] = aligned
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
             map_table, errors, mesh, T_ws, config
@@ -285,7 +329,7 @@ def _truth_xy(mesh: Mesh) -> np.ndarray:
 
 STAGE = Stage(
     name="evaluate",
-    version=1,
+    version=2,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",

@@ -33,6 +33,7 @@ __all__ = [
     "mesh_distance",
     "nearest_distance",
     "raycasting_scene",
+    "se2_alignment",
     "surface_samples",
     "visible_mask",
 ]
@@ -175,6 +176,28 @@ def nearest_distance(query_m: np.ndarray, cloud_m: np.ndarray, upper_m: float) -
     return np.asarray(d, dtype=np.float64)
 
 
+def se2_alignment(
+    estimate_xy_m: np.ndarray, truth_xy_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares planar rigid transform taking estimate to truth (Umeyama 1991, no scale).
+
+    Args:
+        estimate_xy_m: (n, 2) estimated positions [m], n >= 1.
+        truth_xy_m: (n, 2) true positions at the same times [m].
+
+    Returns:
+        (R (2, 2), t (2,)) minimising sum ||R e_i + t - g_i||^2.
+    """
+    e = np.asarray(estimate_xy_m, dtype=np.float64).reshape(-1, 2)
+    g = np.asarray(truth_xy_m, dtype=np.float64).reshape(-1, 2)
+    me, mg = e.mean(axis=0), g.mean(axis=0)
+    cov = (g - mg).T @ (e - me)
+    u, _, vt = np.linalg.svd(cov)
+    s = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
+    R = u @ s @ vt
+    return R, mg - R @ me
+
+
 def ate_se2(estimate_xy_m: np.ndarray, truth_xy_m: np.ndarray) -> float | None:
     """ATE RMSE [m] after the least-squares SE(2) alignment of estimate to truth.
 
@@ -183,17 +206,12 @@ def ate_se2(estimate_xy_m: np.ndarray, truth_xy_m: np.ndarray) -> float | None:
         truth_xy_m: (n, 2) true positions at the same times [m].
 
     Returns:
-        sqrt(mean ||R e_i + t - g_i||^2) with (R, t) the optimal planar rigid transform
-        (Umeyama 1991 without scale); None when n == 0.
+        sqrt(mean ||R e_i + t - g_i||^2) with (R, t) = `se2_alignment`; None when n == 0.
     """
     e = np.asarray(estimate_xy_m, dtype=np.float64).reshape(-1, 2)
     g = np.asarray(truth_xy_m, dtype=np.float64).reshape(-1, 2)
     if len(e) == 0:
         return None
-    me, mg = e.mean(axis=0), g.mean(axis=0)
-    cov = (g - mg).T @ (e - me)
-    u, _, vt = np.linalg.svd(cov)
-    s = np.diag([1.0, np.sign(np.linalg.det(u @ vt)) or 1.0])
-    R = u @ s @ vt
-    aligned = (e - me) @ R.T + mg
+    R, t = se2_alignment(e, g)
+    aligned = e @ R.T + t
     return float(np.sqrt(np.mean(np.sum((aligned - g) ** 2, axis=1))))

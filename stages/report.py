@@ -241,6 +241,15 @@ def render_markdown(
             f"- dead reckoning: {_fmt(traj.get('dead_reckoning_ate_m'))} m",
             "",
         ]
+    aligned = metrics.get("errors_aligned")
+    if aligned:
+        lines += [
+            "Median map error after the same SE(2) alignment of the SLAM trajectory (rotation"
+            f" {aligned['rotation_deg']:.2f} deg; a common heading bias is unobservable to"
+            f" sonar-only SLAM): standard {_fmt(aligned['standard'].get('median_m'))} m,"
+            f" semantic {_fmt(aligned['semantic'].get('median_m'))} m.",
+            "",
+        ]
     if figures:
         lines += ["## Figures", ""] + [f"![{f.rsplit('.', 1)[0]}]({f})" for f in figures] + [""]
     skipped = metrics.get("skipped", [])

@@ -244,3 +244,19 @@ def test_without_ground_truth_counts_and_topdown_remain_and_skips_are_listed() -
     assert out["plot_map_topdown"][:8] == PNG_SIGNATURE
     assert "## Skipped" in out["report"].decode()
     json.dumps(m, allow_nan=False)
+
+
+def test_a_map_moved_rigidly_with_its_trajectory_is_exact_after_alignment() -> None:
+    centroid, _ = square_piling_faces()
+    truth_xy = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
+    R, t = rot_z(np.deg2rad(2.0))[:2, :2], np.array([0.3, -0.2])
+    moved = centroid.copy()
+    moved[:, :2] = centroid[:, :2] @ R.T + t
+    inputs = stage_inputs(map_table(moved, np.array(["fused"] * len(moved))), True)
+    inputs["keyframes.keyframes"] = keyframes_table(truth_xy, truth_xy, YAWS)
+    inputs["slam.poses"] = poses_table(truth_xy @ R.T + t, YAWS)
+    metrics = STAGE.run(EvaluateConfig(), inputs)["metrics"]
+    assert metrics["errors"]["standard"]["median_m"] > 0.1
+    aligned = metrics["errors_aligned"]
+    assert aligned["standard"]["median_m"] == pytest.approx(0.0, abs=1e-4)
+    assert aligned["rotation_deg"] == pytest.approx(-2.0, abs=1e-6)
