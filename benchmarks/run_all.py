@@ -1,6 +1,6 @@
 """Run every benchmark script (`bench_*.py`) and print one table of their JSON figures.
 
-Each benchmark prints one JSON object on its last stdout line. Results are also
+Each benchmark ends its stdout with one JSON object (on one line or indented). Results are also
 written to `data/bench/results.json` so closing notes can cite them.
 """
 
@@ -13,6 +13,13 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+
+
+def _last_json(stdout: str) -> dict:
+    """The JSON object that ends `stdout`: from the last unindented line opening one."""
+    lines = stdout.rstrip().splitlines()
+    starts = [i for i, ln in enumerate(lines) if ln.startswith("{")]
+    return json.loads("\n".join(lines[starts[-1] :])) if starts else {}
 
 
 def main() -> int:
@@ -31,8 +38,7 @@ def main() -> int:
                 "wall_s": wall,
             }
         else:
-            lines = [ln for ln in proc.stdout.strip().splitlines() if ln.startswith("{")]
-            results[name] = {**json.loads(lines[-1]), "wall_s": round(wall, 1)} if lines else {}
+            results[name] = {**_last_json(proc.stdout), "wall_s": round(wall, 1)}
         print(f"{name:>16}: {json.dumps(results[name])}", flush=True)
     out = Path("data/bench")
     out.mkdir(parents=True, exist_ok=True)
