@@ -1,29 +1,30 @@
-"""Classifier benchmark: default training time and accuracy on unseen scenes, and
-classify throughput (keyframes/s with m = 20 MC-dropout passes).
+"""Classifier benchmark on the real pipeline: the default model's training time, accuracy
+on simulated missions it never saw, with and without multi-view pooling, and classify
+throughput (keyframes/s with m = 20 MC-dropout passes).
 
-    .venv/bin/python benchmarks/bench_classify.py [--threads 2] [--features cfar|labels]
-        [--train harbour:100:12,pier:101:6] [--test marina:0:20,pier:2:4] [--stride 4]
+    .venv/bin/python benchmarks/bench_classify.py [--store data/store]
+        [--test marina:0,marina:1,pier:2] [--data data/bench]
 
-Trains on the pipeline's default training sets (`training.sets`) unless told otherwise
-and tests on the default marina (the demo mission) and a pier seed never trained on.
-Frames are every `stride`-th ping, rendered before timing; classify time covers DBSCAN,
-patch cropping and the CNN (feature detection is the features stage's cost). Recall is
-also reported per centroid-range band: a 1 deg beam is 0.35-0.5 m wide at 20-30 m, as
-wide as a piling, so its shape is hardly resolved there.
+The default model (`training.sets`) is trained in `--store` on first use (a cache hit
+afterwards; its recorded build time is reported either way). Each test mission
+(`scene:seed[:goals]`, the scene's default goals when omitted) is simulated into `--data`
+and run through the pipeline up to `classify` with the default config (keyframes every
+2 m, CFAR features), once with `classify.pool_views` (default) and once without. The
+classify stage is forced, so its time is measured: it covers reading the keyframes,
+DBSCAN, patches, the CNN, pooling and the overlay PNG. Recall is also reported per
+centroid-range band: a 1 deg beam is 0.35-0.5 m wide at 20-30 m, as wide as a piling.
 
-Measured 2026-11-30 (defaults, CFAR features, 2 cores mostly idle):
-- training: 2315 objects, 120 epochs, 188 s; validation accuracy 0.88.
-- default marina (361 frames, 9.9 objects/frame), threshold 0.99: cylindrical precision
-  0.980 (1080 accepted), recall 0.75; rectangular precision 0.925 (504), recall 0.65;
-  piling recall 0.72 (argmax 0.88). By range: 0.89 / 0.91 / 0.87 / 0.81 at 0-8 / 8-12 /
-  12-16 / 16-20 m, 0.62 at 20-25 m, 0.49 at 25-30 m (48 % of the marina's piling
-  sightings are beyond 20 m).
-- pier seed 2 (62 frames): cylindrical precision 1.00 (315 accepted), piling recall
-  0.80; rectangular 4 of 7 accepted correct (6 in the scene).
-- classify: 46 keyframes/s on the marina with the 2-thread figure of this script before
-  the DBSCAN replacement; 54 keyframes/s on one thread (as the stage runs) after it.
-- before the 2026-11-30 changes (16/32 filters, noise 0.05, +-20 deg; same sets, trained
-  on all their objects): marina piling recall at 0.99 0.34, pier 0.32.
+Measured 2026-11-30 (defaults, 2 shared cores), piling recall / cylindrical / rectangular
+precision at threshold 0.99:
+- single view (the paper's rule): marina seed 0 0.652 / 0.963 / 0.958; marina seed 1
+  0.652 / 0.967 / 0.919; pier seed 2 0.721 / 0.998 / 0.714 (35 accepted).
+- pooled over views: marina seed 0 0.832 / 0.992 / 0.992; marina seed 1 0.839 / 0.995 /
+  0.993; pier seed 2 0.917 / 1.000 / 1.000.
+- training (default sets, 2315 objects, 120 epochs, 2 threads): 188 s.
+- earlier, per-ping frames (every 4th ping) and no pooling: marina piling recall 0.72;
+  by range 0.89 / 0.91 / 0.87 / 0.81 at 0-8 / 8-12 / 12-16 / 16-20 m, 0.62 at 20-25 m,
+  0.49 at 25-30 m (48 % of the marina's piling sightings are beyond 20 m); classify 54
+  keyframes/s on one thread without reading frames or drawing the overlay.
 """
 
 from __future__ import annotations
@@ -36,49 +37,10 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import torch
 
 from schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
-from schemas.sonar import KeyframeImages
-from stages.classify import ClassifyConfig, classify_keyframes
-from stages.cnn import model_from_bytes
-from stages.train import TrainConfig, features_from_labels, train_classifier
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def keyframes(scene: str, seed: int, goals: int, stride: int) -> list[KeyframeImages]:
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
-
-    cfg = SimConfig(mission=MissionConfig(n_goals=goals))
-    run = simulate(load_scene(ROOT / f"configs/scenes/{scene}.yaml"), cfg, seed)
-    frames = [run.frame(i) for i in range(0, run.n_frames, stride)]
-    return [KeyframeImages(k, f.t_ns, f.horizontal, f.vertical) for k, f in enumerate(frames)]
-
-
-def features(frames: list[KeyframeImages], kind: str) -> pa.Table:
-    if kind == "cfar":
-        from stages.features import FeaturesConfig, features_table
-
-        return features_table(frames, FeaturesConfig())
-    parts = []
-    for fr in frames:
-        f = features_from_labels(fr)
-        n = len(f["feature_id"])
-        cols = {k: v for k, v in f.items() if k != "feature_id"}
-        parts.append(
-            pa.table(
-                {
-                    "keyframe_id": np.full(n, fr.keyframe_id, np.int64),
-                    "feature_id": f["feature_id"] + 1_000_000 * fr.keyframe_id,
-                    "sonar": pa.array(["horizontal"] * n, pa.string()),
-                    **cols,
-                }
-            )
-        )
-    return pa.concat_tables(parts)
 
 
 def scores(objects: pa.Table) -> dict[str, object]:
@@ -116,12 +78,12 @@ def scores(objects: pa.Table) -> dict[str, object]:
     return out
 
 
-def _sets(text: str) -> list[tuple[str, int, int]]:
-    """ "scene:seed:goals,..." -> [(scene, seed, goals)]."""
+def _sets(text: str) -> list[tuple[str, int, int | None]]:
+    """ "scene:seed[:goals],..." -> [(scene, seed, goals or None)]."""
     out = []
     for item in text.split(","):
-        scene, seed, goals = item.split(":")
-        out.append((scene, int(seed), int(goals)))
+        scene, seed, *goals = item.split(":")
+        out.append((scene, int(seed), int(goals[0]) if goals else None))
     return out
 
 
@@ -147,73 +109,68 @@ def by_range(objects: pa.Table, edges_m: tuple[float, ...]) -> list[dict[str, ob
     return rows
 
 
-def main() -> None:
-    from pipeline.training import TrainingDataConfig
+def _classify(dataset: Path, store: Path, overrides: list[str]) -> tuple[pa.Table, dict]:
+    """Run the pipeline up to classify (forced), return objects.parquet and its timing."""
+    from pipeline.api import run_dataset
+    from pipeline.codecs import read_output
+    from pipeline.registry import pipeline_stages
 
-    default_train = ",".join(f"{s.scene}:{s.seed}:{s.goals}" for s in TrainingDataConfig().sets)
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--features", choices=("cfar", "labels"), default="cfar")
-    ap.add_argument(
-        "--train", default=default_train, help="scene:seed:goals,... (default: the pipeline's)"
+    result, summary = run_dataset(
+        dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
     )
-    ap.add_argument("--test", default="marina:0:20,pier:2:4", help="scene:seed:goals,...")
-    ap.add_argument("--stride", type=int, default=4)
-    ap.add_argument("--set", action="append", default=[], help="TrainConfig field=json")
-    ap.add_argument("--model-out", type=Path, default=None)
-    ap.add_argument("--model-in", type=Path, default=None, help="skip training, use this model")
+    stage = next(s for s in pipeline_stages() if s.name == "classify")
+    objects = read_output(
+        result.artifacts["classify"].path, next(o for o in stage.outputs if o.name == "objects")
+    )
+    seconds = next(r.seconds for r in result.stages if r.stage == "classify")
+    keyframes = int(summary["keyframes"])
+    return objects, {
+        "keyframes": keyframes,
+        "objects_per_keyframe": round(objects.num_rows / keyframes, 2),
+        "classify_seconds": round(seconds, 2),
+        "keyframes_per_s": round(keyframes / seconds, 1),
+    }
+
+
+def main() -> None:
+    from pipeline.config import load_config
+    from pipeline.datasets import ensure_simulation, scene_path
+    from pipeline.registry import all_stages, extra_sections
+    from pipeline.store import ArtifactStore
+    from pipeline.training import resolve_model
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--store", type=Path, default=ROOT / "data/store")
+    ap.add_argument("--data", type=Path, default=ROOT / "data/bench")
+    ap.add_argument("--test", default="marina:0,marina:1,pier:2", help="scene:seed[:goals],...")
     args = ap.parse_args()
-    torch.set_num_threads(args.threads)
-    overrides = {k: json.loads(v) for k, v in (s.split("=", 1) for s in args.set)}
-    tcfg = TrainConfig(**overrides)
+    args.data.mkdir(parents=True, exist_ok=True)
 
-    if args.model_in:
-        trained = {"model": args.model_in.read_bytes()}
-        m: dict = {"n_train": None, "accuracy": None, "accepted_fraction": None}
-        train_s = float("nan")
-    else:
-        data = []
-        for scene, seed, goals in _sets(args.train):
-            frames = keyframes(scene, seed, goals, args.stride)
-            data.append((frames, features(frames, args.features)))
-        t0 = time.perf_counter()
-        trained = train_classifier(data, tcfg)
-        train_s = time.perf_counter() - t0
-        if args.model_out:
-            args.model_out.write_bytes(trained["model"])
-        m = trained["metrics"]
-        del data
-
-    model, names, mcfg = model_from_bytes(trained["model"])
-    ccfg = ClassifyConfig(overlay=False)
+    config = load_config(all_stages(), None, (), extra_sections())
+    t0 = time.perf_counter()
+    _, model = resolve_model(ArtifactStore(args.store), config)
     report: dict[str, object] = {
-        "threads": args.threads,
-        "features": args.features,
         "train": {
-            "sets": args.train,
-            "samples": m["n_train"],
-            "seconds": round(train_s, 1),
-            "validation_accuracy": m["accuracy"],
-            "validation_accepted_fraction": m["accepted_fraction"],
-            "config": overrides,
-        },
+            "seconds_now": round(time.perf_counter() - t0, 1),
+            "build_seconds": model.manifest.get("build_seconds"),
+            "key": model.key,
+        }
     }
     for scene, seed, goals in _sets(args.test):
-        test_frames = keyframes(scene, seed, goals, args.stride)
-        test_feats = features(test_frames, args.features)
-        classify_keyframes(test_frames[:3], test_feats, model, names, mcfg, ccfg)  # warm-up
-        t0 = time.perf_counter()
-        objects, _, _ = classify_keyframes(test_frames, test_feats, model, names, mcfg, ccfg)
-        classify_s = time.perf_counter() - t0
-        report[f"{scene}:{seed}"] = {
-            "keyframes": len(test_frames),
-            "objects_per_keyframe": round(objects.num_rows / len(test_frames), 2),
-            "mc_passes": ccfg.mc_passes,
-            "classify_seconds": round(classify_s, 3),
-            "keyframes_per_s": round(len(test_frames) / classify_s, 1),
-            "scores": scores(objects),
-            "by_range": by_range(objects, (0, 8, 12, 16, 20, 25, 30)),
-        }
+        suffix = f"-goals{goals}" if goals else ""
+        dataset = ensure_simulation(
+            scene_path(scene), seed, args.data / f"{scene}-seed{seed}{suffix}.mcap", goals=goals
+        )
+        row: dict[str, object] = {}
+        for label, overrides in (("pooled", []), ("single_view", ["classify.pool_views=false"])):
+            objects, timing = _classify(dataset, args.store, overrides)
+            row[label] = {
+                **timing,
+                "median_views": float(np.median(objects["n_views"].to_numpy())),
+                "scores": scores(objects),
+                "by_range": by_range(objects, (0, 8, 12, 16, 20, 25, 30)),
+            }
+        report[f"{scene}:{seed}"] = row
     print(json.dumps(report, indent=2))
 
 

@@ -24,6 +24,8 @@ OBJECTS_SCHEMA = pa.schema(
         pa.field("argmax_class_name", pa.string(), nullable=False),
         pa.field("probability", pa.float64(), nullable=False),
         pa.field("probability_var", pa.float64(), nullable=False),
+        pa.field("single_view_probability", pa.float64(), nullable=False),
+        pa.field("n_views", pa.int64(), nullable=False),
         pa.field("n_features", pa.int64(), nullable=False),
         pa.field("x_m", pa.float64(), nullable=False),
         pa.field("y_m", pa.float64(), nullable=False),
@@ -39,10 +41,13 @@ OBJECTS_SCHEMA = pa.schema(
 """objects.parquet, sorted by (keyframe_id, object_id); object_id is unique over the run.
 
 - class_id / class_name: `schemas.classes` id and name of the accepted class, or
-  -1 / "unknown" when the mean probability is not above the threshold.
-- argmax_class_name: the class of the largest mean probability, accepted or not.
-- probability / probability_var: mean and variance over the m dropout passes of the
-  softmax output of argmax_class_name.
+  -1 / "unknown" when the (pooled) mean probability is not above the threshold.
+- argmax_class_name: the class of the largest (pooled) mean probability, accepted or not.
+- probability: that class's mean softmax output over the m dropout passes, pooled over
+  the object's n_views sightings in nearby keyframes (`stages.view_pooling`) when
+  `classify.pool_views` is on; single_view_probability / probability_var: mean and
+  variance over this keyframe's m passes alone, of the same class.
+- n_views: sightings pooled into `probability` (1: this keyframe's alone).
 - n_features: cluster size; x_m, y_m: feature centroid [m]; range_m, bearing_rad: the
   centroid in polar form [m, rad]; x/y min/max: the features' bounding box [m], no margin.
 - true_class_name: majority label-image class of the cluster's cells ("none" when most

@@ -7,6 +7,13 @@ argmax class of the mean softmax when that mean probability exceeds the threshol
 is "unknown" otherwise; mean and variance are recorded. Dropout masks are seeded per
 keyframe (seed, keyframe_id), so outputs are byte-identical run to run.
 
+Beyond the paper (on by default, `pool_views`): the decision is taken on the class
+distribution pooled over the sightings of the same place in nearby keyframes
+(`stages.view_pooling`, mapped with the dead-reckoning poses, since classify runs before
+SLAM). A piling seen at 25 m, where its shape is hardly resolved, takes the class it shows
+close up a few keyframes earlier or later. `probability` is then the pooled probability;
+`single_view_probability` keeps this keyframe's own.
+
 The patch geometry (margin, smallest side) comes from the model file, so patches are
 cut exactly as in training; the clustering parameters are this stage's config.
 """
@@ -15,7 +22,7 @@ from __future__ import annotations
 
 import io
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -28,6 +35,7 @@ from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
 from stages.objects import KeyframeObjects, extract_objects, horizontal_features
+from stages.view_pooling import along_track_m, pool_views, sighting_world_xy
 
 if TYPE_CHECKING:
     from stages.cnn import PatchCNN
@@ -62,6 +70,20 @@ class ClassifyConfig(StageConfig):
     mc_passes: int = Field(20, ge=1, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
     seed: int = Field(0, description="dropout-mask seed (combined with keyframe_id)")
+    pool_views: bool = Field(
+        True,
+        description="decide on the class distribution log-linearly pooled over sightings of"
+        " the same place in nearby keyframes (stages.view_pooling; not in the paper)",
+    )
+    pool_radius_m: float = Field(
+        0.5, gt=0, description="sightings within this in the world are one object"
+    )
+    pool_window_m: float = Field(
+        40.0, ge=0, description="... when at most this far apart along the track (DR drift)"
+    )
+    pool_range_scale_m: float | None = Field(
+        20.0, gt=0, description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal"
+    )
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
 
@@ -80,26 +102,21 @@ def _empty_features() -> dict[str, np.ndarray]:
     return {"feature_id": z_i, "range_bin": z_i, "beam": z_i, "range_m": z_f, "angle_rad": z_f}
 
 
-def _object_rows(
-    frame: KeyframeImages, objs: KeyframeObjects, mean: np.ndarray, var: np.ndarray,
-    class_ids: np.ndarray, names: list[str], first_id: int, threshold: float,
-) -> dict[str, Any]:  # fmt: skip
-    """Columns of objects.parquet for one keyframe's k objects."""
+_CLASS_COLUMNS = (
+    "class_id", "class_name", "argmax_class_name", "probability", "probability_var",
+    "single_view_probability", "n_views",
+)  # fmt: skip
+_GEOMETRY_SCHEMA = pa.schema([f for f in OBJECTS_SCHEMA if f.name not in _CLASS_COLUMNS])
+
+
+def _object_rows(frame: KeyframeImages, objs: KeyframeObjects, first_id: int) -> dict[str, Any]:
+    """The class-independent columns of objects.parquet for one keyframe's k objects."""
     k = objs.count
-    best = mean.argmax(axis=1) if k else np.zeros(0, np.int64)
-    p = mean[np.arange(k), best] if k else np.zeros(0)
-    accepted = p > threshold
-    argmax_names = [names[i] for i in best]
     truth = objs.true_class_id
     cx, cy = objs.centroid_xy[:, 0], objs.centroid_xy[:, 1]
     return {
         "keyframe_id": np.full(k, frame.keyframe_id, np.int64),
         "object_id": np.arange(first_id, first_id + k, dtype=np.int64),
-        "class_id": np.where(accepted, class_ids[best], UNKNOWN_CLASS_ID).astype(np.int64),
-        "class_name": [n if a else UNKNOWN_CLASS for n, a in zip(argmax_names, accepted, strict=True)],
-        "argmax_class_name": argmax_names,
-        "probability": p.astype(np.float64),
-        "probability_var": var[np.arange(k), best].astype(np.float64) if k else np.zeros(0),
         "n_features": objs.n_features,
         "x_m": cx, "y_m": cy, "range_m": np.hypot(cx, cy), "bearing_rad": np.arctan2(cy, cx),
         "x_min_m": objs.boxes[:, 0], "x_max_m": objs.boxes[:, 1],
@@ -108,38 +125,97 @@ def _object_rows(
     }  # fmt: skip
 
 
+def _class_columns(
+    pooled: np.ndarray, single: np.ndarray, var: np.ndarray, n_views: np.ndarray,
+    class_ids: np.ndarray, names: list[str], threshold: float,
+) -> dict[str, Any]:  # fmt: skip
+    """The class columns: argmax of the (pooled) mean, accepted above the threshold."""
+    k = len(pooled)
+    best = pooled.argmax(axis=1) if k else np.zeros(0, np.int64)
+    rows = np.arange(k)
+    p = pooled[rows, best]
+    accepted = p > threshold
+    argmax_names = [names[i] for i in best]
+    return {
+        "class_id": np.where(accepted, class_ids[best], UNKNOWN_CLASS_ID).astype(np.int64),
+        "class_name": [n if a else UNKNOWN_CLASS for n, a in zip(argmax_names, accepted, strict=True)],
+        "argmax_class_name": argmax_names,
+        "probability": p.astype(np.float64),
+        "probability_var": var[rows, best].astype(np.float64),
+        "single_view_probability": single[rows, best].astype(np.float64),
+        "n_views": n_views.astype(np.int64),
+    }  # fmt: skip
+
+
+def _pooled(
+    mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
+    cfg: ClassifyConfig,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each object's class distribution pooled over its sightings (`stages.view_pooling`)."""
+    keyframes = keyframes.sort_by("keyframe_id")
+    kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
+    cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
+    if any(c.null_count for c in cols):
+        raise ValueError("keyframes: x_m, y_m or yaw_rad has nulls; set classify.pool_views=false")
+    pose = np.column_stack([c.to_numpy() for c in cols]).astype(np.float64)
+    obj_kf = geometry.column("keyframe_id").to_numpy()
+    row = np.searchsorted(kf_ids, obj_kf)
+    if len(obj_kf) and (row.max() >= len(kf_ids) or (kf_ids[row] != obj_kf).any()):
+        raise ValueError("keyframes: an object's keyframe_id is not in keyframes.parquet")
+    xy = np.column_stack([geometry.column("x_m").to_numpy(), geometry.column("y_m").to_numpy()])
+    return pool_views(
+        mean,
+        sighting_world_xy(xy, pose[row], T_base_sonar),
+        obj_kf,
+        along_track_m(pose[:, :2])[row],
+        geometry.column("range_m").to_numpy(),
+        radius_m=cfg.pool_radius_m,
+        window_m=cfg.pool_window_m,
+        range_scale_m=cfg.pool_range_scale_m,
+    )
+
+
 def classify_keyframes(
-    frames: Iterable[KeyframeImages],
+    frames: Sequence[KeyframeImages],
     features: pa.Table,
     model: PatchCNN,
     class_names: list[str],
     model_config: Mapping[str, Any],
     cfg: ClassifyConfig,
+    keyframes: pa.Table | None = None,
+    T_base_sonar: np.ndarray | None = None,
 ) -> tuple[pa.Table, pa.Table, tuple[KeyframeImages, pa.Table] | None]:
     """Objects and classes of every keyframe.
 
     Args:
-        frames: keyframe images in keyframe order (held one at a time).
+        frames: keyframe images in keyframe order (read one at a time).
         features: features.parquet (only horizontal rows are used).
         model: the classifier; class_names: its output names; model_config: the
             model file's config (clustering `eps_m`, `min_samples`, `min_features`;
             patch `margin_m`, `min_side_m`, `size_px`).
-        cfg: clustering and acceptance config.
+        cfg: clustering, acceptance and pooling config.
+        keyframes: keyframes.parquet (dead-reckoning poses) and T_base_sonar: (4, 4)
+            mounting of the horizontal sonar; both needed when `cfg.pool_views`.
 
     Returns:
         (objects table, object_features table, (busiest keyframe, its objects) or None);
         the busiest keyframe has the most accepted objects.
     """
+    if cfg.pool_views and (keyframes is None or T_base_sonar is None):
+        raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
     by_kf = horizontal_features(features)
     eps_m = float(_clustering(cfg, model_config, "eps_m"))
     min_samples = int(_clustering(cfg, model_config, "min_samples"))
     min_features = int(_clustering(cfg, model_config, "min_features"))
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
-    obj_parts: list[pa.Table] = []
+    geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
+    means: list[np.ndarray] = [np.zeros((0, len(class_names)))]
+    variances: list[np.ndarray] = [np.zeros((0, len(class_names)))]
+    position: dict[int, int] = {}
     next_id = 0
-    busiest: tuple[int, KeyframeImages, pa.Table] | None = None
-    for frame in frames:
+    for i, frame in enumerate(frames):
+        position[frame.keyframe_id] = i
         f = by_kf.get(frame.keyframe_id) or _empty_features()
         objs = extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
@@ -149,9 +225,11 @@ def classify_keyframes(
         )  # fmt: skip
         seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
         mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)
-        cols = _object_rows(frame, objs, mean, var, class_ids, class_names, next_id, cfg.threshold)
-        table = pa.Table.from_pydict(cols, schema=OBJECTS_SCHEMA)
-        obj_parts.append(table)
+        means.append(mean)
+        variances.append(var)
+        geo_parts.append(
+            pa.Table.from_pydict(_object_rows(frame, objs, next_id), schema=_GEOMETRY_SCHEMA)
+        )
         link_parts.append(
             pa.Table.from_pydict(
                 {
@@ -163,13 +241,36 @@ def classify_keyframes(
             ).sort_by([("object_id", "ascending"), ("feature_id", "ascending")])
         )
         next_id += objs.count
-        n_acc = int(np.sum(cols["class_id"] != UNKNOWN_CLASS_ID))
-        if cfg.overlay and objs.count and (busiest is None or n_acc > busiest[0]):
-            busiest = (n_acc, frame, table)
-    objects = pa.concat_tables(obj_parts) if obj_parts else OBJECTS_SCHEMA.empty_table()
-    links = pa.concat_tables(link_parts) if link_parts else OBJECT_FEATURES_SCHEMA.empty_table()
-    log.info("classified %d objects in %d keyframes", objects.num_rows, len(obj_parts))
-    return objects, links, (busiest[1], busiest[2]) if busiest else None
+    if not geo_parts or next_id == 0:
+        return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), None
+    geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
+    mean, var = np.concatenate(means), np.concatenate(variances)
+    if cfg.pool_views:
+        assert keyframes is not None and T_base_sonar is not None
+        pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
+    else:
+        pooled, n_views = mean, np.ones(len(mean), np.int64)
+    classes = _class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
+    columns = {name: geometry.column(name) for name in geometry.column_names}
+    objects = pa.Table.from_pydict(
+        {f.name: columns.get(f.name, classes.get(f.name)) for f in OBJECTS_SCHEMA},
+        schema=OBJECTS_SCHEMA,
+    )
+    links = pa.concat_tables(link_parts)
+    log.info("classified %d objects in %d keyframes", objects.num_rows, len(geo_parts))
+    if not cfg.overlay:
+        return objects, links, None
+    chosen, rows = _busiest(objects)
+    return objects, links, (frames[position[chosen]], rows)
+
+
+def _busiest(objects: pa.Table) -> tuple[int, pa.Table]:
+    """The keyframe with the most accepted objects (the first of equals) and its rows."""
+    kf = objects.column("keyframe_id").to_numpy()
+    accepted = objects.column("class_id").to_numpy() != UNKNOWN_CLASS_ID
+    ids, first, sizes = np.unique(kf, return_index=True, return_counts=True)
+    best = int(np.argmax(np.bincount(np.searchsorted(ids, kf[accepted]), minlength=len(ids))))
+    return int(ids[best]), objects.slice(int(first[best]), int(sizes[best]))
 
 
 def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
@@ -230,18 +331,27 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
     if not isinstance(model_bytes, bytes | bytearray):
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
     model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+    keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
+    mount = None if sensors is None else np.asarray(sensors["horizontal"]["T_base_sonar"], float)
     objects, links, busiest = classify_keyframes(
-        inputs["keyframes.frames"], inputs["features.features"], model, names, mcfg, config
-    )
+        inputs["keyframes.frames"], inputs["features.features"], model, names, mcfg, config,
+        keyframes, mount,
+    )  # fmt: skip
     overlay = overlay_png(*busiest) if busiest is not None else None
     return {"objects": objects, "object_features": links, "overlay": overlay}
 
 
 STAGE = Stage(
     name="classify",
-    version=3,
+    version=4,
     config=ClassifyConfig,
-    inputs=("keyframes.frames", "features.features", "train.model"),
+    inputs=(
+        "keyframes.frames",
+        "keyframes.keyframes",
+        "keyframes.sensors",
+        "features.features",
+        "train.model",
+    ),
     outputs=(
         Output("objects", "parquet", "objects.parquet", schema=OBJECTS_SCHEMA),
         Output(
@@ -250,5 +360,6 @@ STAGE = Stage(
         Output("overlay", "bytes", "overlay.png", optional=True),
     ),
     run=_run,
-    description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN",
+    description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
+    " pooled over the keyframes that see them",
 )

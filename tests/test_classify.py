@@ -22,7 +22,8 @@ NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
 
 
 @pytest.fixture(scope="module")
-def keyframes() -> list[KeyframeImages]:
+def simulated() -> tuple[list[KeyframeImages], pa.Table, dict]:
+    """Six keyframes of the tiny scene, their dead-reckoning poses and the sonar mounting."""
     from sim.config import MissionConfig, SimConfig
     from sim.dataset import simulate
     from sim.scene import load_scene
@@ -32,15 +33,36 @@ def keyframes() -> list[KeyframeImages]:
         SimConfig(mission=MissionConfig(n_goals=2)),
         5,
     )
-    out = []
+    out, poses = [], []
     for i in range(0, run.n_frames, 6):
         f = run.frame(i)
         if (f.horizontal.labels > 0).sum() > 50:
             out.append(KeyframeImages(len(out), f.t_ns, f.horizontal, f.vertical))
+            poses.append(f.dr_pose)
         if len(out) == 6:
             break
     assert len(out) >= 3
-    return out
+    return out, keyframes_table(out, np.array(poses)), sensors_json(run.T_base_sonar)
+
+
+@pytest.fixture(scope="module")
+def keyframes(simulated: tuple[list[KeyframeImages], pa.Table, dict]) -> list[KeyframeImages]:
+    return simulated[0]
+
+
+def keyframes_table(frames: list[KeyframeImages], dr_pose: np.ndarray) -> pa.Table:
+    """The pose columns of keyframes.parquet that classify reads (dead reckoning)."""
+    names = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+    return pa.table(
+        {
+            "keyframe_id": pa.array([fr.keyframe_id for fr in frames], pa.int64()),
+            **{n: pa.array(dr_pose[:, i], pa.float64()) for i, n in enumerate(names)},
+        }
+    )
+
+
+def sensors_json(T_base_sonar: dict[str, np.ndarray]) -> dict:
+    return {k: {"T_base_sonar": np.asarray(v).tolist()} for k, v in T_base_sonar.items()}
 
 
 def _features(frames: list[KeyframeImages]) -> pa.Table:
@@ -91,13 +113,14 @@ def _model_bytes() -> bytes:
 
 
 def _run(frames: list[KeyframeImages], features: pa.Table, **cfg: object) -> dict:
+    """The stage without multi-view pooling (its own tests are below and in test_train)."""
     torch.set_num_threads(1)
     inputs = {
         "keyframes.frames": frames,
         "features.features": features,
         "train.model": _model_bytes(),
     }
-    return dict(STAGE.run(ClassifyConfig(**cfg), inputs))
+    return dict(STAGE.run(ClassifyConfig(**{"pool_views": False, **cfg}), inputs))
 
 
 def test_objects_link_to_their_features_and_carry_the_majority_truth(
@@ -201,5 +224,47 @@ def test_clustering_comes_from_the_model_and_the_config_overrides_it(
     torch.save(blob, buf)
     inputs = {"keyframes.frames": keyframes, "features.features": features}
     with pytest.raises(ValueError, match=r"no 'eps_m'; set classify.eps_m"):
-        STAGE.run(ClassifyConfig(), {**inputs, "train.model": buf.getvalue()})
-    assert STAGE.run(ClassifyConfig(eps_m=0.25), {**inputs, "train.model": buf.getvalue()})
+        STAGE.run(ClassifyConfig(pool_views=False), {**inputs, "train.model": buf.getvalue()})
+    cfg = ClassifyConfig(eps_m=0.25, pool_views=False)
+    assert STAGE.run(cfg, {**inputs, "train.model": buf.getvalue()})
+
+
+def test_pooling_combines_sightings_of_one_place_and_needs_the_poses(
+    simulated: tuple[list[KeyframeImages], pa.Table, dict],
+) -> None:
+    frames, poses, sensors = simulated
+    features = _features(frames)
+    inputs = {
+        "keyframes.frames": frames,
+        "keyframes.keyframes": poses,
+        "keyframes.sensors": sensors,
+        "features.features": features,
+        "train.model": _model_bytes(),
+    }
+    single = _run(frames, features, threshold=0.0)["objects"]
+    pooled = STAGE.run(ClassifyConfig(threshold=0.0), inputs)["objects"]
+    # Same objects; the single-view columns are this keyframe's, of the pooled argmax class.
+    for name in ("object_id", "n_features", "x_m", "true_class_name"):
+        assert pooled[name].equals(single[name]), name
+    same = np.asarray(pooled["argmax_class_name"].to_pylist()) == np.asarray(
+        single["argmax_class_name"].to_pylist()
+    )
+    assert same.any()
+    for mine, theirs in (("single_view_probability", "probability"), ("probability_var",) * 2):
+        np.testing.assert_array_equal(
+            pooled[mine].to_numpy()[same], single[theirs].to_numpy()[same]
+        )
+    n_views = pooled["n_views"].to_numpy()
+    # The tiny scene's pilings are seen from every keyframe, a few metres apart.
+    assert (n_views > 1).mean() > 0.5 and n_views.max() <= len(frames)
+    alone = n_views == 1
+    np.testing.assert_allclose(
+        pooled["probability"].to_numpy()[alone], single["probability"].to_numpy()[alone]
+    )
+    assert not np.allclose(pooled["probability"].to_numpy(), single["probability"].to_numpy())
+    # A zero radius pools nothing.
+    none = STAGE.run(ClassifyConfig(threshold=0.0, pool_radius_m=1e-9), inputs)["objects"]
+    assert set(none["n_views"].to_pylist()) == {1}
+    without = {k: v for k, v in inputs.items() if k != "keyframes.keyframes"}
+    with pytest.raises(ValueError, match="pool_views needs"):
+        STAGE.run(ClassifyConfig(), without)
