@@ -243,6 +243,7 @@ def test_pooling_combines_sightings_of_one_place_and_needs_the_poses(
     }
     single = _run(frames, features, threshold=0.0)["objects"]
     pooled = STAGE.run(ClassifyConfig(threshold=0.0), inputs)["objects"]
+    assert pooled.equals(STAGE.run(ClassifyConfig(threshold=0.0), inputs)["objects"])
     # Same objects; the single-view columns are this keyframe's, of the pooled argmax class.
     for name in ("object_id", "n_features", "x_m", "true_class_name"):
         assert pooled[name].equals(single[name]), name
