@@ -13,25 +13,50 @@ mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing
     .venv/bin/python benchmarks/bench_slam.py                # seed 0, low-cost nav, PCM
     .venv/bin/python benchmarks/bench_slam.py --seeds 0,1,2  # robustness over seeds
 
-Measured (2 shared cores, slam stage version 2): default marina 175 keyframes at ~45
-keyframes/s, ATE SLAM 0.087 m vs dead reckoning 0.185 m (ratio 0.47; version 1: 0.116 m,
-0.63); low-cost navigation 0.094 m vs 0.44 m (0.21); PCM on Intel passes. The real
-pipeline (CFAR features) on the default marina (`sonarmap simulate -o marina.mcap`,
-`sonarmap run marina.mcap --until slam`): 0.093 m vs 0.185 m (0.50; version 1: 0.124 m).
-Other seeds of the default marina (perfect features): seed 1 0.152 vs 0.306 m (0.50),
-seed 2 0.099 vs 0.165 m (0.60; version 1: 0.668 m, a failed run).
+Measured (2 shared cores, slam stage version 3: after the incremental run every accepted
+loop is re-registered from the optimised poses, ICP only with a 0.3 m gate, and the graph
+re-solved in batch, twice; `loop_refine_passes`): default marina 175 keyframes at ~41
+keyframes/s, ATE SLAM 0.085 m vs dead reckoning 0.185 m (ratio 0.46; version 2: 0.087 m,
+0.47; version 1: 0.63); low-cost navigation 0.086 m vs 0.44 m (0.195; version 2: 0.21);
+PCM on Intel passes.
 
-`--seeds 0,1,2` (slam version 2, 2 shared cores, 32 s in all): ratios 0.468 / 0.498 /
-0.600 at 46 / 49 / 55 keyframes/s (worst 0.60: the halving is not robust yet). Real
-pipeline (CFAR features, `sonarmap simulate --seed S`, `sonarmap run --until slam`):
-0.503 / 0.589 / 0.634 (0.093/0.185, 0.180/0.306, 0.105/0.165 m). True loop measurements
-(oracle) would give 0.26 / 0.25 on seeds 2 / 1: loop accuracy is the limit. Tried without
-a robust gain (single runs move by +-0.03 on tie-breaks alone): point-to-line ICP
-(isolated loop error 0.19 -> 0.34 m), line-aware ICP covariance on loops (0.41 / 0.49 /
-0.61), fewer or larger loop clouds, nearest target, distance cap, stronger Cauchy; a
-viewpoint-gated ICP (pairs only between points seen from similar directions: the far
+`--seeds 0,1,2` (slam version 3, 2 shared cores, 31 s in all): ratios 0.460 / 0.489 /
+0.576 at 41 / 44 / 51 keyframes/s (version 2: 0.468 / 0.498 / 0.600). Real pipeline (CFAR
+features, `sonarmap simulate --seed S`, `sonarmap run --until slam`): 0.429 / 0.527 /
+0.558 (0.080/0.185, 0.161/0.306, 0.092/0.165 m; version 2: 0.503 / 0.589 / 0.634). Worst
+of the six 0.634 -> 0.576, median 0.546 -> 0.508; loop error RMS falls on every set (e.g.
+CFAR seed 1 0.345 -> 0.229 m, 1.21 -> 0.72 deg). The halving is still not robust (seed 2).
+True loop measurements (oracle) would give 0.26 / 0.25 on seeds 2 / 1: loop accuracy is
+the limit. Tried on version 2 without a robust gain (single runs move by +-0.03 on
+tie-breaks alone): point-to-line ICP (isolated loop error 0.19 -> 0.34 m), line-aware ICP
+covariance on loops (0.41 / 0.49 / 0.61), fewer or larger loop clouds, nearest target,
+distance cap, stronger Cauchy; a viewpoint-gated ICP (pairs only between points seen from similar directions: the far
 side of a hull or piling is another surface) halves the isolated median loop error
 but drifts from the odometry-guessed initialisation in the full run (0.73 on seed 0).
+
+Version 3 variants (ratios perfect seeds 0 / 1 / 2 | CFAR seeds 0 / 1 / 2; one run each of
+`STAGE.run` with the experimental code, not kept):
+- anisotropic per-point sonar noise (range 3 cm, bearing sigma times range, 7 cm voxel
+  floor), SE(2) generalized ICP refining the kiss-icp loop pose: bearing 0.5 deg 0.52 /
+  0.51 / 0.56 | 0.65 / 0.63 / 0.68; 1 deg 0.54 / 0.48 / 0.55 | 0.67 / 0.66 / 0.68; 2 deg
+  worse; also on SSM 0.58 / 0.50 / 0.55 | 0.69 / 0.63 / 0.70; isotropic (same code, no
+  bearing term) 0.50 / 0.50 / 0.57 | 0.62 / 0.62 / 0.69. Loop errors grow (CFAR seed 1
+  RMS 0.345 -> 0.47 m at 0.5 deg): letting residuals slide along the beam arc frees the
+  per-region bias. Down-weighting far points (isotropic sigma growing with range) is worse
+  still (worst 0.80 / 0.89 at 0.5 / 1 deg): far points carry the yaw.
+- second pass, other settings: gate 0.5 m one pass 0.47 / 0.49 / 0.57 | 0.49 / 0.56 /
+  0.59, two passes 0.47 / 0.50 / 0.55 | 0.49 / 0.54 / 0.59, three 0.46 / 0.50 / 0.55 |
+  0.50 / 0.53 / 0.59; gate 1 m 0.47 / 0.50 / 0.57 | 0.52 / 0.57 / 0.60; gate 0.2 m two
+  passes 0.46 / 0.47 / 0.57 | 0.40 / 0.52 / 0.58; gate 0.3 m, 11 target frames 0.47 /
+  0.45 / 0.60 | 0.38 / 0.53 / 0.53; batch re-solve alone, loops unchanged 0.47 / 0.50 /
+  0.59 | 0.50 / 0.59 / 0.59.
+- second pass with the viewpoint-gated ICP (cos >= 0.7, gate 0.5 m): lowest loop errors
+  (CFAR seed 1 RMS 0.20 m) but seed 2 does not follow: 0.43 / 0.48 / 0.62 | 0.48 / 0.53 /
+  0.62; cos 0.5 0.45 / 0.47 / 0.61 | 0.46 / 0.52 / 0.62; cos 0.85 0.43 / 0.50 / 0.63 |
+  0.49 / 0.52 / 0.70; two passes, gate 0.3 m 0.43 / 0.47 / 0.68 | 0.45 / 0.48 / 0.64.
+- extra short-baseline loops in the second pass (nearest older keyframe within 5 m and 45
+  deg): accurate (3 cm) but only 0-7 per mission, no change; alone instead of the loops:
+  0.70 / 1.14 / 1.14.
 
 Loop de-correlation and calibration (slam version 2, none kept; ratios on marina seeds
 0 / 1 / 2 with perfect features | CFAR features; baseline 0.468 / 0.498 / 0.600 | 0.503 /

@@ -9,7 +9,9 @@ horizontal features against the previous few keyframes, globally initialised by 
 maximisation); and loop closures from non-sequential scan matching (NSSM) against older
 keyframes whose footprint could overlap, admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a Cauchy
 kernel (their error is heavy-tailed: a structure seen from another viewpoint returns
-from other parts of its surface).
+from other parts of its surface). Once all keyframes are in, every accepted loop is
+registered again from the optimised poses (ICP only, tight gate) and the graph re-solved in
+batch (`SlamConfig.loop_refine_passes`; version 3).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -113,7 +115,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=2,
+    version=3,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

@@ -86,6 +86,16 @@ class SlamConfig(StageConfig):
         description="Cauchy kernel scale on loop factors (whitened error): loop errors are"
         " heavy-tailed (viewpoint-dependent sonar returns); None: Gaussian",
     )
+    loop_refine_passes: int = Field(
+        2,
+        ge=0,
+        description="after the incremental run: passes that re-register every accepted loop"
+        " from the optimised poses (ICP only, no global search), each followed by a batch"
+        " re-solve of the whole graph; 0: off",
+    )
+    loop_refine_correspondence_m: float = Field(
+        0.3, gt=0, description="ICP correspondence gate of the loop re-registration"
+    )
     pcm_queue_keyframes: int = Field(5, ge=0)
     pcm_min_clique: int = Field(2, ge=1)
     pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, description="chi2(0.99, 3)")

@@ -4,7 +4,9 @@ Per keyframe (paper Sec. IV.A): an odometry factor, an absolute heading factor (
 slam), sequential scan matching against the previous few keyframes and, once far enough
 from the start, non-sequential scan matching (loop closure) against the older keyframe
 whose features could overlap; a loop enters the graph only as a member of a pairwise
-consistent set (PCM, `stages.pcm`), under a Cauchy kernel.
+consistent set (PCM, `stages.pcm`), under a Cauchy kernel. After the last keyframe every
+accepted loop is registered again from the optimised poses and the whole graph re-solved
+(`loop_refine_passes`).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from stages._lazy import lazy
 from stages.pcm import chain_covariance, maximum_clique, pairwise_consistency
 from stages.pose_graph import (
     PlanarPoseGraph,
@@ -24,13 +27,25 @@ from stages.pose_graph import (
     se2_log,
     wrap_angle,
 )
-from stages.scan_matching import MatchResult, match_scans, transform_points, voxel_downsample
+from stages.scan_matching import (
+    MatchResult,
+    icp_2d,
+    icp_covariance,
+    match_scans,
+    transform_points,
+    voxel_downsample,
+)
 from stages.slam_config import SlamConfig
+
+spatial = lazy("scipy.spatial")
 
 __all__ = ["SlamResult", "run_slam"]
 
 _FREE_M2 = 1e6
 """Variance [m^2] of the position part of a heading-only prior (unconstrained)."""
+
+_RESOLVE_ITERATIONS = 4
+"""Extra iSAM2 iterations of a batch re-solve after the loop re-registration."""
 
 
 def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
@@ -209,6 +224,16 @@ class _FrontEnd:
         ad = se2_adjoint(se2_inverse(self.est[k]))
         return ad @ (chain[k] - chain[t]) @ ad.T
 
+    def _loop_clouds(self, t: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Source cloud (the last frames up to k, frame of k) and target cloud (frames
+        around t, older than k - nssm_min_separation, frame of t) of a loop t -> k."""
+        c = self.cfg
+        source = self._cloud(range(max(0, k - c.nssm_source_frames + 1), k + 1), k)
+        half_t = c.nssm_target_frames // 2
+        limit = k - c.nssm_min_separation
+        target = self._cloud(range(max(0, t - half_t), min(limit, t + half_t + 1)), t)
+        return source, target
+
     def _loop_closure(self, k: int) -> None:
         c = self.cfg
         rel = self._relative_covariance(0, k)
@@ -217,10 +242,7 @@ class _FrontEnd:
         )
         if t is None:
             return
-        source = self._cloud(range(max(0, k - c.nssm_source_frames + 1), k + 1), k)
-        half_t = c.nssm_target_frames // 2
-        limit = k - c.nssm_min_separation
-        target = self._cloud(range(max(0, t - half_t), min(limit, t + half_t + 1)), t)
+        source, target = self._loop_clouds(t, k)
         if len(source) < c.min_points or len(target) < c.min_points:
             return
         rel = self._relative_covariance(t, k)
@@ -271,6 +293,61 @@ class _FrontEnd:
         if added:
             self._update(extra_iterations=2)
 
+    def refine_loops(self) -> None:
+        """Re-register the accepted loops from the optimised poses, then re-solve in batch.
+
+        During the incremental run a loop is matched from the odometry-chain guess, through a
+        global search, with clouds assembled from drifted poses. Once every loop is in,
+        the estimate is good to a few centimetres: ICP alone, with a tight correspondence
+        gate, from the current relative pose, with clouds rebuilt from the current poses,
+        pairs fewer points on the wrong side of a structure. Each pass replaces the loops'
+        measurements and covariances, then re-solves the whole graph from the current
+        estimate (which also finishes the relinearisation iSAM2 leaves pending).
+        """
+        c = self.cfg
+        loops = [r for r in self.rows if r["type"] == "loop" and r["status"] == "accepted"]
+        if not loops:
+            return
+        for _ in range(c.loop_refine_passes):
+            for row in loops:
+                t, k = row["key_from"], row["key_to"]
+                source, target = self._loop_clouds(t, k)
+                guess = se2_between(self.est[t], self.est[k])
+                pose = icp_2d(
+                    source,
+                    target,
+                    guess,
+                    c.loop_refine_correspondence_m,
+                    c.icp_max_iterations,
+                    c.point_noise_m / 2,
+                )
+                overlap, rmse, cov = icp_covariance(
+                    source,
+                    spatial.cKDTree(target),
+                    pose,
+                    c.point_noise_m,
+                    c.icp_effective_samples,
+                )
+                row.update(z=pose, cov=self._floor(cov, self.loop_cov), overlap=overlap, rmse=rmse)
+            self._resolve()
+
+    def _resolve(self) -> None:
+        """Rebuild the graph from the accepted factor rows and solve it from the estimate."""
+        graph = PlanarPoseGraph()
+        for i, pose in enumerate(self.est):
+            graph.add_pose(i, pose)
+        for row in self.rows:
+            if row["status"] != "accepted":
+                continue
+            if row["type"] in ("prior", "heading"):
+                graph.add_prior(row["key_to"], row["z"], row["cov"])
+            else:
+                kernel = self.cfg.loop_cauchy_k if row["type"] == "loop" else None
+                graph.add_between(row["key_from"], row["key_to"], row["z"], row["cov"], kernel)
+        graph.update(extra_iterations=_RESOLVE_ITERATIONS)
+        self.graph = graph
+        self.est = graph.poses()
+
     def result(self) -> SlamResult:
         covs = np.array([self.graph.marginal_covariance(k) for k in range(self.graph.size)])
         return SlamResult(self.est.copy(), covs, self.rows)
@@ -289,4 +366,6 @@ def run_slam(config: SlamConfig, dr_se2: np.ndarray, points: list[np.ndarray]) -
     front.start(dr_se2[0])
     for k in range(1, len(dr_se2)):
         front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k])
+    if use_sonar:
+        front.refine_loops()
     return front.result()

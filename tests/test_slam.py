@@ -18,6 +18,7 @@ from schemas.classes import CLASS_IDS
 from schemas.features import FEATURES_SCHEMA
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from stages.pose_graph import se2_between
 from stages.slam import STAGE, SlamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -201,3 +202,28 @@ def test_leading_edges_keep_the_first_cell_of_each_run() -> None:
     ref = [(int(k), int(b), int(r) - 1) not in cells for k, b, r in uniq]
     np.testing.assert_array_equal(got, ref)
     assert len(expected) == 400
+
+
+def _loop_errors_m(out: dict[str, object], kf: pa.Table) -> np.ndarray:
+    """Translation error [m] of each accepted loop measurement against ground truth."""
+    factors = out["factors"]
+    index = {int(k): i for i, k in enumerate(kf.column("keyframe_id").to_numpy())}
+    loop = np.array(factors.column("type").to_pylist()) == "loop"
+    loop &= np.array(factors.column("status").to_pylist()) == "accepted"
+    a = [index[int(k)] for k in factors.column("key_from").to_numpy()[loop]]
+    b = [index[int(k)] for k in factors.column("key_to").to_numpy()[loop]]
+    truth = _columns(kf, ["gt_x_m", "gt_y_m", "gt_yaw_rad"])
+    z = _columns(factors, ["x_m", "y_m", "yaw_rad"])[loop]
+    error = se2_between(z, se2_between(truth[a], truth[b]))
+    return np.hypot(error[:, 0], error[:, 1])
+
+
+def test_loop_refinement_reduces_loop_error(pier_default_nav_inputs) -> None:
+    """Re-registering the loops from the optimised poses brings them closer to the truth."""
+    kf = pier_default_nav_inputs["keyframes.keyframes"]
+    before = STAGE.run(SlamConfig(loop_refine_passes=0), pier_default_nav_inputs)
+    after = STAGE.run(SlamConfig(), pier_default_nav_inputs)
+    e0, e1 = _loop_errors_m(before, kf), _loop_errors_m(after, kf)
+    assert len(e0) == len(e1) >= 5
+    assert not np.allclose(e0, e1)
+    assert np.sqrt(np.mean(e1**2)) < np.sqrt(np.mean(e0**2)), (e0, e1)
