@@ -13,12 +13,27 @@ mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing
     .venv/bin/python benchmarks/bench_slam.py                # seed 0, low-cost nav, PCM
     .venv/bin/python benchmarks/bench_slam.py --seeds 0,1,2  # robustness over seeds
 
-Measured (2 shared cores, slam stage version 3: after the incremental run every accepted
-loop is re-registered from the optimised poses, ICP only with a 0.3 m gate, and the graph
-re-solved in batch, twice; `loop_refine_passes`): default marina 175 keyframes at ~41
-keyframes/s, ATE SLAM 0.085 m vs dead reckoning 0.185 m (ratio 0.46; version 2: 0.087 m,
-0.47; version 1: 0.63); low-cost navigation 0.086 m vs 0.44 m (0.195; version 2: 0.21);
-PCM on Intel passes.
+Measured 2026-11-30 (2 shared cores, slam stage version 4: each heading factor measures
+the yaw through a heading-bias state that follows a random walk, 0.02 deg/sqrt(s), so the
+loops can correct the slowly wandering part of the AHRS error instead of being pinned to
+it): `--seeds 0,1,2` ratios 0.469 / 0.481 / 0.488 (0.087/0.185, 0.147/0.306, 0.081/0.165
+m) at 39 / 40 / 49 keyframes/s; low-cost navigation 0.085 m vs 0.44 m (0.193); PCM on
+Intel passes. Real pipeline (CFAR features): 0.482 / 0.472 / 0.537 (seed 2: 0.089 vs
+0.165 m). Worst of the six 0.576 -> 0.537, median 0.508 -> 0.481. Other walks and white
+noises (same six sets): walk 0.01 0.47 / 0.46 / 0.52 | 0.45 / 0.47 / 0.54; 0.005 0.46 /
+0.45 / 0.57 | 0.47 / 0.46 / 0.56; 0.05 0.49 / 0.53 / 0.52 | 0.51 / 0.49 / 0.57; white
+0.3 deg 0.48 / 0.46 / 0.54 | 0.47 / 0.48 / 0.53; 0.7 deg 0.49 / 0.54 / 0.47 | 0.49 / 0.53
+/ 0.52; 1 deg 0.46 / 0.52 / 0.55 | 0.49 / 0.51 / 0.51. Without bias states, independent
+heading priors of 0.3 / 1 / 2 deg: worst 0.61 / 0.54 / 0.58. With bias states, a loop
+re-registration gate of 0.2 / 0.5 m or 3 passes: worst 0.56 / 0.55 / 0.535. Dropping
+long-baseline loops before the re-registration (more than 40 / 30 / 25 m, version 3):
+worst 0.65 / 0.72 / 0.79: those loops carry the drift correction.
+
+Version 3 (after the incremental run every accepted loop is re-registered from the
+optimised poses, ICP only with a 0.3 m gate, and the graph re-solved in batch, twice;
+`loop_refine_passes`): default marina ATE SLAM 0.085 m vs dead reckoning 0.185 m (ratio
+0.46; version 2: 0.087 m, 0.47; version 1: 0.63); low-cost navigation 0.086 m vs 0.44 m
+(0.195; version 2: 0.21).
 
 `--seeds 0,1,2` (slam version 3, 2 shared cores, 31 s in all): ratios 0.460 / 0.489 /
 0.576 at 41 / 44 / 51 keyframes/s (version 2: 0.468 / 0.498 / 0.600). Real pipeline (CFAR
@@ -30,9 +45,9 @@ True loop measurements (oracle) would give 0.26 / 0.25 on seeds 2 / 1: loop accu
 the limit. Tried on version 2 without a robust gain (single runs move by +-0.03 on
 tie-breaks alone): point-to-line ICP (isolated loop error 0.19 -> 0.34 m), line-aware ICP
 covariance on loops (0.41 / 0.49 / 0.61), fewer or larger loop clouds, nearest target,
-distance cap, stronger Cauchy; a viewpoint-gated ICP (pairs only between points seen from similar directions: the far
-side of a hull or piling is another surface) halves the isolated median loop error
-but drifts from the odometry-guessed initialisation in the full run (0.73 on seed 0).
+distance cap, stronger Cauchy; a viewpoint-gated ICP (pairs only between points seen
+from similar directions: the far side of a hull or piling is another surface) halves
+the isolated median loop error but drifts from the odometry-guessed initialisation in the full run (0.73 on seed 0).
 
 Version 3 variants (ratios perfect seeds 0 / 1 / 2 | CFAR seeds 0 / 1 / 2; one run each of
 `STAGE.run` with the experimental code, not kept):

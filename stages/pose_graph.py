@@ -81,6 +81,13 @@ def se2_adjoint(a: np.ndarray) -> np.ndarray:
     return out
 
 
+_FREE_M = 1e3
+"""Std [m] of a factor's position part that is not measured."""
+
+_BIAS_ANCHOR_M = 1.0
+"""Std [m] holding a bias variable's unused position part at the origin."""
+
+
 def _pose2(p: np.ndarray) -> gtsam.Pose2:
     return gtsam.Pose2(float(p[0]), float(p[1]), float(p[2]))
 
@@ -97,6 +104,7 @@ class PlanarPoseGraph:
         self._values = gtsam.Values()
         self._estimate = gtsam.Values()
         self.size = 0
+        self._biases: list[int] = []
 
     def add_pose(self, index: int, initial: np.ndarray) -> None:
         """Declare pose `index` (must be the next one) with an initial guess (3,)."""
@@ -127,6 +135,52 @@ class PlanarPoseGraph:
             gtsam.BetweenFactorPose2(gtsam.symbol("x", i), gtsam.symbol("x", j), _pose2(z), noise)
         )
 
+    def add_biased_heading(
+        self,
+        index: int,
+        pose: np.ndarray,
+        sigma_rad: float,
+        walk_sigma_rad: float,
+        bias_guess_rad: float,
+        first_sigma_rad: float,
+    ) -> None:
+        """Absolute heading measurement of pose `index` through a slowly varying bias.
+
+        A compass or AHRS heading is the true yaw plus a bias that wanders (a random walk)
+        plus white noise: h_k = yaw_k - b_k + n_k, b_k - b_{k-1} ~ N(0, walk_sigma^2). Each
+        measured pose gets a bias variable B_k = Pose2(0, 0, b_k), chained to the previous
+        one by the walk; the measurement is a between factor B_k -> X_k whose rotation is
+        yaw_k - b_k (its position part is left free). Without the bias states, independent
+        heading priors pin the trajectory to the wandering bias.
+
+        Args:
+            index: the pose; pose: (3,) the navigation pose (x, y, heading h).
+            sigma_rad: white noise of the heading; walk_sigma_rad: std of the bias change
+                since the previous measured pose; bias_guess_rad: initial value of b_k.
+            first_sigma_rad: prior std of the first bias (its gauge; the constant part of
+                the bias is not observable from relative measurements).
+        """
+        key = gtsam.symbol("b", index)
+        self._values.insert(key, gtsam.Pose2(0.0, 0.0, float(bias_guess_rad)))
+        anchor = np.array([_BIAS_ANCHOR_M, _BIAS_ANCHOR_M])
+        if not self._biases:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([*anchor, first_sigma_rad]))
+            self._graph.add(gtsam.PriorFactorPose2(key, gtsam.Pose2(0.0, 0.0, 0.0), noise))
+        else:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([*anchor, walk_sigma_rad]))
+            previous = gtsam.symbol("b", self._biases[-1])
+            self._graph.add(gtsam.BetweenFactorPose2(previous, key, gtsam.Pose2(), noise))
+        self._biases.append(index)
+        # B^-1 X: rotation yaw - b, position R(-b) t_X; the position is not measured.
+        c, s = np.cos(bias_guess_rad), np.sin(bias_guess_rad)
+        z = np.array([c * pose[0] + s * pose[1], -s * pose[0] + c * pose[1], pose[2]])
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([_FREE_M, _FREE_M, sigma_rad]))
+        self._graph.add(gtsam.BetweenFactorPose2(key, gtsam.symbol("x", index), _pose2(z), noise))
+
+    def bias(self, index: int) -> float:
+        """Current estimate of the heading bias b of pose `index` [rad]."""
+        return float(self._estimate.atPose2(gtsam.symbol("b", index)).theta())
+
     def update(self, extra_iterations: int = 0) -> None:
         """Push pending factors and values into iSAM2, then refresh the estimate."""
         self._isam.update(self._graph, self._values)
@@ -140,7 +194,11 @@ class PlanarPoseGraph:
         """(K, 3) current estimate (x_m, y_m, theta_rad) of every pose, in key order."""
         if self.size == 0:
             return np.zeros((0, 3))
-        return np.asarray(gtsam.utilities.extractPose2(self._estimate), dtype=np.float64)
+        every = np.asarray(gtsam.utilities.extractPose2(self._estimate), dtype=np.float64)
+        # Values are ordered by key and symbol "b" (biases) sorts before "x" (poses).
+        if len(every) != self.size + len(self._biases):
+            raise RuntimeError("pose graph: unexpected Pose2 values in the estimate")
+        return every[len(self._biases) :]
 
     def pose(self, index: int) -> np.ndarray:
         """(3,) current estimate of one pose."""

@@ -3,12 +3,14 @@
 State: one Pose2 (x, y, yaw) per keyframe on GTSAM iSAM2; z, roll and pitch come from the
 navigation stream. Factors (the paper's factor graph, Sec. IV.A): a prior on the first
 pose; an absolute heading factor per keyframe from the navigation yaw (an AHRS heading,
-whose error does not accumulate; our addition); per consecutive pair dead reckoning and,
+whose error does not accumulate; our addition), measured through a heading-bias state per
+keyframe that follows a random walk (`heading_bias_walk_deg_sqrt_s`; version 4), so loops
+can correct the slowly wandering part of the compass error; per consecutive pair dead reckoning and,
 when it passes its checks, sequential scan matching (SSM: ICP of the keyframe's
 horizontal features against the previous few keyframes, globally initialised by consensus
 maximisation); and loop closures from non-sequential scan matching (NSSM) against older
-keyframes whose footprint could overlap, admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a Cauchy
-kernel (their error is heavy-tailed: a structure seen from another viewpoint returns
+keyframes whose footprint could overlap, admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a
+Cauchy kernel (their error is heavy-tailed: a structure seen from another viewpoint returns
 from other parts of its surface). Once all keyframes are in, every accepted loop is
 registered again from the optimised poses (ICP only, tight gate) and the graph re-solved in
 batch (`SlamConfig.loop_refine_passes`; version 3).
@@ -82,7 +84,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             raise ValueError("slam: mode ground_truth, but the keyframes carry no ground truth")
         pose6, cov, rows = gt, np.zeros((len(ids), 3, 3)), []
     else:
-        result = run_slam(config, dr_se2, points)
+        result = run_slam(config, dr_se2, points, (t_ns - t_ns[0]) * 1e-9)
         pose6 = dr.copy()
         pose6[:, [0, 1, 5]] = result.poses
         pose6[:, 5] = wrap_angle(pose6[:, 5])
@@ -115,7 +117,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=3,
+    version=4,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

@@ -30,7 +30,17 @@ class SlamConfig(StageConfig):
         0.5,
         gt=0,
         description="mode slam: absolute heading factor per keyframe from the navigation yaw"
-        " (AHRS heading: white noise, its bias is a common rotation); None: off",
+        " (AHRS heading), its white noise; None: off",
+    )
+    heading_bias_walk_deg_sqrt_s: float | None = Field(
+        0.02,
+        gt=0,
+        description="random walk of the heading's bias [deg/sqrt(s)] (the simulator's AHRS:"
+        " 0.02): each heading factor measures yaw through a bias state chained by this walk,"
+        " so loops correct the wandering part; None: independent heading priors",
+    )
+    heading_first_bias_sigma_deg: float = Field(
+        5.0, gt=0, description="prior std of the first bias state (a gauge: weak)"
     )
     ssm_replaces_odometry: bool = Field(
         False, description="authors: SSM replaces odometry; default: both factors are fused"

@@ -1,8 +1,9 @@
 """Incremental SLAM front end: SSM, NSSM and PCM over keyframes on one iSAM2 graph.
 
 Per keyframe (paper Sec. IV.A): an odometry factor, an absolute heading factor (mode
-slam), sequential scan matching against the previous few keyframes and, once far enough
-from the start, non-sequential scan matching (loop closure) against the older keyframe
+slam; through a random-walk bias state, `PlanarPoseGraph.add_biased_heading`),
+sequential scan matching against the previous few keyframes and, once far enough from
+the start, non-sequential scan matching (loop closure) against the older keyframe
 whose features could overlap; a loop enters the graph only as a member of a pairwise
 consistent set (PCM, `stages.pcm`), under a Cauchy kernel. After the last keyframe every
 accepted loop is registered again from the optimised poses and the whole graph re-solved
@@ -86,6 +87,21 @@ class _FrontEnd:
         self.odom_cov = _diag_cov(config.odom_sigma_xy_m, config.odom_sigma_yaw_deg)
         self.odom_info = np.linalg.inv(self.odom_cov)
         self.loop_cov = _diag_cov(config.loop_sigma_xy_m, config.loop_sigma_yaw_deg)
+        self.heading_dt_s = 0.0
+        self.last_bias: float | None = None
+
+    def _biased_heading(
+        self, k: int, nav: np.ndarray, walk_rad: float, bias_rad: float, graph: PlanarPoseGraph
+    ) -> None:
+        c = self.cfg
+        graph.add_biased_heading(
+            k,
+            nav,
+            float(np.deg2rad(c.heading_sigma_deg or 0.0)),
+            walk_rad,
+            bias_rad,
+            float(np.deg2rad(c.heading_first_bias_sigma_deg)),
+        )
 
     def _row(self, kind: str, a: int, b: int, z: np.ndarray, cov: np.ndarray, **kw: Any) -> int:
         row = {"type": kind, "key_from": a, "key_to": b, "z": np.asarray(z, float), "cov": cov}
@@ -96,6 +112,9 @@ class _FrontEnd:
     def _update(self, extra_iterations: int = 0) -> None:
         self.graph.update(extra_iterations)
         self.est = self.graph.poses()
+        headings = [r for r in self.rows if r["type"] == "heading" and "walk_rad" in r]
+        if headings:
+            self.last_bias = self.graph.bias(headings[-1]["key_to"])
 
     def _cloud(self, frames: range, anchor: int) -> np.ndarray:
         parts = [
@@ -156,16 +175,28 @@ class _FrontEnd:
         self._row("prior", 0, 0, pose, cov)
         self._update()
 
-    def step(self, k: int, odometry: np.ndarray, loops: bool, nav: np.ndarray) -> None:
-        """Add keyframe k with the dead-reckoning motion (3,) from k-1 and its nav pose (3,)."""
+    def step(self, k: int, odometry: np.ndarray, loops: bool, nav: np.ndarray, dt_s: float) -> None:
+        """Add keyframe k with the dead-reckoning motion (3,) from k-1, its nav pose (3,)
+        and the time since keyframe k-1 [s]."""
         c = self.cfg
-        self.graph.add_pose(k, se2_compose(self.est[k - 1], odometry))
+        guess = se2_compose(self.est[k - 1], odometry)
+        self.graph.add_pose(k, guess)
         if loops and c.heading_sigma_deg is not None:
             # The navigation yaw is an absolute (AHRS) heading whose error does not grow;
             # odometry factors alone would let it random-walk. x, y stay free.
             cov = np.diag([_FREE_M2, _FREE_M2, np.deg2rad(c.heading_sigma_deg) ** 2])
-            self.graph.add_prior(k, nav, cov)
-            self._row("heading", k, k, nav, cov)
+            if c.heading_bias_walk_deg_sqrt_s is None:
+                self.graph.add_prior(k, nav, cov)
+                self._row("heading", k, k, nav, cov)
+            else:
+                self.heading_dt_s += dt_s
+                walk = np.deg2rad(c.heading_bias_walk_deg_sqrt_s) * np.sqrt(self.heading_dt_s)
+                bias = (
+                    self.last_bias if self.last_bias is not None else wrap_angle(guess[2] - nav[2])
+                )
+                self._biased_heading(k, nav, walk, float(bias), self.graph)
+                self._row("heading", k, k, nav, cov, walk_rad=walk)
+                self.heading_dt_s = 0.0
         odo_row = self._row("odometry", k - 1, k, odometry, self.odom_cov)
         source = self.points[k]
         target = self._cloud(range(max(0, k - c.ssm_target_frames), k), k - 1)
@@ -339,7 +370,10 @@ class _FrontEnd:
         for row in self.rows:
             if row["status"] != "accepted":
                 continue
-            if row["type"] in ("prior", "heading"):
+            if row["type"] == "heading" and "walk_rad" in row:
+                k = row["key_to"]
+                self._biased_heading(k, row["z"], row["walk_rad"], self.graph.bias(k), graph)
+            elif row["type"] in ("prior", "heading"):
                 graph.add_prior(row["key_to"], row["z"], row["cov"])
             else:
                 kernel = self.cfg.loop_cauchy_k if row["type"] == "loop" else None
@@ -353,19 +387,23 @@ class _FrontEnd:
         return SlamResult(self.est.copy(), covs, self.rows)
 
 
-def run_slam(config: SlamConfig, dr_se2: np.ndarray, points: list[np.ndarray]) -> SlamResult:
+def run_slam(
+    config: SlamConfig, dr_se2: np.ndarray, points: list[np.ndarray], t_s: np.ndarray
+) -> SlamResult:
     """Planar SLAM (mode "slam") or dead reckoning through the same graph ("dead_reckoning").
 
     Args:
         config: stage config.
         dr_se2: (K, 3) dead-reckoning poses (x_m, y_m, yaw_rad) of the keyframes, world frame.
         points: K arrays (N_k, 2) of horizontal features in base_link.
+        t_s: (K,) keyframe times [s] (the heading bias walks with time).
     """
     use_sonar = config.mode == "slam"
     front = _FrontEnd(config, points if use_sonar else [np.zeros((0, 2))] * len(points))
     front.start(dr_se2[0])
     for k in range(1, len(dr_se2)):
-        front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k])
+        dt_s = float(t_s[k] - t_s[k - 1])
+        front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k], dt_s)
     if use_sonar:
         front.refine_loops()
     return front.result()
