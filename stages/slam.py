@@ -5,15 +5,17 @@ navigation stream. Factors (the paper's factor graph, Sec. IV.A): a prior on the
 pose; an absolute heading factor per keyframe from the navigation yaw (an AHRS heading,
 whose error does not accumulate; our addition), measured through a heading-bias state per
 keyframe that follows a random walk (`heading_bias_walk_deg_sqrt_s`; version 4), so loops
-can correct the slowly wandering part of the compass error; per consecutive pair dead reckoning and,
-when it passes its checks, sequential scan matching (SSM: ICP of the keyframe's
-horizontal features against the previous few keyframes, globally initialised by consensus
-maximisation); and loop closures from non-sequential scan matching (NSSM) against older
-keyframes whose footprint could overlap, admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a
-Cauchy kernel (their error is heavy-tailed: a structure seen from another viewpoint returns
-from other parts of its surface). Once all keyframes are in, every accepted loop is
-registered again from the optimised poses (ICP only, tight gate) and the graph re-solved in
-batch (`SlamConfig.loop_refine_passes`; version 3).
+can correct the slowly wandering part of the compass error; per consecutive pair dead
+reckoning and, when it passes its checks, sequential scan matching (SSM: ICP of the
+keyframe's horizontal features against the previous few keyframes, globally initialised
+by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
+against the older keyframe whose footprint overlaps most (and, when that match fails its
+checks, the next best from another stretch of the track: `nssm_fallback_targets`, version
+5), admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a Cauchy
+kernel (their error is heavy-tailed: a structure seen from another viewpoint returns from
+other parts of its surface). Once all keyframes are in, every accepted loop is registered
+again from the optimised poses (ICP only, tight gate) and the graph re-solved in batch
+(`SlamConfig.loop_refine_passes`; version 3).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -117,7 +119,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=4,
+    version=5,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

@@ -82,6 +82,12 @@ class SlamConfig(StageConfig):
     nssm_max_heading_change_deg: float = Field(
         180.0, gt=0, description="loop targets seen with a heading within this of the current"
     )
+    nssm_fallback_targets: int = Field(
+        1,
+        ge=0,
+        description="loop targets tried after the best one fails its checks (each from"
+        " another stretch of the track)",
+    )
     nssm_aperture_deg: float = Field(130.0, gt=0)
     nssm_window_xy_m: tuple[float, float] = (1.0, 5.0)
     nssm_window_yaw_deg: tuple[float, float] = (5.73, 20.0)

@@ -230,11 +230,13 @@ class _FrontEnd:
         if loops and k >= c.nssm_min_separation + 1:
             self._loop_closure(k)
 
-    def _footprint_target(self, k: int, sigma_xy: float, sigma_yaw: float) -> int | None:
+    def _footprint_targets(self, k: int, sigma_xy: float, sigma_yaw: float) -> list[int]:
+        """Older keyframes whose points keyframe k could see, most points first: the best
+        and up to `nssm_fallback_targets` more, each from another stretch of the track."""
         c = self.cfg
         old = [i for i in range(k - c.nssm_min_separation) if len(self.points[i])]
         if not old:
-            return None
+            return []
         world = np.concatenate([transform_points(self.est[i], self.points[i]) for i in old])
         owner = np.concatenate([np.full(len(self.points[i]), i) for i in old])
         local = transform_points(se2_between(self.est[k], np.zeros(3)), world)
@@ -246,8 +248,13 @@ class _FrontEnd:
         heading = np.abs(wrap_angle(self.est[owner, 2] - self.est[k, 2]))
         visible &= heading <= np.deg2rad(c.nssm_max_heading_change_deg)
         counts = np.bincount(owner[visible], minlength=k)
-        best = int(np.argmax(counts))
-        return best if counts[best] > c.nssm_min_frame_points else None
+        chosen: list[int] = []
+        for t in np.argsort(-counts, kind="stable"):
+            if counts[t] <= c.nssm_min_frame_points or len(chosen) > c.nssm_fallback_targets:
+                break
+            if all(abs(int(t) - u) > c.nssm_target_frames for u in chosen):
+                chosen.append(int(t))
+        return chosen
 
     def _relative_covariance(self, t: int, k: int) -> np.ndarray:
         """(3, 3) covariance of pose k in the frame of t along the chain (frame of k)."""
@@ -266,16 +273,20 @@ class _FrontEnd:
         return source, target
 
     def _loop_closure(self, k: int) -> None:
-        c = self.cfg
         rel = self._relative_covariance(0, k)
-        t = self._footprint_target(
+        targets = self._footprint_targets(
             k, float(np.sqrt(np.linalg.eigvalsh(rel[:2, :2])[-1])), float(np.sqrt(rel[2, 2]))
         )
-        if t is None:
-            return
+        for t in targets:
+            if self._try_loop(t, k):
+                return
+
+    def _try_loop(self, t: int, k: int) -> bool:
+        """Match keyframe k against the frames around t; queue the loop if it passes."""
+        c = self.cfg
         source, target = self._loop_clouds(t, k)
         if len(source) < c.min_points or len(target) < c.min_points:
-            return
+            return False
         rel = self._relative_covariance(t, k)
         xy = np.clip(5 * np.sqrt(np.linalg.eigvalsh(rel[:2, :2])[-1]), *c.nssm_window_xy_m)
         yaw = np.clip(5 * np.sqrt(rel[2, 2]), *np.deg2rad(c.nssm_window_yaw_deg))
@@ -298,9 +309,10 @@ class _FrontEnd:
             reason=reason or "pcm: not in a consistent set",
         )
         if reason:
-            return
+            return False
         self.queue.append(_Candidate(t, k, match, cov, row))
         self._pcm(k)
+        return True
 
     def _pcm(self, k: int) -> None:
         c = self.cfg

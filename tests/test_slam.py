@@ -8,6 +8,7 @@ sonar's real elevation smear.
 from __future__ import annotations
 
 import io
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -227,3 +228,33 @@ def test_loop_refinement_reduces_loop_error(pier_default_nav_inputs) -> None:
     assert len(e0) == len(e1) >= 5
     assert not np.allclose(e0, e1)
     assert np.sqrt(np.mean(e1**2)) < np.sqrt(np.mean(e0**2)), (e0, e1)
+
+
+def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
+    pier_default_nav_inputs,
+) -> None:
+    """When the best-overlapping older keyframe fails its checks, the next best one from
+    another stretch of the track is tried (`nssm_fallback_targets`); with 0 never. Every
+    pier loop passes its checks, so here an impossible overlap requirement fails them all.
+    (What the fallback gains is measured in benchmarks/bench_slam.py.)"""
+
+    def loop_rows(**cfg: int) -> list[dict]:
+        out = STAGE.run(SlamConfig(**cfg), pier_default_nav_inputs)
+        return [r for r in out["factors"].to_pylist() if r["type"] == "loop"]
+
+    passing = loop_rows()
+    assert passing and all(r["status"] == "accepted" for r in passing)
+    assert max(Counter(r["key_to"] for r in passing).values()) == 1  # no fallback needed
+    single = loop_rows(nssm_fallback_targets=0, min_overlap_points=10**6)
+    assert max(Counter(r["key_to"] for r in single).values()) == 1
+    tries: dict[int, list[dict]] = {}
+    for r in loop_rows(nssm_fallback_targets=1, min_overlap_points=10**6):
+        assert r["status"] == "rejected" and r["reason"] == "overlap"
+        tries.setdefault(r["key_to"], []).append(r)
+    retried = [rows for rows in tries.values() if len(rows) == 2]
+    assert len(retried) >= len(tries) // 2 and max(map(len, tries.values())) == 2
+    spacing = SlamConfig().nssm_target_frames
+    assert all(abs(a["key_from"] - b["key_from"]) > spacing for a, b in retried)
+    assert {k: rows[0]["key_from"] for k, rows in tries.items()} == {
+        r["key_to"]: r["key_from"] for r in single
+    }  # the first try is the same best target
