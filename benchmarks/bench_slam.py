@@ -30,7 +30,9 @@ anything and misses: its dead reckoning is unusually good (0.107 m) and SLAM's e
 best target (33 m away) failed on overlap or deviation, every time. Gating loop targets
 by heading (`nssm_max_heading_change_deg` 90 / 60; perfect seeds 0-4 | CFAR 0-2): 0.49 /
 0.39 / 0.44 / 0.72 / 0.27 | 0.43 / 0.42 / 0.64 and 0.45 / 0.41 / 0.54 / 0.72 / 0.28 |
-0.48 / 0.46 / 0.81, not kept.
+0.48 / 0.46 / 0.81, not kept. Moving every leading-edge point 0.1 / 0.2 m further along
+its beam (towards a piling's centre, so arcs seen from opposite sides would meet): worst
+1.09 / 1.47 (seed 3), not kept.
 
 Version 4 (each heading factor measures the yaw through a heading-bias state that follows
 a random walk, 0.02 deg/sqrt(s), so the loops can correct the slowly wandering part of
