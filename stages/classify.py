@@ -14,8 +14,9 @@ SLAM). A piling seen at 25 m, where its shape is hardly resolved, takes the clas
 close up a few keyframes earlier or later. `probability` is then the pooled probability;
 `single_view_probability` keeps this keyframe's own.
 
-The patch geometry (margin, smallest side) comes from the model file, so patches are
-cut exactly as in training; the clustering parameters are this stage's config.
+The patch geometry (margin, smallest side) and the clustering parameters come from the
+model file, so objects are found and cut exactly as in training; the clustering fields of
+this stage's config only override them.
 """
 
 from __future__ import annotations

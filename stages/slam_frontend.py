@@ -88,16 +88,17 @@ class _FrontEnd:
         self.odom_info = np.linalg.inv(self.odom_cov)
         self.loop_cov = _diag_cov(config.loop_sigma_xy_m, config.loop_sigma_yaw_deg)
         self.heading_dt_s = 0.0
-        self.last_bias: float | None = None
+        self.bias_key: int | None = None  # the last keyframe with a heading-bias state
 
     def _biased_heading(
         self, k: int, nav: np.ndarray, walk_rad: float, bias_rad: float, graph: PlanarPoseGraph
     ) -> None:
         c = self.cfg
+        assert c.heading_sigma_deg is not None
         graph.add_biased_heading(
             k,
             nav,
-            float(np.deg2rad(c.heading_sigma_deg or 0.0)),
+            float(np.deg2rad(c.heading_sigma_deg)),
             walk_rad,
             bias_rad,
             float(np.deg2rad(c.heading_first_bias_sigma_deg)),
@@ -112,9 +113,6 @@ class _FrontEnd:
     def _update(self, extra_iterations: int = 0) -> None:
         self.graph.update(extra_iterations)
         self.est = self.graph.poses()
-        headings = [r for r in self.rows if r["type"] == "heading" and "walk_rad" in r]
-        if headings:
-            self.last_bias = self.graph.bias(headings[-1]["key_to"])
 
     def _cloud(self, frames: range, anchor: int) -> np.ndarray:
         parts = [
@@ -191,12 +189,13 @@ class _FrontEnd:
             else:
                 self.heading_dt_s += dt_s
                 walk = np.deg2rad(c.heading_bias_walk_deg_sqrt_s) * np.sqrt(self.heading_dt_s)
-                bias = (
-                    self.last_bias if self.last_bias is not None else wrap_angle(guess[2] - nav[2])
-                )
-                self._biased_heading(k, nav, walk, float(bias), self.graph)
+                if self.bias_key is None:
+                    bias = float(wrap_angle(guess[2] - nav[2]))
+                else:
+                    bias = self.graph.bias(self.bias_key)
+                self._biased_heading(k, nav, walk, bias, self.graph)
                 self._row("heading", k, k, nav, cov, walk_rad=walk)
-                self.heading_dt_s = 0.0
+                self.heading_dt_s, self.bias_key = 0.0, k
         odo_row = self._row("odometry", k - 1, k, odometry, self.odom_cov)
         source = self.points[k]
         target = self._cloud(range(max(0, k - c.ssm_target_frames), k), k - 1)
