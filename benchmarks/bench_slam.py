@@ -32,7 +32,10 @@ by heading (`nssm_max_heading_change_deg` 90 / 60; perfect seeds 0-4 | CFAR 0-2)
 0.39 / 0.44 / 0.72 / 0.27 | 0.43 / 0.42 / 0.64 and 0.45 / 0.41 / 0.54 / 0.72 / 0.28 |
 0.48 / 0.46 / 0.81, not kept. Moving every leading-edge point 0.1 / 0.2 m further along
 its beam (towards a piling's centre, so arcs seen from opposite sides would meet): worst
-1.09 / 1.47 (seed 3), not kept.
+1.09 / 1.47 (seed 3), not kept. Loop covariance floor doubled (0.2 m, 1.15 deg): 0.43 /
+0.49 / 0.47 / 0.71 / 0.31 | 0.45 / 0.52 / 0.50; Cauchy scale 0.5: 0.45 / 0.56 / 0.53 /
+0.58 / 0.33 | 0.44 / 0.46 / 0.48 (seed 3 better, seeds 1 and 2 worse; mean of the eight
+0.478 against 0.476), neither kept.
 
 Version 4 (each heading factor measures the yaw through a heading-bias state that follows
 a random walk, 0.02 deg/sqrt(s), so the loops can correct the slowly wandering part of
