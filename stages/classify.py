@@ -77,13 +77,13 @@ class ClassifyConfig(StageConfig):
         " the same place in nearby keyframes (stages.view_pooling; not in the paper)",
     )
     pool_radius_m: float = Field(
-        0.5, gt=0, description="sightings within this in the world are one object"
+        0.7, gt=0, description="sightings within this in the world are one object"
     )
     pool_window_m: float = Field(
-        40.0, ge=0, description="... when at most this far apart along the track (DR drift)"
+        80.0, ge=0, description="... when at most this far apart along the track (DR drift)"
     )
     pool_range_scale_m: float | None = Field(
-        20.0, gt=0, description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal"
+        15.0, gt=0, description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal"
     )
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
