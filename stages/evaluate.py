@@ -329,7 +329,7 @@ def _truth_xy(mesh: Mesh) -> np.ndarray:
 
 STAGE = Stage(
     name="evaluate",
-    version=2,
+    version=3,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",

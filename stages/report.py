@@ -159,20 +159,22 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
     errs = metrics.get("errors", {})
     comp = metrics.get("completeness", {})
     prec = metrics.get("precision", {})
+    aligned = metrics.get("errors_aligned") or {}
     counts = {"standard": pts.get("fused"), "semantic": None}
     if pts.get("fused") is not None and pts.get("inferred") is not None:
         counts["semantic"] = pts["fused"] + pts["inferred"]
     lines = [
         "| map | points | voxels | median error m | mean error m | p90 m | p95 m"
-        " | completeness | precision |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        " | completeness | precision | median m, SLAM aligned |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for name in ("standard", "semantic"):
         e = errs.get(name, {})
         lines.append(
             f"| {name} | {_fmt(counts[name])} | {_fmt(vox.get(name))} | {_fmt(e.get('median_m'))}"
             f" | {_fmt(e.get('mean_m'))} | {_fmt(e.get('p90_m'))} | {_fmt(e.get('p95_m'))}"
-            f" | {_fmt(comp.get(name))} | {_fmt(prec.get(name))} |"
+            f" | {_fmt(comp.get(name))} | {_fmt(prec.get(name))}"
+            f" | {_fmt(aligned.get(name, {}).get('median_m'))} |"
         )
     if vox.get("standard"):
         lines.append(f"\nsemantic / standard voxels: **{vox['semantic'] / vox['standard']:.2f}x**")
@@ -229,7 +231,8 @@ def render_markdown(
             f" samples of {', '.join(comp.get('classes', []))} within {comp.get('tolerance_m')} m"
             " of a map point (visible: below the water surface, inside the horizontal sonar's"
             " field of view from some keyframe and not occluded); precision: fraction of map"
-            " points within the same distance of the surface.",
+            " points within the same distance of the surface. The last column moves the map by"
+            " the SE(2) alignment of the SLAM trajectory to the truth first (see Trajectory).",
             "",
         ]
     traj = metrics.get("trajectory", {})
