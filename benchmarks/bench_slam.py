@@ -31,7 +31,8 @@ slower bias walk trades seed 3 against seeds 0-2 (perfect seeds 0-4 | CFAR 0-2):
 of the first): 0.49 / 0.47 / 0.53 / 0.64 / 0.29 | 0.47 / 0.47 / 0.49 and 0.48 / 0.45 /
 0.53 / 0.63 / 0.25 | 0.49 / 0.48 / 0.51. Fallback targets on seeds 0-2 (perfect |
 CFAR): 0 0.469 / 0.481 / 0.488 | 0.482 / 0.472 / 0.537; 1 0.441 / 0.473 / 0.464 | 0.470 /
-0.471 / 0.482; 2 0.441 / 0.495 / 0.492 | 0.470 / 0.477 / 0.482. The last keyframes of CFAR seed 2 had no loop: their
+0.471 / 0.482; 2 0.441 / 0.495 / 0.492 | 0.470 / 0.477 / 0.482. The last keyframes of
+CFAR seed 2 had no loop: their
 best target (33 m away) failed on overlap or deviation, every time. Gating loop targets
 by heading (`nssm_max_heading_change_deg` 90 / 60; perfect seeds 0-4 | CFAR 0-2): 0.49 /
 0.39 / 0.44 / 0.72 / 0.27 | 0.43 / 0.42 / 0.64 and 0.45 / 0.41 / 0.54 / 0.72 / 0.28 |
