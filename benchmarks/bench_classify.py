@@ -12,7 +12,8 @@ and run through the pipeline up to `classify` with the default config (keyframes
 2 m, CFAR features), once with `classify.pool_views` (default) and once without. The
 classify stage is forced, so its time is measured (torch and matplotlib are imported
 beforehand): it covers reading the keyframes, DBSCAN, patches, the CNN, pooling and the
-overlay PNG. Recall is also reported per centroid-range band: a 1 deg beam is 0.35-0.5 m wide at 20-30 m, as wide as a piling.
+overlay PNG. Recall is also reported per centroid-range band: a 1 deg beam is 0.35-0.5 m
+wide at 20-30 m, as wide as a piling.
 
 Measured 2026-11-30 (defaults, 2 shared cores), piling recall / cylindrical / rectangular
 precision at threshold 0.99, `--test marina:0,marina:1,marina:2,marina:3,marina:4,pier:2,
