@@ -39,6 +39,7 @@ __all__ = [
     "global_search",
     "icp_2d",
     "icp_covariance",
+    "icp_with_covariance",
     "match_scans",
     "polar_to_base",
     "transform_points",
@@ -306,8 +307,25 @@ def match_scans(
     initial, consensus = global_search(
         sample, scorer, guess, half_window, tie_fraction=tie_fraction
     )
+    pose, overlap, rmse, cov = icp_with_covariance(
+        source, target, initial, max_correspondence_m, max_iterations, radius_m, effective_samples
+    )
+    return MatchResult(pose, initial, consensus, overlap, rmse, cov)
+
+
+def icp_with_covariance(
+    source: np.ndarray,
+    target: np.ndarray,
+    initial: np.ndarray,
+    max_correspondence_m: float,
+    max_iterations: int,
+    radius_m: float,
+    effective_samples: float | None,
+) -> tuple[np.ndarray, int, float, np.ndarray]:
+    """ICP from `initial` (`icp_2d`, voxel radius_m / 2), then its overlap, RMSE and
+    covariance (`icp_covariance`): (pose, overlap, rmse_m, (3, 3) covariance)."""
     pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
     overlap, rmse, cov = icp_covariance(
         source, spatial.cKDTree(target), pose, radius_m, effective_samples
     )
-    return MatchResult(pose, initial, consensus, overlap, rmse, cov)
+    return pose, overlap, rmse, cov

@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from stages._lazy import lazy
 from stages.pcm import chain_covariance, maximum_clique, pairwise_consistency
 from stages.pose_graph import (
     PlanarPoseGraph,
@@ -30,15 +29,12 @@ from stages.pose_graph import (
 )
 from stages.scan_matching import (
     MatchResult,
-    icp_2d,
-    icp_covariance,
+    icp_with_covariance,
     match_scans,
     transform_points,
     voxel_downsample,
 )
 from stages.slam_config import SlamConfig
-
-spatial = lazy("scipy.spatial")
 
 __all__ = ["SlamResult", "run_slam"]
 
@@ -355,18 +351,12 @@ class _FrontEnd:
                 t, k = row["key_from"], row["key_to"]
                 source, target = self._loop_clouds(t, k)
                 guess = se2_between(self.est[t], self.est[k])
-                pose = icp_2d(
+                pose, overlap, rmse, cov = icp_with_covariance(
                     source,
                     target,
                     guess,
                     c.loop_refine_correspondence_m,
                     c.icp_max_iterations,
-                    c.point_noise_m / 2,
-                )
-                overlap, rmse, cov = icp_covariance(
-                    source,
-                    spatial.cKDTree(target),
-                    pose,
                     c.point_noise_m,
                     c.icp_effective_samples,
                 )
