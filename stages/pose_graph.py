@@ -105,6 +105,7 @@ class PlanarPoseGraph:
         self._estimate = gtsam.Values()
         self.size = 0
         self._biases: list[int] = []
+        self._scale_key: int | None = None
 
     def add_pose(self, index: int, initial: np.ndarray) -> None:
         """Declare pose `index` (must be the next one) with an initial guess (3,)."""
@@ -176,6 +177,62 @@ class PlanarPoseGraph:
         z = np.array([c * pose[0] + s * pose[1], -s * pose[0] + c * pose[1], pose[2]])
         noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([_FREE_M, _FREE_M, sigma_rad]))
         self._graph.add(gtsam.BetweenFactorPose2(key, gtsam.symbol("x", index), _pose2(z), noise))
+
+    def add_odometry_scale(self, sigma: float, guess: np.ndarray | None = None) -> None:
+        """Declare the odometry's scale error s = (s_x, s_y) (one per mission), prior N(0, sigma^2).
+
+        A DVL's per-axis scale error is fixed over a mission; folded into independent
+        per-step noise it would need a step noise several times the real one (which then
+        lets biased loop closures bend good stretches of track). See `add_scaled_odometry`.
+        """
+        if self._scale_key is not None:
+            raise ValueError("pose graph: the odometry scale is already declared")
+        self._scale_key = gtsam.symbol("s", 0)
+        start = np.zeros(2) if guess is None else np.asarray(guess, np.float64)
+        self._values.insert(self._scale_key, gtsam.Point2(float(start[0]), float(start[1])))
+        noise = gtsam.noiseModel.Isotropic.Sigma(2, float(sigma))
+        self._graph.add(gtsam.PriorFactorPoint2(self._scale_key, gtsam.Point2(0.0, 0.0), noise))
+
+    def add_scaled_odometry(self, i: int, j: int, z: np.ndarray, cov: np.ndarray) -> None:
+        """Odometry from pose i to pose j measured with the scale error `add_odometry_scale`.
+
+        The dead-reckoned motion z = (z_x, z_y, z_theta) in the frame of pose i reads the
+        true motion (t, theta) = X_i^-1 X_j as ((1 + s_x) t_x, (1 + s_y) t_y, theta) plus
+        white noise of (3, 3) covariance `cov`. Error and Jacobians (right perturbations of
+        both poses, GTSAM's Pose2 convention) are written out below.
+        """
+        if self._scale_key is None:
+            raise ValueError("pose graph: add_odometry_scale first")
+        zx, zy, zt = (float(v) for v in z)
+
+        def error(_factor: object, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+            xi = values.atPose2(keys[0])
+            xj = values.atPose2(keys[1])
+            scale = 1.0 + np.asarray(values.atPoint2(keys[2]), np.float64)
+            rel = xi.between(xj)
+            t = np.array([rel.x(), rel.y()])
+            err = np.array(
+                [scale[0] * t[0] - zx, scale[1] * t[1] - zy, wrap_angle(rel.theta() - zt)]
+            )
+            if jacobians is not None:
+                c, s = np.cos(rel.theta()), np.sin(rel.theta())
+                d_i = np.array([[-1.0, 0.0, t[1]], [0.0, -1.0, -t[0]], [0.0, 0.0, -1.0]])
+                d_j = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+                weight = np.diag([scale[0], scale[1], 1.0])
+                jacobians[0] = weight @ d_i
+                jacobians[1] = weight @ d_j
+                jacobians[2] = np.array([[t[0], 0.0], [0.0, t[1]], [0.0, 0.0]])
+            return err
+
+        keys = [gtsam.symbol("x", i), gtsam.symbol("x", j), self._scale_key]
+        noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
+        self._graph.add(gtsam.CustomFactor(noise, keys, error))
+
+    def scale(self) -> np.ndarray:
+        """Current estimate (2,) of the odometry scale error (s_x, s_y)."""
+        if self._scale_key is None:
+            return np.zeros(2)
+        return np.asarray(self._estimate.atPoint2(self._scale_key), np.float64).copy()
 
     def bias(self, index: int) -> float:
         """Current estimate of the heading bias b of pose `index` [rad]."""

@@ -6,7 +6,9 @@ pose; an absolute heading factor per keyframe from the navigation yaw (an AHRS h
 whose error does not accumulate; our addition), measured through a heading-bias state per
 keyframe that follows a random walk (`heading_bias_walk_deg_sqrt_s`; version 4), so loops
 can correct the slowly wandering part of the compass error; per consecutive pair dead
-reckoning and, when it passes its checks, sequential scan matching (SSM: ICP of the
+reckoning, read through a per-mission odometry scale error that is a state of its own
+(`odom_scale_sigma`, a DVL's scale error; version 6) so that the odometry's white noise can
+be the sensor's real one, and, when it passes its checks, sequential scan matching (SSM: ICP of the
 keyframe's horizontal features against the previous few keyframes, globally initialised
 by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
 against the older keyframe whose footprint overlaps most (and, when that match fails its
@@ -15,7 +17,8 @@ checks, the next best from another stretch of the track: `nssm_fallback_targets`
 kernel (their error is heavy-tailed: a structure seen from another viewpoint returns from
 other parts of its surface). Once all keyframes are in, every accepted loop is registered
 again from the optimised poses (ICP only, tight gate) and the graph re-solved in batch
-(`SlamConfig.loop_refine_passes`; version 3).
+(`SlamConfig.loop_refine_passes`; version 3); there a cluster of loops that share their
+sonar data counts about once (`loop_shared_window`; version 6).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -119,7 +122,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=5,
+    version=6,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

@@ -1,13 +1,15 @@
 """Incremental SLAM front end: SSM, NSSM and PCM over keyframes on one iSAM2 graph.
 
-Per keyframe (paper Sec. IV.A): an odometry factor, an absolute heading factor (mode
+Per keyframe (paper Sec. IV.A): an odometry factor (through the mission's odometry scale
+error, a state: `PlanarPoseGraph.add_scaled_odometry`), an absolute heading factor (mode
 slam; through a random-walk bias state, `PlanarPoseGraph.add_biased_heading`),
 sequential scan matching against the previous few keyframes and, once far enough from
 the start, non-sequential scan matching (loop closure) against the older keyframe
 whose features could overlap; a loop enters the graph only as a member of a pairwise
 consistent set (PCM, `stages.pcm`), under a Cauchy kernel. After the last keyframe every
 accepted loop is registered again from the optimised poses and the whole graph re-solved
-(`loop_refine_passes`).
+(`loop_refine_passes`), each loop's covariance multiplied by the number of loops that share
+its sonar data (`loop_shared_window`).
 """
 
 from __future__ import annotations
@@ -49,6 +51,17 @@ def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
     return np.diag([sigma_xy_m**2, sigma_xy_m**2, np.deg2rad(sigma_yaw_deg) ** 2])
 
 
+def _shared_data_counts(src: np.ndarray, dst: np.ndarray, window: int) -> np.ndarray:
+    """(L,) for each loop src -> dst, the number of loops (itself included) whose ends are
+    both within `window` keyframes of its own; 1 everywhere when window is 0."""
+    if window == 0:
+        return np.ones(len(src))
+    near = (np.abs(src[:, None] - src[None]) <= window) & (
+        np.abs(dst[:, None] - dst[None]) <= window
+    )
+    return near.sum(axis=1).astype(np.float64)
+
+
 @dataclass
 class _Candidate:
     src: int
@@ -81,7 +94,12 @@ class _FrontEnd:
         self.queue: list[_Candidate] = []
         self.icp_cov = _diag_cov(config.icp_sigma_xy_m, config.icp_sigma_yaw_deg)
         self.odom_cov = _diag_cov(config.odom_sigma_xy_m, config.odom_sigma_yaw_deg)
-        self.odom_info = np.linalg.inv(self.odom_cov)
+        # The chain covariance (loop search windows, gates, PCM) must also cover the drift
+        # of the scale error, which the scaled odometry factors leave out of odom_cov.
+        self.chain_odom_cov = _diag_cov(
+            max(config.odom_sigma_xy_m, config.odom_chain_sigma_xy_m), config.odom_sigma_yaw_deg
+        )
+        self.odom_info = np.linalg.inv(self.chain_odom_cov)
         self.loop_cov = _diag_cov(config.loop_sigma_xy_m, config.loop_sigma_yaw_deg)
         self.heading_dt_s = 0.0
         self.bias_key: int | None = None  # the last keyframe with a heading-bias state
@@ -99,6 +117,12 @@ class _FrontEnd:
             bias_rad,
             float(np.deg2rad(c.heading_first_bias_sigma_deg)),
         )
+
+    def _odometry(self, k: int, odometry: np.ndarray, graph: PlanarPoseGraph) -> None:
+        if self.cfg.odom_scale_sigma is None:
+            graph.add_between(k - 1, k, odometry, self.odom_cov)
+        else:
+            graph.add_scaled_odometry(k - 1, k, odometry, self.odom_cov)
 
     def _row(self, kind: str, a: int, b: int, z: np.ndarray, cov: np.ndarray, **kw: Any) -> int:
         row = {"type": kind, "key_from": a, "key_to": b, "z": np.asarray(z, float), "cov": cov}
@@ -166,6 +190,8 @@ class _FrontEnd:
         cov = _diag_cov(self.cfg.prior_sigma_xy_m, self.cfg.prior_sigma_yaw_deg)
         self.graph.add_pose(0, pose)
         self.graph.add_prior(0, pose, cov)
+        if self.cfg.odom_scale_sigma is not None:
+            self.graph.add_odometry_scale(self.cfg.odom_scale_sigma)
         self._row("prior", 0, 0, pose, cov)
         self._update()
 
@@ -173,7 +199,9 @@ class _FrontEnd:
         """Add keyframe k with the dead-reckoning motion (3,) from k-1, its nav pose (3,)
         and the time since keyframe k-1 [s]."""
         c = self.cfg
-        guess = se2_compose(self.est[k - 1], odometry)
+        scale = 1.0 + self.graph.scale()
+        motion = np.array([odometry[0] / scale[0], odometry[1] / scale[1], odometry[2]])
+        guess = se2_compose(self.est[k - 1], motion)
         self.graph.add_pose(k, guess)
         if loops and c.heading_sigma_deg is not None:
             # The navigation yaw is an absolute (AHRS) heading whose error does not grow;
@@ -193,6 +221,8 @@ class _FrontEnd:
                 self._row("heading", k, k, nav, cov, walk_rad=walk)
                 self.heading_dt_s, self.bias_key = 0.0, k
         odo_row = self._row("odometry", k - 1, k, odometry, self.odom_cov)
+        if c.odom_scale_sigma is not None:
+            self.rows[odo_row]["scaled"] = True
         source = self.points[k]
         target = self._cloud(range(max(0, k - c.ssm_target_frames), k), k - 1)
         reason = "too few points"
@@ -211,16 +241,16 @@ class _FrontEnd:
                 self.rows[odo_row]["status"] = "unused"
                 self.edge_covs.append(cov)
             else:
-                self.graph.add_between(k - 1, k, odometry, self.odom_cov)
+                self._odometry(k, odometry, self.graph)
                 self.edge_covs.append(np.linalg.inv(np.linalg.inv(cov) + self.odom_info))
         else:
-            self.graph.add_between(k - 1, k, odometry, self.odom_cov)
+            self._odometry(k, odometry, self.graph)
             z = odometry if match is None else match.pose
             overlap = 0 if match is None else match.overlap
             self._row(
                 "ssm", k - 1, k, z, self.icp_cov, status="rejected", reason=reason, overlap=overlap
             )
-            self.edge_covs.append(self.odom_cov)
+            self.edge_covs.append(self.chain_odom_cov)
         self._update()
         if loops and k >= c.nssm_min_separation + 1:
             self._loop_closure(k)
@@ -346,8 +376,13 @@ class _FrontEnd:
         loops = [r for r in self.rows if r["type"] == "loop" and r["status"] == "accepted"]
         if not loops:
             return
+        sharing = _shared_data_counts(
+            np.array([r["key_from"] for r in loops]),
+            np.array([r["key_to"] for r in loops]),
+            c.loop_shared_window,
+        )
         for _ in range(c.loop_refine_passes):
-            for row in loops:
+            for i, row in enumerate(loops):
                 t, k = row["key_from"], row["key_to"]
                 source, target = self._loop_clouds(t, k)
                 guess = se2_between(self.est[t], self.est[k])
@@ -360,7 +395,13 @@ class _FrontEnd:
                     c.point_noise_m,
                     c.icp_effective_samples,
                 )
-                row.update(z=pose, cov=self._floor(cov, self.loop_cov), overlap=overlap, rmse=rmse)
+                row.update(
+                    z=pose,
+                    cov=self._floor(cov, self.loop_cov) * sharing[i],
+                    overlap=overlap,
+                    rmse=rmse,
+                    shared=int(sharing[i]),
+                )
             self._resolve()
 
     def _resolve(self) -> None:
@@ -368,6 +409,8 @@ class _FrontEnd:
         graph = PlanarPoseGraph()
         for i, pose in enumerate(self.est):
             graph.add_pose(i, pose)
+        if self.cfg.odom_scale_sigma is not None:
+            graph.add_odometry_scale(self.cfg.odom_scale_sigma, self.graph.scale())
         for row in self.rows:
             if row["status"] != "accepted":
                 continue
@@ -376,6 +419,8 @@ class _FrontEnd:
                 self._biased_heading(k, row["z"], row["walk_rad"], self.graph.bias(k), graph)
             elif row["type"] in ("prior", "heading"):
                 graph.add_prior(row["key_to"], row["z"], row["cov"])
+            elif row.get("scaled"):
+                graph.add_scaled_odometry(row["key_from"], row["key_to"], row["z"], row["cov"])
             else:
                 kernel = self.cfg.loop_cauchy_k if row["type"] == "loop" else None
                 graph.add_between(row["key_from"], row["key_to"], row["z"], row["cov"], kernel)

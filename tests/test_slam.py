@@ -258,3 +258,15 @@ def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
     assert {k: rows[0]["key_from"] for k, rows in tries.items()} == {
         r["key_to"]: r["key_from"] for r in single
     }  # the first try is the same best target
+
+
+def test_loops_sharing_sonar_data_are_counted_together() -> None:
+    """Loops whose ends both lie within the window of another's reuse its clouds; the
+    count multiplies each one's covariance in the re-registration."""
+    from stages.slam_frontend import _shared_data_counts
+
+    src = np.array([10, 11, 12, 40, 10])
+    dst = np.array([60, 61, 62, 63, 90])
+    np.testing.assert_array_equal(_shared_data_counts(src, dst, 5), [3, 3, 3, 1, 1])
+    np.testing.assert_array_equal(_shared_data_counts(src, dst, 1), [2, 3, 2, 1, 1])
+    np.testing.assert_array_equal(_shared_data_counts(src, dst, 0), [1, 1, 1, 1, 1])

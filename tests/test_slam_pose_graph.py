@@ -109,3 +109,72 @@ def test_heading_bias_states_let_loops_correct_a_wandering_compass() -> None:
     bias = np.rad2deg([graph.bias(k) for k in range(1, len(truth))])
     np.testing.assert_allclose(bias, np.linspace(0.0, 3.0, len(truth))[1:], atol=0.6)
     assert len(with_bias) == len(truth)  # bias variables are not poses
+
+
+def test_scaled_odometry_jacobians_match_finite_differences() -> None:
+    graph = PlanarPoseGraph()
+    graph.add_pose(0, np.array([1.0, 2.0, 0.3]))
+    graph.add_pose(1, np.array([2.5, 2.9, 0.5]))
+    graph.add_odometry_scale(0.02, np.array([0.01, -0.02]))
+    graph.add_scaled_odometry(0, 1, np.array([1.7, 0.3, 0.25]), np.eye(3))
+    factor = graph._graph.at(graph._graph.size() - 1)
+    values = graph._values
+    analytic, _ = factor.linearize(values).jacobian()
+    e0, eps, numeric = factor.unwhitenedError(values), 1e-6, []
+    for key, dim in (
+        (gtsam.symbol("x", 0), 3),
+        (gtsam.symbol("x", 1), 3),
+        (gtsam.symbol("s", 0), 2),
+    ):
+        for d in range(dim):
+            moved = gtsam.Values(values)
+            delta = np.zeros(dim)
+            delta[d] = eps
+            if dim == 3:
+                moved.update(key, values.atPose2(key).compose(gtsam.Pose2.Expmap(delta)))
+            else:
+                moved.update(key, np.asarray(values.atPoint2(key)) + delta)
+            numeric.append((factor.unwhitenedError(moved) - e0) / eps)
+    np.testing.assert_allclose(analytic, np.array(numeric).T, atol=1e-5)
+
+
+def _solve_with_scale_error(scale_state: bool) -> tuple[np.ndarray, np.ndarray, PlanarPoseGraph]:
+    """Odometry that reads 3 % long along x (a DVL scale error), exact headings, and the
+    second lap's loops on the first."""
+    rng = np.random.default_rng(5)
+    truth = _loop_course(80)
+    graph = PlanarPoseGraph()
+    graph.add_pose(0, truth[0])
+    graph.add_prior(0, truth[0], np.diag([1e-4, 1e-4, 1e-6]))
+    if scale_state:
+        graph.add_odometry_scale(0.05)
+    graph.update()
+    odo_cov = np.diag([0.01**2, 0.01**2, np.deg2rad(0.3) ** 2])
+    loop_cov = np.diag([0.05**2, 0.05**2, np.deg2rad(0.2) ** 2])
+    for k in range(1, len(truth)):
+        step = se2_between(truth[k - 1], truth[k])
+        step = step * [1.03, 1.0, 1.0] + rng.normal(0, [0.01, 0.01, 0.002])
+        graph.add_pose(k, se2_compose(graph.pose(k - 1), step))
+        if scale_state:
+            graph.add_scaled_odometry(k - 1, k, step, odo_cov)
+        else:
+            graph.add_between(k - 1, k, step, odo_cov)
+        graph.add_prior(k, truth[k], np.diag([1e6, 1e6, np.deg2rad(0.3) ** 2]))
+        if k >= 40:
+            graph.add_between(k - 40, k, se2_between(truth[k - 40], truth[k]), loop_cov)
+        graph.update()
+    return graph.poses(), truth, graph
+
+
+def test_odometry_scale_state_recovers_a_dvl_scale_error() -> None:
+    """Per-step odometry noise cannot absorb a fixed scale error: the loops then pull
+    against every step. With the scale as a state the loops observe it."""
+    plain, truth, _ = _solve_with_scale_error(scale_state=False)
+    scaled, _, graph = _solve_with_scale_error(scale_state=True)
+    rmse = {
+        name: float(np.sqrt(np.mean(np.sum((est[:, :2] - truth[:, :2]) ** 2, axis=1))))
+        for name, est in (("plain", plain), ("scaled", scaled))
+    }
+    assert rmse["scaled"] < 0.3 * rmse["plain"], rmse
+    assert abs(graph.scale()[0] - 0.03) < 0.003, graph.scale()
+    assert abs(graph.scale()[1]) < 0.02, graph.scale()
