@@ -27,12 +27,14 @@ class SlamConfig(StageConfig):
     mode: Literal["slam", "dead_reckoning", "ground_truth"] = "slam"
     prior_sigma_xy_m: float = Field(0.1, gt=0)
     prior_sigma_yaw_deg: float = Field(0.573, gt=0, description="0.01 rad")
-    odom_sigma_xy_m: float = Field(
-        0.015,
+    odom_sigma_xy_m_sqrt_s: float = Field(
+        0.0075,
         gt=0,
-        description="white noise of the odometry per keyframe step (the scale error is a"
-        " state, `odom_scale_sigma`): a DVL's 0.02 m/s at 10 Hz over a 2 m step at 0.5 m/s"
-        " gives 0.013 m (the simulator's default navigation; measured 0.012-0.018)",
+        description="white noise of the odometry's position per sqrt(s) of the step's"
+        " duration (the scale error is a state, `odom_scale_sigma`): a DVL's 0.02 m/s at"
+        " 10 Hz gives 0.0063 (the simulator's default navigation; measured 0.012-0.018 m"
+        " over its 4 s keyframe steps); with odom_scale_sigma None it must also cover the"
+        " scale error",
     )
     odom_sigma_yaw_deg: float = Field(
         0.42,
@@ -50,7 +52,7 @@ class SlamConfig(StageConfig):
         0.05,
         gt=0,
         description="per-step std of the odometry chain that sizes loop search windows and"
-        " gates (at least odom_sigma_xy_m; covers the scale error's drift)",
+        " gates (covers the scale error's drift too)",
     )
     heading_sigma_deg: float | None = Field(
         0.3,

@@ -93,12 +93,9 @@ class _FrontEnd:
         self.rows: list[dict[str, Any]] = []
         self.queue: list[_Candidate] = []
         self.icp_cov = _diag_cov(config.icp_sigma_xy_m, config.icp_sigma_yaw_deg)
-        self.odom_cov = _diag_cov(config.odom_sigma_xy_m, config.odom_sigma_yaw_deg)
         # The chain covariance (loop search windows, gates, PCM) must also cover the drift
-        # of the scale error, which the scaled odometry factors leave out of odom_cov.
-        self.chain_odom_cov = _diag_cov(
-            max(config.odom_sigma_xy_m, config.odom_chain_sigma_xy_m), config.odom_sigma_yaw_deg
-        )
+        # of the scale error, which the scaled odometry factors leave out of their noise.
+        self.chain_odom_cov = _diag_cov(config.odom_chain_sigma_xy_m, config.odom_sigma_yaw_deg)
         self.odom_info = np.linalg.inv(self.chain_odom_cov)
         self.loop_cov = _diag_cov(config.loop_sigma_xy_m, config.loop_sigma_yaw_deg)
         self.heading_dt_s = 0.0
@@ -118,11 +115,18 @@ class _FrontEnd:
             float(np.deg2rad(c.heading_first_bias_sigma_deg)),
         )
 
-    def _odometry(self, k: int, odometry: np.ndarray, graph: PlanarPoseGraph) -> None:
-        if self.cfg.odom_scale_sigma is None:
-            graph.add_between(k - 1, k, odometry, self.odom_cov)
+    def _odometry_cov(self, dt_s: float) -> np.ndarray:
+        """(3, 3) white noise of one odometry step: the DVL's position noise grows with the
+        square root of the step's duration, the yaw's is that of two AHRS readings."""
+        c = self.cfg
+        return _diag_cov(c.odom_sigma_xy_m_sqrt_s * np.sqrt(max(dt_s, 0.01)), c.odom_sigma_yaw_deg)
+
+    def _odometry(self, row: dict[str, Any], graph: PlanarPoseGraph) -> None:
+        a, b, z, cov = row["key_from"], row["key_to"], row["z"], row["cov"]
+        if row.get("scaled"):
+            graph.add_scaled_odometry(a, b, z, cov)
         else:
-            graph.add_scaled_odometry(k - 1, k, odometry, self.odom_cov)
+            graph.add_between(a, b, z, cov)
 
     def _row(self, kind: str, a: int, b: int, z: np.ndarray, cov: np.ndarray, **kw: Any) -> int:
         row = {"type": kind, "key_from": a, "key_to": b, "z": np.asarray(z, float), "cov": cov}
@@ -220,7 +224,7 @@ class _FrontEnd:
                 self._biased_heading(k, nav, walk, bias, self.graph)
                 self._row("heading", k, k, nav, cov, walk_rad=walk)
                 self.heading_dt_s, self.bias_key = 0.0, k
-        odo_row = self._row("odometry", k - 1, k, odometry, self.odom_cov)
+        odo_row = self._row("odometry", k - 1, k, odometry, self._odometry_cov(dt_s))
         if c.odom_scale_sigma is not None:
             self.rows[odo_row]["scaled"] = True
         source = self.points[k]
@@ -241,10 +245,10 @@ class _FrontEnd:
                 self.rows[odo_row]["status"] = "unused"
                 self.edge_covs.append(cov)
             else:
-                self._odometry(k, odometry, self.graph)
+                self._odometry(self.rows[odo_row], self.graph)
                 self.edge_covs.append(np.linalg.inv(np.linalg.inv(cov) + self.odom_info))
         else:
-            self._odometry(k, odometry, self.graph)
+            self._odometry(self.rows[odo_row], self.graph)
             z = odometry if match is None else match.pose
             overlap = 0 if match is None else match.overlap
             self._row(
@@ -419,8 +423,8 @@ class _FrontEnd:
                 self._biased_heading(k, row["z"], row["walk_rad"], self.graph.bias(k), graph)
             elif row["type"] in ("prior", "heading"):
                 graph.add_prior(row["key_to"], row["z"], row["cov"])
-            elif row.get("scaled"):
-                graph.add_scaled_odometry(row["key_from"], row["key_to"], row["z"], row["cov"])
+            elif row["type"] == "odometry":
+                self._odometry(row, graph)
             else:
                 kernel = self.cfg.loop_cauchy_k if row["type"] == "loop" else None
                 graph.add_between(row["key_from"], row["key_to"], row["z"], row["cov"], kernel)

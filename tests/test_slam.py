@@ -270,3 +270,17 @@ def test_loops_sharing_sonar_data_are_counted_together() -> None:
     np.testing.assert_array_equal(_shared_data_counts(src, dst, 5), [3, 3, 3, 1, 1])
     np.testing.assert_array_equal(_shared_data_counts(src, dst, 1), [2, 3, 2, 1, 1])
     np.testing.assert_array_equal(_shared_data_counts(src, dst, 0), [1, 1, 1, 1, 1])
+
+
+def test_odometry_noise_grows_with_the_square_root_of_the_step_duration() -> None:
+    """A DVL's white velocity noise integrates to a position noise of sigma sqrt(dt): a
+    sweep with keyframes twice as far apart gets steps twice as long, not as precise."""
+    from stages.slam_frontend import _FrontEnd
+
+    config = SlamConfig()
+    front = _FrontEnd(config, [])
+    short, long = front._odometry_cov(4.0), front._odometry_cov(16.0)
+    np.testing.assert_allclose(np.sqrt(short[0, 0]), 2 * config.odom_sigma_xy_m_sqrt_s)
+    np.testing.assert_allclose(long[:2, :2], 4 * short[:2, :2])
+    assert long[2, 2] == short[2, 2]  # the yaw step is two AHRS readings, whatever dt
+    assert np.all(np.linalg.eigvalsh(front._odometry_cov(0.0)) > 0)
