@@ -2,7 +2,10 @@
 
 The factor graph of paper Sec. IV.A (unnumbered equation): a prior on the first pose,
 odometry factors, sequential scan-matching (SSM) factors and loop-closure (NSSM) factors,
-all `BetweenFactorPose2` with Gaussian noise, solved incrementally with iSAM2.
+all `BetweenFactorPose2` with Gaussian noise, solved incrementally with iSAM2. Beyond the
+paper: heading factors through random-walk bias states (`add_biased_heading`, stock
+factors) and odometry read through a per-mission scale error (`add_scaled_odometry`, a
+`CustomFactor` with analytic Jacobians).
 
 SE(2) conventions follow GTSAM's `Pose2`: a pose is (x_m, y_m, theta_rad), noise and
 covariances are in the body frame with tangent order (x, y, theta) (right perturbation
@@ -10,6 +13,8 @@ covariances are in the body frame with tangent order (x, y, theta) (right pertur
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -205,7 +210,7 @@ class PlanarPoseGraph:
             raise ValueError("pose graph: add_odometry_scale first")
         zx, zy, zt = (float(v) for v in z)
 
-        def error(_factor: object, values: gtsam.Values, jacobians: list | None) -> np.ndarray:
+        def error(_factor: object, values: Any, jacobians: list | None) -> np.ndarray:
             xi = values.atPose2(keys[0])
             xj = values.atPose2(keys[1])
             scale = 1.0 + np.asarray(values.atPoint2(keys[2]), np.float64)
