@@ -31,7 +31,7 @@ version 5 0.727 / 0.464 | 0.482 / 0.470 / 0.471; the sensors' noise without a sc
 DVL reads 2.7 % short); with the scale state 0.608 / 0.418 | 0.463 / 0.334 / 0.392, seed 4
 0.114; plus the sensors' heading and yaw noise 0.566 / 0.357 | 0.389 / 0.306 / 0.361; plus
 the shared-data weighting 0.514 / 0.337 | 0.430 / 0.283 / 0.333. Against version 5 every
-one of 14 sets improves but the pier (seed 1, default navigation, 27 loops): 0.228 ->
+one of 14 sets improves but the pier (seed 1, default navigation, 26 loops): 0.228 ->
 0.344. Diagnostics on seed 3 (loop error medians, clouds from the true poses): ICP
 started at the true relative pose 0.084 m, at the estimate 0.108 m; true loop
 measurements would give 0.405. A start-independent kernel-correlation registration
