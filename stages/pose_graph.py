@@ -209,6 +209,7 @@ class PlanarPoseGraph:
         if self._scale_key is None:
             raise ValueError("pose graph: add_odometry_scale first")
         zx, zy, zt = (float(v) for v in z)
+        keys = [gtsam.symbol("x", i), gtsam.symbol("x", j), self._scale_key]
 
         def error(_factor: object, values: Any, jacobians: list | None) -> np.ndarray:
             xi = values.atPose2(keys[0])
@@ -229,7 +230,6 @@ class PlanarPoseGraph:
                 jacobians[2] = np.array([[t[0], 0.0], [0.0, t[1]], [0.0, 0.0]])
             return err
 
-        keys = [gtsam.symbol("x", i), gtsam.symbol("x", j), self._scale_key]
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
         self._graph.add(gtsam.CustomFactor(noise, keys, error))
 

@@ -7,10 +7,10 @@ whose error does not accumulate; our addition), measured through a heading-bias 
 keyframe that follows a random walk (`heading_bias_walk_deg_sqrt_s`; version 4), so loops
 can correct the slowly wandering part of the compass error; per consecutive pair dead
 reckoning, read through a per-mission odometry scale error that is a state of its own
-(`odom_scale_sigma`, a DVL's scale error; version 6) so that the odometry's white noise can
-be the sensor's real one, and, when it passes its checks, sequential scan matching (SSM: ICP of the
-keyframe's horizontal features against the previous few keyframes, globally initialised
-by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
+(`odom_scale_sigma`, a DVL's scale error; version 6) so that the odometry's white noise
+can be the sensor's real one, and, when it passes its checks, sequential scan matching
+(SSM: ICP of the keyframe's horizontal features against the previous few keyframes,
+globally initialised by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
 against the older keyframe whose footprint overlaps most (and, when that match fails its
 checks, the next best from another stretch of the track: `nssm_fallback_targets`, version
 5), admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a Cauchy

@@ -399,13 +399,8 @@ class _FrontEnd:
                     c.point_noise_m,
                     c.icp_effective_samples,
                 )
-                row.update(
-                    z=pose,
-                    cov=self._floor(cov, self.loop_cov) * sharing[i],
-                    overlap=overlap,
-                    rmse=rmse,
-                    shared=int(sharing[i]),
-                )
+                cov = self._floor(cov, self.loop_cov) * sharing[i]
+                row.update(z=pose, cov=cov, overlap=overlap, rmse=rmse)
             self._resolve()
 
     def _resolve(self) -> None:
