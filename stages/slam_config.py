@@ -145,6 +145,13 @@ class SlamConfig(StageConfig):
         " re-registration each loop's covariance is multiplied by the number of accepted"
         " loops it shares with (itself included), so such a cluster counts about once; 0: off",
     )
+    ssm_refine_target_frames: int = Field(
+        5,
+        ge=0,
+        description="in each loop re-registration pass, also re-register every accepted SSM"
+        " factor (ICP only, from the current poses) against this many previous keyframes;"
+        " 0: off",
+    )
     loop_refine_correspondence_m: float = Field(
         0.3, gt=0, description="ICP correspondence gate of the loop re-registration"
     )
