@@ -376,11 +376,11 @@ class _FrontEnd:
         pairs fewer points on the wrong side of a structure. Each pass replaces the loops'
         measurements and covariances, and the SSM factors' (`_refine_ssm`), then re-solves
         the whole graph from the current estimate (which also finishes the relinearisation
-        iSAM2 leaves pending).
+        iSAM2 leaves pending). A mission without loops still gets the SSM passes.
         """
         c = self.cfg
         loops = [r for r in self.rows if r["type"] == "loop" and r["status"] == "accepted"]
-        if not loops:
+        if not loops and not c.ssm_refine_target_frames:
             return
         sharing = _shared_data_counts(
             np.array([r["key_from"] for r in loops]),

@@ -256,6 +256,24 @@ def test_ssm_refinement_reduces_scan_matching_error() -> None:
     assert ate["refined"] < ate["incremental"] < ate_se2(dr, truth), ate
 
 
+def test_ssm_refinement_runs_without_loops(pier_default_nav_inputs) -> None:
+    """A mission with no loop closure still has its SSM factors registered again."""
+    no_loops = {"nssm_min_separation": 10_000}
+    outs = [
+        STAGE.run(SlamConfig(ssm_refine_target_frames=f, **no_loops), pier_default_nav_inputs)
+        for f in (0, 5)
+    ]
+    z = []
+    for out in outs:
+        factors = out["factors"]
+        assert "loop" not in factors.column("type").to_pylist()
+        ssm = np.array(factors.column("type").to_pylist()) == "ssm"
+        ssm &= np.array(factors.column("status").to_pylist()) == "accepted"
+        z.append(_columns(factors, ["x_m", "y_m", "yaw_rad"])[ssm])
+    assert len(z[0]) == len(z[1]) >= 10
+    assert not np.allclose(z[0], z[1])
+
+
 def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
     pier_default_nav_inputs,
 ) -> None:
