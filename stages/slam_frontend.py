@@ -390,22 +390,28 @@ class _FrontEnd:
         for _ in range(c.loop_refine_passes):
             for i, row in enumerate(loops):
                 t, k = row["key_from"], row["key_to"]
-                source, target = self._loop_clouds(t, k)
-                guess = se2_between(self.est[t], self.est[k])
-                pose, overlap, rmse, cov = icp_with_covariance(
-                    source,
-                    target,
-                    guess,
-                    c.loop_refine_correspondence_m,
-                    c.icp_max_iterations,
-                    c.point_noise_m,
-                    c.icp_effective_samples,
-                )
+                pose, overlap, rmse, cov = self._reregister(*self._loop_clouds(t, k), t, k)
                 cov = self._floor(cov, self.loop_cov) * sharing[i]
                 row.update(z=pose, cov=cov, overlap=overlap, rmse=rmse)
             if c.ssm_refine_target_frames:
                 self._refine_ssm(c.ssm_refine_target_frames)
             self._resolve()
+
+    def _reregister(
+        self, source: np.ndarray, target: np.ndarray, a: int, k: int
+    ) -> tuple[np.ndarray, int, float, np.ndarray]:
+        """ICP of keyframe k's source cloud on keyframe a's target cloud from the current
+        relative pose, with the re-registration's tight gate: (pose, overlap, rmse, cov)."""
+        c = self.cfg
+        return icp_with_covariance(
+            source,
+            target,
+            se2_between(self.est[a], self.est[k]),
+            c.loop_refine_correspondence_m,
+            c.icp_max_iterations,
+            c.point_noise_m,
+            c.icp_effective_samples,
+        )
 
     def _refine_ssm(self, frames: int) -> None:
         """Re-register every accepted SSM factor from the current poses (ICP only, the loop
@@ -424,15 +430,7 @@ class _FrontEnd:
                 continue
             a, k = row["key_from"], row["key_to"]
             target = self._cloud(range(max(0, k - frames), k), a)
-            pose, overlap, rmse, cov = icp_with_covariance(
-                self.points[k],
-                target,
-                se2_between(self.est[a], self.est[k]),
-                c.loop_refine_correspondence_m,
-                c.icp_max_iterations,
-                c.point_noise_m,
-                c.icp_effective_samples,
-            )
+            pose, overlap, rmse, cov = self._reregister(self.points[k], target, a, k)
             if overlap >= c.min_overlap_points:
                 row.update(z=pose, cov=self._floor(cov, self.icp_cov), overlap=overlap, rmse=rmse)
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 from collections import Counter
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import pyarrow as pa
@@ -43,7 +44,7 @@ def simulated_slam_inputs(
     seed: int = 0,
     spacing_m: float = 2.0,
     navigation: dict[str, float] | None = None,
-    detector: str = "labels",
+    detector: Literal["labels", "cfar"] = "labels",
 ) -> dict[str, object]:
     """Stage inputs (keyframes table, sensors, features) from a simulated mission.
 
