@@ -19,7 +19,9 @@ other parts of its surface). Once all keyframes are in, every accepted loop is r
 again from the optimised poses (ICP only, tight gate) and the graph re-solved in batch
 (`SlamConfig.loop_refine_passes`; version 3); there a cluster of loops that share their
 sonar data counts about once (`loop_shared_window`; version 6), and every SSM factor is
-registered again too, against more keyframes (`ssm_refine_target_frames`; version 7).
+registered again too, against more keyframes (`ssm_refine_target_frames`; version 7);
+a loop's covariance there also grows with its baseline, as its measured error does
+(`loop_baseline_growth_m`; version 8).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -123,7 +125,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=7,
+    version=8,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

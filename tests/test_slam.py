@@ -15,6 +15,7 @@ from typing import Literal
 import numpy as np
 import pyarrow as pa
 import pytest
+from scipy.stats import spearmanr
 
 from schemas.classes import CLASS_IDS
 from schemas.features import FEATURES_SCHEMA
@@ -255,6 +256,28 @@ def test_ssm_refinement_reduces_scan_matching_error() -> None:
     assert len(errors["refined"]) >= 50
     assert rms["refined"] < 0.8 * rms["incremental"], rms
     assert ate["refined"] < ate["incremental"] < ate_se2(dr, truth), ate
+
+
+def test_loop_covariance_grows_with_the_baseline_as_the_loop_error_does() -> None:
+    """On a short marina mission, loops between distant keyframes are measured several times
+    worse than loops between close ones, while the ICP covariance does not see it; with
+    `loop_baseline_growth_m` the loops' covariances rank their true errors better."""
+    inputs = simulated_slam_inputs("marina", n_goals=8, seed=2)
+    kf = inputs["keyframes.keyframes"]
+    rank = {}
+    for growth in (None, 4.0):
+        out = STAGE.run(SlamConfig(loop_baseline_growth_m=growth), inputs)
+        factors = out["factors"]
+        loop = np.array(factors.column("type").to_pylist()) == "loop"
+        loop &= np.array(factors.column("status").to_pylist()) == "accepted"
+        error = _loop_errors_m(out, kf)
+        baseline = np.hypot(*_columns(factors, ["x_m", "y_m"])[loop].T)
+        variance = _columns(factors, ["cov_xx_m2", "cov_yy_m2"])[loop].sum(axis=1)
+        rank[growth] = spearmanr(variance, error).statistic
+    near, far = error[baseline < 12.0], error[baseline > 20.0]
+    assert len(near) >= 5 and len(far) >= 10, (len(near), len(far))
+    assert np.sqrt(np.mean(far**2)) > 2.0 * np.sqrt(np.mean(near**2)), (near, far)
+    assert rank[4.0] > rank[None] + 0.2, rank
 
 
 def test_ssm_refinement_runs_without_loops(pier_default_nav_inputs) -> None:
