@@ -27,7 +27,7 @@ Seeds never used for tuning (perfect 10-14 | CFAR features through the test help
 1.220 -> 1.247, and CFAR seed 11 (dead reckoning 0.107 m, like seed 3's) now misses. Why:
 a loop's error grows with the distance between its keyframes, RMS against the truth
 0.037 / 0.068 / 0.109 / 0.146 / 0.183 / 0.222 / 0.329 m for baselines 0-5 / 5-10 / ... /
-25-30 / 30-40 m (perfect seeds 10-12, 494 loops; seeds 0 / 2 / 3 and CFAR 0 / 3: 0.035 ..
+25-30 / 30-40 m (perfect seeds 10-12, 494 loops; perfect 2 / 3 and CFAR 0 / 3: 0.035 ..
 0.227 m), while the ICP covariance is flat in it (Spearman rho with the true error 0.11
 to 0.18; the baseline's 0.45-0.53). Setting every loop's covariance to its true error
 (an oracle) would give 0.297 / 0.295 / 0.494 on perfect seeds 3 / 2 and CFAR seed 3: the
