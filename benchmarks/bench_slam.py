@@ -40,7 +40,9 @@ variances overweight them); the growth's power 1 instead of 2 0.482 / 0.393 | 0.
 0.245 / 0.286; covariances from each loop's residual after the solve (floors 3 cm /
 0.2 deg, one or two rounds) 0.441 / 0.375 | 0.634 / 0.289 / 0.304 under version 7; ICP
 RMSE as a further factor, (rmse / 0.18 m)^2 or ^1, 0.464 / 0.427 | 0.518 / 0.256 / 0.272
-(CFAR seed 11 0.514) and 0.463 / 0.419 | 0.529 / 0.248 / 0.267 (0.511). Also under
+(CFAR seed 11 0.514) and 0.463 / 0.419 | 0.529 / 0.248 / 0.267 (0.511); the loops' Cauchy
+scale 0.5 / 2 0.472 / 0.419 | 0.610 / 0.273 / 0.282 (0.560) and 0.455 / 0.380 | 0.575 /
+0.250 / 0.288 (0.496). Also under
 version 7: leading edges at the first cell of a run that reaches half its peak
 intensity (rather than the first detection; all 17 sets): perfect sum 2.560, every
 perfect seed but 2 (0.502) under 0.5, CFAR sum 1.685 with seed 3 at 0.676; every range
