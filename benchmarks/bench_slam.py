@@ -53,6 +53,14 @@ against the truth; ATE's rigid fit does not take it out). With CFAR features the
 come out 0.02-0.25 % small (CLI seeds 0-4: -0.018 / -0.251 / -0.086 / -0.127 / -0.235 %),
 with perfect ones -0.08 to +0.16 %; on seed 3, whose dead reckoning is good, 0.15 % of
 range scale (4.5 cm at 30 m, under one 5 cm range bin) moves the ratio by 0.05-0.09.
+Sixth session: where the small maps come from. Registered from the true relative pose,
+two keyframes' leading edges match 0.1-0.3 % short along a 6-25 m baseline, CFAR's more
+than the perfect detector's (`bench_icp_viewpoint_bias.py`: each view sees the surface
+facing it). Moving every leading edge 0.15 / 0.25 m further along its beam removes that
+(0.15 m, perfect seed 3: -0.38 % -> +0.00 %) but the loops get worse (median error 0.107
+-> 0.174 m), and so do the ratios: perfect seeds 3 / 2 / 1 0.913 / 0.585 / 0.251 and 1.135
+/ 0.782 / 0.379, CFAR seeds 3 / 1 / 11 0.693 / 0.228 / 0.420 and 1.118 / 0.272 / 0.628
+(version 8: 0.463 / 0.442 / 0.217 | 0.537 / 0.271 / 0.511), not kept.
 
 Version 7, measured 2026-11-30, fourth session (2 shared cores, slam stage version 7: each loop
 re-registration pass also registers every accepted SSM factor again, from the optimised
