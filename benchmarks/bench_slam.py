@@ -69,6 +69,12 @@ they were seen from directions within 60 / 40 deg (the same side of a surface; l
 only; 60 deg for every match as well): the loops' RMS error grows (perfect seed 3 0.167
 -> 0.193 m), ratios 0.464 / 0.419 / 0.222 | 0.587 / 0.277 / 0.601, 0.465 / 0.518 / 0.249
 | 0.572 / 0.302 / 0.630 and 0.518 / 0.427 / 0.254 | 0.637 / 0.317 / 0.579, not kept.
+A loop-scale state (every loop reads its translation through one mission-wide factor 1 +
+l, prior sigma 0.5 %, in the batch re-solves; with sigma ~0 the factor reproduces version
+8): the graph does not find the shortening, l comes out +0.18 to +0.33 % on the perfect
+seeds and -0.10 to +0.11 % on the CFAR ones, and the ratios get worse: 0.553 / 0.530 /
+0.256 | 0.599 / 0.325 / 0.605 (the loops against the scan-matched chain cannot separate
+it from the odometry's scale state), not kept.
 
 Version 7, measured 2026-11-30, fourth session (2 shared cores, slam stage version 7: each loop
 re-registration pass also registers every accepted SSM factor again, from the optimised
