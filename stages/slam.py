@@ -25,7 +25,9 @@ a loop's covariance there also grows with its baseline, as its measured error do
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
-Outputs: poses, factors (parquet), trajectory (TUM text), plot (PNG); see `schemas.slam`.
+Outputs: poses, factors (parquet), trajectory (TUM text), plot (PNG; with ground truth the
+tracks are drawn aligned to it, with their ATE and a panel of the error per keyframe:
+version 9); see `schemas.slam`.
 
 The front end is `stages.slam_frontend`, the config `stages.slam_config`, the keyframe
 point clouds `stages.slam_points`, the output files `stages.slam_outputs`.
@@ -125,7 +127,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="slam",
-    version=8,
+    version=9,
     config=SlamConfig,
     inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
     outputs=(

@@ -181,6 +181,24 @@ def test_outputs_follow_their_contracts(pier_inputs) -> None:
     assert Image.open(io.BytesIO(out["plot"])).size[0] > 300
 
 
+def test_trajectory_plot_adds_an_error_panel_only_with_ground_truth() -> None:
+    from PIL import Image
+
+    from stages.slam_outputs import plot_png
+
+    t = np.linspace(0.0, 2 * np.pi, 40)
+    truth = np.column_stack([10 * np.cos(t), 10 * np.sin(t), t + np.pi / 2])
+    dr = truth + np.array([0.5, -0.3, 0.02])  # an offset start: the plot aligns it away
+    points = [np.array([[2.0, 0.0], [2.0, 1.0]])] * len(t)
+    loops = np.array([[0, 39]])
+    sizes = {}
+    for name, gt in (("truth", truth), ("none", None)):
+        png = plot_png(truth, dr, gt, points, loops, 1000, "test")
+        sizes[name] = Image.open(io.BytesIO(png)).size
+    assert sizes["none"][0] == sizes["none"][1]  # the map alone
+    assert sizes["truth"][1] > 1.2 * sizes["truth"][0]  # map over the error panel
+
+
 def test_ground_truth_mode_returns_truth_and_refuses_missing_truth(pier_inputs) -> None:
     kf = pier_inputs["keyframes.keyframes"]
     out = STAGE.run(SlamConfig(mode="ground_truth"), pier_inputs)
