@@ -13,6 +13,9 @@ mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing
     .venv/bin/python benchmarks/bench_slam.py                # seed 0, low-cost nav, PCM
     .venv/bin/python benchmarks/bench_slam.py --seeds 0,1,2,3,4  # robustness over seeds
 
+Version 9 changed only the trajectory PNG (aligned to the truth, with an error panel), so
+these figures stand for it.
+
 Measured 2026-11-30, fifth session (2 shared cores, slam stage version 8: in the loop
 re-registration a loop's covariance is also multiplied by ((4 + d) / (4 + 18))^2, d its
 baseline in metres, `loop_baseline_growth_m` 4): `--seeds 0,...,9` ratios 0.293 / 0.217 /
