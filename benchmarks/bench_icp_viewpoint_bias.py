@@ -55,8 +55,9 @@ BINS_M = ((1, 3), (3, 6), (6, 10), (10, 15), (15, 25), (25, 60))
 def along_baseline_errors(inputs: dict, separations: list[int], edge_depth_m: float) -> np.ndarray:
     """(N, 2) baseline length and ICP error along it (m) for keyframe pairs k - s, k."""
     from stages.pose_graph import se2_between
-    from stages.scan_matching import icp_with_covariance, transform_points, voxel_downsample
+    from stages.scan_matching import icp_with_covariance
     from stages.slam import SlamConfig, keyframe_points
+    from stages.slam_frontend import _FrontEnd
 
     c = SlamConfig()
     kf, features = inputs["keyframes.keyframes"], inputs["features.features"]
@@ -69,17 +70,9 @@ def along_baseline_errors(inputs: dict, separations: list[int], edge_depth_m: fl
     ids = kf.column("keyframe_id").to_numpy()
     points = keyframe_points(ids, features, T, c.point_resolution_m, c.leading_edge_only)
 
-    def cloud(frames: range, anchor: int) -> np.ndarray:
-        parts = [
-            transform_points(se2_between(truth[anchor], truth[j]), points[j])
-            for j in frames
-            if len(points[j])
-        ]
-        return (
-            voxel_downsample(np.concatenate(parts), c.point_resolution_m)
-            if parts
-            else np.zeros((0, 2))
-        )
+    front = _FrontEnd(c, points)  # its clouds, assembled at the true poses
+    front.est = truth
+    cloud = front._cloud
 
     rows = []
     for s in separations:
