@@ -25,15 +25,46 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
     if voxels:
         metrics = summary.get("metrics") or {}
         cov = Table(title=f"Coverage ({summary.get('voxel_size_m', 0.1)} m voxels)")
-        for col in ("map", "voxels", "median error m"):
+        for col in ("map", "voxels", "accurate voxels", "completeness", "median error m"):
             cov.add_column(col)
         errors = metrics.get("errors", {}) if isinstance(metrics, dict) else {}
+        whole = ((metrics.get("per_class") or {}).get("classes") or {}).get("all_structure", {})
         for name in ("standard", "semantic"):
             med = (errors.get(name) or {}).get("median_m")
-            cov.add_row(name, str(voxels.get(name)), "-" if med is None else f"{med:.3f}")
+            w = whole.get(name) or {}
+            cov.add_row(
+                name,
+                str(voxels.get(name)),
+                _fmt(w.get("accurate_voxels")),
+                _fmt(w.get("completeness"), "{:.3f}"),
+                "-" if med is None else f"{med:.3f}",
+            )
         if voxels.get("standard"):
             ratio = voxels["semantic"] / voxels["standard"]
-            cov.add_row("semantic/standard", f"{ratio:.1f}x", "")
+            cov.add_row(
+                "semantic/standard",
+                f"{ratio:.1f}x",
+                _ratio(whole, "accurate_voxels"),
+                _ratio(whole, "completeness"),
+                "",
+            )
         console.print(cov)
+        if whole:
+            console.print(
+                "accurate voxels: holding a point within"
+                f" {metrics['per_class'].get('tolerance_m')} m of the true surface;"
+                " completeness: of the visible structure surface (all classes but the seafloor)"
+            )
     if summary.get("report"):
         console.print(f"report: {summary['report']}")
+
+
+def _fmt(value: Any, spec: str = "{}") -> str:
+    return "-" if value is None else spec.format(value)
+
+
+def _ratio(figures: dict[str, Any], key: str) -> str:
+    """semantic / standard of one all-structure figure, as "4.2x" ("" when undefined)."""
+    a = (figures.get("semantic") or {}).get(key)
+    b = (figures.get("standard") or {}).get(key)
+    return f"{a / b:.1f}x" if a is not None and b else ""

@@ -24,6 +24,7 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from stages.base import Output, Stage, StageConfig
+from stages.class_accounting import per_class_metrics
 from stages.mesh_metrics import (
     ate_se2,
     error_stats,
@@ -172,18 +173,17 @@ def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float |
     }
 
 
-def aligned_map_errors(
-    map_table: pa.Table, mesh: Mesh, keyframes: pa.Table, poses: pa.Table
-) -> dict[str, Any] | None:
-    """Map errors after moving the map by the SLAM trajectory's SE(2) alignment to truth.
+def aligned_map_xyz(
+    map_table: pa.Table, keyframes: pa.Table, poses: pa.Table
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Map points moved by the SLAM trajectory's SE(2) alignment to the truth.
 
     A common rotation and offset of the whole map is unobservable to sonar-only SLAM (a
     constant bias of the navigation heading rotates every pose alike); ATE removes it by
-    alignment, and this judges the map the same way. None without ground-truth poses.
+    alignment, and the map is judged the same way.
 
     Returns:
-        {"standard": error_stats, "semantic": error_stats, "rotation_deg": float,
-        "translation_m": [x, y]}.
+        ((n, 3) aligned points, (2, 2) R, (2,) t), or None without ground-truth poses.
     """
     matched = _matched_xy(keyframes, poses)
     if matched is None or len(matched[0]) == 0:
@@ -191,7 +191,19 @@ def aligned_map_errors(
     R, t = se2_alignment(matched[0], matched[1])
     xyz = map_xyz(map_table, "semantic").copy()
     xyz[:, :2] = xyz[:, :2] @ R.T + t
-    err = mesh_distance(raycasting_scene(mesh), xyz)
+    return xyz, R, t
+
+
+def aligned_map_errors(
+    map_table: pa.Table, aligned: tuple[np.ndarray, np.ndarray, np.ndarray], err: np.ndarray
+) -> dict[str, Any]:
+    """Error statistics of both maps at the aligned positions (`aligned_map_xyz`).
+
+    Returns:
+        {"standard": error_stats, "semantic": error_stats, "rotation_deg": float,
+        "translation_m": [x, y]}.
+    """
+    _, R, t = aligned
     fused = np.asarray(map_table.column("source").to_pylist(), dtype=object) == "fused"
     return {
         "standard": error_stats(err[fused]),
@@ -268,6 +280,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "precision": {},
         "trajectory": {},
         "skipped": [],
+        "inference": inputs.get("infer.stats") or {},
     }
     outputs: dict[str, Any] = {"errors": None, **{k: None for k in FIGURES}}
     mesh = decode_mesh_ply(mesh_bytes) if mesh_bytes is not None else None
@@ -283,10 +296,36 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         ]
     else:
         errors, metrics["errors"] = map_errors(map_table, mesh)
-        aligned = aligned_map_errors(map_table, mesh, keyframes, poses)
+        scene = raycasting_scene(mesh)
+        eval_xyz, eval_err = map_xyz(map_table, "semantic"), errors.column("error_m").to_numpy()
+        aligned = aligned_map_xyz(map_table, keyframes, poses)
         if aligned is not None:
-            metrics["errors_aligned"] = aligned
+            eval_xyz, eval_err = aligned[0], mesh_distance(scene, aligned[0])
+            metrics["errors_aligned"] = aligned_map_errors(map_table, aligned, eval_err)
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
+        voxel_size = float(summary.get("voxel_size_m") or 0.1)
+        metrics["per_class"] = {
+            "frame": "raw" if aligned is None else "aligned",
+            **per_class_metrics(
+                map_table,
+                mesh,
+                scene,
+                eval_xyz,
+                eval_err,
+                voxel_size,
+                lambda samples: visible_mask(
+                    samples,
+                    T_ws,
+                    config.max_range_m,
+                    np.deg2rad(config.fan_width_deg) / 2,
+                    np.deg2rad(config.aperture_deg) / 2,
+                    scene,
+                ),
+                config.tolerance_m,
+                config.surface_samples_per_m2,
+                config.seed,
+            ),
+        }
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
             map_table, errors, mesh, T_ws, config
         )
@@ -329,7 +368,7 @@ def _truth_xy(mesh: Mesh) -> np.ndarray:
 
 STAGE = Stage(
     name="evaluate",
-    version=3,
+    version=4,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",
@@ -338,6 +377,7 @@ STAGE = Stage(
         "keyframes.scene_mesh",
         "keyframes.sensors",
         "slam.poses",
+        "infer.stats",
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),

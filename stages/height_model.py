@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -40,9 +41,11 @@ from stages._lazy import lazy
 
 special = lazy("scipy.special")
 
-__all__ = ["HeightModel", "HeightQuery", "z_grid"]
+__all__ = ["HeightModel", "HeightQuery", "UpdateRule", "z_grid"]
 
 logger = logging.getLogger(__name__)
+
+UpdateRule = Literal["product", "mixture"]
 
 _OFFSET = 1 << 30
 _STRIDE = 1 << 31
@@ -68,12 +71,14 @@ class HeightQuery:
         z_low_m, z_high_m: (n,) MAP height in each half [m]; NaN where the cell was
             never updated or the value's confidence is below the threshold.
         conf_low, conf_high: (n,) posterior probability of each value (NaN like z).
+        seen: (n,) bool, the position's cell has been updated (the rest predict nothing).
     """
 
     z_low_m: np.ndarray
     conf_low: np.ndarray
     z_high_m: np.ndarray
     conf_high: np.ndarray
+    seen: np.ndarray
 
 
 class HeightModel:
@@ -95,9 +100,15 @@ class HeightModel:
         range_cell_m: float = 0.05,
         cross_range_cell_m: float = 0.1,
         window_m: float = 0.08,
+        update_rule: UpdateRule = "product",
+        prior_weight: float = 1.0,
     ) -> None:
         if sigma_m <= 0 or range_cell_m <= 0 or cross_range_cell_m <= 0 or window_m < 0:
             raise ValueError("sigma_m, cell sizes must be > 0 and window_m >= 0")
+        if update_rule not in ("product", "mixture") or prior_weight <= 0:
+            raise ValueError(f"bad update rule {update_rule!r} or prior weight {prior_weight}")
+        self.update_rule = update_rule
+        self.prior_weight = float(prior_weight)
         self.z_m = np.asarray(z_m, dtype=np.float64)
         self.sigma_m = float(sigma_m)
         self.cell_m = np.array([range_cell_m, cross_range_cell_m], dtype=np.float64)
@@ -131,7 +142,7 @@ class HeightModel:
         rows = self._find(self.cell_keys(uv_m))
         out = np.full((rows.size, self.z_m.size), np.nan)
         seen = rows >= 0
-        out[seen] = self._log_post[rows[seen]]
+        out[seen] = self._normalised(self._log_post[rows[seen]])
         return out
 
     def update(self, uv_m: np.ndarray, z_m: np.ndarray) -> int:
@@ -158,10 +169,16 @@ class HeightModel:
         log_lik = -0.5 * ((self.z_m[None, :] - z[order, None]) / self.sigma_m) ** 2
         starts = np.flatnonzero(np.r_[True, np.diff(inverse[order]) != 0])
         cell_log_lik = np.maximum.reduceat(log_lik, starts, axis=0)
-        # Bayes' rule: posterior = likelihood x prior, normalised (log space).
         rows = self._find_or_insert(keys)
-        post = self._log_post[rows] + cell_log_lik
-        self._log_post[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
+        if self.update_rule == "mixture":
+            # Dirichlet-categorical: each keyframe's cell likelihood, normalised, is one
+            # more (soft) count of the heights the cell returns from.
+            counts = np.exp(cell_log_lik - special.logsumexp(cell_log_lik, axis=1, keepdims=True))
+            self._log_post[rows] = np.log(np.exp(self._log_post[rows]) + counts)
+        else:
+            # Bayes' rule: posterior = likelihood x prior, normalised (log space).
+            post = self._log_post[rows] + cell_log_lik
+            self._log_post[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
         self.n_updates += 1
         return int(keys.size)
 
@@ -174,7 +191,7 @@ class HeightModel:
         """
         rows = self._find(self.cell_keys(uv_m))
         seen = rows >= 0
-        prob = np.exp(self._log_post[rows[seen]])
+        prob = np.exp(self._normalised(self._log_post[rows[seen]]))
         cdf = np.concatenate([np.zeros((prob.shape[0], 1)), np.cumsum(prob, axis=1)], axis=1)
         out = []
         for half in (self.z_m <= 0.0, self.z_m > 0.0):
@@ -182,7 +199,7 @@ class HeightModel:
             conf = np.full(rows.size, np.nan)
             z[seen], conf[seen] = self._half_map(prob, cdf, half, threshold)
             out += [z, conf]
-        return HeightQuery(*out)
+        return HeightQuery(*out, seen=seen)
 
     def _half_map(
         self, prob: np.ndarray, cdf: np.ndarray, half: np.ndarray, threshold: float
@@ -209,8 +226,17 @@ class HeightModel:
         lo = np.searchsorted(self.z_m, z_map - self.window_m - 1e-9, side="left")
         hi = np.searchsorted(self.z_m, z_map + self.window_m + 1e-9, side="right")
         conf = cdf[rows, hi] - cdf[rows, lo]
+        if self.update_rule == "mixture":
+            # A cell returns from a spread of heights: the evidence that the structure is
+            # in this half at all is the half's share of the returns.
+            conf = prob[:, idx].sum(axis=1)
         keep = (conf > threshold) & is_mode
         return np.where(keep, z_map, np.nan), np.where(keep, conf, np.nan)
+
+    @staticmethod
+    def _normalised(log_mass: np.ndarray) -> np.ndarray:
+        """Rows of log masses as log probabilities (the product rule stores them so)."""
+        return log_mass - special.logsumexp(log_mass, axis=1, keepdims=True)
 
     def _find(self, keys: np.ndarray) -> np.ndarray:
         """Row of each key in the posterior array, -1 for keys never seen."""
@@ -228,7 +254,8 @@ class HeightModel:
         if new.any():
             n_old, n_new = self._keys.size, int(new.sum())
             self._reserve(n_old + n_new)
-            self._log_post[n_old : n_old + n_new] = -np.log(self.z_m.size)
+            prior = self.prior_weight if self.update_rule == "mixture" else 1.0
+            self._log_post[n_old : n_old + n_new] = np.log(prior / self.z_m.size)
             self._keys = np.concatenate([self._keys, keys[new]])
             self._order = np.argsort(self._keys, kind="stable")
             self._sorted_keys = self._keys[self._order]

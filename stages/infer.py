@@ -50,100 +50,36 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Any, Literal
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from pydantic import Field, field_validator, model_validator
 
-from schemas.classes import CLASS_NAMES, PILING_CLASSES
 from schemas.points import POINTS_SCHEMA
-from stages.base import Output, Stage, StageConfig
-from stages.height_model import HeightModel, z_grid
+from stages.base import Output, Stage
+from stages.beam_frame import beam_anchor_range, beam_model_coords
+from stages.height_model import HeightModel, HeightQuery, z_grid
+from stages.infer_config import FrameKind, InferConfig
+from stages.infer_inputs import (
+    KeyframeIndex,
+    Sighting,
+    column,
+    object_feature_rows,
+)
+from stages.infer_inputs import sightings as _sightings
 from stages.object_frame import (
     ClassFrame,
-    IcpParams,
     ObjectOrigin,
     apply_se2,
-    object_origin,
-    to_object_frame,
 )
 
-__all__ = ["STAGE", "InferConfig", "infer_points"]
+__all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]
 
 logger = logging.getLogger(__name__)
 
-FUSED_FEATURE_COLUMN = "feature_id_horizontal"
-"""Column of `fuse.fused` naming the horizontal feature of a fused point."""
 _FUSED_COLUMNS = ("range_m", "bearing_rad", "elevation_rad", "x_m", "y_m", "z_m", "confidence")
-
-
-class InferConfig(StageConfig):
-    """Config section `infer`."""
-
-    classes: tuple[str, ...] = Field(PILING_CLASSES, description="classes with a height model")
-    z_min_m: float = Field(-4.0, description="lowest height of the z grid (sonar frame)")
-    z_max_m: float = Field(4.0, description="highest height of the z grid")
-    z_step_m: float = Field(0.05, gt=0.0, description="z grid spacing")
-    sigma_m: float = Field(0.08, gt=0.0, description="std of the Gaussian height likelihood")
-    range_axis: Literal["offset", "height_equivalent"] = Field(
-        "height_equivalent", description="model cell axis along range (see _model_coords)"
-    )
-    range_cell_m: float = Field(0.1, gt=0.0, description="model cell size along range")
-    cross_range_cell_m: float = Field(0.05, gt=0.0, description="model cell size across range")
-    confidence_threshold: float = Field(
-        0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
-    )
-    confidence_window_m: float = Field(
-        0.08,
-        ge=0.0,
-        description="half-width of the interval around a MAP height whose mass is"
-        " its posterior probability",
-    )
-    max_elevation_deg: float = Field(
-        10.0, gt=0.0, le=90.0, description="drop predictions outside +-this elevation"
-    )
-    reference_voxel_m: float = Field(0.05, gt=0.0, description="reference cloud voxel size")
-    icp_max_correspondence_m: float = Field(0.5, gt=0.0, description="ICP pairing distance")
-    icp_max_iterations: int = Field(30, ge=1, description="ICP iteration cap")
-    icp_min_fitness: float = Field(
-        0.6, ge=0.0, le=1.0, description="min fraction of points paired for a good ICP"
-    )
-    icp_max_rmse_m: float = Field(0.15, gt=0.0, description="max inlier RMSE of a good ICP")
-    icp_max_translation_m: float = Field(
-        1.5, gt=0.0, description="max ICP shift from the object-frame alignment"
-    )
-    icp_max_rotation_deg: float = Field(
-        30.0, gt=0.0, description="max ICP rotation from the object-frame alignment"
-    )
-
-    @model_validator(mode="after")
-    def _z_grid(self) -> InferConfig:
-        if self.z_max_m <= self.z_min_m:
-            raise ValueError(f"z_max_m ({self.z_max_m}) must exceed z_min_m ({self.z_min_m})")
-        return self
-
-    @field_validator("classes")
-    @classmethod
-    def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = sorted(set(value) - set(CLASS_NAMES))
-        if unknown:
-            raise ValueError(f"unknown classes {unknown}; known: {list(CLASS_NAMES)}")
-        return value
-
-    def icp_params(self) -> IcpParams:
-        """The registration bounds as `IcpParams`."""
-        return IcpParams(
-            max_correspondence_m=self.icp_max_correspondence_m,
-            max_iterations=self.icp_max_iterations,
-            min_fitness=self.icp_min_fitness,
-            max_rmse_m=self.icp_max_rmse_m,
-            max_translation_m=self.icp_max_translation_m,
-            max_rotation_rad=float(np.deg2rad(self.icp_max_rotation_deg)),
-            voxel_m=self.reference_voxel_m,
-        )
 
 
 @dataclass
@@ -154,116 +90,39 @@ class _ClassState:
     model: HeightModel
 
 
+_FUNNEL_STEPS = (
+    "objects",
+    "returns",
+    "fused_returns",
+    "updated_objects",
+    "registered_objects",
+    "queried_returns",
+    "seen_returns",
+    "predicted_returns",
+    "inferred_points",
+)
+
+
 @dataclass
-class _Sighting:
-    """One object in one keyframe: its 2D returns and fused points (object frame)."""
+class _Funnel:
+    """What one class loses at each step of inference (counts over the mission).
 
-    object_id: int
-    class_name: str
-    origin: ObjectOrigin
-    uv_m: np.ndarray  # (n, 2) all 2D returns
-    range_m: np.ndarray  # (n,)
-    bearing_rad: np.ndarray  # (n,)
-    is_fused: np.ndarray  # (n,) bool
-    fused_uv_m: np.ndarray  # (k, 2)
-    fused_z_m: np.ndarray  # (k,)
-    fused_rows: np.ndarray  # (k,) rows of the fused table
-
-
-def _key(keyframe_id: np.ndarray, feature_id: np.ndarray) -> np.ndarray:
-    """Packed int64 (keyframe_id, feature_id) join key."""
-    return np.asarray(keyframe_id, dtype=np.int64) * (1 << 32) + np.asarray(
-        feature_id, dtype=np.int64
-    )
-
-
-def _col(table: pa.Table, name: str, what: str) -> np.ndarray:
-    if name not in table.column_names:
-        raise ValueError(f"infer: input {what} lacks column {name!r}")
-    return table.column(name).to_numpy(zero_copy_only=False)
-
-
-def _lookup(keys_sorted: np.ndarray, keys: np.ndarray) -> np.ndarray:
-    """Index of each key in a sorted unique key array, -1 where absent."""
-    if keys_sorted.size == 0:
-        return np.full(keys.size, -1, dtype=np.int64)
-    pos = np.minimum(np.searchsorted(keys_sorted, keys), keys_sorted.size - 1)
-    return np.where(keys_sorted[pos] == keys, pos, -1)
-
-
-def _object_feature_rows(
-    objects: pa.Table, object_features: pa.Table, features: pa.Table, fused: pa.Table
-) -> dict[str, np.ndarray]:
-    """Join object features to their feature rows and fused points (vectorised).
-
-    Returns arrays over object-feature rows sorted by (keyframe, object, feature):
-    keyframe_id, object_id, class_index (into `classes`), range_m, bearing_rad,
-    fused_row (-1 for a 2D-only return), plus `classes` (unique class names).
+    objects / returns / fused_returns: sightings of the class, their 2D returns and
+    those with a fused 3D point; updated_objects: sightings whose fused points updated
+    the model; registered_objects: sightings put into the reference frame (object
+    frames: ICP succeeded; beam frames: all, once the model has data); queried_returns:
+    their 2D-only returns; seen_returns: those whose model cell has data;
+    predicted_returns: those with a confident height inside the aperture;
+    inferred_points: the points they gave (0-2 each).
     """
-    of_kf = _col(object_features, "keyframe_id", "object_features").astype(np.int64)
-    of_obj = _col(object_features, "object_id", "object_features").astype(np.int64)
-    of_fid = _col(object_features, "feature_id", "object_features").astype(np.int64)
-    order = np.lexsort((of_fid, of_obj, of_kf))
-    of_kf, of_obj, of_fid = of_kf[order], of_obj[order], of_fid[order]
-    # Feature geometry (horizontal sonar: angle = bearing).
-    f_key = _key(
-        _col(features, "keyframe_id", "features"), _col(features, "feature_id", "features")
-    )
-    f_order = np.argsort(f_key, kind="stable")
-    f_row = _lookup(f_key[f_order], _key(of_kf, of_fid))
-    if (f_row < 0).any():
-        raise ValueError("infer: object_features references features that do not exist")
-    f_row = f_order[f_row]
-    # Class of each object.
-    o_key = _key(_col(objects, "keyframe_id", "objects"), _col(objects, "object_id", "objects"))
-    o_order = np.argsort(o_key, kind="stable")
-    o_row = _lookup(o_key[o_order], _key(of_kf, of_obj))
-    if (o_row < 0).any():
-        raise ValueError("infer: object_features references objects that do not exist")
-    classes, class_index = np.unique(
-        np.asarray(_col(objects, "class_name", "objects"), dtype=str), return_inverse=True
-    )
-    # Fused point of each horizontal feature (if any).
-    fu_key = _key(_col(fused, "keyframe_id", "fused"), _col(fused, FUSED_FEATURE_COLUMN, "fused"))
-    fu_order = np.argsort(fu_key, kind="stable")
-    fu_row = _lookup(fu_key[fu_order], _key(of_kf, of_fid))
-    return {
-        "keyframe_id": of_kf,
-        "object_id": of_obj,
-        "class_index": class_index.reshape(-1)[o_order[o_row]],
-        "range_m": _col(features, "range_m", "features").astype(np.float64)[f_row],
-        "bearing_rad": _col(features, "angle_rad", "features").astype(np.float64)[f_row],
-        "fused_row": np.where(fu_row >= 0, np.r_[fu_order, -1][fu_row], -1),
-        "classes": classes,
-    }
 
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FUNNEL_STEPS, 0))
 
-def _sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarray]) -> list:
-    """Sightings of one keyframe (rows[sl]), sorted by object id."""
-    obj = rows["object_id"][sl]
-    starts = np.flatnonzero(np.r_[True, np.diff(obj) != 0])
-    out = []
-    for a, b in zip(starts, np.r_[starts[1:], obj.size], strict=True):
-        idx = np.arange(sl.start + a, sl.start + b)
-        r, t = rows["range_m"][idx], rows["bearing_rad"][idx]
-        origin = object_origin(r, t)
-        fr = rows["fused_row"][idx]
-        fr = fr[fr >= 0]
-        out.append(
-            _Sighting(
-                object_id=int(obj[a]),
-                class_name=str(rows["classes"][rows["class_index"][idx[0]]]),
-                origin=origin,
-                uv_m=to_object_frame(r, t, origin),
-                range_m=r,
-                bearing_rad=t,
-                is_fused=rows["fused_row"][idx] >= 0,
-                fused_uv_m=to_object_frame(fused["range_m"][fr], fused["bearing_rad"][fr], origin),
-                fused_z_m=fused["z_m"][fr],
-                fused_rows=fr,
-            )
-        )
-    return out
+    def count_query(self, n_queried: int, q: HeightQuery, of_return: np.ndarray) -> None:
+        self.counts["queried_returns"] += n_queried
+        self.counts["seen_returns"] += int(np.count_nonzero(q.seen))
+        self.counts["predicted_returns"] += int(np.unique(of_return).size)
+        self.counts["inferred_points"] += int(of_return.size)
 
 
 def _model_coords(uv_ref: np.ndarray, origin: ObjectOrigin, range_axis: str) -> np.ndarray:
@@ -282,7 +141,7 @@ def _model_coords(uv_ref: np.ndarray, origin: ObjectOrigin, range_axis: str) -> 
 
 
 def _update_class(
-    state: _ClassState, sightings: list[_Sighting], range_axis: str
+    state: _ClassState, sightings: list[Sighting], range_axis: str
 ) -> dict[int, np.ndarray]:
     """Eq. 7 for one class and keyframe; returns successful registrations by object id."""
     uv, z, transforms = [], [], {}
@@ -301,19 +160,65 @@ def _update_class(
     return transforms
 
 
+def _predicted(
+    q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: InferConfig
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Points of the MAP heights of n queried returns (0-2 each) and, per point, the
+    index of its return; heights outside +-max_elevation_deg are dropped."""
+    n = range_m.size
+    r = np.tile(range_m, 2)
+    z = np.concatenate([q.z_low_m, q.z_high_m])
+    conf = np.concatenate([q.conf_low, q.conf_high])
+    elevation = np.arcsin(np.clip(z / np.maximum(r, 1e-9), -1.0, 1.0))
+    keep = np.isfinite(z) & (np.abs(elevation) <= np.deg2rad(config.max_elevation_deg))
+    pts = _points(r[keep], np.tile(bearing_rad, 2)[keep], elevation[keep], conf[keep])
+    return pts, np.flatnonzero(keep) % max(n, 1)
+
+
 def _query_sighting(
-    state: _ClassState, s: _Sighting, T: np.ndarray, config: InferConfig
+    state: _ClassState, s: Sighting, T: np.ndarray, config: InferConfig, funnel: _Funnel
 ) -> dict[str, np.ndarray]:
     """Eq. 8-9 for the 2D-only returns of one registered sighting (0-2 points each)."""
     only2d = ~s.is_fused
     uv = _model_coords(apply_se2(T, s.uv_m[only2d]), s.origin, config.range_axis)
     q = state.model.query(uv, config.confidence_threshold)
-    r = np.tile(s.range_m[only2d], 2)
-    z = np.concatenate([q.z_low_m, q.z_high_m])
-    conf = np.concatenate([q.conf_low, q.conf_high])
-    elevation = np.arcsin(np.clip(z / r, -1.0, 1.0))
-    keep = np.isfinite(z) & (np.abs(elevation) <= np.deg2rad(config.max_elevation_deg))
-    return _points(r[keep], np.tile(s.bearing_rad[only2d], 2)[keep], elevation[keep], conf[keep])
+    pts, of_return = _predicted(q, s.range_m[only2d], s.bearing_rad[only2d], config)
+    funnel.count_query(int(only2d.sum()), q, of_return)
+    return pts
+
+
+def _beam_class(
+    state: _ClassState, sightings: list[Sighting], config: InferConfig, funnel: _Funnel
+) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+    """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
+
+    All sightings of the class in the keyframe share one vectorised pass: every return
+    is put into its beam frame (`stages.beam_frame`), the fused ones update the class
+    model, the 2D-only ones are queried. Returns (points, object id per point), or None
+    before the model has data.
+    """
+    if not sightings:
+        return None
+    r = np.concatenate([s.range_m for s in sightings])
+    oid = np.concatenate([np.full(s.range_m.size, s.object_id, np.int64) for s in sightings])
+    fused = np.concatenate([s.is_fused for s in sightings])
+    anchor = beam_anchor_range(
+        oid, np.concatenate([s.beam for s in sightings]), r, config.beam_gap_m
+    )
+    coords = beam_model_coords(r, anchor, config.range_axis, config.beam_range_cell_m)
+    if fused.any():
+        state.model.update(coords[fused], np.concatenate([s.fused_z_m for s in sightings]))
+        funnel.counts["updated_objects"] += len(
+            {s.object_id for s in sightings if s.is_fused.any()}
+        )
+    if not state.model.updated:
+        return None
+    funnel.counts["registered_objects"] += len(sightings)
+    q = state.model.query(coords[~fused], config.confidence_threshold)
+    bearing = np.concatenate([s.bearing_rad for s in sightings])[~fused]
+    pts, of_return = _predicted(q, r[~fused], bearing, config)
+    funnel.count_query(int((~fused).sum()), q, of_return)
+    return pts, oid[~fused][of_return]
 
 
 def _points(
@@ -339,6 +244,17 @@ def infer_points(
     fused: pa.Table,
     config: InferConfig,
 ) -> pa.Table:
+    """The points of `infer_mission` (its loss accounting dropped)."""
+    return infer_mission(objects, object_features, features, fused, config)[0]
+
+
+def infer_mission(
+    objects: pa.Table,
+    object_features: pa.Table,
+    features: pa.Table,
+    fused: pa.Table,
+    config: InferConfig,
+) -> tuple[pa.Table, dict[str, Any]]:
     """Run the update/query loop over all keyframes; see the module docstring.
 
     Args:
@@ -351,24 +267,21 @@ def infer_points(
 
     Returns:
         Table with `POINTS_SCHEMA`, sorted by (keyframe_id, object_id, source,
-        range_m, bearing_rad, z_m).
+        range_m, bearing_rad, z_m), and the loss accounting (`stats.json`):
+        {"horizontal_returns", "clustered_returns", "classes": {class: {step: count}
+        (`_Funnel`), "frame": kind, "model_cells": int for inferred classes}}.
     """
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     states = {
         c: _ClassState(
             ClassFrame(config.icp_params()),
-            HeightModel(
-                z,
-                config.sigma_m,
-                config.range_cell_m,
-                config.cross_range_cell_m,
-                config.confidence_window_m,
-            ),
+            _height_model(z, config, config.frame_kind(c)),
         )
         for c in config.classes
     }
+    funnels: dict[str, _Funnel] = {}
     index = {
-        name: _KeyframeIndex(table, name)
+        name: KeyframeIndex(table, name)
         for name, table in (
             ("objects", objects),
             ("object_features", object_features),
@@ -379,41 +292,38 @@ def infer_points(
     out = [
         _table(
             _process_keyframe(
-                int(k), {n: ix.rows(int(k)) for n, ix in index.items()}, states, config
+                int(k), {n: ix.rows(int(k)) for n, ix in index.items()}, states, config, funnels
             )
         )
         for k in index["object_features"].keyframe_ids
     ]
+    sonar = features.column("sonar") if "sonar" in features.column_names else None
+    stats: dict[str, Any] = {
+        "horizontal_returns": int(
+            features.num_rows
+            if sonar is None
+            else pc.sum(pc.equal(sonar, "horizontal")).as_py() or 0
+        ),
+        "clustered_returns": int(object_features.num_rows),
+        "classes": {c: dict(f.counts) for c, f in sorted(funnels.items())},
+    }
+    for c, state in states.items():
+        stats["classes"].setdefault(c, dict.fromkeys(_FUNNEL_STEPS, 0))
+        stats["classes"][c].update(frame=config.frame_kind(c), model_cells=state.model.n_cells)
     if not out:
-        return POINTS_SCHEMA.empty_table()
-    return pa.concat_tables(out).combine_chunks()
+        return POINTS_SCHEMA.empty_table(), stats
+    return pa.concat_tables(out).combine_chunks(), stats
 
 
-class _KeyframeIndex:
-    """Rows of each keyframe of a table (zero-copy slices when sorted by keyframe).
-
-    Keeps only per-keyframe row bounds (plus a row order if the table is not sorted
-    by keyframe), so the index is small compared with the table.
-    """
-
-    def __init__(self, table: pa.Table, what: str) -> None:
-        self.table = table
-        kf = np.asarray(_col(table, "keyframe_id", what), dtype=np.int64)
-        self.order = None if np.all(kf[1:] >= kf[:-1]) else np.argsort(kf, kind="stable")
-        if self.order is not None:
-            kf = kf[self.order]
-        starts = np.flatnonzero(np.r_[True, kf[1:] != kf[:-1]]) if kf.size else np.empty(0, int)
-        self.keyframe_ids = kf[starts]
-        self.bounds = np.r_[starts, kf.size]
-
-    def rows(self, keyframe_id: int) -> pa.Table:
-        i = int(np.searchsorted(self.keyframe_ids, keyframe_id))
-        if i >= self.keyframe_ids.size or self.keyframe_ids[i] != keyframe_id:
-            return self.table.slice(0, 0)
-        a, b = int(self.bounds[i]), int(self.bounds[i + 1])
-        if self.order is None:
-            return self.table.slice(a, b - a)
-        return self.table.take(pa.array(self.order[a:b]))
+def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> HeightModel:
+    """A class's height model; beam frames have cells (s, R0) (`stages.beam_frame`)."""
+    if kind == "beam":
+        cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
+        rule = config.beam_update_rule
+    else:
+        cells = (config.range_cell_m, config.cross_range_cell_m)
+        rule = "product"
+    return HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
 
 
 def _process_keyframe(
@@ -421,24 +331,35 @@ def _process_keyframe(
     tables: dict[str, pa.Table],
     states: dict[str, _ClassState],
     config: InferConfig,
+    funnels: dict[str, _Funnel],
 ) -> list[dict[str, Any]]:
     """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
     features = tables["features"]
     if "sonar" in features.column_names:
         features = features.filter(pc.equal(features.column("sonar"), "horizontal"))
-    rows = _object_feature_rows(
+    rows = object_feature_rows(
         tables["objects"], tables["object_features"], features, tables["fused"]
     )
-    fused_cols = {c: _col(tables["fused"], c, "fused").astype(np.float64) for c in _FUSED_COLUMNS}
+    fused_cols = {c: column(tables["fused"], c, "fused").astype(np.float64) for c in _FUSED_COLUMNS}
     sightings = _sightings(rows, slice(0, rows["object_id"].size), fused_cols)
     parts = []
     for s in sightings:
         pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-        parts.append(_tag(pts, keyframe_id, s, "fused"))
+        parts.append(_tag(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        funnel = funnels.setdefault(s.class_name, _Funnel())
+        funnel.counts["objects"] += 1
+        funnel.counts["returns"] += s.range_m.size
+        funnel.counts["fused_returns"] += int(s.is_fused.sum())
     for c in config.classes:
-        state = states[c]
+        state, funnel = states[c], funnels.setdefault(c, _Funnel())
         of_class = [s for s in sightings if s.class_name == c]
+        if config.frame_kind(c) == "beam":
+            found = _beam_class(state, of_class, config, funnel)
+            if found is not None:
+                parts.append(_tag(found[0], keyframe_id, found[1], c, "inferred"))
+            continue
         transforms = _update_class(state, of_class, config.range_axis)
+        funnel.counts["updated_objects"] += len(transforms)
         if not state.model.updated:
             continue
         for s in of_class:
@@ -448,17 +369,25 @@ def _process_keyframe(
                 if not reg.ok:
                     continue
                 T = reg.T_ref_obj
-            parts.append(_tag(_query_sighting(state, s, T, config), keyframe_id, s, "inferred"))
+            funnel.counts["registered_objects"] += 1
+            pts = _query_sighting(state, s, T, config, funnel)
+            parts.append(_tag(pts, keyframe_id, s.object_id, c, "inferred"))
     return parts
 
 
-def _tag(pts: dict[str, np.ndarray], keyframe_id: int, s: _Sighting, source: str) -> dict:
+def _tag(
+    pts: dict[str, np.ndarray],
+    keyframe_id: int,
+    object_id: int | np.ndarray,
+    class_name: str,
+    source: str,
+) -> dict:
     n = pts["range_m"].size
     return {
         **pts,
         "keyframe_id": np.full(n, keyframe_id, dtype=np.int64),
-        "object_id": np.full(n, s.object_id, dtype=np.int64),
-        "class_name": np.full(n, s.class_name, dtype=object),
+        "object_id": np.broadcast_to(np.asarray(object_id, dtype=np.int64), (n,)),
+        "class_name": np.full(n, class_name, dtype=object),
         "source": np.full(n, source, dtype=object),
     }
 
@@ -476,23 +405,25 @@ def _table(parts: list[dict[str, Any]]) -> pa.Table:
 
 
 def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    return {
-        "points": infer_points(
-            inputs["classify.objects"],
-            inputs["classify.object_features"],
-            inputs["features.features"],
-            inputs["fuse.fused"],
-            config,
-        )
-    }
+    points, stats = infer_mission(
+        inputs["classify.objects"],
+        inputs["classify.object_features"],
+        inputs["features.features"],
+        inputs["fuse.fused"],
+        config,
+    )
+    return {"points": points, "stats": stats}
 
 
 STAGE = Stage(
     name="infer",
-    version=1,
+    version=2,
     config=InferConfig,
     inputs=("classify.objects", "classify.object_features", "features.features", "fuse.fused"),
-    outputs=(Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),),
+    outputs=(
+        Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
+        Output("stats", "json", "stats.json"),
+    ),
     run=_run,
     description="object-class Bayesian height models; MAP heights for 2D-only returns",
 )

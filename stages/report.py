@@ -181,6 +181,37 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _per_class_table(metrics: dict[str, Any]) -> list[str]:
+    """Markdown lines of the per-class accounting (`stages.class_accounting`), or none."""
+    per_class = metrics.get("per_class") or {}
+    classes = per_class.get("classes") or {}
+    if not classes:
+        return []
+    lines = [
+        "## Coverage by true class",
+        "",
+        f"Every map point takes the class of the nearest ground-truth surface; accurate voxels"
+        f" hold a point within {_fmt(per_class.get('tolerance_m'))} m of it; completeness is of"
+        " the class's visible surface; errors at the "
+        f"{'SLAM-aligned' if per_class.get('frame') == 'aligned' else 'mapped'} positions.",
+        "",
+        "| class | voxels std | voxels sem | accurate std | accurate sem | gain | completeness"
+        " std | completeness sem | median m fused | median m inferred |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name, c in classes.items():
+        std, sem = c.get("standard", {}), c.get("semantic", {})
+        acc_s, acc_m = std.get("accurate_voxels"), sem.get("accurate_voxels")
+        gain = f"{acc_m / acc_s:.1f}x" if acc_s else "-"
+        lines.append(
+            f"| {name} | {_fmt(std.get('voxels'))} | {_fmt(sem.get('voxels'))} | {_fmt(acc_s)}"
+            f" | {_fmt(acc_m)} | {gain} | {_fmt(std.get('completeness'))}"
+            f" | {_fmt(sem.get('completeness'))} | {_fmt(std.get('median_error_m'))}"
+            f" | {_fmt((c.get('inferred') or {}).get('median_error_m'))} |"
+        )
+    return [*lines, ""]
+
+
 def render_markdown(
     metrics: Mapping[str, Any],
     dataset: str,
@@ -208,6 +239,7 @@ def render_markdown(
         "",
         *_coverage_table(metrics),
         "",
+        *_per_class_table(metrics),
     ]
     errs = metrics.get("errors", {})
     if errs:

@@ -260,3 +260,39 @@ def test_a_map_moved_rigidly_with_its_trajectory_is_exact_after_alignment() -> N
     aligned = metrics["errors_aligned"]
     assert aligned["standard"]["median_m"] == pytest.approx(0.0, abs=1e-4)
     assert aligned["rotation_deg"] == pytest.approx(-2.0, abs=1e-6)
+
+
+def test_per_class_accounting_gives_points_the_class_of_the_nearest_true_surface() -> None:
+    """Fused points on the square piling, inferred ones 30 cm off it (inaccurate) and
+    inferred ones on the round piling (accurate): each class gets its own figures."""
+    centroid, normal = square_piling_faces()
+    mesh = decode_mesh_ply(tiny_ply())
+    round_pts = surface_samples(mesh, np.array([CLASS_IDS["cylindrical_piling"]]), 200.0, seed=3)
+    round_pts = round_pts[(round_pts[:, 2] < -1) & (round_pts[:, 2] > -4)]
+    xyz = np.r_[centroid, centroid + 0.3 * normal, round_pts]
+    source = np.array(
+        ["fused"] * len(centroid) + ["inferred"] * (len(centroid) + len(round_pts))
+    )
+    m = map_table(xyz, source)
+    out = STAGE.run(EvaluateConfig(), stage_inputs(m, True))
+    per_class = out["metrics"]["per_class"]
+    assert per_class["frame"] == "aligned" and per_class["tolerance_m"] == 0.1
+    classes = per_class["classes"]
+    square, rnd, whole = (
+        classes["rectangular_piling"],
+        classes["cylindrical_piling"],
+        classes["all_structure"],
+    )
+    voxels = lambda p: len(np.unique(np.floor(p / 0.1).astype(np.int64), axis=0))  # noqa: E731
+    assert square["standard"]["points"] == len(centroid)
+    assert square["standard"]["voxels"] == voxels(centroid)
+    assert square["standard"]["accurate_voxels"] == voxels(centroid)
+    assert square["semantic"]["voxels"] == voxels(np.r_[centroid, centroid + 0.3 * normal])
+    assert square["semantic"]["accurate_voxels"] == voxels(centroid)  # the offset ones are not
+    assert square["inferred"]["median_error_m"] == pytest.approx(0.3, abs=1e-4)
+    assert rnd["standard"]["voxels"] == 0 and rnd["standard"]["completeness"] == 0.0
+    assert rnd["semantic"]["accurate_voxels"] == voxels(round_pts)
+    assert rnd["semantic"]["completeness"] > 0.3
+    assert whole["semantic"]["voxels"] == voxels(xyz)
+    assert whole["visible_samples"] >= rnd["visible_samples"] + square["visible_samples"]
+    assert "## Coverage by true class" in out["report"].decode()

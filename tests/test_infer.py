@@ -12,7 +12,7 @@ import pytest
 from scipy import ndimage
 
 import stages.infer as infer_module
-from schemas.classes import CLASS_NAMES
+from schemas.classes import CLASS_NAMES, PILING_CLASSES
 from schemas.points import POINTS_SCHEMA
 from sim.config import SimConfig
 from sim.dataset import SimRun, simulate
@@ -330,7 +330,7 @@ def pier() -> tuple[SimRun, TruthTables]:
 
 def _infer(tt: TruthTables, config: InferConfig | None = None) -> pa.Table:
     return infer_points(
-        tt.objects, tt.object_features, tt.features, tt.fused, config or InferConfig()
+        tt.objects, tt.object_features, tt.features, tt.fused, config or InferConfig(classes=PILING_CLASSES)
     )
 
 
@@ -403,18 +403,17 @@ def test_stage_object_runs_from_bound_inputs(pier) -> None:
     assert STAGE.outputs[0].schema.equals(points.schema)
 
 
-def test_pier_through_real_features_and_fusion(pier) -> None:
-    """CFAR features and orthogonal fusion from the real stages; objects from DBSCAN
-    with their majority true class standing in for the CNN."""
+def real_stage_tables(run: SimRun, spacing_m: float) -> tuple[pa.Table, ...]:
+    """(objects, object_features, features, fused) from the real CFAR and fusion stages;
+    objects from DBSCAN with their majority true class standing in for the CNN."""
     from schemas.sonar import KeyframeImages
     from stages.features import FeaturesConfig, features_table
     from stages.fuse import FuseConfig, fuse_table
     from stages.objects import extract_objects, horizontal_features
 
-    run, tt = pier
     frames = [
         KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)
-        for k, f in enumerate(run.frame(i) for i in keyframe_indices(run, 4.0))
+        for k, f in enumerate(run.frame(i) for i in keyframe_indices(run, spacing_m))
     ]
     features = features_table(frames, FeaturesConfig())
     sensors = {s: {"T_base_sonar": m.tolist()} for s, m in run.T_base_sonar.items()}
@@ -436,9 +435,14 @@ def test_pier_through_real_features_and_fusion(pier) -> None:
                             "class_name": CLASS_NAMES[o.true_class_id[j]]})  # fmt: skip
             links.append(pa.table({"keyframe_id": np.full(ids.size, frame.keyframe_id),
                                    "object_id": np.full(ids.size, object_id), "feature_id": ids}))  # fmt: skip
-    points = infer_points(
-        pa.Table.from_pylist(objects), pa.concat_tables(links), features, fused, InferConfig()
-    )
+    return pa.Table.from_pylist(objects), pa.concat_tables(links), features, fused
+
+
+def test_pier_through_real_features_and_fusion(pier) -> None:
+    """CFAR features and orthogonal fusion from the real stages (`real_stage_tables`)."""
+    run, tt = pier
+    objects, links, features, fused = real_stage_tables(run, 4.0)
+    points = infer_points(objects, links, features, fused, InferConfig(classes=PILING_CLASSES))
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     fused_world = to_world(fused, tt.T_world_sonar)
     inferred_world = to_world(inferred, tt.T_world_sonar)

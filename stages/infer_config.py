@@ -1,0 +1,131 @@
+"""Config section `infer` (stage `stages.infer`): classes, frames, grids and bounds."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, field_validator, model_validator
+
+from schemas.classes import CLASS_NAMES, PILING_CLASSES, UNKNOWN_CLASS
+from stages.base import StageConfig
+from stages.height_model import UpdateRule
+from stages.object_frame import IcpParams
+
+__all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
+
+FrameKind = Literal["object", "beam"]
+DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall", "boat_hull", "truss")
+"""Every class whose inferred median error stays within 1.5x its fused points' (the
+budget of `benchmarks/bench_infer_classes.py`); "unknown" misses it (1.9x)."""
+DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
+    "cylindrical_piling": "object",
+    "rectangular_piling": "object",
+    "seawall": "beam",
+    "boat_hull": "beam",
+    "truss": "beam",
+    UNKNOWN_CLASS: "beam",
+}
+_INFERABLE = set(CLASS_NAMES) | {UNKNOWN_CLASS}
+
+
+class InferConfig(StageConfig):
+    """Config section `infer`."""
+
+    classes: tuple[str, ...] = Field(
+        DEFAULT_CLASSES,
+        description="classes with a height model (the paper: the two piling classes)",
+    )
+    frame_kinds: dict[str, FrameKind] = Field(
+        default_factory=lambda: dict(DEFAULT_FRAME_KINDS),
+        description="reference frame of each class: 'object' (ICP-registered object frame,"
+        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.beam_frame);"
+        " classes not listed use 'object'",
+    )
+    beam_gap_m: float = Field(
+        0.3, gt=0.0, description="beam frame: a longer gap along a beam starts another surface"
+    )
+    beam_cell_m: float = Field(0.1, gt=0.0, description="beam frame: model cell along s")
+    beam_update_rule: UpdateRule = Field(
+        "mixture",
+        description="beam frame: 'product' (Eq. 7, one height per cell) or 'mixture'"
+        " (Dirichlet counts of the heights a cell returns from; stages.height_model)",
+    )
+    beam_range_cell_m: float | None = Field(
+        None,
+        gt=0.0,
+        description="beam frame: cell along the leading-edge range R0 as a second model"
+        " axis; None: one profile per class",
+    )
+    z_min_m: float = Field(-4.0, description="lowest height of the z grid (sonar frame)")
+    z_max_m: float = Field(4.0, description="highest height of the z grid")
+    z_step_m: float = Field(0.05, gt=0.0, description="z grid spacing")
+    sigma_m: float = Field(0.08, gt=0.0, description="std of the Gaussian height likelihood")
+    range_axis: Literal["offset", "height_equivalent"] = Field(
+        "height_equivalent", description="model cell axis along range (see _model_coords)"
+    )
+    range_cell_m: float = Field(0.1, gt=0.0, description="model cell size along range")
+    cross_range_cell_m: float = Field(0.05, gt=0.0, description="model cell size across range")
+    confidence_threshold: float = Field(
+        0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
+    )
+    confidence_window_m: float = Field(
+        0.08,
+        ge=0.0,
+        description="half-width of the interval around a MAP height whose mass is"
+        " its posterior probability",
+    )
+    max_elevation_deg: float = Field(
+        10.0, gt=0.0, le=90.0, description="drop predictions outside +-this elevation"
+    )
+    reference_voxel_m: float = Field(0.05, gt=0.0, description="reference cloud voxel size")
+    icp_max_correspondence_m: float = Field(0.5, gt=0.0, description="ICP pairing distance")
+    icp_max_iterations: int = Field(30, ge=1, description="ICP iteration cap")
+    icp_min_fitness: float = Field(
+        0.6, ge=0.0, le=1.0, description="min fraction of points paired for a good ICP"
+    )
+    icp_max_rmse_m: float = Field(0.15, gt=0.0, description="max inlier RMSE of a good ICP")
+    icp_max_translation_m: float = Field(
+        1.5, gt=0.0, description="max ICP shift from the object-frame alignment"
+    )
+    icp_max_rotation_deg: float = Field(
+        30.0, gt=0.0, description="max ICP rotation from the object-frame alignment"
+    )
+
+    @model_validator(mode="after")
+    def _z_grid(self) -> InferConfig:
+        if self.z_max_m <= self.z_min_m:
+            raise ValueError(f"z_max_m ({self.z_max_m}) must exceed z_min_m ({self.z_min_m})")
+        return self
+
+    @field_validator("classes")
+    @classmethod
+    def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = sorted(set(value) - _INFERABLE)
+        if unknown:
+            raise ValueError(f"unknown classes {unknown}; known: {sorted(_INFERABLE)}")
+        return value
+
+    @field_validator("frame_kinds")
+    @classmethod
+    def _known_frame_classes(cls, value: dict[str, FrameKind]) -> dict[str, FrameKind]:
+        unknown = sorted(set(value) - _INFERABLE)
+        if unknown:
+            raise ValueError(f"frame_kinds: unknown classes {unknown}")
+        return value
+
+    def frame_kind(self, class_name: str) -> FrameKind:
+        """The reference frame kind of a class ('object' unless listed)."""
+        return self.frame_kinds.get(class_name, "object")
+
+    def icp_params(self) -> IcpParams:
+        """The registration bounds as `IcpParams`."""
+        return IcpParams(
+            max_correspondence_m=self.icp_max_correspondence_m,
+            max_iterations=self.icp_max_iterations,
+            min_fitness=self.icp_min_fitness,
+            max_rmse_m=self.icp_max_rmse_m,
+            max_translation_m=self.icp_max_translation_m,
+            max_rotation_rad=float(np.deg2rad(self.icp_max_rotation_deg)),
+            voxel_m=self.reference_voxel_m,
+        )

@@ -1,0 +1,175 @@
+"""Inputs of stage `infer`: object features joined to their features and fused points,
+grouped into per-keyframe object sightings (vectorised; see `stages.infer`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from stages.object_frame import ObjectOrigin, object_origin, to_object_frame
+
+__all__ = [
+    "FUSED_FEATURE_COLUMN",
+    "KeyframeIndex",
+    "Sighting",
+    "column",
+    "object_feature_rows",
+    "sightings",
+]
+
+FUSED_FEATURE_COLUMN = "feature_id_horizontal"
+"""Column of `fuse.fused` naming the horizontal feature of a fused point."""
+
+
+@dataclass
+class Sighting:
+    """One object in one keyframe: its 2D returns and fused points (object frame)."""
+
+    object_id: int
+    class_name: str
+    origin: ObjectOrigin
+    uv_m: np.ndarray  # (n, 2) all 2D returns
+    range_m: np.ndarray  # (n,)
+    bearing_rad: np.ndarray  # (n,)
+    beam: np.ndarray  # (n,) horizontal beam index
+    is_fused: np.ndarray  # (n,) bool
+    fused_uv_m: np.ndarray  # (k, 2)
+    fused_z_m: np.ndarray  # (k,)
+    fused_rows: np.ndarray  # (k,) rows of the fused table
+
+
+def _key(keyframe_id: np.ndarray, feature_id: np.ndarray) -> np.ndarray:
+    """Packed int64 (keyframe_id, feature_id) join key."""
+    return np.asarray(keyframe_id, dtype=np.int64) * (1 << 32) + np.asarray(
+        feature_id, dtype=np.int64
+    )
+
+
+def column(table: pa.Table, name: str, what: str) -> np.ndarray:
+    if name not in table.column_names:
+        raise ValueError(f"infer: input {what} lacks column {name!r}")
+    return table.column(name).to_numpy(zero_copy_only=False)
+
+
+def _lookup(keys_sorted: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Index of each key in a sorted unique key array, -1 where absent."""
+    if keys_sorted.size == 0:
+        return np.full(keys.size, -1, dtype=np.int64)
+    pos = np.minimum(np.searchsorted(keys_sorted, keys), keys_sorted.size - 1)
+    return np.where(keys_sorted[pos] == keys, pos, -1)
+
+
+def object_feature_rows(
+    objects: pa.Table, object_features: pa.Table, features: pa.Table, fused: pa.Table
+) -> dict[str, np.ndarray]:
+    """Join object features to their feature rows and fused points (vectorised).
+
+    Returns arrays over object-feature rows sorted by (keyframe, object, feature):
+    keyframe_id, object_id, class_index (into `classes`), range_m, bearing_rad,
+    fused_row (-1 for a 2D-only return), plus `classes` (unique class names).
+    """
+    of_kf = column(object_features, "keyframe_id", "object_features").astype(np.int64)
+    of_obj = column(object_features, "object_id", "object_features").astype(np.int64)
+    of_fid = column(object_features, "feature_id", "object_features").astype(np.int64)
+    order = np.lexsort((of_fid, of_obj, of_kf))
+    of_kf, of_obj, of_fid = of_kf[order], of_obj[order], of_fid[order]
+    # Feature geometry (horizontal sonar: angle = bearing).
+    f_key = _key(
+        column(features, "keyframe_id", "features"), column(features, "feature_id", "features")
+    )
+    f_order = np.argsort(f_key, kind="stable")
+    f_row = _lookup(f_key[f_order], _key(of_kf, of_fid))
+    if (f_row < 0).any():
+        raise ValueError("infer: object_features references features that do not exist")
+    f_row = f_order[f_row]
+    # Class of each object.
+    o_key = _key(column(objects, "keyframe_id", "objects"), column(objects, "object_id", "objects"))
+    o_order = np.argsort(o_key, kind="stable")
+    o_row = _lookup(o_key[o_order], _key(of_kf, of_obj))
+    if (o_row < 0).any():
+        raise ValueError("infer: object_features references objects that do not exist")
+    classes, class_index = np.unique(
+        np.asarray(column(objects, "class_name", "objects"), dtype=str), return_inverse=True
+    )
+    # Fused point of each horizontal feature (if any).
+    fu_key = _key(
+        column(fused, "keyframe_id", "fused"), column(fused, FUSED_FEATURE_COLUMN, "fused")
+    )
+    fu_order = np.argsort(fu_key, kind="stable")
+    fu_row = _lookup(fu_key[fu_order], _key(of_kf, of_fid))
+    return {
+        "keyframe_id": of_kf,
+        "object_id": of_obj,
+        "class_index": class_index.reshape(-1)[o_order[o_row]],
+        "range_m": column(features, "range_m", "features").astype(np.float64)[f_row],
+        "bearing_rad": column(features, "angle_rad", "features").astype(np.float64)[f_row],
+        "beam": _beams(features)[f_row],
+        "fused_row": np.where(fu_row >= 0, np.r_[fu_order, -1][fu_row], -1),
+        "classes": classes,
+    }
+
+
+def _beams(features: pa.Table) -> np.ndarray:
+    """Horizontal beam index of every feature (from its bearing when there is no `beam`)."""
+    if "beam" in features.column_names:
+        return column(features, "beam", "features").astype(np.int64)
+    bearing = column(features, "angle_rad", "features")
+    return np.unique(bearing, return_inverse=True)[1].reshape(-1).astype(np.int64)
+
+
+def sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarray]) -> list:
+    """Sightings of one keyframe (rows[sl]), sorted by object id."""
+    obj = rows["object_id"][sl]
+    starts = np.flatnonzero(np.r_[True, np.diff(obj) != 0])
+    out = []
+    for a, b in zip(starts, np.r_[starts[1:], obj.size], strict=True):
+        idx = np.arange(sl.start + a, sl.start + b)
+        r, t = rows["range_m"][idx], rows["bearing_rad"][idx]
+        origin = object_origin(r, t)
+        fr = rows["fused_row"][idx]
+        fr = fr[fr >= 0]
+        out.append(
+            Sighting(
+                object_id=int(obj[a]),
+                class_name=str(rows["classes"][rows["class_index"][idx[0]]]),
+                origin=origin,
+                uv_m=to_object_frame(r, t, origin),
+                range_m=r,
+                bearing_rad=t,
+                beam=rows["beam"][idx],
+                is_fused=rows["fused_row"][idx] >= 0,
+                fused_uv_m=to_object_frame(fused["range_m"][fr], fused["bearing_rad"][fr], origin),
+                fused_z_m=fused["z_m"][fr],
+                fused_rows=fr,
+            )
+        )
+    return out
+
+
+class KeyframeIndex:
+    """Rows of each keyframe of a table (zero-copy slices when sorted by keyframe).
+
+    Keeps only per-keyframe row bounds (plus a row order if the table is not sorted
+    by keyframe), so the index is small compared with the table.
+    """
+
+    def __init__(self, table: pa.Table, what: str) -> None:
+        self.table = table
+        kf = np.asarray(column(table, "keyframe_id", what), dtype=np.int64)
+        self.order = None if np.all(kf[1:] >= kf[:-1]) else np.argsort(kf, kind="stable")
+        if self.order is not None:
+            kf = kf[self.order]
+        starts = np.flatnonzero(np.r_[True, kf[1:] != kf[:-1]]) if kf.size else np.empty(0, int)
+        self.keyframe_ids = kf[starts]
+        self.bounds = np.r_[starts, kf.size]
+
+    def rows(self, keyframe_id: int) -> pa.Table:
+        i = int(np.searchsorted(self.keyframe_ids, keyframe_id))
+        if i >= self.keyframe_ids.size or self.keyframe_ids[i] != keyframe_id:
+            return self.table.slice(0, 0)
+        a, b = int(self.bounds[i]), int(self.bounds[i + 1])
+        if self.order is None:
+            return self.table.slice(a, b - a)
+        return self.table.take(pa.array(self.order[a:b]))
