@@ -13,7 +13,7 @@ import itertools
 import logging
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +21,20 @@ from typing import Any
 
 from pipeline.errors import ConfigError, PipelineError
 
-__all__ = ["RunSpec", "expand", "run_sweep", "sweep_tables"]
+__all__ = [
+    "ALL_STRUCTURE",
+    "METRIC_COLUMNS",
+    "PILING_CLASSES",
+    "RunOutcome",
+    "RunSpec",
+    "class_value",
+    "expand",
+    "group_label",
+    "per_class",
+    "run_sweep",
+    "stage_path",
+    "sweep_tables",
+]
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +46,8 @@ class RunSpec:
     base_overrides: tuple[str, ...] = ()
     config_path: str | None = None
     store: str = "data/store"
+    protocol: str | None = None
+    """A name for the config this run belongs to (`sonarmap study` compares several)."""
 
     @property
     def override_args(self) -> list[str]:
@@ -48,9 +63,23 @@ class RunOutcome:
     summary: dict[str, Any] = field(default_factory=dict)
     stages: list[dict[str, Any]] = field(default_factory=list)
     error: str | None = None
+    protocol: str | None = None
+    config_path: str | None = None
+
+    def stage_path(self, stage: str) -> Path | None:
+        """The artifact directory of `stage` in this run (None when it did not run)."""
+        return stage_path(self.stages, stage)
 
     def to_json(self) -> dict[str, Any]:
         return dict(self.__dict__)
+
+
+def stage_path(stages: Sequence[Mapping[str, Any]], stage: str) -> Path | None:
+    """The artifact directory of `stage` among a run's `stages` (as in `run --json`)."""
+    for s in stages:
+        if s.get("stage") == stage and s.get("path"):
+            return Path(str(s["path"]))
+    return None
 
 
 def expand(
@@ -60,6 +89,7 @@ def expand(
     base_overrides: Sequence[str] = (),
     config_path: Path | None = None,
     store: Path = Path("data/store"),
+    protocol: str | None = None,
 ) -> list[RunSpec]:
     """Cross product: every dataset x every combination of `key=v1,v2,...` values."""
     axes: list[list[tuple[str, str]]] = []
@@ -76,6 +106,7 @@ def expand(
             base_overrides=tuple(base_overrides),
             config_path=str(config_path) if config_path else None,
             store=str(Path(store).resolve()),
+            protocol=protocol,
         )
         for d in datasets
         for combo in combos
@@ -88,6 +119,7 @@ def run_one(spec: RunSpec) -> RunOutcome:
 
     t0 = time.perf_counter()
     overrides = dict(spec.overrides)
+    tags: dict[str, Any] = {"protocol": spec.protocol, "config_path": spec.config_path}
     try:
         result, summary = run_dataset(
             Path(spec.dataset),
@@ -97,15 +129,17 @@ def run_one(spec: RunSpec) -> RunOutcome:
         )
     except PipelineError as err:
         return RunOutcome(
-            spec.dataset, overrides, "failed", time.perf_counter() - t0, error=str(err)
+            spec.dataset, overrides, "failed", time.perf_counter() - t0, error=str(err), **tags
         )
     except Exception as err:  # a bug in one run must not stop the sweep
         log.debug("sweep run failed", exc_info=True)
         msg = f"{type(err).__name__}: {err}"
-        return RunOutcome(spec.dataset, overrides, "failed", time.perf_counter() - t0, error=msg)
-    stages = [s.__dict__ for s in result.stages]
+        return RunOutcome(
+            spec.dataset, overrides, "failed", time.perf_counter() - t0, error=msg, **tags
+        )
+    stages = [dict(s.__dict__) for s in result.stages]
     return RunOutcome(
-        spec.dataset, overrides, "ok", round(time.perf_counter() - t0, 3), summary, stages
+        spec.dataset, overrides, "ok", round(time.perf_counter() - t0, 3), summary, stages, **tags
     )
 
 
@@ -186,28 +220,84 @@ def run_sweep(
     raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
 
 
-def _flat(summary: dict[str, Any]) -> dict[str, float | int | None]:
+PILING_CLASSES: tuple[str, ...] = ("cylindrical_piling", "rectangular_piling")
+"""The classes the paper infers in simulation (its Section V); summed as `..._piling_...`."""
+
+ALL_STRUCTURE = "all_structure"
+"""The per-class aggregate of every class but the seafloor (`metrics.per_class.classes`)."""
+
+
+def per_class(summary: Mapping[str, Any]) -> dict[str, Any]:
+    """`summary.metrics.per_class.classes` ({} when the evaluate stage did not report it)."""
+    metrics = summary.get("metrics") or {}
+    classes = (metrics.get("per_class") or {}).get("classes") or {}
+    return dict(classes)
+
+
+def class_value(
+    classes: Mapping[str, Any], names: Sequence[str], part: str, name: str
+) -> float | None:
+    """Sum of `classes[c][part][name]` over the classes `names` present (None if none is)."""
+    values = [((classes.get(c) or {}).get(part) or {}).get(name) for c in names if c in classes]
+    found = [float(v) for v in values if v is not None]
+    return sum(found) if found else None
+
+
+def _ratio(num: float | int | None, den: float | int | None) -> float | None:
+    return float(num) / float(den) if num is not None and den else None
+
+
+def _flat(summary: Mapping[str, Any]) -> dict[str, float | int | None]:
+    """One run's figures as flat columns; every key is always present (None when absent)."""
     voxels = summary.get("voxels") or {}
     metrics = summary.get("metrics") or {}
     errors = metrics.get("errors") or {}
     completeness = metrics.get("completeness") or {}
     trajectory = metrics.get("trajectory") or {}
+    classes = per_class(summary)
     row: dict[str, float | int | None] = {
         "voxels_standard": voxels.get("standard"),
         "voxels_semantic": voxels.get("semantic"),
+        "ratio": _ratio(voxels.get("semantic"), voxels.get("standard")),
         "median_error_standard_m": (errors.get("standard") or {}).get("median_m"),
         "median_error_semantic_m": (errors.get("semantic") or {}).get("median_m"),
+        "median_error_inferred_m": (errors.get("inferred") or {}).get("median_m"),
         "completeness_standard": completeness.get("standard"),
         "completeness_semantic": completeness.get("semantic"),
         "slam_ate_m": trajectory.get("slam_ate_m"),
     }
-    if row["voxels_standard"] and row["voxels_semantic"] is not None:
-        row["ratio"] = float(row["voxels_semantic"]) / float(row["voxels_standard"])
+    for map_name in ("standard", "semantic"):
+        row[f"accurate_voxels_{map_name}"] = class_value(
+            classes, (ALL_STRUCTURE,), map_name, "accurate_voxels"
+        )
+    row["accurate_ratio"] = _ratio(row["accurate_voxels_semantic"], row["accurate_voxels_standard"])
+    for map_name in ("standard", "semantic"):
+        row[f"accurate_voxels_piling_{map_name}"] = class_value(
+            classes, PILING_CLASSES, map_name, "accurate_voxels"
+        )
+    for map_name in ("standard", "semantic"):
+        row[f"completeness_all_{map_name}"] = class_value(
+            classes, (ALL_STRUCTURE,), map_name, "completeness"
+        )
     return row
 
 
+METRIC_COLUMNS: tuple[str, ...] = ("seconds", *_flat({}))
+"""The numeric per-run columns of sweep.parquet, in order."""
+
+
+def group_label(group: Mapping[str, Any]) -> str:
+    """`protocol: k=v, ...` of a group (protocol only when the sweep has one)."""
+    label = ", ".join(f"{k}={v}" for k, v in group["overrides"].items()) or "(defaults)"
+    return f"{group['protocol']}: {label}" if group.get("protocol") else label
+
+
 def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, Any]], str]:
-    """(pyarrow table one row per run, groups with mean/std, markdown of the groups)."""
+    """(pyarrow table one row per run, groups with mean/std, markdown of the groups).
+
+    Runs are grouped by (protocol, overrides); groups keep the order protocols first
+    appear in, then sorted overrides. Markdown leaves out the columns no run reported.
+    """
     import json
 
     import numpy as np
@@ -215,40 +305,59 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
 
     rows: list[dict[str, Any]] = []
     for o in outcomes:
+        flat = _flat(o.summary)
         rows.append(
             {
                 "dataset": o.dataset,
+                "protocol": o.protocol,
                 "overrides": json.dumps(o.overrides, sort_keys=True),
                 "status": o.status,
-                "seconds": float(o.seconds),
                 "error": o.error,
-                **{k: (None if v is None else float(v)) for k, v in _flat(o.summary).items()},
+                "seconds": float(o.seconds),
+                **{k: (None if v is None else float(v)) for k, v in flat.items()},
             }
         )
-    table = pa.Table.from_pylist(rows)
-    metrics = [
-        k for k in (rows[0] if rows else {}) if k not in ("dataset", "overrides", "status", "error")
-    ]
+    schema = pa.schema(
+        [
+            ("dataset", pa.string()),
+            ("protocol", pa.string()),
+            ("overrides", pa.string()),
+            ("status", pa.string()),
+            ("error", pa.string()),
+            *((m, pa.float64()) for m in METRIC_COLUMNS),
+        ]
+    )
+    table = pa.Table.from_pylist(rows, schema=schema)
+    protocols = list(dict.fromkeys(r["protocol"] for r in rows))
     groups = []
-    for key in sorted({r["overrides"] for r in rows}):
-        members = [r for r in rows if r["overrides"] == key and r["status"] == "ok"]
-        group: dict[str, Any] = {"overrides": json.loads(key), "runs": len(members)}
-        for m in metrics:
-            vals = np.array([r[m] for r in members if r.get(m) is not None], dtype=float)
-            group[m] = {
-                "mean": float(vals.mean()) if vals.size else None,
-                "std": float(vals.std(ddof=1)) if vals.size > 1 else (0.0 if vals.size else None),
-            }
-        groups.append(group)
+    for protocol in protocols:
+        for key in sorted({r["overrides"] for r in rows if r["protocol"] == protocol}):
+            members = [
+                r
+                for r in rows
+                if r["protocol"] == protocol and r["overrides"] == key and r["status"] == "ok"
+            ]
+            group: dict[str, Any] = {"overrides": json.loads(key), "runs": len(members)}
+            if protocol is not None:
+                group["protocol"] = protocol
+            for m in METRIC_COLUMNS:
+                vals = np.array([r[m] for r in members if r.get(m) is not None], dtype=float)
+                group[m] = {
+                    "mean": float(vals.mean()) if vals.size else None,
+                    "std": float(vals.std(ddof=1))
+                    if vals.size > 1
+                    else (0.0 if vals.size else None),
+                }
+            groups.append(group)
+    shown = [m for m in METRIC_COLUMNS if any(g[m]["mean"] is not None for g in groups)]
     lines = [
-        "| overrides | runs | " + " | ".join(metrics) + " |",
-        "|---|---|" + "---|" * len(metrics),
+        "| overrides | runs | " + " | ".join(shown) + " |",
+        "|---|---|" + "---|" * len(shown),
     ]
     for g in groups:
         cells = []
-        for m in metrics:
+        for m in shown:
             mean, std = g[m]["mean"], g[m]["std"]
             cells.append("-" if mean is None else f"{mean:.4g} ± {std:.2g}")
-        label = ", ".join(f"{k}={v}" for k, v in g["overrides"].items()) or "(defaults)"
-        lines.append(f"| {label} | {g['runs']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {group_label(g)} | {g['runs']} | " + " | ".join(cells) + " |")
     return table, groups, "\n".join(lines) + "\n"

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.sweep import RunOutcome, sweep_tables
+from pipeline.sweep import RunOutcome, group_label, sweep_tables
 
 __all__ = ["write_sweep"]
 
@@ -18,9 +18,7 @@ def _plot(groups: Sequence[dict[str, Any]], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    labels = [
-        ", ".join(f"{k}={v}" for k, v in g["overrides"].items()) or "defaults" for g in groups
-    ]
+    labels = [group_label(g) for g in groups]
     fig, ax = plt.subplots(figsize=(max(5.0, 1.6 * len(groups)), 4.0))
     width = 0.38
     for j, (metric, name) in enumerate(

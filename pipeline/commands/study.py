@@ -1,4 +1,4 @@
-"""`sonarmap study`: the paper's simulation study (Table I analogue) in one command."""
+"""`sonarmap study`: the paper's simulation study (Table I and Fig. 4 analogues) in one command."""
 
 from __future__ import annotations
 
@@ -7,45 +7,33 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from pipeline.study import PAPER_TABLE_I, table_i
 
-__all__ = ["PAPER_TABLE_I", "register"]
-
-PAPER_TABLE_I = {
-    "4": {"standard": (2938.6, 984.18), "semantic": (60091.4, 20038.116)},
-    "2": {"standard": (3549.4, 1144.72), "semantic": (68422.2, 25518.37)},
-}
-"""McConnell & Englot (ICRA 2021), Table I: mean and std of 10 cm voxel counts, 10 trials."""
+__all__ = ["PAPER_TABLE_I", "register", "table_i"]
 
 
-def table_i(groups: list[dict]) -> str:
-    """Markdown of our figures beside the paper's, one row per spacing and map."""
-    lines = [
-        "| map | spacing | voxels (ours, mean ± std) | voxels (paper) | semantic/standard (ours) | (paper) | median error m (ours) |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for g in sorted(groups, key=lambda g: -float(g["overrides"].get("keyframes.spacing_m", 0))):
-        spacing = str(g["overrides"].get("keyframes.spacing_m", "?")).rstrip("0").rstrip(".")
-        paper = PAPER_TABLE_I.get(spacing, {})
-        for name in ("standard", "semantic"):
-            ours = g.get(f"voxels_{name}", {})
-            err = g.get(f"median_error_{name}_m", {})
-            p = paper.get(name)
-            ratio = g.get("ratio", {}).get("mean") if name == "semantic" else None
-            p_ratio = (
-                paper["semantic"][0] / paper["standard"][0]
-                if paper and name == "semantic"
-                else None
+def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | None]]:
+    """[{"name", "config"}]: the defaults (unless left out), then each file by its stem."""
+    from pipeline.errors import ConfigError
+    from pipeline.study import DEFAULT_PROTOCOL
+
+    protocols: list[dict[str, str | None]] = (
+        [{"name": DEFAULT_PROTOCOL, "config": None}] if with_default else []
+    )
+    for path in configs:
+        if not path.is_file():
+            raise ConfigError(f"--config {path}: no such file")
+        taken = [p for p in protocols if p["name"] == path.stem]
+        if taken:
+            other = taken[0]["config"] or "sonarmap's defaults"
+            raise ConfigError(
+                f"--config {path}: protocol name '{path.stem}' is already taken by {other} "
+                "(protocols are named by the file stem; rename one)"
             )
-            lines.append(
-                f"| {name} | {spacing} m | "
-                + ("-" if ours.get("mean") is None else f"{ours['mean']:.0f} ± {ours['std']:.0f}")
-                + f" | {'-' if p is None else f'{p[0]:.0f} ± {p[1]:.0f}'} | "
-                + ("" if ratio is None else f"{ratio:.1f}x")
-                + f" | {'' if p_ratio is None else f'{p_ratio:.1f}x'} | "
-                + ("-" if err.get("mean") is None else f"{err['mean']:.3f}")
-                + " |"
-            )
-    return "\n".join(lines) + "\n"
+        protocols.append({"name": path.stem, "config": str(path)})
+    if not protocols:
+        raise ConfigError("--no-default needs at least one --config FILE")
+    return protocols
 
 
 def register(app: typer.Typer) -> None:
@@ -53,51 +41,110 @@ def register(app: typer.Typer) -> None:
     def study(
         trials: int = typer.Option(10, "--trials", min=1, help="Simulated trials (seeds 0..N-1)."),
         goals: int = typer.Option(20, "--goals", min=1, help="Random goals per trial."),
+        duration_s: float | None = typer.Option(
+            None,
+            "--duration-s",
+            min=1.0,
+            help="Cut each mission after S seconds (default: all goals).",
+        ),
         scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
-        spacings: str = typer.Option("2,4", "--spacings", help="Keyframe spacings [m]."),
+        spacings: str = typer.Option(
+            "2,4", "--spacings", help="Keyframe spacings in metres, comma-separated."
+        ),
+        configs: list[Path] | None = typer.Option(
+            None,
+            "--config",
+            "-c",
+            help="A protocol to compare: pipeline config YAML, named by its stem. Repeatable.",
+        ),
+        no_default: bool = typer.Option(
+            False, "--no-default", help="Leave out the protocol of sonarmap's own defaults."
+        ),
+        fixed: list[str] | None = typer.Option(
+            None, "--fix", help="Override for every protocol's runs: section.field=value."
+        ),
         executor: str = typer.Option("local", "--executor", help="local or ray."),
         jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
+        address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
         out: Path = typer.Option(Path("data/study"), "--out", help="Datasets and results folder."),
         store: Path = STORE_OPT,
         json_: bool = JSON_OPT,
     ) -> None:
-        """Simulate N trials, map each at 2 m and 4 m spacing with true poses, print Table I."""
+        """Simulate N trials and map each, with true poses, at every spacing under every
+        protocol (the defaults and each --config); print Table I beside the paper's, write
+        it with the per-class accounting to OUT/results/table_i.md and Fig. 4 to
+        OUT/results/fig4_errors.png."""
         import time
 
         from pipeline.commands._common import stderr_console
+        from pipeline.config import load_config
         from pipeline.datasets import ensure_simulation, scene_path
+        from pipeline.registry import all_stages, extra_sections
+        from pipeline.study import write_study
         from pipeline.sweep import expand, run_sweep
-        from pipeline.sweep_output import write_sweep
 
         console = stderr_console()
         t0 = time.perf_counter()
+        protocols = _protocols(configs or [], not no_default)
+        base = ["slam.mode=ground_truth", *(fixed or ())]
+        swept = f"keyframes.spacing_m={spacings}"
+        values = [v.strip() for v in spacings.split(",") if v.strip()]
+        for p in protocols:  # a typo fails now, not in every run
+            config = Path(p["config"]) if p["config"] else None
+            for v in values:
+                load_config(
+                    all_stages(), config, [*base, f"keyframes.spacing_m={v}"], extra_sections()
+                )
         scene_file = scene_path(scene)
         datasets = []
         for seed in range(trials):
-            path = out / f"{scene_file.stem}-goals{goals}-seed{seed}.mcap"
+            cut = "" if duration_s is None else f"-{duration_s:g}s"
+            path = out / f"{scene_file.stem}-goals{goals}{cut}-seed{seed}.mcap"
             console.print(f"trial {seed}: {path}")
-            datasets.append(ensure_simulation(scene_file, seed, path, goals=goals))
-        specs = expand(
-            datasets,
-            [f"keyframes.spacing_m={spacings}"],
-            base_overrides=["slam.mode=ground_truth"],
-            store=store,
+            datasets.append(
+                ensure_simulation(scene_file, seed, path, goals=goals, duration_s=duration_s)
+            )
+        specs = [
+            spec
+            for p in protocols
+            for spec in expand(
+                datasets,
+                [swept],
+                base_overrides=base,
+                config_path=Path(p["config"]) if p["config"] else None,
+                store=store,
+                protocol=p["name"],
+            )
+        ]
+        console.print(
+            f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
+            f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"
         )
         outcomes = run_sweep(
             specs,
             executor=executor,
             jobs=jobs,
+            address=address,
             on_done=lambda o: console.print(
-                f"{o.status} {Path(o.dataset).name} {o.overrides} {o.seconds:.0f} s {o.error or ''}"
+                f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
+                f"{o.seconds:.1f} s {o.error or ''}",
+                markup=False,
+                highlight=False,
             ),
         )
-        doc = write_sweep(outcomes, out / "results")
-        markdown = table_i(doc["groups"])
-        (out / "results" / "table_i.md").write_text(markdown)
-        doc["table_i"] = markdown
-        doc["wall_s"] = round(time.perf_counter() - t0, 1)
+        header = [
+            "Protocols: "
+            + ", ".join(f"{p['name']} ({p['config'] or 'sonarmap defaults'})" for p in protocols)
+            + ".",
+            f"Trials: {trials} (seeds 0..{trials - 1}) of scene {scene_file.stem}, {goals} goals"
+            + ("" if duration_s is None else f", cut at {duration_s:g} s")
+            + f"; spacings {', '.join(values)} m; overrides: {', '.join(base)}.",
+        ]
+        doc = write_study(outcomes, out / "results", protocols=protocols, header=header, started=t0)
         if json_:
             emit_json(doc)
         else:
-            typer.echo(markdown)
+            typer.echo(doc["table_i"])
             typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
+        if all(o.status != "ok" for o in outcomes):
+            raise typer.Exit(1)
