@@ -19,6 +19,16 @@ classes):
    probability exceeds `confidence_threshold`. A return thus yields 0, 1 or 2 points,
    converted to the sonar frame with paper Eq. 1.
 
+Beyond the paper (default on): seawall and truss, whose objects rarely fit in one
+image, use per-beam leading-edge frames instead of one ICP-registered class frame
+(`stages.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
+pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
+"mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
+product would collapse to one mode). `infer.classes` set to the two piling classes is
+the paper's behaviour.
+
+Output `stats` (`stats.json`): what each class loses at each step (`_Funnel`).
+
 Output `points`: the fused points of every classified object (any class, with its
 object id and class name, `source="fused"`) and the inferred points
 (`source="inferred"`), schema `schemas.points.POINTS_SCHEMA`. Fused points that

@@ -63,7 +63,8 @@ def test_extended_structure_is_predicted_on_the_true_surface(scene: str, class_n
     """Real CFAR features and fusion on a wall-only and a hull-only scene: the beam-frame
     model multiplies the covered surface at an error close to the fused points'."""
     run, T, (objects, links, features, fused) = _mission(scene, seed=0)
-    points, stats = infer_mission(objects, links, features, fused, InferConfig())
+    config = InferConfig(classes=(*InferConfig().classes, "boat_hull"))  # hulls: opt-in
+    points, stats = infer_mission(objects, links, features, fused, config)
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     assert set(inferred.column("class_name").to_pylist()) == {class_name}
     assert stats["classes"][class_name]["frame"] == "beam"
