@@ -2,10 +2,13 @@
 
 Per keyframe: DBSCAN clusters of the horizontal sonar's features (metric fan-plane
 coordinates), clusters of at least n features, 40x40 aspect-preserving patches, and m
-Monte-Carlo dropout passes of the CNN batched into one forward call. An object takes the
-argmax class of the mean softmax when that mean probability exceeds the threshold and
-is "unknown" otherwise; mean and variance are recorded. Dropout masks are seeded per
-keyframe (seed, keyframe_id), so outputs are byte-identical run to run.
+Monte-Carlo dropout passes of the CNN batched into one forward call. Two cluster rules
+of the authors' simulation code, off by default, drop objects before classification: a
+minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
+see `stages.objects`. An object takes the argmax class of the mean softmax when that
+mean probability exceeds the threshold and is "unknown" otherwise; mean and variance
+are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id), so outputs are
+byte-identical run to run.
 
 Beyond the paper (on by default, `pool_views`): the decision is taken on the class
 distribution pooled over the sightings of the same place in nearby keyframes
@@ -67,6 +70,28 @@ class ClassifyConfig(StageConfig):
     )
     min_features: int | None = Field(
         None, ge=1, description="smallest object kept; None: the model's (train.min_features)"
+    )
+    min_object_area_m2: float | None = Field(
+        None,
+        gt=0,
+        description="keep only objects whose feature cells cover more than this fan-plane"
+        " area (stages.objects.cell_areas_m2; None: no area rule; original sim code:"
+        " > 150 px of 5 cm = 0.375 m2); not applied in training",
+    )
+    drop_fan_edge_objects: bool = Field(
+        False,
+        description="drop objects whose padded bounding box reaches outside the horizontal"
+        " sonar's fan (stages.objects.fan_outside_area_m2; original sim code); dropped"
+        " objects are not in objects.parquet",
+    )
+    fan_edge_margin_m: float = Field(
+        0.25, ge=0, description="padding of the fan-edge box on each side [m] (original 5 px)"
+    )
+    fan_edge_max_outside_m2: float = Field(
+        0.025,
+        gt=0,
+        description="an object is dropped when this much of its padded box lies outside the"
+        " fan [m2] (original: 10 px of 5 cm)",
     )
     mc_passes: int = Field(20, ge=1, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
@@ -222,7 +247,9 @@ def classify_keyframes(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
             eps_m=eps_m, min_samples=min_samples, min_features=min_features,
             margin_m=float(model_config["margin_m"]), min_side_m=float(model_config["min_side_m"]),
-            size_px=int(model_config["size_px"]),
+            size_px=int(model_config["size_px"]), min_area_m2=cfg.min_object_area_m2,
+            drop_fan_edge=cfg.drop_fan_edge_objects, fan_edge_margin_m=cfg.fan_edge_margin_m,
+            fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
         )  # fmt: skip
         seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
         mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)

@@ -20,6 +20,29 @@ Per keyframe:
    test scene in tests/test_fuse.py and raised their median distance to the mesh from
    0.072 m to 0.113 m (within 0.3 m: 92.9 % -> 86.5 %). The paper-literal per-row form
    (best vs second-best candidate of the horizontal feature) did not predict it either.
+   Options after the authors' code (reference/original-implementation.md Sec. 3.1 steps
+   8-9), all off by default:
+   - `min_subproblem_features`: a range bin is solved only when both its horizontal and
+     its vertical set hold at least this many features (the original: more than 2);
+     the features of smaller subproblems are never associated.
+   - `confidence_rule="ratio"`: a deterministic analogue of the original's per-feature
+     cost ratio. The original drew |L| random pairings of a subproblem (L the larger
+     set, S the smaller) and took, per feature of S, the smallest over the second-smallest
+     of the costs it was paired with; here every candidate is enumerated and an
+     association (i, j) of the optimal solution gets rho = L_ij / L_2, L_2 = the cheapest
+     other candidate of its feature in S: the horizontal one when the bin has fewer
+     horizontal than vertical features, else (fewer vertical, or as many: the original
+     does not say, the authors' later C++ matcher rates the vertical features) the
+     vertical one. When the solution gives that feature its cheapest partner, rho is the
+     original's smallest / second-smallest; otherwise rho >= 1 (the original still rated
+     the feature by its best sampled cost, kept or not: here it is culled by any cut
+     < 1). No alternative (a 1 x 1 subproblem): rho = 0, as Eq. 6 gives C = 1 there;
+     0 / 0: rho = 1. The `confidence` column then holds C = (1 - rho) / (1 + rho) =
+     (L_2 - L_ij) / (L_2 + L_ij), in [-1, 1] and decreasing in rho (rho = (1 - C) /
+     (1 + C)); `min_confidence` still culls on it.
+   - `max_cost_ratio`: with the ratio rule, keep only associations with rho below this
+     (the original kept rows with ratio < 0.97 in simulation, 0.98 on real data), i.e.
+     C > (1 - max) / (1 + max).
 4. Point, Eq. 3: range R = (R_h + R_v) / 2, bearing theta from the horizontal feature,
    elevation from the vertical feature, as below; then Eq. 1 to Cartesian.
 
@@ -41,12 +64,12 @@ satisfies Eq. 1 exactly. Square roots and arcsines are clamped: never NaN.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from schemas.fused import FUSED_SCHEMA
 from schemas.sonar import KeyframeImages
@@ -57,6 +80,7 @@ optimize = lazy("scipy.optimize")
 
 __all__ = [
     "STAGE",
+    "ConfidenceRule",
     "FuseConfig",
     "assign_subproblems",
     "fuse_keyframe",
@@ -66,6 +90,10 @@ __all__ = [
 ]
 
 
+ConfidenceRule = Literal["paper", "ratio"]
+"""`fuse.confidence_rule`: "paper" = Eq. 6; "ratio" = the original code's cost ratio."""
+
+
 class FuseConfig(StageConfig):
     """Config section `fuse`.
 
@@ -73,8 +101,11 @@ class FuseConfig(StageConfig):
         patch_size_px: side of the square patch of Eq. 5 (odd) [pixels].
         horizontal_aperture_deg: vertical extent of the horizontal sonar's beams [deg].
         vertical_aperture_deg: horizontal extent of the vertical sonar's beams [deg].
-        min_confidence: associations with Eq. 6 confidence below this are culled (-1: none).
+        min_confidence: associations with confidence below this are culled (-1: none).
         rotate_vertical_patch: rotate the vertical patch 90 deg before comparing (paper).
+        min_subproblem_features: smallest horizontal and vertical set of a solved range bin.
+        confidence_rule: "paper" (Eq. 6) or "ratio" (the original code's; module docstring).
+        max_cost_ratio: ratio rule only: keep associations with L_ij / L_2 below this.
     """
 
     patch_size_px: int = Field(5, ge=1, le=63)
@@ -82,6 +113,30 @@ class FuseConfig(StageConfig):
     vertical_aperture_deg: float = Field(20.0, gt=0.0, lt=180.0)
     min_confidence: float = Field(-1.0, ge=-1.0, le=1.0)
     rotate_vertical_patch: bool = True
+    min_subproblem_features: int = Field(
+        1,
+        ge=1,
+        description="a range-bin subproblem is solved only if both its horizontal and its"
+        " vertical set have at least this many features (1: every bin; original code: 3)",
+    )
+    confidence_rule: ConfidenceRule = Field(
+        "paper",
+        description="'paper': Eq. 6, (L_2 - L_ij) / sum L; 'ratio': rho = L_ij / L_2 of the"
+        " bin's smaller-set feature, the original code's per-feature cost ratio, stored as"
+        " confidence (1 - rho) / (1 + rho)",
+    )
+    max_cost_ratio: float | None = Field(
+        None,
+        gt=0.0,
+        description="with confidence_rule 'ratio', keep associations whose cost ratio"
+        " L_ij / L_2 is below this (None: keep all; original code 0.97 sim, 0.98 real)",
+    )
+
+    @model_validator(mode="after")
+    def _ratio_cut_needs_ratio_rule(self) -> FuseConfig:
+        if self.max_cost_ratio is not None and self.confidence_rule != "ratio":
+            raise ValueError("max_cost_ratio needs confidence_rule 'ratio'")
+        return self
 
 
 def image_patches(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, size: int) -> np.ndarray:
@@ -120,18 +175,28 @@ def _same_bin_pairs(bin_h: np.ndarray, bin_v: np.ndarray) -> tuple[np.ndarray, n
 
 
 def _confidence(
-    i: np.ndarray, j: np.ndarray, cost: np.ndarray, chosen: np.ndarray, nh: int, nv: int
+    i: np.ndarray,
+    j: np.ndarray,
+    cost: np.ndarray,
+    chosen: np.ndarray,
+    nh: int,
+    nv: int,
+    rule: ConfidenceRule = "paper",
 ) -> np.ndarray:
-    """Eq. 6 for the chosen candidate pairs (vectorised over all subproblems).
+    """Confidence of the chosen candidate pairs (vectorised over all subproblems).
 
     Args:
         i, j, cost: (m,) all candidate pairs and their costs.
         chosen: (k,) indices into the candidates of the assigned pairs.
         nh, nv: numbers of horizontal / vertical features.
+        rule: "paper" (Eq. 6) or "ratio" (module docstring).
 
     Returns:
-        (k,) (L_2 - L_ij) / sum L, L_2 = cheapest alternative of either feature, sum over
-        both features' candidates (the pair once); 1 where there is no alternative.
+        (k,) "paper": (L_2 - L_ij) / sum L, L_2 = cheapest alternative of either feature,
+        sum over both features' candidates (the pair once); "ratio": (L_2 - L_ij) / (L_2 +
+        L_ij) = (1 - rho) / (1 + rho), rho = L_ij / L_2, L_2 = cheapest alternative of
+        the feature in the bin's smaller set (the vertical one if equal; C = 0, rho = 1,
+        where both costs are 0). Both are 1 where there is no alternative.
     """
     others = np.ones(len(cost), dtype=bool)
     others[chosen] = False
@@ -140,28 +205,49 @@ def _confidence(
     col_min = np.full(nv, np.inf)
     np.minimum.at(row_min, i, alt)
     np.minimum.at(col_min, j, alt)
+    ci, cj, cc = i[chosen], j[chosen], cost[chosen]
+    if rule == "ratio":
+        # Row i holds |V| candidates of its bin, column j |H|: rate the smaller set's feature.
+        n_v, n_h = np.bincount(i, minlength=nh)[ci], np.bincount(j, minlength=nv)[cj]
+        second = np.where(n_h < n_v, row_min[ci], col_min[cj])
+        pair = np.where(np.isfinite(second), second + cc, 1.0)
+        conf = np.where(pair > 0, (second - cc) / np.maximum(pair, 1e-300), 0.0)
+        return np.where(np.isfinite(second), conf, 1.0)
+    second = np.minimum(row_min[ci], col_min[cj])
     row_sum = np.bincount(i, weights=cost, minlength=nh)
     col_sum = np.bincount(j, weights=cost, minlength=nv)
-    ci, cj, cc = i[chosen], j[chosen], cost[chosen]
-    second = np.minimum(row_min[ci], col_min[cj])
     total = row_sum[ci] + col_sum[cj] - cc
     conf = np.where(total > 0, (second - cc) / np.maximum(total, 1e-12), 0.0)
     return np.where(np.isfinite(second), conf, 1.0)
 
 
 def assign_subproblems(
-    bin_h: np.ndarray, bin_v: np.ndarray, cost_fn: Any
+    bin_h: np.ndarray,
+    bin_v: np.ndarray,
+    cost_fn: Any,
+    *,
+    min_features: int = 1,
+    confidence_rule: ConfidenceRule = "paper",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Minimum-cost assignment per range bin (Eq. 5) with Eq. 6 confidences.
+    """Minimum-cost assignment per range bin (Eq. 5) with Eq. 6 (or ratio) confidences.
 
     Args:
         bin_h, bin_v: (nh,), (nv,) sorted range bins of the horizontal / vertical features.
         cost_fn: cost_fn(i, j) -> (m,) costs of candidate pairs (index arrays).
+        min_features: a bin is solved only if both of its sets hold at least this many
+            features (the original code's gate: 3); the others are left unassigned.
+        confidence_rule: "paper" (Eq. 6) or "ratio" (see `_confidence`).
 
     Returns:
         i, j (k,) int64 assigned feature indices (by bin, then i), cost (k,), confidence (k,).
     """
     i, j = _same_bin_pairs(bin_h, bin_v)
+    if min_features > 1 and len(i):
+        b = bin_h[i]
+        n_h = np.searchsorted(bin_h, b, "right") - np.searchsorted(bin_h, b, "left")
+        n_v = np.searchsorted(bin_v, b, "right") - np.searchsorted(bin_v, b, "left")
+        used = (n_h >= min_features) & (n_v >= min_features)
+        i, j = i[used], j[used]
     if len(i) == 0:
         e = np.zeros(0, np.int64)
         return e, e, np.zeros(0), np.zeros(0)
@@ -175,7 +261,7 @@ def assign_subproblems(
         r, c = optimize.linear_sum_assignment(cost[s:e].reshape(-1, nv))
         chosen.append(s + r * nv + c)
     sel = np.concatenate(chosen)
-    conf = _confidence(i, j, cost, sel, len(bin_h), len(bin_v))
+    conf = _confidence(i, j, cost, sel, len(bin_h), len(bin_v), confidence_rule)
     return i[sel], j[sel], cost[sel], conf
 
 
@@ -275,8 +361,17 @@ def fuse_keyframe(
         diff = p_h[i] - p_v[j]
         return np.sqrt(np.einsum("nab,nab->n", diff, diff, dtype=np.float64))
 
-    i, j, cost, conf = assign_subproblems(bin_h_all[sel_h], bin_v_all[sel_v], cost_fn)
+    i, j, cost, conf = assign_subproblems(
+        bin_h_all[sel_h],
+        bin_v_all[sel_v],
+        cost_fn,
+        min_features=config.min_subproblem_features,
+        confidence_rule=config.confidence_rule,
+    )
     keep = conf >= config.min_confidence
+    if config.max_cost_ratio is not None:
+        # rho < max  <=>  C = (1 - rho) / (1 + rho) > (1 - max) / (1 + max) (ratio rule).
+        keep &= conf > (1.0 - config.max_cost_ratio) / (1.0 + config.max_cost_ratio)
     fh, fv = sel_h[i[keep]], sel_v[j[keep]]
     order = np.argsort(feats["feature_id"][fh], kind="stable")
     fh, fv = fh[order], fv[order]

@@ -11,6 +11,22 @@ its centroid), so the sonar is always straight below: row 0 is the far edge, col
 the left edge, one pixel = side / size metres. This removes the bearing from an
 object's appearance (a piling's arc always opens away from the bottom of the patch);
 the paper does not say how its boxes were oriented.
+
+Two cluster rules of the authors' simulation code (reference/original-implementation.md
+Sec. 4.1 step 5), off by default (`extract_objects`):
+- minimum object area: the original kept clusters of more than 150 Cartesian pixels of
+  its 5 cm simulated image. Our features are polar cells, whose size grows with range,
+  so a cluster is measured by the Cartesian area its cells cover, sum of R dR dtheta
+  over its features (`cell_areas_m2`; = its number of covered 5 cm pixels x 0.0025 m2):
+  150 px is 0.375 m2.
+- fan edge: the original dropped a cluster when 10 or more 5 cm pixels of its bounding
+  box, padded by 5 px, lay outside the fan mask (max range, +-fan half-width): an object
+  cut by the fan edge cannot be told from the end of a longer one (paper Sec. V.A).
+  Here the sonar-frame box of the cluster, padded by `fan_edge_margin_m`, is rastered on
+  the 5 cm grid and the area of the pixels whose centres lie outside the fan (beyond the
+  last range bin's far edge or the outer beams' outer edges) is compared with a limit
+  (`fan_outside_area_m2`). Dropped clusters are not objects: they get no object index,
+  like clusters below `min_features`.
 """
 
 from __future__ import annotations
@@ -31,20 +47,27 @@ csgraph = lazy("scipy.sparse.csgraph")
 sk_cluster = lazy("sklearn.cluster")
 
 __all__ = [
+    "FAN_EDGE_PIXEL_M",
     "PATCH_SIZE_PX",
     "KeyframeObjects",
+    "cell_areas_m2",
     "cluster_boxes",
     "cluster_features",
     "crop_patches",
     "extract_objects",
+    "fan_outside_area_m2",
     "fan_xy",
     "horizontal_features",
+    "keep_clusters",
     "los_rotate",
     "majority_class",
 ]
 
 PATCH_SIZE_PX = 40
 """Side of the CNN input patch [px] (paper: 40x40 grayscale)."""
+
+FAN_EDGE_PIXEL_M = 0.05
+"""Raster cell of the fan-edge rule [m]: the original's simulated Cartesian pixel."""
 
 
 def fan_xy(range_m: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
@@ -113,6 +136,94 @@ def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.n
         isolated = np.bincount(comp, minlength=n)[comp] == 1
         comp = np.where(isolated, -1, comp)
     return comp.astype(np.int64)
+
+
+def keep_clusters(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Drop clusters and renumber the others 0..k'-1 in their order.
+
+    Args:
+        labels: (n,) object index 0..k-1 or -1.
+        keep: (k,) bool, the clusters to keep.
+
+    Returns:
+        (n,) int64 labels, -1 for the dropped clusters' features.
+    """
+    remap = np.where(keep, np.cumsum(keep) - 1, -1).astype(np.int64)
+    return np.where(labels >= 0, np.r_[remap, -1][labels], -1).astype(np.int64)
+
+
+def cell_areas_m2(
+    ranges_m: np.ndarray, angles_rad: np.ndarray, range_bin: np.ndarray, beam: np.ndarray
+) -> np.ndarray:
+    """Fan-plane area of polar image cells, R dR dtheta (paper Eq. 1 with phi = 0).
+
+    dR and dtheta are the local spacings of the range and beam tables (np.gradient, so an
+    uneven beam table is honoured); the cells tile the fan, so the area of a set of cells
+    is the Cartesian area they cover.
+
+    Args:
+        ranges_m: (n_ranges,) ascending bin-centre ranges [m] (at least 2).
+        angles_rad: (n_beams,) ascending beam bearings [rad] (at least 2).
+        range_bin, beam: (n,) cell indices.
+
+    Returns:
+        (n,) float64 areas [m2].
+    """
+    r = np.asarray(ranges_m, np.float64)
+    a = np.asarray(angles_rad, np.float64)
+    dr, da = np.abs(np.gradient(r)), np.abs(np.gradient(a))
+    return r[range_bin] * dr[range_bin] * da[beam]
+
+
+def fan_outside_area_m2(
+    boxes: np.ndarray,
+    margin_m: float,
+    range_max_m: float,
+    angle_min_rad: float,
+    angle_max_rad: float,
+    pixel_m: float = FAN_EDGE_PIXEL_M,
+) -> np.ndarray:
+    """Area of each padded box outside the sonar fan, rastered on a fixed pixel grid.
+
+    The grid is anchored at the sonar (cells [i p, (i + 1) p)); the cells whose centres lie
+    in a box grown by `margin_m` on each side raster it, and count when their centre lies
+    beyond `range_max_m` or outside [angle_min_rad, angle_max_rad].
+
+    Args:
+        boxes: (k, 4) (x_min, x_max, y_min, y_max) [m], sonar frame.
+        margin_m: padding on each side [m] (original: 5 px).
+        range_max_m: far edge of the fan [m].
+        angle_min_rad, angle_max_rad: the fan's bearing limits [rad].
+        pixel_m: grid cell [m].
+
+    Returns:
+        (k,) float64 area outside the fan [m2] (pixels x pixel_m^2).
+    """
+    k = len(boxes)
+    if k == 0:
+        return np.zeros(0, np.float64)
+    lo = np.ceil((boxes[:, [0, 2]] - margin_m) / pixel_m - 0.5).astype(np.int64)
+    hi = np.floor((boxes[:, [1, 3]] + margin_m) / pixel_m - 0.5).astype(np.int64)
+    n = np.maximum(hi - lo + 1, 0)  # (k, 2) cells along x, y
+    per_box = n[:, 0] * n[:, 1]
+    box = np.repeat(np.arange(k), per_box)
+    q = np.arange(len(box)) - np.repeat(np.cumsum(per_box) - per_box, per_box)
+    x = (lo[box, 0] + q // n[box, 1] + 0.5) * pixel_m
+    y = (lo[box, 1] + q % n[box, 1] + 0.5) * pixel_m
+    a = np.arctan2(y, x)
+    outside = (np.hypot(x, y) > range_max_m) | (a < angle_min_rad) | (a > angle_max_rad)
+    return np.bincount(box, weights=outside.astype(np.float64), minlength=k) * pixel_m**2
+
+
+def _fan_limits(ranges_m: np.ndarray, angles_rad: np.ndarray) -> tuple[float, float, float]:
+    """(far range, first beam's outer edge, last beam's outer edge) of a polar image."""
+    r = np.asarray(ranges_m, np.float64)
+    a = np.asarray(angles_rad, np.float64)
+    return (
+        float(r[-1] + (r[-1] - r[-2]) / 2),
+        float(a[0] - (a[1] - a[0]) / 2),
+        float(a[-1] + (a[-1] - a[-2]) / 2),
+    )
 
 
 def cluster_boxes(xy_m: np.ndarray, labels: np.ndarray, k: int) -> np.ndarray:
@@ -292,6 +403,10 @@ def extract_objects(
     margin_m: float,
     min_side_m: float,
     size_px: int = PATCH_SIZE_PX,
+    min_area_m2: float | None = None,
+    drop_fan_edge: bool = False,
+    fan_edge_margin_m: float = 0.25,
+    fan_edge_max_outside_m2: float = 0.025,
 ) -> KeyframeObjects:
     """Cluster one horizontal image's features into objects and crop their patches.
 
@@ -301,13 +416,32 @@ def extract_objects(
         range_m, angle_rad: (n,) feature range [m] and bearing [rad].
         eps_m, min_samples, min_features: see `cluster_features`.
         margin_m, min_side_m, size_px: see `crop_patches`.
+        min_area_m2: keep only clusters whose cells cover more than this area
+            (`cell_areas_m2`; None: no area rule; original sim: 150 px = 0.375 m2).
+        drop_fan_edge: drop clusters whose bounding box, padded by `fan_edge_margin_m`,
+            has at least `fan_edge_max_outside_m2` outside the fan (`fan_outside_area_m2`;
+            original sim: 5 px padding, 10 px = 0.025 m2).
 
     Returns:
-        The keyframe's objects.
+        The keyframe's objects (dropped clusters are none of them).
     """
     xy = fan_xy(range_m, angle_rad)
     labels = cluster_features(xy, eps_m, min_samples, min_features)
     k = int(labels.max(initial=-1)) + 1
+    if k and (min_area_m2 is not None or drop_fan_edge):
+        keep = np.ones(k, dtype=bool)
+        member = labels >= 0
+        if min_area_m2 is not None:
+            area = cell_areas_m2(ping.ranges_m, ping.angles_rad, range_bin[member], beam[member])
+            keep &= np.bincount(labels[member], weights=area, minlength=k) > min_area_m2
+        if drop_fan_edge:
+            outside = fan_outside_area_m2(
+                cluster_boxes(xy, labels, k), fan_edge_margin_m,
+                *_fan_limits(ping.ranges_m, ping.angles_rad),
+            )  # fmt: skip
+            keep &= outside < fan_edge_max_outside_m2
+        labels = keep_clusters(labels, keep)
+        k = int(keep.sum())
     boxes = cluster_boxes(xy, labels, k)
     member = np.flatnonzero(labels >= 0)
     counts = np.bincount(labels[member], minlength=k)

@@ -269,3 +269,201 @@ def test_pooling_combines_sightings_of_one_place_and_needs_the_poses(
     without = {k: v for k, v in inputs.items() if k != "keyframes.keyframes"}
     with pytest.raises(ValueError, match="pool_views needs"):
         STAGE.run(ClassifyConfig(), without)
+
+
+# --- The original's protocol: single view at 0.99, minimum area, fan edge --------------
+
+
+def _confident_model_bytes(scale: float = 30.0, bias: float = 5.5) -> bytes:
+    """The test model with its output layer scaled and class 0 favoured, so that the mean
+    of 20 MC-dropout passes straddles 0.99 over the tiny scene's objects."""
+    blob = torch.load(io.BytesIO(_model_bytes()), weights_only=True)
+    model = PatchCNN(len(NAMES), (8, 16), 32, 0.2)
+    model.load_state_dict(blob["state_dict"])
+    with torch.no_grad():
+        model.fc2.weight *= scale
+        model.fc2.bias[0] += bias
+    return model_to_bytes(model, blob["class_names"], blob["config"])
+
+
+def test_single_view_rule_accepts_the_mean_of_m_passes_above_0_99(
+    simulated: tuple[list[KeyframeImages], pa.Table, dict],
+) -> None:
+    """The paper's rule (pool_views false): each sighting on its own, accepted when the mean
+    of m = 20 MC-dropout softmax outputs exceeds 0.99. Observed: 6 of 12 accepted."""
+    from stages.cnn import mc_predict, model_from_bytes
+    from stages.objects import extract_objects, horizontal_features
+
+    frames, poses, sensors = simulated
+    features = _features(frames)
+    model_bytes = _confident_model_bytes()
+    inputs = {
+        "keyframes.frames": frames,
+        "keyframes.keyframes": poses,
+        "keyframes.sensors": sensors,
+        "features.features": features,
+        "train.model": model_bytes,
+    }
+    torch.set_num_threads(1)
+    cfg = ClassifyConfig(pool_views=False, threshold=0.99, mc_passes=20)
+    objects = STAGE.run(cfg, inputs)["objects"]
+    p = objects["probability"].to_numpy()
+    accepted = objects["class_id"].to_numpy() != UNKNOWN_CLASS_ID
+    assert 0 < accepted.sum() < objects.num_rows
+    np.testing.assert_array_equal(accepted, p > 0.99)
+    np.testing.assert_array_equal(p, objects["single_view_probability"].to_numpy())
+    assert set(objects["n_views"].to_pylist()) == {1}
+    names = np.asarray(objects["class_name"].to_pylist())
+    argmax = np.asarray(objects["argmax_class_name"].to_pylist())
+    assert (names[accepted] == argmax[accepted]).all() and (names[~accepted] == UNKNOWN_CLASS).all()
+    # probability is this keyframe's own mean over m = 20 passes of its patch.
+    model, _, mcfg = model_from_bytes(model_bytes)
+    by_kf = horizontal_features(features)
+    kf = objects["keyframe_id"].to_numpy()
+    for fr in frames:
+        f = by_kf[fr.keyframe_id]
+        objs = extract_objects(
+            fr.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
+            eps_m=0.25, min_samples=2, min_features=10, margin_m=mcfg["margin_m"],
+            min_side_m=mcfg["min_side_m"], size_px=40,
+        )  # fmt: skip
+        mean, _ = mc_predict(model, objs.patches, 20, fr.keyframe_id)
+        np.testing.assert_allclose(mean.max(axis=1), p[kf == fr.keyframe_id], rtol=1e-12)
+    # Pooling over views (the default) decides differently on the same sightings.
+    pooled = STAGE.run(ClassifyConfig(threshold=0.99), inputs)["objects"]
+    assert not np.array_equal(pooled["probability"].to_numpy(), p)
+
+
+def test_min_area_rule_keeps_exactly_the_objects_covering_more(
+    keyframes: list[KeyframeImages],
+) -> None:
+    """Area = fan-plane area of the object's cells (stages.objects.cell_areas_m2), checked
+    against a 1 cm raster of those cells. Observed on the tiny scene (features = labelled
+    cells): cylindrical pilings 0.11-0.24 m2 (dropped at the original's 150 px = 0.375 m2),
+    rectangular 0.42-0.61 m2; the two measures agree to 0.004 m2."""
+    from test_objects import covered_area_m2
+
+    features = _features(keyframes)
+    every = _run(keyframes, features, threshold=0.0)
+    big = _run(keyframes, features, threshold=0.0, min_object_area_m2=0.375)
+    objects, links = every["objects"], every["object_features"]
+    rows = {int(v): i for i, v in enumerate(features["feature_id"].to_numpy())}
+    rb, bm = features["range_bin"].to_numpy(), features["beam"].to_numpy()
+    by_kf = {fr.keyframe_id: fr.horizontal for fr in keyframes}
+    areas = []
+    for oid, kf in zip(
+        objects["object_id"].to_pylist(), objects["keyframe_id"].to_pylist(), strict=True
+    ):
+        fid = links["feature_id"].to_numpy()[links["object_id"].to_numpy() == oid]
+        r = np.array([rows[int(v)] for v in fid])
+        h = by_kf[kf]
+        areas.append(covered_area_m2(h.ranges_m, h.angles_rad, rb[r], bm[r], 0.01))
+    area = np.array(areas)
+    keep = area > 0.375
+    assert 0 < keep.sum() < len(keep)
+    assert np.all(np.abs(area - 0.375) > 0.03)  # no object on the edge of the rule
+    # Exactly the larger objects remain, unchanged but renumbered; their links follow (the
+    # probabilities differ: a keyframe's dropout masks are drawn for its whole batch).
+    for name in ("keyframe_id", "n_features", "x_m", "y_m", "true_class_name"):
+        assert big["objects"][name].to_pylist() == [
+            v for v, k in zip(objects[name].to_pylist(), keep, strict=True) if k
+        ], name
+    np.testing.assert_array_equal(big["objects"]["object_id"].to_numpy(), np.arange(keep.sum()))
+    kept_ids = objects["object_id"].to_numpy()[keep]
+    want = links.filter(pa.compute.is_in(links["object_id"], pa.array(kept_ids)))
+    assert big["object_features"]["feature_id"].equals(want["feature_id"])
+    assert set(big["objects"]["true_class_name"].to_pylist()) == {"rectangular_piling"}
+
+
+FAN_EDGE_PILINGS = (
+    # sonar-frame (range m, bearing deg); radius 0.3 m. Those whose disc crosses the
+    # +-65 deg fan edge (|bearing| + asin(0.3 / range) > 65 deg) touch it.
+    (10.0, 0.0),
+    (12.0, 50.0),
+    (8.0, 64.8),
+    (15.0, -65.0),
+    (27.0, 15.0),
+    (6.0, -35.0),
+    (20.0, -64.5),
+)
+
+
+def test_fan_edge_rule_drops_exactly_the_sightings_of_pilings_cut_by_the_fan() -> None:
+    """Two keyframes of a scene with pilings inside the fan and across its edges; CFAR
+    features (defaults). Observed: 14 objects, the 6 sightings of the three edge pilings
+    dropped. (A piling across the 30 m arc gives no features at all: SOCA-CFAR cannot test
+    the last 15 bins, so it is not in the scene.)"""
+    from sim.config import SimConfig
+    from sim.dataset import SimRun
+    from sim.scene import Scene
+    from sim.world import World
+    from stages.features import FeaturesConfig, features_table
+
+    mount = SimConfig().horizontal.mounting.translation_m
+    objs = [
+        {
+            "class": "cylindrical_piling",
+            "name": f"p{n}",
+            "position_m": [mount[0] + r * np.cos(np.deg2rad(b)), r * np.sin(np.deg2rad(b))],
+            "radius_m": 0.3,
+        }
+        for n, (r, b) in enumerate(FAN_EDGE_PILINGS)
+    ]
+    scene = Scene.model_validate(
+        {
+            "name": "fan-edge",
+            "seafloor_depth_m": 12.0,
+            "area_m": [-40, 40, -40, 40],
+            "objects": objs,
+        }
+    )
+    gt = np.zeros((2, 6))
+    gt[:, 2] = -2.0
+    gt[1, 0] = 0.02
+    traj = {"t_ns": np.arange(2, dtype=np.int64) * 500_000_000, "gt_pose": gt, "dr_pose": gt}
+    run = SimRun(world=World(scene), config=SimConfig(), seed=3, trajectory=traj, path=None)  # type: ignore[arg-type]
+    frames = [KeyframeImages(f.index, f.t_ns, f.horizontal, f.vertical) for f in run.frames()]
+    features = features_table(frames, FeaturesConfig())
+    every = _run(frames, features, threshold=0.0)
+    kept = _run(frames, features, threshold=0.0, drop_fan_edge_objects=True)
+
+    def piling_of(objects: pa.Table) -> np.ndarray:
+        """Index of the scene piling nearest each object (sonar frame: the pose moves 2 cm)."""
+        xy = np.stack([objects["x_m"].to_numpy(), objects["y_m"].to_numpy()], axis=1)
+        true = np.array(
+            [[r * np.cos(np.deg2rad(b)), r * np.sin(np.deg2rad(b))] for r, b in FAN_EDGE_PILINGS]
+        )
+        d = np.linalg.norm(xy[:, None] - true[None], axis=2)
+        assert d.min(axis=1).max() < 0.6  # every object is one piling's sighting
+        return d.argmin(axis=1)
+
+    edge = {
+        n
+        for n, (r, b) in enumerate(FAN_EDGE_PILINGS)
+        if abs(b) + np.rad2deg(np.arcsin(0.3 / r)) > 65.0
+    }
+    seen = piling_of(every["objects"])
+    assert set(seen.tolist()) == set(range(len(FAN_EDGE_PILINGS)))  # each piling is found
+    want = [n not in edge for n in seen]
+    assert sum(want) < len(want)
+    got = piling_of(kept["objects"])
+    assert got.tolist() == seen[want].tolist()
+    for name in ("keyframe_id", "n_features", "x_m", "range_m", "bearing_rad"):
+        assert kept["objects"][name].to_pylist() == [
+            v for v, w in zip(every["objects"][name].to_pylist(), want, strict=True) if w
+        ], name
+
+    def linked(links: pa.Table, ids: np.ndarray | None = None) -> set[tuple[int, int]]:
+        m = (
+            np.ones(links.num_rows, bool)
+            if ids is None
+            else np.isin(links["object_id"].to_numpy(), ids)
+        )
+        kf, fid = links["keyframe_id"].to_numpy()[m], links["feature_id"].to_numpy()[m]
+        return set(zip(kf.tolist(), fid.tolist(), strict=True))
+
+    # The dropped objects' features are linked to no object.
+    dropped_ids = every["objects"]["object_id"].to_numpy()[~np.array(want)]
+    dropped = linked(every["object_features"], dropped_ids)
+    assert dropped and not linked(kept["object_features"]) & dropped
+    assert linked(kept["object_features"]) == linked(every["object_features"]) - dropped

@@ -2,18 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pyarrow as pa
 import pytest
 
 from schemas.sonar import SonarPing
 from stages.objects import (
+    cell_areas_m2,
     cluster_boxes,
     cluster_features,
     crop_patches,
     extract_objects,
+    fan_outside_area_m2,
     fan_xy,
     horizontal_features,
+    keep_clusters,
     los_rotate,
     majority_class,
 )
@@ -187,3 +192,149 @@ def test_linked_components_match_scikit_learn_dbscan() -> None:
             np.testing.assert_array_equal(ours >= 0, kept)
             pairs = set(zip(ours[kept].tolist(), raw[kept].tolist(), strict=True))
             assert len(pairs) == len({a for a, _ in pairs}) == len({b for _, b in pairs})
+
+
+# --- Cluster rules of the original's simulation code (reference Sec. 4.1 step 5) ----------
+
+FAN_RANGES_M = ((np.arange(600) + 0.5) * 0.05).astype(np.float32)
+FAN_ANGLES = np.deg2rad(-65 + 130 * (np.arange(512) + 0.5) / 512).astype(np.float32)
+
+
+def covered_area_m2(
+    ranges_m: np.ndarray, angles_rad: np.ndarray, rb: np.ndarray, bm: np.ndarray, pixel_m: float
+) -> float:
+    """Independent check of a cell set's area: the fine Cartesian pixels whose centres fall
+    in one of its cells (each cell bounded by the midpoints of the range / beam tables)."""
+    r = ranges_m.astype(np.float64)
+    a = angles_rad.astype(np.float64)
+    r_edges = np.r_[r[0] - (r[1] - r[0]) / 2, (r[1:] + r[:-1]) / 2, r[-1] + (r[-1] - r[-2]) / 2]
+    a_edges = np.r_[a[0] - (a[1] - a[0]) / 2, (a[1:] + a[:-1]) / 2, a[-1] + (a[-1] - a[-2]) / 2]
+    rr, aa = np.meshgrid(r_edges[[rb.min(), rb.max() + 1]], a_edges[[bm.min(), bm.max() + 1]])
+    xs, ys = rr * np.cos(aa), rr * np.sin(aa)
+    x0 = min(xs.min(), r_edges[rb.min()] * np.cos(a_edges[[bm.min(), bm.max() + 1]]).min())
+    x1 = r_edges[rb.max() + 1]
+    gx = np.arange(x0 - pixel_m, x1 + pixel_m, pixel_m)
+    gy = np.arange(ys.min() - pixel_m, ys.max() + pixel_m, pixel_m)
+    x, y = np.meshgrid(gx + pixel_m / 2, gy + pixel_m / 2)
+    ib = np.searchsorted(r_edges, np.hypot(x, y)) - 1
+    jb = np.searchsorted(a_edges, np.arctan2(y, x)) - 1
+    inside = (ib >= 0) & (ib < len(r)) & (jb >= 0) & (jb < len(a))
+    cells = np.isin(ib * len(a) + jb, rb * len(a) + bm) & inside
+    return float(cells.sum() * pixel_m**2)
+
+
+@pytest.mark.parametrize("uneven", [False, True])
+def test_cell_areas_are_the_cartesian_area_the_cells_cover(uneven: bool) -> None:
+    angles = np.linspace(-1.1, 1.1, 512)
+    if uneven:
+        angles = 1.1 * np.sign(angles) * np.abs(angles / 1.1) ** 1.5
+    angles = angles.astype(np.float32)
+    for rect in ((6.0, 6.4, 1.0, 1.4), (12.0, 12.3, -3.0, -2.0), (3.0, 3.6, -0.4, 0.4)):
+        rb, bm = np.nonzero(_polar_of_rect(angles, *rect))
+        area = cell_areas_m2(RANGES_M, angles, rb, bm).sum()
+        assert area == pytest.approx(covered_area_m2(RANGES_M, angles, rb, bm, 0.004), rel=0.02)
+        true = (rect[1] - rect[0]) * (rect[3] - rect[2])
+        assert area == pytest.approx(true, rel=0.15)  # cells with centres inside the box
+
+
+def _two_targets(angles: np.ndarray) -> tuple[SonarPing, np.ndarray, np.ndarray]:
+    small = _polar_of_rect(angles, 6.0, 6.4, 1.0, 1.4)  # 0.16 m2
+    large = _polar_of_rect(angles, 12.0, 12.3, -3.0, -2.0)  # 0.30 m2
+    labels = np.where(small > 0, 1, 0).astype(np.uint8) | np.where(large > 0, 2, 0).astype(np.uint8)
+    ping = SonarPing(0, "horizontal", small | large, RANGES_M, angles, labels=labels)
+    rb, bm = np.nonzero(small | large)
+    return ping, rb, bm
+
+
+def test_min_area_rule_drops_the_clusters_covering_less() -> None:
+    angles = np.linspace(-1.1, 1.1, 512).astype(np.float32)
+    ping, rb, bm = _two_targets(angles)
+    kw: dict[str, Any] = dict(
+        eps_m=0.25, min_samples=2, min_features=10, margin_m=0.2, min_side_m=0.5
+    )
+    both = extract_objects(ping, rb, bm, RANGES_M[rb], angles[bm], **kw)
+    area = [
+        cell_areas_m2(RANGES_M, angles, rb[both.feature_index[both.object_index == k]],
+                      bm[both.feature_index[both.object_index == k]]).sum()
+        for k in range(2)
+    ]  # fmt: skip
+    assert area[0] < 0.2 < area[1]
+    big = extract_objects(ping, rb, bm, RANGES_M[rb], angles[bm], min_area_m2=0.2, **kw)
+    assert big.count == 1
+    np.testing.assert_array_equal(big.true_class_id, [2])
+    np.testing.assert_array_equal(big.object_index, np.zeros(len(big.feature_index)))
+    np.testing.assert_array_equal(big.feature_index, both.feature_index[both.object_index == 1])
+    np.testing.assert_array_equal(big.patches[0], both.patches[1])
+    none = extract_objects(ping, rb, bm, RANGES_M[rb], angles[bm], min_area_m2=1.0, **kw)
+    assert none.count == 0 and none.patches.shape == (0, 40, 40)
+
+
+def test_keep_clusters_renumbers_in_order() -> None:
+    labels = np.array([2, -1, 0, 1, 2, 0, 3])
+    np.testing.assert_array_equal(
+        keep_clusters(labels, np.array([True, False, True, True])), [1, -1, 0, -1, 1, 0, 2]
+    )
+
+
+def test_fan_outside_area_counts_the_padded_box_beyond_the_fan() -> None:
+    half = np.deg2rad(65.0)
+    boxes = np.array(
+        [
+            [9.8, 10.2, -0.2, 0.2],  # centre: inside
+            [-2.0, -1.0, 0.0, 1.0],  # behind the sonar: all 1 m2 outside
+            [29.0, 29.9, -0.5, 0.5],  # padded to 30.15 m: beyond the 30 m arc
+        ]
+    )
+    out = fan_outside_area_m2(boxes, 0.0, 30.0, -half, half)
+    assert out[0] == 0.0
+    assert out[1] == pytest.approx(1.0, rel=0.1)
+    assert out[2] == 0.0
+    padded = fan_outside_area_m2(boxes, 0.25, 30.0, -half, half)
+    assert padded[0] == 0.0 and padded[2] > 0.1  # ~0.15 m x 1.5 m past the arc
+
+
+def test_fan_edge_rule_drops_exactly_the_objects_cut_by_the_fan() -> None:
+    angles, ranges = FAN_ANGLES, FAN_RANGES_M
+    r, a = ranges[:, None].astype(np.float64), angles[None, :].astype(np.float64)
+    x, y = r * np.cos(a), r * np.sin(a)
+
+    def disc(rng: float, bearing_deg: float, radius: float) -> np.ndarray:
+        cx, cy = rng * np.cos(np.deg2rad(bearing_deg)), rng * np.sin(np.deg2rad(bearing_deg))
+        return np.hypot(x - cx, y - cy) <= radius
+
+    # (range, bearing, radius, cut by the fan edge?)
+    targets = [
+        (10.0, 0.0, 0.3, False),
+        (12.0, 55.0, 0.3, False),  # near the edge, its padded box still inside
+        (8.0, 64.8, 0.3, True),  # straddles the +65 deg edge
+        (15.0, -65.2, 0.4, True),  # straddles the -65 deg edge
+        (30.05, -20.0, 0.3, True),  # straddles the 30 m arc
+        (28.5, 20.0, 0.3, False),
+    ]
+    labels = np.zeros(x.shape, np.uint8)
+    for n, (rng, bearing, radius, _) in enumerate(targets):
+        labels[disc(rng, bearing, radius)] = n + 1
+    image = np.where(labels > 0, 255, 0).astype(np.uint8)
+    ping = SonarPing(0, "horizontal", image, ranges, angles, labels=labels)
+    rb, bm = np.nonzero(labels)
+    kw: dict[str, Any] = dict(
+        eps_m=0.25, min_samples=2, min_features=10, margin_m=0.2, min_side_m=0.5
+    )
+    every = extract_objects(ping, rb, bm, ranges[rb], angles[bm], **kw)
+    assert every.true_class_id is not None
+    assert sorted(every.true_class_id.tolist()) == list(range(1, 7))
+    kept = extract_objects(ping, rb, bm, ranges[rb], angles[bm], drop_fan_edge=True, **kw)
+    want = [n + 1 for n, t in enumerate(targets) if not t[3]]
+    assert kept.true_class_id is not None
+    assert sorted(kept.true_class_id.tolist()) == want
+    # Kept objects are unchanged (same features, boxes and patches), only renumbered.
+    for k, cls in enumerate(kept.true_class_id):
+        e = int(np.flatnonzero(every.true_class_id == cls)[0])
+        np.testing.assert_array_equal(kept.boxes[k], every.boxes[e])
+        np.testing.assert_array_equal(kept.patches[k], every.patches[e])
+    # A tighter limit or margin changes what "reaches outside" means.
+    lenient = extract_objects(
+        ping, rb, bm, ranges[rb], angles[bm], drop_fan_edge=True, fan_edge_margin_m=0.0,
+        fan_edge_max_outside_m2=10.0, **kw,
+    )  # fmt: skip
+    assert lenient.count == 6
