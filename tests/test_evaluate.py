@@ -270,9 +270,7 @@ def test_per_class_accounting_gives_points_the_class_of_the_nearest_true_surface
     round_pts = surface_samples(mesh, np.array([CLASS_IDS["cylindrical_piling"]]), 200.0, seed=3)
     round_pts = round_pts[(round_pts[:, 2] < -1) & (round_pts[:, 2] > -4)]
     xyz = np.r_[centroid, centroid + 0.3 * normal, round_pts]
-    source = np.array(
-        ["fused"] * len(centroid) + ["inferred"] * (len(centroid) + len(round_pts))
-    )
+    source = np.array(["fused"] * len(centroid) + ["inferred"] * (len(centroid) + len(round_pts)))
     m = map_table(xyz, source)
     out = STAGE.run(EvaluateConfig(), stage_inputs(m, True))
     per_class = out["metrics"]["per_class"]

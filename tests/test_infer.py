@@ -330,7 +330,11 @@ def pier() -> tuple[SimRun, TruthTables]:
 
 def _infer(tt: TruthTables, config: InferConfig | None = None) -> pa.Table:
     return infer_points(
-        tt.objects, tt.object_features, tt.features, tt.fused, config or InferConfig(classes=PILING_CLASSES)
+        tt.objects,
+        tt.object_features,
+        tt.features,
+        tt.fused,
+        config or InferConfig(classes=PILING_CLASSES),
     )
 
 
