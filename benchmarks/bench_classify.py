@@ -163,7 +163,7 @@ def main() -> None:
     # constant, not classify's cost per keyframe.
     import matplotlib.pyplot  # noqa: F401
 
-    import stages.cnn  # noqa: F401
+    import stages.classify.cnn  # noqa: F401
 
     config = load_config(all_stages(), None, (), extra_sections())
     t0 = time.perf_counter()

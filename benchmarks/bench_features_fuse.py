@@ -28,8 +28,8 @@ from schemas.sonar import KeyframeImages  # noqa: E402
 from sim.config import MissionConfig, SimConfig  # noqa: E402
 from sim.dataset import simulate  # noqa: E402
 from sim.scene import load_scene  # noqa: E402
-from stages.features import FeaturesConfig, features_table  # noqa: E402
-from stages.fuse import FuseConfig, fuse_table  # noqa: E402
+from stages.features.stage import FeaturesConfig, features_table  # noqa: E402
+from stages.fuse.stage import FuseConfig, fuse_table  # noqa: E402
 
 
 def _best(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:

@@ -32,7 +32,7 @@ sys.path.insert(0, str(REPO))
 from sim.config import SimConfig  # noqa: E402
 from sim.dataset import simulate  # noqa: E402
 from sim.scene import load_scene  # noqa: E402
-from stages.infer import InferConfig, infer_points  # noqa: E402
+from stages.infer.stage import InferConfig, infer_points  # noqa: E402
 from tests.test_infer import (  # noqa: E402
     TruthTables,
     keyframe_indices,

@@ -21,8 +21,8 @@ from pipeline.errors import SourceError
 from pipeline.hashing import recipe_key
 from pipeline.store import ArtifactRef, ArtifactStore
 from schemas.annotations import AnnotationFile
-from stages.annotations import RASTER_VERSION
 from stages.base import Output, Stage, StageConfig
+from stages.classify.annotations import RASTER_VERSION
 
 __all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_annotations"]
 

@@ -42,13 +42,13 @@ def pipeline_stages() -> tuple[Stage, ...]:
     alt = alternative_graph()
     if alt is not None:
         return tuple(alt.stages)
-    from stages.classify import STAGE as classify
-    from stages.evaluate import STAGE as evaluate
-    from stages.features import STAGE as features
-    from stages.fuse import STAGE as fuse
-    from stages.infer import STAGE as infer
+    from stages.classify.stage import STAGE as classify
+    from stages.evaluate.stage import STAGE as evaluate
+    from stages.features.stage import STAGE as features
+    from stages.fuse.stage import STAGE as fuse
+    from stages.infer.stage import STAGE as infer
     from stages.keyframes import STAGE as keyframes
-    from stages.slam import STAGE as slam
+    from stages.slam.stage import STAGE as slam
     from stages.voxelize import STAGE as voxelize
 
     return (keyframes, features, fuse, classify, slam, infer, voxelize, evaluate)
@@ -57,7 +57,7 @@ def pipeline_stages() -> tuple[Stage, ...]:
 @functools.cache
 def training_stage() -> Stage:
     """The classifier-training stage (its inputs are other, labelled datasets)."""
-    from stages.train import STAGE as train
+    from stages.classify.train import STAGE as train
 
     return train
 

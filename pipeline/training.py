@@ -75,12 +75,12 @@ def training_stage_for(
     sees every dataset; dataset i in `annotated` also reads "annotations_i.annotations"
     and is labelled by it (`stages.annotations.label_keyframes`) instead of label
     images. `names` (the datasets' paths) only word error messages. Outputs and config
-    are those of `stages.train`.
+    are those of `stages.classify.train`.
     """
     from pipeline.registry import training_stage
     from schemas.annotations import AnnotationFile
-    from stages.annotations import label_keyframes
-    from stages.train import train_classifier
+    from stages.classify.annotations import label_keyframes
+    from stages.classify.train import train_classifier
 
     base = training_stage()
     inputs = tuple(

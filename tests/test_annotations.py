@@ -18,9 +18,9 @@ from pipeline.errors import SourceError
 from schemas.annotations import ANNOTATION_FORMAT, AnnotatedObject, AnnotationFile
 from schemas.classes import CLASS_IDS
 from schemas.sonar import KeyframeImages, SonarPing
-from stages.annotations import label_keyframes, rasterise
-from stages.features import FeaturesConfig, features_table
-from stages.train import TrainConfig, collect_samples
+from stages.classify.annotations import label_keyframes, rasterise
+from stages.classify.train import TrainConfig, collect_samples
+from stages.features.stage import FeaturesConfig, features_table
 
 ROOT = Path(__file__).resolve().parents[1]
 MARGIN_M = 0.3

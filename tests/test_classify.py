@@ -14,8 +14,8 @@ import torch
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
-from stages.classify import STAGE, ClassifyConfig
-from stages.cnn import PatchCNN, model_to_bytes
+from stages.classify.cnn import PatchCNN, model_to_bytes
+from stages.classify.stage import STAGE, ClassifyConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
@@ -291,8 +291,8 @@ def test_single_view_rule_accepts_the_mean_of_m_passes_above_0_99(
 ) -> None:
     """The paper's rule (pool_views false): each sighting on its own, accepted when the mean
     of m = 20 MC-dropout softmax outputs exceeds 0.99. Observed: 6 of 12 accepted."""
-    from stages.cnn import mc_predict, model_from_bytes
-    from stages.objects import extract_objects, horizontal_features
+    from stages.classify.cnn import mc_predict, model_from_bytes
+    from stages.classify.objects import extract_objects, horizontal_features
 
     frames, poses, sensors = simulated
     features = _features(frames)
@@ -397,7 +397,7 @@ def test_fan_edge_rule_drops_exactly_the_sightings_of_pilings_cut_by_the_fan() -
     from sim.dataset import SimRun
     from sim.scene import Scene
     from sim.world import World
-    from stages.features import FeaturesConfig, features_table
+    from stages.features.stage import FeaturesConfig, features_table
 
     mount = SimConfig().horizontal.mounting.translation_m
     objs = [

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from stages.cnn import PatchCNN, mc_predict, model_from_bytes, model_to_bytes
+from stages.classify.cnn import PatchCNN, mc_predict, model_from_bytes, model_to_bytes
 
 
 @pytest.fixture(autouse=True)

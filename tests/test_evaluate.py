@@ -17,7 +17,7 @@ from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
 from sim.geometry import rot_z
 from sim.scene import load_scene
 from sim.world import World
-from stages.evaluate import STAGE, EvaluateConfig, map_errors, surface_metrics
+from stages.evaluate.stage import STAGE, EvaluateConfig, map_errors, surface_metrics
 from stages.mesh_metrics import (
     ate_se2,
     mesh_distance,

@@ -17,7 +17,7 @@ from schemas.sonar import KeyframeImages
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.scene import load_scene
-from stages.features import STAGE, FeaturesConfig, features_table
+from stages.features.stage import STAGE, FeaturesConfig, features_table
 
 logger = logging.getLogger(__name__)
 

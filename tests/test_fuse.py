@@ -19,8 +19,8 @@ from sim.dataset import SimFrame, SimRun
 from sim.geometry import pose_to_matrix, rot_rpy
 from sim.scene import Scene
 from sim.world import World
-from stages.features import FeaturesConfig, features_table
-from stages.fuse import (
+from stages.features.stage import FeaturesConfig, features_table
+from stages.fuse.stage import (
     STAGE,
     FuseConfig,
     assign_subproblems,
@@ -86,7 +86,7 @@ def test_fused_point_is_exact_for_any_rigid_mounting(
 
 
 def test_eq1_with_the_fan_angle_as_elevation_is_off_at_the_overlap_corner() -> None:
-    """The measured deviation quoted in stages/fuse.py: 2.5 cm at 10 m, theta = a_v = 10 deg
+    """The measured deviation quoted in stages/fuse/stage.py: 2.5 cm at 10 m, theta = a_v = 10 deg
     (co-located sonars); the 0.1 m mounting offset alone moves z by ~0.1 m."""
     no_offset = np.eye(4)
     no_offset[:3, :3] = rot_rpy(np.pi / 2, 0, 0)
@@ -436,7 +436,7 @@ def test_gate_and_ratio_cut_keep_fewer_points_that_still_lie_on_the_mesh() -> No
     gate 3 + ratio < 0.97 keeps 1013, median distance to the mesh 0.101 m (all: 0.073 m),
     90.5 % within 0.3 m (all: 93.3 %); with 13x13 patches (the original's sim) 184 points,
     median 0.114 m, 79.9 % within 0.3 m. The cut does not pick the more accurate points
-    here (module docstring of stages.fuse)."""
+    here (module docstring of stages.fuse.stage)."""
     base = _fuse(FuseConfig())
     gated = _fuse(FuseConfig(min_subproblem_features=3))
     ratio = _fuse(FuseConfig(confidence_rule="ratio"))

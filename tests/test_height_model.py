@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.height_model import HeightModel, z_grid
+from stages.infer.height_model import HeightModel, z_grid
 
 Z = z_grid(-2.0, 2.0, 0.05)
 

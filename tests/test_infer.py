@@ -11,15 +11,15 @@ import pyarrow.compute
 import pytest
 from scipy import ndimage
 
-import stages.infer as infer_module
+import stages.infer.stage as infer_module
 from schemas.classes import CLASS_NAMES, PILING_CLASSES
 from schemas.points import POINTS_SCHEMA
 from sim.config import SimConfig
 from sim.dataset import SimRun, simulate
 from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
-from stages.infer import STAGE, InferConfig, infer_points
-from stages.object_frame import object_origin, to_object_frame
+from stages.infer.object_frame import object_origin, to_object_frame
+from stages.infer.stage import STAGE, InferConfig, infer_points
 
 REPO = Path(__file__).resolve().parents[1]
 OBJECT_CLASSES = (1, 2, 3, 4, 5)
@@ -411,9 +411,9 @@ def real_stage_tables(run: SimRun, spacing_m: float) -> tuple[pa.Table, ...]:
     """(objects, object_features, features, fused) from the real CFAR and fusion stages;
     objects from DBSCAN with their majority true class standing in for the CNN."""
     from schemas.sonar import KeyframeImages
-    from stages.features import FeaturesConfig, features_table
-    from stages.fuse import FuseConfig, fuse_table
-    from stages.objects import extract_objects, horizontal_features
+    from stages.classify.objects import extract_objects, horizontal_features
+    from stages.features.stage import FeaturesConfig, features_table
+    from stages.fuse.stage import FuseConfig, fuse_table
 
     frames = [
         KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)

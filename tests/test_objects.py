@@ -9,7 +9,7 @@ import pyarrow as pa
 import pytest
 
 from schemas.sonar import SonarPing
-from stages.objects import (
+from stages.classify.objects import (
     cell_areas_m2,
     cluster_boxes,
     cluster_features,

@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 from pipeline.cli import app
 from pipeline.config import load_config
 from pipeline.registry import all_stages, extra_sections
-from stages.classify import ClassifyConfig
-from stages.fuse import FuseConfig
+from stages.classify.stage import ClassifyConfig
+from stages.fuse.stage import FuseConfig
 
 PAPER = Path(__file__).resolve().parents[1] / "configs" / "paper.yaml"
 SOURCE = re.compile(r"paper (Sec\.|Eq\.|Table)|orig §\d")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stages.pcm import (
+from stages.slam.pcm import (
     chain_covariance,
     invert_loops,
     maximum_clique,
@@ -16,7 +16,7 @@ from stages.pcm import (
     robust_noise_scale,
     windowed_pcm,
 )
-from stages.pose_graph import se2_between, se2_compose
+from stages.slam.pose_graph import se2_between, se2_compose
 
 INTEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "posegraphs" / "intel.g2o"
 
@@ -118,6 +118,6 @@ def test_pcm_on_intel_rejects_injected_false_loops() -> None:
 def test_chi2_constant_matches_scipy() -> None:
     from scipy.stats import chi2
 
-    from stages.pcm import CHI2_99_3DOF
+    from stages.slam.pcm import CHI2_99_3DOF
 
     assert abs(CHI2_99_3DOF - chi2.ppf(0.99, 3)) < 1e-9

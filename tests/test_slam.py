@@ -21,9 +21,9 @@ from schemas.classes import CLASS_IDS
 from schemas.features import FEATURES_SCHEMA
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from stages.features import FeaturesConfig, detect_ping
-from stages.pose_graph import se2_between
-from stages.slam import STAGE, SlamConfig
+from stages.features.stage import FeaturesConfig, detect_ping
+from stages.slam.pose_graph import se2_between
+from stages.slam.stage import STAGE, SlamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SEAFLOOR = CLASS_IDS["seafloor"]
@@ -184,7 +184,7 @@ def test_outputs_follow_their_contracts(pier_inputs) -> None:
 def test_trajectory_plot_adds_an_error_panel_only_with_ground_truth() -> None:
     from PIL import Image
 
-    from stages.slam_outputs import plot_png
+    from stages.slam.outputs import plot_png
 
     t = np.linspace(0.0, 2 * np.pi, 40)
     truth = np.column_stack([10 * np.cos(t), 10 * np.sin(t), t + np.pi / 2])
@@ -215,7 +215,7 @@ def test_ground_truth_mode_returns_truth_and_refuses_missing_truth(pier_inputs) 
 
 
 def test_leading_edges_keep_the_first_cell_of_each_run() -> None:
-    from stages.slam import leading_edges
+    from stages.slam.stage import leading_edges
 
     rng = np.random.default_rng(3)
     kf = rng.integers(0, 3, 400)
@@ -349,7 +349,7 @@ def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
 def test_loops_sharing_sonar_data_are_counted_together() -> None:
     """Loops whose ends both lie within the window of another's reuse its clouds; the
     count multiplies each one's covariance in the re-registration."""
-    from stages.slam_frontend import _shared_data_counts
+    from stages.slam.frontend import _shared_data_counts
 
     src = np.array([10, 11, 12, 40, 10])
     dst = np.array([60, 61, 62, 63, 90])
@@ -361,7 +361,7 @@ def test_loops_sharing_sonar_data_are_counted_together() -> None:
 def test_odometry_noise_grows_with_the_square_root_of_the_step_duration() -> None:
     """A DVL's white velocity noise integrates to a position noise of sigma sqrt(dt): a
     sweep with keyframes twice as far apart gets steps twice as long, not as precise."""
-    from stages.slam_frontend import _FrontEnd
+    from stages.slam.frontend import _FrontEnd
 
     config = SlamConfig()
     front = _FrontEnd(config, [])

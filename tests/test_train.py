@@ -13,10 +13,10 @@ import torch
 
 from schemas.classes import CLASS_IDS, PILING_CLASSES, UNKNOWN_CLASS
 from schemas.sonar import KeyframeImages
-from stages.classify import STAGE as CLASSIFY
-from stages.classify import ClassifyConfig
-from stages.train import STAGE as TRAIN
-from stages.train import (
+from stages.classify.stage import STAGE as CLASSIFY
+from stages.classify.stage import ClassifyConfig
+from stages.classify.train import STAGE as TRAIN
+from stages.classify.train import (
     Samples,
     TrainConfig,
     augment,

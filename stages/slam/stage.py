@@ -13,7 +13,7 @@ can be the sensor's real one, and, when it passes its checks, sequential scan ma
 globally initialised by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
 against the older keyframe whose footprint overlaps most (and, when that match fails its
 checks, the next best from another stretch of the track: `nssm_fallback_targets`, version
-5), admitted only as a pairwise-consistent set (PCM, `stages.pcm`) and then under a Cauchy
+5), admitted only as a pairwise-consistent set (PCM, `stages.slam.pcm`) and then under a Cauchy
 kernel (their error is heavy-tailed: a structure seen from another viewpoint returns from
 other parts of its surface). Once all keyframes are in, every accepted loop is registered
 again from the optimised poses (ICP only, tight gate) and the graph re-solved in batch
@@ -29,8 +29,8 @@ Outputs: poses, factors (parquet), trajectory (TUM text), plot (PNG; with ground
 tracks are drawn aligned to it, with their ATE and a panel of the error per keyframe:
 version 9); see `schemas.slam`.
 
-The front end is `stages.slam_frontend`, the config `stages.slam_config`, the keyframe
-point clouds `stages.slam_points`, the output files `stages.slam_outputs`.
+The front end is `stages.slam.frontend`, the config `stages.slam.config`, the keyframe
+point clouds `stages.slam.points`, the output files `stages.slam.outputs`.
 """
 
 from __future__ import annotations
@@ -44,11 +44,11 @@ import pyarrow as pa
 
 from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
 from stages.base import Output, Stage
-from stages.pose_graph import wrap_angle
-from stages.slam_config import SlamConfig
-from stages.slam_frontend import SlamResult, run_slam
-from stages.slam_outputs import factors_table, plot_png, poses_table, tum_text
-from stages.slam_points import keyframe_points, leading_edges
+from stages.slam.config import SlamConfig
+from stages.slam.frontend import SlamResult, run_slam
+from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
+from stages.slam.points import keyframe_points, leading_edges
+from stages.slam.pose_graph import wrap_angle
 
 __all__ = [
     "STAGE",

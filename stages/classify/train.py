@@ -29,14 +29,14 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
-from stages.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 
 if TYPE_CHECKING:
-    from stages.cnn import PatchCNN
+    from stages.classify.cnn import PatchCNN
 
 torch = lazy("torch")
 F = lazy("torch.nn.functional")
-cnn = lazy("stages.cnn")
+cnn = lazy("stages.classify.cnn")
 
 __all__ = [
     "STAGE",

@@ -7,7 +7,7 @@ classes):
 
 1. Update (Sec. IV.D, Eq. 7): every object of the class with fused 3D points is put
    into its object frame (origin: minimum range, median bearing of all its 2D
-   returns; `stages.object_frame`), registered to the class reference frame with ICP
+   returns; `stages.infer.object_frame`), registered to the class reference frame with ICP
    (the first such object defines it) and, if the registration succeeded, its fused
    points update the class `HeightModel` at their (registered) range/bearing with
    their Cartesian height z. One model update per class and keyframe, so fused points
@@ -21,7 +21,7 @@ classes):
 
 Beyond the paper (default on): seawall and truss, whose objects rarely fit in one
 image, use per-beam leading-edge frames instead of one ICP-registered class frame
-(`stages.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
+(`stages.infer.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
 pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
 "mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
 product would collapse to one mode). `infer.classes` set to the two piling classes is
@@ -69,17 +69,17 @@ import pyarrow.compute as pc
 
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
-from stages.beam_frame import beam_anchor_range, beam_model_coords
-from stages.height_model import HeightModel, HeightQuery, z_grid
-from stages.infer_config import FrameKind, InferConfig
-from stages.infer_inputs import (
+from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
+from stages.infer.config import FrameKind, InferConfig
+from stages.infer.height_model import HeightModel, HeightQuery, z_grid
+from stages.infer.inputs import (
     KeyframeIndex,
     Sighting,
     column,
     object_feature_rows,
 )
-from stages.infer_inputs import sightings as _sightings
-from stages.object_frame import (
+from stages.infer.inputs import sightings as _sightings
+from stages.infer.object_frame import (
     ClassFrame,
     ObjectOrigin,
     apply_se2,
@@ -203,7 +203,7 @@ def _beam_class(
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
-    is put into its beam frame (`stages.beam_frame`), the fused ones update the class
+    is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
     model, the 2D-only ones are queried. Returns (points, object id per point), or None
     before the model has data.
     """
@@ -326,7 +326,7 @@ def infer_mission(
 
 
 def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> HeightModel:
-    """A class's height model; beam frames have cells (s, R0) (`stages.beam_frame`)."""
+    """A class's height model; beam frames have cells (s, R0) (`stages.infer.beam_frame`)."""
     if kind == "beam":
         cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
         rule = config.beam_update_rule

@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field
 
 from stages.base import StageConfig
-from stages.pcm import CHI2_99_3DOF
+from stages.slam.pcm import CHI2_99_3DOF
 
 __all__ = ["SlamConfig"]
 

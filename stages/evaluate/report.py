@@ -182,7 +182,7 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
 
 
 def _per_class_table(metrics: dict[str, Any]) -> list[str]:
-    """Markdown lines of the per-class accounting (`stages.class_accounting`), or none."""
+    """Markdown lines of the per-class accounting (`stages.evaluate.class_accounting`), or none."""
     per_class = metrics.get("per_class") or {}
     classes = per_class.get("classes") or {}
     if not classes:

@@ -1,4 +1,4 @@
-"""Config section `infer` (stage `stages.infer`): classes, frames, grids and bounds."""
+"""Config section `infer` (stage `stages.infer.stage`): classes, frames, grids and bounds."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pydantic import Field, field_validator, model_validator
 
 from schemas.classes import CLASS_NAMES, PILING_CLASSES, UNKNOWN_CLASS
 from stages.base import StageConfig
-from stages.height_model import UpdateRule
-from stages.object_frame import IcpParams
+from stages.infer.height_model import UpdateRule
+from stages.infer.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
@@ -42,7 +42,7 @@ class InferConfig(StageConfig):
     frame_kinds: dict[str, FrameKind] = Field(
         default_factory=lambda: dict(DEFAULT_FRAME_KINDS),
         description="reference frame of each class: 'object' (ICP-registered object frame,"
-        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.beam_frame);"
+        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.infer.beam_frame);"
         " classes not listed use 'object'",
     )
     beam_gap_m: float = Field(
@@ -52,7 +52,7 @@ class InferConfig(StageConfig):
     beam_update_rule: UpdateRule = Field(
         "mixture",
         description="beam frame: 'product' (Eq. 7, one height per cell) or 'mixture'"
-        " (Dirichlet counts of the heights a cell returns from; stages.height_model)",
+        " (Dirichlet counts of the heights a cell returns from; stages.infer.height_model)",
     )
     beam_range_cell_m: float | None = Field(
         None,

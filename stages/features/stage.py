@@ -29,7 +29,7 @@ from pydantic import Field
 from schemas.features import FEATURES_SCHEMA, SONARS
 from schemas.sonar import KeyframeImages, SonarPing
 from stages.base import Output, Stage, StageConfig
-from stages.cfar import CfarMethod, cfar_detect
+from stages.features.cfar import CfarMethod, cfar_detect
 
 __all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from stages.scan_matching import polar_to_base, voxel_downsample
+from stages.slam.scan_matching import polar_to_base, voxel_downsample
 
 __all__ = ["keyframe_points", "leading_edges"]
 

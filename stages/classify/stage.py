@@ -5,14 +5,14 @@ coordinates), clusters of at least n features, 40x40 aspect-preserving patches, 
 Monte-Carlo dropout passes of the CNN batched into one forward call. Two cluster rules
 of the authors' simulation code, off by default, drop objects before classification: a
 minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
-see `stages.objects`. An object takes the argmax class of the mean softmax when that
+see `stages.classify.objects`. An object takes the argmax class of the mean softmax when that
 mean probability exceeds the threshold and is "unknown" otherwise; mean and variance
 are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id), so outputs are
 byte-identical run to run.
 
 Beyond the paper (on by default, `pool_views`): the decision is taken on the class
 distribution pooled over the sightings of the same place in nearby keyframes
-(`stages.view_pooling`, mapped with the dead-reckoning poses, since classify runs before
+(`stages.classify.view_pooling`, mapped with the dead-reckoning poses, since classify runs before
 SLAM). A piling seen at 25 m, where its shape is hardly resolved, takes the class it shows
 close up a few keyframes earlier or later. `probability` is then the pooled probability;
 `single_view_probability` keeps this keyframe's own.
@@ -38,13 +38,13 @@ from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLAS
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
-from stages.objects import KeyframeObjects, extract_objects, horizontal_features
-from stages.view_pooling import along_track_m, pool_views, sighting_world_xy
+from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
+from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
 
 if TYPE_CHECKING:
-    from stages.cnn import PatchCNN
+    from stages.classify.cnn import PatchCNN
 
-cnn = lazy("stages.cnn")
+cnn = lazy("stages.classify.cnn")
 
 __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "overlay_png"]
 
@@ -99,7 +99,7 @@ class ClassifyConfig(StageConfig):
     pool_views: bool = Field(
         True,
         description="decide on the class distribution log-linearly pooled over sightings of"
-        " the same place in nearby keyframes (stages.view_pooling; not in the paper)",
+        " the same place in nearby keyframes (stages.classify.view_pooling; not in the paper)",
     )
     pool_radius_m: float = Field(
         0.7, gt=0, description="sightings within this in the world are one object"
@@ -177,7 +177,7 @@ def _pooled(
     mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
     cfg: ClassifyConfig,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Each object's class distribution pooled over its sightings (`stages.view_pooling`)."""
+    """Each object's class distribution pooled over its sightings (`stages.classify.view_pooling`)."""
     keyframes = keyframes.sort_by("keyframe_id")
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]

@@ -6,7 +6,7 @@ slam; through a random-walk bias state, `PlanarPoseGraph.add_biased_heading`),
 sequential scan matching against the previous few keyframes and, once far enough from
 the start, non-sequential scan matching (loop closure) against the older keyframe
 whose features could overlap; a loop enters the graph only as a member of a pairwise
-consistent set (PCM, `stages.pcm`), under a Cauchy kernel. After the last keyframe every
+consistent set (PCM, `stages.slam.pcm`), under a Cauchy kernel. After the last keyframe every
 accepted loop is registered again from the optimised poses and the whole graph re-solved
 (`loop_refine_passes`), each loop's covariance multiplied by the number of loops that share
 its sonar data (`loop_shared_window`); each pass also registers every SSM factor again
@@ -20,8 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from stages.pcm import chain_covariance, maximum_clique, pairwise_consistency
-from stages.pose_graph import (
+from stages.slam.config import SlamConfig
+from stages.slam.pcm import chain_covariance, maximum_clique, pairwise_consistency
+from stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_adjoint,
     se2_between,
@@ -30,14 +31,13 @@ from stages.pose_graph import (
     se2_log,
     wrap_angle,
 )
-from stages.scan_matching import (
+from stages.slam.scan_matching import (
     MatchResult,
     icp_with_covariance,
     match_scans,
     transform_points,
     voxel_downsample,
 )
-from stages.slam_config import SlamConfig
 
 __all__ = ["SlamResult", "baseline_covariance_factor", "run_slam"]
 

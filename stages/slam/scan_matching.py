@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from stages._lazy import lazy
-from stages.pose_graph import wrap_angle
+from stages.slam.pose_graph import wrap_angle
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree

@@ -24,7 +24,14 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from stages.base import Output, Stage, StageConfig
-from stages.class_accounting import per_class_metrics
+from stages.evaluate.class_accounting import per_class_metrics
+from stages.evaluate.report import (
+    SidePanel,
+    error_boxplot_png,
+    render_markdown,
+    side_view_png,
+    topdown_png,
+)
 from stages.mesh_metrics import (
     ate_se2,
     error_stats,
@@ -37,13 +44,6 @@ from stages.mesh_metrics import (
     visible_mask,
 )
 from stages.ply import Mesh, decode_mesh_ply
-from stages.report import (
-    SidePanel,
-    error_boxplot_png,
-    render_markdown,
-    side_view_png,
-    topdown_png,
-)
 from stages.voxelize import map_xyz, pose_matrices
 
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]

@@ -1,5 +1,5 @@
 """Inputs of stage `infer`: object features joined to their features and fused points,
-grouped into per-keyframe object sightings (vectorised; see `stages.infer`)."""
+grouped into per-keyframe object sightings (vectorised; see `stages.infer.stage`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from stages.object_frame import ObjectOrigin, object_origin, to_object_frame
+from stages.infer.object_frame import ObjectOrigin, object_origin, to_object_frame
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",

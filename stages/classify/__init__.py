@@ -1,0 +1,24 @@
+"""Object classification (paper Sec. IV.C): the `classify` stage and the `train` stage that fits its CNN.
+
+Modules:
+    stage: the `classify` stage.
+    objects: segmentation of each keyframe's features into objects.
+    cnn: the object classifier network.
+    view_pooling: pooling class beliefs over views of an object.
+    train: the `train` stage.
+    annotations: labels of simulated keyframes from the true scene.
+"""
+
+from stages.classify.stage import STAGE, ClassifyConfig, classify_keyframes, overlay_png
+from stages.classify.train import STAGE as TRAIN_STAGE
+from stages.classify.train import TrainConfig, train_classifier
+
+__all__ = [
+    "STAGE",
+    "TRAIN_STAGE",
+    "ClassifyConfig",
+    "TrainConfig",
+    "classify_keyframes",
+    "overlay_png",
+    "train_classifier",
+]

@@ -1,0 +1,23 @@
+"""The `evaluate` stage: map and trajectory quality against ground truth, figures and the report.
+
+Modules:
+    stage: the stage.
+    class_accounting: coverage and error per true class.
+    report: report.md and its figures.
+"""
+
+from stages.evaluate.stage import (
+    STAGE,
+    EvaluateConfig,
+    map_errors,
+    surface_metrics,
+    trajectory_errors,
+)
+
+__all__ = [
+    "STAGE",
+    "EvaluateConfig",
+    "map_errors",
+    "surface_metrics",
+    "trajectory_errors",
+]

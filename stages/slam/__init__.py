@@ -1,0 +1,32 @@
+"""The `slam` stage (paper Sec. IV.A): planar pose-graph SLAM over keyframes.
+
+Modules:
+    stage: the stage: config in, trajectory and loop closures out.
+    config: SlamConfig, every parameter with its unit.
+    frontend: the front end: keyframe clouds, odometry and loop candidates.
+    scan_matching: ICP between keyframe clouds.
+    pcm: pairwise consistency maximisation of loop closures.
+    pose_graph: the iSAM2 pose graph.
+    points: the leading-edge points SLAM registers.
+    outputs: trajectory tables and plots.
+"""
+
+from stages.slam.stage import (
+    STAGE,
+    SlamConfig,
+    SlamResult,
+    keyframe_points,
+    leading_edges,
+    run,
+    run_slam,
+)
+
+__all__ = [
+    "STAGE",
+    "SlamConfig",
+    "SlamResult",
+    "keyframe_points",
+    "leading_edges",
+    "run",
+    "run_slam",
+]
