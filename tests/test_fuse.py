@@ -20,15 +20,8 @@ from sim.geometry import pose_to_matrix, rot_rpy
 from sim.scene import Scene
 from sim.world import World
 from stages.features.stage import FeaturesConfig, features_table
-from stages.fuse.stage import (
-    STAGE,
-    FuseConfig,
-    assign_subproblems,
-    fuse_table,
-    fused_points,
-    image_patches,
-    sonar_offset,
-)
+from stages.fuse.association import assign_subproblems, image_patches
+from stages.fuse.stage import STAGE, FuseConfig, fuse_table, fused_points, sonar_offset
 
 logger = logging.getLogger(__name__)
 

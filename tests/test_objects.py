@@ -9,17 +9,14 @@ import pyarrow as pa
 import pytest
 
 from schemas.sonar import SonarPing
-from stages.classify.objects import (
+from stages.classify.objects import crop_patches, extract_objects, horizontal_features, los_rotate
+from stages.classify.segmentation import (
     cell_areas_m2,
     cluster_boxes,
     cluster_features,
-    crop_patches,
-    extract_objects,
     fan_outside_area_m2,
     fan_xy,
-    horizontal_features,
     keep_clusters,
-    los_rotate,
     majority_class,
 )
 

@@ -349,7 +349,7 @@ def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
 def test_loops_sharing_sonar_data_are_counted_together() -> None:
     """Loops whose ends both lie within the window of another's reuse its clouds; the
     count multiplies each one's covariance in the re-registration."""
-    from stages.slam.frontend import _shared_data_counts
+    from stages.slam.loops import _shared_data_counts
 
     src = np.array([10, 11, 12, 40, 10])
     dst = np.array([60, 61, 62, 63, 90])

@@ -6,6 +6,7 @@ Modules:
     cnn: the object classifier network.
     view_pooling: pooling class beliefs over views of an object.
     train: the `train` stage.
+    validation: the trained classifier's validation metrics and confusion figure.
     annotations: labels of simulated keyframes from the true scene.
 """
 

@@ -15,7 +15,6 @@ the validation set when `split` is "dataset", which also keeps objects apart).
 
 from __future__ import annotations
 
-import io
 import logging
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+from stages.classify.validation import confusion_png, evaluate
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
@@ -44,8 +44,6 @@ __all__ = [
     "TrainConfig",
     "augment",
     "collect_samples",
-    "confusion_png",
-    "evaluate",
     "features_from_labels",
     "fit",
     "split_train_val",
@@ -267,73 +265,6 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
             total += float(loss.detach()) * len(b)
         log.debug("epoch %d loss %.4f", epoch, total / max(n, 1))
     return model.eval()
-
-
-def evaluate(
-    model: PatchCNN, patches: np.ndarray, target: np.ndarray, class_names: Sequence[str],
-    cfg: TrainConfig,
-) -> dict[str, Any]:  # fmt: skip
-    """Validation metrics with MC dropout (m = cfg.mc_passes, seeded).
-
-    Returns:
-        {"n": int, "accuracy": float, "confusion": [[int]] (rows = true, cols = argmax),
-        "classes": {name: {"support", "precision", "recall", "accepted",
-        "accepted_precision", "accepted_recall"}}, "accepted_fraction": float}; a ratio
-        with an empty denominator is None. "accepted" = mean probability > threshold.
-    """
-    k = len(class_names)
-    mean, _ = cnn.mc_predict(model, patches, cfg.mc_passes, cfg.seed)
-    pred = mean.argmax(axis=1) if len(mean) else np.zeros(0, np.int64)
-    acc = mean.max(axis=1) > cfg.threshold if len(mean) else np.zeros(0, bool)
-    cm = np.bincount(target * k + pred, minlength=k * k).reshape(k, k)
-    cm_acc = np.bincount(target[acc] * k + pred[acc], minlength=k * k).reshape(k, k)
-
-    def ratio(a: float, b: float) -> float | None:
-        return float(a / b) if b > 0 else None
-
-    classes = {
-        name: {
-            "support": int(cm[i].sum()),
-            "precision": ratio(cm[i, i], cm[:, i].sum()),
-            "recall": ratio(cm[i, i], cm[i].sum()),
-            "accepted": int(cm_acc[:, i].sum()),
-            "accepted_precision": ratio(cm_acc[i, i], cm_acc[:, i].sum()),
-            "accepted_recall": ratio(cm_acc[i, i], cm[i].sum()),
-        }
-        for i, name in enumerate(class_names)
-    }
-    n = len(target)
-    return {
-        "n": n,
-        "accuracy": ratio(np.trace(cm), n),
-        "accepted_fraction": ratio(acc.sum(), n),
-        "confusion": cm.tolist(),
-        "class_names": list(class_names),
-        "classes": classes,
-    }
-
-
-def confusion_png(confusion: Sequence[Sequence[int]], class_names: Sequence[str]) -> bytes:
-    """Confusion matrix (rows = true, columns = predicted) as PNG bytes."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
-    cm = np.asarray(confusion, dtype=np.int64).reshape(len(class_names), len(class_names))
-    fig = Figure(figsize=(1.2 * len(class_names) + 2, 1.0 * len(class_names) + 1.5), dpi=100)
-    ax = fig.add_subplot()
-    ax.imshow(cm / np.maximum(cm.sum(axis=1, keepdims=True), 1), cmap="Blues", vmin=0, vmax=1)
-    for (i, j), v in np.ndenumerate(cm):
-        ax.text(j, i, str(v), ha="center", va="center", fontsize=8)
-    ax.set_xticks(range(len(class_names)), class_names, rotation=45, ha="right", fontsize=8)
-    ax.set_yticks(range(len(class_names)), class_names, fontsize=8)
-    ax.set_xlabel("predicted (argmax of MC mean)")
-    ax.set_ylabel("true (label image)")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
 
 
 def _learned_classes(class_id: np.ndarray, min_samples: int) -> list[int]:

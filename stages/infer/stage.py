@@ -27,7 +27,7 @@ pass per class and keyframe, with a Dirichlet-count height model (`beam_update_r
 product would collapse to one mode). `infer.classes` set to the two piling classes is
 the paper's behaviour.
 
-Output `stats` (`stats.json`): what each class loses at each step (`_Funnel`).
+Output `stats` (`stats.json`): what each class loses at each step (`Funnel`).
 
 Output `points`: the fused points of every classified object (any class, with its
 object id and class name, `source="fused"`) and the inferred points
@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -69,20 +68,24 @@ import pyarrow.compute as pc
 
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
-from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.config import FrameKind, InferConfig
-from stages.infer.height_model import HeightModel, HeightQuery, z_grid
+from stages.infer.height_model import HeightModel, z_grid
 from stages.infer.inputs import (
     KeyframeIndex,
-    Sighting,
     column,
     object_feature_rows,
 )
 from stages.infer.inputs import sightings as _sightings
 from stages.infer.object_frame import (
     ClassFrame,
-    ObjectOrigin,
-    apply_se2,
+)
+from stages.infer.prediction import (
+    FUNNEL_STEPS,
+    ClassState,
+    Funnel,
+    query_object_sighting,
+    update_and_query_beam_class,
+    update_object_class,
 )
 
 __all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]
@@ -90,161 +93,6 @@ __all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]
 logger = logging.getLogger(__name__)
 
 _FUSED_COLUMNS = ("range_m", "bearing_rad", "elevation_rad", "x_m", "y_m", "z_m", "confidence")
-
-
-@dataclass
-class _ClassState:
-    """Reference frame and height model of one class."""
-
-    frame: ClassFrame
-    model: HeightModel
-
-
-_FUNNEL_STEPS = (
-    "objects",
-    "returns",
-    "fused_returns",
-    "updated_objects",
-    "registered_objects",
-    "queried_returns",
-    "seen_returns",
-    "predicted_returns",
-    "inferred_points",
-)
-
-
-@dataclass
-class _Funnel:
-    """What one class loses at each step of inference (counts over the mission).
-
-    objects / returns / fused_returns: sightings of the class, their 2D returns and
-    those with a fused 3D point; updated_objects: sightings whose fused points updated
-    the model; registered_objects: sightings put into the reference frame (object
-    frames: ICP succeeded; beam frames: all, once the model has data); queried_returns:
-    their 2D-only returns; seen_returns: those whose model cell has data;
-    predicted_returns: those with a confident height inside the aperture;
-    inferred_points: the points they gave (0-2 each).
-    """
-
-    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(_FUNNEL_STEPS, 0))
-
-    def count_query(self, n_queried: int, q: HeightQuery, of_return: np.ndarray) -> None:
-        self.counts["queried_returns"] += n_queried
-        self.counts["seen_returns"] += int(np.count_nonzero(q.seen))
-        self.counts["predicted_returns"] += int(np.unique(of_return).size)
-        self.counts["inferred_points"] += int(of_return.size)
-
-
-def _model_coords(uv_ref: np.ndarray, origin: ObjectOrigin, range_axis: str) -> np.ndarray:
-    """Model-cell coordinates of (n, 2) reference-frame points of a sighting.
-
-    "offset": (u, v) as is (the paper). "height_equivalent": u is replaced by
-    sign(u) sqrt(|u^2 + 2 R0 u|), R0 the sighting's own minimum range: the height at
-    which a vertical surface through the object's nearest point returns at range
-    R0 + u, so one structure fills the same cells whatever distance it is seen from.
-    """
-    if range_axis == "offset":
-        return uv_ref
-    u = uv_ref[:, 0]
-    s = np.sign(u) * np.sqrt(np.abs(u * u + 2.0 * origin.range_m * u))
-    return np.stack([s, uv_ref[:, 1]], axis=1)
-
-
-def _update_class(
-    state: _ClassState, sightings: list[Sighting], range_axis: str
-) -> dict[int, np.ndarray]:
-    """Eq. 7 for one class and keyframe; returns successful registrations by object id."""
-    uv, z, transforms = [], [], {}
-    for s in sightings:
-        if s.fused_z_m.size == 0:
-            continue
-        reg = state.frame.add_sighting(s.uv_m, s.origin)
-        if not reg.ok:
-            logger.debug("object %d: registration failed, update skipped", s.object_id)
-            continue
-        transforms[s.object_id] = reg.T_ref_obj
-        uv.append(_model_coords(apply_se2(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
-        z.append(s.fused_z_m)
-    if uv:
-        state.model.update(np.vstack(uv), np.concatenate(z))
-    return transforms
-
-
-def _predicted(
-    q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: InferConfig
-) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Points of the MAP heights of n queried returns (0-2 each) and, per point, the
-    index of its return; heights outside +-max_elevation_deg are dropped."""
-    n = range_m.size
-    r = np.tile(range_m, 2)
-    z = np.concatenate([q.z_low_m, q.z_high_m])
-    conf = np.concatenate([q.conf_low, q.conf_high])
-    elevation = np.arcsin(np.clip(z / np.maximum(r, 1e-9), -1.0, 1.0))
-    keep = np.isfinite(z) & (np.abs(elevation) <= np.deg2rad(config.max_elevation_deg))
-    pts = _points(r[keep], np.tile(bearing_rad, 2)[keep], elevation[keep], conf[keep])
-    return pts, np.flatnonzero(keep) % max(n, 1)
-
-
-def _query_sighting(
-    state: _ClassState, s: Sighting, T: np.ndarray, config: InferConfig, funnel: _Funnel
-) -> dict[str, np.ndarray]:
-    """Eq. 8-9 for the 2D-only returns of one registered sighting (0-2 points each)."""
-    only2d = ~s.is_fused
-    uv = _model_coords(apply_se2(T, s.uv_m[only2d]), s.origin, config.range_axis)
-    q = state.model.query(uv, config.confidence_threshold)
-    pts, of_return = _predicted(q, s.range_m[only2d], s.bearing_rad[only2d], config)
-    funnel.count_query(int(only2d.sum()), q, of_return)
-    return pts
-
-
-def _beam_class(
-    state: _ClassState, sightings: list[Sighting], config: InferConfig, funnel: _Funnel
-) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
-    """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
-
-    All sightings of the class in the keyframe share one vectorised pass: every return
-    is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
-    model, the 2D-only ones are queried. Returns (points, object id per point), or None
-    before the model has data.
-    """
-    if not sightings:
-        return None
-    r = np.concatenate([s.range_m for s in sightings])
-    oid = np.concatenate([np.full(s.range_m.size, s.object_id, np.int64) for s in sightings])
-    fused = np.concatenate([s.is_fused for s in sightings])
-    anchor = beam_anchor_range(
-        oid, np.concatenate([s.beam for s in sightings]), r, config.beam_gap_m
-    )
-    coords = beam_model_coords(r, anchor, config.range_axis, config.beam_range_cell_m)
-    if fused.any():
-        state.model.update(coords[fused], np.concatenate([s.fused_z_m for s in sightings]))
-        funnel.counts["updated_objects"] += len(
-            {s.object_id for s in sightings if s.is_fused.any()}
-        )
-    if not state.model.updated:
-        return None
-    funnel.counts["registered_objects"] += len(sightings)
-    q = state.model.query(coords[~fused], config.confidence_threshold)
-    bearing = np.concatenate([s.bearing_rad for s in sightings])[~fused]
-    pts, of_return = _predicted(q, r[~fused], bearing, config)
-    funnel.count_query(int((~fused).sum()), q, of_return)
-    return pts, oid[~fused][of_return]
-
-
-def _points(
-    range_m: np.ndarray, bearing_rad: np.ndarray, elevation_rad: np.ndarray, conf: np.ndarray
-) -> dict[str, np.ndarray]:
-    """Paper Eq. 1: (R, theta, phi) -> (x, y, z) in the horizontal sonar frame."""
-    c = np.cos(elevation_rad)
-    return {
-        "range_m": range_m,
-        "bearing_rad": bearing_rad,
-        "elevation_rad": elevation_rad,
-        "x_m": range_m * c * np.cos(bearing_rad),
-        "y_m": range_m * c * np.sin(bearing_rad),
-        "z_m": range_m * np.sin(elevation_rad),
-        "confidence": conf,
-    }
 
 
 def infer_points(
@@ -279,17 +127,17 @@ def infer_mission(
         Table with `POINTS_SCHEMA`, sorted by (keyframe_id, object_id, source,
         range_m, bearing_rad, z_m), and the loss accounting (`stats.json`):
         {"horizontal_returns", "clustered_returns", "classes": {class: {step: count}
-        (`_Funnel`), "frame": kind, "model_cells": int for inferred classes}}.
+        (`Funnel`), "frame": kind, "model_cells": int for inferred classes}}.
     """
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     states = {
-        c: _ClassState(
+        c: ClassState(
             ClassFrame(config.icp_params()),
             _height_model(z, config, config.frame_kind(c)),
         )
         for c in config.classes
     }
-    funnels: dict[str, _Funnel] = {}
+    funnels: dict[str, Funnel] = {}
     index = {
         name: KeyframeIndex(table, name)
         for name, table in (
@@ -318,7 +166,7 @@ def infer_mission(
         "classes": {c: dict(f.counts) for c, f in sorted(funnels.items())},
     }
     for c, state in states.items():
-        stats["classes"].setdefault(c, dict.fromkeys(_FUNNEL_STEPS, 0))
+        stats["classes"].setdefault(c, dict.fromkeys(FUNNEL_STEPS, 0))
         stats["classes"][c].update(frame=config.frame_kind(c), model_cells=state.model.n_cells)
     if not out:
         return POINTS_SCHEMA.empty_table(), stats
@@ -339,9 +187,9 @@ def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> Height
 def _process_keyframe(
     keyframe_id: int,
     tables: dict[str, pa.Table],
-    states: dict[str, _ClassState],
+    states: dict[str, ClassState],
     config: InferConfig,
-    funnels: dict[str, _Funnel],
+    funnels: dict[str, Funnel],
 ) -> list[dict[str, Any]]:
     """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
     features = tables["features"]
@@ -356,19 +204,19 @@ def _process_keyframe(
     for s in sightings:
         pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
         parts.append(_tag(pts, keyframe_id, s.object_id, s.class_name, "fused"))
-        funnel = funnels.setdefault(s.class_name, _Funnel())
+        funnel = funnels.setdefault(s.class_name, Funnel())
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
         funnel.counts["fused_returns"] += int(s.is_fused.sum())
     for c in config.classes:
-        state, funnel = states[c], funnels.setdefault(c, _Funnel())
+        state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
         if config.frame_kind(c) == "beam":
-            found = _beam_class(state, of_class, config, funnel)
+            found = update_and_query_beam_class(state, of_class, config, funnel)
             if found is not None:
                 parts.append(_tag(found[0], keyframe_id, found[1], c, "inferred"))
             continue
-        transforms = _update_class(state, of_class, config.range_axis)
+        transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
         if not state.model.updated:
             continue
@@ -380,7 +228,7 @@ def _process_keyframe(
                     continue
                 T = reg.T_ref_obj
             funnel.counts["registered_objects"] += 1
-            pts = _query_sighting(state, s, T, config, funnel)
+            pts = query_object_sighting(state, s, T, config, funnel)
             parts.append(_tag(pts, keyframe_id, s.object_id, c, "inferred"))
     return parts
 

@@ -3,7 +3,8 @@
 Modules:
     stage: the stage: config in, trajectory and loop closures out.
     config: SlamConfig, every parameter with its unit.
-    frontend: the front end: keyframe clouds, odometry and loop candidates.
+    frontend: the sequential front end: odometry, heading and SSM factors per keyframe.
+    loops: loop closure (NSSM), PCM and the final re-registration of every loop.
     scan_matching: ICP between keyframe clouds.
     pcm: pairwise consistency maximisation of loop closures.
     pose_graph: the iSAM2 pose graph.

@@ -1,0 +1,186 @@
+"""Update and query of one class's height model with one keyframe (paper Eq. 7-9).
+
+Object-frame classes (pilings) register each sighting into the class's reference frame
+(`stages.infer.object_frame`), update the model with its fused returns (Eq. 7) and query
+its 2D-only returns (Eq. 8-9); beam-frame classes (walls, trusses, hulls) put every
+return into its per-beam leading-edge frame (`stages.infer.beam_frame`) instead, in one
+vectorised pass per keyframe. `Funnel` counts what each step loses (`stats.json`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
+from stages.infer.config import InferConfig
+from stages.infer.height_model import HeightModel, HeightQuery
+from stages.infer.inputs import (
+    Sighting,
+)
+from stages.infer.object_frame import (
+    ClassFrame,
+    ObjectOrigin,
+    apply_se2,
+)
+
+logger = logging.getLogger(__name__)
+
+__all__ = []
+
+
+@dataclass
+class ClassState:
+    """Reference frame and height model of one class."""
+
+    frame: ClassFrame
+    model: HeightModel
+
+
+FUNNEL_STEPS = (
+    "objects",
+    "returns",
+    "fused_returns",
+    "updated_objects",
+    "registered_objects",
+    "queried_returns",
+    "seen_returns",
+    "predicted_returns",
+    "inferred_points",
+)
+
+
+@dataclass
+class Funnel:
+    """What one class loses at each step of inference (counts over the mission).
+
+    objects / returns / fused_returns: sightings of the class, their 2D returns and
+    those with a fused 3D point; updated_objects: sightings whose fused points updated
+    the model; registered_objects: sightings put into the reference frame (object
+    frames: ICP succeeded; beam frames: all, once the model has data); queried_returns:
+    their 2D-only returns; seen_returns: those whose model cell has data;
+    predicted_returns: those with a confident height inside the aperture;
+    inferred_points: the points they gave (0-2 each).
+    """
+
+    counts: dict[str, int] = field(default_factory=lambda: dict.fromkeys(FUNNEL_STEPS, 0))
+
+    def count_query(self, n_queried: int, q: HeightQuery, of_return: np.ndarray) -> None:
+        self.counts["queried_returns"] += n_queried
+        self.counts["seen_returns"] += int(np.count_nonzero(q.seen))
+        self.counts["predicted_returns"] += int(np.unique(of_return).size)
+        self.counts["inferred_points"] += int(of_return.size)
+
+
+def model_coords(uv_ref: np.ndarray, origin: ObjectOrigin, range_axis: str) -> np.ndarray:
+    """Model-cell coordinates of (n, 2) reference-frame points of a sighting.
+
+    "offset": (u, v) as is (the paper). "height_equivalent": u is replaced by
+    sign(u) sqrt(|u^2 + 2 R0 u|), R0 the sighting's own minimum range: the height at
+    which a vertical surface through the object's nearest point returns at range
+    R0 + u, so one structure fills the same cells whatever distance it is seen from.
+    """
+    if range_axis == "offset":
+        return uv_ref
+    u = uv_ref[:, 0]
+    s = np.sign(u) * np.sqrt(np.abs(u * u + 2.0 * origin.range_m * u))
+    return np.stack([s, uv_ref[:, 1]], axis=1)
+
+
+def update_object_class(
+    state: ClassState, sightings: list[Sighting], range_axis: str
+) -> dict[int, np.ndarray]:
+    """Eq. 7 for one class and keyframe; returns successful registrations by object id."""
+    uv, z, transforms = [], [], {}
+    for s in sightings:
+        if s.fused_z_m.size == 0:
+            continue
+        reg = state.frame.add_sighting(s.uv_m, s.origin)
+        if not reg.ok:
+            logger.debug("object %d: registration failed, update skipped", s.object_id)
+            continue
+        transforms[s.object_id] = reg.T_ref_obj
+        uv.append(model_coords(apply_se2(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
+        z.append(s.fused_z_m)
+    if uv:
+        state.model.update(np.vstack(uv), np.concatenate(z))
+    return transforms
+
+
+def predicted_points(
+    q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: InferConfig
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Points of the MAP heights of n queried returns (0-2 each) and, per point, the
+    index of its return; heights outside +-max_elevation_deg are dropped."""
+    n = range_m.size
+    r = np.tile(range_m, 2)
+    z = np.concatenate([q.z_low_m, q.z_high_m])
+    conf = np.concatenate([q.conf_low, q.conf_high])
+    elevation = np.arcsin(np.clip(z / np.maximum(r, 1e-9), -1.0, 1.0))
+    keep = np.isfinite(z) & (np.abs(elevation) <= np.deg2rad(config.max_elevation_deg))
+    pts = spherical_points(r[keep], np.tile(bearing_rad, 2)[keep], elevation[keep], conf[keep])
+    return pts, np.flatnonzero(keep) % max(n, 1)
+
+
+def query_object_sighting(
+    state: ClassState, s: Sighting, T: np.ndarray, config: InferConfig, funnel: Funnel
+) -> dict[str, np.ndarray]:
+    """Eq. 8-9 for the 2D-only returns of one registered sighting (0-2 points each)."""
+    only2d = ~s.is_fused
+    uv = model_coords(apply_se2(T, s.uv_m[only2d]), s.origin, config.range_axis)
+    q = state.model.query(uv, config.confidence_threshold)
+    pts, of_return = predicted_points(q, s.range_m[only2d], s.bearing_rad[only2d], config)
+    funnel.count_query(int(only2d.sum()), q, of_return)
+    return pts
+
+
+def update_and_query_beam_class(
+    state: ClassState, sightings: list[Sighting], config: InferConfig, funnel: Funnel
+) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+    """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
+
+    All sightings of the class in the keyframe share one vectorised pass: every return
+    is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
+    model, the 2D-only ones are queried. Returns (points, object id per point), or None
+    before the model has data.
+    """
+    if not sightings:
+        return None
+    r = np.concatenate([s.range_m for s in sightings])
+    oid = np.concatenate([np.full(s.range_m.size, s.object_id, np.int64) for s in sightings])
+    fused = np.concatenate([s.is_fused for s in sightings])
+    anchor = beam_anchor_range(
+        oid, np.concatenate([s.beam for s in sightings]), r, config.beam_gap_m
+    )
+    coords = beam_model_coords(r, anchor, config.range_axis, config.beam_range_cell_m)
+    if fused.any():
+        state.model.update(coords[fused], np.concatenate([s.fused_z_m for s in sightings]))
+        funnel.counts["updated_objects"] += len(
+            {s.object_id for s in sightings if s.is_fused.any()}
+        )
+    if not state.model.updated:
+        return None
+    funnel.counts["registered_objects"] += len(sightings)
+    q = state.model.query(coords[~fused], config.confidence_threshold)
+    bearing = np.concatenate([s.bearing_rad for s in sightings])[~fused]
+    pts, of_return = predicted_points(q, r[~fused], bearing, config)
+    funnel.count_query(int((~fused).sum()), q, of_return)
+    return pts, oid[~fused][of_return]
+
+
+def spherical_points(
+    range_m: np.ndarray, bearing_rad: np.ndarray, elevation_rad: np.ndarray, conf: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Paper Eq. 1: (R, theta, phi) -> (x, y, z) in the horizontal sonar frame."""
+    c = np.cos(elevation_rad)
+    return {
+        "range_m": range_m,
+        "bearing_rad": bearing_rad,
+        "elevation_rad": elevation_rad,
+        "x_m": range_m * c * np.cos(bearing_rad),
+        "y_m": range_m * c * np.sin(bearing_rad),
+        "z_m": range_m * np.sin(elevation_rad),
+        "confidence": conf,
+    }
