@@ -82,7 +82,7 @@ class HeightQuery:
 
 
 class HeightModel:
-    """Sparse per-class grid of log posteriors over height (paper Eq. 7-9).
+    """Sparse per-class grid of posteriors over height (paper Eq. 7-9).
 
     Args:
         z_m: (n_z,) ascending height grid [m] (see `z_grid`).
@@ -116,7 +116,10 @@ class HeightModel:
         self._keys = np.empty(0, dtype=np.int64)
         self._sorted_keys = np.empty(0, dtype=np.int64)
         self._order = np.empty(0, dtype=np.int64)
-        self._log_post = np.empty((16, self.z_m.size), dtype=np.float64)
+        # Per cell: the normalised log posterior (product rule), or the Dirichlet counts
+        # themselves (mixture rule: linear, so a query normalises by one division).
+        self._mass = np.empty((16, self.z_m.size), dtype=np.float64)
+        self._split = int(np.searchsorted(self.z_m, 0.0, side="right"))  # z <= 0: [0, split)
         self.n_updates = 0
 
     @property
@@ -142,7 +145,8 @@ class HeightModel:
         rows = self._find(self.cell_keys(uv_m))
         out = np.full((rows.size, self.z_m.size), np.nan)
         seen = rows >= 0
-        out[seen] = self._normalised(self._log_post[rows[seen]])
+        with np.errstate(divide="ignore"):
+            out[seen] = np.log(self._probabilities(rows[seen]))
         return out
 
     def update(self, uv_m: np.ndarray, z_m: np.ndarray) -> int:
@@ -173,12 +177,12 @@ class HeightModel:
         if self.update_rule == "mixture":
             # Dirichlet-categorical: each keyframe's cell likelihood, normalised, is one
             # more (soft) count of the heights the cell returns from.
-            counts = np.exp(cell_log_lik - special.logsumexp(cell_log_lik, axis=1, keepdims=True))
-            self._log_post[rows] = np.log(np.exp(self._log_post[rows]) + counts)
+            lik = np.exp(cell_log_lik - cell_log_lik.max(axis=1, keepdims=True))
+            self._mass[rows] += lik / lik.sum(axis=1, keepdims=True)
         else:
             # Bayes' rule: posterior = likelihood x prior, normalised (log space).
-            post = self._log_post[rows] + cell_log_lik
-            self._log_post[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
+            post = self._mass[rows] + cell_log_lik
+            self._mass[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
         self.n_updates += 1
         return int(keys.size)
 
@@ -191,10 +195,12 @@ class HeightModel:
         """
         rows = self._find(self.cell_keys(uv_m))
         seen = rows >= 0
-        prob = np.exp(self._normalised(self._log_post[rows[seen]]))
-        cdf = np.concatenate([np.zeros((prob.shape[0], 1)), np.cumsum(prob, axis=1)], axis=1)
+        prob = self._probabilities(rows[seen])
+        cdf = None
+        if self.update_rule == "product":
+            cdf = np.concatenate([np.zeros((prob.shape[0], 1)), np.cumsum(prob, axis=1)], axis=1)
         out = []
-        for half in (self.z_m <= 0.0, self.z_m > 0.0):
+        for half in (slice(0, self._split), slice(self._split, self.z_m.size)):
             z = np.full(rows.size, np.nan)
             conf = np.full(rows.size, np.nan)
             z[seen], conf[seen] = self._half_map(prob, cdf, half, threshold)
@@ -202,41 +208,45 @@ class HeightModel:
         return HeightQuery(*out, seen=seen)
 
     def _half_map(
-        self, prob: np.ndarray, cdf: np.ndarray, half: np.ndarray, threshold: float
+        self, prob: np.ndarray, cdf: np.ndarray | None, half: slice, threshold: float
     ) -> tuple[np.ndarray, np.ndarray]:
         """MAP height within one half of the z grid and its windowed posterior mass.
 
         Args:
-            prob: (n, n_z) posteriors; cdf: (n, n_z + 1) their cumulative sums.
-            half: (n_z,) bool mask of the half.
+            prob: (n, n_z) posteriors; cdf: (n, n_z + 1) their cumulative sums (product
+                rule only: the mixture rule's confidence is the half's mass).
+            half: the half's slice of the (ascending) z grid.
         """
         n, n_z = prob.shape
-        idx = np.flatnonzero(half)
-        if n == 0 or idx.size == 0:
+        in_half = prob[:, half]
+        if n == 0 or in_half.shape[1] == 0:
             return np.full(n, np.nan), np.full(n, np.nan)
-        best = idx[np.argmax(prob[:, idx], axis=1)]
+        best = half.start + np.argmax(in_half, axis=1)
         rows = np.arange(n)
         p_best = prob[rows, best]
         # A half's maximum on the flank of a mode of the other half is not a mode.
         below = np.where(best > 0, prob[rows, np.maximum(best - 1, 0)], -1.0)
         above = np.where(best < n_z - 1, prob[rows, np.minimum(best + 1, n_z - 1)], -1.0)
         is_mode = (p_best >= below) & (p_best >= above)
-        # Posterior mass of [z_MAP - window, z_MAP + window] (grid is uniform).
         z_map = self.z_m[best]
-        lo = np.searchsorted(self.z_m, z_map - self.window_m - 1e-9, side="left")
-        hi = np.searchsorted(self.z_m, z_map + self.window_m + 1e-9, side="right")
-        conf = cdf[rows, hi] - cdf[rows, lo]
-        if self.update_rule == "mixture":
-            # A cell returns from a spread of heights: the evidence that the structure is
-            # in this half at all is the half's share of the returns.
-            conf = prob[:, idx].sum(axis=1)
+        if cdf is None:
+            # Mixture rule: a cell returns from a spread of heights, so the evidence that
+            # the structure is in this half at all is the half's share of the returns.
+            conf = in_half.sum(axis=1)
+        else:
+            # Posterior mass of [z_MAP - window, z_MAP + window] (grid is uniform).
+            lo = np.searchsorted(self.z_m, z_map - self.window_m - 1e-9, side="left")
+            hi = np.searchsorted(self.z_m, z_map + self.window_m + 1e-9, side="right")
+            conf = cdf[rows, hi] - cdf[rows, lo]
         keep = (conf > threshold) & is_mode
         return np.where(keep, z_map, np.nan), np.where(keep, conf, np.nan)
 
-    @staticmethod
-    def _normalised(log_mass: np.ndarray) -> np.ndarray:
-        """Rows of log masses as log probabilities (the product rule stores them so)."""
-        return log_mass - special.logsumexp(log_mass, axis=1, keepdims=True)
+    def _probabilities(self, rows: np.ndarray) -> np.ndarray:
+        """(n, n_z) posterior probabilities of cells (rows of the mass array)."""
+        mass = self._mass[rows]
+        if self.update_rule == "mixture":
+            return mass / mass.sum(axis=1, keepdims=True)
+        return np.exp(mass)
 
     def _find(self, keys: np.ndarray) -> np.ndarray:
         """Row of each key in the posterior array, -1 for keys never seen."""
@@ -254,8 +264,10 @@ class HeightModel:
         if new.any():
             n_old, n_new = self._keys.size, int(new.sum())
             self._reserve(n_old + n_new)
-            prior = self.prior_weight if self.update_rule == "mixture" else 1.0
-            self._log_post[n_old : n_old + n_new] = np.log(prior / self.z_m.size)
+            if self.update_rule == "mixture":
+                self._mass[n_old : n_old + n_new] = self.prior_weight / self.z_m.size
+            else:
+                self._mass[n_old : n_old + n_new] = np.log(1.0 / self.z_m.size)
             self._keys = np.concatenate([self._keys, keys[new]])
             self._order = np.argsort(self._keys, kind="stable")
             self._sorted_keys = self._keys[self._order]
@@ -264,8 +276,8 @@ class HeightModel:
 
     def _reserve(self, n_rows: int) -> None:
         """Grow the posterior array geometrically to hold n_rows cells."""
-        if n_rows <= self._log_post.shape[0]:
+        if n_rows <= self._mass.shape[0]:
             return
-        grown = np.empty((max(n_rows, 2 * self._log_post.shape[0]), self.z_m.size))
-        grown[: self._keys.size] = self._log_post[: self._keys.size]
-        self._log_post = grown
+        grown = np.empty((max(n_rows, 2 * self._mass.shape[0]), self.z_m.size))
+        grown[: self._keys.size] = self._mass[: self._keys.size]
+        self._mass = grown

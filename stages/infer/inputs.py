@@ -8,11 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from stages.infer.object_frame import ObjectOrigin, object_origin, to_object_frame
+from stages.infer.object_frame import ObjectOrigin
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",
-    "KeyframeIndex",
     "Sighting",
     "column",
     "object_feature_rows",
@@ -120,56 +119,52 @@ def _beams(features: pa.Table) -> np.ndarray:
 
 
 def sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarray]) -> list:
-    """Sightings of one keyframe (rows[sl]), sorted by object id."""
+    """Sightings of one keyframe (rows[sl], grouped by object id), sorted by object id.
+
+    Origins (minimum range, median bearing) and object-frame coordinates are computed
+    for all rows of the keyframe at once; each sighting holds its slices.
+    """
     obj = rows["object_id"][sl]
+    if obj.size == 0:
+        return []
     starts = np.flatnonzero(np.r_[True, np.diff(obj) != 0])
+    ends = np.r_[starts[1:], obj.size]
+    r, t = rows["range_m"][sl], rows["bearing_rad"][sl]
+    group = np.repeat(np.arange(starts.size), ends - starts)
+    min_range = np.minimum.reduceat(r, starts)
+    # median bearing per object: the middle one or two of its sorted bearings
+    t_sorted = t[np.lexsort((t, group))]
+    median = 0.5 * (
+        t_sorted[starts + (ends - starts - 1) // 2] + t_sorted[starts + (ends - starts) // 2]
+    )
+    d = t - median[group]
+    uv = np.stack([r * np.cos(d) - min_range[group], r * np.sin(d)], axis=1)
+    fused_row = rows["fused_row"][sl]
+    is_fused = fused_row >= 0
+    fr_all = fused_row[is_fused]
+    fr_group = group[is_fused]
+    fd = fused["bearing_rad"][fr_all] - median[fr_group]
+    fr_range = fused["range_m"][fr_all]
+    fused_uv = np.stack(
+        [fr_range * np.cos(fd) - min_range[fr_group], fr_range * np.sin(fd)], axis=1
+    )
+    fused_bounds = np.searchsorted(fr_group, np.arange(starts.size + 1))
     out = []
-    for a, b in zip(starts, np.r_[starts[1:], obj.size], strict=True):
-        idx = np.arange(sl.start + a, sl.start + b)
-        r, t = rows["range_m"][idx], rows["bearing_rad"][idx]
-        origin = object_origin(r, t)
-        fr = rows["fused_row"][idx]
-        fr = fr[fr >= 0]
+    for g, (a, b) in enumerate(zip(starts, ends, strict=True)):
+        fa, fb = fused_bounds[g], fused_bounds[g + 1]
         out.append(
             Sighting(
                 object_id=int(obj[a]),
-                class_name=str(rows["classes"][rows["class_index"][idx[0]]]),
-                origin=origin,
-                uv_m=to_object_frame(r, t, origin),
-                range_m=r,
-                bearing_rad=t,
-                beam=rows["beam"][idx],
-                is_fused=rows["fused_row"][idx] >= 0,
-                fused_uv_m=to_object_frame(fused["range_m"][fr], fused["bearing_rad"][fr], origin),
-                fused_z_m=fused["z_m"][fr],
-                fused_rows=fr,
+                class_name=str(rows["classes"][rows["class_index"][sl.start + a]]),
+                origin=ObjectOrigin(float(min_range[g]), float(median[g])),
+                uv_m=uv[a:b],
+                range_m=r[a:b],
+                bearing_rad=t[a:b],
+                beam=rows["beam"][sl][a:b],
+                is_fused=is_fused[a:b],
+                fused_uv_m=fused_uv[fa:fb],
+                fused_z_m=fused["z_m"][fr_all[fa:fb]],
+                fused_rows=fr_all[fa:fb],
             )
         )
     return out
-
-
-class KeyframeIndex:
-    """Rows of each keyframe of a table (zero-copy slices when sorted by keyframe).
-
-    Keeps only per-keyframe row bounds (plus a row order if the table is not sorted
-    by keyframe), so the index is small compared with the table.
-    """
-
-    def __init__(self, table: pa.Table, what: str) -> None:
-        self.table = table
-        kf = np.asarray(column(table, "keyframe_id", what), dtype=np.int64)
-        self.order = None if np.all(kf[1:] >= kf[:-1]) else np.argsort(kf, kind="stable")
-        if self.order is not None:
-            kf = kf[self.order]
-        starts = np.flatnonzero(np.r_[True, kf[1:] != kf[:-1]]) if kf.size else np.empty(0, int)
-        self.keyframe_ids = kf[starts]
-        self.bounds = np.r_[starts, kf.size]
-
-    def rows(self, keyframe_id: int) -> pa.Table:
-        i = int(np.searchsorted(self.keyframe_ids, keyframe_id))
-        if i >= self.keyframe_ids.size or self.keyframe_ids[i] != keyframe_id:
-            return self.table.slice(0, 0)
-        a, b = int(self.bounds[i]), int(self.bounds[i + 1])
-        if self.order is None:
-            return self.table.slice(a, b - a)
-        return self.table.take(pa.array(self.order[a:b]))

@@ -124,16 +124,32 @@ def predicted_points(
     return pts, np.flatnonzero(keep) % max(n, 1)
 
 
-def query_object_sighting(
-    state: ClassState, s: Sighting, T: np.ndarray, config: InferConfig, funnel: Funnel
-) -> dict[str, np.ndarray]:
-    """Eq. 8-9 for the 2D-only returns of one registered sighting (0-2 points each)."""
-    only2d = ~s.is_fused
-    uv = model_coords(apply_se2(T, s.uv_m[only2d]), s.origin, config.range_axis)
-    q = state.model.query(uv, config.confidence_threshold)
-    pts, of_return = predicted_points(q, s.range_m[only2d], s.bearing_rad[only2d], config)
-    funnel.count_query(int(only2d.sum()), q, of_return)
-    return pts
+def query_object_sightings(
+    state: ClassState,
+    registered: list[tuple[Sighting, np.ndarray]],
+    config: InferConfig,
+    funnel: Funnel,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Eq. 8-9 for the 2D-only returns of a keyframe's registered sightings of one class.
+
+    Args:
+        registered: (sighting, T_ref_obj) pairs.
+
+    Returns:
+        (points, object id per point): 0-2 points per return, one model query for all.
+    """
+    only2d = [~s.is_fused for s, _ in registered]
+    uv = [
+        model_coords(apply_se2(T, s.uv_m[m]), s.origin, config.range_axis)
+        for (s, T), m in zip(registered, only2d, strict=True)
+    ]
+    q = state.model.query(np.vstack(uv), config.confidence_threshold)
+    r = np.concatenate([s.range_m[m] for (s, _), m in zip(registered, only2d, strict=True)])
+    t = np.concatenate([s.bearing_rad[m] for (s, _), m in zip(registered, only2d, strict=True)])
+    oid = np.repeat([s.object_id for s, _ in registered], [int(m.sum()) for m in only2d])
+    pts, of_return = predicted_points(q, r, t, config)
+    funnel.count_query(r.size, q, of_return)
+    return pts, oid[of_return].astype(np.int64)
 
 
 def update_and_query_beam_class(
