@@ -1,13 +1,13 @@
 """Features: SOCA-CFAR detections on both polar images of every keyframe (paper Sec. IV.C).
 
-Each image is searched along range, per beam, by `stages.cfar.cfar_detect` (SOCA by
+Each image is searched along range, per beam, by `stages.features.cfar.cfar_detect` (SOCA by
 default; CA, GO and OS through config), ANDed with an intensity floor; every detected
 cell is one feature row (schema `schemas.features.FEATURES_SCHEMA`).
 
 Defaults (`FeaturesConfig`), chosen on the simulator and the real Oculus M1200d ping in
 `shared/data/oculus` (256 beams x 703 bins, 2 m range, a bright seabed band):
 10 training + 5 guard cells per side (the authors' Ntc = 20, Ngc = 10), Pfa = 0.1
-(tau_SOCA = 2.75; the authors used 0.1-0.2), intensity floor 20 levels. On the tiny
+(tau_SOCA = 3.06 for N = 20 training cells; the authors used 0.1-0.2), intensity floor 20 levels. On the tiny
 simulated mission this detects 91 % of the labelled object cells, and 99.3 % of the
 detections lie within one range bin of a labelled cell (tests/test_features.py); on the
 real ping it gives 1,126 detections
