@@ -21,6 +21,10 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
     for r in result.stages:
         table.add_row(r.stage, r.status, f"{r.seconds:.2f}", r.path)
     console.print(table)
+    if summary.get("model"):
+        from pipeline.model_cache import describe
+
+        console.print(describe(summary["model"]))
     voxels = summary.get("voxels")
     if voxels:
         metrics = summary.get("metrics") or {}
