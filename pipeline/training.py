@@ -75,13 +75,15 @@ class TrainingDataConfig(BaseModel):
         description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",
     )
     keyframes: KeyframesConfig = Field(
-        KeyframesConfig(), description="keyframe selection of the training datasets"
+        default_factory=KeyframesConfig, description="keyframe selection of the training datasets"
     )
+    # model_validate: mypy reads the stage's positional Field defaults as required fields.
     features: FeaturesConfig = Field(
-        FeaturesConfig(), description="CFAR features of the training datasets"
+        default_factory=lambda: FeaturesConfig.model_validate({}),
+        description="CFAR features of the training datasets",
     )
     follow_run: bool = Field(
-        False,
+        default=False,
         description="build the training datasets with the run's keyframes/features sections"
         " instead (a model matched to them, trained once per setting)",
     )
