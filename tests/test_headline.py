@@ -83,3 +83,19 @@ def test_sweep_table_puts_the_headline_before_the_raw_median_and_names_its_frame
     assert "alignment_rotation_deg" in header
     assert shared_frame(["aligned", "ground_truth_poses"]) == "mixed"
     assert headline_header("voxels_standard", "aligned") == "voxels_standard"
+
+
+def test_study_table_i_leads_with_the_aligned_median_and_its_mean_rotation() -> None:
+    from pipeline.study import table_i
+
+    metrics = _rotated_run()["metrics"]
+    summary = {"voxels": {"standard": 10, "semantic": 30}, "metrics": metrics}
+    runs = [
+        RunOutcome("d.mcap", {"keyframes.spacing_m": "4"}, "ok", 1.0, summary, protocol="default")
+    ]
+    header, _, row = table_i(sweep_tables(runs)[1]).splitlines()[:3]
+    assert (
+        "| median error m (ours, SE(2)-aligned; mean rotation) | raw median error m (ours) |"
+        in (header)
+    )
+    assert "| 0.000 (-2.00°) |" in row

@@ -126,6 +126,7 @@ def test_demo_on_a_new_store_trains_nothing_and_its_headline_is_the_aligned_erro
     train = store.get("train", machine.key)
     assert train is not None
     store.verify(train)
+    assert f"train/{machine.key}" not in store.gc(dry_run=True)["removed"]  # a run relies on it
     # The training datasets' keyframes stay in the cache: the new store built none of them.
     keys = lambda s: {r.key for r in s.iter_artifacts() if r.stage == "keyframes"}  # noqa: E731
     assert keys(machine.cache) and not keys(machine.cache) & keys(store)
