@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.codecs import read_output
+from pipeline.model_cache import ResolvedModel
 from pipeline.runner import PlannedStage, RunResult, StageResult, execute, plan
 from pipeline.session import DEFAULT_STORE, RunContext, make_context
 from pipeline.store import ArtifactRef
@@ -37,16 +38,35 @@ def _context(
     )
 
 
-def _external(ctx: RunContext, until: str | None) -> dict[str, tuple[Stage, ArtifactRef]]:
-    """Artifacts from outside the dataset's graph (the trained classifier)."""
+def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
+    """The trained classifier, when a stage up to `until` reads it (the only artifact
+    from outside the dataset's graph)."""
     names = [s.name for s in ctx.stages]
     last = names.index(until) if until in names else len(names) - 1
     needs = {i.split(".")[0] for s in ctx.stages[: last + 1] for i in s.inputs}
     if "train" not in needs:
-        return {}
-    from pipeline.training import resolve_model
+        return None
+    from pipeline.model_cache import resolve_default_model
 
-    return {"train": resolve_model(ctx.store, ctx.config)}
+    return resolve_default_model(ctx.store, ctx.config)
+
+
+def _plan(
+    dataset: Path,
+    config_path: Path | None,
+    overrides: Sequence[str],
+    store_dir: Path,
+    until: str | None,
+    force: Sequence[str],
+    with_external: bool,
+) -> tuple[RunContext, list[PlannedStage], ResolvedModel | None]:
+    ctx = _context(dataset, config_path, overrides, store_dir)
+    model = _model(ctx, until) if with_external else None
+    external = {} if model is None else {"train": (model.stage, model.ref)}
+    planned = plan(
+        ctx.stages, ctx.config, ctx.dataset, ctx.store, until=until, force=force, external=external
+    )
+    return ctx, planned, model
 
 
 def plan_dataset(
@@ -59,12 +79,10 @@ def plan_dataset(
     force: Sequence[str] = (),
     with_external: bool = True,
 ) -> tuple[RunContext, list[PlannedStage], dict[str, tuple[Stage, ArtifactRef]]]:
-    ctx = _context(dataset, config_path, overrides, store_dir)
-    external = _external(ctx, until) if with_external else {}
-    planned = plan(
-        ctx.stages, ctx.config, ctx.dataset, ctx.store, until=until, force=force, external=external
+    ctx, planned, model = _plan(
+        dataset, config_path, overrides, store_dir, until, force, with_external
     )
-    return ctx, planned, external
+    return ctx, planned, {} if model is None else {"train": (model.stage, model.ref)}
 
 
 def run_dataset(
@@ -78,15 +96,12 @@ def run_dataset(
     on_start: Callable[[PlannedStage], None] | None = None,
     on_stage: Callable[[StageResult], None] | None = None,
 ) -> tuple[RunResult, dict[str, Any]]:
-    """Plan, execute and summarise one dataset through the mapping graph."""
-    ctx, planned, external = plan_dataset(
-        dataset,
-        config_path=config_path,
-        overrides=overrides,
-        store_dir=store_dir,
-        until=until,
-        force=force,
-    )
+    """Plan, execute and summarise one dataset through the mapping graph.
+
+    The summary's "model" names the classifier used and where it came from.
+    """
+    ctx, planned, model = _plan(dataset, config_path, overrides, store_dir, until, force, True)
+    external = {} if model is None else {"train": (model.stage, model.ref)}
     result = execute(
         planned,
         ctx.config,
@@ -96,7 +111,10 @@ def run_dataset(
         on_start=on_start,
         on_stage=on_stage,
     )
-    return result, summarize(ctx.stages, result.artifacts)
+    summary = summarize(ctx.stages, result.artifacts)
+    if model is not None:
+        summary["model"] = model.to_json()
+    return result, summary
 
 
 def _json_output(stage: Stage, ref: ArtifactRef, name: str) -> Any:

@@ -21,23 +21,33 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
     for r in result.stages:
         table.add_row(r.stage, r.status, f"{r.seconds:.2f}", r.path)
     console.print(table)
+    if summary.get("model"):
+        from pipeline.model_cache import describe
+
+        console.print(describe(summary["model"]))
     voxels = summary.get("voxels")
     if voxels:
         metrics = summary.get("metrics") or {}
         cov = Table(title=f"Coverage ({summary.get('voxel_size_m', 0.1)} m voxels)")
-        for col in ("map", "voxels", "accurate voxels", "completeness", "median error m"):
-            cov.add_column(col)
         errors = metrics.get("errors", {}) if isinstance(metrics, dict) else {}
+        head = metrics.get("headline") or {} if isinstance(metrics, dict) else {}
+        aligned = head.get("frame") == "aligned"
+        error_cols = [head.get("label", "median error m")]
+        error_cols += ["raw median error m"] if aligned else []
+        for col in ("map", "voxels", "accurate voxels", "completeness", *error_cols):
+            cov.add_column(col)
         whole = ((metrics.get("per_class") or {}).get("classes") or {}).get("all_structure", {})
         for name in ("standard", "semantic"):
-            med = (errors.get(name) or {}).get("median_m")
+            raw = (errors.get(name) or {}).get("median_m")
+            lead = (head.get("median_m") or {}).get(name, raw)
             w = whole.get(name) or {}
             cov.add_row(
                 name,
                 str(voxels.get(name)),
                 _fmt(w.get("accurate_voxels")),
                 _fmt(w.get("completeness"), "{:.3f}"),
-                "-" if med is None else f"{med:.3f}",
+                _fmt(lead, "{:.3f}"),
+                *([_fmt(raw, "{:.3f}")] if aligned else []),
             )
         if voxels.get("standard"):
             ratio = voxels["semantic"] / voxels["standard"]
@@ -46,7 +56,7 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
                 f"{ratio:.1f}x",
                 _ratio(whole, "accurate_voxels"),
                 _ratio(whole, "completeness"),
-                "",
+                *[""] * len(error_cols),
             )
         console.print(cov)
         if whole:

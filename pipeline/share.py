@@ -66,28 +66,35 @@ def _upstream_closure(
 
 
 def push(
-    store: ArtifactStore, remote: str, targets: Sequence[str] = (), *, with_upstream: bool = True
+    store: ArtifactStore,
+    remote: str,
+    targets: Sequence[str] = (),
+    *,
+    with_upstream: bool = True,
+    fallbacks: Sequence[ArtifactStore] = (),
 ) -> list[str]:
     """Copy artifacts (by stage name or key prefix; all when none given) to `remote`.
 
     Files go first and the manifest last, so a reader never sees a partial artifact.
-    Returns the "stage/key" addresses pushed.
+    Upstream artifacts missing from `store` are taken from `fallbacks` (the model cache
+    holds the training datasets a store's model was trained on). Returns the
+    "stage/key" addresses pushed.
     """
     fs, root = _fs(remote)
     chosen = [store.find(t) for t in targets] if targets else list(store.iter_artifacts())
 
-    def manifest_of(stage: str, key: str) -> dict[str, Any]:
-        ref = store.get(stage, key)
-        if ref is None:
-            raise StoreError(f"{stage}/{key[:12]}: upstream artifact missing from {store.root}")
-        return ref.manifest
+    def holder(stage: str, key: str) -> ArtifactRef:
+        for source in (store, *fallbacks):
+            ref = source.get(stage, key)
+            if ref is not None:
+                return ref
+        raise StoreError(f"{stage}/{key[:12]}: upstream artifact missing from {store.root}")
 
     pushed = []
     for stage, key in _upstream_closure(
-        ((r.stage, r.key) for r in chosen), manifest_of, with_upstream
+        ((r.stage, r.key) for r in chosen), lambda s, k: holder(s, k).manifest, with_upstream
     ):
-        ref = store.get(stage, key)
-        assert ref is not None
+        ref = holder(stage, key)
         store.verify(ref)
         dest = f"{root}/{stage}/{key}"
         if fs.exists(f"{dest}/{MANIFEST}"):

@@ -24,6 +24,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from pipeline.headline_columns import FRAME_WORDS, shared_frame
 from pipeline.sweep import ALL_STRUCTURE, PILING_CLASSES, RunOutcome, per_class, stage_path
 
 __all__ = [
@@ -159,6 +160,9 @@ def table_i_rows(
                         if paper and semantic
                         else None,
                         "median_error_m": _mean(g, f"median_error_{name}_m"),
+                        "median_error_headline_m": _mean(g, f"median_error_headline_{name}_m"),
+                        "headline_frame": g.get("headline_frame"),
+                        "alignment_rotation_deg": _mean(g, "alignment_rotation_deg"),
                         "inferred_over_fused": _ratio(
                             _mean(g, "median_error_inferred_m"),
                             _mean(g, "median_error_standard_m"),
@@ -487,21 +491,32 @@ def _pm(mean: float | None, std: float | None, fmt: str = ".0f") -> str:
 
 
 def _table_i_md(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    frame = shared_frame(r.get("headline_frame") for r in rows)
+    # The headline median leads; a raw column follows only where the two differ.
+    raw_too = frame in ("aligned", "mixed")
+    words = f", {FRAME_WORDS[frame]}" + ("; mean rotation" if raw_too else "") if frame else ""
+    head = f"median error m (ours{words})"
     lines = [
         "| protocol | spacing | map | runs | voxels (ours, mean ± std) | voxels (paper) "
-        "| semantic/standard (ours) | (paper) | median error m (ours) "
-        "| median error inferred / fused (ours) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"| semantic/standard (ours) | (paper) | {head} "
+        + ("| raw median error m (ours) " if raw_too else "")
+        + "| median error inferred / fused (ours) |",
+        "|---|---|---|---|---|---|---|---|---|" + ("---|" if raw_too else "") + "---|",
     ]
     for r in rows:
+        lead = _num(r.get("median_error_headline_m") if frame else r["median_error_m"], ".3f")
+        rotation = r.get("alignment_rotation_deg")
+        if raw_too and rotation is not None:
+            lead += f" ({rotation:.2f}°)"
         lines.append(
             f"| {r['protocol']} | {r['spacing_m']} m | {r['map']} | {r['runs']} "
             f"| {_pm(r['voxels_mean'], r['voxels_std'])} "
             f"| {_pm(r['paper_voxels_mean'], r['paper_voxels_std'], '.1f')} "
             f"| {_num(r['ratio'], '.1f', 'x') if r['map'] == 'semantic' else ''} "
             f"| {_num(r['paper_ratio'], '.1f', 'x') if r['map'] == 'semantic' else ''} "
-            f"| {_num(r['median_error_m'], '.3f')} "
-            f"| {_num(r['inferred_over_fused'], '.2f', 'x') if r['map'] == 'semantic' else ''} |"
+            f"| {lead} "
+            + (f"| {_num(r['median_error_m'], '.3f')} " if raw_too else "")
+            + f"| {_num(r['inferred_over_fused'], '.2f', 'x') if r['map'] == 'semantic' else ''} |"
         )
     return lines
 

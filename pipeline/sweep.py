@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import ConfigError, PipelineError
+from pipeline.headline_columns import frame_of, headline_columns, headline_header, shared_frame
 
 __all__ = [
     "ALL_STRUCTURE",
@@ -259,6 +260,7 @@ def _flat(summary: Mapping[str, Any]) -> dict[str, float | int | None]:
         "voxels_standard": voxels.get("standard"),
         "voxels_semantic": voxels.get("semantic"),
         "ratio": _ratio(voxels.get("semantic"), voxels.get("standard")),
+        **headline_columns(summary),
         "median_error_standard_m": (errors.get("standard") or {}).get("median_m"),
         "median_error_semantic_m": (errors.get("semantic") or {}).get("median_m"),
         "median_error_inferred_m": (errors.get("inferred") or {}).get("median_m"),
@@ -313,6 +315,7 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
                 "overrides": json.dumps(o.overrides, sort_keys=True),
                 "status": o.status,
                 "error": o.error,
+                "headline_frame": frame_of(o.summary) if o.status == "ok" else None,
                 "seconds": float(o.seconds),
                 **{k: (None if v is None else float(v)) for k, v in flat.items()},
             }
@@ -324,6 +327,7 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
             ("overrides", pa.string()),
             ("status", pa.string()),
             ("error", pa.string()),
+            ("headline_frame", pa.string()),
             *((m, pa.float64()) for m in METRIC_COLUMNS),
         ]
     )
@@ -337,7 +341,11 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
                 for r in rows
                 if r["protocol"] == protocol and r["overrides"] == key and r["status"] == "ok"
             ]
-            group: dict[str, Any] = {"overrides": json.loads(key), "runs": len(members)}
+            group: dict[str, Any] = {
+                "overrides": json.loads(key),
+                "runs": len(members),
+                "headline_frame": shared_frame(r["headline_frame"] for r in members),
+            }
             if protocol is not None:
                 group["protocol"] = protocol
             for m in METRIC_COLUMNS:
@@ -350,8 +358,9 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
                 }
             groups.append(group)
     shown = [m for m in METRIC_COLUMNS if any(g[m]["mean"] is not None for g in groups)]
+    frame = shared_frame(g["headline_frame"] for g in groups)
     lines = [
-        "| overrides | runs | " + " | ".join(shown) + " |",
+        "| overrides | runs | " + " | ".join(headline_header(m, frame) for m in shown) + " |",
         "|---|---|" + "---|" * len(shown),
     ]
     for g in groups:

@@ -3,8 +3,11 @@
 Training is an ordinary cached stage. Each training dataset goes through the graph up
 to `features` (cached per dataset like any run); the `train` stage then reads all of
 them, so its key covers every dataset's keyframes and features, the train config, and
-the stage version. `sonarmap run` binds the resulting `model.pt` to `classify`'s
-"train.model" input; a warm store trains nothing.
+the stage version. The training datasets are built with the `training` section's own
+`keyframes` and `features` settings, so a run's `--set keyframes.spacing_m=4` maps
+with the same model (`training.follow_run: true` builds them with the run's settings
+instead). `sonarmap run` binds the resulting `model.pt` to `classify`'s "train.model"
+input; trained models live in the machine-wide cache of `pipeline.model_cache`.
 
 A recording with an annotation file beside it (`<stem>.annotations.yaml`, format in
 `schemas.annotations`) is labelled by that file instead of label images: its content
@@ -20,17 +23,22 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from pipeline.runner import execute, plan
+from pipeline.runner import DatasetSpec, execute, plan
 from pipeline.session import dataset_spec
 from pipeline.store import ArtifactRef, ArtifactStore
 from schemas.sonar import KeyframeImages
 from stages.base import Stage
+from stages.features import FeaturesConfig
+from stages.keyframes import KeyframesConfig
 
 __all__ = [
     "TrainingDataConfig",
     "TrainingSet",
+    "plan_training",
     "resolve_model",
     "train_on",
+    "training_config",
+    "training_datasets",
     "training_stage_for",
 ]
 
@@ -51,7 +59,9 @@ class TrainingDataConfig(BaseModel):
     """Config section `training`: which labelled datasets the default model is trained on.
 
     The mapped scene should not be among them (the default marina never is). Seeds are
-    far from the study's 0..N-1. Simulated files go to `directory` and are reused.
+    far from the study's 0..N-1. Simulated files go to `directory` and are reused; the
+    trained models go to the model cache `<directory>/store` (`pipeline.model_cache`),
+    which every store on the machine reuses.
     """
 
     model_config = ConfigDict(frozen=True, extra="forbid")
@@ -64,6 +74,32 @@ class TrainingDataConfig(BaseModel):
         default=(),
         description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",
     )
+    keyframes: KeyframesConfig = Field(
+        default_factory=KeyframesConfig, description="keyframe selection of the training datasets"
+    )
+    # model_validate: mypy reads the stage's positional Field defaults as required fields.
+    features: FeaturesConfig = Field(
+        default_factory=lambda: FeaturesConfig.model_validate({}),
+        description="CFAR features of the training datasets",
+    )
+    follow_run: bool = Field(
+        default=False,
+        description="build the training datasets with the run's keyframes/features sections"
+        " instead (a model matched to them, trained once per setting)",
+    )
+
+
+def training_config(config: BaseModel) -> BaseModel:
+    """`config` with the `keyframes`/`features` sections the training datasets are built with.
+
+    Those of the `training` section unless `training.follow_run`; the run's own otherwise.
+    """
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    if training.follow_run:
+        return config
+    sections = {"keyframes": training.keyframes, "features": training.features}
+    fields = type(config).model_fields
+    return config.model_copy(update={k: v for k, v in sections.items() if k in fields})
 
 
 def training_stage_for(
@@ -73,7 +109,7 @@ def training_stage_for(
 
     Inputs are bound as "keyframes_i.frames" / "features_i.features" so one stage run
     sees every dataset; dataset i in `annotated` also reads "annotations_i.annotations"
-    and is labelled by it (`stages.annotations.label_keyframes`) instead of label
+    and is labelled by it (`stages.classify.annotations.label_keyframes`) instead of label
     images. `names` (the datasets' paths) only word error messages. Outputs and config
     are those of `stages.classify.train`.
     """
@@ -120,14 +156,13 @@ def training_stage_for(
     return Stage(base.name, base.version, base.config, inputs, base.outputs, run, base.description)
 
 
-def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> ArtifactRef:
-    """Run keyframes + features on each dataset, then the train stage; return the model artifact.
+def _bind_training(
+    datasets: Sequence[Path], config: BaseModel, store: ArtifactStore, *, compute: bool
+) -> tuple[Stage, dict[str, tuple[Stage, ArtifactRef]], DatasetSpec]:
+    """The train stage and its bound inputs: computed artifacts, or key-only placeholders.
 
-    A dataset with an annotation file beside it (`pipeline.annotations.annotation_path`)
-    is labelled by that file; the others need label images (simulated recordings).
-
-    Raises:
-        SourceError: an annotation file is unreadable or invalid (one line, file and field).
+    With `compute=False` nothing is computed (annotation files, whose content is their
+    key, are committed): the placeholders carry the keys the train stage's key needs.
     """
     from pipeline.annotations import ANNOTATIONS_STAGE, annotation_path, commit_annotations
     from pipeline.registry import pipeline_stages
@@ -146,23 +181,59 @@ def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) 
     for i, path in enumerate(datasets):
         spec = dataset_spec(path, store)
         first = first or spec
-        result = execute(plan(upstream, config, spec, store), config, spec, store)
+        planned = plan(upstream, config, spec, store)
+        if compute:
+            refs = execute(planned, config, spec, store).artifacts
+        else:
+            refs = {
+                p.stage.name: ArtifactRef(
+                    p.stage.name, p.key, store.artifact_dir(p.stage.name, p.key), {}
+                )
+                for p in planned
+            }
         for stage in upstream:
-            external[f"{stage.name}_{i}"] = (stage, result.artifacts[stage.name])
+            external[f"{stage.name}_{i}"] = (stage, refs[stage.name])
     assert first is not None
     train = training_stage_for(len(datasets), annotated, [str(p) for p in datasets])
+    return train, external, first
+
+
+def plan_training(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> str:
+    """The `train` key `train_on` would produce, computing nothing (training datasets'
+    fingerprints are cached; their keyframes and features are only planned)."""
+    config = training_config(config)
+    train, external, first = _bind_training(datasets, config, store, compute=False)
+    return plan((train,), config, first, store, external=external)[0].key
+
+
+def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> ArtifactRef:
+    """Run keyframes + features on each dataset, then the train stage; return the model artifact.
+
+    Keyframes and features use the `training` section's settings (`training_config`). A
+    dataset with an annotation file beside it (`pipeline.annotations.annotation_path`)
+    is labelled by that file; the others need label images (simulated recordings).
+
+    Raises:
+        SourceError: an annotation file is unreadable or invalid (one line, file and field).
+    """
+    config = training_config(config)
+    train, external, first = _bind_training(datasets, config, store, compute=True)
     planned = plan((train,), config, first, store, external=external)
     log.info("classifier: %s (%s)", "cached" if planned[0].hit else "training", planned[0].reason)
     return execute(planned, config, first, store, external=external).artifacts["train"]
 
 
-def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, ArtifactRef]:
-    """The default model for `classify`: simulate the training scenes if needed, train if needed."""
+def training_datasets(training: TrainingDataConfig) -> list[Path]:
+    """The default model's datasets: `training.sets` (simulated on first use), then
+    `training.recorded`.
+
+    Raises:
+        SourceError: a recorded dataset without its annotation file.
+    """
     from pipeline.annotations import annotation_path
     from pipeline.datasets import ensure_simulation, scene_path
     from pipeline.errors import SourceError
 
-    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     paths = []
     for item in training.sets:
         scene = scene_path(item.scene)
@@ -181,6 +252,12 @@ def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, Artif
                 f"training.recorded: {path} has no {path.stem}.annotations.yaml beside it"
             )
         paths.append(path)
-    ref = train_on(paths, config, store)
-    annotated = [i for i, p in enumerate(paths) if annotation_path(p) is not None]
-    return training_stage_for(len(paths), annotated), ref
+    return paths
+
+
+def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, ArtifactRef]:
+    """The default model for `classify`, in `store` (`pipeline.model_cache.resolve_default_model`)."""
+    from pipeline.model_cache import resolve_default_model
+
+    chosen = resolve_default_model(store, config)
+    return chosen.stage, chosen.ref

@@ -337,7 +337,7 @@ def test_single_view_rule_accepts_the_mean_of_m_passes_above_0_99(
 def test_min_area_rule_keeps_exactly_the_objects_covering_more(
     keyframes: list[KeyframeImages],
 ) -> None:
-    """Area = fan-plane area of the object's cells (stages.objects.cell_areas_m2), checked
+    """Area = fan-plane area of the object's cells (stages.classify.segmentation.cell_areas_m2), checked
     against a 1 cm raster of those cells. Observed on the tiny scene (features = labelled
     cells): cylindrical pilings 0.11-0.24 m2 (dropped at the original's 150 px = 0.375 m2),
     rectangular 0.42-0.61 m2; the two measures agree to 0.004 m2."""

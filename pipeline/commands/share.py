@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from pipeline.model_cache import DEFAULT_MODEL_CACHE
 
 __all__ = ["register"]
 
@@ -20,13 +21,24 @@ def register(app: typer.Typer) -> None:
         targets: list[str] | None = typer.Argument(None, help="Stage names or key prefixes."),
         store: Path = STORE_OPT,
         upstream: bool = _UPSTREAM,
+        model_cache: Path = typer.Option(
+            DEFAULT_MODEL_CACHE,
+            "--model-cache",
+            help="Model cache (`<training.directory>/store`) holding a model's training data.",
+        ),
         json_: bool = JSON_OPT,
     ) -> None:
         """Copy artifacts (and by default everything upstream of them) to REMOTE."""
         from pipeline.share import push as do_push
         from pipeline.store import ArtifactStore
 
-        pushed = do_push(ArtifactStore(store), remote, targets or (), with_upstream=upstream)
+        pushed = do_push(
+            ArtifactStore(store),
+            remote,
+            targets or (),
+            with_upstream=upstream,
+            fallbacks=[ArtifactStore(model_cache)],
+        )
         if json_:
             emit_json({"remote": remote, "pushed": pushed})
         else:

@@ -8,12 +8,15 @@ import typer
 
 __all__ = ["DEFAULT_SCENE", "register"]
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "configs" / "scenes" / "marina.yaml"
+DEFAULT_SCENE = "marina"
+"""A scene name in configs/scenes/ (the help shows the name, not the install path)."""
 
 
 def simulate_cmd(
     output: Path = typer.Option(..., "--output", "-o", help="Output .mcap path."),
-    scene: Path = typer.Option(DEFAULT_SCENE, "--scene", help="Scene YAML (configs/scenes/)."),
+    scene_name: str = typer.Option(
+        DEFAULT_SCENE, "--scene", help="Scene name in configs/scenes/, or a scene YAML path."
+    ),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (same seed, same bytes)."),
     goals: int | None = typer.Option(None, "--goals", min=1, help="Number of mission goals."),
     duration_s: float | None = typer.Option(
@@ -28,12 +31,14 @@ def simulate_cmd(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from pipeline.commands._common import stderr_console
+    from pipeline.datasets import scene_path
     from pipeline.errors import ConfigError, SourceError
     from pipeline.simulate import render_preview, write_simulation
     from sim.config import SimConfig
     from sim.dataset import simulate
     from sim.scene import SceneError, load_scene
 
+    scene = scene_path(scene_name)
     try:
         scene_obj = load_scene(scene)
     except SceneError as err:

@@ -1,7 +1,8 @@
 """`sonarmap train D1.mcap D2.mcap ...`: train the object classifier on labelled datasets.
 
 Each dataset runs through the cached graph up to `features` (keyframes with label
-images, CFAR features), then the cached `train` stage (`pipeline.training.train_on`);
+images, CFAR features, with the `training.keyframes`/`training.features` settings unless
+`training.follow_run`), then the cached `train` stage (`pipeline.training.train_on`);
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
 file instead of label images (format: README, `schemas.annotations`).

@@ -56,7 +56,7 @@ _SEED_STRIDE = 1_000_003
 class ClassifyConfig(StageConfig):
     """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
 
-    The clustering defaults live once, in `stages.train.TrainConfig`: a model is trained
+    The clustering defaults live once, in `stages.classify.train.TrainConfig`: a model is trained
     on the objects its clustering produces, so classify reads them from the model file
     and these fields only override them (an override outside what the model saw in
     training changes what it is shown).
@@ -75,13 +75,13 @@ class ClassifyConfig(StageConfig):
         None,
         gt=0,
         description="keep only objects whose feature cells cover more than this fan-plane"
-        " area (stages.objects.cell_areas_m2; None: no area rule; original sim code:"
+        " area (stages.classify.segmentation.cell_areas_m2; None: no area rule; original sim code:"
         " > 150 px of 5 cm = 0.375 m2); not applied in training",
     )
     drop_fan_edge_objects: bool = Field(
         False,
         description="drop objects whose padded bounding box reaches outside the horizontal"
-        " sonar's fan (stages.objects.fan_outside_area_m2; original sim code); dropped"
+        " sonar's fan (stages.classify.segmentation.fan_outside_area_m2; original sim code); dropped"
         " objects are not in objects.parquet",
     )
     fan_edge_margin_m: float = Field(

@@ -154,28 +154,33 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 
 def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
+    """The first table: the headline median error (`stages.evaluate.headline`) leads, raw beside."""
     vox = metrics.get("voxels", {})
     pts = metrics.get("points", {})
     errs = metrics.get("errors", {})
     comp = metrics.get("completeness", {})
     prec = metrics.get("precision", {})
-    aligned = metrics.get("errors_aligned") or {}
+    head = metrics.get("headline") or {}
+    median = head.get("median_m") or {}
+    # Only an aligned headline differs from the raw statistics, which then say "raw".
+    raw = "raw " if head.get("frame") == "aligned" else ""
     counts = {"standard": pts.get("fused"), "semantic": None}
     if pts.get("fused") is not None and pts.get("inferred") is not None:
         counts["semantic"] = pts["fused"] + pts["inferred"]
-    lines = [
-        "| map | points | voxels | median error m | mean error m | p90 m | p95 m"
-        " | completeness | precision | median m, SLAM aligned |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-    ]
+    lead = [head["label"]] if head else []
+    cols = ["map", "points", "voxels", *lead, f"{raw}median error m", f"{raw}mean error m"]
+    cols += [f"{raw}p90 m", f"{raw}p95 m", "completeness", "precision"]
+    if head and not raw:
+        cols.remove("median error m")
+    lines = ["| " + " | ".join(cols) + " |", "|---|" + "---:|" * (len(cols) - 1)]
     for name in ("standard", "semantic"):
         e = errs.get(name, {})
-        lines.append(
-            f"| {name} | {_fmt(counts[name])} | {_fmt(vox.get(name))} | {_fmt(e.get('median_m'))}"
-            f" | {_fmt(e.get('mean_m'))} | {_fmt(e.get('p90_m'))} | {_fmt(e.get('p95_m'))}"
-            f" | {_fmt(comp.get(name))} | {_fmt(prec.get(name))}"
-            f" | {_fmt(aligned.get(name, {}).get('median_m'))} |"
-        )
+        cells = [name, _fmt(counts[name]), _fmt(vox.get(name))]
+        cells += [f"**{_fmt(median.get(name))}**"] if head else []
+        cells += [_fmt(e.get("median_m"))] if not head or raw else []
+        cells += [_fmt(e.get(k)) for k in ("mean_m", "p90_m", "p95_m")]
+        cells += [_fmt(comp.get(name)), _fmt(prec.get(name))]
+        lines.append("| " + " | ".join(cells) + " |")
     if vox.get("standard"):
         lines.append(f"\nsemantic / standard voxels: **{vox['semantic'] / vox['standard']:.2f}x**")
     return lines
@@ -263,8 +268,9 @@ def render_markdown(
             f" samples of {', '.join(comp.get('classes', []))} within {comp.get('tolerance_m')} m"
             " of a map point (visible: below the water surface, inside the horizontal sonar's"
             " field of view from some keyframe and not occluded); precision: fraction of map"
-            " points within the same distance of the surface. The last column moves the map by"
-            " the SE(2) alignment of the SLAM trajectory to the truth first (see Trajectory).",
+            " points within the same distance of the surface, both at the mapped positions."
+            " The bold median moves the map by the SE(2) alignment of the SLAM trajectory to"
+            " the truth first when one was needed (see Trajectory).",
             "",
         ]
     traj = metrics.get("trajectory", {})

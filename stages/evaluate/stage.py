@@ -25,6 +25,7 @@ from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from stages.base import Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics
+from stages.evaluate.headline import headline_errors, poses_are_ground_truth
 from stages.evaluate.report import (
     SidePanel,
     error_boxplot_png,
@@ -302,6 +303,11 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         if aligned is not None:
             eval_xyz, eval_err = aligned[0], mesh_distance(scene, aligned[0])
             metrics["errors_aligned"] = aligned_map_errors(map_table, aligned, eval_err)
+        metrics["headline"] = headline_errors(
+            metrics["errors"],
+            metrics.get("errors_aligned"),
+            poses_are_ground_truth(keyframes, poses),
+        )
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
         voxel_size = float(summary.get("voxel_size_m") or 0.1)
         metrics["per_class"] = {
@@ -368,7 +374,7 @@ def _truth_xy(mesh: Mesh) -> np.ndarray:
 
 STAGE = Stage(
     name="evaluate",
-    version=4,
+    version=5,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",

@@ -1,0 +1,168 @@
+"""One default model for every store on the machine: the model cache.
+
+The default classifier is trained once into the model cache, an ordinary artifact store
+at `<training.directory>/store` (atomic commits, per-key locks, manifests with sha256),
+which also holds the training datasets' keyframes and features. A run's store gets a
+verified copy of the `train` artifact it uses, so `show`, `push` and `pull` see the
+model where they always did. The `train` key is planned without computing anything,
+so a fresh store on a machine that has the model trains nothing and builds nothing:
+
+1. the run's store has the model (e.g. pulled from a colleague): use it, and publish it
+   to the cache when the cache lacks it;
+2. the cache has it: check every file's sha256 against its manifest, copy it in;
+3. neither: train into the cache (once per machine), then copy it in.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel
+
+from pipeline.errors import ArtifactCorrupt
+from pipeline.store import ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
+from stages.base import Stage
+
+__all__ = [
+    "DEFAULT_MODEL_CACHE",
+    "ResolvedModel",
+    "copy_verified",
+    "describe",
+    "model_cache",
+    "resolve_default_model",
+]
+
+log = logging.getLogger(__name__)
+
+CACHE_DIR = "store"
+"""The model cache's folder inside `training.directory`."""
+
+DEFAULT_MODEL_CACHE = Path("data/training") / CACHE_DIR
+"""The model cache of the default `training.directory` (where `push` looks; a test keeps
+it equal to `TrainingDataConfig().directory`, which stays the one default)."""
+
+Source = Literal["store", "model cache", "trained"]
+
+
+@dataclass(frozen=True)
+class ResolvedModel:
+    """The model a run uses: the train stage, its artifact in the run's store, and where
+    it came from ("store": already there, "model cache": copied, "trained": just now)."""
+
+    stage: Stage
+    ref: ArtifactRef
+    source: Source
+    cache: Path
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "stage": self.ref.stage,
+            "key": self.ref.key,
+            "source": self.source,
+            "path": str(self.ref.path),
+            "cache": str(self.cache),
+        }
+
+    def describe(self) -> str:
+        """One line for the terminal: which model, from where."""
+        return describe(self.to_json())
+
+
+def describe(model: Mapping[str, Any]) -> str:
+    """ "classifier: train/<key> (from where)" of a `ResolvedModel.to_json()` document."""
+    where = {
+        "store": "found in the store",
+        "model cache": f"copied from the model cache {model.get('cache')}",
+        "trained": f"trained into the model cache {model.get('cache')}",
+    }.get(str(model.get("source")), str(model.get("source")))
+    return f"classifier: train/{str(model.get('key'))[:12]} ({where})"
+
+
+def model_cache(config: BaseModel) -> ArtifactStore:
+    """The machine-wide model cache of `config`'s `training` section."""
+    from pipeline.training import TrainingDataConfig
+
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    return ArtifactStore(Path(training.directory) / CACHE_DIR)
+
+
+def copy_verified(ref: ArtifactRef, dest: ArtifactStore) -> ArtifactRef:
+    """Commit a copy of `ref` into `dest`, atomically, only if every copied file matches
+    the source manifest's size and sha256 (and its key its recipe).
+
+    Raises:
+        ArtifactCorrupt: a file differs; nothing becomes visible in `dest`.
+    """
+    files: Mapping[str, Any] = ref.manifest.get("files") or {}
+
+    def copy(tmp: Path) -> Mapping[str, Any]:
+        for rel in files:
+            target = safe_relative(tmp, rel)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(safe_relative(ref.path, rel), target)
+        verify_artifact_dir(tmp, ref.manifest)
+        return {}
+
+    keep = {k: v for k, v in ref.manifest.items() if k not in ("files", "build_seconds")}
+    return dest.commit(ref.stage, ref.key, copy, keep)
+
+
+def _record_use(store: ArtifactStore, ref: ArtifactRef, source: Source) -> None:
+    """A run record naming the model, so `gc` keeps the copy a run relies on."""
+    record = {
+        "dataset": f"model:{ref.key}",
+        "updated_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "source": source,
+        "stages": {"train": {"key": ref.key, "recipe": ref.manifest.get("recipe", {})}},
+    }
+    store.record_run(f"model-{ref.key[:20]}", record)
+
+
+def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedModel:
+    """The default model for `classify` in `store`: reused, copied from the cache, or trained.
+
+    Raises:
+        ArtifactCorrupt: the cached model's files do not match its manifest (the message
+            names the artifact directory to remove).
+        SourceError: a training dataset is unusable.
+    """
+    from pipeline.annotations import annotation_path
+    from pipeline.training import (
+        TrainingDataConfig,
+        plan_training,
+        train_on,
+        training_datasets,
+        training_stage_for,
+    )
+
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    cache = model_cache(config)
+    paths = training_datasets(training)
+    annotated = [i for i, p in enumerate(paths) if annotation_path(p) is not None]
+    stage = training_stage_for(len(paths), annotated)
+    key = plan_training(paths, config, cache)
+    source: Source
+    ref = store.get("train", key)
+    if ref is not None:
+        source = "store"
+        if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
+            copy_verified(ref, cache)
+    else:
+        cached = cache.get("train", key)
+        source = "model cache" if cached is not None else "trained"
+        if cached is None:
+            cached = train_on(paths, config, cache)
+        try:
+            ref = copy_verified(cached, store)
+        except ArtifactCorrupt as err:
+            raise ArtifactCorrupt(f"model cache: {err} (remove {cached.path} to retrain)") from err
+    _record_use(store, ref, source)
+    chosen = ResolvedModel(stage, ref, source, cache.root)
+    log.info("%s", chosen.describe())
+    return chosen
