@@ -125,8 +125,8 @@ def by_range(objects: pa.Table, edges_m: tuple[float, ...]) -> list[dict[str, ob
 def _classify(dataset: Path, store: Path, overrides: list[str]) -> tuple[pa.Table, dict]:
     """Run the pipeline up to classify (forced), return objects.parquet and its timing."""
     from pipeline.api import run_dataset
-    from pipeline.codecs import read_output
-    from pipeline.registry import pipeline_stages
+    from pipeline.engine.codecs import read_output
+    from pipeline.engine.registry import pipeline_stages
 
     result, summary = run_dataset(
         dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
@@ -146,11 +146,11 @@ def _classify(dataset: Path, store: Path, overrides: list[str]) -> tuple[pa.Tabl
 
 
 def main() -> None:
-    from pipeline.config import load_config
-    from pipeline.datasets import ensure_simulation, scene_path
-    from pipeline.registry import all_stages, extra_sections
-    from pipeline.store import ArtifactStore
-    from pipeline.training import resolve_model
+    from pipeline.engine.config import load_config
+    from pipeline.engine.registry import all_stages, extra_sections
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.training.datasets import ensure_simulation, scene_path
+    from pipeline.training.model_cache import resolve_model
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, default=ROOT / "data/store")

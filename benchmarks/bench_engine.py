@@ -23,8 +23,8 @@ import sys
 from pathlib import Path
 import numpy as np, pyarrow as pa
 from stages.base import Output, Stage, StageConfig
-from pipeline.runner import execute, plan
-from pipeline.session import make_context
+from pipeline.engine.runner import execute, plan
+from pipeline.engine.session import make_context
 
 class C(StageConfig):
     k: int = 1

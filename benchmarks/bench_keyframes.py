@@ -54,8 +54,8 @@ def write_recording(path: Path, n_pairs: int, labels: bool) -> None:
 
     from test_readers_mcap import odom_msg
 
-    from pipeline.frames_io import image_message, sonar_message
-    from pipeline.rosmsg import Ros2McapWriter
+    from pipeline.formats.frames_io import image_message, sonar_message
+    from pipeline.formats.rosmsg import Ros2McapWriter
     from schemas.topics import (
         IMAGE_TYPE,
         LABEL_TOPIC,
@@ -88,7 +88,7 @@ def write_recording(path: Path, n_pairs: int, labels: bool) -> None:
 
 
 def measure_one(path: Path) -> dict[str, float]:
-    from pipeline.frames_io import write_frames
+    from pipeline.formats.frames_io import write_frames
     from pipeline.readers import open_recording
     from stages.keyframes import STAGE, KeyframesConfig
 

@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=1, help="render threads (the CLI uses 1)")
     args = ap.parse_args()
 
-    from pipeline.simulate import write_simulation
+    from pipeline.formats.simulation import write_simulation
     from sim.config import MissionConfig, SimConfig
     from sim.dataset import simulate
     from sim.scene import load_scene

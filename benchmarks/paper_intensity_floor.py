@@ -60,7 +60,7 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=8)
     args = ap.parse_args()
 
-    from pipeline.datasets import scene_path
+    from pipeline.training.datasets import scene_path
     from sim.config import MissionConfig, SimConfig
     from sim.dataset import simulate
     from sim.scene import load_scene

@@ -10,11 +10,11 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.codecs import read_output
-from pipeline.model_cache import ResolvedModel
-from pipeline.runner import PlannedStage, RunResult, StageResult, execute, plan
-from pipeline.session import DEFAULT_STORE, RunContext, make_context
-from pipeline.store import ArtifactRef
+from pipeline.engine.codecs import read_output
+from pipeline.engine.runner import PlannedStage, RunResult, StageResult, execute, plan
+from pipeline.engine.session import DEFAULT_STORE, RunContext, make_context
+from pipeline.engine.store import ArtifactRef
+from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
 
 __all__ = ["plan_dataset", "run_dataset", "summarize"]
@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 def _context(
     dataset: Path, config_path: Path | None, overrides: Sequence[str], store_dir: Path
 ) -> RunContext:
-    from pipeline.registry import all_stages, extra_sections, pipeline_stages
+    from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
 
     return make_context(
         dataset,
@@ -46,7 +46,7 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
     needs = {i.split(".")[0] for s in ctx.stages[: last + 1] for i in s.inputs}
     if "train" not in needs:
         return None
-    from pipeline.model_cache import resolve_default_model
+    from pipeline.training.model_cache import resolve_default_model
 
     return resolve_default_model(ctx.store, ctx.config)
 

@@ -13,7 +13,7 @@ from typer.core import TyperGroup
 
 from pipeline import __version__
 from pipeline.commands import COMMAND_MODULES
-from pipeline.errors import PipelineError
+from pipeline.engine.errors import PipelineError
 
 __all__ = ["app", "main"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pipeline.runner import RunResult
+from pipeline.engine.runner import RunResult
 
 __all__ = ["print_summary"]
 
@@ -22,7 +22,7 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
         table.add_row(r.stage, r.status, f"{r.seconds:.2f}", r.path)
     console.print(table)
     if summary.get("model"):
-        from pipeline.model_cache import describe
+        from pipeline.training.model_cache import describe
 
         console.print(describe(summary["model"]))
     voxels = summary.get("voxels")

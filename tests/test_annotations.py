@@ -12,9 +12,9 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from pipeline.annotations import annotation_path, load_annotations
 from pipeline.cli import app
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
+from pipeline.training.annotations import annotation_path, load_annotations
 from schemas.annotations import ANNOTATION_FORMAT, AnnotatedObject, AnnotationFile
 from schemas.classes import CLASS_IDS
 from schemas.sonar import KeyframeImages, SonarPing
@@ -187,7 +187,7 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
 ) -> None:
     """A simulated recording stands in for a field one: its label images are ignored
     because an annotation file sits beside it; the file's content is in the train key."""
-    from pipeline.datasets import ensure_simulation
+    from pipeline.training.datasets import ensure_simulation
 
     _, doc = _tiny()
     rec = ensure_simulation(
@@ -229,8 +229,9 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
 def test_a_recorded_training_set_without_annotations_is_refused(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
-    from pipeline.store import ArtifactStore
-    from pipeline.training import TrainingDataConfig, resolve_model
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.model_cache import resolve_model
 
     rec = tmp_path / "harbour-field.mcap"
     rec.write_bytes(b"")

@@ -59,6 +59,87 @@ def test_stages_never_print_or_open_files() -> None:
 
 def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
     sample = tmp_path / "x.py"
-    sample.write_text("import pyarrow.parquet as pq\nfrom pipeline.store import ArtifactStore\n")
+    sample.write_text(
+        "import pyarrow.parquet as pq\nfrom pipeline.engine.store import ArtifactStore\n"
+    )
     names = _imports(sample)
-    assert "pyarrow.parquet" in names and "pipeline.store" in names
+    assert "pyarrow.parquet" in names and "pipeline.engine.store" in names
+
+
+PACKAGES = ("pipeline", "stages", "sim", "schemas")
+MAX_LINES = 400
+STAGE_PACKAGES = ("classify", "evaluate", "features", "fuse", "infer", "slam")
+"""Stages of more than one module: each is a package named after the stage."""
+
+
+def _module_name(path: Path) -> str:
+    name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+    return name.removesuffix(".__init__")
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the project modules it imports (at any level, function bodies included)."""
+    paths = {_module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
+    return {
+        name: {t for t in _imports(path) if t in paths and t != name}
+        for name, path in paths.items()
+    }
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """One cycle per strongly connected group of modules (iterative DFS, colours)."""
+    found, state = [], dict.fromkeys(graph, 0)  # 0 new, 1 on the stack, 2 done
+    for root in sorted(graph):
+        if state[root]:
+            continue
+        stack = [(root, iter(sorted(graph[root])))]
+        state[root] = 1
+        while stack:
+            node, children = stack[-1]
+            child = next(children, None)
+            if child is None:
+                state[node] = 2
+                stack.pop()
+            elif state[child] == 1:
+                names = [n for n, _ in stack]
+                found.append([*names[names.index(child) :], child])
+            elif state[child] == 0:
+                state[child] = 1
+                stack.append((child, iter(sorted(graph[child]))))
+    return found
+
+
+def test_no_import_cycles() -> None:
+    assert _cycles(_import_graph()) == []
+
+
+def test_the_cycle_finder_finds_a_cycle() -> None:
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert _cycles(graph) == [["a", "b", "c", "a"]]
+    assert _cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_source_file_over_the_line_limit() -> None:
+    long = [
+        f"{p.relative_to(ROOT)}: {n} lines"
+        for pkg in PACKAGES
+        for p in sorted((ROOT / pkg).rglob("*.py"))
+        if (n := len(p.read_text().splitlines())) > MAX_LINES
+    ]
+    assert long == []
+
+
+@pytest.mark.parametrize("name", STAGE_PACKAGES)
+def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None:
+    import importlib
+
+    package = ROOT / "stages" / name
+    assert (package / "__init__.py").is_file() and not (ROOT / "stages" / f"{name}.py").exists()
+    assert importlib.import_module(f"stages.{name}").STAGE.name == name
+
+
+def test_pipeline_groups_engine_formats_training_and_experiments() -> None:
+    top = sorted(p.name for p in (ROOT / "pipeline").glob("*.py"))
+    assert top == ["__init__.py", "__main__.py", "api.py", "cli.py", "report_cli.py", "scoring.py"]
+    for sub in ("engine", "formats", "training", "experiments", "readers", "commands"):
+        assert (ROOT / "pipeline" / sub / "__init__.py").is_file()

@@ -11,8 +11,8 @@ import pytest
 import toy_stages
 from typer.testing import CliRunner
 
-import pipeline.registry
-import pipeline.session
+import pipeline.engine.registry
+import pipeline.engine.session
 from pipeline.cli import app
 
 runner = CliRunner()
@@ -21,11 +21,11 @@ runner = CliRunner()
 @pytest.fixture
 def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     """Point the CLI's registry at the toy stages and the dataset opener at raw bytes."""
-    monkeypatch.setattr(pipeline.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.session, "_default_parts", lambda p: [p])
+    monkeypatch.setattr(pipeline.engine.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.engine.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.engine.session, "_default_parts", lambda p: [p])
     monkeypatch.setattr(
-        pipeline.session, "_default_open", lambda p: lambda _section: p.read_bytes()
+        pipeline.engine.session, "_default_open", lambda p: lambda _section: p.read_bytes()
     )
     data = tmp_path / "raw.bin"
     data.write_bytes(bytes(range(256)) * 4)

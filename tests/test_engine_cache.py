@@ -9,10 +9,10 @@ import pytest
 import toy_stages
 from toy_stages import TOY_STAGES
 
-from pipeline.errors import ConfigError, StageFailed
-from pipeline.runner import RunResult, execute, plan
-from pipeline.session import make_context
-from pipeline.store import ArtifactStore
+from pipeline.engine.errors import ConfigError, StageFailed
+from pipeline.engine.runner import RunResult, execute, plan
+from pipeline.engine.session import make_context
+from pipeline.engine.store import ArtifactStore
 from stages.base import Stage
 
 
@@ -162,7 +162,7 @@ def test_determinism_two_fresh_stores_byte_identical_parquet(tmp_path: Path) -> 
 
 
 def test_verify_detects_tampering(tmp_path: Path) -> None:
-    from pipeline.errors import ArtifactCorrupt
+    from pipeline.engine.errors import ArtifactCorrupt
 
     data, store_dir = _dataset(tmp_path), tmp_path / "store"
     result = run_toy(data, store_dir)

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
-from pipeline.frames_io import read_frames, write_frames
+from pipeline.formats.frames_io import read_frames, write_frames
 from schemas.sonar import KeyframeImages, SonarPing
 
 
@@ -97,9 +97,9 @@ def test_empty_frames(tmp_path: Path) -> None:
 
 def test_fast_cdr_codec_is_byte_identical_to_rosbags() -> None:
     """The fast ProjectedSonarImage serialiser/parser agree with rosbags' generic serde."""
-    from pipeline.frames_io import sonar_cdr, sonar_message
+    from pipeline.formats.frames_io import sonar_cdr, sonar_message
+    from pipeline.formats.rosmsg import ros2_typestore
     from pipeline.readers.sonar_decode import parse_projected_cdr
-    from pipeline.rosmsg import ros2_typestore
     from schemas.sonar import beam_directions_from_angles
 
     rng = np.random.default_rng(3)

@@ -13,8 +13,8 @@ from test_evaluate import (
     stage_inputs,
 )
 
-from pipeline.headline_columns import headline_header, shared_frame
-from pipeline.sweep import RunOutcome, sweep_tables
+from pipeline.experiments.headline_columns import headline_header, shared_frame
+from pipeline.experiments.sweep import RunOutcome, sweep_tables
 from sim.geometry import rot_z
 from stages.evaluate import STAGE, EvaluateConfig
 from stages.evaluate.headline import headline_errors
@@ -86,7 +86,7 @@ def test_sweep_table_puts_the_headline_before_the_raw_median_and_names_its_frame
 
 
 def test_study_table_i_leads_with_the_aligned_median_and_its_mean_rotation() -> None:
-    from pipeline.study import table_i
+    from pipeline.experiments.study import table_i
 
     metrics = _rotated_run()["metrics"]
     summary = {"voxels": {"standard": 10, "semantic": 30}, "metrics": metrics}

@@ -8,8 +8,8 @@ import numpy as np
 import pyarrow as pa
 from mcap.reader import make_reader
 
-from pipeline.map_mcap import MAP_TOPICS, TF_TOPIC, write_map_mcap
-from pipeline.rosmsg import ros2_typestore
+from pipeline.formats.map_mcap import MAP_TOPICS, TF_TOPIC, write_map_mcap
+from pipeline.formats.rosmsg import ros2_typestore
 from schemas.map import MAP_SCHEMA
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
 from sim.geometry import rot_rpy

@@ -18,14 +18,15 @@ from typer.testing import CliRunner
 import stages.classify.train
 from pipeline.api import run_dataset
 from pipeline.cli import app
-from pipeline.config import load_config
-from pipeline.datasets import ensure_simulation, scene_path
-from pipeline.errors import ArtifactCorrupt
-from pipeline.model_cache import DEFAULT_MODEL_CACHE, resolve_default_model
-from pipeline.registry import all_stages, extra_sections
-from pipeline.share import pull, push
-from pipeline.store import ArtifactStore
-from pipeline.training import TrainingDataConfig, plan_training, training_datasets
+from pipeline.engine.config import load_config
+from pipeline.engine.errors import ArtifactCorrupt
+from pipeline.engine.registry import all_stages, extra_sections
+from pipeline.engine.share import pull, push
+from pipeline.engine.store import ArtifactStore
+from pipeline.training.config import TrainingDataConfig
+from pipeline.training.datasets import ensure_simulation, scene_path
+from pipeline.training.model import plan_training, training_datasets
+from pipeline.training.model_cache import DEFAULT_MODEL_CACHE, resolve_default_model
 
 CONFIG = """
 training:

@@ -10,8 +10,8 @@ import yaml
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from pipeline.config import load_config
-from pipeline.registry import all_stages, extra_sections
+from pipeline.engine.config import load_config
+from pipeline.engine.registry import all_stages, extra_sections
 from stages.classify.stage import ClassifyConfig
 from stages.fuse.stage import FuseConfig
 

@@ -72,7 +72,7 @@ def test_consistency_flags_the_loop_that_disagrees_with_odometry() -> None:
 def test_pcm_on_intel_rejects_injected_false_loops() -> None:
     if not INTEL.exists():
         pytest.skip(f"real test data absent: {INTEL}")
-    from pipeline.g2o import read_pose_graph
+    from pipeline.formats.g2o import read_pose_graph
 
     graph = read_pose_graph(INTEL)
     a, b = graph.edge_from, graph.edge_to

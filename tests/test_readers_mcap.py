@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
+from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 from pipeline.readers import open_recording, open_source
-from pipeline.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.sonar import beam_directions_from_angles
 from schemas.topics import (
     LABEL_TOPIC,

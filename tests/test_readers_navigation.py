@@ -12,9 +12,9 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from test_readers_mcap import write_synthetic
 from test_readers_oculus import _oculus_ping, _ros1_header
 
+from pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
 from pipeline.readers import open_recording
 from pipeline.readers.navigation import dead_reckon, pose_track, quat_to_rpy
-from pipeline.rosmsg import custom_msg_texts, ros2_typestore
 
 DVL_MSG = "Header header\ngeometry_msgs/Vector3 velocity\nfloat64 temperature\nfloat64 altitude\nfloat64 time\n"
 DEPTH_MSG = (

@@ -13,10 +13,10 @@ from PIL import Image
 from rosbags.rosbag1 import Writer as Bag1Writer
 from test_readers_mcap import N_BEAMS, N_RANGES, write_synthetic
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
+from pipeline.formats.rosmsg import ros1_typestore, ros2_typestore
 from pipeline.readers import open_recording, open_source
 from pipeline.readers.oculus_raw import OCULUS_RAW_TOPIC, parse_ping
-from pipeline.rosmsg import ros1_typestore, ros2_typestore
 from stages.keyframes import STAGE, KeyframesConfig
 
 H_TOPIC = "/sonar_oculus_node/M750d/ping"
@@ -220,7 +220,7 @@ def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
     from pipeline.cli import app
 
     try:
-        from pipeline.registry import all_stages
+        from pipeline.engine.registry import all_stages
 
         all_stages()
     except ImportError as err:

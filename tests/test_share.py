@@ -10,9 +10,9 @@ import pytest
 import toy_stages
 from test_engine_cache import did, run_toy
 
-from pipeline.errors import ArtifactCorrupt
-from pipeline.share import pull, push
-from pipeline.store import ArtifactStore
+from pipeline.engine.errors import ArtifactCorrupt
+from pipeline.engine.share import pull, push
+from pipeline.engine.store import ArtifactStore
 
 
 @pytest.fixture

@@ -33,7 +33,7 @@ def _run(seed: int = 0, duration_s: float = 2.0) -> SimRun:
 
 
 def _write(run: SimRun, path: Path, workers: int = 1) -> dict:
-    from pipeline.simulate import write_simulation
+    from pipeline.formats.simulation import write_simulation
 
     return write_simulation(run, path, scene_yaml=TINY.read_text(), workers=workers)
 
@@ -172,8 +172,8 @@ def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
 
 
 def test_template_cdr_equals_rosbags_serialisation() -> None:
-    from pipeline.rosmsg import ros2_typestore
-    from pipeline.simulate import _FastEncoder, _Messages
+    from pipeline.formats.rosmsg import ros2_typestore
+    from pipeline.formats.simulation import _FastEncoder, _Messages
 
     run = _run(seed=1, duration_s=1.0)
     frame = run.frame(1)

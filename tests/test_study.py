@@ -13,16 +13,15 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from pipeline.study import (
+from pipeline.experiments.study import write_study
+from pipeline.experiments.study_fig4 import box_stats, pooled_errors
+from pipeline.experiments.study_tables import (
     PAPER_CROSS_RATIO,
-    box_stats,
     class_rows,
     cross_ratio_rows,
-    pooled_errors,
     table_i_rows,
-    write_study,
 )
-from pipeline.sweep import RunOutcome, _flat, sweep_tables
+from pipeline.experiments.sweep import RunOutcome, _flat, sweep_tables
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -24,8 +24,8 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Print the effective config (defaults, then the file, then --set)."""
-        from pipeline.config import dump_yaml, load_config
-        from pipeline.registry import all_stages, extra_sections
+        from pipeline.engine.config import dump_yaml, load_config
+        from pipeline.engine.registry import all_stages, extra_sections
 
         cfg = load_config(all_stages(), config, set_ or (), extra_sections())
         if json_:
@@ -36,8 +36,8 @@ def register(app: typer.Typer) -> None:
     @config_app.command("check")
     def check(file: Path = typer.Argument(..., help="Config YAML to validate.")) -> None:
         """Validate a config file; exit 2 with the offending key on error."""
-        from pipeline.config import load_config
-        from pipeline.registry import all_stages, extra_sections
+        from pipeline.engine.config import load_config
+        from pipeline.engine.registry import all_stages, extra_sections
 
         load_config(all_stages(), file, (), extra_sections())
         typer.echo(f"{file}: ok")

@@ -24,7 +24,7 @@ __all__ = ["convert_recording", "register"]
 def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
     import numpy as np
 
-    from pipeline.rosmsg import ros2_typestore
+    from pipeline.formats.rosmsg import ros2_typestore
     from schemas.topics import FRAME_ODOM
 
     t = ros2_typestore().types
@@ -63,7 +63,7 @@ def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
 def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
     from scipy.spatial.transform import Rotation
 
-    from pipeline.rosmsg import ros2_typestore
+    from pipeline.formats.rosmsg import ros2_typestore
     from schemas.topics import FRAME_BASE, FRAME_SONAR
 
     t = ros2_typestore().types
@@ -87,7 +87,7 @@ def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
 def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
     import numpy as np
 
-    from pipeline.frames_io import image_message, sonar_cdr
+    from pipeline.formats.frames_io import image_message, sonar_cdr
     from schemas.topics import (
         FRAME_SONAR,
         IMAGE_TYPE,
@@ -130,10 +130,10 @@ def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int
 
 def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, Any]:
     """Convert any supported recording into a ROS 2 MCAP; returns counts per topic."""
-    from pipeline.errors import SourceError
+    from pipeline.engine.errors import SourceError
+    from pipeline.formats.rosmsg import Ros2McapWriter
     from pipeline.readers import ReaderOptions, SourceRecording, open_source
     from pipeline.readers.roles import detect_roles
-    from pipeline.rosmsg import Ros2McapWriter
     from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH, TOPIC_TF_STATIC
 
     opts = ReaderOptions.from_config(options)
@@ -180,7 +180,7 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
 
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:
-    from pipeline.errors import ConfigError
+    from pipeline.engine.errors import ConfigError
 
     out: dict[str, Any] = {}
     for item in items or []:
@@ -215,7 +215,7 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Convert a recording into a ROS 2 MCAP with ProjectedSonarImage sonar topics."""
-        from pipeline.errors import SourceError
+        from pipeline.engine.errors import SourceError
 
         if not output.parent.is_dir():
             raise SourceError(f"output directory {output.parent} does not exist")

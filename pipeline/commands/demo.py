@@ -55,8 +55,8 @@ def register(app: typer.Typer) -> None:
 
         from pipeline.api import run_dataset
         from pipeline.commands._common import stderr_console
-        from pipeline.datasets import ensure_simulation, scene_path
-        from pipeline.progress import StageProgress
+        from pipeline.engine.progress import StageProgress
+        from pipeline.training.datasets import ensure_simulation, scene_path
 
         console = stderr_console()
         scene_file = scene_path(scene)

@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
         from pipeline.api import run_dataset
-        from pipeline.progress import StageProgress
+        from pipeline.engine.progress import StageProgress
 
         with StageProgress(enabled=not quiet) as progress:
             result, summary = run_dataset(

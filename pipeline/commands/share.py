@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
-from pipeline.model_cache import DEFAULT_MODEL_CACHE
+from pipeline.training.model_cache import DEFAULT_MODEL_CACHE
 
 __all__ = ["register"]
 
@@ -29,8 +29,8 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Copy artifacts (and by default everything upstream of them) to REMOTE."""
-        from pipeline.share import push as do_push
-        from pipeline.store import ArtifactStore
+        from pipeline.engine.share import push as do_push
+        from pipeline.engine.store import ArtifactStore
 
         pushed = do_push(
             ArtifactStore(store),
@@ -53,8 +53,8 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Fetch artifacts from REMOTE, verifying keys and sha256s before committing."""
-        from pipeline.share import pull as do_pull
-        from pipeline.store import ArtifactStore
+        from pipeline.engine.share import pull as do_pull
+        from pipeline.engine.store import ArtifactStore
 
         refs = do_pull(ArtifactStore(store), remote, targets or (), with_upstream=upstream)
         if json_:

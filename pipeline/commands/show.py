@@ -41,7 +41,7 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Print an artifact's manifest and a preview of each file."""
-        from pipeline.store import ArtifactStore
+        from pipeline.engine.store import ArtifactStore
 
         st = ArtifactStore(store)
         ref = st.find(target)

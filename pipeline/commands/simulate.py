@@ -31,9 +31,10 @@ def simulate_cmd(
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from pipeline.commands._common import stderr_console
-    from pipeline.datasets import scene_path
-    from pipeline.errors import ConfigError, SourceError
-    from pipeline.simulate import render_preview, write_simulation
+    from pipeline.engine.errors import ConfigError, SourceError
+    from pipeline.formats.sim_preview import render_preview
+    from pipeline.formats.simulation import write_simulation
+    from pipeline.training.datasets import scene_path
     from sim.config import SimConfig
     from sim.dataset import simulate
     from sim.scene import SceneError, load_scene

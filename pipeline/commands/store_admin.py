@@ -16,7 +16,7 @@ def register(app: typer.Typer) -> None:
     @app.command("ls")
     def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
         """List the artifacts in the store."""
-        from pipeline.store import ArtifactStore
+        from pipeline.engine.store import ArtifactStore
 
         rows: list[dict[str, Any]] = [
             {
@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Remove artifacts no recorded run references, and stale temporaries."""
-        from pipeline.store import ArtifactStore
+        from pipeline.engine.store import ArtifactStore
 
         report = ArtifactStore(store).gc(dry_run=dry_run)
         if json_:

@@ -7,15 +7,16 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
-from pipeline.study import PAPER_TABLE_I, table_i
+from pipeline.experiments.study import table_i
+from pipeline.experiments.study_tables import PAPER_TABLE_I
 
 __all__ = ["PAPER_TABLE_I", "register", "table_i"]
 
 
 def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | None]]:
     """[{"name", "config"}]: the defaults (unless left out), then each file by its stem."""
-    from pipeline.errors import ConfigError
-    from pipeline.study import DEFAULT_PROTOCOL
+    from pipeline.engine.errors import ConfigError
+    from pipeline.experiments.study_tables import DEFAULT_PROTOCOL
 
     protocols: list[dict[str, str | None]] = (
         [{"name": DEFAULT_PROTOCOL, "config": None}] if with_default else []
@@ -77,11 +78,11 @@ def register(app: typer.Typer) -> None:
         import time
 
         from pipeline.commands._common import stderr_console
-        from pipeline.config import load_config
-        from pipeline.datasets import ensure_simulation, scene_path
-        from pipeline.registry import all_stages, extra_sections
-        from pipeline.study import write_study
-        from pipeline.sweep import expand, run_sweep
+        from pipeline.engine.config import load_config
+        from pipeline.engine.registry import all_stages, extra_sections
+        from pipeline.experiments.study import write_study
+        from pipeline.experiments.sweep import expand, run_sweep
+        from pipeline.training.datasets import ensure_simulation, scene_path
 
         console = stderr_console()
         t0 = time.perf_counter()

@@ -35,8 +35,8 @@ def register(app: typer.Typer) -> None:
         import hashlib
 
         from pipeline.commands._common import stderr_console
-        from pipeline.sweep import expand, run_sweep
-        from pipeline.sweep_output import write_sweep
+        from pipeline.experiments.sweep import expand, run_sweep
+        from pipeline.experiments.sweep_output import write_sweep
 
         specs = expand(
             datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store

@@ -14,7 +14,7 @@ __all__ = ["register", "topics_report"]
 
 def topics_report(path: Path, options: Any = None) -> dict[str, Any]:
     """What `topics --json` prints: every topic with its role, plus warnings."""
-    from pipeline.errors import SourceError
+    from pipeline.engine.errors import SourceError
     from pipeline.readers import ReaderOptions, open_source
     from pipeline.readers.roles import detect_roles
 

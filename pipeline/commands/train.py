@@ -2,7 +2,7 @@
 
 Each dataset runs through the cached graph up to `features` (keyframes with label
 images, CFAR features, with the `training.keyframes`/`training.features` settings unless
-`training.follow_run`), then the cached `train` stage (`pipeline.training.train_on`);
+`training.follow_run`), then the cached `train` stage (`pipeline.training.model.train_on`);
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
 file instead of label images (format: README, `schemas.annotations`).
@@ -50,10 +50,10 @@ def register(app: typer.Typer) -> None:
         """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
         import shutil
 
-        from pipeline.annotations import annotation_path
         from pipeline.api import plan_dataset
-        from pipeline.errors import SourceError
-        from pipeline.training import train_on
+        from pipeline.engine.errors import SourceError
+        from pipeline.training.annotations import annotation_path
+        from pipeline.training.model import train_on
 
         t0 = time.perf_counter()
         for path in datasets:

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.readers.recording import ReaderOptions, SourceRecording
-from pipeline.readers.sources import Source, TopicInfo, dataset_fingerprint_parts, open_source
+from pipeline.readers.source_types import Source, TopicInfo
+from pipeline.readers.sources import dataset_fingerprint_parts, open_source
 
 __all__ = [
     "ReaderOptions",

@@ -23,9 +23,9 @@ from mcap.reader import SeekingReader
 from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
 from mcap.summary import Summary
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
 from pipeline.readers.mcap_scan import ScanResult, decompress_chunk, scan_records
-from pipeline.readers.sources import TopicInfo, check_counts
+from pipeline.readers.source_types import TopicInfo, check_counts
 from pipeline.readers.typestores import Ros2Decoder
 
 __all__ = ["McapSource"]

@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
 from pipeline.readers.navigation import dead_reckon, pose_track
 from pipeline.readers.roles import Roles, detect_roles
 from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
-from pipeline.readers.sources import Source
+from pipeline.readers.source_types import Source
 from schemas.recording import PoseTrack
 from schemas.sonar import SonarPing, beam_angles_from_directions
 from schemas.topics import FRAME_BASE, FRAME_SONAR, SONARS

@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
 from pipeline.readers.navigation import NAV_TYPES
 from pipeline.readers.sonar_decode import IMAGE_SONAR_TYPES, SONAR_TYPES
-from pipeline.readers.sources import TopicInfo
+from pipeline.readers.source_types import TopicInfo
 from schemas.topics import SONARS, TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH, TOPIC_TF_STATIC
 
 __all__ = ["Roles", "detect_roles", "topic_listing"]

@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import SourceError
-from pipeline.readers.sources import TopicInfo, check_counts
-from pipeline.rosmsg import ros1_typestore
+from pipeline.engine.errors import SourceError
+from pipeline.formats.rosmsg import ros1_typestore
+from pipeline.readers.source_types import TopicInfo, check_counts
 
 __all__ = ["Ros1Source"]
 

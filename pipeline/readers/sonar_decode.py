@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
 from schemas.sonar import SonarPing, beam_angles_from_directions
 
 __all__ = [

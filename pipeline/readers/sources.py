@@ -9,82 +9,18 @@ times in integer nanoseconds; they are what pairs the sonars and the navigation.
 from __future__ import annotations
 
 import logging
-from collections.abc import Collection, Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
-import numpy as np
-
-from pipeline.errors import SourceError
+from pipeline.engine.errors import SourceError
+from pipeline.readers.source_types import Source
 
 __all__ = [
-    "Source",
-    "TopicInfo",
     "dataset_fingerprint_parts",
     "open_source",
 ]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class TopicInfo:
-    """One topic of a recording.
-
-    Attributes:
-        topic: topic name.
-        msgtype: ROS 2 style type name ("pkg/msg/Type").
-        count: messages actually present (read from the data or a verified index).
-        first_ns, last_ns: first/last log time [ns], None when the topic is empty.
-        indexed_count: the count the file's own index/metadata claims (None if it has none).
-    """
-
-    topic: str
-    msgtype: str
-    count: int
-    first_ns: int | None
-    last_ns: int | None
-    indexed_count: int | None = None
-
-    @property
-    def rate_hz(self) -> float:
-        """Mean message rate over the topic's time span (0 for fewer than two messages)."""
-        if self.count < 2 or self.first_ns is None or self.last_ns is None:
-            return 0.0
-        span = (self.last_ns - self.first_ns) * 1e-9
-        return (self.count - 1) / span if span > 0 else 0.0
-
-
-class Source(Protocol):
-    """What every reader backend offers."""
-
-    path: Path
-    kind: str
-    warnings: list[str]
-
-    def topics(self) -> list[TopicInfo]:
-        """Every topic with its type and counts, sorted by name."""
-        ...
-
-    def times(self, topic: str) -> np.ndarray:
-        """(n,) int64 log times [ns] of the topic's messages, ascending."""
-        ...
-
-    def messages(
-        self, topics: Sequence[str], times: Collection[int] | None = None
-    ) -> Iterator[tuple[str, int, Any]]:
-        """Deserialised `(topic, t_ns, message)` in log-time order.
-
-        Args:
-            topics: topics to read.
-            times: when given, only messages with these log times are deserialised.
-        """
-        ...
-
-    def attachments(self) -> dict[str, bytes]:
-        """Named attachments (e.g. "scene.ply"); empty when the format has none."""
-        ...
 
 
 def _sniff(path: Path) -> str:
@@ -185,15 +121,3 @@ def dataset_fingerprint_parts(path: Path) -> list[Path]:
     if not path.is_file():
         raise SourceError(f"{path}: no such file")
     return [path.resolve()]
-
-
-def check_counts(path: Path, topics: list[TopicInfo], warnings: list[str]) -> None:
-    """Warn about topics whose index claims more (or fewer) messages than are present."""
-    for info in topics:
-        if info.indexed_count is not None and info.indexed_count != info.count:
-            msg = (
-                f"{path}: topic {info.topic} has {info.count} readable messages but the "
-                f"bag's index says {info.indexed_count}"
-            )
-            warnings.append(msg)
-            log.warning(msg)

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.errors import SourceError
-from pipeline.readers.sources import TopicInfo, check_counts
+from pipeline.engine.errors import SourceError
+from pipeline.readers.source_types import TopicInfo, check_counts
 from pipeline.readers.typestores import Ros2Decoder
 
 __all__ = ["SqliteSource"]

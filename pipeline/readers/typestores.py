@@ -8,8 +8,8 @@ from typing import Any
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
 from pipeline.readers.sonar_decode import ProjectedArrays
-from pipeline.rosmsg import custom_msg_texts, ros2_typestore
 
 __all__ = ["Ros2Decoder"]
 

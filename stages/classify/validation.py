@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -12,16 +12,23 @@ from stages._lazy import lazy
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
-    from stages.classify.train import TrainConfig
 
 cnn = lazy("stages.classify.cnn")
 
-__all__ = ["confusion_png", "evaluate"]
+__all__ = ["McSettings", "confusion_png", "evaluate"]
+
+
+class McSettings(Protocol):
+    """What the validation reads of the training config (`TrainConfig` has them)."""
+
+    mc_passes: int
+    seed: int
+    threshold: float
 
 
 def evaluate(
     model: PatchCNN, patches: np.ndarray, target: np.ndarray, class_names: Sequence[str],
-    cfg: TrainConfig,
+    cfg: McSettings,
 ) -> dict[str, Any]:  # fmt: skip
     """Validation metrics with MC dropout (m = cfg.mc_passes, seeded).
 

@@ -25,8 +25,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
-from pipeline.errors import ArtifactCorrupt
-from pipeline.store import ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
+from pipeline.engine.errors import ArtifactCorrupt
+from pipeline.engine.store import ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
 from stages.base import Stage
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "describe",
     "model_cache",
     "resolve_default_model",
+    "resolve_model",
 ]
 
 log = logging.getLogger(__name__)
@@ -86,7 +87,7 @@ def describe(model: Mapping[str, Any]) -> str:
 
 def model_cache(config: BaseModel) -> ArtifactStore:
     """The machine-wide model cache of `config`'s `training` section."""
-    from pipeline.training import TrainingDataConfig
+    from pipeline.training.config import TrainingDataConfig
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     return ArtifactStore(Path(training.directory) / CACHE_DIR)
@@ -132,9 +133,9 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
             names the artifact directory to remove).
         SourceError: a training dataset is unusable.
     """
-    from pipeline.annotations import annotation_path
-    from pipeline.training import (
-        TrainingDataConfig,
+    from pipeline.training.annotations import annotation_path
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.model import (
         plan_training,
         train_on,
         training_datasets,
@@ -166,3 +167,9 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
     chosen = ResolvedModel(stage, ref, source, cache.root)
     log.info("%s", chosen.describe())
     return chosen
+
+
+def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, ArtifactRef]:
+    """The default model's training stage and artifact in `store` (`resolve_default_model`)."""
+    chosen = resolve_default_model(store, config)
+    return chosen.stage, chosen.ref

@@ -21,11 +21,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.codecs import read_output, write_output
-from pipeline.config import section_dict
-from pipeline.errors import ConfigError, PipelineError, StageFailed
-from pipeline.hashing import canonical_json, recipe_key, stage_recipe
-from pipeline.store import ArtifactRef, ArtifactStore
+from pipeline.engine.codecs import read_output, write_output
+from pipeline.engine.config import section_dict
+from pipeline.engine.errors import ConfigError, PipelineError, StageFailed
+from pipeline.engine.hashing import canonical_json, recipe_key, stage_recipe
+from pipeline.engine.store import ArtifactRef, ArtifactStore
 from schemas import SCHEMA_VERSION
 from stages.base import Stage
 

@@ -18,7 +18,7 @@ from typing import Any, cast
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
-from pipeline.errors import ConfigError
+from pipeline.engine.errors import ConfigError
 from stages.base import Stage
 
 __all__ = [

@@ -19,8 +19,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError, PipelineError
-from pipeline.headline_columns import frame_of, headline_columns, headline_header, shared_frame
+from pipeline.engine.errors import ConfigError, PipelineError
+from pipeline.experiments.headline_columns import (
+    frame_of,
+    headline_columns,
+    headline_header,
+    shared_frame,
+)
 
 __all__ = [
     "ALL_STRUCTURE",

@@ -5,7 +5,7 @@ from __future__ import annotations
 from types import TracebackType
 from typing import Any
 
-from pipeline.runner import PlannedStage, StageResult
+from pipeline.engine.runner import PlannedStage, StageResult
 
 __all__ = ["StageProgress"]
 

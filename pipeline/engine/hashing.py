@@ -18,7 +18,7 @@ from typing import Any
 
 from filelock import FileLock
 
-from pipeline.errors import ConfigError, SourceError
+from pipeline.engine.errors import ConfigError, SourceError
 
 __all__ = [
     "STORE_FORMAT_VERSION",

@@ -9,11 +9,11 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.config import load_config
-from pipeline.errors import SourceError
-from pipeline.hashing import FingerprintCache
-from pipeline.runner import DatasetSpec
-from pipeline.store import ArtifactStore
+from pipeline.engine.config import load_config
+from pipeline.engine.errors import SourceError
+from pipeline.engine.hashing import FingerprintCache
+from pipeline.engine.runner import DatasetSpec
+from pipeline.engine.store import ArtifactStore
 from stages.base import Stage
 
 __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context"]
@@ -22,7 +22,7 @@ DEFAULT_STORE = Path("data/store")
 
 
 def _default_parts(path: Path) -> list[Path]:
-    from pipeline.registry import alternative_graph
+    from pipeline.engine.registry import alternative_graph
 
     alt = alternative_graph()
     if alt is not None:
@@ -34,7 +34,7 @@ def _default_parts(path: Path) -> list[Path]:
 
 def _default_open(path: Path) -> Callable[[Any], Any]:
     def opener(section: Any) -> Any:
-        from pipeline.registry import alternative_graph
+        from pipeline.engine.registry import alternative_graph
 
         alt = alternative_graph()
         if alt is not None:

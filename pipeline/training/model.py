@@ -7,7 +7,7 @@ the stage version. The training datasets are built with the `training` section's
 `keyframes` and `features` settings, so a run's `--set keyframes.spacing_m=4` maps
 with the same model (`training.follow_run: true` builds them with the run's settings
 instead). `sonarmap run` binds the resulting `model.pt` to `classify`'s "train.model"
-input; trained models live in the machine-wide cache of `pipeline.model_cache`.
+input; trained models live in the machine-wide cache of `pipeline.training.model_cache` (`resolve_model`).
 
 A recording with an annotation file beside it (`<stem>.annotations.yaml`, format in
 `schemas.annotations`) is labelled by that file instead of label images: its content
@@ -21,21 +21,17 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel
 
-from pipeline.runner import DatasetSpec, execute, plan
-from pipeline.session import dataset_spec
-from pipeline.store import ArtifactRef, ArtifactStore
+from pipeline.engine.runner import DatasetSpec, execute, plan
+from pipeline.engine.session import dataset_spec
+from pipeline.engine.store import ArtifactRef, ArtifactStore
+from pipeline.training.config import TrainingDataConfig
 from schemas.sonar import KeyframeImages
 from stages.base import Stage
-from stages.features import FeaturesConfig
-from stages.keyframes import KeyframesConfig
 
 __all__ = [
-    "TrainingDataConfig",
-    "TrainingSet",
     "plan_training",
-    "resolve_model",
     "train_on",
     "training_config",
     "training_datasets",
@@ -43,50 +39,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-class TrainingSet(BaseModel):
-    """One simulated mission the default classifier learns from."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-    scene: str
-    seed: int = Field(ge=0)
-    goals: int = Field(ge=1)
-    duration_s: float | None = Field(None, gt=0)
-
-
-class TrainingDataConfig(BaseModel):
-    """Config section `training`: which labelled datasets the default model is trained on.
-
-    The mapped scene should not be among them (the default marina never is). Seeds are
-    far from the study's 0..N-1. Simulated files go to `directory` and are reused; the
-    trained models go to the model cache `<directory>/store` (`pipeline.model_cache`),
-    which every store on the machine reuses.
-    """
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-    sets: tuple[TrainingSet, ...] = (
-        TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
-        TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
-    )
-    directory: str = "data/training"
-    recorded: tuple[str, ...] = Field(
-        default=(),
-        description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",
-    )
-    keyframes: KeyframesConfig = Field(
-        default_factory=KeyframesConfig, description="keyframe selection of the training datasets"
-    )
-    # model_validate: mypy reads the stage's positional Field defaults as required fields.
-    features: FeaturesConfig = Field(
-        default_factory=lambda: FeaturesConfig.model_validate({}),
-        description="CFAR features of the training datasets",
-    )
-    follow_run: bool = Field(
-        default=False,
-        description="build the training datasets with the run's keyframes/features sections"
-        " instead (a model matched to them, trained once per setting)",
-    )
 
 
 def training_config(config: BaseModel) -> BaseModel:
@@ -113,7 +65,7 @@ def training_stage_for(
     images. `names` (the datasets' paths) only word error messages. Outputs and config
     are those of `stages.classify.train`.
     """
-    from pipeline.registry import training_stage
+    from pipeline.engine.registry import training_stage
     from schemas.annotations import AnnotationFile
     from stages.classify.annotations import label_keyframes
     from stages.classify.train import train_classifier
@@ -164,8 +116,8 @@ def _bind_training(
     With `compute=False` nothing is computed (annotation files, whose content is their
     key, are committed): the placeholders carry the keys the train stage's key needs.
     """
-    from pipeline.annotations import ANNOTATIONS_STAGE, annotation_path, commit_annotations
-    from pipeline.registry import pipeline_stages
+    from pipeline.engine.registry import pipeline_stages
+    from pipeline.training.annotations import ANNOTATIONS_STAGE, annotation_path, commit_annotations
 
     upstream = pipeline_stages()[:2]
     external: dict[str, tuple[Stage, ArtifactRef]] = {}
@@ -210,7 +162,7 @@ def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) 
     """Run keyframes + features on each dataset, then the train stage; return the model artifact.
 
     Keyframes and features use the `training` section's settings (`training_config`). A
-    dataset with an annotation file beside it (`pipeline.annotations.annotation_path`)
+    dataset with an annotation file beside it (`pipeline.training.annotations.annotation_path`)
     is labelled by that file; the others need label images (simulated recordings).
 
     Raises:
@@ -230,9 +182,9 @@ def training_datasets(training: TrainingDataConfig) -> list[Path]:
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    from pipeline.annotations import annotation_path
-    from pipeline.datasets import ensure_simulation, scene_path
-    from pipeline.errors import SourceError
+    from pipeline.engine.errors import SourceError
+    from pipeline.training.annotations import annotation_path
+    from pipeline.training.datasets import ensure_simulation, scene_path
 
     paths = []
     for item in training.sets:
@@ -253,11 +205,3 @@ def training_datasets(training: TrainingDataConfig) -> list[Path]:
             )
         paths.append(path)
     return paths
-
-
-def resolve_model(store: ArtifactStore, config: BaseModel) -> tuple[Stage, ArtifactRef]:
-    """The default model for `classify`, in `store` (`pipeline.model_cache.resolve_default_model`)."""
-    from pipeline.model_cache import resolve_default_model
-
-    chosen = resolve_default_model(store, config)
-    return chosen.stage, chosen.ref

@@ -18,8 +18,14 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ArtifactCorrupt, StoreError
-from pipeline.store import MANIFEST, ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
+from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.store import (
+    MANIFEST,
+    ArtifactRef,
+    ArtifactStore,
+    safe_relative,
+    verify_artifact_dir,
+)
 
 __all__ = ["pull", "push"]
 

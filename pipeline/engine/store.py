@@ -22,8 +22,8 @@ from typing import Any
 
 from filelock import FileLock
 
-from pipeline.errors import ArtifactCorrupt, StoreError
-from pipeline.hashing import STORE_FORMAT_VERSION, recipe_key, sha256_file
+from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.hashing import STORE_FORMAT_VERSION, recipe_key, sha256_file
 
 __all__ = ["MANIFEST", "ArtifactRef", "ArtifactStore", "safe_relative"]
 

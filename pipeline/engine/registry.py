@@ -7,7 +7,7 @@ import importlib
 import os
 from typing import Any
 
-from pipeline.errors import ConfigError
+from pipeline.engine.errors import ConfigError
 from stages.base import Stage
 
 __all__ = [
@@ -74,7 +74,7 @@ def extra_sections() -> dict[str, Any]:
     """Config sections of the engine that are not stages (none for alternative graphs)."""
     if alternative_graph() is not None:
         return {}
-    from pipeline.training import TrainingDataConfig
+    from pipeline.training.config import TrainingDataConfig
 
     return {"training": TrainingDataConfig}
 

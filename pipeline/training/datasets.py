@@ -13,11 +13,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import ConfigError
+from pipeline.engine.errors import ConfigError
 
 __all__ = ["SCENES_DIR", "ensure_simulation", "scene_path"]
 
-SCENES_DIR = Path(__file__).resolve().parents[1] / "configs" / "scenes"
+SCENES_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenes"
 
 
 def scene_path(name_or_path: str | Path) -> Path:
@@ -64,8 +64,8 @@ def ensure_simulation(
         except ValueError:
             pass
     # Only a miss pays for the simulator's imports (open3d).
-    from pipeline.errors import SourceError
-    from pipeline.simulate import write_simulation
+    from pipeline.engine.errors import SourceError
+    from pipeline.formats.simulation import write_simulation
     from sim.config import SimConfig
     from sim.dataset import simulate
     from sim.scene import SceneError, load_scene

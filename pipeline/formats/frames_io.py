@@ -18,9 +18,9 @@ from typing import Any, overload
 import numpy as np
 from mcap.reader import make_reader
 
-from pipeline.errors import ArtifactCorrupt
+from pipeline.engine.errors import ArtifactCorrupt
+from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 from pipeline.readers.sonar_decode import ProjectedArrays, serialize_projected_cdr
-from pipeline.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.sonar import (
     KeyframeImages,
     SonarPing,

@@ -16,10 +16,10 @@ from typing import Any
 import yaml
 from pydantic import ValidationError
 
-from pipeline.codecs import write_output
-from pipeline.errors import SourceError
-from pipeline.hashing import recipe_key
-from pipeline.store import ArtifactRef, ArtifactStore
+from pipeline.engine.codecs import write_output
+from pipeline.engine.errors import SourceError
+from pipeline.engine.hashing import recipe_key
+from pipeline.engine.store import ArtifactRef, ArtifactStore
 from schemas.annotations import AnnotationFile
 from stages.base import Output, Stage, StageConfig
 from stages.classify.annotations import RASTER_VERSION

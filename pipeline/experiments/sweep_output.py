@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.sweep import RunOutcome, group_label, sweep_tables
+from pipeline.experiments.sweep import RunOutcome, group_label, sweep_tables
 
 __all__ = ["write_sweep"]
 

@@ -15,7 +15,7 @@ from typing import Any
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.errors import InternalError, StageFailed
+from pipeline.engine.errors import InternalError, StageFailed
 from stages.base import Output
 
 __all__ = ["read_output", "validate_table", "write_output"]
@@ -64,7 +64,7 @@ def write_output(
         path.write_bytes(bytes(value))
         return {"bytes": len(value)}
     if output.kind == "frames":
-        from pipeline.frames_io import write_frames
+        from pipeline.formats.frames_io import write_frames
 
         return {"frames": write_frames(value, path)}
     raise InternalError(f"stage {stage}: unknown output kind {output.kind!r}")
@@ -84,7 +84,7 @@ def read_output(directory: Path, output: Output) -> Any:
     if output.kind == "bytes":
         return path.read_bytes()
     if output.kind == "frames":
-        from pipeline.frames_io import read_frames
+        from pipeline.formats.frames_io import read_frames
 
         return read_frames(path)
     raise InternalError(f"unknown output kind {output.kind!r}")

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.rosmsg import Ros2McapWriter, ros2_typestore
+from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.classes import CLASS_IDS, UNKNOWN_CLASS
 
 __all__ = [

@@ -1,0 +1,57 @@
+"""Config section `training`: the labelled datasets the default classifier is trained on.
+
+A leaf module (pydantic and the stage configs only), so the engine's registry can list
+the section without importing the training machinery, which itself needs the engine."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from stages.features import FeaturesConfig
+from stages.keyframes import KeyframesConfig
+
+__all__ = ["TrainingDataConfig", "TrainingSet"]
+
+
+class TrainingSet(BaseModel):
+    """One simulated mission the default classifier learns from."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    scene: str
+    seed: int = Field(ge=0)
+    goals: int = Field(ge=1)
+    duration_s: float | None = Field(None, gt=0)
+
+
+class TrainingDataConfig(BaseModel):
+    """Config section `training`: which labelled datasets the default model is trained on.
+
+    The mapped scene should not be among them (the default marina never is). Seeds are
+    far from the study's 0..N-1. Simulated files go to `directory` and are reused; the
+    trained models go to the model cache `<directory>/store` (`pipeline.training.model_cache`),
+    which every store on the machine reuses.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    sets: tuple[TrainingSet, ...] = (
+        TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
+        TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
+    )
+    directory: str = "data/training"
+    recorded: tuple[str, ...] = Field(
+        default=(),
+        description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",
+    )
+    keyframes: KeyframesConfig = Field(
+        default_factory=KeyframesConfig, description="keyframe selection of the training datasets"
+    )
+    # model_validate: mypy reads the stage's positional Field defaults as required fields.
+    features: FeaturesConfig = Field(
+        default_factory=lambda: FeaturesConfig.model_validate({}),
+        description="CFAR features of the training datasets",
+    )
+    follow_run: bool = Field(
+        default=False,
+        description="build the training datasets with the run's keyframes/features sections"
+        " instead (a model matched to them, trained once per setting)",
+    )
