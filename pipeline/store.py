@@ -141,15 +141,19 @@ class ArtifactStore:
         """Every directory under a stage folder: a committed artifact or a `Problem`.
 
         A directory without a manifest (its manifest deleted, or copied in by hand) is
-        not an artifact; neither is one whose manifest does not validate.
+        not an artifact; neither is one whose manifest does not validate. Names the
+        store could never have written (not a stage identifier, not a hex key) are not
+        ours and are left alone.
         """
         if not self.root.is_dir():
             return
         for stage_dir in sorted(p for p in self.root.iterdir() if p.is_dir()):
-            if stage_dir.name.startswith(".") or stage_dir.name == _RUNS:
+            if not stage_dir.name.isidentifier() or stage_dir.name == _RUNS:
                 continue
             for key_dir in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
                 stage, key = stage_dir.name, key_dir.name
+                if not key or key.strip("0123456789abcdef"):
+                    continue
                 try:
                     ref = self._load(stage, key)
                 except StoreError as err:

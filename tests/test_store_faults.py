@@ -157,8 +157,13 @@ def test_manifestless_directory_is_replaced_and_collected(toy: tuple[Path, Path]
     assert run_json(data, store)["double"] == "computed"
     ArtifactStore(store).verify(ArtifactStore(store).find("double"))
     (artifact(store, "double") / "manifest.json").unlink()
+    # Names the store never writes are not its own: gc leaves them alone.
+    foreign = [store / "double" / "notes", store / "my-notes" / ("ab" * 32)]
+    for path in foreign:
+        path.mkdir(parents=True)
     report = json.loads(cli("gc", "--store", store, "--json").stdout)
     assert report["removed"] == [f"double/{victim.name}"] and not victim.exists()
+    assert all(path.is_dir() for path in foreign)
 
 
 BAD_MANIFESTS = {
