@@ -157,7 +157,7 @@ class ArtifactStore:
                 try:
                     ref = self._load(stage, key)
                 except StoreError as err:
-                    yield Problem(stage, key, key_dir, str(err))
+                    yield Problem(stage, key, key_dir, str(err).removeprefix(f"{key_dir}/"))
                     continue
                 yield ref if ref is not None else Problem(stage, key, key_dir, "no manifest")
 

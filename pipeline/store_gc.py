@@ -140,6 +140,12 @@ def _delete(path: Path) -> None:
             path.unlink()
 
 
+def _dir_bytes(path: Path) -> int:
+    with contextlib.suppress(OSError):
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    return 0
+
+
 def _size(ref: ArtifactRef) -> int:
     return sum(int(f["size"]) for f in ref.manifest["files"].values())
 
@@ -169,15 +175,18 @@ def collect(
             try:
                 verify_artifact_dir(item.path, item.manifest)
             except StoreError as err:
-                bad.append(Problem(item.stage, item.key, item.path, str(err)))
+                reason = str(err).removeprefix(f"{item.path}: ")
+                bad.append(Problem(item.stage, item.key, item.path, reason))
                 continue
         refs[(item.stage, item.key)] = item
     keep = reachable(refs, _roots(store.run_records()))
     removed, broken_lines, freed = [], [], 0
     for problem in bad:
         broken_lines.append(str(problem))
+        size = _dir_bytes(problem.path)
         if dry_run or _remove_dir(store, problem.stage, problem.key, problem.path):
             removed.append(f"{problem.stage}/{problem.key}")
+            freed += size
     for address, ref in refs.items():
         if address in keep:
             continue
