@@ -30,7 +30,9 @@ _Address = Annotated[str, Field(pattern=ADDRESS_PATTERN)]
 class FileEntry(BaseModel):
     """One file of an artifact as the manifest lists it."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", strict=True)
+    # Unknown keys are ignored: a newer writer may add some, and a listed file must not
+    # become "broken" (and collectable) for that.
+    model_config = ConfigDict(frozen=True, extra="ignore", strict=True)
     sha256: str = Field(pattern=r"^[0-9a-f]{64}$")
     size: int = Field(ge=0)
 
