@@ -10,7 +10,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.codecs import read_output
+from pipeline.engine.codecs import read_verified
 from pipeline.engine.runner import PlannedStage, RunResult, StageResult, execute, plan
 from pipeline.engine.session import DEFAULT_STORE, RunContext, make_context
 from pipeline.engine.store import ArtifactRef
@@ -119,7 +119,7 @@ def run_dataset(
 
 def _json_output(stage: Stage, ref: ArtifactRef, name: str) -> Any:
     output = next((o for o in stage.outputs if o.name == name and o.kind == "json"), None)
-    return None if output is None else read_output(ref.path, output)
+    return None if output is None else read_verified(ref, output)
 
 
 def summarize(stages: Sequence[Stage], artifacts: Mapping[str, ArtifactRef]) -> dict[str, Any]:
@@ -139,7 +139,7 @@ def summarize(stages: Sequence[Stage], artifacts: Mapping[str, ArtifactRef]) -> 
 
         output = next(o for o in by_name["classify"].outputs if o.name == "objects")
         summary["classification"] = classification_scores(
-            read_output(artifacts["classify"].path, output)
+            read_verified(artifacts["classify"], output)
         )
     if "voxelize" in artifacts:
         vox = _json_output(by_name["voxelize"], artifacts["voxelize"], "summary") or {}

@@ -54,6 +54,11 @@ def _source(config: SourceConfig, inputs: dict[str, Any]) -> dict[str, Any]:
 def _double(config: DoubleConfig, inputs: dict[str, Any]) -> dict[str, Any]:
     _mark("double")
     time.sleep(config.sleep_s)
+    # Lets a concurrency test hold this stage until a second process waits on its lock.
+    gate = os.environ.get("TOY_GATE")
+    deadline = time.monotonic() + 60
+    while gate and not Path(gate).exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
     t = inputs["source.table"]
     v = t.column("v").to_numpy() * config.factor
     return {"table": pa.table({"i": t.column("i"), "v": v}), "blob": v.tobytes()}

@@ -60,4 +60,8 @@ def register(app: typer.Typer) -> None:
         console.print_json(json.dumps(ref.manifest, default=str))
         for name in ref.manifest.get("files", {}):
             console.rule(name)
-            console.print(_preview(ref.file(name)), markup=False, highlight=False)
+            try:
+                preview = _preview(ref.file(name))
+            except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
+                preview = f"unreadable ({type(err).__name__}); check with `show --verify`"
+            console.print(preview, markup=False, highlight=False)

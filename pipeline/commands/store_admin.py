@@ -16,20 +16,26 @@ def register(app: typer.Typer) -> None:
     @app.command("ls")
     def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
         """List the artifacts in the store."""
-        from pipeline.engine.store import ArtifactStore
+        from pipeline.engine.store import ArtifactRef, ArtifactStore
 
+        items = list(ArtifactStore(store).scan())
         rows: list[dict[str, Any]] = [
             {
                 "stage": r.stage,
                 "key": r.key,
                 "created_at": r.manifest.get("created_at"),
-                "bytes": sum(int(f["size"]) for f in r.manifest.get("files", {}).values()),
+                "bytes": sum(int(f["size"]) for f in r.manifest["files"].values()),
                 "path": str(r.path),
             }
-            for r in ArtifactStore(store).iter_artifacts()
+            for r in items
+            if isinstance(r, ArtifactRef)
         ]
+        broken = [str(p) for p in items if not isinstance(p, ArtifactRef)]
+        # One line per directory that is not an artifact; the listing goes on regardless.
+        for line in broken:
+            typer.echo(f"warning: {line} (`sonarmap gc` removes it)", err=True)
         if json_:
-            emit_json({"store": str(store), "artifacts": rows})
+            emit_json({"store": str(store), "artifacts": rows, "broken": broken})
             return
         from rich.console import Console
         from rich.table import Table
@@ -47,17 +53,24 @@ def register(app: typer.Typer) -> None:
     def gc(
         store: Path = STORE_OPT,
         dry_run: bool = typer.Option(False, "--dry-run", help="Only say what would go."),
+        broken: bool = typer.Option(
+            False, "--broken", help="Also re-hash every artifact and remove those that fail."
+        ),
         json_: bool = JSON_OPT,
     ) -> None:
-        """Remove artifacts no recorded run references, and stale temporaries."""
+        """Remove unreferenced artifacts, directories that are not artifacts, and leftovers
+        of killed runs."""
         from pipeline.engine.store import ArtifactStore
 
-        report = ArtifactStore(store).gc(dry_run=dry_run)
+        report = ArtifactStore(store).gc(dry_run=dry_run, broken=broken)
         if json_:
             emit_json(report)
             return
         verb = "would remove" if dry_run else "removed"
+        for line in report["broken"]:
+            typer.echo(f"{verb} {line}", err=True)
         typer.echo(
-            f"{verb} {len(report['removed'])} artifacts ({report['bytes_freed'] / 1e6:.1f} MB), "
-            f"{report['tmp_removed']} stale temporaries; kept {report['kept']}"
+            f"{verb} {len(report['removed'])} artifacts ({report['bytes_freed'] / 1e6:.1f} MB, "
+            f"{len(report['broken'])} broken), {report['tmp_removed']} leftovers of killed runs; "
+            f"kept {report['kept']}"
         )

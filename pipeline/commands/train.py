@@ -68,8 +68,10 @@ def register(app: typer.Typer) -> None:
         except ValueError as err:
             raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
         out.mkdir(parents=True, exist_ok=True)
+        from pipeline.engine.integrity import verify_file
+
         for name in ("model.pt", "metrics.json", "confusion.png"):
-            shutil.copyfile(ref.path / name, out / name)
+            shutil.copyfile(verify_file(ref, name), out / name)
         metrics = json.loads((ref.path / "metrics.json").read_text())
         trained = {"metrics": metrics}
         doc = {

@@ -8,17 +8,20 @@ in the schema, never timestamps, so the same inputs give the same bytes.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, MutableSet
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.engine.errors import InternalError, StageFailed
+from pipeline.engine.errors import ArtifactCorrupt, InternalError, PipelineError, StageFailed
 from stages.base import Output
 
-__all__ = ["read_output", "validate_table", "write_output"]
+if TYPE_CHECKING:
+    from pipeline.engine.store import ArtifactRef
+
+__all__ = ["read_output", "read_verified", "validate_table", "write_output"]
 
 
 def validate_table(stage: str, output: Output, table: Any) -> pa.Table:
@@ -68,6 +71,43 @@ def write_output(
 
         return {"frames": write_frames(value, path)}
     raise InternalError(f"stage {stage}: unknown output kind {output.kind!r}")
+
+
+def read_verified(
+    ref: ArtifactRef, output: Output, verified: MutableSet[tuple[str, str, str]] | None = None
+) -> Any:
+    """Read one output of a committed artifact after checking it against the manifest.
+
+    `verified` remembers (stage, key, file) already hashed in this run, so a file
+    bound by several stages costs one hash. A file the manifest does not list is
+    never read, even if one lies on disk.
+    """
+    from pipeline.engine.integrity import recovery_hint, verify_file
+
+    name = output.filename
+    if name not in ref.manifest["files"]:
+        if output.optional:
+            return None
+        raise ArtifactCorrupt(
+            f"artifact {ref.stage}/{ref.key[:12]}: its manifest lists no '{name}'; "
+            f"{recovery_hint(ref.stage)}"
+        )
+    tag = (ref.stage, ref.key, name)
+    if verified is None or tag not in verified:
+        verify_file(ref, name)
+        if verified is not None:
+            verified.add(tag)
+    try:
+        return read_output(ref.path, output)
+    except PipelineError:
+        raise
+    except (OSError, ValueError) as err:
+        # pyarrow's ArrowInvalid and json's errors are ValueErrors.
+        reason = (str(err).splitlines() or [type(err).__name__])[0]
+        raise ArtifactCorrupt(
+            f"artifact {ref.stage}/{ref.key[:12]}: '{name}' does not parse as {output.kind} "
+            f"({reason}); {recovery_hint(ref.stage)}"
+        ) from err
 
 
 def read_output(directory: Path, output: Output) -> Any:

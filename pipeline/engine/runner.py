@@ -12,7 +12,6 @@ import hashlib
 import logging
 import shutil
 import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -21,7 +20,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.codecs import read_output, write_output
+from pipeline.engine.codecs import read_verified, write_output
 from pipeline.engine.config import section_dict
 from pipeline.engine.errors import ConfigError, PipelineError, StageFailed
 from pipeline.engine.hashing import canonical_json, recipe_key, stage_recipe
@@ -61,7 +60,7 @@ class PlannedStage:
 class StageResult:
     stage: str
     key: str
-    status: str  # "hit" | "computed"
+    status: str  # "hit" | "computed" | "reused" (another process computed it while we waited)
     seconds: float
     path: str
     reason: str = ""
@@ -92,23 +91,35 @@ def _software_versions() -> dict[str, str]:
     return versions
 
 
-def run_id(dataset: Path, config: BaseModel) -> str:
-    """Identity of a run record: the dataset path and the whole effective config."""
+def run_id(dataset: Path, config: BaseModel, stages: Sequence[str] = ()) -> str:
+    """Identity of a run record: the dataset path, the whole effective config and the
+    stages run (and bound from outside), so a run over another part of the graph on
+    the same dataset (training's `train` after that dataset's `keyframes`) gets its
+    own record instead of overwriting it."""
     digest = hashlib.sha256(
         canonical_json(
-            {"dataset": str(dataset.resolve()), "config": config.model_dump(mode="json")}
+            {
+                "dataset": str(dataset.resolve()),
+                "config": config.model_dump(mode="json"),
+                "stages": sorted(stages),
+            }
         )
     )
     return digest.hexdigest()[:20]
 
 
 def _previous_recipes(store: ArtifactStore, dataset: Path) -> dict[str, dict[str, Any]]:
-    """Recipes of the most recent run on the same dataset path (to explain misses)."""
+    """Per stage, its recipe in the most recent run on the same dataset path (to explain misses)."""
     target = str(dataset.resolve())
+    recipes: dict[str, dict[str, Any]] = {}
     for record in reversed(store.run_records()):
-        if record.get("dataset") == target:
-            return {name: info.get("recipe", {}) for name, info in record.get("stages", {}).items()}
-    return {}
+        stages = record.get("stages")
+        if record.get("dataset") != target or not isinstance(stages, Mapping):
+            continue
+        for name, info in stages.items():
+            if isinstance(info, Mapping) and isinstance(info.get("recipe"), Mapping):
+                recipes.setdefault(name, dict(info["recipe"]))
+    return recipes
 
 
 def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
@@ -201,6 +212,7 @@ def _bind_inputs(
     outputs_of: Mapping[str, Stage],
     dataset: DatasetSpec,
     section: Any,
+    verified: set[tuple[str, str, str]],
 ) -> dict[str, Any]:
     inputs: dict[str, Any] = {}
     for name in item.stage.inputs:
@@ -212,7 +224,7 @@ def _bind_inputs(
         output = next((o for o in producer.outputs if o.name == out_name), None)
         if output is None:
             raise ConfigError(f"stage {item.stage.name}: {upstream} has no output '{out_name}'")
-        inputs[name] = read_output(refs[upstream].path, output)
+        inputs[name] = read_verified(refs[upstream], output, verified)
     return inputs
 
 
@@ -258,6 +270,7 @@ def execute(
     refs: dict[str, ArtifactRef] = {n: r for n, (_, r) in external.items()}
     result = RunResult(dataset=str(dataset.path), store=str(store.root))
     versions = _software_versions()
+    verified: set[tuple[str, str, str]] = set()  # each bound file is hashed once per run
     for item in planned:
         name = item.stage.name
         outputs_of[name] = item.stage
@@ -270,7 +283,7 @@ def execute(
             if item.reason == "forced":
                 _discard(store, name, item.key)
             section = getattr(config, name)
-            inputs = _bind_inputs(item, refs, outputs_of, dataset, section)
+            inputs = _bind_inputs(item, refs, outputs_of, dataset, section, verified)
             manifest_extra = {
                 "version": item.stage.version,
                 "recipe": item.recipe,
@@ -284,8 +297,10 @@ def execute(
                 "software": versions,
             }
             log.info("computing %s (%s)", name, item.reason)
-            ref = store.commit(name, item.key, _build(item, section, inputs), manifest_extra)
-            status = "computed"
+            ref, reused = store.commit_or_reuse(
+                name, item.key, _build(item, section, inputs), manifest_extra
+            )
+            status = "reused" if reused else "computed"
         refs[name] = ref
         result.artifacts[name] = ref
         stage_result = StageResult(
@@ -299,7 +314,7 @@ def execute(
         result.stages.append(stage_result)
         if on_stage is not None:
             on_stage(stage_result)
-    _record(store, dataset, config, planned)
+    _record(store, dataset, config, planned, external)
     return result
 
 
@@ -308,14 +323,18 @@ def _discard(store: ArtifactStore, stage: str, key: str) -> None:
     with store.lock(stage, key):
         path = store.artifact_dir(stage, key)
         if path.exists():
-            trash = store.root / ".tmp" / f"forced-{stage}-{uuid.uuid4().hex[:8]}"
+            trash = store.tmp_path(f"forced-{stage}")
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
             shutil.rmtree(trash, ignore_errors=True)
 
 
 def _record(
-    store: ArtifactStore, dataset: DatasetSpec, config: BaseModel, planned: Sequence[PlannedStage]
+    store: ArtifactStore,
+    dataset: DatasetSpec,
+    config: BaseModel,
+    planned: Sequence[PlannedStage],
+    external: Mapping[str, Any],
 ) -> None:
     record = {
         "dataset": str(dataset.path.resolve()),
@@ -324,4 +343,5 @@ def _record(
         + f".{time.time_ns() % 10**9:09d}Z",
         "stages": {p.stage.name: {"key": p.key, "recipe": p.recipe} for p in planned},
     }
-    store.record_run(run_id(dataset.path, config), record)
+    names = [p.stage.name for p in planned] + [f"external:{n}" for n in external]
+    store.record_run(run_id(dataset.path, config, names), record)

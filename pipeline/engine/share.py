@@ -12,13 +12,15 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
-import uuid
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.integrity import check_parses
+from pipeline.engine.manifest import ADDRESS_PATTERN, parse_manifest
 from pipeline.engine.store import (
     MANIFEST,
     ArtifactRef,
@@ -62,6 +64,11 @@ def _upstream_closure(
                 for name, k in manifest.get("inputs", {}).items()
             }
             for address in sorted(set(addresses.values())):
+                # Checked before any I/O: "../x" would read outside the store or remote.
+                if not isinstance(address, str) or not re.fullmatch(ADDRESS_PATTERN, address):
+                    raise ArtifactCorrupt(
+                        f"{stage}/{key[:12]}: upstream address {address!r} is not <stage>/<key>"
+                    )
                 up_stage, _, up_key = address.partition("/")
                 visit(up_stage, up_key)
         order.append((stage, key))
@@ -115,15 +122,20 @@ def push(
 
 
 def _remote_manifest(fs: Any, root: str, stage: str, key: str) -> dict[str, Any]:
+    where = f"remote {stage}/{key[:12]}"
     try:
-        manifest: dict[str, Any] = json.loads(fs.cat_file(f"{root}/{stage}/{key}/{MANIFEST}"))
+        manifest: Any = json.loads(fs.cat_file(f"{root}/{stage}/{key}/{MANIFEST}"))
     except FileNotFoundError as err:
         raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
     except ValueError as err:
-        raise ArtifactCorrupt(f"remote {stage}/{key[:12]}: manifest is not JSON") from err
-    if manifest.get("stage") != stage or manifest.get("key") != key:
-        raise ArtifactCorrupt(f"remote {stage}/{key[:12]}: manifest names another artifact")
-    return manifest
+        raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
+    model = parse_manifest(manifest, where)
+    if model.stage != stage or model.key != key:
+        raise ArtifactCorrupt(f"{where}: manifest names another artifact")
+    if model.recipe is None:
+        # Without a recipe nothing ties the key to the content: refuse rather than trust.
+        raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
+    return dict(manifest)
 
 
 def _resolve_remote(fs: Any, root: str, target: str) -> list[tuple[str, str]]:
@@ -170,7 +182,7 @@ def pull(
         return manifests[(stage, key)]
 
     order = _upstream_closure(wanted, manifest_of, with_upstream)
-    staging = store.root / ".tmp" / f"pull-{uuid.uuid4().hex[:12]}"
+    staging = store.tmp_path("pull")
     try:
         staged = []
         for stage, key in order:
@@ -189,6 +201,8 @@ def pull(
                         f"remote {stage}/{key[:12]}: file '{rel}' missing"
                     ) from err
             verify_artifact_dir(local, manifest)
+            for rel in manifest["files"]:
+                check_parses(safe_relative(local, rel), f"remote {stage}/{key[:12]}")
             staged.append((local, manifest))
         refs = [store.import_dir(local, manifest) for local, manifest in staged]
     finally:

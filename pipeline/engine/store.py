@@ -16,49 +16,33 @@ import shutil
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from filelock import FileLock
 
+from pipeline.engine.artifact import ArtifactRef, Problem
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
-from pipeline.engine.hashing import STORE_FORMAT_VERSION, recipe_key, sha256_file
+from pipeline.engine.hashing import STORE_FORMAT_VERSION, sha256_file
+from pipeline.engine.integrity import recovery_hint, safe_relative, verify_artifact_dir, verify_file
+from pipeline.engine.manifest import read_manifest
 
-__all__ = ["MANIFEST", "ArtifactRef", "ArtifactStore", "safe_relative"]
+__all__ = [
+    "MANIFEST",
+    "ArtifactRef",
+    "ArtifactStore",
+    "Problem",
+    "recovery_hint",
+    "safe_relative",
+    "verify_artifact_dir",
+    "verify_file",
+]
 
 log = logging.getLogger(__name__)
 MANIFEST = "manifest.json"
 _TMP = ".tmp"
 _LOCKS = ".locks"
 _RUNS = "runs"
-
-
-def safe_relative(root: Path, relative: str) -> Path:
-    """`root / relative`, refusing absolute paths and anything that escapes `root`."""
-    candidate = Path(relative)
-    if candidate.is_absolute() or ".." in candidate.parts or relative.strip() == "":
-        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
-    resolved = (root / candidate).resolve()
-    if not resolved.is_relative_to(root.resolve()):
-        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
-    return root / candidate
-
-
-@dataclass(frozen=True)
-class ArtifactRef:
-    """A committed artifact: where it is and what its manifest says."""
-
-    stage: str
-    key: str
-    path: Path
-    manifest: dict[str, Any]
-
-    def file(self, name: str) -> Path:
-        """Path of one of its files (checked against the manifest)."""
-        if name not in self.manifest.get("files", {}):
-            raise StoreError(f"{self.stage}/{self.key[:12]} has no file '{name}'")
-        return safe_relative(self.path, name)
 
 
 def _fsync_dir(path: Path) -> None:
@@ -87,6 +71,11 @@ class ArtifactStore:
             raise StoreError(f"invalid artifact address {stage}/{key}")
         return self.root / stage / key
 
+    def tmp_path(self, prefix: str) -> Path:
+        """A fresh temporary path in the store; its name carries our pid so `gc` can
+        tell a live commit from a killed one."""
+        return self.root / _TMP / f"{prefix}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
     def lock(self, stage: str, key: str) -> FileLock:
         """The per-key lock; a second process computing the same key waits on it."""
         locks = self.root / _LOCKS
@@ -95,39 +84,64 @@ class ArtifactStore:
 
     # -- reading ------------------------------------------------------------------------
     def get(self, stage: str, key: str) -> ArtifactRef | None:
-        """The artifact if it is committed (manifest present and parseable), else None."""
+        """The artifact if it is committed (manifest present and valid), else None."""
+        try:
+            return self._load(stage, key)
+        except ArtifactCorrupt as err:
+            raise ArtifactCorrupt(f"{err}; {recovery_hint(stage)}") from err
+
+    def _load(self, stage: str, key: str) -> ArtifactRef | None:
         path = self.artifact_dir(stage, key)
         manifest_path = path / MANIFEST
         try:
-            manifest = json.loads(manifest_path.read_text())
+            model, manifest = read_manifest(manifest_path)
         except FileNotFoundError:
             return None
-        except (OSError, ValueError) as err:
-            raise ArtifactCorrupt(f"{manifest_path}: unreadable manifest ({err})") from err
-        if manifest.get("key") != key or manifest.get("stage") != stage:
+        if model.key != key or model.stage != stage:
             raise ArtifactCorrupt(f"{manifest_path}: manifest names another artifact")
         return ArtifactRef(stage, key, path, manifest)
 
     def verify(self, ref: ArtifactRef) -> None:
         """Check every file's size and sha256 and the key against the recipe."""
-        verify_artifact_dir(ref.path, ref.manifest)
+        try:
+            verify_artifact_dir(ref.path, ref.manifest)
+        except ArtifactCorrupt as err:
+            raise ArtifactCorrupt(f"{err}; {recovery_hint(ref.stage)}") from err
 
-    def iter_artifacts(self) -> Iterator[ArtifactRef]:
-        """Every committed artifact, sorted by stage then key."""
+    def scan(self) -> Iterator[ArtifactRef | Problem]:
+        """Every directory under a stage folder: a committed artifact or a `Problem`.
+
+        A directory without a manifest (its manifest deleted, or copied in by hand) is
+        not an artifact; neither is one whose manifest does not validate. Names the
+        store could never have written (not a stage identifier, not a hex key) are not
+        ours and are left alone.
+        """
         if not self.root.is_dir():
             return
         for stage_dir in sorted(p for p in self.root.iterdir() if p.is_dir()):
-            if stage_dir.name.startswith(".") or stage_dir.name == _RUNS:
+            if not stage_dir.name.isidentifier() or stage_dir.name == _RUNS:
                 continue
             for key_dir in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
-                with contextlib.suppress(StoreError):
-                    ref = self.get(stage_dir.name, key_dir.name)
-                    if ref is not None:
-                        yield ref
+                stage, key = stage_dir.name, key_dir.name
+                if not key or key.strip("0123456789abcdef"):
+                    continue
+                try:
+                    ref = self._load(stage, key)
+                except StoreError as err:
+                    yield Problem(stage, key, key_dir, str(err).removeprefix(f"{key_dir}/"))
+                    continue
+                yield ref if ref is not None else Problem(stage, key, key_dir, "no manifest")
+
+    def iter_artifacts(self) -> Iterator[ArtifactRef]:
+        """Every committed artifact, sorted by stage then key."""
+        for item in self.scan():
+            if isinstance(item, ArtifactRef):
+                yield item
 
     def find(self, stage_or_key: str) -> ArtifactRef:
         """An artifact by key (or unique key prefix), or the newest artifact of a stage."""
-        refs = list(self.iter_artifacts())
+        items = list(self.scan())
+        refs = [r for r in items if isinstance(r, ArtifactRef)]
         by_stage = [r for r in refs if r.stage == stage_or_key]
         if by_stage:
             return max(by_stage, key=lambda r: str(r.manifest.get("created_at", "")))
@@ -136,6 +150,13 @@ class ArtifactStore:
             return by_key[0]
         if len(by_key) > 1:
             raise StoreError(f"key prefix '{stage_or_key}' is ambiguous ({len(by_key)} artifacts)")
+        bad = [
+            p
+            for p in items
+            if isinstance(p, Problem) and stage_or_key in (p.stage, p.key[: len(stage_or_key)])
+        ]
+        if bad:
+            raise ArtifactCorrupt(f"{bad[0]}; {recovery_hint(bad[0].stage)}")
         raise StoreError(f"no artifact for stage or key '{stage_or_key}' in {self.root}")
 
     # -- writing ------------------------------------------------------------------------
@@ -154,11 +175,21 @@ class ArtifactStore:
                 becomes visible.
             manifest_extra: recipe, config, versions... merged into the manifest.
         """
+        return self.commit_or_reuse(stage, key, build, manifest_extra)[0]
+
+    def commit_or_reuse(
+        self,
+        stage: str,
+        key: str,
+        build: Callable[[Path], Mapping[str, Any]],
+        manifest_extra: Mapping[str, Any],
+    ) -> tuple[ArtifactRef, bool]:
+        """`commit`, also saying whether the artifact was reused (True) or built here."""
         with self.lock(stage, key):
             existing = self.get(stage, key)
             if existing is not None:
-                return existing
-            tmp = self.root / _TMP / f"{stage}-{key[:16]}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+                return existing, True
+            tmp = self.tmp_path(f"{stage}-{key[:16]}")
             tmp.mkdir(parents=True)
             try:
                 t0 = time.perf_counter()
@@ -183,6 +214,7 @@ class ArtifactStore:
                 _fsync_dir(tmp)
                 final = self.artifact_dir(stage, key)
                 final.parent.mkdir(parents=True, exist_ok=True)
+                self._clear_non_artifact(final)
                 tmp.rename(final)
                 _fsync_dir(final.parent)
             except BaseException:
@@ -191,7 +223,20 @@ class ArtifactStore:
         ref = self.get(stage, key)
         if ref is None:  # pragma: no cover - rename succeeded, so this cannot happen
             raise StoreError(f"{stage}/{key}: commit vanished")
-        return ref
+        return ref, False
+
+    def _clear_non_artifact(self, final: Path) -> None:
+        """Move a manifest-less directory at `final` aside (we hold its key's lock).
+
+        Such a directory is not an artifact (its manifest was deleted); left in place it
+        would make the rename fail with "Directory not empty" on every later run.
+        """
+        if not final.exists():
+            return
+        log.warning("%s has no manifest: replacing it", final)
+        trash = self.tmp_path("replaced")
+        final.rename(trash)
+        shutil.rmtree(trash, ignore_errors=True)
 
     def import_dir(self, source: Path, manifest: Mapping[str, Any]) -> ArtifactRef:
         """Adopt an already verified artifact directory (used by `pull`), atomically."""
@@ -226,57 +271,20 @@ class ArtifactStore:
         records = []
         for f in runs.glob("*.json"):
             with contextlib.suppress(OSError, ValueError):
-                records.append(json.loads(f.read_text()))
+                record = json.loads(f.read_text())
+                if isinstance(record, dict):
+                    records.append(record)
         return sorted(records, key=lambda r: str(r.get("updated_at", "")))
 
-    def gc(self, *, dry_run: bool = False, stale_tmp_s: float = 3600.0) -> dict[str, Any]:
-        """Remove artifacts no run record references, and stale temporaries.
+    def gc(
+        self, *, dry_run: bool = False, broken: bool = False, stale_tmp_s: float = 3600.0
+    ) -> dict[str, Any]:
+        """Remove unreferenced artifacts, non-artifacts and dead processes' leftovers.
 
         Returns:
-            {"removed": [stage/key...], "kept": int, "tmp_removed": int, "bytes_freed": int}
+            {"removed": [stage/key...], "broken": [...], "kept": int, "tmp_removed": int,
+             "bytes_freed": int} (details in `pipeline.engine.store_gc.collect`).
         """
-        referenced = {
-            (stage, info["key"])
-            for record in self.run_records()
-            for stage, info in record.get("stages", {}).items()
-        }
-        removed, kept, freed = [], 0, 0
-        for ref in list(self.iter_artifacts()):
-            if (ref.stage, ref.key) in referenced:
-                kept += 1
-                continue
-            size = sum(int(f["size"]) for f in ref.manifest.get("files", {}).values())
-            removed.append(f"{ref.stage}/{ref.key}")
-            freed += size
-            if not dry_run:
-                shutil.rmtree(ref.path, ignore_errors=True)
-        tmp_removed = 0
-        tmp_root = self.root / _TMP
-        if tmp_root.is_dir():
-            now = time.time()
-            for t in tmp_root.iterdir():
-                if now - t.stat().st_mtime > stale_tmp_s:
-                    tmp_removed += 1
-                    if not dry_run:
-                        shutil.rmtree(t, ignore_errors=True)
-        return {"removed": removed, "kept": kept, "tmp_removed": tmp_removed, "bytes_freed": freed}
+        from pipeline.engine.store_gc import collect
 
-
-def verify_artifact_dir(path: Path, manifest: Mapping[str, Any]) -> None:
-    """Raise `ArtifactCorrupt` unless every listed file matches and the key matches the recipe."""
-    recipe = manifest.get("recipe")
-    if recipe is not None and recipe_key(recipe) != manifest.get("key"):
-        raise ArtifactCorrupt(f"{path}: key does not match the manifest's recipe")
-    files = manifest.get("files")
-    if not isinstance(files, Mapping):
-        raise ArtifactCorrupt(f"{path}: manifest lists no files")
-    for rel, info in files.items():
-        f = safe_relative(path, rel)
-        if not f.is_file():
-            raise ArtifactCorrupt(f"{path}: missing file '{rel}'")
-        if f.stat().st_size != int(info["size"]):
-            raise ArtifactCorrupt(
-                f"{path}: '{rel}' has size {f.stat().st_size}, expected {info['size']}"
-            )
-        if sha256_file(f) != info["sha256"]:
-            raise ArtifactCorrupt(f"{path}: '{rel}' sha256 does not match its manifest")
+        return collect(self, dry_run=dry_run, broken=broken, stale_tmp_s=stale_tmp_s)

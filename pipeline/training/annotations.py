@@ -95,14 +95,16 @@ def commit_annotations(path: Path, store: ArtifactStore) -> ArtifactRef:
     stage reading it retrains exactly when a shape, class or time changes.
     """
     doc = load_annotations(path).model_dump(mode="json")
-    key = recipe_key({"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc})
+    recipe = {"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc}
+    key = recipe_key(recipe)
     output = ANNOTATIONS_STAGE.outputs[0]
 
     def build(tmp: Path) -> dict[str, Any]:
         write_output(tmp, ANNOTATIONS_STAGE.name, output, doc, {"key": key})
         return {}
 
-    extra = {"version": RASTER_VERSION, "source": str(path)}
+    # The recipe lets `pull` check the key against the content, as for every stage.
+    extra = {"version": RASTER_VERSION, "source": str(path), "recipe": recipe}
     ref = store.commit(ANNOTATIONS_STAGE.name, key, build, extra)
     # A run record per file keeps its newest artifact from `sonarmap gc`, like any run's.
     source = str(path.resolve())

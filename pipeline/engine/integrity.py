@@ -1,0 +1,138 @@
+"""Integrity checks: a file or artifact directory against its manifest.
+
+Used when the engine binds an artifact's file to a stage input (`verify_file`), by
+`show --verify`, `push`, `pull` and `gc --broken` (`verify_artifact_dir`). Every
+message is one line naming the artifact and saying how to recover.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from pipeline.engine.errors import ArtifactCorrupt, PipelineError
+from pipeline.engine.hashing import recipe_key, sha256_file
+from pipeline.engine.manifest import parse_manifest
+
+if TYPE_CHECKING:
+    from pipeline.engine.artifact import ArtifactRef
+
+__all__ = [
+    "check_parses",
+    "recovery_hint",
+    "safe_relative",
+    "verify_artifact_dir",
+    "verify_file",
+]
+
+_MANIFEST = "manifest.json"
+
+
+def recovery_hint(stage: str) -> str:
+    """How a user gets rid of a corrupt artifact (appended to every corruption error)."""
+    return f"remove it with `sonarmap gc --broken`, or recompute it with `--force {stage}`"
+
+
+def safe_relative(root: Path, relative: str) -> Path:
+    """`root / relative`, refusing absolute paths and anything that escapes `root`."""
+    candidate = Path(relative)
+    if candidate.is_absolute() or ".." in candidate.parts or relative.strip() == "":
+        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
+    resolved = (root / candidate).resolve()
+    if not resolved.is_relative_to(root.resolve()):
+        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
+    return root / candidate
+
+
+def verify_file(ref: ArtifactRef, name: str) -> Path:
+    """The path of one file after checking its size and sha256 against the manifest.
+
+    The engine calls this for every file it binds to a stage input, so a flipped
+    byte is refused before anything is computed from it (and committed under a
+    key that claims clean inputs).
+    """
+    path = ref.file(name)
+    entry = ref.manifest["files"][name]
+    where = f"artifact {ref.stage}/{ref.key[:12]}: '{name}'"
+    try:
+        size = path.stat().st_size
+        digest = sha256_file(path) if size == int(entry["size"]) else ""
+    except OSError as err:
+        raise ArtifactCorrupt(
+            f"{where} unreadable ({err.strerror}); {recovery_hint(ref.stage)}"
+        ) from err
+    if size != int(entry["size"]):
+        raise ArtifactCorrupt(
+            f"{where} has {size} bytes, its manifest says {entry['size']}; "
+            f"{recovery_hint(ref.stage)}"
+        )
+    if digest != entry["sha256"]:
+        raise ArtifactCorrupt(
+            f"{where} does not match its manifest's sha256 (the file was altered); "
+            f"{recovery_hint(ref.stage)}"
+        )
+    return path
+
+
+def verify_artifact_dir(path: Path, manifest: Mapping[str, Any]) -> None:
+    """Raise `ArtifactCorrupt` unless every listed file matches and the key matches the recipe."""
+    model = parse_manifest(dict(manifest), str(path / _MANIFEST))
+    if model.recipe is not None:
+        try:
+            key = recipe_key(model.recipe)
+        except PipelineError as err:
+            raise ArtifactCorrupt(
+                f"{path}: the manifest's recipe cannot be hashed ({err})"
+            ) from err
+        if key != model.key:
+            raise ArtifactCorrupt(f"{path}: key does not match the manifest's recipe")
+    for rel, info in manifest["files"].items():
+        f = safe_relative(path, rel)
+        if not f.is_file():
+            raise ArtifactCorrupt(f"{path}: missing file '{rel}'")
+        if f.stat().st_size != int(info["size"]):
+            raise ArtifactCorrupt(
+                f"{path}: '{rel}' has size {f.stat().st_size}, expected {info['size']}"
+            )
+        if sha256_file(f) != info["sha256"]:
+            raise ArtifactCorrupt(f"{path}: '{rel}' sha256 does not match its manifest")
+
+
+_MAGIC = {
+    ".mcap": (b"\x89MCAP0\r\n", b"\x89MCAP0\r\n"),
+    ".pt": (b"PK\x03\x04", b""),
+    ".png": (b"\x89PNG\r\n\x1a\n", b""),
+}
+
+
+def check_parses(path: Path, where: str) -> None:
+    """Refuse a file that does not parse as the kind its name declares.
+
+    A manifest's sha256 only proves the file is the one the manifest's author listed;
+    a remote can list junk. Parquet footers are opened (cheap: metadata only), JSON is
+    decoded, MCAP, torch and PNG files must carry their format's magic bytes.
+    """
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            pq.read_metadata(path)
+        elif suffix == ".json":
+            json.loads(path.read_bytes())
+        elif suffix in _MAGIC:
+            head, tail = _MAGIC[suffix]
+            with path.open("rb") as f:
+                ok = f.read(len(head)) == head
+                if ok and tail:
+                    f.seek(-len(tail), 2)
+                    ok = f.read(len(tail)) == tail
+            if not ok:
+                raise ValueError(f"no {suffix[1:]} magic bytes")
+    except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
+        reason = (str(err).splitlines() or [type(err).__name__])[0]
+        raise ArtifactCorrupt(
+            f"{where}: '{path.name}' does not parse as {suffix[1:]} ({reason})"
+        ) from err

@@ -1,0 +1,206 @@
+"""`sonarmap gc`: what the store keeps, and the leftovers it heals.
+
+Kept: every artifact a run record names, and everything reachable from those through
+their manifests' `input_artifacts` (a `train` model keeps the keyframes and features
+of every dataset it learnt from, so `push train` still finds them).
+
+Removed:
+- unreferenced artifacts;
+- directories that are not artifacts: no manifest (deleted by hand, or a crash of an
+  older version), or a manifest that does not validate;
+- with `broken=True`, artifacts whose files no longer match their manifest's sha256;
+- leftovers of killed processes: `.tmp/<name>-<pid>-<hex>` commits, pulls and discards,
+  `runs/.<id>.<pid>.tmp` and `.cache/fingerprints.tmp<pid>`, once that pid is gone.
+  Temporaries of live processes are never touched; names without a pid (older
+  versions) go when older than `stale_tmp_s`.
+Every removal is a rename out of sight first, so a reader never sees half a directory.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import time
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from filelock import Timeout
+
+from pipeline.engine.artifact import ArtifactRef, Problem
+from pipeline.engine.errors import StoreError
+from pipeline.engine.integrity import verify_artifact_dir
+from pipeline.engine.manifest import ADDRESS_PATTERN
+
+if TYPE_CHECKING:
+    from pipeline.engine.store import ArtifactStore
+
+__all__ = ["collect", "pid_alive", "reachable"]
+
+_TMP_PID = re.compile(r"-(\d+)-[0-9a-f]{8,12}$")
+_RUN_TMP_PID = re.compile(r"^\..+\.(\d+)\.tmp$")
+_FINGERPRINT_TMP_PID = re.compile(r"^fingerprints\.tmp(\d+)$")
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid exists on this host (ours counts as alive)."""
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _upstream(ref: ArtifactRef) -> Iterator[tuple[str, str]]:
+    addresses = ref.manifest.get("input_artifacts") or {
+        name: f"{name.split('.', 1)[0]}/{key}"
+        for name, key in ref.manifest.get("inputs", {}).items()
+    }
+    for address in addresses.values():
+        if re.fullmatch(ADDRESS_PATTERN, address):
+            stage, _, key = address.partition("/")
+            yield stage, key
+
+
+def _roots(records: Iterable[Mapping[str, Any]]) -> set[tuple[str, str]]:
+    roots = set()
+    for record in records:
+        stages = record.get("stages")
+        if not isinstance(stages, Mapping):
+            continue
+        for stage, info in stages.items():
+            if isinstance(info, Mapping) and isinstance(info.get("key"), str):
+                roots.add((str(stage), info["key"]))
+    return roots
+
+
+def reachable(
+    refs: Mapping[tuple[str, str], ArtifactRef], roots: Iterable[tuple[str, str]]
+) -> set[tuple[str, str]]:
+    """The roots present in `refs` and every artifact upstream of them."""
+    keep: set[tuple[str, str]] = set()
+    todo = [r for r in roots if r in refs]
+    while todo:
+        item = todo.pop()
+        if item in keep:
+            continue
+        keep.add(item)
+        todo.extend(u for u in _upstream(refs[item]) if u in refs and u not in keep)
+    return keep
+
+
+def _remove_dir(store: ArtifactStore, stage: str, key: str, path: Path) -> bool:
+    """Rename out of sight, then delete; skipped while another process holds the key."""
+    try:
+        with store.lock(stage, key).acquire(timeout=0.5):
+            if not path.exists():
+                return False
+            trash = store.tmp_path(f"gc-{stage}")
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            path.rename(trash)
+    except Timeout:
+        return False
+    shutil.rmtree(trash, ignore_errors=True)
+    return True
+
+
+def _leftovers(store: ArtifactStore, stale_tmp_s: float) -> list[Path]:
+    """Temporaries whose owner is gone (or, without a pid in the name, are old)."""
+    found: list[Path] = []
+    now = time.time()
+    patterns = (
+        (store.root / ".tmp", _TMP_PID, True),
+        (store.root / "runs", _RUN_TMP_PID, False),
+        (store.root / ".cache", _FINGERPRINT_TMP_PID, False),
+    )
+    for folder, pattern, old_without_pid in patterns:
+        if not folder.is_dir():
+            continue
+        for entry in sorted(folder.iterdir()):
+            match = pattern.search(entry.name)
+            if match is not None:
+                if not pid_alive(int(match.group(1))):
+                    found.append(entry)
+                continue
+            with contextlib.suppress(OSError):
+                if old_without_pid and now - entry.lstat().st_mtime > stale_tmp_s:
+                    found.append(entry)
+    return found
+
+
+def _delete(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+
+
+def _dir_bytes(path: Path) -> int:
+    with contextlib.suppress(OSError):
+        return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    return 0
+
+
+def _size(ref: ArtifactRef) -> int:
+    return sum(int(f["size"]) for f in ref.manifest["files"].values())
+
+
+def collect(
+    store: ArtifactStore,
+    *,
+    dry_run: bool = False,
+    broken: bool = False,
+    stale_tmp_s: float = 3600.0,
+) -> dict[str, Any]:
+    """Garbage-collect `store` (see the module docstring for what goes).
+
+    Returns:
+        {"removed": [stage/key...], "broken": ["stage/key: reason"...], "kept": int,
+         "tmp_removed": int, "bytes_freed": int}; `removed` includes the broken ones.
+    """
+    refs: dict[tuple[str, str], ArtifactRef] = {}
+    bad: list[Problem] = []
+    for item in store.scan():
+        if not isinstance(item, ArtifactRef):
+            bad.append(item)
+            continue
+        if broken:
+            try:
+                verify_artifact_dir(item.path, item.manifest)
+            except StoreError as err:
+                reason = str(err).removeprefix(f"{item.path}: ")
+                bad.append(Problem(item.stage, item.key, item.path, reason))
+                continue
+        refs[(item.stage, item.key)] = item
+    keep = reachable(refs, _roots(store.run_records()))
+    removed, broken_lines, freed = [], [], 0
+    for problem in bad:
+        broken_lines.append(str(problem))
+        size = _dir_bytes(problem.path)
+        if dry_run or _remove_dir(store, problem.stage, problem.key, problem.path):
+            removed.append(f"{problem.stage}/{problem.key}")
+            freed += size
+    for address, ref in refs.items():
+        if address in keep:
+            continue
+        if dry_run or _remove_dir(store, ref.stage, ref.key, ref.path):
+            removed.append(f"{ref.stage}/{ref.key}")
+            freed += _size(ref)
+    leftovers = _leftovers(store, stale_tmp_s)
+    if not dry_run:
+        for path in leftovers:
+            _delete(path)
+    return {
+        "removed": removed,
+        "broken": broken_lines,
+        "kept": len(keep),
+        "tmp_removed": len(leftovers),
+        "bytes_freed": freed,
+    }
