@@ -19,6 +19,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
 from pipeline.errors import ConfigError
+from pipeline.yaml_files import read_yaml
 from stages.base import Stage
 
 __all__ = [
@@ -164,12 +165,7 @@ def load_config(
     where = str(path) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: not valid YAML ({err})") from err
+        loaded = read_yaml(path, "config", ConfigError)
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of stage sections")
         data = loaded or {}
