@@ -18,6 +18,7 @@ from typing import Any, cast
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
+from pipeline.config_errors import validation_message
 from pipeline.errors import ConfigError
 from pipeline.yaml_files import read_yaml
 from stages.base import Stage
@@ -142,13 +143,6 @@ def _check_keys(model: type[BaseModel], data: Mapping[str, Any], where: str, pre
             _check_keys(sub, value, where, f"{dotted}.")
 
 
-def _validation_message(err: ValidationError, where: str) -> str:
-    first = err.errors()[0]
-    loc = ".".join(str(p) for p in first["loc"])
-    got = first.get("input")
-    return f"{where}: {loc}: {first['msg']} (got {got!r})"
-
-
 def load_config(
     stages: Sequence[Stage],
     path: Path | None = None,
@@ -174,7 +168,7 @@ def load_config(
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise ConfigError(_validation_message(err, where)) from err
+        raise ConfigError(validation_message(model, err, where)) from err
 
 
 def dump_yaml(config: BaseModel) -> str:

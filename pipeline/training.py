@@ -18,13 +18,14 @@ from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, Field, field_validator
 
+from pipeline.errors import ConfigError
 from pipeline.runner import execute, plan
 from pipeline.session import dataset_spec
 from pipeline.store import ArtifactRef, ArtifactStore
 from schemas.sonar import KeyframeImages
-from stages.base import Stage
+from stages.base import ConfigModel, Stage
 
 __all__ = [
     "TrainingDataConfig",
@@ -37,29 +38,39 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
-class TrainingSet(BaseModel):
+class TrainingSet(ConfigModel):
     """One simulated mission the default classifier learns from."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-    scene: str
-    seed: int = Field(ge=0)
-    goals: int = Field(ge=1)
-    duration_s: float | None = Field(None, gt=0)
+    scene: str = Field(min_length=1, description="a scene name in configs/scenes/ or a file")
+    seed: int = Field(ge=0, le=2**32 - 1)
+    goals: int = Field(ge=1, le=10000)
+    duration_s: float | None = Field(None, gt=0, le=7 * 86400)
+
+    @field_validator("scene")
+    @classmethod
+    def _scene_exists(cls, value: str) -> str:
+        # Checked with the rest of the config, not when training first needs it.
+        from pipeline.datasets import scene_path
+
+        try:
+            scene_path(value)
+        except ConfigError as err:
+            raise ValueError(str(err)) from err
+        return value
 
 
-class TrainingDataConfig(BaseModel):
+class TrainingDataConfig(ConfigModel):
     """Config section `training`: which labelled datasets the default model is trained on.
 
     The mapped scene should not be among them (the default marina never is). Seeds are
     far from the study's 0..N-1. Simulated files go to `directory` and are reused.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
     sets: tuple[TrainingSet, ...] = (
         TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
         TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
     )
-    directory: str = "data/training"
+    directory: str = Field("data/training", min_length=1)
     recorded: tuple[str, ...] = Field(
         default=(),
         description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",

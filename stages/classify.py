@@ -63,17 +63,24 @@ class ClassifyConfig(StageConfig):
     """
 
     eps_m: float | None = Field(
-        None, gt=0, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
+        None, gt=0, le=100, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
     )
     min_samples: int | None = Field(
-        None, ge=1, description="DBSCAN core neighbourhood; None: the model's (train.min_samples)"
+        None,
+        ge=1,
+        le=100000,
+        description="DBSCAN core neighbourhood; None: the model's (train.min_samples)",
     )
     min_features: int | None = Field(
-        None, ge=1, description="smallest object kept; None: the model's (train.min_features)"
+        None,
+        ge=1,
+        le=100000,
+        description="smallest object kept; None: the model's (train.min_features)",
     )
     min_object_area_m2: float | None = Field(
         None,
         gt=0,
+        le=10000,
         description="keep only objects whose feature cells cover more than this fan-plane"
         " area (stages.objects.cell_areas_m2; None: no area rule; original sim code:"
         " > 150 px of 5 cm = 0.375 m2); not applied in training",
@@ -85,30 +92,42 @@ class ClassifyConfig(StageConfig):
         " objects are not in objects.parquet",
     )
     fan_edge_margin_m: float = Field(
-        0.25, ge=0, description="padding of the fan-edge box on each side [m] (original 5 px)"
+        0.25,
+        ge=0,
+        le=100,
+        description="padding of the fan-edge box on each side [m] (original 5 px)",
     )
     fan_edge_max_outside_m2: float = Field(
         0.025,
         gt=0,
+        le=10000,
         description="an object is dropped when this much of its padded box lies outside the"
         " fan [m2] (original: 10 px of 5 cm)",
     )
-    mc_passes: int = Field(20, ge=1, description="Monte-Carlo dropout passes m")
+    mc_passes: int = Field(20, ge=1, le=1000, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
-    seed: int = Field(0, description="dropout-mask seed (combined with keyframe_id)")
+    seed: int = Field(
+        0, ge=0, le=2**32 - 1, description="dropout-mask seed (combined with keyframe_id)"
+    )
     pool_views: bool = Field(
         True,
         description="decide on the class distribution log-linearly pooled over sightings of"
         " the same place in nearby keyframes (stages.view_pooling; not in the paper)",
     )
     pool_radius_m: float = Field(
-        0.7, gt=0, description="sightings within this in the world are one object"
+        0.7, gt=0, le=1000, description="sightings within this in the world are one object"
     )
     pool_window_m: float = Field(
-        80.0, ge=0, description="... when at most this far apart along the track (DR drift)"
+        80.0,
+        ge=0,
+        le=100000,
+        description="... when at most this far apart along the track (DR drift)",
     )
     pool_range_scale_m: float | None = Field(
-        15.0, gt=0, description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal"
+        15.0,
+        gt=0,
+        le=10000,
+        description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
     )
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
