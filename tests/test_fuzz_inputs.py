@@ -238,3 +238,16 @@ def test_bag_with_a_missing_data_file_exits_2_also_under_force(
     for extra in ([], ["--force", "keyframes"]):
         res, _ = invoke(["run", str(bag), "--until", "keyframes", "--store", store, *extra], caplog)
         check_refusal(res, str(bag))
+
+
+@pytest.mark.parametrize(
+    "case", sorted(c for c in VARIANTS if c.startswith(("flip-index/summary", "flip-index/footer")))
+)
+def test_damaged_summary_is_read_sequentially_with_every_message(
+    case: str, clean: dict[str, Any], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    path = tmp_path / "summary.mcap"
+    path.write_bytes(VARIANTS[case])
+    res, warned = invoke(command_args("convert", path, tmp_path), caplog)
+    assert res.exit_code == 0 and output_of("convert", res, tmp_path) == clean["convert"]
+    assert f"{path}: the " in warned and "read sequentially instead" in warned, warned
