@@ -84,7 +84,7 @@ def main() -> None:
     dataset = ensure_simulation(
         scene_path("marina"), 0, work / f"marina-seed0-goals{args.goals}.mcap", goals=args.goals
     )
-    import stages.cnn  # noqa: F401  (torch's import is not the engine's cost)
+    import stages.classify.cnn  # noqa: F401  (torch's import is not the engine's cost)
 
     stats = _timed_verify()
     store_dir = work / f"store-{uuid.uuid4().hex[:8]}"

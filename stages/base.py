@@ -8,13 +8,14 @@ import the engine.
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
-__all__ = ["Output", "OutputKind", "Stage", "StageConfig"]
+__all__ = ["ConfigModel", "Output", "OutputKind", "Stage", "StageConfig"]
 
 OutputKind = Literal["parquet", "json", "bytes", "frames"]
 """How the engine stores an output.
@@ -27,10 +28,49 @@ OutputKind = Literal["parquet", "json", "bytes", "frames"]
 """
 
 
-class StageConfig(BaseModel):
-    """Base of every stage config: frozen, unknown keys refused. Units in field names."""
+def _scalar_types(annotation: Any) -> set[Any]:
+    """The scalar types an annotation admits, through Optional, Annotated and containers."""
+    origin = typing.get_origin(annotation)
+    if origin is None:
+        return {annotation} if isinstance(annotation, type) else set()
+    if origin is Literal:
+        return set()
+    if origin is Annotated:
+        return _scalar_types(typing.get_args(annotation)[0])
+    return set().union(*(_scalar_types(a) for a in typing.get_args(annotation)))
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+
+def _holds_bool(value: Any) -> bool:
+    if isinstance(value, (list, tuple)):
+        return any(_holds_bool(v) for v in value)
+    return isinstance(value, bool)
+
+
+class ConfigModel(BaseModel):
+    """Base of every config model: frozen, unknown keys refused, finite numbers only.
+
+    Booleans are strict both ways: a flag takes only true/false (not 1, "yes"), and a
+    number is never a boolean (pydantic's lax mode would read `spacing_m: true` as 1.0).
+    Every number carries `gt`/`ge` and `le`/`lt` bounds in its own `Field`.
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _strict_booleans(cls, value: Any, info: ValidationInfo) -> Any:
+        if info.field_name is None or value is None:
+            return value
+        kinds = _scalar_types(cls.model_fields[info.field_name].annotation) - {type(None)}
+        if kinds == {bool} and not isinstance(value, bool):
+            raise ValueError("expected true or false")
+        if kinds & {int, float} and bool not in kinds and _holds_bool(value):
+            raise ValueError("expected a number, not a boolean")
+        return value
+
+
+class StageConfig(ConfigModel):
+    """Base of every stage config section. Units in field names."""
 
 
 @dataclass(frozen=True)

@@ -21,10 +21,11 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
 import pyarrow as pa
+from pydantic import Field
 
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
@@ -44,6 +45,10 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 
+_MountM = Annotated[float, Field(ge=-100.0, le=100.0)]
+_MountDeg = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
 class KeyframesConfig(StageConfig):
     """Config section `keyframes`.
 
@@ -61,24 +66,24 @@ class KeyframesConfig(StageConfig):
         *_mount_xyz_m, *_mount_rpy_deg: T_base_sonar when the data has no /tf_static.
     """
 
-    spacing_m: float = 2.0
-    rotation_deg: float = 30.0
-    min_gap_s: float = 1.0
-    pair_tolerance_s: float = 0.1
-    horizontal_topic: str | None = None
-    vertical_topic: str | None = None
-    navigation_topic: str | None = None
-    ground_truth_topic: str | None = None
-    dvl_topic: str | None = None
-    imu_topic: str | None = None
-    depth_topic: str | None = None
-    dvl_max_velocity_mps: float = 0.5
-    image_fov_deg: float = 130.0
-    image_max_range_m: float = 30.0
-    horizontal_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.0)
-    horizontal_mount_rpy_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    vertical_mount_xyz_m: tuple[float, float, float] = (0.5, 0.0, 0.1)
-    vertical_mount_rpy_deg: tuple[float, float, float] = (90.0, 0.0, 0.0)
+    spacing_m: float = Field(2.0, gt=0.0, le=1000.0)
+    rotation_deg: float = Field(30.0, gt=0.0, le=360.0)
+    min_gap_s: float = Field(1.0, ge=0.0, le=3600.0)
+    pair_tolerance_s: float = Field(0.1, ge=0.0, le=60.0)
+    horizontal_topic: str | None = Field(None, min_length=1)
+    vertical_topic: str | None = Field(None, min_length=1)
+    navigation_topic: str | None = Field(None, min_length=1)
+    ground_truth_topic: str | None = Field(None, min_length=1)
+    dvl_topic: str | None = Field(None, min_length=1)
+    imu_topic: str | None = Field(None, min_length=1)
+    depth_topic: str | None = Field(None, min_length=1)
+    dvl_max_velocity_mps: float = Field(0.5, gt=0.0, le=50.0)
+    image_fov_deg: float = Field(130.0, gt=0.0, le=360.0)
+    image_max_range_m: float = Field(30.0, gt=0.0, le=1000.0)
+    horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.0)
+    horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (0.0, 0.0, 0.0)
+    vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.1)
+    vertical_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (90.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)

@@ -53,7 +53,9 @@ _XYZ = ("x_m", "y_m", "z_m")
 class VoxelizeConfig(StageConfig):
     """Config section `voxelize`."""
 
-    voxel_size_m: float = Field(0.1, gt=0.0, description="edge of a map voxel (paper: 10 cm)")
+    voxel_size_m: float = Field(
+        0.1, ge=0.001, le=100.0, description="edge of a map voxel (paper: 10 cm)"
+    )
     drop_above_surface: bool = Field(True, description="drop world points with z > 0")
 
 

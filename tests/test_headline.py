@@ -16,8 +16,8 @@ from test_evaluate import (
 from pipeline.experiments.headline_columns import headline_header, shared_frame
 from pipeline.experiments.sweep import RunOutcome, sweep_tables
 from sim.geometry import rot_z
-from stages.evaluate import STAGE, EvaluateConfig
 from stages.evaluate.headline import headline_errors
+from stages.evaluate.stage import STAGE, EvaluateConfig
 
 TRUTH_XY = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
 

@@ -10,6 +10,7 @@ input has only DVL + IMU + depth), ground truth on /ground_truth/odometry, mount
 from __future__ import annotations
 
 import heapq
+import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -131,10 +132,9 @@ def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int
 def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, Any]:
     """Convert any supported recording into a ROS 2 MCAP; returns counts per topic."""
     from pipeline.engine.errors import SourceError
-    from pipeline.formats.rosmsg import Ros2McapWriter
     from pipeline.readers import ReaderOptions, SourceRecording, open_source
     from pipeline.readers.roles import detect_roles
-    from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH, TOPIC_TF_STATIC
+    from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
 
     opts = ReaderOptions.from_config(options)
     source = open_source(src)
@@ -153,22 +153,14 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
     if truth is not None:
         streams.append(_track_events(truth, TOPIC_GROUND_TRUTH, 31))
     counts: dict[str, int] = {}
-    first = True
-    with dst.open("wb") as f, Ros2McapWriter(f) as w:
-        for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
-            if first:
-                mounts = {s: rec.mountings()[s] for s in roles.sonar}
-                w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
-                counts[TOPIC_TF_STATIC] = 1
-                first = False
-            if isinstance(msg, bytes):
-                w.write_raw(topic, typ, msg, t)
-            else:
-                w.write(topic, typ, msg, t)
-            counts[topic] = counts.get(topic, 0) + 1
-        for name, data in sorted(rec.attachments().items()):
-            w.add_attachment(name, data, "application/octet-stream")
-        w.add_metadata("sonarmap.convert", {"source": src.name, "format": source.kind})
+    # Written beside `dst` and renamed on success: a recording that turns out unreadable
+    # half-way never replaces (or leaves behind) an output file.
+    tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
+    try:
+        _write(tmp, rec, roles, streams, counts, src, source.kind)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
     return {
         "input": str(src),
         "output": str(dst),
@@ -177,6 +169,40 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
         "topics": dict(sorted(counts.items())),
         "warnings": list(source.warnings),
     }
+
+
+def _write(
+    path: Path,
+    rec: Any,
+    roles: Any,
+    streams: list[Iterator[Any]],
+    counts: dict[str, int],
+    src: Path,
+    kind: str,
+) -> None:
+    """Stream every event into a new MCAP at `path`, fsynced; `counts` filled per topic."""
+    from pipeline.formats.rosmsg import Ros2McapWriter
+    from schemas.topics import TOPIC_TF_STATIC
+
+    first = True
+    with path.open("wb") as f:
+        with Ros2McapWriter(f) as w:
+            for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
+                if first:
+                    mounts = {s: rec.mountings()[s] for s in roles.sonar}
+                    w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
+                    counts[TOPIC_TF_STATIC] = 1
+                    first = False
+                if isinstance(msg, bytes):
+                    w.write_raw(topic, typ, msg, t)
+                else:
+                    w.write(topic, typ, msg, t)
+                counts[topic] = counts.get(topic, 0) + 1
+            for name, data in sorted(rec.attachments().items()):
+                w.add_attachment(name, data, "application/octet-stream")
+            w.add_metadata("sonarmap.convert", {"source": src.name, "format": kind})
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:

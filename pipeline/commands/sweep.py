@@ -41,6 +41,12 @@ def register(app: typer.Typer) -> None:
         specs = expand(
             datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
         )
+        from pipeline.engine.config import load_config
+        from pipeline.engine.registry import all_stages, extra_sections
+
+        # Every point's config before the first run: a bad value fails now, not hours in.
+        for spec in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
+            load_config(all_stages(), Path(spec[0]) if spec[0] else None, spec[1], extra_sections())
         console = stderr_console()
         console.print(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)")
 

@@ -18,7 +18,9 @@ from typing import Any, cast
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
+from pipeline.engine.config_errors import validation_message
 from pipeline.engine.errors import ConfigError
+from pipeline.engine.yaml_files import read_yaml
 from stages.base import Stage
 
 __all__ = [
@@ -141,13 +143,6 @@ def _check_keys(model: type[BaseModel], data: Mapping[str, Any], where: str, pre
             _check_keys(sub, value, where, f"{dotted}.")
 
 
-def _validation_message(err: ValidationError, where: str) -> str:
-    first = err.errors()[0]
-    loc = ".".join(str(p) for p in first["loc"])
-    got = first.get("input")
-    return f"{where}: {loc}: {first['msg']} (got {got!r})"
-
-
 def load_config(
     stages: Sequence[Stage],
     path: Path | None = None,
@@ -164,12 +159,7 @@ def load_config(
     where = str(path) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:
-        try:
-            loaded = yaml.safe_load(path.read_text())
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read config ({err.strerror})") from err
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: not valid YAML ({err})") from err
+        loaded = read_yaml(path, "config", ConfigError)
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping of stage sections")
         data = loaded or {}
@@ -178,7 +168,7 @@ def load_config(
     try:
         return model.model_validate(data)
     except ValidationError as err:
-        raise ConfigError(_validation_message(err, where)) from err
+        raise ConfigError(validation_message(model, err, where)) from err
 
 
 def dump_yaml(config: BaseModel) -> str:

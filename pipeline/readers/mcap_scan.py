@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import struct
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,7 +18,7 @@ from pathlib import Path
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, Message, Schema
 
-__all__ = ["ScanResult", "decompress_chunk", "scan_records"]
+__all__ = ["ChunkCorrupt", "ScanResult", "decompress_chunk", "scan_records"]
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 MAGIC = b"\x89MCAP0\r\n"
@@ -32,12 +33,14 @@ class ScanResult:
         good_until: offset after the last complete top-level record.
         recovered: messages recovered from a cut chunk.
         complete: True when the file ended normally (footer and closing magic read).
+        problem: why reading stopped before the end ("" for a plain cut).
     """
 
     size: int = 0
     good_until: int = 0
     recovered: int = 0
     complete: bool = False
+    problem: str = ""
 
     @property
     def unreadable_bytes(self) -> int:
@@ -128,7 +131,9 @@ def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | 
                     inner = [Message.read(stream, length)]
                 else:
                     inner = []
-            except (McapError, struct.error, ValueError, EOFError):
+            except (McapError, struct.error, ValueError, EOFError) as err:
+                kind = {_OP_CHUNK: "chunk", _OP_SCHEMA: "schema", _OP_CHANNEL: "channel"}
+                result.problem = f"{kind.get(opcode, 'record')} at byte offset {pos}: {err}"
                 break
             pos = result.good_until = pos + 9 + length
             yield from inner
@@ -143,17 +148,42 @@ def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | 
             yield rec
 
 
-def decompress_chunk(chunk: Chunk) -> bytes:
-    if chunk.compression == "zstd":
-        import zstandard
+class ChunkCorrupt(ValueError):
+    """A chunk that does not decompress, or whose data fails its stored size or CRC."""
 
-        return zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=chunk.uncompressed_size
-        )
-    if chunk.compression == "lz4":
-        import lz4.frame
 
-        return bytes(lz4.frame.decompress(chunk.data))
+def _decompress(chunk: Chunk) -> bytes:
+    # Streaming zstd: a corrupt `uncompressed_size` must not size a preallocated buffer.
+    try:
+        if chunk.compression == "zstd":
+            import zstandard
+
+            return zstandard.ZstdDecompressor().decompressobj().decompress(chunk.data)
+        if chunk.compression == "lz4":
+            import lz4.frame
+
+            return bytes(lz4.frame.decompress(chunk.data))
+    # Decompressors raise their own types (ZstdError, RuntimeError, ...) on corrupt input.
+    except Exception as err:
+        raise ChunkCorrupt(f"{chunk.compression} data does not decompress ({err})") from err
     if chunk.compression == "":
         return bytes(chunk.data)
-    raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    raise ChunkCorrupt(f"unsupported chunk compression {chunk.compression!r}")
+
+
+def decompress_chunk(chunk: Chunk) -> bytes:
+    """The chunk's records, checked against its uncompressed size and CRC (when non-zero).
+
+    Raises:
+        ChunkCorrupt: the payload does not decompress, or its size or CRC is wrong.
+    """
+    data = _decompress(chunk)
+    if len(data) != chunk.uncompressed_size:
+        raise ChunkCorrupt(
+            f"decompressed to {len(data)} bytes, the chunk says {chunk.uncompressed_size}"
+        )
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ChunkCorrupt(
+            f"CRC mismatch (stored {chunk.uncompressed_crc:#010x}, data {zlib.crc32(data):#010x})"
+        )
+    return data

@@ -24,7 +24,12 @@ from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
 from mcap.summary import Summary
 
 from pipeline.engine.errors import SourceError
-from pipeline.readers.mcap_scan import ScanResult, decompress_chunk, scan_records
+from pipeline.readers.mcap_integrity import (
+    IndexCorrupt,
+    message_index_entries,
+    summary_crc_problem,
+)
+from pipeline.readers.mcap_scan import ChunkCorrupt, ScanResult, decompress_chunk, scan_records
 from pipeline.readers.source_types import TopicInfo, check_counts
 from pipeline.readers.typestores import Ros2Decoder
 
@@ -33,12 +38,19 @@ __all__ = ["McapSource"]
 log = logging.getLogger(__name__)
 
 
-def _summary(path: Path) -> Summary | None:
+_OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
+
+
+def _summary(path: Path) -> tuple[Summary | None, str | None]:
+    """The summary section, or None and why it cannot be used (None: the file has none)."""
     try:
         with path.open("rb") as f:
-            return SeekingReader(f).get_summary()
-    except (McapError, struct.error, ValueError, EOFError):
-        return None
+            problem = summary_crc_problem(path)
+            if problem is not None:
+                return None, problem
+            return SeekingReader(f).get_summary(), None
+    except (McapError, struct.error, ValueError, EOFError, OverflowError):
+        return None, None
 
 
 @dataclass(frozen=True)
@@ -54,14 +66,18 @@ class _Locations:
 def _index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, _Locations]:
     """Per channel, every message's time and place, from the chunks' message indexes."""
     parts: dict[int, list[tuple[np.ndarray, int]]] = defaultdict(list)
+    size = path.stat().st_size
     with path.open("rb") as f:
         for k, chunk in enumerate(chunks):
             for cid, offset in chunk.message_index_offsets.items():
                 f.seek(offset)
-                (length,) = struct.unpack_from("<Q", f.read(9), 1)
-                body = f.read(length)
-                (n_bytes,) = struct.unpack_from("<I", body, 2)
-                entries = np.frombuffer(body, "<u8", n_bytes // 8, 6).reshape(-1, 2)
+                head = f.read(9)
+                if len(head) < 9 or head[0] != _OP_MESSAGE_INDEX:
+                    raise IndexCorrupt(f"no message index at byte offset {offset}")
+                (length,) = struct.unpack_from("<Q", head, 1)
+                if offset + 9 + length > size:
+                    raise IndexCorrupt(f"message index at byte offset {offset} ends past the file")
+                entries = message_index_entries(f.read(length), offset, cid, chunk)
                 parts[cid].append((entries, k))
     out = {}
     for cid, items in parts.items():
@@ -78,9 +94,11 @@ class _McapFile:
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self.summary = _summary(path)
+        self.summary, problem = _summary(path)
         self.scan = ScanResult()
         self.index_problem: str | None = None
+        if problem is not None:
+            self.index_problem = f"{path}: {problem}; read sequentially instead"
         self.channels: dict[int, Channel] = {}
         self.schemas: dict[int, Schema] = {}
         self.times: dict[int, np.ndarray] = {}
@@ -88,7 +106,12 @@ class _McapFile:
             self.channels = dict(self.summary.channels)
             self.schemas = dict(self.summary.schemas)
             self.chunks = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-            self.locations = _index_locations(path, self.chunks)
+            try:
+                self.locations = _index_locations(path, self.chunks)
+            except (IndexCorrupt, struct.error, ValueError) as err:
+                self.index_problem = f"{path}: {err}; read sequentially instead"
+                self.summary = None
+        if self.summary is not None and self.summary.chunk_indexes:
             self.times = {cid: loc.t for cid, loc in self.locations.items()}
             self._cache: OrderedDict[int, bytes] = OrderedDict()
             counts = (
@@ -144,12 +167,47 @@ class _McapFile:
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
-        f.seek(self.chunks[k].chunk_start_offset + 9)
-        data = decompress_chunk(Chunk.read(ReadDataStream(f)))
+        data = self._read_chunk(f, k)
         self._cache[k] = data
         while len(self._cache) > 2:
             self._cache.popitem(last=False)
         return data
+
+    def _read_chunk(self, f: BinaryIO, k: int) -> bytes:
+        """Chunk k decompressed and checked (SourceError naming its offset when corrupt)."""
+        offset = self.chunks[k].chunk_start_offset
+        f.seek(offset)
+        try:
+            if f.read(1) != bytes([_OP_CHUNK]):
+                raise ChunkCorrupt("no chunk record there")
+            f.seek(8, 1)
+            return decompress_chunk(Chunk.read(ReadDataStream(f)))
+        except (ChunkCorrupt, McapError, struct.error, ValueError, EOFError) as err:
+            raise SourceError(
+                f"{self.path}: corrupt MCAP chunk at byte offset {offset}: {err}"
+            ) from err
+
+    def verify(self) -> None:
+        """Decompress every chunk and check its CRC (SourceError on the first bad one)."""
+        if self.summary is None:
+            return  # scanned: every chunk was checked while scanning
+        with self.path.open("rb") as f:
+            for k in range(len(self.chunks)):
+                self._read_chunk(f, k)
+
+    def _message(self, data: bytes, off: int, cid: int, t: int, k: int) -> bytes:
+        """The CDR payload of the message record an index entry points at."""
+        end = off + 9 + 22
+        if end <= len(data):
+            opcode, length, channel, _, log_time = struct.unpack_from("<BQHIQ", data, off)
+            ok = opcode == _OP_MESSAGE and channel == cid and log_time == t
+            if ok and off + 9 + length <= len(data):
+                return data[end : off + 9 + length]
+        raise SourceError(
+            f"{self.path}: the message index of chunk at byte offset "
+            f"{self.chunks[k].chunk_start_offset} points at no message of its channel "
+            f"(offset {off} in the chunk)"
+        )
 
     def _indexed(
         self, channel_ids: set[int], times: Collection[int] | None
@@ -173,9 +231,7 @@ class _McapFile:
         rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
         with self.path.open("rb") as f:
             for t, k, off, cid in rows.tolist():
-                data = self._chunk(f, k)
-                (length,) = struct.unpack_from("<Q", data, off + 1)
-                yield cid, t, data[off + 9 + 22 : off + 9 + length]
+                yield cid, t, self._message(self._chunk(f, k), off, cid, t, k)
 
 
 class McapSource:
@@ -201,11 +257,16 @@ class McapSource:
                     f"{f.path}: truncated or corrupt MCAP: {f.scan.unreadable_bytes} of "
                     f"{f.scan.size} bytes after offset {f.scan.good_until} were unreadable "
                     f"({f.scan.recovered} messages recovered from a cut chunk)"
+                    + (f"; {f.scan.problem}" if f.scan.problem else "")
                 )
                 self.warnings.append(msg)
                 log.warning(msg)
             elif f.summary is None and not f.channels and f.scan.good_until <= 8:
                 raise SourceError(f"{f.path}: not a readable MCAP file")
+        # Every chunk is checked once up front, not only those a reader asks for: a flipped
+        # bit in data this run skips still means the copy is bad (and a later run reads it).
+        for f in self._files:
+            f.verify()
         self._decoder = Ros2Decoder(self._schema_texts())
         self._topics = self._topic_infos(indexed)
         check_counts(path, self._topics, self.warnings)
@@ -273,7 +334,10 @@ class McapSource:
         for f in self._files:
             if f.summary is None:
                 continue
-            with f.path.open("rb") as fh:
-                for att in SeekingReader(fh).iter_attachments():
-                    out[att.name] = bytes(att.data)
+            try:
+                with f.path.open("rb") as fh:
+                    for att in SeekingReader(fh).iter_attachments():
+                        out[att.name] = bytes(att.data)
+            except (McapError, struct.error, ValueError, EOFError) as err:
+                raise SourceError(f"{f.path}: corrupt MCAP attachment ({err})") from err
         return out

@@ -73,13 +73,16 @@ def open_source(path: Path) -> Source:
 
 
 def _bag_metadata(path: Path) -> dict[str, Any]:
-    import yaml
+    from pipeline.engine.yaml_files import read_yaml
 
+    meta = path / "metadata.yaml"
+    doc = read_yaml(meta, "bag metadata", SourceError)
     try:
-        doc = yaml.safe_load((path / "metadata.yaml").read_text())
         return dict(doc["rosbag2_bagfile_information"])
-    except (OSError, KeyError, TypeError, yaml.YAMLError) as err:
-        raise SourceError(f"{path / 'metadata.yaml'}: not a rosbag2 metadata file ({err})") from err
+    except (KeyError, TypeError, ValueError) as err:
+        raise SourceError(
+            f"{meta}: not a rosbag2 metadata file (no mapping 'rosbag2_bagfile_information')"
+        ) from err
 
 
 def _open_rosbag2(path: Path) -> Source:

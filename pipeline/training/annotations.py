@@ -13,13 +13,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-import yaml
 from pydantic import ValidationError
 
 from pipeline.engine.codecs import write_output
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
+from pipeline.engine.yaml_files import read_yaml
 from schemas.annotations import AnnotationFile
 from stages.base import Output, Stage, StageConfig
 from stages.classify.annotations import RASTER_VERSION
@@ -72,14 +72,7 @@ def load_annotations(path: Path) -> AnnotationFile:
         SourceError: unreadable, not YAML/JSON, or invalid; one line naming the file
             and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise SourceError(f"{path}: cannot read annotations ({err.strerror})") from err
-    except yaml.YAMLError as err:
-        where = getattr(err, "problem_mark", None)
-        line = f" at line {where.line + 1}" if where is not None else ""
-        raise SourceError(f"{path}: not valid YAML/JSON{line}") from err
+    raw = read_yaml(path, "annotations", SourceError)
     if not isinstance(raw, dict):
         raise SourceError(f"{path}: expected a mapping with 'format' and 'keyframes'")
     try:

@@ -5,25 +5,38 @@ the section without importing the training machinery, which itself needs the eng
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field, field_validator
 
-from stages.features import FeaturesConfig
+from pipeline.engine.errors import ConfigError
+from stages.base import ConfigModel
+from stages.features.stage import FeaturesConfig
 from stages.keyframes import KeyframesConfig
 
 __all__ = ["TrainingDataConfig", "TrainingSet"]
 
 
-class TrainingSet(BaseModel):
+class TrainingSet(ConfigModel):
     """One simulated mission the default classifier learns from."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
-    scene: str
-    seed: int = Field(ge=0)
-    goals: int = Field(ge=1)
-    duration_s: float | None = Field(None, gt=0)
+    scene: str = Field(min_length=1, description="a scene name in configs/scenes/ or a file")
+    seed: int = Field(ge=0, le=2**32 - 1)
+    goals: int = Field(ge=1, le=10000)
+    duration_s: float | None = Field(None, gt=0, le=7 * 86400)
+
+    @field_validator("scene")
+    @classmethod
+    def _scene_exists(cls, value: str) -> str:
+        # Checked with the rest of the config, not when training first needs it.
+        from pipeline.training.datasets import scene_path
+
+        try:
+            scene_path(value)
+        except ConfigError as err:
+            raise ValueError(str(err)) from err
+        return value
 
 
-class TrainingDataConfig(BaseModel):
+class TrainingDataConfig(ConfigModel):
     """Config section `training`: which labelled datasets the default model is trained on.
 
     The mapped scene should not be among them (the default marina never is). Seeds are
@@ -32,12 +45,11 @@ class TrainingDataConfig(BaseModel):
     which every store on the machine reuses.
     """
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
     sets: tuple[TrainingSet, ...] = (
         TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
         TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
     )
-    directory: str = "data/training"
+    directory: str = Field("data/training", min_length=1)
     recorded: tuple[str, ...] = Field(
         default=(),
         description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",

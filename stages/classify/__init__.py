@@ -2,7 +2,9 @@
 
 Modules:
     stage: the `classify` stage.
-    objects: segmentation of each keyframe's features into objects.
+    overlay: the stage's figure, objects over the horizontal image.
+    segmentation: DBSCAN clusters of a keyframe's features and the authors' cluster rules.
+    objects: the objects of a keyframe and their CNN patches.
     cnn: the object classifier network.
     view_pooling: pooling class beliefs over views of an object.
     train: the `train` stage.
@@ -10,7 +12,8 @@ Modules:
     annotations: labels of simulated keyframes from the true scene.
 """
 
-from stages.classify.stage import STAGE, ClassifyConfig, classify_keyframes, overlay_png
+from stages.classify.overlay import overlay_png
+from stages.classify.stage import STAGE, ClassifyConfig, classify_keyframes
 from stages.classify.train import STAGE as TRAIN_STAGE
 from stages.classify.train import TrainConfig, train_classifier
 

@@ -24,7 +24,6 @@ this stage's config only override them.
 
 from __future__ import annotations
 
-import io
 import logging
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -39,6 +38,7 @@ from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
+from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
 
 if TYPE_CHECKING:
@@ -46,7 +46,7 @@ if TYPE_CHECKING:
 
 cnn = lazy("stages.classify.cnn")
 
-__all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "overlay_png"]
+__all__ = ["STAGE", "ClassifyConfig", "classify_keyframes"]
 
 log = logging.getLogger(__name__)
 
@@ -63,17 +63,24 @@ class ClassifyConfig(StageConfig):
     """
 
     eps_m: float | None = Field(
-        None, gt=0, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
+        None, gt=0, le=100, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
     )
     min_samples: int | None = Field(
-        None, ge=1, description="DBSCAN core neighbourhood; None: the model's (train.min_samples)"
+        None,
+        ge=1,
+        le=100000,
+        description="DBSCAN core neighbourhood; None: the model's (train.min_samples)",
     )
     min_features: int | None = Field(
-        None, ge=1, description="smallest object kept; None: the model's (train.min_features)"
+        None,
+        ge=1,
+        le=100000,
+        description="smallest object kept; None: the model's (train.min_features)",
     )
     min_object_area_m2: float | None = Field(
         None,
         gt=0,
+        le=10000,
         description="keep only objects whose feature cells cover more than this fan-plane"
         " area (stages.classify.segmentation.cell_areas_m2; None: no area rule; original sim code:"
         " > 150 px of 5 cm = 0.375 m2); not applied in training",
@@ -85,30 +92,42 @@ class ClassifyConfig(StageConfig):
         " objects are not in objects.parquet",
     )
     fan_edge_margin_m: float = Field(
-        0.25, ge=0, description="padding of the fan-edge box on each side [m] (original 5 px)"
+        0.25,
+        ge=0,
+        le=100,
+        description="padding of the fan-edge box on each side [m] (original 5 px)",
     )
     fan_edge_max_outside_m2: float = Field(
         0.025,
         gt=0,
+        le=10000,
         description="an object is dropped when this much of its padded box lies outside the"
         " fan [m2] (original: 10 px of 5 cm)",
     )
-    mc_passes: int = Field(20, ge=1, description="Monte-Carlo dropout passes m")
+    mc_passes: int = Field(20, ge=1, le=1000, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
-    seed: int = Field(0, description="dropout-mask seed (combined with keyframe_id)")
+    seed: int = Field(
+        0, ge=0, le=2**32 - 1, description="dropout-mask seed (combined with keyframe_id)"
+    )
     pool_views: bool = Field(
         True,
         description="decide on the class distribution log-linearly pooled over sightings of"
         " the same place in nearby keyframes (stages.classify.view_pooling; not in the paper)",
     )
     pool_radius_m: float = Field(
-        0.7, gt=0, description="sightings within this in the world are one object"
+        0.7, gt=0, le=1000, description="sightings within this in the world are one object"
     )
     pool_window_m: float = Field(
-        80.0, ge=0, description="... when at most this far apart along the track (DR drift)"
+        80.0,
+        ge=0,
+        le=100000,
+        description="... when at most this far apart along the track (DR drift)",
     )
     pool_range_scale_m: float | None = Field(
-        15.0, gt=0, description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal"
+        15.0,
+        gt=0,
+        le=10000,
+        description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
     )
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
@@ -288,65 +307,8 @@ def classify_keyframes(
     log.info("classified %d objects in %d keyframes", objects.num_rows, len(geo_parts))
     if not cfg.overlay:
         return objects, links, None
-    chosen, rows = _busiest(objects)
+    chosen, rows = busiest_keyframe(objects)
     return objects, links, (frames[position[chosen]], rows)
-
-
-def _busiest(objects: pa.Table) -> tuple[int, pa.Table]:
-    """The keyframe with the most accepted objects (the first of equals) and its rows."""
-    kf = objects.column("keyframe_id").to_numpy()
-    accepted = objects.column("class_id").to_numpy() != UNKNOWN_CLASS_ID
-    ids, first, sizes = np.unique(kf, return_index=True, return_counts=True)
-    best = int(np.argmax(np.bincount(np.searchsorted(ids, kf[accepted]), minlength=len(ids))))
-    return int(ids[best]), objects.slice(int(first[best]), int(sizes[best]))
-
-
-def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
-    """Class-coloured overlay of one keyframe: the horizontal image in fan-plane Cartesian
-    coordinates with each object's bounding box and label (class, probability; truth).
-
-    Args:
-        frame: the keyframe.
-        objects: that keyframe's rows of objects.parquet.
-
-    Returns:
-        PNG bytes.
-    """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Rectangle
-
-    ping = frame.horizontal
-    step_r = max(1, len(ping.ranges_m) // 300)
-    step_b = max(1, len(ping.angles_rad) // 256)
-    r = ping.ranges_m[::step_r, None].astype(np.float64)
-    a = ping.angles_rad[None, ::step_b].astype(np.float64)
-    fig = Figure(figsize=(8, 6), dpi=100)
-    ax = fig.add_subplot()
-    img = ping.image[::step_r, ::step_b]
-    vmin, vmax = float(np.percentile(img, 90)), max(float(img.max()), 1.0)
-    ax.pcolormesh(-r * np.sin(a), r * np.cos(a), img, cmap="gray", vmin=vmin, vmax=vmax,
-                  shading="auto", rasterized=True)  # fmt: skip
-    cmap = matplotlib.colormaps["tab10"]
-    for row in objects.to_pylist():
-        cid = CLASS_IDS.get(row["class_name"], 0)
-        colour = cmap(cid % 10) if row["class_id"] >= 0 else (1.0, 1.0, 1.0, 1.0)
-        x0, x1, y0, y1 = row["x_min_m"], row["x_max_m"], row["y_min_m"], row["y_max_m"]
-        ax.add_patch(Rectangle((-y1, x0), y1 - y0, x1 - x0, fill=False, lw=1.2, ec=colour))
-        text = f"{row['class_name']} {row['probability']:.2f}"
-        if row["true_class_name"] is not None:
-            text += f"\n(true {row['true_class_name']})"
-        ax.text(-y1, x1, text, color=colour, fontsize=6, va="bottom")
-    ax.set_aspect("equal")
-    ax.set_xlabel("-y (right) [m]")
-    ax.set_ylabel("x (forward) [m]")
-    ax.set_title(f"keyframe {frame.keyframe_id}: horizontal sonar objects")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
 
 
 def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:

@@ -62,15 +62,19 @@ FIGURES: dict[str, str] = {
 class EvaluateConfig(StageConfig):
     """Config section `evaluate`."""
 
-    tolerance_m: float = Field(0.1, gt=0.0, description="precision/completeness distance")
+    tolerance_m: float = Field(
+        0.1, gt=0.0, le=1000.0, description="precision/completeness distance"
+    )
     completeness_classes: tuple[str, ...] = Field(
         PILING_CLASSES, description="classes whose surface completeness measures"
     )
     surface_samples_per_m2: float = Field(
-        100.0, gt=0.0, description="completeness sampling density (10 cm spacing)"
+        100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
     )
-    seed: int = Field(0, description="seed of the surface sampling")
-    max_range_m: float = Field(30.0, gt=0.0, description="sonar range for the visible surface")
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the surface sampling")
+    max_range_m: float = Field(
+        30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
+    )
     fan_width_deg: float = Field(130.0, gt=0.0, le=360.0, description="horizontal sonar fan")
     aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
     side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")

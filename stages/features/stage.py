@@ -50,8 +50,8 @@ class FeaturesConfig(StageConfig):
     train_cells_per_side: int = Field(10, ge=1, le=200)
     guard_cells_per_side: int = Field(5, ge=0, le=200)
     pfa: float = Field(0.1, gt=0.0, lt=1.0)
-    os_rank: int = Field(0, ge=0)
-    intensity_floor: float = Field(20.0, ge=0.0)
+    os_rank: int = Field(0, ge=0, le=400)
+    intensity_floor: float = Field(20.0, ge=0.0, le=65535.0)
 
 
 def detect_ping(ping: SonarPing, config: FeaturesConfig) -> tuple[np.ndarray, np.ndarray]:

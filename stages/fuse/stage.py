@@ -69,6 +69,7 @@ class FuseConfig(StageConfig):
     min_subproblem_features: int = Field(
         1,
         ge=1,
+        le=100000,
         description="a range-bin subproblem is solved only if both its horizontal and its"
         " vertical set have at least this many features (1: every bin; original code: 3)",
     )
@@ -81,6 +82,7 @@ class FuseConfig(StageConfig):
     max_cost_ratio: float | None = Field(
         None,
         gt=0.0,
+        le=1.0,
         description="with confidence_rule 'ratio', keep associations whose cost ratio"
         " L_ij / L_2 is below this (None: keep all; original code 0.97 sim, 0.98 real)",
     )

@@ -46,9 +46,14 @@ class InferConfig(StageConfig):
         " classes not listed use 'object'",
     )
     beam_gap_m: float = Field(
-        0.3, gt=0.0, description="beam frame: a longer gap along a beam starts another surface"
+        0.3,
+        gt=0.0,
+        le=100.0,
+        description="beam frame: a longer gap along a beam starts another surface",
     )
-    beam_cell_m: float = Field(0.1, gt=0.0, description="beam frame: model cell along s")
+    beam_cell_m: float = Field(
+        0.1, ge=0.001, le=100.0, description="beam frame: model cell along s"
+    )
     beam_update_rule: UpdateRule = Field(
         "mixture",
         description="beam frame: 'product' (Eq. 7, one height per cell) or 'mixture'"
@@ -56,43 +61,57 @@ class InferConfig(StageConfig):
     )
     beam_range_cell_m: float | None = Field(
         None,
-        gt=0.0,
+        ge=0.001,
+        le=1000.0,
         description="beam frame: cell along the leading-edge range R0 as a second model"
         " axis; None: one profile per class",
     )
-    z_min_m: float = Field(-4.0, description="lowest height of the z grid (sonar frame)")
-    z_max_m: float = Field(4.0, description="highest height of the z grid")
-    z_step_m: float = Field(0.05, gt=0.0, description="z grid spacing")
-    sigma_m: float = Field(0.08, gt=0.0, description="std of the Gaussian height likelihood")
+    z_min_m: float = Field(
+        -4.0, ge=-1000.0, le=0.0, description="lowest height of the z grid (sonar frame)"
+    )
+    z_max_m: float = Field(4.0, ge=0.0, le=1000.0, description="highest height of the z grid")
+    z_step_m: float = Field(0.05, ge=0.001, le=100.0, description="z grid spacing")
+    sigma_m: float = Field(
+        0.08, ge=0.0001, le=100.0, description="std of the Gaussian height likelihood"
+    )
     range_axis: Literal["offset", "height_equivalent"] = Field(
         "height_equivalent", description="model cell axis along range (see _model_coords)"
     )
-    range_cell_m: float = Field(0.1, gt=0.0, description="model cell size along range")
-    cross_range_cell_m: float = Field(0.05, gt=0.0, description="model cell size across range")
+    range_cell_m: float = Field(0.1, ge=0.001, le=100.0, description="model cell size along range")
+    cross_range_cell_m: float = Field(
+        0.05, ge=0.001, le=100.0, description="model cell size across range"
+    )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
     )
     confidence_window_m: float = Field(
         0.08,
         ge=0.0,
+        le=100.0,
         description="half-width of the interval around a MAP height whose mass is"
         " its posterior probability",
     )
     max_elevation_deg: float = Field(
         10.0, gt=0.0, le=90.0, description="drop predictions outside +-this elevation"
     )
-    reference_voxel_m: float = Field(0.05, gt=0.0, description="reference cloud voxel size")
-    icp_max_correspondence_m: float = Field(0.5, gt=0.0, description="ICP pairing distance")
-    icp_max_iterations: int = Field(30, ge=1, description="ICP iteration cap")
+    reference_voxel_m: float = Field(
+        0.05, ge=0.001, le=100.0, description="reference cloud voxel size"
+    )
+    icp_max_correspondence_m: float = Field(
+        0.5, gt=0.0, le=1000.0, description="ICP pairing distance"
+    )
+    icp_max_iterations: int = Field(30, ge=1, le=10000, description="ICP iteration cap")
     icp_min_fitness: float = Field(
         0.6, ge=0.0, le=1.0, description="min fraction of points paired for a good ICP"
     )
-    icp_max_rmse_m: float = Field(0.15, gt=0.0, description="max inlier RMSE of a good ICP")
+    icp_max_rmse_m: float = Field(
+        0.15, gt=0.0, le=1000.0, description="max inlier RMSE of a good ICP"
+    )
     icp_max_translation_m: float = Field(
-        1.5, gt=0.0, description="max ICP shift from the object-frame alignment"
+        1.5, gt=0.0, le=10000.0, description="max ICP shift from the object-frame alignment"
     )
     icp_max_rotation_deg: float = Field(
-        30.0, gt=0.0, description="max ICP rotation from the object-frame alignment"
+        30.0, gt=0.0, le=360.0, description="max ICP rotation from the object-frame alignment"
     )
 
     @model_validator(mode="after")

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field
 
@@ -11,6 +11,10 @@ from stages.base import StageConfig
 from stages.slam.pcm import CHI2_99_3DOF
 
 __all__ = ["SlamConfig"]
+
+
+_WindowM = Annotated[float, Field(gt=0, le=1000)]
+_WindowDeg = Annotated[float, Field(gt=0, le=360)]
 
 
 class SlamConfig(StageConfig):
@@ -25,11 +29,12 @@ class SlamConfig(StageConfig):
     """
 
     mode: Literal["slam", "dead_reckoning", "ground_truth"] = "slam"
-    prior_sigma_xy_m: float = Field(0.1, gt=0)
-    prior_sigma_yaw_deg: float = Field(0.573, gt=0, description="0.01 rad")
+    prior_sigma_xy_m: float = Field(0.1, ge=1e-6, le=10000)
+    prior_sigma_yaw_deg: float = Field(0.573, ge=1e-6, le=360, description="0.01 rad")
     odom_sigma_xy_m_sqrt_s: float = Field(
         0.0075,
-        gt=0,
+        ge=1e-6,
+        le=100,
         description="white noise of the odometry's position per sqrt(s) of the step's"
         " duration (the scale error is a state, `odom_scale_sigma`): a DVL's 0.02 m/s at"
         " 10 Hz gives 0.0063 (the simulator's default navigation; measured 0.012-0.018 m"
@@ -38,101 +43,132 @@ class SlamConfig(StageConfig):
     )
     odom_sigma_yaw_deg: float = Field(
         0.42,
-        gt=0,
+        ge=1e-6,
+        le=360,
         description="per keyframe step: the difference of two AHRS headings, each with"
         " 0.3 deg white noise (measured 0.38-0.48)",
     )
     odom_scale_sigma: float | None = Field(
         0.02,
-        gt=0,
+        ge=1e-6,
+        le=10,
         description="prior std of the odometry's per-axis scale error (a DVL's: fixed over a"
         " mission), estimated as a state; None: no scale state",
     )
     odom_chain_sigma_xy_m: float = Field(
         0.05,
-        gt=0,
+        ge=1e-6,
+        le=1000,
         description="per-step std of the odometry chain that sizes loop search windows and"
         " gates (covers the scale error's drift too)",
     )
     heading_sigma_deg: float | None = Field(
         0.3,
-        gt=0,
+        ge=1e-6,
+        le=360,
         description="mode slam: absolute heading factor per keyframe from the navigation yaw"
         " (AHRS heading), its white noise; None: off",
     )
     heading_bias_walk_deg_sqrt_s: float | None = Field(
         0.02,
         gt=0,
+        le=360,
         description="random walk of the heading's bias [deg/sqrt(s)] (the simulator's AHRS:"
         " 0.02): each heading factor measures yaw through a bias state chained by this walk,"
         " so loops correct the wandering part; None: independent heading priors",
     )
     heading_first_bias_sigma_deg: float = Field(
-        5.0, gt=0, description="prior std of the first bias state (a gauge: weak)"
+        5.0, ge=1e-6, le=360, description="prior std of the first bias state (a gauge: weak)"
     )
     ssm_replaces_odometry: bool = Field(
         False, description="authors: SSM replaces odometry; default: both factors are fused"
     )
     icp_sigma_xy_m: float = Field(
-        0.03, gt=0, description="floor of an SSM covariance (measured SSM error 0.02-0.05 m)"
+        0.03,
+        ge=1e-6,
+        le=1000,
+        description="floor of an SSM covariance (measured SSM error 0.02-0.05 m)",
     )
-    icp_sigma_yaw_deg: float = Field(0.2, gt=0, description="measured SSM error 0.16-0.21 deg")
+    icp_sigma_yaw_deg: float = Field(
+        0.2, ge=1e-6, le=360, description="measured SSM error 0.16-0.21 deg"
+    )
     covariance_floor: Literal["replace", "scale"] = Field(
         "scale", description="scale keeps the ICP Hessian's x-yaw correlation (lever arm)"
     )
-    loop_sigma_xy_m: float = Field(0.1, gt=0, description="floor of a loop's covariance")
-    loop_sigma_yaw_deg: float = Field(0.573, gt=0)
-    point_resolution_m: float = Field(0.25, gt=0, description="voxel size of keyframe clouds")
+    loop_sigma_xy_m: float = Field(
+        0.1, ge=1e-6, le=1000, description="floor of a loop's covariance"
+    )
+    loop_sigma_yaw_deg: float = Field(0.573, ge=1e-6, le=360)
+    point_resolution_m: float = Field(
+        0.25, ge=0.001, le=100, description="voxel size of keyframe clouds"
+    )
     leading_edge_only: bool = Field(True, description="first cell of each run along a beam")
-    point_noise_m: float = Field(0.5, gt=0, description="grid dilation and overlap radius")
-    grid_resolution_m: float = Field(0.25, gt=0, description="consensus grid cell")
-    max_correspondence_m: float = Field(1.0, gt=0, description="ICP correspondence gate")
-    search_max_points: int = Field(150, ge=10, description="source points scored in the search")
+    point_noise_m: float = Field(0.5, gt=0, le=100, description="grid dilation and overlap radius")
+    grid_resolution_m: float = Field(0.25, ge=0.001, le=100, description="consensus grid cell")
+    max_correspondence_m: float = Field(1.0, gt=0, le=1000, description="ICP correspondence gate")
+    search_max_points: int = Field(
+        150, ge=10, le=1000000, description="source points scored in the search"
+    )
     icp_effective_samples: float | None = Field(
-        4.0, gt=0, description="independent residuals assumed in the ICP covariance"
+        4.0, gt=0, le=1000000, description="independent residuals assumed in the ICP covariance"
     )
     search_tie_fraction: float = Field(
         0.9, gt=0, le=1, description="consensus within this of the best: nearest the guess wins"
     )
-    icp_max_iterations: int = Field(40, ge=1)
-    min_points: int = Field(30, ge=3, description="points needed in source and target")
-    min_overlap_points: int = Field(30, ge=3, description="overlapping points to accept")
-    ssm_target_frames: int = Field(3, ge=1)
-    ssm_window_xy_m: float = Field(1.0, gt=0, description="global search half-width")
-    ssm_window_yaw_deg: float = Field(5.73, gt=0)
-    ssm_max_translation_m: float = Field(2.0, gt=0, description="max deviation from odometry")
-    ssm_max_rotation_deg: float = Field(30.0, gt=0)
-    nssm_min_separation: int = Field(8, ge=1, description="keyframes between loop ends")
-    nssm_source_frames: int = Field(5, ge=1)
-    nssm_target_frames: int = Field(5, ge=1, description="target frames around the best one")
-    nssm_min_frame_points: int = Field(10, ge=1)
-    nssm_max_range_m: float = Field(30.0, gt=0)
+    icp_max_iterations: int = Field(40, ge=1, le=10000)
+    min_points: int = Field(30, ge=3, le=1000000, description="points needed in source and target")
+    min_overlap_points: int = Field(
+        30, ge=3, le=1000000, description="overlapping points to accept"
+    )
+    ssm_target_frames: int = Field(3, ge=1, le=1000)
+    ssm_window_xy_m: float = Field(1.0, gt=0, le=1000, description="global search half-width")
+    ssm_window_yaw_deg: float = Field(5.73, gt=0, le=360)
+    ssm_max_translation_m: float = Field(
+        2.0, gt=0, le=1000, description="max deviation from odometry"
+    )
+    ssm_max_rotation_deg: float = Field(30.0, gt=0, le=360)
+    nssm_min_separation: int = Field(8, ge=1, le=100000, description="keyframes between loop ends")
+    nssm_source_frames: int = Field(5, ge=1, le=1000)
+    nssm_target_frames: int = Field(
+        5, ge=1, le=1000, description="target frames around the best one"
+    )
+    nssm_min_frame_points: int = Field(10, ge=1, le=1000000)
+    nssm_max_range_m: float = Field(30.0, gt=0, le=1000)
     nssm_max_heading_change_deg: float = Field(
-        180.0, gt=0, description="loop targets seen with a heading within this of the current"
+        180.0,
+        gt=0,
+        le=360,
+        description="loop targets seen with a heading within this of the current",
     )
     nssm_fallback_targets: int = Field(
         1,
         ge=0,
+        le=1000,
         description="loop targets tried after the best one fails its checks (each from"
         " another stretch of the track)",
     )
-    nssm_aperture_deg: float = Field(130.0, gt=0)
-    nssm_window_xy_m: tuple[float, float] = (1.0, 5.0)
-    nssm_window_yaw_deg: tuple[float, float] = (5.73, 20.0)
-    nssm_max_translation_m: float = Field(10.0, gt=0)
-    nssm_max_rotation_deg: float = Field(60.0, gt=0)
+    nssm_aperture_deg: float = Field(130.0, gt=0, le=360)
+    nssm_window_xy_m: tuple[_WindowM, _WindowM] = (1.0, 5.0)
+    nssm_window_yaw_deg: tuple[_WindowDeg, _WindowDeg] = (5.73, 20.0)
+    nssm_max_translation_m: float = Field(10.0, gt=0, le=10000)
+    nssm_max_rotation_deg: float = Field(60.0, gt=0, le=360)
     nssm_gate_chi2: float = Field(
-        16.27, gt=0, description="chi2(0.999, 3) gate of a loop against the odometry chain"
+        16.27,
+        gt=0,
+        le=1000000,
+        description="chi2(0.999, 3) gate of a loop against the odometry chain",
     )
     loop_cauchy_k: float | None = Field(
         1.0,
         gt=0,
+        le=1000000,
         description="Cauchy kernel scale on loop factors (whitened error): loop errors are"
         " heavy-tailed (viewpoint-dependent sonar returns); None: Gaussian",
     )
     loop_refine_passes: int = Field(
         2,
         ge=0,
+        le=100,
         description="after the incremental run: passes that re-register every accepted loop"
         " from the optimised poses (ICP only, no global search), each followed by a batch"
         " re-solve of the whole graph; 0: off",
@@ -140,6 +176,7 @@ class SlamConfig(StageConfig):
     loop_shared_window: int = Field(
         5,
         ge=0,
+        le=100000,
         description="loops whose two ends are both within this many keyframes of another's"
         " share most of their sonar data, so their errors are correlated: in the loop"
         " re-registration each loop's covariance is multiplied by the number of accepted"
@@ -148,25 +185,30 @@ class SlamConfig(StageConfig):
     loop_baseline_growth_m: float | None = Field(
         4.0,
         gt=0,
+        le=100000,
         description="in the loop re-registration each loop's covariance is multiplied by"
         " ((g + d) / (g + d_ref))^2, d its baseline: the loop error grows with the distance"
         " between its two keyframes (measured RMS about 0.02 + 0.005 d m, so g = 4 m is where"
         " it doubles from its zero-baseline value); None: off",
     )
     loop_reference_baseline_m: float = Field(
-        18.0, gt=0, description="baseline whose loop covariance the growth leaves unchanged"
+        18.0,
+        gt=0,
+        le=100000,
+        description="baseline whose loop covariance the growth leaves unchanged",
     )
     ssm_refine_target_frames: int = Field(
         5,
         ge=0,
+        le=1000,
         description="in each loop re-registration pass, also re-register every accepted SSM"
         " factor (ICP only, from the current poses) against this many previous keyframes;"
         " 0: off",
     )
     loop_refine_correspondence_m: float = Field(
-        0.3, gt=0, description="ICP correspondence gate of the loop re-registration"
+        0.3, gt=0, le=1000, description="ICP correspondence gate of the loop re-registration"
     )
-    pcm_queue_keyframes: int = Field(5, ge=0)
-    pcm_min_clique: int = Field(2, ge=1)
-    pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, description="chi2(0.99, 3)")
-    plot_max_points: int = Field(30000, ge=0)
+    pcm_queue_keyframes: int = Field(5, ge=0, le=100000)
+    pcm_min_clique: int = Field(2, ge=1, le=10000)
+    pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, le=1000000, description="chi2(0.99, 3)")
+    plot_max_points: int = Field(30000, ge=0, le=100000000)

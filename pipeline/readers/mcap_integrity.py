@@ -1,0 +1,80 @@
+"""Integrity checks of an indexed MCAP file's summary and message indexes.
+
+The summary (channels, chunk indexes) carries a CRC in the footer; the message indexes
+in the data section carry none, so each is checked against the chunk it describes. A
+file that fails either check is read sequentially instead (`mcap_scan`), where every
+chunk's CRC is verified as it is decompressed.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+from mcap.records import ChunkIndex
+
+__all__ = ["IndexCorrupt", "message_index_entries", "summary_crc_problem"]
+
+_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
+_MAGIC_SIZE = 8
+_OP_FOOTER, _OP_MESSAGE_INDEX = 0x02, 0x07
+
+
+class IndexCorrupt(ValueError):
+    """A message index that cannot describe the chunk it belongs to."""
+
+
+def summary_crc_problem(path: Path) -> str | None:
+    """Why the summary section fails its footer CRC (None when it passes, has no CRC, or
+    the file has no readable footer: the caller's summary reader reports that)."""
+    size = path.stat().st_size
+    footer = size - _MAGIC_SIZE - _FOOTER_SIZE
+    if footer < _MAGIC_SIZE:
+        return None
+    with path.open("rb") as f:
+        f.seek(footer)
+        opcode, _, summary_start, _, summary_crc = struct.unpack("<BQQQI", f.read(_FOOTER_SIZE))
+        if opcode != _OP_FOOTER or summary_crc == 0:
+            return None
+        start = summary_start or footer
+        if not _MAGIC_SIZE <= start <= footer:
+            return f"the footer's summary offset {summary_start} is outside the file"
+        f.seek(start)
+        actual = zlib.crc32(f.read(footer + _FOOTER_SIZE - 4 - start))
+    if actual != summary_crc:
+        return (
+            f"the summary section at byte offset {start} fails its CRC "
+            f"(stored {summary_crc:#010x}, data {actual:#010x})"
+        )
+    return None
+
+
+def message_index_entries(
+    body: bytes, offset: int, channel_id: int, chunk: ChunkIndex
+) -> np.ndarray:
+    """(n, 2) uint64 (log time [ns], offset in the uncompressed chunk) of one message index.
+
+    Args:
+        body: the MessageIndex record after its opcode and length.
+        offset: the record's byte offset in the file (for messages).
+        channel_id: the channel the chunk index says this record indexes.
+        chunk: the chunk index entry the record belongs to.
+
+    Raises:
+        IndexCorrupt: the record is not this channel's, or an entry lies outside the chunk.
+    """
+    where = f"message index at byte offset {offset}"
+    if len(body) < 6:
+        raise IndexCorrupt(f"{where}: record too short")
+    (cid, n_bytes) = struct.unpack_from("<HI", body, 0)
+    if cid != channel_id or n_bytes % 16 or 6 + n_bytes > len(body):
+        raise IndexCorrupt(f"{where}: not the index of channel {channel_id}")
+    entries = np.frombuffer(body, "<u8", n_bytes // 8, 6).reshape(-1, 2)
+    t, off = entries[:, 0], entries[:, 1]
+    if np.any(off >= chunk.uncompressed_size) or np.any(
+        (t < chunk.message_start_time) | (t > chunk.message_end_time)
+    ):
+        raise IndexCorrupt(f"{where}: entries outside the chunk at {chunk.chunk_start_offset}")
+    return entries
