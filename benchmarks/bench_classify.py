@@ -124,12 +124,14 @@ def by_range(objects: pa.Table, edges_m: tuple[float, ...]) -> list[dict[str, ob
 
 def _classify(dataset: Path, store: Path, overrides: list[str]) -> tuple[pa.Table, dict]:
     """Run the pipeline up to classify (forced), return objects.parquet and its timing."""
-    from pipeline.api import run_dataset
+    from pipeline.api import RunRequest, run_dataset
     from pipeline.engine.codecs import read_output
     from pipeline.engine.registry import pipeline_stages
 
     result, summary = run_dataset(
-        dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
+        RunRequest(
+            dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
+        )
     )
     stage = next(s for s in pipeline_stages() if s.name == "classify")
     objects = read_output(

@@ -25,7 +25,7 @@ REPEATS = 2
 
 
 def _keyframes_s(path: Path, store: Path, verify: bool) -> float:
-    from pipeline.api import run_dataset
+    from pipeline.api import RunRequest, run_dataset
     from pipeline.readers import mcap_source
 
     original = mcap_source._McapFile.verify
@@ -33,7 +33,7 @@ def _keyframes_s(path: Path, store: Path, verify: bool) -> float:
         mcap_source._McapFile.verify = lambda self: None  # type: ignore[method-assign]
     try:
         t0 = time.perf_counter()
-        run_dataset(path, store_dir=store, until="keyframes")
+        run_dataset(RunRequest(path, store_dir=store, until="keyframes"))
         return time.perf_counter() - t0
     finally:
         mcap_source._McapFile.verify = original  # type: ignore[method-assign]

@@ -72,7 +72,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--work", type=Path, default=Path("data/bench/verify"))
     args = parser.parse_args()
-    from pipeline.api import run_dataset
+    from pipeline.api import RunRequest, run_dataset
     from pipeline.engine.store import ArtifactStore, verify_artifact_dir
     from pipeline.training.datasets import ensure_simulation, scene_path
 
@@ -89,7 +89,7 @@ def main() -> None:
     stats = _timed_verify()
     store_dir = work / f"store-{uuid.uuid4().hex[:8]}"
     t0 = time.perf_counter()
-    result, _ = run_dataset(dataset, config_path=config, store_dir=store_dir)
+    result, _ = run_dataset(RunRequest(dataset, config_path=config, store_dir=store_dir))
     cold_s = time.perf_counter() - t0
     store = ArtifactStore(store_dir)
     t1 = time.perf_counter()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -17,24 +18,43 @@ from pipeline.engine.store import ArtifactRef
 from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
 
-__all__ = ["plan_dataset", "run_dataset", "summarize"]
+__all__ = ["RunRequest", "plan_dataset", "run_dataset", "summarize"]
 
 log = logging.getLogger(__name__)
 
 
-def _context(
-    dataset: Path, config_path: Path | None, overrides: Sequence[str], store_dir: Path
-) -> RunContext:
+@dataclass(frozen=True)
+class RunRequest:
+    """One dataset through the mapping graph: its config, the store, how far, what to redo.
+
+    Attributes:
+        dataset: recording file or bag directory.
+        config_path: pipeline config YAML (None: the defaults).
+        overrides: `section.field=value` overrides, applied after the file.
+        store_dir: artifact store directory.
+        until: last stage to run (None: all).
+        force: stages to recompute even when cached.
+    """
+
+    dataset: Path
+    config_path: Path | None = None
+    overrides: Sequence[str] = ()
+    store_dir: Path = DEFAULT_STORE
+    until: str | None = None
+    force: Sequence[str] = ()
+
+
+def _context(request: RunRequest) -> RunContext:
     from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
 
     return make_context(
-        dataset,
+        request.dataset,
         stages=pipeline_stages(),
         config_stages=all_stages(),
         extra_sections=extra_sections(),
-        config_path=config_path,
-        overrides=overrides,
-        store_dir=store_dir,
+        config_path=request.config_path,
+        overrides=request.overrides,
+        store_dir=request.store_dir,
     )
 
 
@@ -52,47 +72,34 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
 
 
 def _plan(
-    dataset: Path,
-    config_path: Path | None,
-    overrides: Sequence[str],
-    store_dir: Path,
-    until: str | None,
-    force: Sequence[str],
-    with_external: bool,
+    request: RunRequest, with_external: bool
 ) -> tuple[RunContext, list[PlannedStage], ResolvedModel | None]:
-    ctx = _context(dataset, config_path, overrides, store_dir)
-    model = _model(ctx, until) if with_external else None
+    ctx = _context(request)
+    model = _model(ctx, request.until) if with_external else None
     external = {} if model is None else {"train": (model.stage, model.ref)}
     planned = plan(
-        ctx.stages, ctx.config, ctx.dataset, ctx.store, until=until, force=force, external=external
+        ctx.stages,
+        ctx.config,
+        ctx.dataset,
+        ctx.store,
+        until=request.until,
+        force=request.force,
+        external=external,
     )
     return ctx, planned, model
 
 
 def plan_dataset(
-    dataset: Path,
-    *,
-    config_path: Path | None = None,
-    overrides: Sequence[str] = (),
-    store_dir: Path = DEFAULT_STORE,
-    until: str | None = None,
-    force: Sequence[str] = (),
-    with_external: bool = True,
+    request: RunRequest, *, with_external: bool = True
 ) -> tuple[RunContext, list[PlannedStage], dict[str, tuple[Stage, ArtifactRef]]]:
-    ctx, planned, model = _plan(
-        dataset, config_path, overrides, store_dir, until, force, with_external
-    )
+    """What `run` would do, without computing (with_external=False: nor training)."""
+    ctx, planned, model = _plan(request, with_external)
     return ctx, planned, {} if model is None else {"train": (model.stage, model.ref)}
 
 
 def run_dataset(
-    dataset: Path,
+    request: RunRequest,
     *,
-    config_path: Path | None = None,
-    overrides: Sequence[str] = (),
-    store_dir: Path = DEFAULT_STORE,
-    until: str | None = None,
-    force: Sequence[str] = (),
     on_start: Callable[[PlannedStage], None] | None = None,
     on_stage: Callable[[StageResult], None] | None = None,
 ) -> tuple[RunResult, dict[str, Any]]:
@@ -100,7 +107,7 @@ def run_dataset(
 
     The summary's "model" names the classifier used and where it came from.
     """
-    ctx, planned, model = _plan(dataset, config_path, overrides, store_dir, until, force, True)
+    ctx, planned, model = _plan(request, True)
     external = {} if model is None else {"train": (model.stage, model.ref)}
     result = execute(
         planned,

@@ -18,7 +18,7 @@ from pipeline.cli import app
 from pipeline.engine.config import load_config
 from pipeline.engine.errors import ConfigError
 from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.training.model import TrainingSet
+from pipeline.training.config import TrainingSet
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parent.parent

@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 import stages.classify.train
-from pipeline.api import run_dataset
+from pipeline.api import RunRequest, run_dataset
 from pipeline.cli import app
 from pipeline.engine.config import load_config
 from pipeline.engine.errors import ArtifactCorrupt
@@ -65,7 +65,9 @@ def machine(tmp_path_factory: pytest.TempPathFactory) -> Machine:
     dataset = ensure_simulation(
         scene_path("tiny"), 2, root / "demo" / "tiny-seed2.mcap", duration_s=45
     )
-    _, summary = run_dataset(dataset, config_path=config, store_dir=root / "a", until="classify")
+    _, summary = run_dataset(
+        RunRequest(dataset, config_path=config, store_dir=root / "a", until="classify")
+    )
     assert summary["model"]["source"] == "trained"
     return Machine(root, config, dataset, summary["model"]["key"])
 

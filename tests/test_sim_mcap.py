@@ -172,6 +172,7 @@ def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
 
 
 def test_template_cdr_equals_rosbags_serialisation() -> None:
+    from pipeline.formats.frames_io import image_message
     from pipeline.formats.rosmsg import ros2_typestore
     from pipeline.formats.simulation import _FastEncoder, _Messages
 
@@ -188,7 +189,7 @@ def test_template_cdr_equals_rosbags_serialisation() -> None:
     )
     assert fast.image(SONAR_TOPIC["vertical"], t, ping.image) == bytes(ref)
     ref = ts.serialize_cdr(
-        build.image(t, FRAME_SONAR["vertical"], ping.truth_angle_rad, "32FC1"),
+        image_message(ping.truth_angle_rad, t, FRAME_SONAR["vertical"]),
         "sensor_msgs/msg/Image",
     )
     assert fast.image(TRUTH_ANGLE_TOPIC["vertical"], t, ping.truth_angle_rad) == bytes(ref)

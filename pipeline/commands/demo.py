@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         """The whole pipeline on a simulated marina, ending with the coverage table and report."""
         import shutil
 
-        from pipeline.api import run_dataset
+        from pipeline.api import RunRequest, run_dataset
         from pipeline.commands._common import stderr_console
         from pipeline.engine.progress import StageProgress
         from pipeline.training.datasets import ensure_simulation, scene_path
@@ -65,10 +65,7 @@ def register(app: typer.Typer) -> None:
         ensure_simulation(scene_file, seed, dataset, goals=goals, duration_s=duration_s)
         with StageProgress(enabled=True) as progress:
             result, summary = run_dataset(
-                dataset,
-                config_path=config,
-                overrides=set_ or (),
-                store_dir=store,
+                RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
                 on_start=progress.on_start,
                 on_stage=progress.on_stage,
             )

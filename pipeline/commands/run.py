@@ -26,17 +26,20 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
-        from pipeline.api import run_dataset
+        from pipeline.api import RunRequest, run_dataset
         from pipeline.engine.progress import StageProgress
 
         with StageProgress(enabled=not quiet) as progress:
-            result, summary = run_dataset(
+            request = RunRequest(
                 dataset,
                 config_path=config,
                 overrides=set_ or (),
                 store_dir=store,
                 until=until,
                 force=force or (),
+            )
+            result, summary = run_dataset(
+                request,
                 on_start=progress.on_start,
                 on_stage=progress.on_stage,
             )

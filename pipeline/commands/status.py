@@ -22,16 +22,12 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Show, without computing anything, which stages hit the cache and why others miss."""
-        from pipeline.api import plan_dataset
+        from pipeline.api import RunRequest, plan_dataset
 
-        ctx, planned, _ = plan_dataset(
-            dataset,
-            config_path=config,
-            overrides=set_ or (),
-            store_dir=store,
-            until=until,
-            with_external=False,
+        request = RunRequest(
+            dataset, config_path=config, overrides=set_ or (), store_dir=store, until=until
         )
+        ctx, planned, _ = plan_dataset(request, with_external=False)
         rows = [
             {
                 "stage": p.stage.name,

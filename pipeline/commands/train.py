@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
         import shutil
 
-        from pipeline.api import plan_dataset
+        from pipeline.api import RunRequest, plan_dataset
         from pipeline.engine.errors import SourceError
         from pipeline.training.annotations import annotation_path
         from pipeline.training.model import train_on
@@ -59,10 +59,10 @@ def register(app: typer.Typer) -> None:
         for path in datasets:
             if not path.exists():
                 raise SourceError(f"{path}: no such dataset")
-        ctx, _, _ = plan_dataset(
-            datasets[0], config_path=config, overrides=set_ or (), store_dir=store,
-            until="features", with_external=False,
-        )  # fmt: skip
+        request = RunRequest(
+            datasets[0], config_path=config, overrides=set_ or (), store_dir=store, until="features"
+        )
+        ctx, _, _ = plan_dataset(request, with_external=False)
         try:
             ref = train_on(datasets, ctx.config, ctx.store)
         except ValueError as err:

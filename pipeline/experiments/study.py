@@ -52,6 +52,16 @@ def _pm(mean: float | None, std: float | None, fmt: str = ".0f") -> str:
     return f"{mean:{fmt}} ± {std:{fmt}}" if std is not None else f"{mean:{fmt}}"
 
 
+def _row(*cells: object) -> str:
+    """One markdown table row."""
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def _head(*names: str) -> list[str]:
+    """A markdown table's header and separator rows."""
+    return [_row(*names), "|" + "---|" * len(names)]
+
+
 def _table_i_md(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     frame = shared_frame(r.get("headline_frame") for r in rows)
     # The headline median leads; a raw column follows only where the two differ.
@@ -105,16 +115,19 @@ def render_markdown(
         "",
         "## Semantic at 4 m over standard at 2 m",
         "",
-        "| protocol | semantic 4 m (ours) | standard 2 m (ours) | ratio (ours) | ratio (paper) "
-        "| accurate structure voxels ratio (ours) |",
-        "|---|---|---|---|---|---|",
-    ]
-    for r in study["cross_ratio"]:
-        out.append(
-            f"| {r['protocol']} | {_num(r['semantic_4m'])} | {_num(r['standard_2m'])} "
-            f"| {_num(r['ratio'], '.1f', 'x')} | {r['paper_ratio']:.1f}x "
-            f"| {_num(r['accurate_ratio'], '.1f', 'x')} |"
+        *_head(
+            "protocol", "semantic 4 m (ours)", "standard 2 m (ours)", "ratio (ours)",
+            "ratio (paper)", "accurate structure voxels ratio (ours)",
+        ),
+    ]  # fmt: skip
+    out += [
+        _row(
+            r["protocol"], _num(r["semantic_4m"]), _num(r["standard_2m"]),
+            _num(r["ratio"], ".1f", "x"), f"{r['paper_ratio']:.1f}x",
+            _num(r["accurate_ratio"], ".1f", "x"),
         )
+        for r in study["cross_ratio"]
+    ]  # fmt: skip
     errors = study.get("errors") or []
     if errors:
         out += [
@@ -124,21 +137,24 @@ def render_markdown(
             "Distance of every map point to the true mesh, all trials pooled. The paper's",
             "outliers beyond the whiskers: 1.7-2.0 % of each set.",
             "",
-            "| protocol | spacing | map | points | median m | q1-q3 m | whiskers m (1.5 IQR) "
-            "| p95 m | outliers beyond whiskers |",
-            "|---|---|---|---|---|---|---|---|---|",
-        ]
+            *_head(
+                "protocol", "spacing", "map", "points", "median m", "q1-q3 m",
+                "whiskers m (1.5 IQR)", "p95 m", "outliers beyond whiskers",
+            ),
+        ]  # fmt: skip
         for r in errors:
+            cell = (r["protocol"], f"{r['spacing_m']} m", r["map"])
             if not r.get("n"):
-                out.append(f"| {r['protocol']} | {r['spacing_m']} m | {r['map']} | 0 |||||")
+                out.append(_row(*cell, 0, "", "", "", "", ""))
                 continue
             sub = f" (every {r['subsample_step']}th)" if r.get("subsample_step", 1) > 1 else ""
             out.append(
-                f"| {r['protocol']} | {r['spacing_m']} m | {r['map']} | {r['n']}{sub} "
-                f"| {r['median_m']:.3f} | {r['q1_m']:.3f}-{r['q3_m']:.3f} "
-                f"| {r['whislo_m']:.3f}-{r['whishi_m']:.3f} | {r['p95_m']:.3f} "
-                f"| {r['outliers_pct']:.1f} % |"
-            )
+                _row(
+                    *cell, f"{r['n']}{sub}", f"{r['median_m']:.3f}",
+                    f"{r['q1_m']:.3f}-{r['q3_m']:.3f}", f"{r['whislo_m']:.3f}-{r['whishi_m']:.3f}",
+                    f"{r['p95_m']:.3f}", f"{r['outliers_pct']:.1f} %",
+                )
+            )  # fmt: skip
     classes = study.get("per_class") or []
     if classes:
         out += [
@@ -161,27 +177,27 @@ def render_markdown(
                 f"### {protocol}, {spacing} m keyframes (tolerance {first.get('tolerance_m')} m, "
                 f"frame {first.get('frame')})",
                 "",
-                "| class | standard voxels | semantic voxels | ratio "
-                "| standard accurate voxels | semantic accurate voxels | accurate ratio "
-                "| completeness std → sem | median error fused m | median error inferred m "
-                "| share of the map's voxel gain |",
-                "|---|---|---|---|---|---|---|---|---|---|---|",
-            ]
-            for r in classes:
-                if (r["protocol"], r["spacing_m"]) != (protocol, spacing):
-                    continue
-                out.append(
-                    f"| {r['class']} | {_num(r['standard_voxels'])} "
-                    f"| {_num(r['semantic_voxels'])} | {_num(r['ratio'], '.1f', 'x')} "
-                    f"| {_num(r['standard_accurate_voxels'])} "
-                    f"| {_num(r['semantic_accurate_voxels'])} "
-                    f"| {_num(r['accurate_ratio'], '.1f', 'x')} "
-                    f"| {_num(r['completeness_standard'], '.3f')} → "
-                    f"{_num(r['completeness_semantic'], '.3f')} "
-                    f"| {_num(r['median_error_fused_m'], '.3f')} "
-                    f"| {_num(r['median_error_inferred_m'], '.3f')} "
-                    f"| {_num(None if r['gain_share'] is None else 100 * r['gain_share'], '.0f', ' %')} |"
+                *_head(
+                    "class", "standard voxels", "semantic voxels", "ratio",
+                    "standard accurate voxels", "semantic accurate voxels", "accurate ratio",
+                    "completeness std → sem", "median error fused m", "median error inferred m",
+                    "share of the map's voxel gain",
+                ),
+            ]  # fmt: skip
+            out += [
+                _row(
+                    r["class"], _num(r["standard_voxels"]), _num(r["semantic_voxels"]),
+                    _num(r["ratio"], ".1f", "x"), _num(r["standard_accurate_voxels"]),
+                    _num(r["semantic_accurate_voxels"]), _num(r["accurate_ratio"], ".1f", "x"),
+                    f"{_num(r['completeness_standard'], '.3f')} → "
+                    f"{_num(r['completeness_semantic'], '.3f')}",
+                    _num(r["median_error_fused_m"], ".3f"),
+                    _num(r["median_error_inferred_m"], ".3f"),
+                    _num(None if r["gain_share"] is None else 100 * r["gain_share"], ".0f", " %"),
                 )
+                for r in classes
+                if (r["protocol"], r["spacing_m"]) == (protocol, spacing)
+            ]  # fmt: skip
     out += [
         "",
         "## Runs",

@@ -121,17 +121,19 @@ def expand(
 
 def run_one(spec: RunSpec) -> RunOutcome:
     """Run one sweep point; never raises (failures become a failed outcome)."""
-    from pipeline.api import run_dataset
+    from pipeline.api import RunRequest, run_dataset
 
     t0 = time.perf_counter()
     overrides = dict(spec.overrides)
     tags: dict[str, Any] = {"protocol": spec.protocol, "config_path": spec.config_path}
     try:
         result, summary = run_dataset(
-            Path(spec.dataset),
-            config_path=Path(spec.config_path) if spec.config_path else None,
-            overrides=spec.override_args,
-            store_dir=Path(spec.store),
+            RunRequest(
+                Path(spec.dataset),
+                config_path=Path(spec.config_path) if spec.config_path else None,
+                overrides=spec.override_args,
+                store_dir=Path(spec.store),
+            )
         )
     except PipelineError as err:
         return RunOutcome(

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
+from pipeline.formats.frames_io import image_message
 from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.sonar import SonarPing, beam_directions_from_angles
 from schemas.topics import (
@@ -108,18 +109,6 @@ class _Messages:
             beam_directions=vec,
             ranges=ranges,
             image=img,
-        )
-
-    def image(self, t_ns: int, frame: str, arr: np.ndarray, encoding: str) -> Any:
-        a = np.ascontiguousarray(arr)
-        return self.t[IMAGE_TYPE](
-            header=self.header(t_ns, frame),
-            height=a.shape[0],
-            width=a.shape[1],
-            encoding=encoding,
-            is_bigendian=0,
-            step=a.shape[1] * a.itemsize,
-            data=a.view(np.uint8).reshape(-1),
         )
 
     def odometry(self, t_ns: int, pose: np.ndarray, vel_b: np.ndarray, sigma: float) -> Any:
@@ -209,9 +198,9 @@ class _FastEncoder:
             ping = SonarPing(0, s, np.zeros(shape, np.uint8), cfg.ranges_m(), cfg.angles_rad())
             size = shape[0] * shape[1]
             self.tpl[SONAR_TOPIC[s]] = _TemplateCdr(PROJECTED_SONAR_TYPE, build.sonar(ping), size)
-            lab = build.image(0, FRAME_SONAR[s], np.zeros(shape, np.uint8), "mono8")
+            lab = image_message(np.zeros(shape, np.uint8), 0, FRAME_SONAR[s])
             self.tpl[LABEL_TOPIC[s]] = _TemplateCdr(IMAGE_TYPE, lab, size)
-            ang = build.image(0, FRAME_SONAR[s], np.zeros(shape, np.float32), "32FC1")
+            ang = image_message(np.zeros(shape, np.float32), 0, FRAME_SONAR[s])
             self.tpl[TRUTH_ANGLE_TOPIC[s]] = _TemplateCdr(IMAGE_TYPE, ang, 4 * size)
         for topic, sigma in ((TOPIC_DEAD_RECKONING, sigma_dr), (TOPIC_GROUND_TRUTH, 0.0)):
             msg = build.odometry_raw(0, np.array([_sentinel(k) for k in range(9)]), sigma)

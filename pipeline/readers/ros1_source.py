@@ -15,12 +15,12 @@ import numpy as np
 
 from pipeline.engine.errors import SourceError
 from pipeline.formats.rosmsg import ros1_typestore
-from pipeline.readers.source_types import TopicInfo, check_counts
+from pipeline.readers.source_types import TimeIndexedSource
 
 __all__ = ["Ros1Source"]
 
 
-class Ros1Source:
+class Ros1Source(TimeIndexedSource):
     """A ROS 1 bag file."""
 
     kind = "rosbag1"
@@ -41,31 +41,18 @@ class Ros1Source:
         self._conns = defaultdict(list)
         for conn in self._reader.connections:
             self._conns[conn.topic].append(conn)
-        self._times = {topic: self._index_times(conns) for topic, conns in self._conns.items()}
-        self._topics = [
-            TopicInfo(
-                topic=topic,
-                msgtype=conns[0].msgtype,
-                count=len(self._times[topic]),
-                first_ns=int(self._times[topic][0]) if len(self._times[topic]) else None,
-                last_ns=int(self._times[topic][-1]) if len(self._times[topic]) else None,
-                indexed_count=sum(c.msgcount for c in conns),
-            )
-            for topic, conns in sorted(self._conns.items())
-        ]
-        check_counts(path, self._topics, self.warnings)
+        self._set_topics(
+            path,
+            {topic: self._index_times(conns) for topic, conns in self._conns.items()},
+            {topic: conns[0].msgtype for topic, conns in self._conns.items()},
+            {topic: sum(c.msgcount for c in conns) for topic, conns in self._conns.items()},
+        )
 
     def _index_times(self, conns: list[Any]) -> np.ndarray:
         """Message times from the bag's index (no chunk is decompressed)."""
         bag: Any = self._reader.readers[0]
         parts = [np.fromiter((entry.time for entry in bag.indexes[c.id]), np.int64) for c in conns]
         return np.sort(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
-
-    def topics(self) -> list[TopicInfo]:
-        return list(self._topics)
-
-    def times(self, topic: str) -> np.ndarray:
-        return self._times.get(topic, np.zeros(0, np.int64))
 
     def messages(
         self, topics: Sequence[str], times: Collection[int] | None = None

@@ -15,7 +15,7 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Source", "TopicInfo", "check_counts"]
+__all__ = ["Source", "TimeIndexedSource", "TopicInfo", "check_counts"]
 
 
 @dataclass(frozen=True)
@@ -87,3 +87,37 @@ def check_counts(path: Path, topics: list[TopicInfo], warnings: list[str]) -> No
             )
             warnings.append(msg)
             log.warning(msg)
+
+
+class TimeIndexedSource:
+    """Base of the backends that learn every topic's message times when they open a file."""
+
+    warnings: list[str]
+
+    def _set_topics(
+        self,
+        path: Path,
+        times: dict[str, np.ndarray],
+        msgtypes: dict[str, str],
+        indexed: dict[str, int] | None,
+    ) -> None:
+        """Store the topics' (n,) ascending log times [ns]; warn where the index disagrees."""
+        self._times = times
+        self._topics = [
+            TopicInfo(
+                topic=name,
+                msgtype=msgtypes[name],
+                count=len(t),
+                first_ns=int(t[0]) if len(t) else None,
+                last_ns=int(t[-1]) if len(t) else None,
+                indexed_count=None if indexed is None else indexed.get(name, 0),
+            )
+            for name, t in sorted(times.items())
+        ]
+        check_counts(path, self._topics, self.warnings)
+
+    def topics(self) -> list[TopicInfo]:
+        return list(self._topics)
+
+    def times(self, topic: str) -> np.ndarray:
+        return self._times.get(topic, np.zeros(0, np.int64))

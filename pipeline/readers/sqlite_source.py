@@ -15,13 +15,13 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
-from pipeline.readers.source_types import TopicInfo, check_counts
+from pipeline.readers.source_types import TimeIndexedSource
 from pipeline.readers.typestores import Ros2Decoder
 
 __all__ = ["SqliteSource"]
 
 
-class SqliteSource:
+class SqliteSource(TimeIndexedSource):
     """A rosbag2 bag in sqlite3 storage (one or more .db3 files in time order)."""
 
     kind = "rosbag2-sqlite3"
@@ -43,19 +43,8 @@ class SqliteSource:
                         (name,),
                     ).fetchall()
                     times.setdefault(name, []).append(np.asarray(rows, np.int64).reshape(-1))
-        self._times = {k: np.sort(np.concatenate(v)) for k, v in times.items()}
-        self._topics = [
-            TopicInfo(
-                topic=name,
-                msgtype=self._types[name],
-                count=len(t),
-                first_ns=int(t[0]) if len(t) else None,
-                last_ns=int(t[-1]) if len(t) else None,
-                indexed_count=None if indexed is None else indexed.get(name, 0),
-            )
-            for name, t in sorted(self._times.items())
-        ]
-        check_counts(path, self._topics, self.warnings)
+        sorted_times = {k: np.sort(np.concatenate(v)) for k, v in times.items()}
+        self._set_topics(path, sorted_times, self._types, indexed)
 
     @staticmethod
     def _connect(f: Path) -> sqlite3.Connection:
@@ -65,12 +54,6 @@ class SqliteSource:
         except sqlite3.DatabaseError as err:
             raise SourceError(f"{f}: not a readable rosbag2 sqlite3 database ({err})") from err
         return db
-
-    def topics(self) -> list[TopicInfo]:
-        return list(self._topics)
-
-    def times(self, topic: str) -> np.ndarray:
-        return self._times.get(topic, np.zeros(0, np.int64))
 
     def messages(
         self, topics: Sequence[str], times: Collection[int] | None = None

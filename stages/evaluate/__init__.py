@@ -14,10 +14,4 @@ from stages.evaluate.stage import (
     trajectory_errors,
 )
 
-__all__ = [
-    "STAGE",
-    "EvaluateConfig",
-    "map_errors",
-    "surface_metrics",
-    "trajectory_errors",
-]
+__all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]

@@ -13,10 +13,4 @@ from stages.features.stage import (
     keyframe_features,
 )
 
-__all__ = [
-    "STAGE",
-    "FeaturesConfig",
-    "detect_ping",
-    "features_table",
-    "keyframe_features",
-]
+__all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]

@@ -12,9 +12,4 @@ Modules:
 
 from stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
 
-__all__ = [
-    "STAGE",
-    "InferConfig",
-    "infer_mission",
-    "infer_points",
-]
+__all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]

@@ -12,22 +12,6 @@ Modules:
     outputs: trajectory tables and plots.
 """
 
-from stages.slam.stage import (
-    STAGE,
-    SlamConfig,
-    SlamResult,
-    keyframe_points,
-    leading_edges,
-    run,
-    run_slam,
-)
+from stages.slam.stage import STAGE, SlamConfig, SlamResult, run_slam
 
-__all__ = [
-    "STAGE",
-    "SlamConfig",
-    "SlamResult",
-    "keyframe_points",
-    "leading_edges",
-    "run",
-    "run_slam",
-]
+__all__ = ["STAGE", "SlamConfig", "SlamResult", "run_slam"]
