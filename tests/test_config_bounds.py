@@ -217,3 +217,23 @@ def test_config_check_accepts_a_dumped_default_and_a_directory_is_refused(tmp_pa
     assert runner.invoke(app, ["config", "check", str(path)]).exit_code == 0
     res = runner.invoke(app, ["config", "check", str(tmp_path)])
     assert res.exit_code == 2 and str(tmp_path) in res.stderr and "\n" not in res.stderr.strip()
+
+
+SCENE_FILES = {
+    "unclosed-list": ("name: x\nobjects: [a, b\n", "line 3:1"),
+    "non-utf8": (b"name: \xff\n", "not UTF-8 text (byte 6 is 0xff)"),
+    "not-a-mapping": ("- a\n", "must be a YAML mapping"),
+    "missing-field": ("name: x\nobjects: []\n", "area_m"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SCENE_FILES))
+def test_simulate_refuses_a_bad_scene_file_in_one_line(case: str, tmp_path: Path) -> None:
+    text, words = SCENE_FILES[case]
+    path = tmp_path / "scene.yaml"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    res = runner.invoke(app, ["simulate", "--scene", str(path), "-o", str(tmp_path / "x.mcap")])
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    line = res.stderr.strip()
+    assert "\n" not in line and str(path) in line and words in line, line
+    assert not (tmp_path / "x.mcap").exists()

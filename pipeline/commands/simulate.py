@@ -34,23 +34,14 @@ def simulate_cmd(
     from pipeline.engine.errors import ConfigError, SourceError
     from pipeline.formats.sim_preview import render_preview
     from pipeline.formats.simulation import write_simulation
-    from pipeline.training.datasets import scene_path
-    from sim.config import SimConfig
+    from pipeline.training.datasets import read_scene, scene_path, sim_config
     from sim.dataset import simulate
-    from sim.scene import SceneError, load_scene
 
     scene = scene_path(scene_name)
-    try:
-        scene_obj = load_scene(scene)
-    except SceneError as err:
-        raise ConfigError(str(err)) from err
+    scene_obj = read_scene(scene)
     if output.parent.exists() and not output.parent.is_dir():
         raise SourceError(f"output directory {output.parent} is not a directory")
-    base = SimConfig()
-    mission = base.mission.model_copy(
-        update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
-    )
-    config = base.model_copy(update={"mission": mission})
+    config = sim_config(goals, duration_s)
     try:
         run = simulate(scene_obj, config, seed)
     except ValueError as err:

@@ -11,11 +11,15 @@ import hashlib
 import json
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.engine.errors import ConfigError
 
-__all__ = ["SCENES_DIR", "ensure_simulation", "scene_path"]
+if TYPE_CHECKING:
+    from sim.config import SimConfig
+    from sim.scene import Scene
+
+__all__ = ["SCENES_DIR", "ensure_simulation", "read_scene", "scene_path", "sim_config"]
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenes"
 
@@ -31,6 +35,34 @@ def scene_path(name_or_path: str | Path) -> Path:
     raise ConfigError(
         f"scene '{name_or_path}' not found (scenes: {sorted(x.stem for x in SCENES_DIR.glob('*.yaml'))})"
     )
+
+
+def read_scene(path: Path) -> Scene:
+    """A scene YAML, validated; bad YAML or a bad field is one ConfigError line."""
+    from pydantic import ValidationError
+
+    from pipeline.engine.config_errors import validation_message
+    from pipeline.engine.yaml_files import read_yaml
+    from sim.scene import Scene
+
+    raw = read_yaml(path, "scene", ConfigError)
+    if not isinstance(raw, dict):
+        raise ConfigError(f"{path}: a scene must be a YAML mapping, got {type(raw).__name__}")
+    try:
+        return Scene.model_validate(raw)
+    except ValidationError as err:
+        raise ConfigError(validation_message(Scene, err, f"scene {path}")) from err
+
+
+def sim_config(goals: int | None, duration_s: float | None) -> SimConfig:
+    """The simulator's defaults with a mission of `goals` goals, cut after `duration_s`."""
+    from sim.config import SimConfig
+
+    base = SimConfig()
+    mission = base.mission.model_copy(
+        update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
+    )
+    return base.model_copy(update={"mission": mission})
 
 
 def _recipe(scene: Path, seed: int, goals: int | None, duration_s: float | None) -> dict[str, Any]:
@@ -66,19 +98,9 @@ def ensure_simulation(
     # Only a miss pays for the simulator's imports (open3d).
     from pipeline.engine.errors import SourceError
     from pipeline.formats.simulation import write_simulation
-    from sim.config import SimConfig
     from sim.dataset import simulate
-    from sim.scene import SceneError, load_scene
 
-    try:
-        scene_obj = load_scene(scene)
-    except SceneError as err:
-        raise ConfigError(str(err)) from err
-    base = SimConfig()
-    mission = base.mission.model_copy(
-        update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
-    )
-    run = simulate(scene_obj, base.model_copy(update={"mission": mission}), seed)
+    run = simulate(read_scene(scene), sim_config(goals, duration_s), seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         write_simulation(run, out, scene_yaml=scene.read_text(), progress=progress)
