@@ -19,8 +19,8 @@ classes):
    probability exceeds `confidence_threshold`. A return thus yields 0, 1 or 2 points,
    converted to the sonar frame with paper Eq. 1.
 
-Beyond the paper (default on): seawall and truss, whose objects rarely fit in one
-image, use per-beam leading-edge frames instead of one ICP-registered class frame
+Beyond the paper: seawalls (default on) and trusses and hulls (when listed), whose
+objects rarely fit in one image, use per-beam leading-edge frames instead of one ICP-registered class frame
 (`stages.infer.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
 pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
 "mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
