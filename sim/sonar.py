@@ -213,13 +213,23 @@ def _strongest(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per distinct pixel, the ray with the largest weight (ties: the later entry).
 
+    Entries come grouped by ray in ascending ray order, each ray's entries with one weight
+    (as `SonarModel._splat` makes them). So the rays are written into a pixel table in
+    ascending (weight, ray) order and the last write wins: the strongest, the later of
+    equals. Sorting the rays, not `np.maximum.at` over every entry, halves the cost.
+
     Returns:
         pixels (p,) ascending and their strongest rays (p,).
     """
-    best = np.zeros(size)
-    np.maximum.at(best, pix, w)
-    win = np.flatnonzero(w == best[pix])
+    m = len(pix)
+    if m == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    starts = np.flatnonzero(np.r_[True, ray[1:] != ray[:-1]])
+    length = np.diff(np.r_[starts, m])
+    order = np.argsort(w[starts], kind="stable")
+    first, n = starts[order], length[order]
+    entry = np.repeat(first - (np.cumsum(n) - n), n) + np.arange(m)
     top = np.full(size, -1, dtype=np.int64)
-    top[pix[win]] = ray[win]
+    top[pix[entry]] = ray[entry]
     top_pix = np.flatnonzero(top >= 0)
     return top_pix, top[top_pix]

@@ -30,11 +30,13 @@ class World:
     """Triangle meshes of a scene in a `RaycastingScene`, keeping geometry -> object -> class.
 
     Object ids are the scene's expanded primitives in file order (0..n-1); the seafloor is
-    the last object (class "seafloor").
+    the last object (class "seafloor"). `cast_threads`: open3d threads per ray cast (0: all
+    cores; a worker process among others takes 1); hits do not depend on it.
     """
 
-    def __init__(self, scene: Scene) -> None:
+    def __init__(self, scene: Scene, cast_threads: int = 0) -> None:
         self.scene = scene
+        self.cast_threads = int(cast_threads)
         meshes = [primitive_mesh(p, scene.seafloor_depth_m) for p in scene.primitives()]
         names = [p.name or f"{p.kind}_{i}" for i, p in enumerate(scene.primitives())]
         classes = [CLASS_IDS[p.kind] for p in scene.primitives()]
@@ -89,7 +91,7 @@ class World:
             normal (0 on a miss), object_id (n,) int64 (-1 on a miss), class_id (n,) int64 (0).
         """
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
-        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=0)  # type: ignore[call-overload]
+        ans = self._rc.cast_rays(o3d.core.Tensor(rays), nthreads=self.cast_threads)  # type: ignore[call-overload]
         t_hit = ans["t_hit"].numpy().astype(np.float64)
         gid = ans["geometry_ids"].numpy().astype(np.int64)
         hit = np.isfinite(t_hit)

@@ -94,3 +94,15 @@ def test_garbage_model_bytes_raise_value_error() -> None:
 def test_no_patches_give_empty_predictions() -> None:
     mean, var = mc_predict(_model(), np.zeros((0, 40, 40), np.float32), 20, 0)
     assert mean.shape == (0, 4) and var.shape == (0, 4)
+
+
+@pytest.mark.parametrize("side", [38, 17, 2, 3])
+def test_inference_pooling_equals_max_pool2d_bit_for_bit(side: int) -> None:
+    from torch.nn import functional as F
+
+    from stages.classify.cnn import _max_pool2
+
+    x = torch.randn(3, 4, side, side, generator=torch.Generator().manual_seed(side))
+    x[0, 0] = 0.0  # ties
+    with torch.inference_mode():
+        assert torch.equal(_max_pool2(F.relu(x)), F.max_pool2d(F.relu(x), 2))

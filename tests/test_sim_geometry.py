@@ -173,3 +173,31 @@ def test_vertical_truth_bearing_sign_follows_rep103(y_m: float) -> None:
     assert v.truth_angle_rad is not None and v.labels is not None
     truth = v.truth_angle_rad[v.labels == PILING]
     assert np.median(truth) == pytest.approx(np.arctan2(y_m, 10.0), abs=np.deg2rad(0.7))
+
+
+def _strongest_reference(pix: np.ndarray, w: np.ndarray, ray: np.ndarray) -> dict[int, int]:
+    """Per pixel, the entry of largest weight, the later of equals (a plain loop)."""
+    best: dict[int, tuple[float, int]] = {}
+    for p, wi, r in zip(pix.tolist(), w.tolist(), ray.tolist(), strict=True):
+        if p not in best or wi >= best[p][0]:
+            best[p] = (wi, r)
+    return {p: r for p, (_, r) in best.items()}
+
+
+def test_strongest_ray_per_pixel_matches_a_loop_ties_to_the_later_ray() -> None:
+    from sim.sonar import _strongest
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        n_rays, size = int(rng.integers(1, 40)), 30
+        per_ray = rng.integers(1, 6, n_rays)
+        ray = np.repeat(np.arange(n_rays), per_ray)
+        # Few distinct weights, so ties are common; one weight per ray, as _splat gives.
+        w = np.repeat(rng.integers(1, 4, n_rays).astype(np.float64) / 7, per_ray)
+        pix = np.concatenate([rng.choice(size, k, replace=False) for k in per_ray])
+        top_pix, top_ray = _strongest(pix, w, ray, size)
+        expected = _strongest_reference(pix, w, ray)
+        assert top_pix.tolist() == sorted(expected)
+        assert top_ray.tolist() == [expected[p] for p in sorted(expected)]
+    empty = np.zeros(0, np.int64)
+    assert [a.tolist() for a in _strongest(empty, np.zeros(0), empty, 5)] == [[], []]

@@ -25,6 +25,14 @@ def simulate_cmd(
     preview: Path | None = typer.Option(
         None, "--preview", help="Also write a PNG of one horizontal and one vertical ping."
     ),
+    workers: int = typer.Option(
+        1,
+        "--workers",
+        "-j",
+        min=1,
+        max=64,
+        help="Processes rendering pings (same bytes for any number; 1: in this process).",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
 ) -> None:
     """Simulate a mission (scene, seed) and write it as a ROS 2 MCAP dataset with ground truth."""
@@ -62,7 +70,7 @@ def simulate_cmd(
             output,
             scene_yaml=scene.read_text(),
             progress=lambda done, _n: bar.update(task, completed=done),
-            workers=1,
+            workers=workers,
         )
     if preview is not None:
         try:

@@ -16,9 +16,7 @@ import os
 import struct
 import tempfile
 import time
-from collections import deque
-from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +25,7 @@ import numpy as np
 from pipeline.engine.errors import SourceError
 from pipeline.formats.frames_io import image_message
 from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from pipeline.formats.sim_render import rendered_frames
 from schemas.sonar import SonarPing, beam_directions_from_angles
 from schemas.topics import (
     FRAME_BASE,
@@ -43,7 +42,7 @@ from schemas.topics import (
     TOPIC_TF_STATIC,
     TRUTH_ANGLE_TOPIC,
 )
-from sim.dataset import SIM_VERSION, SimFrame, SimRun
+from sim.dataset import SIM_VERSION, SimRun
 from sim.geometry import rot_rpy
 
 __all__ = ["TF_TYPE", "quaternion_from_matrix", "write_simulation"]
@@ -215,25 +214,6 @@ class _FastEncoder:
         return self.tpl[topic].encode(t_ns, b"", values)
 
 
-def _prefetched_frames(run: SimRun, workers: int, ahead: int = 4) -> Iterator[SimFrame]:
-    """`run.frames()` in order, rendered up to `ahead` frames early on `workers` threads
-    (open3d ray casts, numpy and zstd release the GIL). Each frame depends only on its
-    index, so the output is the same as rendering serially."""
-    n = run.n_frames
-    if workers <= 1:
-        yield from run.frames()
-        return
-    run.sonar_models()
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        pending: deque[Future[SimFrame]] = deque()
-        for i in range(n):
-            pending.append(pool.submit(run.frame, i))
-            if len(pending) > ahead:
-                yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
-
-
 def _body_velocity(t_ns: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """(n, 2) body-frame planar velocity [m/s] by forward differences (last repeats)."""
     n = len(t_ns)
@@ -278,8 +258,8 @@ def write_simulation(
         path: output .mcap path (missing parent directories are created).
         scene_yaml: text of the scene file, stored as the `scene.yaml` attachment.
         progress: optional callback (frames_done, n_frames).
-        workers: threads rendering frames ahead of the writer (1 = serial); the bytes
-            do not depend on it.
+        workers: processes rendering frames ahead of the writer (1 = serial, in this
+            process; `pipeline.formats.sim_render`); the bytes do not depend on it.
 
     Returns:
         {"path", "n_frames", "bytes", "seconds", "frames_per_s", "messages"}.
@@ -310,7 +290,7 @@ def write_simulation(
         with os.fdopen(fd, "wb") as f, Ros2McapWriter(f) as w:
             w.write(TOPIC_TF_STATIC, TF_TYPE, build.tf_static(t_first, run.T_base_sonar), t_first)
             n_msgs += 1
-            for frame in _prefetched_frames(run, workers):
+            for frame in rendered_frames(run, workers):
                 t, i = frame.t_ns, frame.index
                 for ping in (frame.horizontal, frame.vertical):
                     s = ping.sonar
