@@ -48,6 +48,9 @@ __all__ = [
 
 _CHUNK_ELEMENTS = 2_000_000
 
+_FOLD_LIMIT = 2**62
+"""Voxel grids with fewer cells fold (x, y) indices into one int64 key."""
+
 
 def polar_to_base(
     range_m: np.ndarray, bearing_rad: np.ndarray, T_base_sonar: np.ndarray
@@ -72,15 +75,40 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """(N, 2) points -> (M, 2) centroids of occupied voxels, sorted by voxel (deterministic)."""
+    """(N, 2) points -> (M, 2) centroids of occupied voxels, sorted by voxel (deterministic).
+
+    Voxels are ordered by (x index, y index) and each centroid sums its points in input
+    order, so the result is that of ``np.unique(keys, axis=0)`` with ``np.add.at``; the two
+    indices are folded into one int64 because the row-wise unique sorts structured values
+    about ten times slower (the slam stage downsamples ~1,600 clouds per mission).
+    """
     if len(points) == 0:
         return np.zeros((0, 2))
     keys = np.floor(points / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    low = keys.min(axis=0)
+    span = keys.max(axis=0) - low + 1
+    if span[0] * span[1] >= _FOLD_LIMIT:
+        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    else:
+        folded = (keys[:, 0] - low[0]) * span[1] + (keys[:, 1] - low[1])
+        _, inverse, counts = np.unique(folded, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
-    sums = np.zeros((len(counts), 2))
-    np.add.at(sums, inverse, points)
+    sums = np.stack(
+        [np.bincount(inverse, points[:, i], minlength=len(counts)) for i in range(2)], axis=1
+    )
     return sums / counts[:, None]
+
+
+def _disk(resolution_m: float, radius_m: float) -> np.ndarray:
+    """Structuring element of the cells within radius_m of the centre cell.
+
+    The test is written as `distance_transform_edt` evaluates it (sqrt of the squared cell
+    offsets, times the resolution), so dilating by it marks exactly the cells whose
+    distance transform is within the radius, in a fraction of the time.
+    """
+    n = int(radius_m / resolution_m) + 1
+    o = np.arange(-n, n + 1, dtype=np.float64)
+    return np.sqrt(o[:, None] * o[:, None] + o[None, :] * o[None, :]) * resolution_m <= radius_m
 
 
 class OccupancyScorer:
@@ -93,9 +121,9 @@ class OccupancyScorer:
         self.origin = target.min(axis=0) - margin
         shape = np.ceil((target.max(axis=0) + margin - self.origin) / resolution_m).astype(int) + 1
         cells = np.floor((target - self.origin) / resolution_m).astype(int)
-        empty = np.ones(shape, dtype=bool)
-        empty[cells[:, 0], cells[:, 1]] = False
-        self.grid = ndimage.distance_transform_edt(empty) * resolution_m <= radius_m
+        occupied = np.zeros(shape, dtype=bool)
+        occupied[cells[:, 0], cells[:, 1]] = True
+        self.grid = ndimage.binary_dilation(occupied, structure=_disk(resolution_m, radius_m))
         self.grid[[0, -1], :] = False
         self.grid[:, [0, -1]] = False
         self._flat = self.grid.ravel()
@@ -104,20 +132,40 @@ class OccupancyScorer:
         """(K,) number of source points (N, 2) that land on occupied cells, per (K, 3) pose.
 
         The grid's border cells are kept empty, so points outside are clipped onto them.
+        A cell's x index depends only on the pose's (yaw, x) and its y index only on its
+        (yaw, y); a search lattice has few distinct pairs, so each axis is computed once per
+        pair (the same operations in the same order as per pose, so the same cells).
         """
         out = np.zeros(len(poses), dtype=np.int64)
         step = max(1, _CHUNK_ELEMENTS // max(1, len(source)))
         nx, ny = self.grid.shape
-        inv = 1.0 / self.resolution_m
+        dtype = np.int32 if self.grid.size < 2**31 else np.int64  # half the memory traffic
         for start in range(0, len(poses), step):
             p = poses[start : start + step]
-            c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
-            x = (c * source[:, 0] - s * source[:, 1] + (p[:, 0:1] - self.origin[0])) * inv
-            y = (s * source[:, 0] + c * source[:, 1] + (p[:, 1:2] - self.origin[1])) * inv
-            ix = np.clip(x, 0, nx - 1).astype(np.int64)
-            iy = np.clip(y, 0, ny - 1).astype(np.int64)
-            out[start : start + step] = self._flat[ix * ny + iy].sum(axis=1)
+            cells = self._axis_cells(p[:, 2], p[:, 0], source, 0, nx, dtype)
+            cells *= ny
+            cells += self._axis_cells(p[:, 2], p[:, 1], source, 1, ny, dtype)
+            out[start : start + step] = self._flat[cells].sum(axis=1)
         return out
+
+    def _axis_cells(
+        self,
+        yaw: np.ndarray,
+        shift: np.ndarray,
+        source: np.ndarray,
+        axis: int,
+        size: int,
+        dtype: type[np.integer],
+    ) -> np.ndarray:
+        """(K, N) grid index along `axis` of the source points moved by each pose."""
+        pairs, which = np.unique(np.column_stack([yaw, shift]), axis=0, return_inverse=True)
+        c, s = np.cos(pairs[:, 0])[:, None], np.sin(pairs[:, 0])[:, None]
+        if axis == 0:
+            rotated = c * source[:, 0] - s * source[:, 1]
+        else:
+            rotated = s * source[:, 0] + c * source[:, 1]
+        moved = (rotated + (pairs[:, 1:2] - self.origin[axis])) * (1.0 / self.resolution_m)
+        return np.clip(moved, 0, size - 1).astype(dtype)[which.reshape(-1)]
 
 
 def _lattice(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> np.ndarray:
