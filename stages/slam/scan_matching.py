@@ -158,13 +158,17 @@ class OccupancyScorer:
         dtype: type[np.integer],
     ) -> np.ndarray:
         """(K, N) grid index along `axis` of the source points moved by each pose."""
-        pairs, which = np.unique(np.column_stack([yaw, shift]), axis=0, return_inverse=True)
-        c, s = np.cos(pairs[:, 0])[:, None], np.sin(pairs[:, 0])[:, None]
+        # 1-D uniques: a row-wise unique sorts structured values, several times slower.
+        yaws, yaw_of = np.unique(yaw, return_inverse=True)
+        shifts, shift_of = np.unique(shift, return_inverse=True)
+        pairs, which = np.unique(yaw_of * len(shifts) + shift_of, return_inverse=True)
+        c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
         if axis == 0:
             rotated = c * source[:, 0] - s * source[:, 1]
         else:
             rotated = s * source[:, 0] + c * source[:, 1]
-        moved = (rotated + (pairs[:, 1:2] - self.origin[axis])) * (1.0 / self.resolution_m)
+        offset = shifts[pairs % len(shifts)] - self.origin[axis]
+        moved = (rotated[pairs // len(shifts)] + offset[:, None]) * (1.0 / self.resolution_m)
         return np.clip(moved, 0, size - 1).astype(dtype)[which.reshape(-1)]
 
 
