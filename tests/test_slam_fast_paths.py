@@ -11,6 +11,8 @@ import pyarrow as pa
 import pytest
 from scipy import ndimage
 
+from stages.slam.config import SlamConfig
+from stages.slam.frontend import _FrontEnd
 from stages.slam.points import keyframe_points
 from stages.slam.scan_matching import OccupancyScorer, _lattice, voxel_downsample
 
@@ -89,3 +91,14 @@ def test_keyframe_points_keeps_only_horizontal_rows_and_skips_nulls() -> None:
     )
     points = keyframe_points(np.array([0, 1]), features, np.eye(4), 0.01)
     assert [p.tolist() for p in points] == [[[5.0, 0.0]], [[8.0, 0.0]]]
+
+
+def test_a_cached_keyframe_cloud_is_rebuilt_when_the_estimate_changes() -> None:
+    rng = np.random.default_rng(5)
+    front = _FrontEnd(SlamConfig(), [rng.uniform(-5, 5, (40, 2)) for _ in range(3)])
+    front.est = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.1], [2.0, 0.0, 0.2]])
+    first = front._cloud(range(0, 3), 2)
+    assert front._cloud(range(0, 3), 2) is first
+    front.est = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.4], [2.0, 0.0, 0.2]])
+    again = front._cloud(range(0, 3), 2)
+    assert again is not first and not np.array_equal(again, first)
