@@ -55,6 +55,7 @@ class _FrontEnd(LoopClosures):
     def __init__(self, config: SlamConfig, points: list[np.ndarray]) -> None:
         self.cfg = config
         self.points = points
+        self.reach_m = np.array([np.hypot(*p.T).max() if len(p) else 0.0 for p in points])
         self.graph = PlanarPoseGraph()
         self.est = np.zeros((0, 3))
         self._clouds: dict[tuple[int, int, int], np.ndarray] = {}
