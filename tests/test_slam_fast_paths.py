@@ -36,6 +36,9 @@ def test_voxel_downsample_equals_the_rowwise_unique_reference(
         got, want = voxel_downsample(points, voxel_m), _voxel_reference(points, voxel_m)
         assert got.shape == want.shape and got.tobytes() == want.tobytes()
     assert voxel_downsample(np.zeros((0, 2)), voxel_m).shape == (0, 2)
+    # spans too wide to fold into one int64 take the row-wise path
+    wide = np.array([[1e18, -1e18], [-1e18, 1e18], [0.3, 0.2], [0.31, 0.21]])
+    assert voxel_downsample(wide, voxel_m).tobytes() == _voxel_reference(wide, voxel_m).tobytes()
 
 
 @pytest.mark.parametrize(("resolution_m", "radius_m"), [(0.25, 0.5), (0.1, 0.5), (0.07, 0.33)])

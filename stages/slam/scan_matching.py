@@ -87,7 +87,7 @@ def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
     keys = np.floor(points / voxel_m).astype(np.int64)
     low = keys.min(axis=0)
     span = keys.max(axis=0) - low + 1
-    if span[0] * span[1] >= _FOLD_LIMIT:
+    if np.any(span <= 0) or float(span[0]) * float(span[1]) >= _FOLD_LIMIT:  # int64 overflow
         _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     else:
         folded = (keys[:, 0] - low[0]) * span[1] + (keys[:, 1] - low[1])
