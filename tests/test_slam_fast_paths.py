@@ -37,7 +37,7 @@ def test_voxel_downsample_equals_the_rowwise_unique_reference(
         assert got.shape == want.shape and got.tobytes() == want.tobytes()
     assert voxel_downsample(np.zeros((0, 2)), voxel_m).shape == (0, 2)
     # spans too wide to fold into one int64 take the row-wise path
-    wide = np.array([[1e18, -1e18], [-1e18, 1e18], [0.3, 0.2], [0.31, 0.21]])
+    wide = np.array([[1e17, -1e17], [-1e17, 1e17], [0.3, 0.2], [0.31, 0.21]])
     assert voxel_downsample(wide, voxel_m).tobytes() == _voxel_reference(wide, voxel_m).tobytes()
 
 
