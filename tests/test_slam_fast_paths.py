@@ -14,7 +14,12 @@ from scipy import ndimage
 from stages.slam.config import SlamConfig
 from stages.slam.frontend import _FrontEnd
 from stages.slam.points import keyframe_points
-from stages.slam.scan_matching import OccupancyScorer, _lattice, voxel_downsample
+from stages.slam.scan_matching import (
+    OccupancyScorer,
+    _lattice,
+    _lattice_axes,
+    voxel_downsample,
+)
 
 
 def _voxel_reference(points: np.ndarray, voxel_m: float) -> np.ndarray:
@@ -57,28 +62,16 @@ def test_occupancy_grid_equals_the_distance_transform_reference(
     assert np.array_equal(scorer.grid, want)
 
 
-def _score_reference(scorer: OccupancyScorer, poses: np.ndarray, source: np.ndarray) -> np.ndarray:
-    nx, ny = scorer.grid.shape
-    inv = 1.0 / scorer.resolution_m
-    c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
-    x = (c * source[:, 0] - s * source[:, 1] + (poses[:, 0:1] - scorer.origin[0])) * inv
-    y = (s * source[:, 0] + c * source[:, 1] + (poses[:, 1:2] - scorer.origin[1])) * inv
-    ix = np.clip(x, 0, nx - 1).astype(np.int64)
-    iy = np.clip(y, 0, ny - 1).astype(np.int64)
-    return scorer.grid.ravel()[ix * ny + iy].sum(axis=1)
-
-
-def test_score_per_axis_pair_equals_rotating_per_pose() -> None:
+def test_lattice_score_per_axis_pair_equals_scoring_each_pose() -> None:
     rng = np.random.default_rng(4)
     for _ in range(5):
         scorer = OccupancyScorer(rng.uniform(-20, 20, (500, 2)), 0.25, 0.5)
         source = rng.uniform(-25, 25, (150, 2))
-        lattice = _lattice(rng.normal(size=3), np.array([1, 1, 0.1]), np.array([0.25, 0.25, 0.025]))
-        scattered = rng.uniform(-3, 3, (200, 3))
-        for poses in (lattice, scattered):
-            got = scorer.score(poses, source)
-            assert np.array_equal(got, _score_reference(scorer, poses, source))
-            assert got.max() > 0  # the comparison covers occupied cells, not only empty ones
+        half = np.array([1.0, 1.0, 0.1])
+        axes = _lattice_axes(rng.normal(size=3), half, half / 4)
+        got, want = scorer.score_lattice(axes, source), scorer.score(_lattice(axes), source)
+        assert np.array_equal(got, want)
+        assert want.max() > 0  # the comparison covers occupied cells, not only empty ones
 
 
 def test_keyframe_points_keeps_only_horizontal_rows_and_skips_nulls() -> None:

@@ -132,48 +132,59 @@ class OccupancyScorer:
         """(K,) number of source points (N, 2) that land on occupied cells, per (K, 3) pose.
 
         The grid's border cells are kept empty, so points outside are clipped onto them.
-        A cell's x index depends only on the pose's (yaw, x) and its y index only on its
-        (yaw, y); a search lattice has few distinct pairs, so each axis is computed once per
-        pair (the same operations in the same order as per pose, so the same cells).
         """
         out = np.zeros(len(poses), dtype=np.int64)
         step = max(1, _CHUNK_ELEMENTS // max(1, len(source)))
         nx, ny = self.grid.shape
-        dtype = np.int32 if self.grid.size < 2**31 else np.int64  # half the memory traffic
+        inv = 1.0 / self.resolution_m
         for start in range(0, len(poses), step):
             p = poses[start : start + step]
-            cells = self._axis_cells(p[:, 2], p[:, 0], source, 0, nx, dtype)
-            cells *= ny
-            cells += self._axis_cells(p[:, 2], p[:, 1], source, 1, ny, dtype)
-            out[start : start + step] = self._flat[cells].sum(axis=1)
+            c, s = np.cos(p[:, 2])[:, None], np.sin(p[:, 2])[:, None]
+            x = (c * source[:, 0] - s * source[:, 1] + (p[:, 0:1] - self.origin[0])) * inv
+            y = (s * source[:, 0] + c * source[:, 1] + (p[:, 1:2] - self.origin[1])) * inv
+            ix = np.clip(x, 0, nx - 1).astype(np.int64)
+            iy = np.clip(y, 0, ny - 1).astype(np.int64)
+            out[start : start + step] = self._flat[ix * ny + iy].sum(axis=1)
         return out
 
-    def _axis_cells(
-        self,
-        yaw: np.ndarray,
-        shift: np.ndarray,
-        source: np.ndarray,
-        axis: int,
-        size: int,
-        dtype: type[np.integer],
+    def score_lattice(self, axes: list[np.ndarray], source: np.ndarray) -> np.ndarray:
+        """`score` of every pose of the lattice `axes` (x, y, yaw values; `_lattice` order).
+
+        A cell's x index depends only on a pose's (yaw, x) and its y index only on its
+        (yaw, y), so each is computed once per pair, by the operations of `score` in its
+        order: the same cells and counts, several times faster than per pose.
+        """
+        xs, ys, yaws = axes
+        cx = self._cells(yaws, xs, source, 0).transpose(1, 0, 2) * self.grid.shape[1]
+        cy = self._cells(yaws, ys, source, 1).transpose(1, 0, 2)
+        out = np.empty((len(xs), len(ys), len(yaws)), dtype=np.int64)
+        for i in range(len(xs)):  # one x at a time bounds the index array
+            out[i] = self._flat[cx[i][None] + cy].sum(axis=-1)
+        return out.ravel()
+
+    def _cells(
+        self, yaws: np.ndarray, shifts: np.ndarray, source: np.ndarray, axis: int
     ) -> np.ndarray:
-        """(K, N) grid index along `axis` of the source points moved by each pose."""
-        # 1-D uniques: a row-wise unique sorts structured values, several times slower.
-        yaws, yaw_of = np.unique(yaw, return_inverse=True)
-        shifts, shift_of = np.unique(shift, return_inverse=True)
-        pairs, which = np.unique(yaw_of * len(shifts) + shift_of, return_inverse=True)
+        """(W, S, N) grid index along `axis` of the source rotated by each of W yaws and
+        shifted by each of S shifts along that axis."""
         c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
         if axis == 0:
             rotated = c * source[:, 0] - s * source[:, 1]
         else:
             rotated = s * source[:, 0] + c * source[:, 1]
-        offset = shifts[pairs % len(shifts)] - self.origin[axis]
-        moved = (rotated[pairs // len(shifts)] + offset[:, None]) * (1.0 / self.resolution_m)
-        return np.clip(moved, 0, size - 1).astype(dtype)[which.reshape(-1)]
+        offset = (shifts - self.origin[axis])[None, :, None]
+        moved = (rotated[:, None, :] + offset) * (1.0 / self.resolution_m)
+        # int32 halves the memory traffic of the index arrays where the grid allows it.
+        dtype = np.int32 if self.grid.size < 2**31 else np.int64
+        return np.clip(moved, 0, self.grid.shape[axis] - 1).astype(dtype)
 
 
-def _lattice(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    axes = [c + np.arange(-h, h + 1e-9, s) for c, h, s in zip(center, half, steps, strict=True)]
+def _lattice_axes(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> list[np.ndarray]:
+    return [c + np.arange(-h, h + 1e-9, s) for c, h, s in zip(center, half, steps, strict=True)]
+
+
+def _lattice(axes: list[np.ndarray]) -> np.ndarray:
+    """(K, 3) poses of the lattice over (x, y, yaw) `axes`: x slowest, yaw fastest."""
     grid = np.meshgrid(*axes, indexing="ij")
     return np.stack([g.ravel() for g in grid], axis=1)
 
@@ -212,8 +223,9 @@ def global_search(
     half = np.asarray(half_window, np.float64)
     for _ in range(levels):
         steps = 2.0 * half / (points_per_axis - 1)
-        candidates = _lattice(best, half, steps)
-        scores = scorer.score(candidates, source)
+        axes = _lattice_axes(best, half, steps)
+        candidates = _lattice(axes)
+        scores = scorer.score_lattice(axes, source)
         distance = np.linalg.norm((candidates - guess) / np.asarray(half_window), axis=1)
         near_best = scores >= tie_fraction * scores.max()
         pick = int(np.flatnonzero(near_best)[np.argmin(distance[near_best])])
