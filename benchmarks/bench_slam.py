@@ -8,13 +8,30 @@ The mission is simulated (default marina, 20 goals, seed 0; keyframes every 2 m 
 of dead reckoning). Horizontal features are the simulator's labelled cells (seafloor
 excluded), as a perfect detector would report them (`tests/test_slam.py`). A second
 mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing covers
-`STAGE.run` only (all four outputs, the PNG included).
+`STAGE.run` only (all four outputs, the PNG included): the median of `--repeats` runs
+(3) on the first seed, wall and CPU time (`time.process_time`); the final JSON gives each
+figure beside its goal (`*_goal`: issue 22 asks for >= 100 keyframes/s).
 
     .venv/bin/python benchmarks/bench_slam.py                # seed 0, low-cost nav, PCM
     .venv/bin/python benchmarks/bench_slam.py --seeds 0,1,2,3,4  # robustness over seeds
 
 Version 9 changed only the trajectory PNG (aligned to the truth, with an error panel), so
 these figures stand for it.
+
+Issue 22 (2026-12-01, 2 cores shared under a load of 4-6, so wall times move 2x between
+runs; CPU time is the comparable figure): byte-identical fast paths (voxel keys folded
+into one int64, the consensus grid dilated by a disk instead of a distance transform, the
+lattice scored per (yaw, x) and (yaw, y) pair, keyframe clouds built once per estimate,
+out-of-view keyframes skipped in the loop-target search, the sonar filter in Arrow) take
+the default marina from 25.1 to 33.3 keyframes per CPU second (x1.33; wall 17.9 -> 24.1;
+medians of four invocations each, every one the median of 3 runs, the code before and
+after interleaved), with every accuracy figure unchanged to the last digit (seeds 0 and
+3, low-cost navigation, PCM on Intel) and the demo's slam files sha256-identical. The
+goal, 100 keyframes/s, is not met: of what is left (cProfile of `STAGE.run` on the demo)
+kiss-icp's registration takes about a quarter (969 calls: 327 matches, 642
+re-registrations), the PNG a seventh, the consensus search and the ICP covariances about
+a tenth each, iSAM2's 641 updates a twelfth; reaching it needs fewer ICP calls or iSAM2
+updates, which changes the output.
 
 Measured 2026-11-30, fifth session (2 shared cores, slam stage version 8: in the loop
 re-registration a loop's covariance is also multiplied by ((4 + d) / (4 + 18))^2, d its
@@ -303,6 +320,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+KEYFRAMES_PER_S_GOAL = 100.0
+"""Issue 22: the slam stage at >= 100 keyframes/s (issue 7 asked for 20)."""
+
+ATE_RATIO_GOAL = 0.5
+"""Issue 7: SLAM's ATE at most half that of dead reckoning."""
+
 
 def similarity_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
     """Scale s of the best similarity fit s R e + t ~ truth (Umeyama): s > 1, map too small."""
@@ -312,15 +335,21 @@ def similarity_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float((sv * d).sum() / (e**2).sum())
 
 
-def _mission(label: str, navigation: dict[str, float] | None, seed: int = 0) -> dict[str, float]:
+def _mission(
+    label: str, navigation: dict[str, float] | None, seed: int = 0, repeats: int = 1
+) -> dict[str, float]:
     from stages.slam.stage import STAGE, SlamConfig
     from tests.test_slam import ate_se2, simulated_slam_inputs
 
     inputs = simulated_slam_inputs("marina", n_goals=20, seed=seed, navigation=navigation)
     kf = inputs["keyframes.keyframes"]
-    t0 = time.perf_counter()
-    out = STAGE.run(SlamConfig(), inputs)
-    seconds = time.perf_counter() - t0
+    walls, cpus = [], []
+    for _ in range(repeats):
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = STAGE.run(SlamConfig(), inputs)
+        walls.append(time.perf_counter() - t0)
+        cpus.append(time.process_time() - c0)
+    seconds, cpu_seconds = float(np.median(walls)), float(np.median(cpus))
 
     def xy(table, prefix=""):
         return np.column_stack([table.column(prefix + c).to_numpy() for c in ("x_m", "y_m")])
@@ -333,6 +362,10 @@ def _mission(label: str, navigation: dict[str, float] | None, seed: int = 0) -> 
     return {
         f"{label}_keyframes": kf.num_rows,
         f"{label}_keyframes_per_s": round(kf.num_rows / seconds, 1),
+        # The machine is shared: CPU time is the figure that other load does not move.
+        f"{label}_keyframes_per_cpu_s": round(kf.num_rows / cpu_seconds, 1),
+        f"{label}_keyframes_per_s_goal": KEYFRAMES_PER_S_GOAL,
+        f"{label}_ate_ratio_goal": ATE_RATIO_GOAL,
         f"{label}_ate_dead_reckoning_m": round(ate_se2(xy(kf), truth), 3),
         f"{label}_ate_slam_m": round(ate_se2(xy(out["poses"]), truth), 3),
         f"{label}_ate_ratio": round(ate_se2(xy(out["poses"]), truth) / ate_se2(xy(kf), truth), 3),
@@ -371,10 +404,19 @@ def main() -> None:
         help="comma-separated seeds of the default marina, e.g. 0,1,2 (seed 0 also runs the"
         " low-cost navigation mission and PCM on Intel)",
     )
-    seeds = [int(s) for s in parser.parse_args().seeds.split(",")]
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="timed runs of the stage on the first seed's mission (the median is reported;"
+        " the outputs are deterministic, so the other missions run once)",
+    )
+    args = parser.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
     figures: dict[str, object] = {}
-    for seed in seeds:
-        figures.update(_mission("marina" if seed == 0 else f"marina_seed{seed}", None, seed))
+    for n, seed in enumerate(seeds):
+        label = "marina" if seed == 0 else f"marina_seed{seed}"
+        figures.update(_mission(label, None, seed, args.repeats if n == 0 else 1))
     if 0 in seeds:
         lowcost = {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}
         figures.update(_mission("marina_lowcost_nav", lowcost))

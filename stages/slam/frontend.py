@@ -55,8 +55,11 @@ class _FrontEnd(LoopClosures):
     def __init__(self, config: SlamConfig, points: list[np.ndarray]) -> None:
         self.cfg = config
         self.points = points
+        self.reach_m = np.array([np.hypot(*p.T).max() if len(p) else 0.0 for p in points])
         self.graph = PlanarPoseGraph()
         self.est = np.zeros((0, 3))
+        self._clouds: dict[tuple[int, int, int], np.ndarray] = {}
+        self._clouds_of = self.est  # the estimate the cached clouds were built from
         self.edge_covs: list[np.ndarray] = []
         self.rows: list[dict[str, Any]] = []
         self.queue: list[LoopCandidate] = []
@@ -107,14 +110,26 @@ class _FrontEnd(LoopClosures):
         self.est = self.graph.poses()
 
     def _cloud(self, frames: range, anchor: int) -> np.ndarray:
-        parts = [
-            transform_points(se2_between(self.est[anchor], self.est[j]), self.points[j])
-            for j in frames
-            if len(self.points[j])
-        ]
-        if not parts:
-            return np.zeros((0, 2))
-        return voxel_downsample(np.concatenate(parts), self.cfg.point_resolution_m)
+        """Frames' points in the frame of `anchor` from the current estimate, downsampled.
+
+        Built once per estimate: the loop re-registration asks for the same target cloud
+        for every loop into one stretch of the track (callers never modify a cloud).
+        """
+        if self._clouds_of is not self.est:
+            self._clouds, self._clouds_of = {}, self.est
+        key = (frames.start, frames.stop, anchor)
+        if key not in self._clouds:
+            parts = [
+                transform_points(se2_between(self.est[anchor], self.est[j]), self.points[j])
+                for j in frames
+                if len(self.points[j])
+            ]
+            self._clouds[key] = (
+                voxel_downsample(np.concatenate(parts), self.cfg.point_resolution_m)
+                if parts
+                else np.zeros((0, 2))
+            )
+        return self._clouds[key]
 
     def _floor(self, cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
         """Scale an ICP covariance up to at least the determinant of `floor`.

@@ -86,6 +86,7 @@ class LoopClosures:
 
     cfg: SlamConfig
     points: list[np.ndarray]
+    reach_m: np.ndarray  # (K,) the farthest point of each keyframe from its origin [m]
     graph: PlanarPoseGraph
     est: np.ndarray
     edge_covs: list[np.ndarray]
@@ -97,7 +98,15 @@ class LoopClosures:
         """Older keyframes whose points keyframe k could see, most points first: the best
         and up to `nssm_fallback_targets` more, each from another stretch of the track."""
         c = self.cfg
-        old = [i for i in range(k - c.nssm_min_separation) if len(self.points[i])]
+        max_range_m = c.nssm_max_range_m + 5 * sigma_xy
+        max_heading = np.deg2rad(c.nssm_max_heading_change_deg)
+        n_old = max(0, k - c.nssm_min_separation)
+        heading = np.abs(wrap_angle(self.est[:n_old, 2] - self.est[k, 2]))
+        distance_m = np.hypot(*(self.est[:n_old, :2] - self.est[k, :2]).T)
+        # Keyframes none of whose points can be in view are left out before moving their
+        # points (1 m of margin over rounding); the counts are the same without them.
+        near = (distance_m - self.reach_m[:n_old] <= max_range_m + 1.0) & (heading <= max_heading)
+        old = [int(i) for i in np.flatnonzero(near) if len(self.points[i])]
         if not old:
             return []
         world = np.concatenate([transform_points(self.est[i], self.points[i]) for i in old])
@@ -105,11 +114,10 @@ class LoopClosures:
         local = transform_points(se2_between(self.est[k], np.zeros(3)), world)
         r = np.hypot(local[:, 0], local[:, 1])
         bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
-        visible = (r < c.nssm_max_range_m + 5 * sigma_xy) & (
+        visible = (r < max_range_m) & (
             bearing < np.deg2rad(c.nssm_aperture_deg) / 2 + 5 * sigma_yaw
         )
-        heading = np.abs(wrap_angle(self.est[owner, 2] - self.est[k, 2]))
-        visible &= heading <= np.deg2rad(c.nssm_max_heading_change_deg)
+        visible &= heading[owner] <= max_heading
         counts = np.bincount(owner[visible], minlength=k)
         chosen: list[int] = []
         for t in np.argsort(-counts, kind="stable"):

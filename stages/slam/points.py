@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from stages.slam.scan_matching import polar_to_base, voxel_downsample
 
@@ -46,8 +47,9 @@ def keyframe_points(
         voxel_m: voxel size of the per-keyframe downsampling.
         leading_edge_only: keep only `leading_edges` cells.
     """
-    sonar = features.column("sonar").to_numpy(zero_copy_only=False)
-    keep = sonar == "horizontal"
+    # Compared in Arrow: a million strings turned into Python objects cost ~0.1 s.
+    horizontal = pc.fill_null(pc.equal(features.column("sonar"), "horizontal"), False)
+    keep = horizontal.to_numpy(zero_copy_only=False)
     kf = features.column("keyframe_id").to_numpy()[keep]
     range_m = features.column("range_m").to_numpy()[keep]
     angle = features.column("angle_rad").to_numpy()[keep]

@@ -48,6 +48,9 @@ __all__ = [
 
 _CHUNK_ELEMENTS = 2_000_000
 
+_FOLD_LIMIT = 2**62
+"""Voxel grids with fewer cells fold (x, y) indices into one int64 key."""
+
 
 def polar_to_base(
     range_m: np.ndarray, bearing_rad: np.ndarray, T_base_sonar: np.ndarray
@@ -72,15 +75,40 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def voxel_downsample(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """(N, 2) points -> (M, 2) centroids of occupied voxels, sorted by voxel (deterministic)."""
+    """(N, 2) points -> (M, 2) centroids of occupied voxels, sorted by voxel (deterministic).
+
+    Voxels are ordered by (x index, y index) and each centroid sums its points in input
+    order, so the result is that of ``np.unique(keys, axis=0)`` with ``np.add.at``; the two
+    indices are folded into one int64 because the row-wise unique sorts structured values
+    about ten times slower (the slam stage downsamples ~1,600 clouds per mission).
+    """
     if len(points) == 0:
         return np.zeros((0, 2))
     keys = np.floor(points / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    low = keys.min(axis=0)
+    span = keys.max(axis=0) - low + 1
+    if np.any(span <= 0) or float(span[0]) * float(span[1]) >= _FOLD_LIMIT:  # int64 overflow
+        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    else:
+        folded = (keys[:, 0] - low[0]) * span[1] + (keys[:, 1] - low[1])
+        _, inverse, counts = np.unique(folded, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
-    sums = np.zeros((len(counts), 2))
-    np.add.at(sums, inverse, points)
+    sums = np.stack(
+        [np.bincount(inverse, points[:, i], minlength=len(counts)) for i in range(2)], axis=1
+    )
     return sums / counts[:, None]
+
+
+def _disk(resolution_m: float, radius_m: float) -> np.ndarray:
+    """Structuring element of the cells within radius_m of the centre cell.
+
+    The test is written as `distance_transform_edt` evaluates it (sqrt of the squared cell
+    offsets, times the resolution), so dilating by it marks exactly the cells whose
+    distance transform is within the radius, in a fraction of the time.
+    """
+    n = int(radius_m / resolution_m) + 1
+    o = np.arange(-n, n + 1, dtype=np.float64)
+    return np.sqrt(o[:, None] * o[:, None] + o[None, :] * o[None, :]) * resolution_m <= radius_m
 
 
 class OccupancyScorer:
@@ -93,9 +121,9 @@ class OccupancyScorer:
         self.origin = target.min(axis=0) - margin
         shape = np.ceil((target.max(axis=0) + margin - self.origin) / resolution_m).astype(int) + 1
         cells = np.floor((target - self.origin) / resolution_m).astype(int)
-        empty = np.ones(shape, dtype=bool)
-        empty[cells[:, 0], cells[:, 1]] = False
-        self.grid = ndimage.distance_transform_edt(empty) * resolution_m <= radius_m
+        occupied = np.zeros(shape, dtype=bool)
+        occupied[cells[:, 0], cells[:, 1]] = True
+        self.grid = ndimage.binary_dilation(occupied, structure=_disk(resolution_m, radius_m))
         self.grid[[0, -1], :] = False
         self.grid[:, [0, -1]] = False
         self._flat = self.grid.ravel()
@@ -119,9 +147,44 @@ class OccupancyScorer:
             out[start : start + step] = self._flat[ix * ny + iy].sum(axis=1)
         return out
 
+    def score_lattice(self, axes: list[np.ndarray], source: np.ndarray) -> np.ndarray:
+        """`score` of every pose of the lattice `axes` (x, y, yaw values; `_lattice` order).
 
-def _lattice(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> np.ndarray:
-    axes = [c + np.arange(-h, h + 1e-9, s) for c, h, s in zip(center, half, steps, strict=True)]
+        A cell's x index depends only on a pose's (yaw, x) and its y index only on its
+        (yaw, y), so each is computed once per pair, by the operations of `score` in its
+        order: the same cells and counts, several times faster than per pose.
+        """
+        xs, ys, yaws = axes
+        cx = self._cells(yaws, xs, source, 0).transpose(1, 0, 2) * self.grid.shape[1]
+        cy = self._cells(yaws, ys, source, 1).transpose(1, 0, 2)
+        out = np.empty((len(xs), len(ys), len(yaws)), dtype=np.int64)
+        for i in range(len(xs)):  # one x at a time bounds the index array
+            out[i] = self._flat[cx[i][None] + cy].sum(axis=-1)
+        return out.ravel()
+
+    def _cells(
+        self, yaws: np.ndarray, shifts: np.ndarray, source: np.ndarray, axis: int
+    ) -> np.ndarray:
+        """(W, S, N) grid index along `axis` of the source rotated by each of W yaws and
+        shifted by each of S shifts along that axis."""
+        c, s = np.cos(yaws)[:, None], np.sin(yaws)[:, None]
+        if axis == 0:
+            rotated = c * source[:, 0] - s * source[:, 1]
+        else:
+            rotated = s * source[:, 0] + c * source[:, 1]
+        offset = (shifts - self.origin[axis])[None, :, None]
+        moved = (rotated[:, None, :] + offset) * (1.0 / self.resolution_m)
+        # int32 halves the memory traffic of the index arrays where the grid allows it.
+        dtype = np.int32 if self.grid.size < 2**31 else np.int64
+        return np.clip(moved, 0, self.grid.shape[axis] - 1).astype(dtype)
+
+
+def _lattice_axes(center: np.ndarray, half: np.ndarray, steps: np.ndarray) -> list[np.ndarray]:
+    return [c + np.arange(-h, h + 1e-9, s) for c, h, s in zip(center, half, steps, strict=True)]
+
+
+def _lattice(axes: list[np.ndarray]) -> np.ndarray:
+    """(K, 3) poses of the lattice over (x, y, yaw) `axes`: x slowest, yaw fastest."""
     grid = np.meshgrid(*axes, indexing="ij")
     return np.stack([g.ravel() for g in grid], axis=1)
 
@@ -160,8 +223,9 @@ def global_search(
     half = np.asarray(half_window, np.float64)
     for _ in range(levels):
         steps = 2.0 * half / (points_per_axis - 1)
-        candidates = _lattice(best, half, steps)
-        scores = scorer.score(candidates, source)
+        axes = _lattice_axes(best, half, steps)
+        candidates = _lattice(axes)
+        scores = scorer.score_lattice(axes, source)
         distance = np.linalg.norm((candidates - guess) / np.asarray(half_window), axis=1)
         near_best = scores >= tie_fraction * scores.max()
         pick = int(np.flatnonzero(near_best)[np.argmin(distance[near_best])])
