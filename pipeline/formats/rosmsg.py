@@ -30,10 +30,12 @@ __all__ = [
 
 # The layout of recordings sonarmap writes (`recording_writer`): messages up to
 # SMALL_MESSAGE_BYTES (navigation, tf; a sonar image is hundreds of kB) in chunks apart
-# from the images, and image chunks of about one image, so a reader decompresses the
-# navigation and the keyframes' images and nothing else.
+# from the images, and image chunks closed once past RECORDING_CHUNK_BYTES: one sonar
+# ping with its label image, or one truth-angle image (the simulator's 512 x 600 pings),
+# so a reader decompresses the navigation and the keyframes' images and little else,
+# without a chunk index per image (the summary and message indexes are parsed in Python).
 SMALL_MESSAGE_BYTES = 64 * 1024
-RECORDING_CHUNK_BYTES = 256 * 1024
+RECORDING_CHUNK_BYTES = 512 * 1024
 
 
 def custom_msg_texts() -> dict[str, str]:
@@ -180,7 +182,7 @@ class Ros2McapWriter:
 
 def recording_writer(stream: IO[bytes]) -> Ros2McapWriter:
     """A writer with the layout of the recordings sonarmap writes (simulator, `convert`):
-    navigation in chunks of its own, images in chunks of about one image."""
+    navigation in chunks of its own, images in chunks of one or two images."""
     return Ros2McapWriter(
         stream, chunk_size=RECORDING_CHUNK_BYTES, small_message_bytes=SMALL_MESSAGE_BYTES
     )
