@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
 _MAX_INDEX_BLOCK_SLACK = 1 << 20
+_CACHED_CHUNKS = 6
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
@@ -184,15 +185,15 @@ class _McapFile:
                 yield rec.channel_id, rec.log_time, rec.data
 
     def _chunk(self, f: BinaryIO, k: int) -> bytes:
-        """Uncompressed chunk k (the last three are cached: both sonars of a keyframe
-        usually live in one chunk, and the navigation in a chunk of its own when the file
-        was written by `Ros2McapWriter` with `small_message_bytes`)."""
+        """Uncompressed chunk k, the last `_CACHED_CHUNKS` kept: the two sonars' streams
+        (`SourceRecording.pings`) read in step, each holding its ping's chunks and the
+        next one's; both sonars often share a chunk; the navigation may have its own."""
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
         data = self._read_chunk(f, k)
         self._cache[k] = data
-        while len(self._cache) > 3:
+        while len(self._cache) > _CACHED_CHUNKS:
             self._cache.popitem(last=False)
         return data
 
