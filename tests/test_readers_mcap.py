@@ -114,6 +114,7 @@ def write_synthetic(
     chunk_size: int = 4 * 1024 * 1024,
     extra_sonar_topic: str | None = None,
     navigation: bool = True,
+    small_message_bytes: int | None = None,
 ) -> dict[str, Any]:
     """A small dataset like the simulator's: both sonars, odometry (dead reckoning + truth)."""
     angles = np.deg2rad(np.linspace(-30, 30, N_BEAMS))
@@ -167,7 +168,10 @@ def write_synthetic(
                 (int(t), 6, TOPIC_GROUND_TRUTH, ODOMETRY_TYPE, odom_msg(int(t), x, y, z, yaw))
             )
     events.sort(key=lambda e: (e[0], e[1]))
-    with path.open("wb") as f, Ros2McapWriter(f, chunk_size=chunk_size) as w:
+    with (
+        path.open("wb") as f,
+        Ros2McapWriter(f, chunk_size=chunk_size, small_message_bytes=small_message_bytes) as w,
+    ):
         for t, _, topic, typ, msg in events:
             w.write(topic, typ, msg, t)
         w.add_attachment(

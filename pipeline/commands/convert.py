@@ -181,12 +181,12 @@ def _write(
     kind: str,
 ) -> None:
     """Stream every event into a new MCAP at `path`, fsynced; `counts` filled per topic."""
-    from pipeline.formats.rosmsg import Ros2McapWriter
+    from pipeline.formats.rosmsg import recording_writer
     from schemas.topics import TOPIC_TF_STATIC
 
     first = True
     with path.open("wb") as f:
-        with Ros2McapWriter(f) as w:
+        with recording_writer(f) as w:
             for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
                 if first:
                     mounts = {s: rec.mountings()[s] for s in roles.sonar}

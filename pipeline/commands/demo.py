@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +33,18 @@ def _stage_section(result: Any) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _training_simulations(config: Path | None, overrides: Sequence[str]) -> list[Any]:
+    """The default classifier's simulated missions under this config, so the demo can
+    simulate them beside the mapped scene instead of after it."""
+    from pipeline.engine.config import load_config
+    from pipeline.engine.registry import all_stages, extra_sections
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.model import training_simulations
+
+    resolved = load_config(all_stages(), config, overrides, extra_sections())
+    return training_simulations(getattr(resolved, "training", TrainingDataConfig()))
+
+
 def register(app: typer.Typer) -> None:
     @app.command("demo")
     def demo(
@@ -56,13 +70,16 @@ def register(app: typer.Typer) -> None:
         from pipeline.api import RunRequest, run_dataset
         from pipeline.commands._common import stderr_console
         from pipeline.engine.progress import StageProgress
-        from pipeline.training.datasets import ensure_simulation, scene_path
+        from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
         console = stderr_console()
         scene_file = scene_path(scene)
         dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
         console.print(f"dataset: {dataset}")
-        ensure_simulation(scene_file, seed, dataset, goals=goals, duration_s=duration_s)
+        mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
+        ensure_simulations(
+            [mapped, *_training_simulations(config, set_ or ())], os.cpu_count() or 1
+        )
         with StageProgress(enabled=True) as progress:
             result, summary = run_dataset(
                 RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),

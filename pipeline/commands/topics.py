@@ -16,9 +16,13 @@ def topics_report(path: Path, options: Any = None) -> dict[str, Any]:
     """What `topics --json` prints: every topic with its role, plus warnings."""
     from pipeline.engine.errors import SourceError
     from pipeline.readers import ReaderOptions, open_source
+    from pipeline.readers.mcap_source import McapSource
     from pipeline.readers.roles import detect_roles
 
     source = open_source(path)
+    if isinstance(source, McapSource):
+        # Runs check only the chunks they decompress; the inspection command checks them all.
+        source.verify()
     topics = source.topics()
     roles_error = None
     try:

@@ -17,7 +17,25 @@ from mcap.writer import Writer as McapWriter
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-__all__ = ["Ros2McapWriter", "custom_msg_texts", "msgdef", "ros1_typestore", "ros2_typestore"]
+__all__ = [
+    "RECORDING_CHUNK_BYTES",
+    "SMALL_MESSAGE_BYTES",
+    "Ros2McapWriter",
+    "custom_msg_texts",
+    "msgdef",
+    "recording_writer",
+    "ros1_typestore",
+    "ros2_typestore",
+]
+
+# The layout of recordings sonarmap writes (`recording_writer`): messages up to
+# SMALL_MESSAGE_BYTES (navigation, tf; a sonar image is hundreds of kB) in chunks apart
+# from the images, and image chunks closed once past RECORDING_CHUNK_BYTES: one sonar
+# ping with its label image, or one truth-angle image (the simulator's 512 x 600 pings),
+# so a reader decompresses the navigation and the keyframes' images and little else,
+# without a chunk index per image (the summary and message indexes are parsed in Python).
+SMALL_MESSAGE_BYTES = 64 * 1024
+RECORDING_CHUNK_BYTES = 512 * 1024
 
 
 def custom_msg_texts() -> dict[str, str]:
@@ -66,15 +84,30 @@ class Ros2McapWriter:
             w.write("/topic", "nav_msgs/msg/Odometry", msg_object, t_ns)
 
     Messages are rosbags message objects (see `ros2_typestore().types`).
+
+    With `small_message_bytes`, messages of at most that size (navigation, ground truth,
+    tf) are gathered into chunks of their own instead of between the sonar images: a
+    reader then gets the whole navigation stream without decompressing any image (the
+    chunks overlap in time, which MCAP allows; readers order by the message indexes).
     """
 
-    def __init__(self, stream: IO[bytes], *, chunk_size: int = 4 * 1024 * 1024) -> None:
+    def __init__(
+        self,
+        stream: IO[bytes],
+        *,
+        chunk_size: int = 4 * 1024 * 1024,
+        small_message_bytes: int | None = None,
+    ) -> None:
         self._writer = McapWriter(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library="sonarmap")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence = 0
         self._store = ros2_typestore()
+        self._chunk_size = chunk_size
+        self._small_bytes = small_message_bytes
+        self._small: list[tuple[int, int, bytes, int]] = []
+        self._small_size = 0
 
     def _channel(self, topic: str, typename: str) -> int:
         if topic in self._channels:
@@ -97,10 +130,29 @@ class Ros2McapWriter:
     def write_raw(self, topic: str, typename: str, cdr: bytes, t_ns: int) -> None:
         """Append an already CDR-serialised message."""
         cid = self._channel(topic, typename)
-        self._writer.add_message(
-            channel_id=cid, log_time=t_ns, publish_time=t_ns, sequence=self._sequence, data=cdr
-        )
+        if self._small_bytes is not None and len(cdr) <= self._small_bytes:
+            self._small.append((cid, t_ns, cdr, self._sequence))
+            self._small_size += len(cdr)
+            if self._small_size >= self._chunk_size:
+                self._flush_small()
+        else:
+            self._writer.add_message(
+                channel_id=cid, log_time=t_ns, publish_time=t_ns, sequence=self._sequence, data=cdr
+            )
         self._sequence += 1
+
+    def _flush_small(self) -> None:
+        """Close the image chunk in progress, then write the gathered small messages as
+        a chunk of their own."""
+        if not self._small:
+            return
+        self._writer.flush()
+        for cid, t_ns, cdr, seq in self._small:
+            self._writer.add_message(
+                channel_id=cid, log_time=t_ns, publish_time=t_ns, sequence=seq, data=cdr
+            )
+        self._writer.flush()
+        self._small, self._small_size = [], 0
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """A metadata record (string -> string map), e.g. provenance."""
@@ -113,6 +165,7 @@ class Ros2McapWriter:
         )
 
     def finish(self) -> None:
+        self._flush_small()
         self._writer.finish()
 
     def __enter__(self) -> Ros2McapWriter:
@@ -125,3 +178,11 @@ class Ros2McapWriter:
         tb: TracebackType | None,
     ) -> None:
         self.finish()
+
+
+def recording_writer(stream: IO[bytes]) -> Ros2McapWriter:
+    """A writer with the layout of the recordings sonarmap writes (simulator, `convert`):
+    navigation in chunks of its own, images in chunks of one or two images."""
+    return Ros2McapWriter(
+        stream, chunk_size=RECORDING_CHUNK_BYTES, small_message_bytes=SMALL_MESSAGE_BYTES
+    )

@@ -24,7 +24,7 @@ import numpy as np
 
 from pipeline.engine.errors import SourceError
 from pipeline.formats.frames_io import image_message
-from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from pipeline.formats.rosmsg import recording_writer, ros2_typestore
 from pipeline.formats.sim_render import rendered_frames
 from schemas.sonar import SonarPing, beam_directions_from_angles
 from schemas.topics import (
@@ -287,7 +287,7 @@ def write_simulation(
     except OSError as err:
         raise SourceError(f"cannot write to {path.parent}: {err}") from err
     try:
-        with os.fdopen(fd, "wb") as f, Ros2McapWriter(f) as w:
+        with os.fdopen(fd, "wb") as f, recording_writer(f) as w:
             w.write(TOPIC_TF_STATIC, TF_TYPE, build.tf_static(t_first, run.T_base_sonar), t_first)
             n_msgs += 1
             for frame in rendered_frames(run, workers):

@@ -20,7 +20,8 @@ import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, ChunkIndex, Message, Schema
+from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Message, Schema
+from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 
 from pipeline.engine.errors import SourceError
@@ -39,6 +40,8 @@ log = logging.getLogger(__name__)
 
 
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
+_MAX_INDEX_BLOCK_SLACK = 1 << 20
+_CACHED_CHUNKS = 6
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
@@ -63,21 +66,41 @@ class _Locations:
     offset: np.ndarray
 
 
+def _index_block(f: BinaryIO, chunk: ChunkIndex, size: int) -> tuple[int, bytes]:
+    """(start offset, bytes) of the span holding all of a chunk's message indexes: one
+    read per chunk instead of one per channel (they follow the chunk back to back)."""
+    offsets = chunk.message_index_offsets.values()
+    start, end = min(offsets), max(offsets) + 9
+    # A damaged length must not size the read; a record past the block is read on its own.
+    if end <= start + chunk.message_index_length <= end + _MAX_INDEX_BLOCK_SLACK:
+        end = start + chunk.message_index_length
+    f.seek(start)
+    return start, f.read(min(end, size) - start)
+
+
 def _index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, _Locations]:
     """Per channel, every message's time and place, from the chunks' message indexes."""
     parts: dict[int, list[tuple[np.ndarray, int]]] = defaultdict(list)
     size = path.stat().st_size
     with path.open("rb") as f:
         for k, chunk in enumerate(chunks):
+            if not chunk.message_index_offsets:
+                continue
+            start, block = _index_block(f, chunk, size)
             for cid, offset in chunk.message_index_offsets.items():
-                f.seek(offset)
-                head = f.read(9)
+                at = offset - start
+                head = block[at : at + 9]
                 if len(head) < 9 or head[0] != _OP_MESSAGE_INDEX:
                     raise IndexCorrupt(f"no message index at byte offset {offset}")
                 (length,) = struct.unpack_from("<Q", head, 1)
                 if offset + 9 + length > size:
                     raise IndexCorrupt(f"message index at byte offset {offset} ends past the file")
-                entries = message_index_entries(f.read(length), offset, cid, chunk)
+                if at + 9 + length > len(block):
+                    f.seek(offset + 9)
+                    body = f.read(length)
+                else:
+                    body = block[at + 9 : at + 9 + length]
+                entries = message_index_entries(body, offset, cid, chunk)
                 parts[cid].append((entries, k))
     out = {}
     for cid, items in parts.items():
@@ -162,14 +185,15 @@ class _McapFile:
                 yield rec.channel_id, rec.log_time, rec.data
 
     def _chunk(self, f: BinaryIO, k: int) -> bytes:
-        """Uncompressed chunk k (the last two are cached: both sonars of a keyframe
-        usually live in the same chunk)."""
+        """Uncompressed chunk k, the last `_CACHED_CHUNKS` kept: the two sonars' streams
+        (`SourceRecording.pings`) read in step, each holding its ping's chunks and the
+        next one's; both sonars often share a chunk; the navigation may have its own."""
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
         data = self._read_chunk(f, k)
         self._cache[k] = data
-        while len(self._cache) > 2:
+        while len(self._cache) > _CACHED_CHUNKS:
             self._cache.popitem(last=False)
         return data
 
@@ -263,13 +287,17 @@ class McapSource:
                 log.warning(msg)
             elif f.summary is None and not f.channels and f.scan.good_until <= 8:
                 raise SourceError(f"{f.path}: not a readable MCAP file")
-        # Every chunk is checked once up front, not only those a reader asks for: a flipped
-        # bit in data this run skips still means the copy is bad (and a later run reads it).
-        for f in self._files:
-            f.verify()
+        # A chunk's CRC is checked when it is decompressed, so nothing is computed from a
+        # corrupt chunk; `verify` (run by `sonarmap topics`) checks the chunks no run needs.
         self._decoder = Ros2Decoder(self._schema_texts())
         self._topics = self._topic_infos(indexed)
         check_counts(path, self._topics, self.warnings)
+
+    def verify(self) -> None:
+        """Decompress every chunk of every file and check its CRC (SourceError naming the
+        file and the chunk's offset on the first bad one)."""
+        for f in self._files:
+            f.verify()
 
     def _schema_texts(self) -> dict[str, tuple[str, str]]:
         texts: dict[str, tuple[str, str]] = {}
@@ -335,9 +363,14 @@ class McapSource:
             if f.summary is None:
                 continue
             try:
+                # By the summary already read (SeekingReader would parse it again).
                 with f.path.open("rb") as fh:
-                    for att in SeekingReader(fh).iter_attachments():
+                    for index in f.summary.attachment_indexes:
+                        fh.seek(index.offset)
+                        att = next(StreamReader(fh, skip_magic=True).records)
+                        if not isinstance(att, Attachment):
+                            raise McapError(f"no attachment at byte offset {index.offset}")
                         out[att.name] = bytes(att.data)
-            except (McapError, struct.error, ValueError, EOFError) as err:
+            except (McapError, StopIteration, struct.error, ValueError, EOFError) as err:
                 raise SourceError(f"{f.path}: corrupt MCAP attachment ({err})") from err
         return out

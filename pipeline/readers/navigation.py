@@ -10,7 +10,7 @@ z up). The IMU is assumed mounted aligned with base_link (the authors' -90 deg r
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ __all__ = [
     "dead_reckon",
     "nav_pose",
     "pose_track",
+    "pose_track_rows",
     "quat_to_rpy",
 ]
 
@@ -54,7 +55,11 @@ def nav_pose(msg: Any) -> tuple[float, float, float, float, float, float, float]
 
 def pose_track(samples: Iterable[tuple[int, Any]]) -> PoseTrack:
     """(t_ns, nav message) samples -> PoseTrack sorted by time, duplicate times dropped."""
-    rows = [(t, *nav_pose(m)) for t, m in samples]
+    return pose_track_rows([(t, *nav_pose(m)) for t, m in samples])
+
+
+def pose_track_rows(rows: Sequence[tuple[float, ...]]) -> PoseTrack:
+    """(t_ns, x, y, z, qx, qy, qz, qw) rows -> PoseTrack (as `pose_track`)."""
     if not rows:
         return PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     t = np.array([r[0] for r in rows], np.int64)

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
-from pipeline.readers.navigation import dead_reckon, pose_track
+from pipeline.readers.navigation import dead_reckon, nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
 from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
 from pipeline.readers.source_types import Source
@@ -106,6 +106,7 @@ class SourceRecording:
         self.roles = roles or detect_roles(source.path, self._topics, options)
         self._types = {t.topic: t.msgtype for t in self._topics}
         self._nav: PoseTrack | None = None
+        self._pose_tracks: dict[str, PoseTrack] | None = None
 
     @property
     def name(self) -> str:
@@ -122,13 +123,21 @@ class SourceRecording:
     def ping_times_ns(self, sonar: str) -> np.ndarray:
         return np.unique(self.source.times(self.roles.sonar[sonar]))
 
-    def _track(self, topic: str) -> PoseTrack:
-        return pose_track((t, m) for _, t, m in self.source.messages([topic]))
+    def _tracks(self) -> dict[str, PoseTrack]:
+        """Navigation and ground-truth tracks, read in one pass: where they share chunks
+        with the sonar images (most recorders interleave), each pass decompresses them all."""
+        if self._pose_tracks is None:
+            topics = sorted({t for t in (self.roles.navigation, self.roles.ground_truth) if t})
+            rows: dict[str, list[tuple[float, ...]]] = {t: [] for t in topics}
+            for topic, t, m in self.source.messages(topics):
+                rows[topic].append((t, *nav_pose(m)))
+            self._pose_tracks = {topic: pose_track_rows(r) for topic, r in rows.items()}
+        return self._pose_tracks
 
     def navigation(self) -> PoseTrack:
         if self._nav is None:
             if self.roles.navigation is not None:
-                self._nav = self._track(self.roles.navigation)
+                self._nav = self._tracks()[self.roles.navigation]
             elif self.roles.dvl is not None:
                 self._nav = self._dead_reckoning()
             else:
@@ -163,7 +172,7 @@ class SourceRecording:
         )
 
     def ground_truth(self) -> PoseTrack | None:
-        return None if self.roles.ground_truth is None else self._track(self.roles.ground_truth)
+        return None if self.roles.ground_truth is None else self._tracks()[self.roles.ground_truth]
 
     def pings(self, sonar: str, indices: Sequence[int] | np.ndarray) -> Iterator[SonarPing]:
         """Decode the requested pings (with their label/truth images), streaming."""

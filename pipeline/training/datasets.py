@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -19,7 +21,17 @@ if TYPE_CHECKING:
     from sim.config import SimConfig
     from sim.scene import Scene
 
-__all__ = ["SCENES_DIR", "ensure_simulation", "read_scene", "scene_path", "sim_config"]
+__all__ = [
+    "SCENES_DIR",
+    "Simulation",
+    "ensure_simulation",
+    "ensure_simulations",
+    "read_scene",
+    "scene_path",
+    "sim_config",
+]
+
+log = logging.getLogger(__name__)
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenes"
 
@@ -77,6 +89,16 @@ def _recipe(scene: Path, seed: int, goals: int | None, duration_s: float | None)
     }
 
 
+def _is_current(out: Path, recipe: dict[str, Any]) -> bool:
+    sidecar = out.with_suffix(".recipe.json")
+    if out.is_file() and sidecar.is_file():
+        try:
+            return bool(json.loads(sidecar.read_text()) == recipe)
+        except ValueError:
+            pass
+    return False
+
+
 def ensure_simulation(
     scene: Path,
     seed: int,
@@ -89,12 +111,8 @@ def ensure_simulation(
     """Simulate `scene` with `seed` into `out` unless an identical one is already there."""
     recipe = _recipe(scene, seed, goals, duration_s)
     sidecar = out.with_suffix(".recipe.json")
-    if out.is_file() and sidecar.is_file():
-        try:
-            if json.loads(sidecar.read_text()) == recipe:
-                return out
-        except ValueError:
-            pass
+    if _is_current(out, recipe):
+        return out
     # Only a miss pays for the simulator's imports (open3d).
     from pipeline.engine.errors import SourceError
     from pipeline.formats.simulation import write_simulation
@@ -108,3 +126,51 @@ def ensure_simulation(
         raise SourceError(f"{out}: cannot write ({err.strerror})") from err
     sidecar.write_text(json.dumps(recipe, sort_keys=True))
     return out
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """One `ensure_simulation` call: scene file, seed, output MCAP, mission options."""
+
+    scene: Path
+    seed: int
+    out: Path
+    goals: int | None = None
+    duration_s: float | None = None
+
+    def is_current(self) -> bool:
+        """The output exists with this recipe (nothing to simulate)."""
+        return _is_current(self.out, _recipe(self.scene, self.seed, self.goals, self.duration_s))
+
+    def ensure(self) -> Path:
+        return ensure_simulation(
+            self.scene, self.seed, self.out, goals=self.goals, duration_s=self.duration_s
+        )
+
+
+def _ensure(sim: Simulation) -> Path:
+    return sim.ensure()
+
+
+def ensure_simulations(sims: Sequence[Simulation], workers: int) -> list[Path]:
+    """`ensure_simulation` for each; the missing ones simulated concurrently, each in its
+    own process (a simulation is one core's work; the files are the same either way).
+
+    Args:
+        sims: what to simulate, longest first (so the short ones fill in after it);
+            duplicates (same output) are simulated once.
+        workers: processes at most (1: one after the other, in this process).
+
+    Returns:
+        The output paths, in the order of `sims`.
+    """
+    missing = list({s.out: s for s in sims if not s.is_current()}.values())
+    if workers > 1 and len(missing) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        from multiprocessing import get_context
+
+        # spawn: the caller may hold threads (torch, progress bars) that fork would copy.
+        with ProcessPoolExecutor(min(workers, len(missing)), get_context("spawn")) as pool:
+            for done in pool.map(_ensure, missing):
+                log.info("simulated %s", done)
+    return [s.ensure() for s in sims]

@@ -27,6 +27,7 @@ from pipeline.engine.runner import DatasetSpec, execute, plan
 from pipeline.engine.session import dataset_spec
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
+from pipeline.training.datasets import Simulation
 from schemas.sonar import KeyframeImages
 from stages.base import Stage
 
@@ -35,6 +36,7 @@ __all__ = [
     "train_on",
     "training_config",
     "training_datasets",
+    "training_simulations",
     "training_stage_for",
 ]
 
@@ -175,6 +177,23 @@ def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) 
     return execute(planned, config, first, store, external=external).artifacts["train"]
 
 
+def training_simulations(training: TrainingDataConfig) -> list[Simulation]:
+    """The simulated missions of `training.sets`, with the files they are kept in."""
+    from pipeline.training.datasets import scene_path
+
+    sims = []
+    for item in training.sets:
+        scene = scene_path(item.scene)
+        suffix = f"-{item.duration_s:g}s" if item.duration_s else ""
+        name = f"{scene.stem}-seed{item.seed}-goals{item.goals}{suffix}.mcap"
+        sims.append(
+            Simulation(
+                scene, item.seed, Path(training.directory) / name, item.goals, item.duration_s
+            )
+        )
+    return sims
+
+
 def training_datasets(training: TrainingDataConfig) -> list[Path]:
     """The default model's datasets: `training.sets` (simulated on first use), then
     `training.recorded`.
@@ -184,19 +203,8 @@ def training_datasets(training: TrainingDataConfig) -> list[Path]:
     """
     from pipeline.engine.errors import SourceError
     from pipeline.training.annotations import annotation_path
-    from pipeline.training.datasets import ensure_simulation, scene_path
 
-    paths = []
-    for item in training.sets:
-        scene = scene_path(item.scene)
-        suffix = f"-{item.duration_s:g}s" if item.duration_s else ""
-        out = (
-            Path(training.directory)
-            / f"{scene.stem}-seed{item.seed}-goals{item.goals}{suffix}.mcap"
-        )
-        paths.append(
-            ensure_simulation(scene, item.seed, out, goals=item.goals, duration_s=item.duration_s)
-        )
+    paths = [sim.ensure() for sim in training_simulations(training)]
     for recorded in training.recorded:
         path = Path(recorded)
         if annotation_path(path) is None:
