@@ -70,8 +70,21 @@ def nearest_surface_class(
     return faces_class_id[np.clip(face, 0, len(faces_class_id) - 1)]
 
 
-def _unique_voxels(voxel_ijk: np.ndarray, mask: np.ndarray) -> int:
-    return int(np.unique(voxel_ijk[mask], axis=0).shape[0]) if mask.any() else 0
+def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
+    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel: counting
+    unique keys is several times cheaper than unique rows."""
+    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
+    if len(ijk) == 0:
+        return np.zeros(0, dtype=np.int64)
+    ijk = ijk - ijk.min(axis=0)
+    span = ijk.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
+        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
+
+
+def _unique_voxels(keys: np.ndarray, mask: np.ndarray) -> int:
+    return int(np.unique(keys[mask]).size) if mask.any() else 0
 
 
 def _median(values: np.ndarray) -> float | None:
@@ -79,12 +92,12 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def _map_figures(
-    mask: np.ndarray, voxel_ijk: np.ndarray, error_m: np.ndarray, tol: float
+    mask: np.ndarray, keys: np.ndarray, error_m: np.ndarray, tol: float
 ) -> dict[str, Any]:
     return {
         "points": int(mask.sum()),
-        "voxels": _unique_voxels(voxel_ijk, mask),
-        "accurate_voxels": _unique_voxels(voxel_ijk, mask & (error_m <= tol)),
+        "voxels": _unique_voxels(keys, mask),
+        "accurate_voxels": _unique_voxels(keys, mask & (error_m <= tol)),
         "median_error_m": _median(error_m[mask]),
     }
 
@@ -117,13 +130,14 @@ def class_table(
     present = set(np.unique(point_class_id).tolist()) | set(np.unique(sample_class_id).tolist())
     groups = [(CLASS_NAMES[c], point_class_id == c, sample_class_id == c) for c in sorted(present)]
     groups.append((ALL_STRUCTURE, (point_class_id != _SEAFLOOR), (sample_class_id != _SEAFLOOR)))
+    keys = voxel_keys(voxel_ijk)
     out: dict[str, dict[str, Any]] = {}
     for name, of_class, samples in groups:
         if name == CLASS_NAMES[0] and not of_class.any():
             continue
         entry: dict[str, Any] = {}
         for map_name, in_map in (("standard", is_fused), ("semantic", np.ones_like(is_fused))):
-            entry[map_name] = _map_figures(of_class & in_map, voxel_ijk, error_m, tolerance_m)
+            entry[map_name] = _map_figures(of_class & in_map, keys, error_m, tolerance_m)
             d = sample_distance_m[map_name][samples]
             entry[map_name]["completeness"] = float(np.mean(d <= tolerance_m)) if d.size else None
         inferred = of_class & ~is_fused
