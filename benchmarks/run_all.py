@@ -22,6 +22,28 @@ def _last_json(stdout: str) -> dict:
     return json.loads("\n".join(lines[starts[-1] :])) if starts else {}
 
 
+def _flat(doc: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in doc.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def goal_rows(results: dict) -> list[str]:
+    """`bench: figure = value (goal: g)` for every figure printed beside a `<figure>_goal`."""
+    rows = []
+    for name, doc in results.items():
+        flat = _flat(doc)
+        for key, goal in flat.items():
+            base = key.removesuffix("_goal")
+            if key.endswith("_goal") and base in flat:
+                rows.append(f"{name:>16}: {base} = {flat[base]} (goal: {goal})")
+    return rows
+
+
 def main() -> int:
     only = sys.argv[1:]
     results = {}
@@ -40,6 +62,9 @@ def main() -> int:
         else:
             results[name] = {**_last_json(proc.stdout), "wall_s": round(wall, 1)}
         print(f"{name:>16}: {json.dumps(results[name])}", flush=True)
+    print("\nfigures beside their goals:")
+    for row in goal_rows(results):
+        print(row)
     out = Path("data/bench")
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=2, sort_keys=True))
