@@ -1,4 +1,4 @@
-"""Shared fixtures: paths to the third-party data beside the checkout."""
+"""Shared fixtures: paths to the third-party data beside the checkout, the toy graph."""
 
 from __future__ import annotations
 
@@ -21,3 +21,23 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"third-party data not found at {SHARED_DATA}")
     return SHARED_DATA
+
+
+@pytest.fixture
+def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
+    """Point the CLI's registry at the toy stages and the dataset opener at raw bytes;
+    returns a toy dataset file."""
+    import toy_stages
+
+    import pipeline.engine.registry
+    import pipeline.engine.session
+
+    monkeypatch.setattr(pipeline.engine.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.engine.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
+    monkeypatch.setattr(pipeline.engine.session, "_default_parts", lambda p: [p])
+    monkeypatch.setattr(
+        pipeline.engine.session, "_default_open", lambda p: lambda _section: p.read_bytes()
+    )
+    data = tmp_path / "raw.bin"
+    data.write_bytes(bytes(range(256)) * 4)
+    return data

@@ -16,10 +16,19 @@ FORBIDDEN = {
 }
 
 
-def _imports(path: Path) -> list[str]:
+def _imports(path: Path, runtime_only: bool = False) -> list[str]:
+    """Modules a file imports (function bodies included); runtime_only leaves out those
+    under `if TYPE_CHECKING:` (annotations only, never executed)."""
     tree = ast.parse(path.read_text(), filename=str(path))
+    typing_only = set()
+    if runtime_only:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and ast.unparse(node.test).endswith("TYPE_CHECKING"):
+                typing_only |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
     names = []
     for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
         if isinstance(node, ast.Import):
             names.extend(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -77,30 +86,11 @@ def _module_name(path: Path) -> str:
     return name.removesuffix(".__init__")
 
 
-def _runtime_imports(path: Path) -> list[str]:
-    """`_imports` less those under `if TYPE_CHECKING:` (annotations only, never executed)."""
-    tree = ast.parse(path.read_text(), filename=str(path))
-    typing_only = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and ast.unparse(node.test).endswith("TYPE_CHECKING"):
-            typing_only |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
-    names = []
-    for node in ast.walk(tree):
-        if id(node) in typing_only:
-            continue
-        if isinstance(node, ast.Import):
-            names.extend(alias.name for alias in node.names)
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.append(node.module)
-            names.extend(f"{node.module}.{alias.name}" for alias in node.names)
-    return names
-
-
 def _import_graph() -> dict[str, set[str]]:
     """Module -> the project modules it imports when run (function bodies included)."""
     paths = {_module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
     return {
-        name: {t for t in _runtime_imports(path) if t in paths and t != name}
+        name: {t for t in _imports(path, runtime_only=True) if t in paths and t != name}
         for name, path in paths.items()
     }
 

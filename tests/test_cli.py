@@ -8,28 +8,11 @@ import sys
 from pathlib import Path
 
 import pytest
-import toy_stages
 from typer.testing import CliRunner
 
-import pipeline.engine.registry
-import pipeline.engine.session
 from pipeline.cli import app
 
 runner = CliRunner()
-
-
-@pytest.fixture
-def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
-    """Point the CLI's registry at the toy stages and the dataset opener at raw bytes."""
-    monkeypatch.setattr(pipeline.engine.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.session, "_default_parts", lambda p: [p])
-    monkeypatch.setattr(
-        pipeline.engine.session, "_default_open", lambda p: lambda _section: p.read_bytes()
-    )
-    data = tmp_path / "raw.bin"
-    data.write_bytes(bytes(range(256)) * 4)
-    return data
 
 
 def test_run_json_then_status_reports_hits(toy_cli: Path, tmp_path: Path) -> None:

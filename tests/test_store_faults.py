@@ -15,12 +15,9 @@ import sys
 from pathlib import Path
 
 import pytest
-import toy_stages
 from click.testing import Result
 from typer.testing import CliRunner
 
-import pipeline.engine.registry
-import pipeline.engine.session
 from pipeline.cli import app
 from pipeline.engine.store import ArtifactStore
 
@@ -28,16 +25,9 @@ runner = CliRunner()
 
 
 @pytest.fixture
-def toy(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> tuple[Path, Path]:
+def toy(toy_cli: Path, tmp_path: Path) -> tuple[Path, Path]:
     """(dataset, store) with the CLI pointed at the toy graph and the store computed once."""
-    monkeypatch.setattr(pipeline.engine.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.session, "_default_parts", lambda p: [p])
-    monkeypatch.setattr(
-        pipeline.engine.session, "_default_open", lambda p: lambda _section: p.read_bytes()
-    )
-    data = tmp_path / "raw.bin"
-    data.write_bytes(bytes(range(256)) * 4)
+    data = toy_cli
     store = tmp_path / "store"
     assert cli("run", data, "--store", store).exit_code == 0
     return data, store

@@ -6,14 +6,18 @@ one line, so a parse error becomes `file: ... (line L:C: problem)`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
+from pydantic import BaseModel, ValidationError
 
 from pipeline.engine.errors import PipelineError
 
-__all__ = ["read_yaml", "yaml_error_line"]
+ModelT = TypeVar("ModelT", bound=BaseModel)
+
+__all__ = ["read_model", "read_yaml", "yaml_error_line"]
 
 
 def _at(mark: Any) -> str:
@@ -54,3 +58,26 @@ def read_yaml(path: Path, what: str, error: type[PipelineError]) -> Any:
         return yaml.safe_load(text)
     except yaml.YAMLError as err:
         raise error(f"{path}: {what} is not valid YAML ({yaml_error_line(err)})") from err
+
+
+def read_model(
+    path: Path,
+    what: str,
+    model: type[ModelT],
+    error: type[PipelineError],
+    describe: Callable[[ValidationError], str],
+    not_a_mapping: str,
+) -> ModelT:
+    """A YAML mapping validated as `model`; every fault is one `error` line.
+
+    Args:
+        describe: the one-line message of a validation error.
+        not_a_mapping: the message when the document is not a mapping.
+    """
+    raw = read_yaml(path, what, error)
+    if not isinstance(raw, dict):
+        raise error(f"{path}: {not_a_mapping}, got {type(raw).__name__}")
+    try:
+        return model.model_validate(raw)
+    except ValidationError as err:
+        raise error(describe(err)) from err

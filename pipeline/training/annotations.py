@@ -19,7 +19,7 @@ from pipeline.engine.codecs import write_output
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
-from pipeline.engine.yaml_files import read_yaml
+from pipeline.engine.yaml_files import read_model
 from schemas.annotations import AnnotationFile
 from stages.base import Output, Stage, StageConfig
 from stages.classify.annotations import RASTER_VERSION
@@ -72,13 +72,14 @@ def load_annotations(path: Path) -> AnnotationFile:
         SourceError: unreadable, not YAML/JSON, or invalid; one line naming the file
             and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
-    raw = read_yaml(path, "annotations", SourceError)
-    if not isinstance(raw, dict):
-        raise SourceError(f"{path}: expected a mapping with 'format' and 'keyframes'")
-    try:
-        return AnnotationFile.model_validate(raw)
-    except ValidationError as err:
-        raise SourceError(_message(err, path)) from err
+    return read_model(
+        path,
+        "annotations",
+        AnnotationFile,
+        SourceError,
+        lambda err: _message(err, path),
+        "expected a mapping with 'format' and 'keyframes'",
+    )
 
 
 def commit_annotations(path: Path, store: ArtifactStore) -> ArtifactRef:

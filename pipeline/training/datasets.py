@@ -51,19 +51,18 @@ def scene_path(name_or_path: str | Path) -> Path:
 
 def read_scene(path: Path) -> Scene:
     """A scene YAML, validated; bad YAML or a bad field is one ConfigError line."""
-    from pydantic import ValidationError
-
     from pipeline.engine.config_errors import validation_message
-    from pipeline.engine.yaml_files import read_yaml
+    from pipeline.engine.yaml_files import read_model
     from sim.scene import Scene
 
-    raw = read_yaml(path, "scene", ConfigError)
-    if not isinstance(raw, dict):
-        raise ConfigError(f"{path}: a scene must be a YAML mapping, got {type(raw).__name__}")
-    try:
-        return Scene.model_validate(raw)
-    except ValidationError as err:
-        raise ConfigError(validation_message(Scene, err, f"scene {path}")) from err
+    return read_model(
+        path,
+        "scene",
+        Scene,
+        ConfigError,
+        lambda err: validation_message(Scene, err, f"scene {path}"),
+        "a scene must be a YAML mapping",
+    )
 
 
 def sim_config(goals: int | None, duration_s: float | None) -> SimConfig:
