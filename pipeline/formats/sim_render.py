@@ -52,7 +52,7 @@ def _render(index: int) -> tuple[SimFrame, dict[str, tuple[_Sparse, _Sparse]]]:
     assert _RUN is not None, "worker not initialised"
     frame = _RUN.frame(index)
     sparse = {}
-    pings = {}
+    pings: dict[str, SonarPing] = {}
     for name in ("horizontal", "vertical"):
         ping: SonarPing = getattr(frame, name)
         assert ping.labels is not None and ping.truth_angle_rad is not None
@@ -61,12 +61,12 @@ def _render(index: int) -> tuple[SimFrame, dict[str, tuple[_Sparse, _Sparse]]]:
         truth_idx = np.flatnonzero(truth.view(np.uint32) != _NAN_BITS)
         sparse[name] = ((lab_idx, labels[lab_idx]), (truth_idx, truth[truth_idx]))
         pings[name] = replace(ping, labels=None, truth_angle_rad=None)
-    return replace(frame, **pings), sparse
+    return replace(frame, horizontal=pings["horizontal"], vertical=pings["vertical"]), sparse
 
 
 def _dense(frame: SimFrame, sparse: dict[str, tuple[_Sparse, _Sparse]]) -> SimFrame:
     """Inverse of `_render`'s packing: the frame exactly as `SimRun.frame` returned it."""
-    pings = {}
+    pings: dict[str, SonarPing] = {}
     for name, ((lab_idx, lab), (truth_idx, truth)) in sparse.items():
         ping: SonarPing = getattr(frame, name)
         labels = np.zeros(ping.image.size, np.uint8)
@@ -77,7 +77,7 @@ def _dense(frame: SimFrame, sparse: dict[str, tuple[_Sparse, _Sparse]]) -> SimFr
         pings[name] = replace(
             ping, labels=labels.reshape(shape), truth_angle_rad=angles.reshape(shape)
         )
-    return replace(frame, **pings)
+    return replace(frame, horizontal=pings["horizontal"], vertical=pings["vertical"])
 
 
 def rendered_frames(run: SimRun, workers: int) -> Iterator[SimFrame]:
