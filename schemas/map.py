@@ -26,12 +26,21 @@ MAP_NAMES: tuple[str, ...] = ("standard", "semantic")
 NO_CLASS = "none"
 """`class_name` of a fused point that belongs to no classified object."""
 
-MAP_SORT_KEYS: tuple[str, ...] = ("keyframe_id", "source", "class_name", "x_m", "y_m", "z_m")
+MAP_SORT_KEYS: tuple[str, ...] = (
+    "keyframe_id",
+    "frame_id",
+    "source",
+    "class_name",
+    "x_m",
+    "y_m",
+    "z_m",
+)
 """Row order of `map.parquet` and `errors.parquet`."""
 
 MAP_SCHEMA = pa.schema(
     [
         pa.field("keyframe_id", pa.int64(), nullable=False),
+        pa.field("frame_id", pa.int64(), nullable=False),
         pa.field("x_m", pa.float64(), nullable=False),
         pa.field("y_m", pa.float64(), nullable=False),
         pa.field("z_m", pa.float64(), nullable=False),
@@ -39,7 +48,9 @@ MAP_SCHEMA = pa.schema(
         pa.field("class_name", pa.string(), nullable=False),
     ]
 )
-"""map.parquet: keyframe the point was observed in, world position [m], source
+"""map.parquet: keyframe the point was observed in (or whose submap it belongs to),
+its submap frame (`submap_frames.parquet` frame_id; -1: the keyframe itself, see
+`schemas.submaps.KEYFRAME_FRAME_ID`), world position [m], source
 (`fused` | `inferred`), class of its object (`none` when unclassified, `unknown` when
 the classifier was not confident). Sorted by MAP_SORT_KEYS."""
 

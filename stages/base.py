@@ -102,6 +102,12 @@ class Stage:
             or "<stage>.<output>" of an upstream stage.
         outputs: what `run` returns, by name.
         run: `run(config, inputs) -> {output name: value}`.
+        key_excludes: fields of the stage's own section that do not enter its key, because
+            the stage never reads them (they configure a later stage that lists the
+            section in `reads_sections`, e.g. `keyframes.submap_stride`).
+        reads_sections: other config sections the stage reads: bound as inputs
+            `config.<section>` and hashed, whole, into its key.
+        dataset_section: the section the "dataset" input is opened with (None: its own).
     """
 
     name: str
@@ -111,6 +117,9 @@ class Stage:
     outputs: tuple[Output, ...]
     run: Callable[[Any, Mapping[str, Any]], Mapping[str, Any]]
     description: str = ""
+    key_excludes: tuple[str, ...] = ()
+    reads_sections: tuple[str, ...] = ()
+    dataset_section: str | None = None
 
     @property
     def upstream(self) -> tuple[str, ...]:

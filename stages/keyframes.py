@@ -36,8 +36,10 @@ __all__ = [
     "STAGE",
     "KeyframesConfig",
     "PingPairs",
+    "PosedPairs",
     "interpolate_poses",
     "pair_pings",
+    "posed_pairs",
     "select_keyframes",
 ]
 
@@ -64,6 +66,9 @@ class KeyframesConfig(StageConfig):
         dvl_max_velocity_mps: DVL velocity gate of the dead reckoning [m/s].
         image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images.
         *_mount_xyz_m, *_mount_rpy_deg: T_base_sonar when the data has no /tf_static.
+        submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
+            k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
+            only (the paper). Read by `submaps` only, so it is not in this stage's key.
     """
 
     spacing_m: float = Field(2.0, gt=0.0, le=1000.0)
@@ -84,6 +89,7 @@ class KeyframesConfig(StageConfig):
     horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (0.0, 0.0, 0.0)
     vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.1)
     vertical_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (90.0, 0.0, 0.0)
+    submap_stride: int = Field(0, ge=0, le=10000)
 
 
 @dataclass(frozen=True)
@@ -232,14 +238,38 @@ def _frames(
         )
 
 
+@dataclass(frozen=True)
+class PosedPairs:
+    """Every sonar pair of a recording and its dead-reckoning pose (steps 1-2).
+
+    Attributes:
+        pairs: the pairing (`pair_pings`).
+        h_t_ns, v_t_ns: every horizontal / vertical ping time [ns].
+        pose: (k, 6) dead-reckoning pose of each pair (NaN outside the navigation stream).
+        posed: (p,) indices into the pairs of those inside the navigation stream.
+    """
+
+    pairs: PingPairs
+    h_t_ns: np.ndarray
+    v_t_ns: np.ndarray
+    pose: np.ndarray
+    posed: np.ndarray
+
+
+def posed_pairs(rec: Recording, config: KeyframesConfig) -> PosedPairs:
+    """Steps 1-2: pair the pings and pose every pair (the `submaps` stage uses it too)."""
+    h_t, v_t = rec.ping_times_ns("horizontal"), rec.ping_times_ns("vertical")
+    pairs = pair_pings(h_t, v_t, round(config.pair_tolerance_s * 1e9))
+    pose, valid = interpolate_poses(rec.navigation(), h_t[pairs.horizontal])
+    return PosedPairs(pairs, h_t, v_t, pose, np.flatnonzero(valid))
+
+
 def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage entry point: {"dataset": Recording} -> keyframes, frames, sensors, scene_mesh."""
     rec: Recording = inputs["dataset"]
-    h_t, v_t = rec.ping_times_ns("horizontal"), rec.ping_times_ns("vertical")
-    pairs = pair_pings(h_t, v_t, round(config.pair_tolerance_s * 1e9))
+    posed = posed_pairs(rec, config)
+    h_t, v_t, pairs, pose, cand = posed.h_t_ns, posed.v_t_ns, posed.pairs, posed.pose, posed.posed
     t_pair = h_t[pairs.horizontal]
-    pose, valid = interpolate_poses(rec.navigation(), t_pair)
-    cand = np.flatnonzero(valid)
     sel, reasons = select_keyframes(
         t_pair[cand],
         pose[cand],
@@ -310,4 +340,5 @@ STAGE = Stage(
     ),
     run=run,
     description="pair sonar pings, pose them from navigation, select keyframes by spacing",
+    key_excludes=("submap_stride",),
 )

@@ -14,6 +14,11 @@ points of `infer.points` (`source == "inferred"`). Fused points are taken from
 object's class name (matched on keyframe and exact sonar-frame coordinates, which the
 infer stage copies unchanged).
 
+Dense submaps (stage `submaps`, `keyframes.submap_stride` > 0): the points of the frames
+between keyframes join both maps, registered through their keyframe's SLAM pose and
+their dead-reckoning pose relative to it, T_world_kf T_kf_frame T_base_sonar; their
+`frame_id` column tells them from the keyframes' own points (-1).
+
 Outputs: `map` (`schemas.map.MAP_SCHEMA`), `voxels` (`VOXELS_SCHEMA`), `summary`
 (voxel and point counts), and each map as a binary PLY coloured by height.
 """
@@ -30,6 +35,7 @@ import pyarrow.compute as pc
 from pydantic import Field
 
 from schemas.map import MAP_NAMES, MAP_SCHEMA, MAP_SORT_KEYS, NO_CLASS, VOXELS_SCHEMA
+from schemas.submaps import KEYFRAME_FRAME_ID, REL_POSE_COLUMNS
 from stages.base import Output, Stage, StageConfig
 from stages.ply import encode_points_ply
 
@@ -149,6 +155,8 @@ def build_map(
     poses: pa.Table,
     T_base_sonar: np.ndarray,
     drop_above_surface: bool = True,
+    submap_frames: pa.Table | None = None,
+    submap_points: pa.Table | None = None,
 ) -> tuple[pa.Table, dict[str, int]]:
     """The world-frame map of fused and inferred points (Eq. 4).
 
@@ -158,6 +166,9 @@ def build_map(
         poses: slam.poses (`schemas.slam.POSES_SCHEMA`), base_link in the world frame.
         T_base_sonar: (4, 4) horizontal sonar mounting.
         drop_above_surface: drop world points with z > 0.
+        submap_frames, submap_points: stage `submaps` (`schemas.submaps`): points of the
+            frames between keyframes, each registered through its keyframe's pose,
+            T_world_kf T_kf_frame T_base_sonar (Eq. 4 extended).
 
     Returns:
         The map (`MAP_SCHEMA`, sorted by MAP_SORT_KEYS) and counts of the points
@@ -182,6 +193,17 @@ def build_map(
     )
     pose_ids, T_world_base = pose_matrices(poses)
     world, posed = world_points(kf, xyz, pose_ids, T_world_base, T_base_sonar)
+    frame_id = np.full(kf.size, KEYFRAME_FRAME_ID, np.int64)
+    if submap_points is not None and submap_frames is not None and submap_points.num_rows:
+        sub = _submap_world_points(
+            submap_frames, submap_points, pose_ids, T_world_base, T_base_sonar
+        )
+        world = np.concatenate([world, sub["world"]])
+        posed = np.concatenate([posed, sub["posed"]])
+        kf = np.concatenate([kf, sub["keyframe_id"]])
+        frame_id = np.concatenate([frame_id, sub["frame_id"]])
+        source = np.concatenate([source, sub["source"]])
+        class_name = np.concatenate([class_name, sub["class_name"]])
     keep = world[:, 2] <= 0.0 if drop_above_surface else np.ones(len(world), bool)
     dropped = {"above_surface": int((~keep).sum()), "without_pose": int((~posed).sum())}
     if dropped["without_pose"]:
@@ -189,6 +211,7 @@ def build_map(
     table = pa.table(
         {
             "keyframe_id": pa.array(kf[posed][keep], pa.int64()),
+            "frame_id": pa.array(frame_id[posed][keep], pa.int64()),
             "x_m": pa.array(world[keep, 0], pa.float64()),
             "y_m": pa.array(world[keep, 1], pa.float64()),
             "z_m": pa.array(world[keep, 2], pa.float64()),
@@ -198,6 +221,39 @@ def build_map(
         schema=MAP_SCHEMA,
     )
     return table.sort_by([(k, "ascending") for k in MAP_SORT_KEYS]), dropped
+
+
+def _submap_world_points(
+    frames: pa.Table,
+    points: pa.Table,
+    pose_ids: np.ndarray,
+    T_world_base: np.ndarray,
+    T_base_sonar: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """World points of the submap frames: T_world_kf(SLAM) T_kf_frame(DR) T_base_sonar."""
+    frame_ids = frames.column("frame_id").to_numpy()
+    rel = np.stack([frames.column(c).to_numpy() for c in REL_POSE_COLUMNS], axis=1)
+    T_kf_frame = np.tile(np.eye(4), (len(rel), 1, 1))
+    T_kf_frame[:, :3, :3] = rotation_rpy(rel[:, 3], rel[:, 4], rel[:, 5])
+    T_kf_frame[:, :3, 3] = rel[:, :3]
+    fid = points.column("frame_id").to_numpy()
+    row = np.searchsorted(frame_ids, fid)
+    if len(frame_ids) == 0 or (frame_ids[np.minimum(row, len(frame_ids) - 1)] != fid).any():
+        raise ValueError("voxelize: submap points reference frames not in submap_frames")
+    kf = frames.column("keyframe_id").to_numpy()[row]
+    xyz = np.stack([points.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
+    # points in the keyframe's base_link: T_kf_frame T_base_sonar p; then Eq. 4 as for keyframes
+    T = T_kf_frame[row] @ np.asarray(T_base_sonar, np.float64)
+    in_kf_base = np.einsum("nij,nj->ni", T[:, :3, :3], xyz) + T[:, :3, 3]
+    world, posed = world_points(kf, in_kf_base, pose_ids, T_world_base, np.eye(4))
+    return {
+        "world": world,  # rows of `posed` only, as world_points gives them
+        "posed": posed,
+        "keyframe_id": kf.astype(np.int64),
+        "frame_id": fid.astype(np.int64),
+        "source": np.asarray(points.column("source").to_pylist(), object),
+        "class_name": np.asarray(points.column("class_name").to_pylist(), object),
+    }
 
 
 def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
@@ -256,6 +312,8 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs["slam.poses"],
         T_base_sonar,
         config.drop_above_surface,
+        inputs.get("submaps.frames"),
+        inputs.get("submaps.points"),
     )
     voxels = voxel_table(map_table, config.voxel_size_m)
     names = voxels.column("map").to_numpy(zero_copy_only=False)
@@ -287,9 +345,17 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="voxelize",
-    version=1,
+    # 2: map.parquet gains frame_id; submap frames join the maps
+    version=2,
     config=VoxelizeConfig,
-    inputs=("infer.points", "fuse.fused", "slam.poses", "keyframes.sensors"),
+    inputs=(
+        "infer.points",
+        "fuse.fused",
+        "slam.poses",
+        "keyframes.sensors",
+        "submaps.frames",
+        "submaps.points",
+    ),
     outputs=(
         Output("map", "parquet", "map.parquet", schema=MAP_SCHEMA),
         Output("voxels", "parquet", "voxels.parquet", schema=VOXELS_SCHEMA),

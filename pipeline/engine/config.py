@@ -58,10 +58,29 @@ def config_model_for(
     return _model_for(tuple(stages), tuple(sorted((extra_sections or {}).items())))
 
 
-def section_dict(config: BaseModel, stage: str) -> dict[str, Any]:
-    """A stage's resolved section as plain JSON-compatible data (what its key hashes)."""
+READ_SECTIONS_KEY = "@reads"
+"""Key of a stage's key config under which the other sections it reads are hashed (no
+config field can be named so)."""
+
+
+def section_dict(
+    config: BaseModel,
+    stage: str,
+    excludes: Iterable[str] = (),
+    reads_sections: Iterable[str] = (),
+) -> dict[str, Any]:
+    """A stage's resolved section as plain JSON-compatible data (what its key hashes).
+
+    `excludes`: own fields the stage never reads (left out of its key); `reads_sections`:
+    other sections the stage reads, hashed whole under READ_SECTIONS_KEY.
+    """
     section = getattr(config, stage)
-    data: dict[str, Any] = section.model_dump(mode="json")
+    data: dict[str, Any] = section.model_dump(mode="json", exclude=set(excludes) or None)
+    reads = list(reads_sections)
+    if reads:
+        data[READ_SECTIONS_KEY] = {
+            name: getattr(config, name).model_dump(mode="json") for name in reads
+        }
     return data
 
 

@@ -49,9 +49,10 @@ def pipeline_stages() -> tuple[Stage, ...]:
     from stages.infer.stage import STAGE as infer
     from stages.keyframes import STAGE as keyframes
     from stages.slam.stage import STAGE as slam
+    from stages.submaps import STAGE as submaps
     from stages.voxelize import STAGE as voxelize
 
-    return (keyframes, features, fuse, classify, slam, infer, voxelize, evaluate)
+    return (keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate)
 
 
 @functools.cache

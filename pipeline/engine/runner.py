@@ -183,7 +183,7 @@ def plan(
         recipe = stage_recipe(
             stage=stage.name,
             version=stage.version,
-            config=section_dict(config, stage.name),
+            config=section_dict(config, stage.name, stage.key_excludes, stage.reads_sections),
             input_keys=input_keys,
             schema_version=SCHEMA_VERSION,
             dataset_fingerprint=dataset.fingerprint if "dataset" in stage.inputs else None,
@@ -211,13 +211,14 @@ def _bind_inputs(
     refs: Mapping[str, ArtifactRef],
     outputs_of: Mapping[str, Stage],
     dataset: DatasetSpec,
-    section: Any,
+    config: BaseModel,
     verified: set[tuple[str, str, str]],
 ) -> dict[str, Any]:
-    inputs: dict[str, Any] = {}
-    for name in item.stage.inputs:
+    stage = item.stage
+    inputs: dict[str, Any] = {f"config.{s}": getattr(config, s) for s in stage.reads_sections}
+    for name in stage.inputs:
         if name == "dataset":
-            inputs[name] = dataset.open(section)
+            inputs[name] = dataset.open(getattr(config, stage.dataset_section or stage.name))
             continue
         upstream, _, out_name = name.partition(".")
         producer = outputs_of[upstream]
@@ -283,7 +284,7 @@ def execute(
             if item.reason == "forced":
                 _discard(store, name, item.key)
             section = getattr(config, name)
-            inputs = _bind_inputs(item, refs, outputs_of, dataset, section, verified)
+            inputs = _bind_inputs(item, refs, outputs_of, dataset, config, verified)
             manifest_extra = {
                 "version": item.stage.version,
                 "recipe": item.recipe,

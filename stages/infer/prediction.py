@@ -153,14 +153,18 @@ def query_object_sightings(
 
 
 def update_and_query_beam_class(
-    state: ClassState, sightings: list[Sighting], config: InferConfig, funnel: Funnel
+    state: ClassState,
+    sightings: list[Sighting],
+    config: InferConfig,
+    funnel: Funnel,
+    update: bool = True,
 ) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
     is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
-    model, the 2D-only ones are queried. Returns (points, object id per point), or None
-    before the model has data.
+    model (unless `update` is False: query only), the 2D-only ones are queried. Returns
+    (points, object id per point), or None before the model has data.
     """
     if not sightings:
         return None
@@ -171,7 +175,7 @@ def update_and_query_beam_class(
         oid, np.concatenate([s.beam for s in sightings]), r, config.beam_gap_m
     )
     coords = beam_model_coords(r, anchor, config.range_axis, config.beam_range_cell_m)
-    if fused.any():
+    if update and fused.any():
         state.model.update(coords[fused], np.concatenate([s.fused_z_m for s in sightings]))
         funnel.counts["updated_objects"] += len(
             {s.object_id for s in sightings if s.is_fused.any()}

@@ -87,7 +87,15 @@ from stages.infer.prediction import (
     update_object_class,
 )
 
-__all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]
+__all__ = [
+    "STAGE",
+    "InferConfig",
+    "infer_mission",
+    "infer_points",
+    "learn_and_infer",
+    "points_table",
+    "tag_points",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -128,6 +136,19 @@ def infer_mission(
         {"horizontal_returns", "clustered_returns", "classes": {class: {step: count}
         (`Funnel`), "frame": kind, "model_cells": int for inferred classes}}.
     """
+    table, stats, _ = learn_and_infer(objects, object_features, features, fused, config)
+    return table, stats
+
+
+def learn_and_infer(
+    objects: pa.Table,
+    object_features: pa.Table,
+    features: pa.Table,
+    fused: pa.Table,
+    config: InferConfig,
+) -> tuple[pa.Table, dict[str, Any], dict[str, ClassState]]:
+    """`infer_mission`, plus every class's reference frame and height model as they
+    stand after the last keyframe (what stage `submaps` queries its frames with)."""
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     states = {
         c: ClassState(
@@ -172,7 +193,7 @@ def infer_mission(
     for c, state in states.items():
         stats["classes"].setdefault(c, dict.fromkeys(FUNNEL_STEPS, 0))
         stats["classes"][c].update(frame=config.frame_kind(c), model_cells=state.model.n_cells)
-    return _table(parts), stats
+    return points_table(parts), stats, states
 
 
 def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> HeightModel:
@@ -200,7 +221,7 @@ def _process_keyframe(
     parts = []
     for s in sightings:
         pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-        parts.append(_tag(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
         funnel = funnels.setdefault(s.class_name, Funnel())
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
@@ -211,7 +232,7 @@ def _process_keyframe(
         if config.frame_kind(c) == "beam":
             found = update_and_query_beam_class(state, of_class, config, funnel)
             if found is not None:
-                parts.append(_tag(found[0], keyframe_id, found[1], c, "inferred"))
+                parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
             continue
         transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
@@ -229,11 +250,11 @@ def _process_keyframe(
         funnel.counts["registered_objects"] += len(registered)
         if registered:
             pts, object_ids = query_object_sightings(state, registered, config, funnel)
-            parts.append(_tag(pts, keyframe_id, object_ids, c, "inferred"))
+            parts.append(tag_points(pts, keyframe_id, object_ids, c, "inferred"))
     return parts
 
 
-def _tag(
+def tag_points(
     pts: dict[str, np.ndarray],
     keyframe_id: int,
     object_id: int | np.ndarray,
@@ -251,10 +272,21 @@ def _tag(
     }
 
 
-def _table(parts: list[dict[str, Any]]) -> pa.Table:
-    """Concatenate point dicts into a sorted `POINTS_SCHEMA` table."""
+def points_table(
+    parts: list[dict[str, Any]],
+    schema: pa.Schema = POINTS_SCHEMA,
+    sort_keys: tuple[str, ...] = (
+        "keyframe_id",
+        "object_id",
+        "source",
+        "range_m",
+        "bearing_rad",
+        "z_m",
+    ),
+) -> pa.Table:
+    """Concatenate point dicts (`tag_points`) into a sorted table of `schema`."""
     cols = {}
-    for f in POINTS_SCHEMA:
+    for f in schema:
         values = [p[f.name] for p in parts]
         if f.type == pa.string():
             names, codes = np.unique([v[0] for v in values], return_inverse=True)
@@ -267,9 +299,8 @@ def _table(parts: list[dict[str, Any]]) -> pa.Table:
             continue
         data = np.concatenate(values) if values else np.empty(0)
         cols[f.name] = pa.array(data, f.type)
-    table = pa.table(cols, schema=POINTS_SCHEMA)
-    keys = ["keyframe_id", "object_id", "source", "range_m", "bearing_rad", "z_m"]
-    return table.sort_by([(k, "ascending") for k in keys])
+    table = pa.table(cols, schema=schema)
+    return table.sort_by([(k, "ascending") for k in sort_keys])
 
 
 def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:

@@ -1,0 +1,25 @@
+"""Config section `submaps` (stage `stages.submaps.stage`). The stride itself is
+`keyframes.submap_stride`, beside the keyframe spacing it refines."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from stages.base import StageConfig
+
+__all__ = ["SubmapsConfig"]
+
+
+class SubmapsConfig(StageConfig):
+    """Config section `submaps`."""
+
+    match_radius_m: float | None = Field(
+        None,
+        gt=0.0,
+        le=100.0,
+        description="a submap-frame return lies on a keyframe object within this of one of"
+        " its returns (stages.submaps.transfer); None: the classifier's DBSCAN radius",
+    )
+    next_keyframe_objects: bool = Field(
+        True, description="also match the objects of the next keyframe"
+    )
