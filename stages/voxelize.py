@@ -127,14 +127,34 @@ def world_points(
         return np.empty((0, 3)), np.zeros(len(kf), dtype=bool)
     idx = np.clip(np.searchsorted(pose_ids, kf), 0, len(pose_ids) - 1)
     posed = pose_ids[idx] == kf
-    T = T_world_base[idx[posed]] @ np.asarray(T_base_sonar, dtype=np.float64)
-    p = np.asarray(xyz_sonar_m, dtype=np.float64)[posed]
-    world = np.einsum("nij,nj->ni", T[:, :3, :3], p) + T[:, :3, 3]
-    return world, posed
+    T = T_world_base @ np.asarray(T_base_sonar, dtype=np.float64)
+    p = np.asarray(xyz_sonar_m, dtype=np.float64).reshape(-1, 3)[posed]
+    return transform_grouped(idx[posed], p, T), posed
 
 
-def _class_lookup(fused: pa.Table, points: pa.Table) -> np.ndarray:
-    """(n_fused,) class name of each fused row: its object's class in infer.points, else none."""
+def transform_grouped(group: np.ndarray, xyz: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(n, 3) points xyz[i] moved by T[group[i]] ((g, 4, 4) transforms).
+
+    One matrix product per group (keyframe or frame), so memory stays at the points
+    themselves: a per-point (n, 4, 4) gather is 128 B a point, 450 MB for a dense map.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    out = np.empty_like(xyz)
+    if xyz.size == 0:
+        return out
+    group = np.asarray(group, dtype=np.int64)
+    order = np.argsort(group, kind="stable")
+    g = group[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], g.size], strict=True):
+        rows = order[a:b]
+        Tg = T[g[a]]
+        out[rows] = xyz[rows] @ Tg[:3, :3].T + Tg[:3, 3]
+    return out
+
+
+def _class_lookup(fused: pa.Table, points: pa.Table) -> pa.Array:
+    """Class name of each fused row: its object's class in infer.points, else none."""
     keys = ["keyframe_id", *_XYZ]
     fused_rows = points.filter(pc.equal(points.column("source"), "fused")).select(
         [*keys, "class_name"]
@@ -142,11 +162,15 @@ def _class_lookup(fused: pa.Table, points: pa.Table) -> np.ndarray:
     classes = fused_rows.group_by(keys).aggregate([("class_name", "min")])
     indexed = fused.select(keys).append_column("__row", pa.array(np.arange(fused.num_rows)))
     joined = indexed.join(classes, keys=keys, join_type="left outer")
-    out = np.full(fused.num_rows, NO_CLASS, dtype=object)
-    rows = joined.column("__row").to_numpy()
-    names = joined.column("class_name_min").to_pylist()
-    out[rows] = [NO_CLASS if n is None else n for n in names]
-    return out
+    order = np.argsort(joined.column("__row").to_numpy(), kind="stable")
+    names = pc.fill_null(joined.column("class_name_min"), NO_CLASS).combine_chunks()
+    return names.take(pa.array(order)).cast(pa.string())
+
+
+def _repeat(value: str, n: int) -> pa.Array:
+    return pa.DictionaryArray.from_arrays(
+        pa.array(np.zeros(n, np.int32)), pa.array([value], pa.string())
+    ).cast(pa.string())
 
 
 def build_map(
@@ -175,52 +199,52 @@ def build_map(
         dropped: {"above_surface": n, "without_pose": n}.
     """
     inferred = points.filter(pc.equal(points.column("source"), "inferred"))
-    kf = np.concatenate(
-        [fused.column("keyframe_id").to_numpy(), inferred.column("keyframe_id").to_numpy()]
-    ).astype(np.int64)
-    xyz = np.concatenate(
-        [
-            np.stack([fused.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3),
-            np.stack([inferred.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3),
-        ]
-    )
-    source = np.array(["fused"] * fused.num_rows + ["inferred"] * inferred.num_rows, dtype=object)
-    class_name = np.concatenate(
-        [
-            _class_lookup(fused, points),
-            np.asarray(inferred.column("class_name").to_pylist(), object),
-        ]
-    )
     pose_ids, T_world_base = pose_matrices(poses)
-    world, posed = world_points(kf, xyz, pose_ids, T_world_base, T_base_sonar)
-    frame_id = np.full(kf.size, KEYFRAME_FRAME_ID, np.int64)
-    if submap_points is not None and submap_frames is not None and submap_points.num_rows:
-        sub = _submap_world_points(
-            submap_frames, submap_points, pose_ids, T_world_base, T_base_sonar
+    parts = []
+    for table, source, names in (
+        (fused, "fused", _class_lookup(fused, points)),
+        (inferred, "inferred", inferred.column("class_name").combine_chunks()),
+    ):
+        kf = table.column("keyframe_id").to_numpy().astype(np.int64)
+        world, posed = world_points(kf, _xyz(table), pose_ids, T_world_base, T_base_sonar)
+        parts.append(
+            (
+                kf,
+                np.full(kf.size, KEYFRAME_FRAME_ID, np.int64),
+                world,
+                posed,
+                _repeat(source, kf.size),
+                names,
+            )
         )
-        world = np.concatenate([world, sub["world"]])
-        posed = np.concatenate([posed, sub["posed"]])
-        kf = np.concatenate([kf, sub["keyframe_id"]])
-        frame_id = np.concatenate([frame_id, sub["frame_id"]])
-        source = np.concatenate([source, sub["source"]])
-        class_name = np.concatenate([class_name, sub["class_name"]])
+    if submap_points is not None and submap_frames is not None and submap_points.num_rows:
+        parts.append(
+            _submap_world_points(submap_frames, submap_points, pose_ids, T_world_base, T_base_sonar)
+        )
+    posed = np.concatenate([p[3] for p in parts])
+    world = np.concatenate([p[2] for p in parts]).reshape(-1, 3)
     keep = world[:, 2] <= 0.0 if drop_above_surface else np.ones(len(world), bool)
     dropped = {"above_surface": int((~keep).sum()), "without_pose": int((~posed).sum())}
     if dropped["without_pose"]:
         logger.warning("%d points in keyframes without a pose dropped", dropped["without_pose"])
+    rows = pa.array(np.flatnonzero(posed)[keep])
     table = pa.table(
         {
-            "keyframe_id": pa.array(kf[posed][keep], pa.int64()),
-            "frame_id": pa.array(frame_id[posed][keep], pa.int64()),
+            "keyframe_id": pa.array(np.concatenate([p[0] for p in parts])).take(rows),
+            "frame_id": pa.array(np.concatenate([p[1] for p in parts])).take(rows),
             "x_m": pa.array(world[keep, 0], pa.float64()),
             "y_m": pa.array(world[keep, 1], pa.float64()),
             "z_m": pa.array(world[keep, 2], pa.float64()),
-            "source": pa.array(source[posed][keep], pa.string()),
-            "class_name": pa.array(class_name[posed][keep], pa.string()),
+            "source": pa.chunked_array([p[4] for p in parts], pa.string()).take(rows),
+            "class_name": pa.chunked_array([p[5] for p in parts], pa.string()).take(rows),
         },
         schema=MAP_SCHEMA,
     )
     return table.sort_by([(k, "ascending") for k in MAP_SORT_KEYS]), dropped
+
+
+def _xyz(table: pa.Table) -> np.ndarray:
+    return np.stack([table.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
 
 
 def _submap_world_points(
@@ -229,31 +253,39 @@ def _submap_world_points(
     pose_ids: np.ndarray,
     T_world_base: np.ndarray,
     T_base_sonar: np.ndarray,
-) -> dict[str, np.ndarray]:
-    """World points of the submap frames: T_world_kf(SLAM) T_kf_frame(DR) T_base_sonar."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, pa.Array, pa.Array]:
+    """Submap points in the world: T_world_kf(SLAM) T_kf_frame(DR) T_base_sonar p.
+
+    Returns (keyframe_id, frame_id, world points of the posed rows, posed mask,
+    source, class_name), as `build_map` concatenates them.
+    """
     frame_ids = frames.column("frame_id").to_numpy()
     rel = np.stack([frames.column(c).to_numpy() for c in REL_POSE_COLUMNS], axis=1)
     T_kf_frame = np.tile(np.eye(4), (len(rel), 1, 1))
     T_kf_frame[:, :3, :3] = rotation_rpy(rel[:, 3], rel[:, 4], rel[:, 5])
     T_kf_frame[:, :3, 3] = rel[:, :3]
-    fid = points.column("frame_id").to_numpy()
+    frame_kf = frames.column("keyframe_id").to_numpy().astype(np.int64)
+    fid = points.column("frame_id").to_numpy().astype(np.int64)
     row = np.searchsorted(frame_ids, fid)
     if len(frame_ids) == 0 or (frame_ids[np.minimum(row, len(frame_ids) - 1)] != fid).any():
         raise ValueError("voxelize: submap points reference frames not in submap_frames")
-    kf = frames.column("keyframe_id").to_numpy()[row]
-    xyz = np.stack([points.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-    # points in the keyframe's base_link: T_kf_frame T_base_sonar p; then Eq. 4 as for keyframes
-    T = T_kf_frame[row] @ np.asarray(T_base_sonar, np.float64)
-    in_kf_base = np.einsum("nij,nj->ni", T[:, :3, :3], xyz) + T[:, :3, 3]
-    world, posed = world_points(kf, in_kf_base, pose_ids, T_world_base, np.eye(4))
-    return {
-        "world": world,  # rows of `posed` only, as world_points gives them
-        "posed": posed,
-        "keyframe_id": kf.astype(np.int64),
-        "frame_id": fid.astype(np.int64),
-        "source": np.asarray(points.column("source").to_pylist(), object),
-        "class_name": np.asarray(points.column("class_name").to_pylist(), object),
-    }
+    kf = frame_kf[row]
+    # each frame's pose: its keyframe's (SLAM) composed with the relative DR pose
+    at = np.clip(np.searchsorted(pose_ids, frame_kf), 0, max(len(pose_ids) - 1, 0))
+    frame_posed = (pose_ids[at] == frame_kf) if len(pose_ids) else np.zeros(len(frame_kf), bool)
+    T_world_frame = np.tile(np.eye(4), (len(frame_kf), 1, 1))
+    if len(pose_ids):
+        T_world_frame = T_world_base[at] @ T_kf_frame @ np.asarray(T_base_sonar, np.float64)
+    posed = frame_posed[row]
+    world = transform_grouped(row[posed], _xyz(points)[posed], T_world_frame)
+    return (
+        kf,
+        fid,
+        world,
+        posed,
+        points.column("source").combine_chunks(),
+        points.column("class_name").combine_chunks(),
+    )
 
 
 def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
@@ -266,25 +298,38 @@ def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
     return np.stack([t.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
 
 
+def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
+    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel, ordered as
+    the rows (ix, iy, iz) sort: counting unique keys is several times cheaper than
+    unique rows."""
+    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
+    if len(ijk) == 0:
+        return np.zeros(0, dtype=np.int64)
+    ijk = ijk - ijk.min(axis=0)
+    span = ijk.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
+        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
+
+
 def voxel_table(map_table: pa.Table, voxel_size_m: float) -> pa.Table:
     """Occupied voxels of both maps (`VOXELS_SCHEMA`, sorted by map, ix, iy, iz)."""
-    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("map", "ix", "iy", "iz", "n")}
+    parts: dict[str, list[Any]] = {k: [] for k in ("map", "ix", "iy", "iz", "n")}
     for name in MAP_NAMES:
         idx = np.floor(map_xyz(map_table, name) / voxel_size_m).astype(np.int64)
-        cells, counts = np.unique(idx, axis=0, return_counts=True)
-        cells = cells.reshape(-1, 3)
-        parts["map"].append(np.full(len(cells), name, dtype=object))
+        _, first, counts = np.unique(voxel_keys(idx), return_index=True, return_counts=True)
+        cells = idx[first].reshape(-1, 3)
+        parts["map"].append(_repeat(name, len(cells)))
         for i, k in enumerate(("ix", "iy", "iz")):
             parts[k].append(cells[:, i])
         parts["n"].append(counts.astype(np.int64))
-    cols = {k: np.concatenate(v) for k, v in parts.items()}
     return pa.table(
         {
-            "map": pa.array(cols["map"], pa.string()),
-            "ix": pa.array(cols["ix"], pa.int64()),
-            "iy": pa.array(cols["iy"], pa.int64()),
-            "iz": pa.array(cols["iz"], pa.int64()),
-            "n_points": pa.array(cols["n"], pa.int64()),
+            "map": pa.chunked_array(parts["map"], pa.string()),
+            "ix": pa.array(np.concatenate(parts["ix"]), pa.int64()),
+            "iy": pa.array(np.concatenate(parts["iy"]), pa.int64()),
+            "iz": pa.array(np.concatenate(parts["iz"]), pa.int64()),
+            "n_points": pa.array(np.concatenate(parts["n"]), pa.int64()),
         },
         schema=VOXELS_SCHEMA,
     )
@@ -316,10 +361,8 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs.get("submaps.points"),
     )
     voxels = voxel_table(map_table, config.voxel_size_m)
-    names = voxels.column("map").to_numpy(zero_copy_only=False)
     semantic = map_xyz(map_table, "semantic")
     z_range = (float(semantic[:, 2].min(initial=0.0)), float(semantic[:, 2].max(initial=0.0)))
-    source = map_table.column("source").to_numpy(zero_copy_only=False)
     plys = {
         name: encode_points_ply(
             map_xyz(map_table, name),
@@ -330,8 +373,14 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     }
     summary = {
         "voxel_size_m": config.voxel_size_m,
-        "voxels": {name: int((names == name).sum()) for name in MAP_NAMES},
-        "points": {s: int((source == s).sum()) for s in ("fused", "inferred")},
+        "voxels": {
+            name: int(pc.sum(pc.equal(voxels.column("map"), name)).as_py() or 0)
+            for name in MAP_NAMES
+        },
+        "points": {
+            s: int(pc.sum(pc.equal(map_table.column("source"), s)).as_py() or 0)
+            for s in ("fused", "inferred")
+        },
         "dropped_points": dropped,
     }
     return {

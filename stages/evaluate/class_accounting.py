@@ -32,7 +32,7 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES
 from stages._lazy import lazy
 from stages.mesh_metrics import nearest_distance, surface_samples
 from stages.ply import Mesh
-from stages.voxelize import map_xyz
+from stages.voxelize import map_xyz, voxel_keys
 
 o3d = lazy("open3d")
 
@@ -68,19 +68,6 @@ def nearest_surface_class(
     closest = scene.compute_closest_points(o3d.core.Tensor(pts), nthreads=0)
     face = closest["primitive_ids"].numpy().astype(np.int64)
     return faces_class_id[np.clip(face, 0, len(faces_class_id) - 1)]
-
-
-def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
-    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel: counting
-    unique keys is several times cheaper than unique rows."""
-    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
-    if len(ijk) == 0:
-        return np.zeros(0, dtype=np.int64)
-    ijk = ijk - ijk.min(axis=0)
-    span = ijk.max(axis=0) + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
-        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
-    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
 
 
 def _unique_voxels(keys: np.ndarray, mask: np.ndarray) -> int:
