@@ -16,22 +16,9 @@ import pyarrow as pa
 
 from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
+from stages.voxelize.registration import pose_matrix
 
-__all__ = ["pose_matrix", "relative_poses", "rpy_from_rotation", "submap_frame_rows"]
-
-
-def pose_matrix(pose: np.ndarray) -> np.ndarray:
-    """(n, 4, 4) transforms of (n, 6) poses x, y, z, roll, pitch, yaw (R = Rz Ry Rx)."""
-    p = np.asarray(pose, np.float64).reshape(-1, 6)
-    cr, sr = np.cos(p[:, 3]), np.sin(p[:, 3])
-    cp, sp = np.cos(p[:, 4]), np.sin(p[:, 4])
-    cy, sy = np.cos(p[:, 5]), np.sin(p[:, 5])
-    T = np.tile(np.eye(4), (len(p), 1, 1))
-    T[:, 0, :3] = np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=1)
-    T[:, 1, :3] = np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=1)
-    T[:, 2, :3] = np.stack([-sp, cp * sr, cp * cr], axis=1)
-    T[:, :3, 3] = p[:, :3]
-    return T
+__all__ = ["relative_poses", "rpy_from_rotation", "submap_frame_rows"]
 
 
 def rpy_from_rotation(R: np.ndarray) -> np.ndarray:

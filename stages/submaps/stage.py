@@ -61,8 +61,9 @@ from stages.infer.prediction import (
 from stages.infer.stage import learn_and_infer, points_table, tag_points
 from stages.keyframes import KeyframesConfig, interpolate_poses, posed_pairs
 from stages.submaps.config import SubmapsConfig
-from stages.submaps.frames import pose_matrix, submap_frame_rows
+from stages.submaps.frames import submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from stages.voxelize.registration import pose_matrix
 
 __all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
 

@@ -35,9 +35,17 @@ import pyarrow.compute as pc
 from pydantic import Field
 
 from schemas.map import MAP_NAMES, MAP_SCHEMA, MAP_SORT_KEYS, NO_CLASS, VOXELS_SCHEMA
-from schemas.submaps import KEYFRAME_FRAME_ID, REL_POSE_COLUMNS
+from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Output, Stage, StageConfig
 from stages.ply import encode_points_ply
+from stages.voxelize.registration import (
+    pose_matrices,
+    rotation_rpy,
+    submap_world_points,
+    voxel_keys,
+    world_points,
+    xyz_columns,
+)
 
 __all__ = [
     "STAGE",
@@ -63,94 +71,6 @@ class VoxelizeConfig(StageConfig):
         0.1, ge=0.001, le=100.0, description="edge of a map voxel (paper: 10 cm)"
     )
     drop_above_surface: bool = Field(True, description="drop world points with z > 0")
-
-
-def rotation_rpy(roll_rad: np.ndarray, pitch_rad: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations R = Rz(yaw) Ry(pitch) Rx(roll) (extrinsic x-y-z, ROS RPY)."""
-    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
-    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
-    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
-    return np.stack(
-        [
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-            np.stack([-sp, cp * sr, cp * cr], axis=-1),
-        ],
-        axis=-2,
-    )
-
-
-def pose_matrices(poses: pa.Table, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
-    """Keyframe poses as 4x4 transforms.
-
-    Args:
-        poses: table with keyframe_id and `{prefix}x_m ... {prefix}yaw_rad` [m, rad].
-        prefix: column prefix ("gt_" for the ground-truth columns of keyframes.parquet).
-
-    Returns:
-        keyframe ids (k,) int64 sorted ascending, and (k, 4, 4) T_world_base.
-    """
-    kf = np.asarray(poses.column("keyframe_id").to_numpy(), dtype=np.int64)
-    cols = {
-        c: np.asarray(poses.column(prefix + c).to_numpy(zero_copy_only=False), np.float64)
-        for c in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-    }
-    order = np.argsort(kf, kind="stable")
-    T = np.tile(np.eye(4), (len(kf), 1, 1))
-    T[:, :3, :3] = rotation_rpy(cols["roll_rad"], cols["pitch_rad"], cols["yaw_rad"])
-    T[:, :3, 3] = np.stack([cols["x_m"], cols["y_m"], cols["z_m"]], axis=1)
-    return kf[order], T[order]
-
-
-def world_points(
-    keyframe_id: np.ndarray,
-    xyz_sonar_m: np.ndarray,
-    pose_ids: np.ndarray,
-    T_world_base: np.ndarray,
-    T_base_sonar: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Paper Eq. 4: register sonar-frame points into the world frame.
-
-    Args:
-        keyframe_id: (n,) int64 keyframe of each point.
-        xyz_sonar_m: (n, 3) points in the horizontal sonar frame [m].
-        pose_ids: (k,) int64 sorted keyframe ids with a pose.
-        T_world_base: (k, 4, 4) vehicle poses in the world frame.
-        T_base_sonar: (4, 4) sonar mounting in base_link.
-
-    Returns:
-        (m, 3) world points [m] and the (n,) bool mask of points whose keyframe has a
-        pose (the rows kept, in order).
-    """
-    kf = np.asarray(keyframe_id, dtype=np.int64)
-    if len(pose_ids) == 0:
-        return np.empty((0, 3)), np.zeros(len(kf), dtype=bool)
-    idx = np.clip(np.searchsorted(pose_ids, kf), 0, len(pose_ids) - 1)
-    posed = pose_ids[idx] == kf
-    T = T_world_base @ np.asarray(T_base_sonar, dtype=np.float64)
-    p = np.asarray(xyz_sonar_m, dtype=np.float64).reshape(-1, 3)[posed]
-    return transform_grouped(idx[posed], p, T), posed
-
-
-def transform_grouped(group: np.ndarray, xyz: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(n, 3) points xyz[i] moved by T[group[i]] ((g, 4, 4) transforms).
-
-    One matrix product per group (keyframe or frame), so memory stays at the points
-    themselves: a per-point (n, 4, 4) gather is 128 B a point, 450 MB for a dense map.
-    """
-    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    out = np.empty_like(xyz)
-    if xyz.size == 0:
-        return out
-    group = np.asarray(group, dtype=np.int64)
-    order = np.argsort(group, kind="stable")
-    g = group[order]
-    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], g.size], strict=True):
-        rows = order[a:b]
-        Tg = T[g[a]]
-        out[rows] = xyz[rows] @ Tg[:3, :3].T + Tg[:3, 3]
-    return out
 
 
 def _class_lookup(fused: pa.Table, points: pa.Table) -> pa.Array:
@@ -206,7 +126,7 @@ def build_map(
         (inferred, "inferred", inferred.column("class_name").combine_chunks()),
     ):
         kf = table.column("keyframe_id").to_numpy().astype(np.int64)
-        world, posed = world_points(kf, _xyz(table), pose_ids, T_world_base, T_base_sonar)
+        world, posed = world_points(kf, xyz_columns(table), pose_ids, T_world_base, T_base_sonar)
         parts.append(
             (
                 kf,
@@ -219,7 +139,7 @@ def build_map(
         )
     if submap_points is not None and submap_frames is not None and submap_points.num_rows:
         parts.append(
-            _submap_world_points(submap_frames, submap_points, pose_ids, T_world_base, T_base_sonar)
+            submap_world_points(submap_frames, submap_points, pose_ids, T_world_base, T_base_sonar)
         )
     posed = np.concatenate([p[3] for p in parts])
     world = np.concatenate([p[2] for p in parts]).reshape(-1, 3)
@@ -243,51 +163,6 @@ def build_map(
     return table.sort_by([(k, "ascending") for k in MAP_SORT_KEYS]), dropped
 
 
-def _xyz(table: pa.Table) -> np.ndarray:
-    return np.stack([table.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-
-
-def _submap_world_points(
-    frames: pa.Table,
-    points: pa.Table,
-    pose_ids: np.ndarray,
-    T_world_base: np.ndarray,
-    T_base_sonar: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, pa.Array, pa.Array]:
-    """Submap points in the world: T_world_kf(SLAM) T_kf_frame(DR) T_base_sonar p.
-
-    Returns (keyframe_id, frame_id, world points of the posed rows, posed mask,
-    source, class_name), as `build_map` concatenates them.
-    """
-    frame_ids = frames.column("frame_id").to_numpy()
-    rel = np.stack([frames.column(c).to_numpy() for c in REL_POSE_COLUMNS], axis=1)
-    T_kf_frame = np.tile(np.eye(4), (len(rel), 1, 1))
-    T_kf_frame[:, :3, :3] = rotation_rpy(rel[:, 3], rel[:, 4], rel[:, 5])
-    T_kf_frame[:, :3, 3] = rel[:, :3]
-    frame_kf = frames.column("keyframe_id").to_numpy().astype(np.int64)
-    fid = points.column("frame_id").to_numpy().astype(np.int64)
-    row = np.searchsorted(frame_ids, fid)
-    if len(frame_ids) == 0 or (frame_ids[np.minimum(row, len(frame_ids) - 1)] != fid).any():
-        raise ValueError("voxelize: submap points reference frames not in submap_frames")
-    kf = frame_kf[row]
-    # each frame's pose: its keyframe's (SLAM) composed with the relative DR pose
-    at = np.clip(np.searchsorted(pose_ids, frame_kf), 0, max(len(pose_ids) - 1, 0))
-    frame_posed = (pose_ids[at] == frame_kf) if len(pose_ids) else np.zeros(len(frame_kf), bool)
-    T_world_frame = np.tile(np.eye(4), (len(frame_kf), 1, 1))
-    if len(pose_ids):
-        T_world_frame = T_world_base[at] @ T_kf_frame @ np.asarray(T_base_sonar, np.float64)
-    posed = frame_posed[row]
-    world = transform_grouped(row[posed], _xyz(points)[posed], T_world_frame)
-    return (
-        kf,
-        fid,
-        world,
-        posed,
-        points.column("source").combine_chunks(),
-        points.column("class_name").combine_chunks(),
-    )
-
-
 def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
     """(n, 3) world points [m] of one map ("standard": fused rows, "semantic": all)."""
     if name not in MAP_NAMES:
@@ -296,20 +171,6 @@ def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
     if name == "standard":
         t = t.filter(pc.equal(t.column("source"), "fused"))
     return np.stack([t.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-
-
-def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
-    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel, ordered as
-    the rows (ix, iy, iz) sort: counting unique keys is several times cheaper than
-    unique rows."""
-    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
-    if len(ijk) == 0:
-        return np.zeros(0, dtype=np.int64)
-    ijk = ijk - ijk.min(axis=0)
-    span = ijk.max(axis=0) + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
-        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
-    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
 
 
 def voxel_table(map_table: pa.Table, voxel_size_m: float) -> pa.Table:

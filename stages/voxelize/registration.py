@@ -1,0 +1,175 @@
+"""Registration of sonar-frame points into the world frame (paper Eq. 4), for keyframes
+and for the submap frames anchored to them (stage `submaps`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+
+from schemas.submaps import REL_POSE_COLUMNS
+
+__all__ = [
+    "pose_matrices",
+    "pose_matrix",
+    "rotation_rpy",
+    "submap_world_points",
+    "transform_grouped",
+    "world_points",
+]
+
+_XYZ = ("x_m", "y_m", "z_m")
+
+
+def pose_matrix(pose: np.ndarray) -> np.ndarray:
+    """(n, 4, 4) transforms of (n, 6) poses x, y, z, roll, pitch, yaw (R = Rz Ry Rx)."""
+    p = np.asarray(pose, np.float64).reshape(-1, 6)
+    T = np.tile(np.eye(4), (len(p), 1, 1))
+    T[:, :3, :3] = rotation_rpy(p[:, 3], p[:, 4], p[:, 5])
+    T[:, :3, 3] = p[:, :3]
+    return T
+
+
+def xyz_columns(table: pa.Table) -> np.ndarray:
+    """(n, 3) x_m, y_m, z_m of a table."""
+    return np.stack([table.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
+
+
+def rotation_rpy(roll_rad: np.ndarray, pitch_rad: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotations R = Rz(yaw) Ry(pitch) Rx(roll) (extrinsic x-y-z, ROS RPY)."""
+    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
+    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
+    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
+    return np.stack(
+        [
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+            np.stack([-sp, cp * sr, cp * cr], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
+def pose_matrices(poses: pa.Table, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """Keyframe poses as 4x4 transforms.
+
+    Args:
+        poses: table with keyframe_id and `{prefix}x_m ... {prefix}yaw_rad` [m, rad].
+        prefix: column prefix ("gt_" for the ground-truth columns of keyframes.parquet).
+
+    Returns:
+        keyframe ids (k,) int64 sorted ascending, and (k, 4, 4) T_world_base.
+    """
+    kf = np.asarray(poses.column("keyframe_id").to_numpy(), dtype=np.int64)
+    pose = np.stack(
+        [
+            np.asarray(poses.column(prefix + c).to_numpy(zero_copy_only=False), np.float64)
+            for c in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+        ],
+        axis=1,
+    )
+    order = np.argsort(kf, kind="stable")
+    return kf[order], pose_matrix(pose)[order]
+
+
+def world_points(
+    keyframe_id: np.ndarray,
+    xyz_sonar_m: np.ndarray,
+    pose_ids: np.ndarray,
+    T_world_base: np.ndarray,
+    T_base_sonar: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Paper Eq. 4: register sonar-frame points into the world frame.
+
+    Args:
+        keyframe_id: (n,) int64 keyframe of each point.
+        xyz_sonar_m: (n, 3) points in the horizontal sonar frame [m].
+        pose_ids: (k,) int64 sorted keyframe ids with a pose.
+        T_world_base: (k, 4, 4) vehicle poses in the world frame.
+        T_base_sonar: (4, 4) sonar mounting in base_link.
+
+    Returns:
+        (m, 3) world points [m] and the (n,) bool mask of points whose keyframe has a
+        pose (the rows kept, in order).
+    """
+    kf = np.asarray(keyframe_id, dtype=np.int64)
+    if len(pose_ids) == 0:
+        return np.empty((0, 3)), np.zeros(len(kf), dtype=bool)
+    idx = np.clip(np.searchsorted(pose_ids, kf), 0, len(pose_ids) - 1)
+    posed = pose_ids[idx] == kf
+    T = T_world_base @ np.asarray(T_base_sonar, dtype=np.float64)
+    p = np.asarray(xyz_sonar_m, dtype=np.float64).reshape(-1, 3)[posed]
+    return transform_grouped(idx[posed], p, T), posed
+
+
+def transform_grouped(group: np.ndarray, xyz: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(n, 3) points xyz[i] moved by T[group[i]] ((g, 4, 4) transforms).
+
+    One matrix product per group (keyframe or frame), so memory stays at the points
+    themselves: a per-point (n, 4, 4) gather is 128 B a point, 450 MB for a dense map.
+    """
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    out = np.empty_like(xyz)
+    if xyz.size == 0:
+        return out
+    group = np.asarray(group, dtype=np.int64)
+    order = np.argsort(group, kind="stable")
+    g = group[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], g.size], strict=True):
+        rows = order[a:b]
+        Tg = T[g[a]]
+        out[rows] = xyz[rows] @ Tg[:3, :3].T + Tg[:3, 3]
+    return out
+
+
+def submap_world_points(
+    frames: pa.Table,
+    points: pa.Table,
+    pose_ids: np.ndarray,
+    T_world_base: np.ndarray,
+    T_base_sonar: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, pa.Array, pa.Array]:
+    """Submap points in the world: T_world_kf(SLAM) T_kf_frame(DR) T_base_sonar p.
+
+    Returns (keyframe_id, frame_id, world points of the posed rows, posed mask,
+    source, class_name), as `build_map` concatenates them.
+    """
+    frame_ids = frames.column("frame_id").to_numpy()
+    rel = np.stack([frames.column(c).to_numpy() for c in REL_POSE_COLUMNS], axis=1)
+    T_kf_frame = pose_matrix(rel)
+    frame_kf = frames.column("keyframe_id").to_numpy().astype(np.int64)
+    fid = points.column("frame_id").to_numpy().astype(np.int64)
+    row = np.searchsorted(frame_ids, fid)
+    if len(frame_ids) == 0 or (frame_ids[np.minimum(row, len(frame_ids) - 1)] != fid).any():
+        raise ValueError("voxelize: submap points reference frames not in submap_frames")
+    kf = frame_kf[row]
+    # each frame's pose: its keyframe's (SLAM) composed with the relative DR pose
+    at = np.clip(np.searchsorted(pose_ids, frame_kf), 0, max(len(pose_ids) - 1, 0))
+    frame_posed = (pose_ids[at] == frame_kf) if len(pose_ids) else np.zeros(len(frame_kf), bool)
+    T_world_frame = np.tile(np.eye(4), (len(frame_kf), 1, 1))
+    if len(pose_ids):
+        T_world_frame = T_world_base[at] @ T_kf_frame @ np.asarray(T_base_sonar, np.float64)
+    posed = frame_posed[row]
+    world = transform_grouped(row[posed], xyz_columns(points)[posed], T_world_frame)
+    return (
+        kf,
+        fid,
+        world,
+        posed,
+        points.column("source").combine_chunks(),
+        points.column("class_name").combine_chunks(),
+    )
+
+
+def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
+    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel, ordered as
+    the rows (ix, iy, iz) sort: counting unique keys is several times cheaper than
+    unique rows."""
+    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
+    if len(ijk) == 0:
+        return np.zeros(0, dtype=np.int64)
+    ijk = ijk - ijk.min(axis=0)
+    span = ijk.max(axis=0) + 1
+    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
+        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
+    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
