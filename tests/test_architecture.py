@@ -77,7 +77,7 @@ def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
 
 PACKAGES = ("pipeline", "stages", "sim", "schemas")
 MAX_LINES = 400
-STAGE_PACKAGES = ("classify", "evaluate", "features", "fuse", "infer", "slam")
+STAGE_PACKAGES = ("classify", "evaluate", "features", "fuse", "infer", "slam", "submaps")
 """Stages of more than one module: each is a package named after the stage."""
 
 
@@ -145,6 +145,15 @@ def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None
     package = ROOT / "stages" / name
     assert (package / "__init__.py").is_file() and not (ROOT / "stages" / f"{name}.py").exists()
     assert importlib.import_module(f"stages.{name}").STAGE.name == name
+
+
+def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stages() -> None:
+    from pipeline.engine.registry import pipeline_stages
+
+    packages = sorted(p.parent.name for p in (ROOT / "stages").glob("*/__init__.py"))
+    assert packages == sorted(STAGE_PACKAGES)
+    modules = {p.stem for p in (ROOT / "stages").glob("*.py")} | set(packages)
+    assert {s.name for s in pipeline_stages()} <= modules
 
 
 def test_pipeline_groups_engine_formats_training_and_experiments() -> None:

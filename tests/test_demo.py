@@ -44,6 +44,7 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
         "classify",
         "slam",
         "infer",
+        "submaps",
         "voxelize",
         "evaluate",
     ]

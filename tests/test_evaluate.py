@@ -14,6 +14,7 @@ import pytest
 from schemas.classes import CLASS_IDS
 from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from schemas.submaps import KEYFRAME_FRAME_ID
 from sim.geometry import rot_z
 from sim.scene import load_scene
 from sim.world import World
@@ -50,6 +51,7 @@ def map_table(xyz: np.ndarray, source: np.ndarray) -> pa.Table:
     t = pa.table(
         {
             "keyframe_id": np.zeros(n, np.int64),
+            "frame_id": np.full(n, KEYFRAME_FRAME_ID, np.int64),
             "x_m": xyz[:, 0],
             "y_m": xyz[:, 1],
             "z_m": xyz[:, 2],

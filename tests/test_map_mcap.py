@@ -23,6 +23,7 @@ def tables() -> tuple[pa.Table, pa.Table]:
     m = pa.table(
         {
             "keyframe_id": rng.integers(0, 3, n),
+            "frame_id": rng.integers(-1, 4, n),
             "x_m": rng.uniform(-20, 20, n),
             "y_m": rng.uniform(-20, 20, n),
             "z_m": rng.uniform(-8, 0, n),
