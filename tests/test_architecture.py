@@ -77,7 +77,16 @@ def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
 
 PACKAGES = ("pipeline", "stages", "sim", "schemas")
 MAX_LINES = 400
-STAGE_PACKAGES = ("classify", "evaluate", "features", "fuse", "infer", "slam", "submaps")
+STAGE_PACKAGES = (
+    "classify",
+    "evaluate",
+    "features",
+    "fuse",
+    "infer",
+    "slam",
+    "submaps",
+    "voxelize",
+)
 """Stages of more than one module: each is a package named after the stage."""
 
 
