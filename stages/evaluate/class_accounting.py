@@ -42,6 +42,7 @@ __all__ = [
     "face_classes",
     "nearest_surface_class",
     "per_class_metrics",
+    "voxel_keys",
 ]
 
 ALL_STRUCTURE = "all_structure"
