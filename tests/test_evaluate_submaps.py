@@ -21,6 +21,7 @@ from pipeline.experiments.sweep import RunOutcome, sweep_tables
 from schemas.classes import CLASS_IDS
 from schemas.map import MAP_SCHEMA, MAP_SORT_KEYS
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from stages.evaluate.class_accounting import remember_last
 from stages.evaluate.report import render_markdown
 from stages.evaluate.stage import STAGE, EvaluateConfig
 
@@ -249,3 +250,16 @@ def test_sweep_rows_carry_the_submap_ratios_and_the_table_only_when_reported() -
     assert "submap_accurate_ratio_standard" in markdown
     _, _, plain = sweep_tables(outcomes[1:])
     assert "submap_frames" not in plain and "_ratio_standard" not in plain
+
+
+def test_the_visibility_of_equal_samples_is_cast_once_and_of_new_samples_again() -> None:
+    calls: list[int] = []
+
+    def visible(samples: np.ndarray) -> np.ndarray:
+        calls.append(len(samples))
+        return samples[:, 0] > 0
+
+    seen = remember_last(visible)
+    a, b = np.array([[1.0, 0, 0], [-1.0, 0, 0]]), np.array([[-1.0, 0, 0]])
+    assert seen(a).tolist() == [True, False] and seen(a.copy()).tolist() == [True, False]
+    assert seen(b).tolist() == [False] and calls == [2, 1]

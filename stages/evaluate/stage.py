@@ -24,7 +24,7 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from stages.base import Output, Stage, StageConfig
-from stages.evaluate.class_accounting import per_class_metrics
+from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth
 from stages.evaluate.report import (
     SidePanel,
@@ -318,13 +318,16 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         )
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
 
+        visible = remember_last(
+            lambda samples: visible_mask(
+                samples, T_ws, config.max_range_m, np.deg2rad(config.fan_width_deg) / 2,
+                np.deg2rad(config.aperture_deg) / 2, scene,
+            )
+        )  # fmt: skip
+
         def class_figures(rows: pa.Table, xyz: np.ndarray, err: np.ndarray) -> dict[str, Any]:
             return per_class_metrics(
-                rows, mesh, scene, xyz, err, voxel_size,
-                lambda samples: visible_mask(
-                    samples, T_ws, config.max_range_m, np.deg2rad(config.fan_width_deg) / 2,
-                    np.deg2rad(config.aperture_deg) / 2, scene,
-                ),
+                rows, mesh, scene, xyz, err, voxel_size, visible,
                 config.tolerance_m, config.surface_samples_per_m2, config.seed,
             )  # fmt: skip
 

@@ -89,7 +89,7 @@ def _medians(judged: JudgedMap, rows: np.ndarray, fused: np.ndarray) -> dict[str
     """metrics["headline"]-shaped medians of the rows `rows`, in the headline's frame."""
     maps = {"standard": rows & fused, "semantic": rows}
     raw = {name: error_stats(judged.raw_error_m[m]) for name, m in maps.items()}
-    aligned = None
+    aligned: dict[str, Any] | None = None
     if judged.headline.get("frame") == "aligned":
         aligned = {name: error_stats(judged.error_m[m]) for name, m in maps.items()}
         aligned["rotation_deg"] = judged.headline.get("rotation_deg")
