@@ -65,6 +65,9 @@ def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
                 f" {metrics['per_class'].get('tolerance_m')} m of the true surface;"
                 " completeness: of the visible structure surface (all classes but the seafloor)"
             )
+        submaps = metrics.get("submaps") if isinstance(metrics, dict) else None
+        if submaps:
+            console.print(_submaps_table(submaps))
     if summary.get("report"):
         console.print(f"report: {summary['report']}")
 
@@ -78,3 +81,32 @@ def _ratio(figures: dict[str, Any], key: str) -> str:
     a = (figures.get("semantic") or {}).get(key)
     b = (figures.get("standard") or {}).get(key)
     return f"{a / b:.1f}x" if a is not None and b else ""
+
+
+_VARIANTS = (("keyframes_only", "keyframes only"), ("with_submaps", "with submaps"))
+
+
+def _submaps_table(block: dict[str, Any]) -> Any:
+    """Keyframes-only vs with-submaps figures of both maps (evaluate's metrics["submaps"])."""
+    from rich.table import Table
+
+    stride = block.get("stride")
+    table = Table(title=f"Dense submaps (stride {_fmt(stride)}, {block.get('frames')} frames)")
+    aligned = block.get("frame") == "aligned"
+    medians = ["median_error_m", *(["raw_median_error_m"] if aligned else [])]
+    table.add_column("map")
+    table.add_column("variant", no_wrap=True)
+    for col in ("voxels", "accurate voxels", "completeness", block.get("label") or "median m"):
+        table.add_column(col)
+    if aligned:
+        table.add_column("raw median error m")
+    keys = ("voxels", "accurate_voxels", "completeness", *medians)
+    for name in ("standard", "semantic"):
+        for variant, words in _VARIANTS:
+            fig = (block.get(variant) or {}).get(name) or {}
+            specs = ("{}", "{}", "{:.3f}", *["{:.3f}"] * len(medians))
+            cells = (_fmt(fig.get(k), spec) for k, spec in zip(keys, specs, strict=True))
+            table.add_row(name if variant == "keyframes_only" else "", words, *cells)
+        ratio = (block.get("ratio") or {}).get(name) or {}
+        table.add_row("", "ratio", *(_fmt(ratio.get(k), "{:.2f}x") for k in keys))
+    return table

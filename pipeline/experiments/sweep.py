@@ -26,6 +26,7 @@ from pipeline.experiments.headline_columns import (
     headline_header,
     shared_frame,
 )
+from pipeline.experiments.submap_columns import submap_columns
 
 __all__ = [
     "ALL_STRUCTURE",
@@ -288,6 +289,7 @@ def _flat(summary: Mapping[str, Any]) -> dict[str, float | int | None]:
         row[f"completeness_all_{map_name}"] = class_value(
             classes, (ALL_STRUCTURE,), map_name, "completeness"
         )
+    row.update(submap_columns(summary))
     return row
 
 

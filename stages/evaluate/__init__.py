@@ -3,6 +3,7 @@
 Modules:
     stage: the stage.
     class_accounting: coverage and error per true class.
+    submaps: the map with and without its dense submap frames, side by side.
     report: report.md and its figures.
 """
 

@@ -14,6 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from schemas.classes import CLASS_IDS
+from stages.evaluate.submaps import submaps_markdown
+from stages.ply import Mesh
+
 __all__ = [
     "SidePanel",
     "error_boxplot_png",
@@ -21,6 +25,7 @@ __all__ = [
     "side_view_png",
     "thin",
     "topdown_png",
+    "truth_xy_m",
 ]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -79,6 +84,15 @@ def error_boxplot_png(errors_m: Mapping[str, np.ndarray]) -> bytes:
     ax.set_title("Map error (whiskers: 5th-95th percentile)")
     ax.grid(axis="y", alpha=0.3)
     return _png(fig)
+
+
+def truth_xy_m(mesh: Mesh) -> np.ndarray:
+    """(v, 2) xy [m] of the non-seafloor mesh vertices below the surface (`topdown_png`)."""
+    cls = mesh.vertex_properties.get("class_id")
+    keep = mesh.vertices[:, 2] <= 0.0
+    if cls is not None:
+        keep &= cls != CLASS_IDS["seafloor"]
+    return mesh.vertices[keep, :2]
 
 
 def topdown_png(
@@ -245,6 +259,7 @@ def render_markdown(
         *_coverage_table(metrics),
         "",
         *_per_class_table(metrics),
+        *submaps_markdown(metrics.get("submaps")),
     ]
     errs = metrics.get("errors", {})
     if errs:

@@ -24,7 +24,7 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from stages.base import Output, Stage, StageConfig
-from stages.evaluate.class_accounting import per_class_metrics
+from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth
 from stages.evaluate.report import (
     SidePanel,
@@ -32,7 +32,9 @@ from stages.evaluate.report import (
     render_markdown,
     side_view_png,
     topdown_png,
+    truth_xy_m,
 )
+from stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
 from stages.mesh_metrics import (
     ate_se2,
     error_stats,
@@ -289,6 +291,8 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     }
     outputs: dict[str, Any] = {"errors": None, **{k: None for k in FIGURES}}
     mesh = decode_mesh_ply(mesh_bytes) if mesh_bytes is not None else None
+    judged: JudgedMap | None = None
+    voxel_size = float(summary.get("voxel_size_m") or 0.1)
     traj = trajectory_errors(keyframes, poses)
     if traj is None:
         metrics["skipped"].append("trajectory error: keyframes carry no ground-truth poses")
@@ -313,29 +317,28 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             poses_are_ground_truth(keyframes, poses),
         )
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
-        voxel_size = float(summary.get("voxel_size_m") or 0.1)
+
+        visible = remember_last(
+            lambda samples: visible_mask(
+                samples, T_ws, config.max_range_m, np.deg2rad(config.fan_width_deg) / 2,
+                np.deg2rad(config.aperture_deg) / 2, scene,
+            )
+        )  # fmt: skip
+
+        def class_figures(rows: pa.Table, xyz: np.ndarray, err: np.ndarray) -> dict[str, Any]:
+            return per_class_metrics(
+                rows, mesh, scene, xyz, err, voxel_size, visible,
+                config.tolerance_m, config.surface_samples_per_m2, config.seed,
+            )  # fmt: skip
+
         metrics["per_class"] = {
             "frame": "raw" if aligned is None else "aligned",
-            **per_class_metrics(
-                map_table,
-                mesh,
-                scene,
-                eval_xyz,
-                eval_err,
-                voxel_size,
-                lambda samples: visible_mask(
-                    samples,
-                    T_ws,
-                    config.max_range_m,
-                    np.deg2rad(config.fan_width_deg) / 2,
-                    np.deg2rad(config.aperture_deg) / 2,
-                    scene,
-                ),
-                config.tolerance_m,
-                config.surface_samples_per_m2,
-                config.seed,
-            ),
+            **class_figures(map_table, eval_xyz, eval_err),
         }
+        judged = JudgedMap(
+            errors.column("error_m").to_numpy(), eval_err, eval_xyz,
+            metrics["headline"], metrics["per_class"], class_figures,
+        )  # fmt: skip
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
             map_table, errors, mesh, T_ws, config
         )
@@ -354,7 +357,10 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             outputs["plot_side_view"] = side_view_png(panels)
         else:
             metrics["skipped"].append("side view: no map points near a piling of the mesh")
-    truth_xy = None if mesh is None else _truth_xy(mesh)
+    if has_submap_rows(map_table):
+        stats = inputs.get("submaps.stats") or {}
+        metrics["submaps"] = submap_comparison(map_table, voxel_size, stats.get("stride"), judged)
+    truth_xy = None if mesh is None else truth_xy_m(mesh)
     outputs["plot_map_topdown"] = topdown_png(
         {name: map_xyz(map_table, name) for name in MAP_NAMES},
         truth_xy,
@@ -367,18 +373,10 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     return outputs
 
 
-def _truth_xy(mesh: Mesh) -> np.ndarray:
-    """(v, 2) xy of the non-seafloor mesh vertices below the surface (for plots)."""
-    cls = mesh.vertex_properties.get("class_id")
-    keep = mesh.vertices[:, 2] <= 0.0
-    if cls is not None:
-        keep &= cls != CLASS_IDS["seafloor"]
-    return mesh.vertices[keep, :2]
-
-
 STAGE = Stage(
     name="evaluate",
-    version=5,
+    # 6: metrics["submaps"], keyframes-only vs with submap frames (issue 21); input submaps.stats
+    version=6,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",
@@ -388,6 +386,7 @@ STAGE = Stage(
         "keyframes.sensors",
         "slam.poses",
         "infer.stats",
+        "submaps.stats",
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),
