@@ -71,12 +71,16 @@ class Recording(Protocol):
         """The true pose stream (simulator), or None."""
         ...
 
-    def pings(self, sonar: str, indices: Sequence[int] | np.ndarray) -> Iterator[SonarPing]:
+    def pings(
+        self, sonar: str, indices: Sequence[int] | np.ndarray, labels: bool = True
+    ) -> Iterator[SonarPing]:
         """Decode only the requested pings, streaming, one `SonarPing` per index.
 
         Args:
             sonar: "horizontal" or "vertical".
             indices: non-decreasing ping indices into `ping_times_ns(sonar)`.
+            labels: also decode the label and truth images, where the recording has
+                them (False: the pings' `labels` and `truth_angle_rad` are None).
         """
         ...
 

@@ -33,6 +33,11 @@ def _default_parts(path: Path) -> list[Path]:
 
 
 def _default_open(path: Path) -> Callable[[Any], Any]:
+    """The dataset's opener. A recording is opened once per reader config and run: the
+    stages reading it (keyframes, submaps) share what it has read (its navigation,
+    which on interleaved recordings costs a pass decompressing every chunk)."""
+    opened: dict[str, Any] = {}
+
     def opener(section: Any) -> Any:
         from pipeline.engine.registry import alternative_graph
 
@@ -41,7 +46,10 @@ def _default_open(path: Path) -> Callable[[Any], Any]:
             return alt.open(path, section)
         from pipeline.readers import open_recording
 
-        return open_recording(path, section)
+        key = section.model_dump_json() if isinstance(section, BaseModel) else repr(section)
+        if key not in opened:
+            opened[key] = open_recording(path, section)
+        return opened[key]
 
     return opener
 

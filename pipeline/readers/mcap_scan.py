@@ -152,12 +152,21 @@ class ChunkCorrupt(ValueError):
     """A chunk that does not decompress, or whose data fails its stored size or CRC."""
 
 
+_ONE_SHOT_MAX_BYTES = 1 << 28
+"""Largest chunk decompressed in one shot (one buffer of its size, GIL released)."""
+
+
 def _decompress(chunk: Chunk) -> bytes:
-    # Streaming zstd: a corrupt `uncompressed_size` must not size a preallocated buffer.
+    # One shot (a third faster, and it releases the GIL) only when the frame's own
+    # content size confirms the chunk's: a corrupt `uncompressed_size` must not size a
+    # preallocated buffer. Otherwise streaming.
     try:
         if chunk.compression == "zstd":
             import zstandard
 
+            size = chunk.uncompressed_size
+            if 0 < size <= _ONE_SHOT_MAX_BYTES and _zstd_content_size(chunk.data) == size:
+                return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
             return zstandard.ZstdDecompressor().decompressobj().decompress(chunk.data)
         if chunk.compression == "lz4":
             import lz4.frame
@@ -169,6 +178,16 @@ def _decompress(chunk: Chunk) -> bytes:
     if chunk.compression == "":
         return bytes(chunk.data)
     raise ChunkCorrupt(f"unsupported chunk compression {chunk.compression!r}")
+
+
+def _zstd_content_size(data: bytes) -> int:
+    """The content size a zstd frame header declares (-1: none or unreadable)."""
+    import zstandard
+
+    try:
+        return int(zstandard.frame_content_size(data))
+    except zstandard.ZstdError:
+        return -1
 
 
 def decompress_chunk(chunk: Chunk) -> bytes:

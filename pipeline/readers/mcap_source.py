@@ -12,6 +12,7 @@ import logging
 import struct
 from collections import OrderedDict, defaultdict
 from collections.abc import Collection, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -41,7 +42,8 @@ log = logging.getLogger(__name__)
 
 _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
 _MAX_INDEX_BLOCK_SLACK = 1 << 20
-_CACHED_CHUNKS = 6
+_CACHED_CHUNKS = 8
+_PREFETCH_CHUNKS = 2
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
@@ -136,7 +138,8 @@ class _McapFile:
                 self.summary = None
         if self.summary is not None and self.summary.chunk_indexes:
             self.times = {cid: loc.t for cid, loc in self.locations.items()}
-            self._cache: OrderedDict[int, bytes] = OrderedDict()
+            self._cache: OrderedDict[int, Future[bytes]] = OrderedDict()
+            self._pool: ThreadPoolExecutor | None = None
             counts = (
                 self.summary.statistics.channel_message_counts if self.summary.statistics else {}
             )
@@ -184,18 +187,33 @@ class _McapFile:
             ):
                 yield rec.channel_id, rec.log_time, rec.data
 
-    def _chunk(self, f: BinaryIO, k: int) -> bytes:
+    def _chunk(self, k: int, ahead: Sequence[int] = ()) -> bytes:
         """Uncompressed chunk k, the last `_CACHED_CHUNKS` kept: the two sonars' streams
         (`SourceRecording.pings`) read in step, each holding its ping's chunks and the
-        next one's; both sonars often share a chunk; the navigation may have its own."""
+        next one's; both sonars often share a chunk; the navigation may have its own.
+
+        A worker thread reads the chunks `ahead` (the caller's next ones) meanwhile:
+        file reads, one-shot zstd and CRC release the GIL, so they overlap the caller.
+        """
+        for j in ahead:
+            self._submit(j)
+        return self._submit(k).result()
+
+    def _submit(self, k: int) -> Future[bytes]:
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
-        data = self._read_chunk(f, k)
-        self._cache[k] = data
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
+        future = self._pool.submit(self._read_chunk_at, k)
+        self._cache[k] = future
         while len(self._cache) > _CACHED_CHUNKS:
             self._cache.popitem(last=False)
-        return data
+        return future
+
+    def _read_chunk_at(self, k: int) -> bytes:
+        with self.path.open("rb") as f:
+            return self._read_chunk(f, k)
 
     def _read_chunk(self, f: BinaryIO, k: int) -> bytes:
         """Chunk k decompressed and checked (SourceError naming its offset when corrupt)."""
@@ -253,9 +271,15 @@ class _McapFile:
             return
         rows = np.concatenate(picks)
         rows = rows[np.lexsort((rows[:, 2], rows[:, 1], rows[:, 0]))]
-        with self.path.open("rb") as f:
-            for t, k, off, cid in rows.tolist():
-                yield cid, t, self._message(self._chunk(f, k), off, cid, t, k)
+        if len(rows) == 0:
+            return
+        # The distinct chunks in the order they are needed, and each row's place in it.
+        new_chunk = np.r_[True, rows[1:, 1] != rows[:-1, 1]]
+        sequence = rows[new_chunk, 1].tolist()
+        place = (np.cumsum(new_chunk) - 1).tolist()
+        for (t, k, off, cid), p in zip(rows.tolist(), place, strict=True):
+            ahead = sequence[p + 1 : p + 1 + _PREFETCH_CHUNKS]
+            yield cid, t, self._message(self._chunk(k, ahead), off, cid, t, k)
 
 
 class McapSource:

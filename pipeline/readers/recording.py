@@ -174,8 +174,11 @@ class SourceRecording:
     def ground_truth(self) -> PoseTrack | None:
         return None if self.roles.ground_truth is None else self._tracks()[self.roles.ground_truth]
 
-    def pings(self, sonar: str, indices: Sequence[int] | np.ndarray) -> Iterator[SonarPing]:
-        """Decode the requested pings (with their label/truth images), streaming."""
+    def pings(
+        self, sonar: str, indices: Sequence[int] | np.ndarray, labels: bool = True
+    ) -> Iterator[SonarPing]:
+        """Decode the requested pings (with their label/truth images unless `labels` is
+        False), streaming."""
         idx = np.asarray(indices, np.int64)
         if len(idx) == 0:
             return
@@ -189,7 +192,7 @@ class SourceRecording:
                 (self.roles.labels.get(sonar), "labels"),
                 (self.roles.truth_angle.get(sonar), "truth"),
             )
-            if name is not None
+            if name is not None and labels
         }
         groups: dict[int, dict[str, Any]] = {}
         cursor = 0

@@ -146,9 +146,14 @@ def learn_and_infer(
     features: pa.Table,
     fused: pa.Table,
     config: InferConfig,
+    query: bool = True,
 ) -> tuple[pa.Table, dict[str, Any], dict[str, ClassState]]:
     """`infer_mission`, plus every class's reference frame and height model as they
-    stand after the last keyframe (what stage `submaps` queries its frames with)."""
+    stand after the last keyframe (what stage `submaps` queries its frames with).
+
+    query=False learns only: the same final models (queries change neither the
+    reference clouds nor the height models), no points (an empty table), and stats
+    without the query steps' counts."""
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     states = {
         c: ClassState(
@@ -178,6 +183,7 @@ def learn_and_infer(
             states,
             config,
             funnels,
+            query,
         )
     ]
     sonar = features.column("sonar") if "sonar" in features.column_names else None
@@ -215,13 +221,16 @@ def _process_keyframe(
     states: dict[str, ClassState],
     config: InferConfig,
     funnels: dict[str, Funnel],
+    query: bool = True,
 ) -> list[dict[str, Any]]:
-    """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
+    """Update (Eq. 7) then query (Eq. 8-9, unless `query` is False) every inferred
+    class with one keyframe."""
     sightings = _sightings(rows, rows_of_keyframe, fused_cols)
     parts = []
     for s in sightings:
-        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        if query:
+            pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
+            parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
         funnel = funnels.setdefault(s.class_name, Funnel())
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
@@ -230,13 +239,13 @@ def _process_keyframe(
         state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
         if config.frame_kind(c) == "beam":
-            found = update_and_query_beam_class(state, of_class, config, funnel)
+            found = update_and_query_beam_class(state, of_class, config, funnel, query=query)
             if found is not None:
                 parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
             continue
         transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
-        if not state.model.updated:
+        if not query or not state.model.updated:
             continue
         registered = []
         for s in of_class:

@@ -171,7 +171,7 @@ def map_submap_frames(
         column(keyframes, "ping_index_horizontal", "keyframes"),
         h_idx, v_idx, posed.h_t_ns, posed.v_t_ns, posed.pose[pair_rows], gt, stride,
     )  # fmt: skip
-    _, _, states = learn_and_infer(objects, object_features, features, fused, icfg)
+    _, _, states = learn_and_infer(objects, object_features, features, fused, icfg, query=False)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     kf_objects = _Frames(object_feature_rows(objects, object_features, horizontal, fused))
     class_of = dict(
@@ -195,8 +195,8 @@ def map_submap_frames(
     counts = {"horizontal_returns": 0, "clustered_assigned_returns": 0, "fused_points": 0}
     parts: list[dict[str, Any]] = []
     pings = zip(
-        rec.pings("horizontal", frames.column("ping_index_horizontal").to_numpy()),
-        rec.pings("vertical", frames.column("ping_index_vertical").to_numpy()),
+        rec.pings("horizontal", frames.column("ping_index_horizontal").to_numpy(), labels=False),
+        rec.pings("vertical", frames.column("ping_index_vertical").to_numpy(), labels=False),
         strict=True,
     )
     for frame_id, (hp, vp) in enumerate(pings):
@@ -258,13 +258,15 @@ def _frame_parts(
     if assigned.size == 0:
         return parts
     order = assigned[np.lexsort((fid[assigned], oid[assigned]))]
-    names = np.array(sorted({class_of.get(int(o), NO_CLASS) for o in oid[order]}))
+    objects, of_row = np.unique(oid[order], return_inverse=True)
+    object_names = np.array([class_of.get(int(o), NO_CLASS) for o in objects])
+    names = np.unique(object_names)
     fused_row = np.full(fid.size, -1, np.int64)
     fused_row[np.searchsorted(fid, fu["feature_id_horizontal"])] = np.arange(fu["range_m"].size)
     rows = {
         "keyframe_id": np.full(order.size, frame_id, np.int64),
         "object_id": oid[order],
-        "class_index": np.searchsorted(names, [class_of.get(int(o), NO_CLASS) for o in oid[order]]),
+        "class_index": np.searchsorted(names, object_names)[of_row.reshape(-1)],
         "range_m": feats["range_m"][is_h][order],
         "bearing_rad": feats["angle_rad"][is_h][order],
         "beam": feats["beam"][is_h][order],
