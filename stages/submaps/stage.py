@@ -194,6 +194,7 @@ def map_submap_frames(
     funnels: dict[str, Funnel] = {}
     counts = {"horizontal_returns": 0, "clustered_assigned_returns": 0, "fused_points": 0}
     parts: list[dict[str, Any]] = []
+    tables: list[pa.Table] = []
     pings = zip(
         rec.pings("horizontal", frames.column("ping_index_horizontal").to_numpy(), labels=False),
         rec.pings("vertical", frames.column("ping_index_vertical").to_numpy(), labels=False),
@@ -218,7 +219,13 @@ def map_submap_frames(
         parts.extend(
             _frame_parts(frame_id, k, feats, is_h, oid, fu, class_of, states, icfg, funnels)
         )
-    points = points_table(parts, SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS)
+        if (frame_id + 1) % _FRAMES_PER_TABLE == 0:
+            # rows sort by frame first, so sorted batches of frames concatenate in order
+            # and the points exist once, not once per concatenation and once sorted
+            tables.append(points_table(parts, SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS))
+            parts = []
+    tables.append(points_table(parts, SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS))
+    points = pa.concat_tables(tables)
     stats = {
         **empty_stats,
         "frames": frames.num_rows,
@@ -229,6 +236,7 @@ def map_submap_frames(
 
 
 _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+_FRAMES_PER_TABLE = 64
 
 
 def _frame_parts(
@@ -301,7 +309,8 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="submaps",
-    version=1,
+    # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
+    version=2,
     config=SubmapsConfig,
     inputs=(
         "dataset",
