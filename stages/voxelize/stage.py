@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from pydantic import Field
 
-from schemas.map import MAP_NAMES, MAP_SCHEMA, MAP_SORT_KEYS, NO_CLASS, VOXELS_SCHEMA
+from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Output, Stage, StageConfig
 from stages.ply import encode_points_ply
@@ -147,20 +147,39 @@ def build_map(
     dropped = {"above_surface": int((~keep).sum()), "without_pose": int((~posed).sum())}
     if dropped["without_pose"]:
         logger.warning("%d points in keyframes without a pose dropped", dropped["without_pose"])
-    rows = pa.array(np.flatnonzero(posed)[keep])
+    rows = np.flatnonzero(posed)[keep]
+    world = world[keep]
+    kf = np.concatenate([p[0] for p in parts])[rows]
+    frame = np.concatenate([p[1] for p in parts])[rows]
+    source_names, source = _codes(pa.chunked_array([p[4] for p in parts], pa.string()), rows)
+    class_names, class_code = _codes(pa.chunked_array([p[5] for p in parts], pa.string()), rows)
+    del parts, posed, rows
+    # Sort before building the table (MAP_SORT_KEYS, codes in string order), so each
+    # column exists once: a dense map is millions of rows.
+    order = np.lexsort((world[:, 2], world[:, 1], world[:, 0], class_code, source, frame, kf))
     table = pa.table(
         {
-            "keyframe_id": pa.array(np.concatenate([p[0] for p in parts])).take(rows),
-            "frame_id": pa.array(np.concatenate([p[1] for p in parts])).take(rows),
-            "x_m": pa.array(world[keep, 0], pa.float64()),
-            "y_m": pa.array(world[keep, 1], pa.float64()),
-            "z_m": pa.array(world[keep, 2], pa.float64()),
-            "source": pa.chunked_array([p[4] for p in parts], pa.string()).take(rows),
-            "class_name": pa.chunked_array([p[5] for p in parts], pa.string()).take(rows),
+            "keyframe_id": pa.array(kf[order], pa.int64()),
+            "frame_id": pa.array(frame[order], pa.int64()),
+            "x_m": pa.array(world[order, 0], pa.float64()),
+            "y_m": pa.array(world[order, 1], pa.float64()),
+            "z_m": pa.array(world[order, 2], pa.float64()),
+            "source": _decode(source_names, source[order]),
+            "class_name": _decode(class_names, class_code[order]),
         },
         schema=MAP_SCHEMA,
     )
-    return table.sort_by([(k, "ascending") for k in MAP_SORT_KEYS]), dropped
+    return table, dropped
+
+
+def _codes(values: pa.ChunkedArray, rows: np.ndarray) -> tuple[pa.Array, np.ndarray]:
+    """(sorted distinct strings, int32 code of each of `rows`): codes sort as the strings."""
+    names = pc.unique(values).sort()
+    return names, pc.index_in(values, value_set=names).to_numpy().astype(np.int32)[rows]
+
+
+def _decode(names: pa.Array, codes: np.ndarray) -> pa.Array:
+    return pa.DictionaryArray.from_arrays(pa.array(codes, pa.int32()), names).cast(pa.string())
 
 
 def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
@@ -200,11 +219,14 @@ def height_colours(z_m: np.ndarray, z_range_m: tuple[float, float] | None = None
     """(n, 3) uint8 viridis colours of heights z [m] over `z_range_m` (default: data range)."""
     from matplotlib import colormaps
 
+    cmap = colormaps["viridis"]
     z = np.asarray(z_m, dtype=np.float64)
     lo, hi = z_range_m if z_range_m is not None else (z.min(initial=0.0), z.max(initial=0.0))
     t = np.clip((z - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.zeros_like(z)
-    rgba = colormaps["viridis"](t)
-    return np.round(np.asarray(rgba)[:, :3] * 255.0).astype(np.uint8).reshape(-1, 3)
+    # the colormap's own lookup (index floor(t N), t = 1 -> N - 1), done on its N colours
+    # instead of as an (n, 4) float array per point
+    table = np.round(np.asarray(cmap(np.arange(cmap.N)))[:, :3] * 255.0).astype(np.uint8)
+    return table[np.minimum((t * cmap.N).astype(np.int64), cmap.N - 1)].reshape(-1, 3)
 
 
 def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
@@ -224,14 +246,16 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     voxels = voxel_table(map_table, config.voxel_size_m)
     semantic = map_xyz(map_table, "semantic")
     z_range = (float(semantic[:, 2].min(initial=0.0)), float(semantic[:, 2].max(initial=0.0)))
-    plys = {
-        name: encode_points_ply(
-            map_xyz(map_table, name),
-            height_colours(map_xyz(map_table, name)[:, 2], z_range),
+    del semantic
+    plys = {}
+    for name in MAP_NAMES:
+        xyz = map_xyz(map_table, name)
+        plys[name] = encode_points_ply(
+            xyz,
+            height_colours(xyz[:, 2], z_range),
             f"sonarmap {name} map, world frame, coloured by height",
         )
-        for name in MAP_NAMES
-    }
+        del xyz
     summary = {
         "voxel_size_m": config.voxel_size_m,
         "voxels": {
