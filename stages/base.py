@@ -108,6 +108,8 @@ class Stage:
         reads_sections: other config sections the stage reads: bound as inputs
             `config.<section>` and hashed, whole, into its key.
         dataset_section: the section the "dataset" input is opened with (None: its own).
+        input_columns: (input, columns) pairs: read only these columns of a Parquet input
+            (a stage that needs a few columns of a large table).
     """
 
     name: str
@@ -120,6 +122,7 @@ class Stage:
     key_excludes: tuple[str, ...] = ()
     reads_sections: tuple[str, ...] = ()
     dataset_section: str | None = None
+    input_columns: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
     @property
     def upstream(self) -> tuple[str, ...]:

@@ -8,7 +8,7 @@ in the schema, never timestamps, so the same inputs give the same bytes.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, MutableSet
+from collections.abc import Mapping, MutableSet, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -74,13 +74,17 @@ def write_output(
 
 
 def read_verified(
-    ref: ArtifactRef, output: Output, verified: MutableSet[tuple[str, str, str]] | None = None
+    ref: ArtifactRef,
+    output: Output,
+    verified: MutableSet[tuple[str, str, str]] | None = None,
+    columns: Sequence[str] | None = None,
 ) -> Any:
     """Read one output of a committed artifact after checking it against the manifest.
 
     `verified` remembers (stage, key, file) already hashed in this run, so a file
     bound by several stages costs one hash. A file the manifest does not list is
-    never read, even if one lies on disk.
+    never read, even if one lies on disk. `columns`: read only these of a Parquet
+    output (the whole file is still verified).
     """
     from pipeline.engine.integrity import recovery_hint, verify_file
 
@@ -98,7 +102,7 @@ def read_verified(
         if verified is not None:
             verified.add(tag)
     try:
-        return read_output(ref.path, output)
+        return read_output(ref.path, output, columns)
     except PipelineError:
         raise
     except (OSError, ValueError) as err:
@@ -110,7 +114,7 @@ def read_verified(
         ) from err
 
 
-def read_output(directory: Path, output: Output) -> Any:
+def read_output(directory: Path, output: Output, columns: Sequence[str] | None = None) -> Any:
     """Read one output back; an optional output that was not written reads as None."""
     path = directory / output.filename
     if not path.exists():
@@ -118,7 +122,7 @@ def read_output(directory: Path, output: Output) -> Any:
             return None
         raise InternalError(f"{directory}: output file '{output.filename}' missing")
     if output.kind == "parquet":
-        return pq.read_table(path)
+        return pq.read_table(path, columns=None if columns is None else list(columns))
     if output.kind == "json":
         return json.loads(path.read_text())
     if output.kind == "bytes":

@@ -225,7 +225,8 @@ def _bind_inputs(
         output = next((o for o in producer.outputs if o.name == out_name), None)
         if output is None:
             raise ConfigError(f"stage {item.stage.name}: {upstream} has no output '{out_name}'")
-        inputs[name] = read_verified(refs[upstream], output, verified)
+        columns = dict(stage.input_columns).get(name)
+        inputs[name] = read_verified(refs[upstream], output, verified, columns)
     return inputs
 
 
@@ -253,6 +254,21 @@ def _build(
         return {"outputs": facts}
 
     return build
+
+
+def release_memory() -> None:
+    """Hand a finished stage's freed memory back to the system (Arrow's pool and glibc's
+    heap keep it otherwise), so a run's peak is its largest stage, not the sum."""
+    import contextlib
+    import ctypes
+    import gc
+
+    import pyarrow as pa
+
+    gc.collect()
+    pa.default_memory_pool().release_unused()
+    with contextlib.suppress(OSError, AttributeError):  # not glibc
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def execute(
@@ -302,6 +318,8 @@ def execute(
                 name, item.key, _build(item, section, inputs), manifest_extra
             )
             status = "reused" if reused else "computed"
+            del inputs
+            release_memory()
         refs[name] = ref
         result.artifacts[name] = ref
         stage_result = StageResult(

@@ -290,6 +290,11 @@ STAGE = Stage(
         "submaps.frames",
         "submaps.points",
     ),
+    input_columns=(
+        ("infer.points", ("keyframe_id", "source", "class_name", *_XYZ)),
+        ("fuse.fused", ("keyframe_id", *_XYZ)),
+        ("submaps.points", ("frame_id", "source", "class_name", *_XYZ)),
+    ),
     outputs=(
         Output("map", "parquet", "map.parquet", schema=MAP_SCHEMA),
         Output("voxels", "parquet", "voxels.parquet", schema=VOXELS_SCHEMA),
