@@ -37,8 +37,10 @@ system-deps:
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
+# `make demo DEMO_ARGS="--set keyframes.submap_stride=1"`: the demo with dense submaps
+DEMO_ARGS ?=
 demo: setup
-	$(BIN)/sonarmap demo
+	$(BIN)/sonarmap demo $(DEMO_ARGS)
 
 bench: setup
 	$(BIN)/python benchmarks/run_all.py
