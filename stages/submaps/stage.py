@@ -65,7 +65,7 @@ from stages.submaps.frames import submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 from stages.voxelize.registration import pose_matrix
 
-__all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
+__all__ = ["STAGE", "SubmapsConfig", "frame_points", "map_submap_frames"]
 
 _FUSED_COLUMNS = ("range_m", "bearing_rad", "elevation_rad", "x_m", "y_m", "z_m", "confidence")
 _SECTIONS = ("keyframes", "features", "fuse", "classify", "infer", "train")
@@ -217,7 +217,7 @@ def map_submap_frames(
         counts["clustered_assigned_returns"] += int((oid >= 0).sum())
         counts["fused_points"] += int(fu["range_m"].size)
         parts.extend(
-            _frame_parts(frame_id, k, feats, is_h, oid, fu, class_of, states, icfg, funnels)
+            frame_points(frame_id, k, feats, is_h, oid, fu, class_of, states, icfg, funnels)
         )
         if (frame_id + 1) % _FRAMES_PER_TABLE == 0:
             # rows sort by frame first, so sorted batches of frames concatenate in order
@@ -239,7 +239,7 @@ _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 _FRAMES_PER_TABLE = 64
 
 
-def _frame_parts(
+def frame_points(
     frame_id: int,
     keyframe_id: int,
     feats: dict[str, np.ndarray],
@@ -251,7 +251,15 @@ def _frame_parts(
     icfg: InferConfig,
     funnels: dict[str, Funnel],
 ) -> list[dict[str, Any]]:
-    """Fused and inferred point parts of one submap frame."""
+    """Fused and inferred point parts of one submap frame (`points_table` rows).
+
+    Args:
+        feats: the frame's features (`keyframe_features` columns plus `is_horizontal`);
+            is_h: that mask; oid: (n_horizontal,) object of each horizontal return (-1:
+            none; `transfer_objects`); fu: its fused points (`fuse_keyframe`).
+        class_of: class name of every keyframe object id.
+        states: the class models; funnels: loss accounting, updated in place.
+    """
     fid = feats["feature_id"][is_h]
     fused_cols = {c: np.asarray(fu[c], np.float64) for c in _FUSED_COLUMNS}
     # object of each fused point: that of its horizontal return
