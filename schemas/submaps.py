@@ -15,6 +15,7 @@ from __future__ import annotations
 import pyarrow as pa
 
 from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
+from schemas.points import POINTS_SCHEMA
 
 __all__ = [
     "KEYFRAME_FRAME_ID",
@@ -49,22 +50,7 @@ times and ping indices as in keyframes.parquet, the relative dead-reckoning pose
 (REL_POSE_COLUMNS), the absolute dead-reckoning pose and the ground-truth pose (null
 without truth). Sorted by frame_id."""
 
-SUBMAP_POINTS_SCHEMA = pa.schema(
-    [
-        pa.field("frame_id", pa.int64(), nullable=False),
-        pa.field("keyframe_id", pa.int64(), nullable=False),
-        pa.field("object_id", pa.int64(), nullable=False),
-        pa.field("class_name", pa.string(), nullable=False),
-        pa.field("source", pa.string(), nullable=False),
-        pa.field("range_m", pa.float64(), nullable=False),
-        pa.field("bearing_rad", pa.float64(), nullable=False),
-        pa.field("elevation_rad", pa.float64(), nullable=False),
-        pa.field("x_m", pa.float64(), nullable=False),
-        pa.field("y_m", pa.float64(), nullable=False),
-        pa.field("z_m", pa.float64(), nullable=False),
-        pa.field("confidence", pa.float64(), nullable=False),
-    ]
-)
+SUBMAP_POINTS_SCHEMA = pa.schema([pa.field("frame_id", pa.int64(), nullable=False), *POINTS_SCHEMA])
 """submap_points.parquet: every fused point of a submap frame (`source="fused"`, with
 the keyframe object it lies on, object_id -1 and class "none" when on none) and the
 heights inferred for its 2D-only returns (`source="inferred"`), in the frame's own

@@ -25,7 +25,7 @@ from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINT
 from sim.geometry import pose_to_matrix
 from stages.submaps.frames import pose_matrix, rpy_from_rotation, submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
-from stages.voxelize import build_map
+from stages.voxelize.stage import build_map
 
 POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 UPSTREAM = ("keyframes", "features", "fuse", "classify", "slam", "infer")

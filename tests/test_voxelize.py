@@ -16,7 +16,7 @@ from schemas.map import MAP_SCHEMA, VOXELS_SCHEMA
 from schemas.points import POINTS_SCHEMA
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
 from sim.geometry import pose_to_matrix
-from stages.voxelize import STAGE, VoxelizeConfig
+from stages.voxelize.stage import STAGE, VoxelizeConfig
 
 T_BASE_SONAR = np.array(
     [[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]

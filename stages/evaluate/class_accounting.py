@@ -32,7 +32,8 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES
 from stages._lazy import lazy
 from stages.mesh_metrics import nearest_distance, surface_samples
 from stages.ply import Mesh
-from stages.voxelize import map_xyz, voxel_keys
+from stages.voxelize.registration import voxel_keys
+from stages.voxelize.stage import map_xyz
 
 o3d = lazy("open3d")
 

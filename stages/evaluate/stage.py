@@ -47,7 +47,8 @@ from stages.mesh_metrics import (
     visible_mask,
 )
 from stages.ply import Mesh, decode_mesh_ply
-from stages.voxelize import map_xyz, pose_matrices
+from stages.voxelize.registration import pose_matrices
+from stages.voxelize.stage import map_xyz
 
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 

@@ -33,7 +33,7 @@ from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.evaluate.class_accounting import ALL_STRUCTURE, voxel_keys
 from stages.evaluate.headline import headline_errors
 from stages.mesh_metrics import error_stats
-from stages.voxelize import map_xyz
+from stages.voxelize.stage import map_xyz
 
 __all__ = ["FIGURES", "JudgedMap", "has_submap_rows", "submap_comparison", "submaps_markdown"]
 

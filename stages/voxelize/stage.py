@@ -40,7 +40,6 @@ from stages.base import Output, Stage, StageConfig
 from stages.ply import encode_points_ply
 from stages.voxelize.registration import (
     pose_matrices,
-    rotation_rpy,
     submap_world_points,
     voxel_keys,
     world_points,
@@ -53,10 +52,7 @@ __all__ = [
     "build_map",
     "height_colours",
     "map_xyz",
-    "pose_matrices",
-    "rotation_rpy",
     "voxel_table",
-    "world_points",
 ]
 
 logger = logging.getLogger(__name__)
