@@ -97,3 +97,40 @@ def test_the_loss_accounting_matches_the_output_and_unseen_cells_predict_nothing
         funnel["predicted_returns"] <= funnel["inferred_points"] <= 2 * funnel["predicted_returns"]
     )
     assert stats["horizontal_returns"] >= stats["clustered_returns"] > 0
+
+
+def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_it() -> None:
+    """`unknown_argmax_classes`: an object the classifier was not sure of, whose arg-max
+    class is seawall, gets heights from the seawall model (on the true wall), and never
+    updates it."""
+    run, T, (objects, links, features, fused) = _mission("quay", seed=0)
+    names = np.asarray(objects.column("class_name").to_pylist(), dtype=object)
+    doubted = (names == "seawall") & (np.arange(names.size) % 3 == 0)
+    objects = objects.set_column(
+        objects.schema.get_field_index("class_name"),
+        "class_name",
+        pa.array(np.where(doubted, "unknown", names).tolist()),
+    ).append_column("argmax_class_name", pa.array(names.tolist()))
+    plain, plain_stats = infer_mission(objects, links, features, fused, InferConfig())
+    routed, routed_stats = infer_mission(
+        objects, links, features, fused, InferConfig(unknown_argmax_classes=("seawall",))
+    )
+    unknown_inferred = pa.compute.and_(
+        pa.compute.equal(routed.column("source"), "inferred"),
+        pa.compute.equal(routed.column("class_name"), "unknown"),
+    )
+    assert pa.compute.sum(unknown_inferred).as_py() > 0
+    assert not pa.compute.any(
+        pa.compute.and_(
+            pa.compute.equal(plain.column("source"), "inferred"),
+            pa.compute.equal(plain.column("class_name"), "unknown"),
+        )
+    ).as_py()
+    # the seawall model learnt exactly the same with and without the borrowers
+    assert routed_stats["classes"]["seawall"] == plain_stats["classes"]["seawall"]
+    borrowed = routed.filter(unknown_inferred)
+    d_borrowed = run.world.distance(to_world(borrowed, T))
+    d_fused = run.world.distance(to_world(fused, T))
+    assert np.median(d_borrowed) <= 1.5 * np.median(d_fused)
+    with pytest.raises(ValueError, match="beam-frame"):
+        InferConfig(unknown_argmax_classes=("cylindrical_piling",))

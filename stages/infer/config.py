@@ -47,6 +47,11 @@ class InferConfig(StageConfig):
         " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.infer.beam_frame);"
         " classes not listed use 'object'",
     )
+    unknown_argmax_classes: tuple[str, ...] = Field(
+        (),
+        description="beam-frame classes whose model also gives heights to 'unknown' objects"
+        " (classifier not confident) whose arg-max class it is; queried, never updated",
+    )
     beam_gap_m: float = Field(
         0.3,
         gt=0.0,
@@ -129,6 +134,19 @@ class InferConfig(StageConfig):
         if unknown:
             raise ValueError(f"unknown classes {unknown}; known: {sorted(_INFERABLE)}")
         return value
+
+    @model_validator(mode="after")
+    def _argmax_classes_are_inferred_beam_classes(self) -> InferConfig:
+        bad = [
+            c
+            for c in self.unknown_argmax_classes
+            if c not in self.classes or self.frame_kind(c) != "beam"
+        ]
+        if bad:
+            raise ValueError(
+                f"unknown_argmax_classes {bad}: each must be an inferred beam-frame class"
+            )
+        return self
 
     @field_validator("frame_kinds")
     @classmethod

@@ -37,6 +37,7 @@ class Sighting:
     fused_uv_m: np.ndarray  # (k, 2)
     fused_z_m: np.ndarray  # (k,)
     fused_rows: np.ndarray  # (k,) rows of the fused table
+    argmax_class_name: str = ""  # the classifier's arg-max class ("" when not known)
 
 
 def _key(keyframe_id: np.ndarray, feature_id: np.ndarray) -> np.ndarray:
@@ -66,8 +67,9 @@ def object_feature_rows(
     """Join object features to their feature rows and fused points (vectorised).
 
     Returns arrays over object-feature rows sorted by (keyframe, object, feature):
-    keyframe_id, object_id, class_index (into `classes`), range_m, bearing_rad,
-    fused_row (-1 for a 2D-only return), plus `classes` (unique class names).
+    keyframe_id, object_id, class_index and argmax_index (the arg-max class, into
+    `classes`), range_m, bearing_rad, fused_row (-1 for a 2D-only return), plus
+    `classes` (unique class names).
     """
     of_kf = column(object_features, "keyframe_id", "object_features").astype(np.int64)
     of_obj = column(object_features, "object_id", "object_features").astype(np.int64)
@@ -89,9 +91,14 @@ def object_feature_rows(
     o_row = _lookup(o_key[o_order], _key(of_kf, of_obj))
     if (o_row < 0).any():
         raise ValueError("infer: object_features references objects that do not exist")
-    classes, class_index = np.unique(
-        np.asarray(column(objects, "class_name", "objects"), dtype=str), return_inverse=True
+    names = np.asarray(column(objects, "class_name", "objects"), dtype=str)
+    argmax = (
+        np.asarray(column(objects, "argmax_class_name", "objects"), dtype=str)
+        if "argmax_class_name" in objects.column_names
+        else names
     )
+    classes, codes = np.unique(np.concatenate([names, argmax]), return_inverse=True)
+    class_index, argmax_index = codes.reshape(-1)[: names.size], codes.reshape(-1)[names.size :]
     # Fused point of each horizontal feature (if any).
     fu_key = _key(
         column(fused, "keyframe_id", "fused"), column(fused, FUSED_FEATURE_COLUMN, "fused")
@@ -101,7 +108,8 @@ def object_feature_rows(
     return {
         "keyframe_id": of_kf,
         "object_id": of_obj,
-        "class_index": class_index.reshape(-1)[o_order[o_row]],
+        "class_index": class_index[o_order[o_row]],
+        "argmax_index": argmax_index[o_order[o_row]],
         "range_m": column(features, "range_m", "features").astype(np.float64)[f_row],
         "bearing_rad": column(features, "angle_rad", "features").astype(np.float64)[f_row],
         "beam": _beams(features)[f_row],
@@ -156,6 +164,9 @@ def sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarra
             Sighting(
                 object_id=int(obj[a]),
                 class_name=str(rows["classes"][rows["class_index"][sl.start + a]]),
+                argmax_class_name=str(
+                    rows["classes"][rows.get("argmax_index", rows["class_index"])[sl.start + a]]
+                ),
                 origin=ObjectOrigin(float(min_range[g]), float(median[g])),
                 uv_m=uv[a:b],
                 range_m=r[a:b],

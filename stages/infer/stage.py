@@ -66,6 +66,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.classes import UNKNOWN_CLASS
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
 from stages.infer.config import FrameKind, InferConfig
@@ -242,6 +243,8 @@ def _process_keyframe(
             found = update_and_query_beam_class(state, of_class, config, funnel, query=query)
             if found is not None:
                 parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+            if query and c in config.unknown_argmax_classes:
+                parts.extend(_query_unknown_as(c, keyframe_id, sightings, state, config, funnels))
             continue
         transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
@@ -261,6 +264,24 @@ def _process_keyframe(
             pts, object_ids = query_object_sightings(state, registered, config, funnel)
             parts.append(tag_points(pts, keyframe_id, object_ids, c, "inferred"))
     return parts
+
+
+def _query_unknown_as(
+    c: str,
+    keyframe_id: int,
+    sightings: list,
+    state: ClassState,
+    config: InferConfig,
+    funnels: dict[str, Funnel],
+) -> list[dict[str, Any]]:
+    """Heights for the 'unknown' sightings whose arg-max class is `c`, from c's model
+    (query only: an uncertain object never teaches a class model)."""
+    routed = [s for s in sightings if s.class_name == UNKNOWN_CLASS and s.argmax_class_name == c]
+    funnel = funnels.setdefault(UNKNOWN_CLASS, Funnel())
+    found = update_and_query_beam_class(state, routed, config, funnel, update=False)
+    if found is None:
+        return []
+    return [tag_points(found[0], keyframe_id, found[1], UNKNOWN_CLASS, "inferred")]
 
 
 def tag_points(
