@@ -81,7 +81,7 @@ def _clustering(classify: ClassifyConfig, train: Any) -> tuple[float, int, int]:
     return float(eps), int(samples), int(feats)
 
 
-class _Frames:
+class _KeyframeObjects:
     """The keyframes' object returns, indexed per keyframe, built as frames need them."""
 
     def __init__(self, rows: dict[str, np.ndarray]) -> None:
@@ -173,7 +173,7 @@ def map_submap_frames(
     )  # fmt: skip
     _, _, states = learn_and_infer(objects, object_features, features, fused, icfg, query=False)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
-    kf_objects = _Frames(object_feature_rows(objects, object_features, horizontal, fused))
+    kf_objects = _KeyframeObjects(object_feature_rows(objects, object_features, horizontal, fused))
     class_of = dict(
         zip(
             column(objects, "object_id", "objects").tolist(),
