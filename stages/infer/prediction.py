@@ -152,6 +152,32 @@ def query_object_sightings(
     return pts, oid[of_return].astype(np.int64)
 
 
+def register_and_query(
+    state: ClassState,
+    sightings: list[Sighting],
+    config: InferConfig,
+    funnel: Funnel,
+    transforms: dict[int, np.ndarray] | None = None,
+) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
+    """Eq. 8-9 for object-frame sightings: each is registered to the class reference
+    frame (or takes its registration from `transforms`, the update's), failed ICP is
+    skipped, and the rest are queried together. None when nothing registered."""
+    known = transforms or {}
+    registered = []
+    for s in sightings:
+        T = known.get(s.object_id)
+        if T is None:
+            reg = state.frame.register(s.uv_m)
+            if not reg.ok:
+                continue
+            T = reg.T_ref_obj
+        registered.append((s, T))
+    funnel.counts["registered_objects"] += len(registered)
+    if not registered:
+        return None
+    return query_object_sightings(state, registered, config, funnel)
+
+
 def update_and_query_beam_class(
     state: ClassState,
     sightings: list[Sighting],

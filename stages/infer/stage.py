@@ -83,7 +83,7 @@ from stages.infer.prediction import (
     FUNNEL_STEPS,
     ClassState,
     Funnel,
-    query_object_sightings,
+    register_and_query,
     update_and_query_beam_class,
     update_object_class,
 )
@@ -250,19 +250,9 @@ def _process_keyframe(
         funnel.counts["updated_objects"] += len(transforms)
         if not query or not state.model.updated:
             continue
-        registered = []
-        for s in of_class:
-            T = transforms.get(s.object_id)
-            if T is None:
-                reg = state.frame.register(s.uv_m)
-                if not reg.ok:
-                    continue
-                T = reg.T_ref_obj
-            registered.append((s, T))
-        funnel.counts["registered_objects"] += len(registered)
-        if registered:
-            pts, object_ids = query_object_sightings(state, registered, config, funnel)
-            parts.append(tag_points(pts, keyframe_id, object_ids, c, "inferred"))
+        found = register_and_query(state, of_class, config, funnel, transforms)
+        if found is not None:
+            parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
     return parts
 
 

@@ -55,7 +55,7 @@ from stages.infer.inputs import column, object_feature_rows, sightings
 from stages.infer.prediction import (
     ClassState,
     Funnel,
-    query_object_sightings,
+    register_and_query,
     update_and_query_beam_class,
 )
 from stages.infer.stage import learn_and_infer, points_table, tag_points
@@ -127,15 +127,9 @@ def _query(
             if res is not None:
                 found.append((res[0], res[1], c))
             continue
-        registered = []
-        for s in of_class:
-            reg = state.frame.register(s.uv_m)
-            if reg.ok:
-                registered.append((s, reg.T_ref_obj))
-        funnel.counts["registered_objects"] += len(registered)
-        if registered:
-            pts, oid = query_object_sightings(state, registered, config, funnel)
-            found.append((pts, oid, c))
+        res = register_and_query(state, of_class, config, funnel)
+        if res is not None:
+            found.append((res[0], res[1], c))
     return found
 
 
