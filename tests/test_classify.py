@@ -467,3 +467,25 @@ def test_fan_edge_rule_drops_exactly_the_sightings_of_pilings_cut_by_the_fan() -
     dropped = linked(every["object_features"], dropped_ids)
     assert dropped and not linked(kept["object_features"]) & dropped
     assert linked(kept["object_features"]) == linked(every["object_features"]) - dropped
+
+
+def test_the_ground_truth_oracle_labels_every_object_with_its_true_class(
+    keyframes: list[KeyframeImages],
+) -> None:
+    """`labels="ground_truth"`: the ablation that shows what perfect classification
+    would give; certain, no CNN; refused on a recording without label images."""
+    features = _features(keyframes)
+    objects = _run(keyframes, features, labels="ground_truth")["objects"]
+    truth = objects["true_class_name"].to_pylist()
+    assert objects.num_rows > 0 and None not in truth
+    expected = [t if t in NAMES else UNKNOWN_CLASS for t in truth]
+    assert objects["class_name"].to_pylist() == expected
+    assert set(objects["probability"].to_pylist()) == {1.0}
+    cnn = _run(keyframes, features)["objects"]
+    assert cnn["object_id"].equals(objects["object_id"])  # same objects, other classes
+    unlabelled = [
+        dataclasses.replace(fr, horizontal=dataclasses.replace(fr.horizontal, labels=None))
+        for fr in keyframes
+    ]
+    with pytest.raises(ValueError, match=r"classify\.labels=ground_truth: keyframe 0 has no label"):
+        _run(unlabelled, features, labels="ground_truth")

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pyarrow as pa
@@ -103,6 +103,13 @@ class ClassifyConfig(StageConfig):
         le=10000,
         description="an object is dropped when this much of its padded box lies outside the"
         " fan [m2] (original: 10 px of 5 cm)",
+    )
+    labels: Literal["cnn", "ground_truth"] = Field(
+        "cnn",
+        description="'cnn': the classifier (paper Sec. IV.C); 'ground_truth': an oracle"
+        " ablation, every object takes the majority class of its returns in the recording's"
+        " label images (simulated data only; a class the model has no output for, such as"
+        " 'none', becomes unknown)",
     )
     mc_passes: int = Field(20, ge=1, le=1000, description="Monte-Carlo dropout passes m")
     threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
@@ -192,6 +199,23 @@ def _class_columns(
     }  # fmt: skip
 
 
+def _truth_columns(truth: np.ndarray, structure_classes: list[str]) -> dict[str, Any]:
+    """The class columns of the oracle (`labels="ground_truth"`): each object's majority
+    label-image class, certain; ids outside `structure_classes` become unknown."""
+    names = [CLASS_NAMES[c] for c in truth]
+    known = np.array([n in structure_classes for n in names], bool)
+    k = len(names)
+    return {
+        "class_id": np.where(known, truth, UNKNOWN_CLASS_ID).astype(np.int64),
+        "class_name": [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)],
+        "argmax_class_name": [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)],
+        "probability": np.ones(k),
+        "probability_var": np.zeros(k),
+        "single_view_probability": np.ones(k),
+        "n_views": np.ones(k, np.int64),
+    }
+
+
 def _pooled(
     mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
     cfg: ClassifyConfig,
@@ -258,6 +282,8 @@ def classify_keyframes(
     means: list[np.ndarray] = [np.zeros((0, len(class_names)))]
     variances: list[np.ndarray] = [np.zeros((0, len(class_names)))]
     position: dict[int, int] = {}
+    truths: list[np.ndarray] = [np.zeros(0, np.int64)]
+    oracle = cfg.labels == "ground_truth"
     next_id = 0
     for i, frame in enumerate(frames):
         position[frame.keyframe_id] = i
@@ -270,8 +296,17 @@ def classify_keyframes(
             drop_fan_edge=cfg.drop_fan_edge_objects, fan_edge_margin_m=cfg.fan_edge_margin_m,
             fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
         )  # fmt: skip
-        seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
-        mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)
+        if oracle:
+            if objs.true_class_id is None:
+                raise ValueError(
+                    f"classify.labels=ground_truth: keyframe {frame.keyframe_id} has no label"
+                    " image (a field recording?); use classify.labels=cnn"
+                )
+            truths.append(objs.true_class_id.astype(np.int64))
+            mean = var = np.zeros((objs.count, len(class_names)))
+        else:
+            seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
+            mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)
         means.append(mean)
         variances.append(var)
         geo_parts.append(
@@ -292,12 +327,15 @@ def classify_keyframes(
         return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), None
     geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
     mean, var = np.concatenate(means), np.concatenate(variances)
-    if cfg.pool_views:
-        assert keyframes is not None and T_base_sonar is not None
-        pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
+    if oracle:
+        classes = _truth_columns(np.concatenate(truths), class_names)
     else:
-        pooled, n_views = mean, np.ones(len(mean), np.int64)
-    classes = _class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
+        if cfg.pool_views:
+            assert keyframes is not None and T_base_sonar is not None
+            pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
+        else:
+            pooled, n_views = mean, np.ones(len(mean), np.int64)
+        classes = _class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
     columns = {name: geometry.column(name) for name in geometry.column_names}
     objects = pa.Table.from_pydict(
         {f.name: columns.get(f.name, classes.get(f.name)) for f in OBJECTS_SCHEMA},
