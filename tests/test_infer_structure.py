@@ -18,6 +18,7 @@ from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.stage import InferConfig, infer_mission
 
 REPO = Path(__file__).resolve().parents[1]
+NO_BORROWING = InferConfig(unknown_argmax_classes=(), borrowed_models={})
 
 
 def test_beam_frame_puts_a_vertical_wall_at_its_true_height() -> None:
@@ -111,9 +112,13 @@ def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_i
         "class_name",
         pa.array(np.where(doubted, "unknown", names).tolist()),
     ).append_column("argmax_class_name", pa.array(names.tolist()))
-    plain, plain_stats = infer_mission(objects, links, features, fused, InferConfig())
+    plain, plain_stats = infer_mission(objects, links, features, fused, NO_BORROWING)
     routed, routed_stats = infer_mission(
-        objects, links, features, fused, InferConfig(unknown_argmax_classes=("seawall",))
+        objects,
+        links,
+        features,
+        fused,
+        InferConfig(unknown_argmax_classes=("seawall",), borrowed_models={}, borrow_min_extent_m=0),
     )
     unknown_inferred = pa.compute.and_(
         pa.compute.equal(routed.column("source"), "inferred"),
@@ -134,3 +139,60 @@ def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_i
     assert np.median(d_borrowed) <= 1.5 * np.median(d_fused)
     with pytest.raises(ValueError, match="beam-frame"):
         InferConfig(unknown_argmax_classes=("cylindrical_piling",))
+
+
+def test_a_class_without_a_model_can_borrow_a_beam_class_model_without_teaching_it() -> None:
+    """`borrowed_models`: objects labelled truss (on the marina mostly wall sections the
+    classifier confused) take heights from the seawall model, on the true wall, keep
+    their own class, and never update the model."""
+    run, T, (objects, links, features, fused) = _mission("quay", seed=0)
+    names = np.asarray(objects.column("class_name").to_pylist(), dtype=object)
+    confused = (names == "seawall") & (np.arange(names.size) % 3 == 0)
+    objects = objects.set_column(
+        objects.schema.get_field_index("class_name"),
+        "class_name",
+        pa.array(np.where(confused, "truss", names).tolist()),
+    )
+    plain, plain_stats = infer_mission(objects, links, features, fused, NO_BORROWING)
+
+    def lent_config(min_extent_m: float) -> InferConfig:
+        return InferConfig(
+            unknown_argmax_classes=(),
+            borrowed_models={"truss": "seawall"},
+            borrow_min_extent_m=min_extent_m,
+        )
+
+    lent, lent_stats = infer_mission(objects, links, features, fused, lent_config(0.0))
+
+    def truss_inferred(points: pa.Table) -> pa.Array:
+        return pa.compute.and_(
+            pa.compute.equal(points.column("source"), "inferred"),
+            pa.compute.equal(points.column("class_name"), "truss"),
+        )
+
+    assert not pa.compute.any(truss_inferred(plain)).as_py()
+    assert (
+        pa.compute.sum(truss_inferred(lent)).as_py()
+        == (lent_stats["classes"]["truss"]["inferred_points"])
+        > 0
+    )
+    assert lent_stats["classes"]["truss"]["updated_objects"] == 0
+    assert lent_stats["classes"]["seawall"] == plain_stats["classes"]["seawall"]
+    d_lent = run.world.distance(to_world(lent.filter(truss_inferred(lent)), T))
+    d_fused = run.world.distance(to_world(fused, T))
+    assert np.median(d_lent) <= 1.5 * np.median(d_fused)
+    # the extent gate: only objects whose returns span at least that long borrow
+    n_gated = [
+        pa.compute.sum(
+            truss_inferred(infer_mission(objects, links, features, fused, lent_config(e))[0])
+        ).as_py()
+        or 0
+        for e in (8.0, 16.0, 24.0, 1000.0)
+    ]
+    assert pa.compute.sum(truss_inferred(lent)).as_py() >= n_gated[0] >= n_gated[1]
+    assert n_gated[1] >= n_gated[2] > n_gated[3] == 0
+    assert n_gated[0] > n_gated[2]
+    with pytest.raises(ValueError, match="beam-frame"):
+        InferConfig(borrowed_models={"truss": "cylindrical_piling"})  # object frame
+    with pytest.raises(ValueError, match="without a model"):
+        InferConfig(classes=(*InferConfig().classes, "truss"), borrowed_models={"truss": "seawall"})

@@ -39,6 +39,13 @@ class Sighting:
     fused_rows: np.ndarray  # (k,) rows of the fused table
     argmax_class_name: str = ""  # the classifier's arg-max class ("" when not known)
 
+    @property
+    def extent_m(self) -> float:
+        """Diagonal of the sonar-frame bounding box of the object's 2D returns."""
+        x = self.range_m * np.cos(self.bearing_rad)
+        y = self.range_m * np.sin(self.bearing_rad)
+        return float(np.hypot(np.ptp(x), np.ptp(y))) if x.size else 0.0
+
 
 def _key(keyframe_id: np.ndarray, feature_id: np.ndarray) -> np.ndarray:
     """Packed int64 (keyframe_id, feature_id) join key."""

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from schemas.classes import UNKNOWN_CLASS
 from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.config import InferConfig
 from stages.infer.height_model import HeightModel, HeightQuery
@@ -216,6 +217,38 @@ def update_and_query_beam_class(
     pts, of_return = predicted_points(q, r[~fused], bearing, config)
     funnel.count_query(int((~fused).sum()), q, of_return)
     return pts, oid[~fused][of_return]
+
+
+def borrowed_sightings(
+    lender: str, sightings: list[Sighting], config: InferConfig
+) -> list[tuple[str, list[Sighting]]]:
+    """(borrowing class, its sightings) that take heights from `lender`'s model, query
+    only: 'unknown' objects whose arg-max class it is (`unknown_argmax_classes`) and
+    the objects of every class that borrows it (`borrowed_models`), each only if its
+    returns span at least `borrow_min_extent_m`."""
+
+    def extended(s: Sighting) -> bool:
+        return s.extent_m >= config.borrow_min_extent_m
+
+    routes = []
+    if lender in config.unknown_argmax_classes:
+        routes.append(
+            (
+                UNKNOWN_CLASS,
+                [
+                    s
+                    for s in sightings
+                    if s.class_name == UNKNOWN_CLASS
+                    and s.argmax_class_name == lender
+                    and extended(s)
+                ],
+            )
+        )
+    for borrower in sorted(b for b, c in config.borrowed_models.items() if c == lender):
+        routes.append(
+            (borrower, [s for s in sightings if s.class_name == borrower and extended(s)])
+        )
+    return [(b, routed) for b, routed in routes if routed]
 
 
 def spherical_points(

@@ -66,7 +66,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import UNKNOWN_CLASS
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
 from stages.infer.config import FrameKind, InferConfig
@@ -83,6 +82,7 @@ from stages.infer.prediction import (
     FUNNEL_STEPS,
     ClassState,
     Funnel,
+    borrowed_sightings,
     register_and_query,
     update_and_query_beam_class,
     update_object_class,
@@ -243,8 +243,8 @@ def _process_keyframe(
             found = update_and_query_beam_class(state, of_class, config, funnel, query=query)
             if found is not None:
                 parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-            if query and c in config.unknown_argmax_classes:
-                parts.extend(_query_unknown_as(c, keyframe_id, sightings, state, config, funnels))
+            if query:
+                parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
             continue
         transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
@@ -256,7 +256,7 @@ def _process_keyframe(
     return parts
 
 
-def _query_unknown_as(
+def _query_borrowers(
     c: str,
     keyframe_id: int,
     sightings: list,
@@ -264,14 +264,16 @@ def _query_unknown_as(
     config: InferConfig,
     funnels: dict[str, Funnel],
 ) -> list[dict[str, Any]]:
-    """Heights for the 'unknown' sightings whose arg-max class is `c`, from c's model
-    (query only: an uncertain object never teaches a class model)."""
-    routed = [s for s in sightings if s.class_name == UNKNOWN_CLASS and s.argmax_class_name == c]
-    funnel = funnels.setdefault(UNKNOWN_CLASS, Funnel())
-    found = update_and_query_beam_class(state, routed, config, funnel, update=False)
-    if found is None:
-        return []
-    return [tag_points(found[0], keyframe_id, found[1], UNKNOWN_CLASS, "inferred")]
+    """Heights from c's model for the objects that borrow it (`borrowed_sightings`);
+    the points keep their own class, the model is not updated."""
+    parts = []
+    for borrower, routed in borrowed_sightings(c, sightings, config):
+        found = update_and_query_beam_class(
+            state, routed, config, funnels.setdefault(borrower, Funnel()), update=False
+        )
+        if found is not None:
+            parts.append(tag_points(found[0], keyframe_id, found[1], borrower, "inferred"))
+    return parts
 
 
 def tag_points(

@@ -55,6 +55,7 @@ from stages.infer.inputs import column, object_feature_rows, sightings
 from stages.infer.prediction import (
     ClassState,
     Funnel,
+    borrowed_sightings,
     register_and_query,
     update_and_query_beam_class,
 )
@@ -115,21 +116,27 @@ def _query(
     """Eq. 8-9 for one frame's sightings, models unchanged: (points, object ids, class)."""
     found = []
     for c in config.classes:
-        state, funnel = states[c], funnels.setdefault(c, Funnel())
-        of_class = [s for s in sights if s.class_name == c]
-        if not of_class or not state.model.updated:
+        state = states[c]
+        funnels.setdefault(c, Funnel())
+        if not state.model.updated:
             continue
-        funnel.counts["objects"] += len(of_class)
-        funnel.counts["returns"] += sum(s.range_m.size for s in of_class)
-        funnel.counts["fused_returns"] += sum(int(s.is_fused.sum()) for s in of_class)
-        if config.frame_kind(c) == "beam":
-            res = update_and_query_beam_class(state, of_class, config, funnel, update=False)
+        beam = config.frame_kind(c) == "beam"
+        groups = [(c, [s for s in sights if s.class_name == c])]
+        if beam:
+            groups += borrowed_sightings(c, sights, config)
+        for name, group in groups:
+            if not group:
+                continue
+            funnel = funnels.setdefault(name, Funnel())
+            funnel.counts["objects"] += len(group)
+            funnel.counts["returns"] += sum(s.range_m.size for s in group)
+            funnel.counts["fused_returns"] += sum(int(s.is_fused.sum()) for s in group)
+            if beam:
+                res = update_and_query_beam_class(state, group, config, funnel, update=False)
+            else:
+                res = register_and_query(state, group, config, funnel)
             if res is not None:
-                found.append((res[0], res[1], c))
-            continue
-        res = register_and_query(state, of_class, config, funnel)
-        if res is not None:
-            found.append((res[0], res[1], c))
+                found.append((res[0], res[1], name))
     return found
 
 
@@ -312,7 +319,8 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 STAGE = Stage(
     name="submaps",
     # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
-    version=2,
+    # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
+    version=3,
     config=SubmapsConfig,
     inputs=(
         "dataset",
