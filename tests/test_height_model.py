@@ -109,3 +109,32 @@ def test_threshold_filters_vague_posteriors() -> None:
     assert np.isnan(q.z_high_m[0])
     q = m.query(uv[:1], threshold=0.1)
     assert 0.1 <= q.z_high_m[0] <= 1.3
+
+
+def test_coarse_fallback_answers_only_where_the_fine_cell_is_empty() -> None:
+    """`CoarseFallbackModel`: a fine cell with data answers as the plain model does; an
+    empty fine cell inside a coarse cell with data takes the coarse answer; a position
+    with no data at either level predicts nothing."""
+    from stages.infer.height_model import CoarseFallbackModel
+
+    z = z_grid(-2.0, 2.0, 0.05)
+    plain = HeightModel(z, 0.08, 0.1, 0.1, 0.08)
+    model = CoarseFallbackModel(HeightModel(z, 0.08, 0.1, 0.1, 0.08), factor=2)
+    trained = np.array([[0.0, 0.0], [1.0, 1.0]])
+    heights = np.array([-0.5, 0.7])
+    for m in (plain, model):
+        for _ in range(3):
+            m.update(trained, heights)
+    # (0.06, 0): its own 0.1 m cell (centred on 0.1) is empty, its 0.2 m cell holds (0, 0);
+    # (3, 3): nothing near it at either level.
+    probe = np.array([[0.0, 0.0], [1.0, 1.0], [0.06, 0.0], [3.0, 3.0]])
+    got, ref = model.query(probe, 0.3), plain.query(probe, 0.3)
+    np.testing.assert_array_equal(got.seen, [True, True, True, False])
+    np.testing.assert_array_equal(ref.seen, [True, True, False, False])
+    np.testing.assert_array_equal(got.z_low_m[:2], ref.z_low_m[:2])
+    np.testing.assert_array_equal(got.z_high_m[:2], ref.z_high_m[:2])
+    assert got.z_low_m[2] == pytest.approx(-0.5, abs=0.05)
+    assert np.isnan(got.z_low_m[3]) and np.isnan(got.z_high_m[3])
+    assert model.n_cells == plain.n_cells == 2 and model.updated
+    with pytest.raises(ValueError, match="factor"):
+        CoarseFallbackModel(HeightModel(z), factor=1)

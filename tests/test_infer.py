@@ -19,7 +19,7 @@ from sim.dataset import SimRun, simulate
 from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
 from stages.infer.object_frame import object_origin, to_object_frame
-from stages.infer.stage import STAGE, InferConfig, infer_points
+from stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
 
 REPO = Path(__file__).resolve().parents[1]
 OBJECT_CLASSES = (1, 2, 3, 4, 5)
@@ -442,10 +442,15 @@ def real_stage_tables(run: SimRun, spacing_m: float) -> tuple[pa.Table, ...]:
     return pa.Table.from_pylist(objects), pa.concat_tables(links), features, fused
 
 
-def test_pier_through_real_features_and_fusion(pier) -> None:
+@pytest.fixture(scope="module")
+def pier_real(pier) -> tuple[pa.Table, ...]:
+    return real_stage_tables(pier[0], 4.0)
+
+
+def test_pier_through_real_features_and_fusion(pier, pier_real) -> None:
     """CFAR features and orthogonal fusion from the real stages (`real_stage_tables`)."""
     run, tt = pier
-    objects, links, features, fused = real_stage_tables(run, 4.0)
+    objects, links, features, fused = pier_real
     points = infer_points(objects, links, features, fused, InferConfig(classes=PILING_CLASSES))
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     fused_world = to_world(fused, tt.T_world_sonar)
@@ -456,6 +461,31 @@ def test_pier_through_real_features_and_fusion(pier) -> None:
     assert d_inferred <= 0.15
     assert d_inferred <= 1.5 * d_fused
     assert n_voxels(np.vstack([fused_world, inferred_world])) >= 3 * n_voxels(fused_world)
+
+
+def test_coarse_fallback_fills_unseen_cells_on_the_true_surface(pier, pier_real) -> None:
+    """`coarse_fallback_factor=2`: returns whose model cell is empty take the cell twice
+    as large around it; more of the piling is predicted, still on the true mesh."""
+    run, tt = pier
+    objects, links, features, fused = pier_real
+
+    def inferred_world(factor: int) -> tuple[np.ndarray, dict]:
+        config = InferConfig(classes=PILING_CLASSES, coarse_fallback_factor=factor)
+        points, stats = infer_mission(objects, links, features, fused, config)
+        inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
+        return to_world(inferred, tt.T_world_sonar), stats
+
+    (plain, plain_stats), (filled, filled_stats) = inferred_world(1), inferred_world(2)
+    for c in PILING_CLASSES:
+        before, after = plain_stats["classes"][c], filled_stats["classes"][c]
+        assert after["queried_returns"] == before["queried_returns"]
+        assert after["seen_returns"] > before["seen_returns"]
+    d_fused = np.median(run.world.distance(to_world(fused, tt.T_world_sonar)))
+    d_plain, d_filled = run.world.distance(plain), run.world.distance(filled)
+    assert len(filled) > len(plain)
+    assert np.median(d_filled) <= 1.5 * d_fused
+    assert np.median(d_filled) <= np.median(d_plain) + 0.02
+    assert n_voxels(filled[d_filled <= 0.1]) > n_voxels(plain[d_plain <= 0.1])
 
 
 def test_config_refuses_unknown_classes_and_keys() -> None:

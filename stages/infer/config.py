@@ -31,6 +31,13 @@ DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
     "truss": "beam",
     UNKNOWN_CLASS: "beam",
 }
+DEFAULT_COARSE_FALLBACK_FACTOR = 2
+"""The piling models' cells are empty for a quarter to a third of the returns they are
+asked about (mostly heights of 3-5 m and ranges past 20 m, where few fused points fall).
+Factor 2, the first coarser level, answers part of those: on the ten marina trials
+(true poses) piling accurate voxels go from 3.7x to 4.2x the standard map's at 4 m
+keyframes and from 3.6x to 3.9x at 2 m, with the inferred piling median error at
+0.99-1.01x the fused (0.96-0.98x without)."""
 DEFAULT_BORROW_MIN_EXTENT_M = 8.0
 """Borrowing (`borrowed_models`, `unknown_argmax_classes`, both off by default): the
 classifier calls about a third of the marina's true seawall returns truss or unknown, and
@@ -112,6 +119,14 @@ class InferConfig(StageConfig):
     range_cell_m: float = Field(0.1, ge=0.001, le=100.0, description="model cell size along range")
     cross_range_cell_m: float = Field(
         0.05, ge=0.001, le=100.0, description="model cell size across range"
+    )
+    coarse_fallback_factor: int = Field(
+        DEFAULT_COARSE_FALLBACK_FACTOR,
+        ge=1,
+        le=64,
+        description="object frames: a query whose cell has no data takes the answer of the"
+        " cell this many times larger that contains it"
+        " (stages.infer.height_model.CoarseFallbackModel); 1: none (the paper)",
     )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"

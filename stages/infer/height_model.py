@@ -41,7 +41,7 @@ from stages._lazy import lazy
 
 special = lazy("scipy.special")
 
-__all__ = ["HeightModel", "HeightQuery", "UpdateRule", "z_grid"]
+__all__ = ["CoarseFallbackModel", "HeightModel", "HeightQuery", "UpdateRule", "z_grid"]
 
 logger = logging.getLogger(__name__)
 
@@ -281,3 +281,60 @@ class HeightModel:
         grown = np.empty((max(n_rows, 2 * self._mass.shape[0]), self.z_m.size))
         grown[: self._keys.size] = self._mass[: self._keys.size]
         self._mass = grown
+
+
+class CoarseFallbackModel:
+    """A `HeightModel` that answers from a twin with coarser cells where its own cell
+    never received a measurement: a second grid, `factor` times coarser along both axes
+    and centred on the origin like the first.
+
+    Both models learn every update. A query is answered by the fine cell when it has
+    data, else by the coarse cell that contains the position, else not at all: a
+    position whose coarse cell is empty too still predicts nothing (Eq. 8-9 need data).
+
+    Args:
+        fine: the model whose cells answer first.
+        factor: coarse cell size over the fine one, along both axes (>= 2).
+    """
+
+    def __init__(self, fine: HeightModel, factor: int) -> None:
+        if factor < 2:
+            raise ValueError(f"coarse factor must be >= 2, got {factor}")
+        self.fine = fine
+        self.coarse = HeightModel(
+            fine.z_m,
+            fine.sigma_m,
+            *(fine.cell_m * factor),
+            fine.window_m,
+            fine.update_rule,
+            fine.prior_weight,
+        )
+
+    @property
+    def n_cells(self) -> int:
+        """Fine cells that received at least one measurement."""
+        return self.fine.n_cells
+
+    @property
+    def updated(self) -> bool:
+        return self.fine.updated
+
+    def update(self, uv_m: np.ndarray, z_m: np.ndarray) -> int:
+        """Eq. 7 in both models; returns the number of fine cells updated."""
+        self.coarse.update(uv_m, z_m)
+        return self.fine.update(uv_m, z_m)
+
+    def query(self, uv_m: np.ndarray, threshold: float) -> HeightQuery:
+        """The fine model's answer, the coarse one's where the fine cell is unseen."""
+        uv = np.asarray(uv_m, dtype=np.float64).reshape(-1, 2)
+        fine = self.fine.query(uv, threshold)
+        fill = ~fine.seen
+        if not fill.any():
+            return fine
+        coarse = self.coarse.query(uv[fill], threshold)
+        merged = []
+        for name in ("z_low_m", "conf_low", "z_high_m", "conf_high", "seen"):
+            value = getattr(fine, name).copy()
+            value[fill] = getattr(coarse, name)
+            merged.append(value)
+        return HeightQuery(*merged)

@@ -69,7 +69,7 @@ import pyarrow.compute as pc
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
 from stages.infer.config import FrameKind, InferConfig
-from stages.infer.height_model import HeightModel, z_grid
+from stages.infer.height_model import CoarseFallbackModel, HeightModel, z_grid
 from stages.infer.inputs import (
     column,
     object_feature_rows,
@@ -211,7 +211,10 @@ def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> Height
     else:
         cells = (config.range_cell_m, config.cross_range_cell_m)
         rule = "product"
-    return HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
+    model = HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
+    if kind == "object" and config.coarse_fallback_factor > 1:
+        return CoarseFallbackModel(model, config.coarse_fallback_factor)  # type: ignore[return-value]
+    return model
 
 
 def _process_keyframe(
