@@ -100,18 +100,31 @@ def test_the_loss_accounting_matches_the_output_and_unseen_cells_predict_nothing
     assert stats["horizontal_returns"] >= stats["clustered_returns"] > 0
 
 
-def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_it() -> None:
+@pytest.fixture(scope="module")
+def quay():
+    return _mission("quay", seed=0)
+
+
+def _every_third_wall_as(objects: pa.Table, class_name: str) -> tuple[pa.Table, np.ndarray]:
+    """Every third seawall object relabelled `class_name`, as a classifier's confusion;
+    also the true names."""
+    names = np.asarray(objects.column("class_name").to_pylist(), dtype=object)
+    confused = (names == "seawall") & (np.arange(names.size) % 3 == 0)
+    relabelled = objects.set_column(
+        objects.schema.get_field_index("class_name"),
+        "class_name",
+        pa.array(np.where(confused, class_name, names).tolist()),
+    )
+    return relabelled, names
+
+
+def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_it(quay) -> None:
     """`unknown_argmax_classes`: an object the classifier was not sure of, whose arg-max
     class is seawall, gets heights from the seawall model (on the true wall), and never
     updates it."""
-    run, T, (objects, links, features, fused) = _mission("quay", seed=0)
-    names = np.asarray(objects.column("class_name").to_pylist(), dtype=object)
-    doubted = (names == "seawall") & (np.arange(names.size) % 3 == 0)
-    objects = objects.set_column(
-        objects.schema.get_field_index("class_name"),
-        "class_name",
-        pa.array(np.where(doubted, "unknown", names).tolist()),
-    ).append_column("argmax_class_name", pa.array(names.tolist()))
+    run, T, (objects, links, features, fused) = quay
+    objects, names = _every_third_wall_as(objects, "unknown")
+    objects = objects.append_column("argmax_class_name", pa.array(names.tolist()))
     plain, plain_stats = infer_mission(objects, links, features, fused, NO_BORROWING)
     routed, routed_stats = infer_mission(
         objects,
@@ -141,18 +154,12 @@ def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_i
         InferConfig(unknown_argmax_classes=("cylindrical_piling",))
 
 
-def test_a_class_without_a_model_can_borrow_a_beam_class_model_without_teaching_it() -> None:
+def test_a_class_without_a_model_can_borrow_a_beam_class_model_without_teaching_it(quay) -> None:
     """`borrowed_models`: objects labelled truss (on the marina mostly wall sections the
     classifier confused) take heights from the seawall model, on the true wall, keep
     their own class, and never update the model."""
-    run, T, (objects, links, features, fused) = _mission("quay", seed=0)
-    names = np.asarray(objects.column("class_name").to_pylist(), dtype=object)
-    confused = (names == "seawall") & (np.arange(names.size) % 3 == 0)
-    objects = objects.set_column(
-        objects.schema.get_field_index("class_name"),
-        "class_name",
-        pa.array(np.where(confused, "truss", names).tolist()),
-    )
+    run, T, (objects, links, features, fused) = quay
+    objects, _ = _every_third_wall_as(objects, "truss")
     plain, plain_stats = infer_mission(objects, links, features, fused, NO_BORROWING)
 
     def lent_config(min_extent_m: float) -> InferConfig:
