@@ -205,10 +205,11 @@ def _truth_columns(truth: np.ndarray, structure_classes: list[str]) -> dict[str,
     names = [CLASS_NAMES[c] for c in truth]
     known = np.array([n in structure_classes for n in names], bool)
     k = len(names)
+    labels = [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)]
     return {
         "class_id": np.where(known, truth, UNKNOWN_CLASS_ID).astype(np.int64),
-        "class_name": [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)],
-        "argmax_class_name": [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)],
+        "class_name": labels,
+        "argmax_class_name": list(labels),
         "probability": np.ones(k),
         "probability_var": np.zeros(k),
         "single_view_probability": np.ones(k),

@@ -40,7 +40,7 @@ keyframes and from 3.6x to 3.9x at 2 m, with the inferred piling median error at
 0.99-1.01x the fused (0.96-0.98x without)."""
 DEFAULT_BORROW_MIN_EXTENT_M = 8.0
 """Borrowing (`borrowed_models`, `unknown_argmax_classes`, both off by default): the
-classifier calls about a third of the marina's true seawall returns truss or unknown, and
+classifier calls about 30 % of the marina's true seawall returns truss or unknown, and
 such objects may take heights from the seawall model when their returns span at least
 this long (extended structure, the beam frame's premise). 8 m is the smallest extent on a
 2 m grid at which the borrowed heights of both classes, pooled over marina seeds 0-4 (true

@@ -303,11 +303,12 @@ class CoarseFallbackModel:
         self.fine = fine
         self.coarse = HeightModel(
             fine.z_m,
-            fine.sigma_m,
-            *(fine.cell_m * factor),
-            fine.window_m,
-            fine.update_rule,
-            fine.prior_weight,
+            sigma_m=fine.sigma_m,
+            range_cell_m=float(fine.cell_m[0] * factor),
+            cross_range_cell_m=float(fine.cell_m[1] * factor),
+            window_m=fine.window_m,
+            update_rule=fine.update_rule,
+            prior_weight=fine.prior_weight,
         )
 
     @property

@@ -17,7 +17,7 @@ import numpy as np
 from schemas.classes import UNKNOWN_CLASS
 from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.config import InferConfig
-from stages.infer.height_model import HeightModel, HeightQuery
+from stages.infer.height_model import CoarseFallbackModel, HeightModel, HeightQuery
 from stages.infer.inputs import (
     Sighting,
 )
@@ -37,7 +37,7 @@ class ClassState:
     """Reference frame and height model of one class."""
 
     frame: ClassFrame
-    model: HeightModel
+    model: HeightModel | CoarseFallbackModel
 
 
 FUNNEL_STEPS = (

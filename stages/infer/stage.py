@@ -203,7 +203,9 @@ def learn_and_infer(
     return points_table(parts), stats, states
 
 
-def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> HeightModel:
+def _height_model(
+    z: np.ndarray, config: InferConfig, kind: FrameKind
+) -> HeightModel | CoarseFallbackModel:
     """A class's height model; beam frames have cells (s, R0) (`stages.infer.beam_frame`)."""
     if kind == "beam":
         cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
@@ -213,7 +215,7 @@ def _height_model(z: np.ndarray, config: InferConfig, kind: FrameKind) -> Height
         rule = "product"
     model = HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
     if kind == "object" and config.coarse_fallback_factor > 1:
-        return CoarseFallbackModel(model, config.coarse_fallback_factor)  # type: ignore[return-value]
+        return CoarseFallbackModel(model, config.coarse_fallback_factor)
     return model
 
 
