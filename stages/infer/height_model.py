@@ -119,6 +119,9 @@ class HeightModel:
         # Per cell: the normalised log posterior (product rule), or the Dirichlet counts
         # themselves (mixture rule: linear, so a query normalises by one division).
         self._mass = np.empty((16, self.z_m.size), dtype=np.float64)
+        # Each cell's posterior probabilities, kept beside its mass: cells are queried
+        # far more often than updated, so queries gather them instead of exponentiating.
+        self._prob = np.empty_like(self._mass)
         self._split = int(np.searchsorted(self.z_m, 0.0, side="right"))  # z <= 0: [0, split)
         self.n_updates = 0
 
@@ -183,6 +186,7 @@ class HeightModel:
             # Bayes' rule: posterior = likelihood x prior, normalised (log space).
             post = self._mass[rows] + cell_log_lik
             self._mass[rows] = post - special.logsumexp(post, axis=1, keepdims=True)
+        self._prob[rows] = self._mass_to_probabilities(self._mass[rows])
         self.n_updates += 1
         return int(keys.size)
 
@@ -195,14 +199,17 @@ class HeightModel:
         """
         rows = self._find(self.cell_keys(uv_m))
         seen = rows >= 0
-        prob = self._probabilities(rows[seen])
+        return self._answer(self._probabilities(rows[seen]), seen, threshold)
+
+    def _answer(self, prob: np.ndarray, seen: np.ndarray, threshold: float) -> HeightQuery:
+        """Eq. 8-9 from the (k, n_z) posteriors of the k positions of n that are `seen`."""
         cdf = None
         if self.update_rule == "product":
             cdf = np.concatenate([np.zeros((prob.shape[0], 1)), np.cumsum(prob, axis=1)], axis=1)
         out = []
         for half in (slice(0, self._split), slice(self._split, self.z_m.size)):
-            z = np.full(rows.size, np.nan)
-            conf = np.full(rows.size, np.nan)
+            z = np.full(seen.size, np.nan)
+            conf = np.full(seen.size, np.nan)
             z[seen], conf[seen] = self._half_map(prob, cdf, half, threshold)
             out += [z, conf]
         return HeightQuery(*out, seen=seen)
@@ -243,7 +250,9 @@ class HeightModel:
 
     def _probabilities(self, rows: np.ndarray) -> np.ndarray:
         """(n, n_z) posterior probabilities of cells (rows of the mass array)."""
-        mass = self._mass[rows]
+        return self._prob[rows]
+
+    def _mass_to_probabilities(self, mass: np.ndarray) -> np.ndarray:
         if self.update_rule == "mixture":
             return mass / mass.sum(axis=1, keepdims=True)
         return np.exp(mass)
@@ -268,6 +277,9 @@ class HeightModel:
                 self._mass[n_old : n_old + n_new] = self.prior_weight / self.z_m.size
             else:
                 self._mass[n_old : n_old + n_new] = np.log(1.0 / self.z_m.size)
+            self._prob[n_old : n_old + n_new] = self._mass_to_probabilities(
+                self._mass[n_old : n_old + n_new]
+            )
             self._keys = np.concatenate([self._keys, keys[new]])
             self._order = np.argsort(self._keys, kind="stable")
             self._sorted_keys = self._keys[self._order]
@@ -275,12 +287,14 @@ class HeightModel:
         return rows
 
     def _reserve(self, n_rows: int) -> None:
-        """Grow the posterior array geometrically to hold n_rows cells."""
+        """Grow the mass and probability arrays geometrically to hold n_rows cells."""
         if n_rows <= self._mass.shape[0]:
             return
-        grown = np.empty((max(n_rows, 2 * self._mass.shape[0]), self.z_m.size))
-        grown[: self._keys.size] = self._mass[: self._keys.size]
-        self._mass = grown
+        n_old, size = self._keys.size, max(n_rows, 2 * self._mass.shape[0])
+        for name in ("_mass", "_prob"):
+            grown = np.empty((size, self.z_m.size))
+            grown[:n_old] = getattr(self, name)[:n_old]
+            setattr(self, name, grown)
 
 
 class CoarseFallbackModel:
@@ -326,16 +340,18 @@ class CoarseFallbackModel:
         return self.fine.update(uv_m, z_m)
 
     def query(self, uv_m: np.ndarray, threshold: float) -> HeightQuery:
-        """The fine model's answer, the coarse one's where the fine cell is unseen."""
+        """The fine model's answer, the coarse one's where the fine cell is unseen
+        (one MAP pass over the posteriors gathered from both)."""
         uv = np.asarray(uv_m, dtype=np.float64).reshape(-1, 2)
-        fine = self.fine.query(uv, threshold)
-        fill = ~fine.seen
-        if not fill.any():
-            return fine
-        coarse = self.coarse.query(uv[fill], threshold)
-        merged = []
-        for name in ("z_low_m", "conf_low", "z_high_m", "conf_high", "seen"):
-            value = getattr(fine, name).copy()
-            value[fill] = getattr(coarse, name)
-            merged.append(value)
-        return HeightQuery(*merged)
+        rows = self.fine._find(self.fine.cell_keys(uv))
+        in_fine = rows >= 0
+        fill = np.flatnonzero(~in_fine)
+        coarse_rows = self.coarse._find(self.coarse.cell_keys(uv[fill]))
+        in_coarse = coarse_rows >= 0
+        seen = in_fine.copy()
+        seen[fill[in_coarse]] = True
+        slot = np.cumsum(seen) - 1  # row of each seen position in `prob`
+        prob = np.empty((int(seen.sum()), self.fine.z_m.size))
+        prob[slot[in_fine]] = self.fine._probabilities(rows[in_fine])
+        prob[slot[fill[in_coarse]]] = self.coarse._probabilities(coarse_rows[in_coarse])
+        return self.fine._answer(prob, seen, threshold)
