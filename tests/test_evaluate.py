@@ -296,3 +296,31 @@ def test_per_class_accounting_gives_points_the_class_of_the_nearest_true_surface
     assert whole["semantic"]["voxels"] == voxels(xyz)
     assert whole["visible_samples"] >= rnd["visible_samples"] + square["visible_samples"]
     assert "## Coverage by true class" in out["report"].decode()
+
+
+def test_the_error_budget_is_reported_by_assigned_class() -> None:
+    """`per_class["assigned_classes"]`: by the class the classifier gave (the map's
+    `class_name`), the fused and inferred medians and their ratio, the per-class budget."""
+    centroid, normal = square_piling_faces()
+    mesh = decode_mesh_ply(tiny_ply())
+    round_pts = surface_samples(mesh, np.array([CLASS_IDS["cylindrical_piling"]]), 200.0, seed=3)
+    round_pts = round_pts[(round_pts[:, 2] < -1) & (round_pts[:, 2] > -4)]
+    xyz = np.r_[centroid + 0.1 * normal, centroid + 0.3 * normal, round_pts]
+    n = len(centroid)
+    source = np.array(["fused"] * n + ["inferred"] * (n + len(round_pts)))
+    assigned = ["rectangular_piling"] * (2 * n) + ["unknown"] * len(round_pts)
+    m = map_table(xyz, source)
+    m = m.set_column(m.schema.get_field_index("class_name"), "class_name", pa.array(assigned))
+    out = STAGE.run(
+        EvaluateConfig(), stage_inputs(m.sort_by([(k, "ascending") for k in MAP_SORT_KEYS]), True)
+    )
+    budget = out["metrics"]["per_class"]["assigned_classes"]
+    square, unknown = budget["rectangular_piling"], budget["unknown"]
+    assert (square["fused_points"], square["inferred_points"]) == (n, n)
+    assert square["fused_median_error_m"] == pytest.approx(0.1, abs=1e-4)
+    assert square["inferred_median_error_m"] == pytest.approx(0.3, abs=1e-4)
+    assert square["inferred_over_fused"] == pytest.approx(3.0, abs=1e-2)
+    assert unknown["fused_points"] == 0 and unknown["inferred_over_fused"] is None
+    assert unknown["inferred_median_error_m"] < 0.01
+    assert "### Error by assigned class" in out["report"].decode()
+    json.dumps(out["metrics"], allow_nan=False)

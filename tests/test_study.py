@@ -17,6 +17,7 @@ from pipeline.experiments.study import write_study
 from pipeline.experiments.study_fig4 import box_stats, pooled_errors
 from pipeline.experiments.study_tables import (
     PAPER_CROSS_RATIO,
+    assigned_class_rows,
     class_rows,
     cross_ratio_rows,
     table_i_rows,
@@ -69,6 +70,23 @@ def _summary(standard: int, semantic: int, scale: int = 1, per_class: bool = Tru
                 "rectangular_piling": _class(20 * scale, 100 * scale, 16, 60, 0.2, 0.8, 300),
                 "seafloor": _class(500, 500, 400, 400, 0.3, 0.3, 1000),
                 "all_structure": _class(30 * scale, 300 * scale, 24, 210, 0.175, 0.725, 400),
+            },
+            "assigned_classes": {
+                "cylindrical_piling": {
+                    "fused_median_error_m": 0.05,
+                    "inferred_median_error_m": 0.05 * scale,
+                    "inferred_over_fused": float(scale),
+                },
+                "rectangular_piling": {
+                    "fused_median_error_m": 0.04,
+                    "inferred_median_error_m": 0.06,
+                    "inferred_over_fused": 1.5,
+                },
+                "unknown": {
+                    "fused_median_error_m": 0.08,
+                    "inferred_median_error_m": None,
+                    "inferred_over_fused": None,
+                },
             },
         }
     return {"voxels": {"standard": standard, "semantic": semantic}, "metrics": metrics}
@@ -184,6 +202,19 @@ def test_class_rows_mean_over_trials_and_pilings_together() -> None:
     assert class_rows([o.to_json() for o in _outcomes()][:0]) == []
 
 
+def test_assigned_class_rows_mean_the_error_budget_over_trials() -> None:
+    runs = [o.to_json() for o in _outcomes()]
+    rows = assigned_class_rows(runs, ["default", "paper"])
+    d4 = {r["class"]: r for r in rows if (r["protocol"], r["spacing_m"]) == ("default", "4")}
+    assert list(d4) == ["cylindrical_piling", "rectangular_piling", "unknown"]  # no sums
+    cyl = d4["cylindrical_piling"]
+    assert cyl["runs"] == 2 and cyl["inferred_over_fused"] == pytest.approx(1.5)  # (1 + 2) / 2
+    assert cyl["inferred_median_error_m"] == pytest.approx(0.075)
+    assert d4["unknown"]["inferred_over_fused"] is None
+    assert d4["unknown"]["fused_median_error_m"] == pytest.approx(0.08)
+    assert assigned_class_rows(runs[:0]) == []
+
+
 def _errors_file(path: Path, fused: np.ndarray, inferred: np.ndarray) -> dict[str, str]:
     path.mkdir(parents=True)
     table = pa.table(
@@ -251,6 +282,8 @@ def test_write_study_table_figure_and_json(tmp_path: Path) -> None:
         "### paper, 2 m keyframes",
         "| pilings (both) | 45 | 450 | 10.0x |",
         "| 2.50x |",  # median error inferred / fused
+        "## Error by assigned class",
+        "| default | 4 m | cylindrical_piling | 2 | 0.050 | 0.075 | 1.50x |",
         "Trials: 2.",
     ):
         assert needle in text, needle

@@ -29,6 +29,7 @@ from pipeline.experiments.study_tables import (
     PAPER_CROSS_RATIO,
     PAPER_TABLE_I,
     PILINGS_ROW,
+    assigned_class_rows,
     class_rows,
     cross_ratio_rows,
     protocol_of,
@@ -198,6 +199,28 @@ def render_markdown(
                 for r in classes
                 if (r["protocol"], r["spacing_m"]) == (protocol, spacing)
             ]  # fmt: skip
+    budget = study.get("assigned_classes") or []
+    if budget:
+        out += [
+            "",
+            "## Error by assigned class",
+            "",
+            "The class the classifier gave each point's object; mean over trials of the",
+            "fused and inferred medians and of their ratio (the per-class error budget).",
+            "",
+            *_head(
+                "protocol", "spacing", "assigned class", "runs", "median error fused m",
+                "median error inferred m", "inferred / fused",
+            ),
+        ]  # fmt: skip
+        out += [
+            _row(
+                r["protocol"], f"{r['spacing_m']} m", r["class"], r["runs"],
+                _num(r["fused_median_error_m"], ".3f"), _num(r["inferred_median_error_m"], ".3f"),
+                _num(r["inferred_over_fused"], ".2f", "x"),
+            )
+            for r in budget
+        ]  # fmt: skip
     out += [
         "",
         "## Runs",
@@ -243,6 +266,7 @@ def write_study(
         "table_i": table_i_rows(doc["groups"], names),
         "cross_ratio": cross_ratio_rows(doc["groups"], names),
         "per_class": class_rows(doc["runs"], names),
+        "assigned_classes": assigned_class_rows(doc["runs"], names),
         "errors": error_rows(pooled, names),
         "paper": {
             "table_i": {s: {k: list(v) for k, v in m.items()} for s, m in PAPER_TABLE_I.items()},

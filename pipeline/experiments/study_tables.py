@@ -21,6 +21,7 @@ __all__ = [
     "PAPER_TABLE_I",
     "PILINGS_ROW",
     "SPACING_KEY",
+    "assigned_class_rows",
     "class_rows",
     "cross_ratio_rows",
     "spacing_of",
@@ -298,5 +299,45 @@ def class_rows(
                     if row["semantic_voxels"] is not None and row["standard_voxels"] is not None
                     else None
                 )
+                rows.append(row)
+    return rows
+
+
+def assigned_class_rows(
+    runs: Sequence[Mapping[str, Any]], protocols: Sequence[str] | None = None
+) -> list[dict[str, Any]]:
+    """Per protocol x spacing x assigned class: the fused and inferred median errors and
+    their ratio (the per-class error budget), means over the trials that report them
+    (`summary.metrics.per_class.assigned_classes`)."""
+    cells: dict[tuple[str, str], list[Mapping[str, Any]]] = {}
+    for run in runs:
+        metrics = (run.get("summary") or {}).get("metrics") or {}
+        budget = (metrics.get("per_class") or {}).get("assigned_classes")
+        if run.get("status") == "ok" and budget:
+            cell = (protocol_of(run), spacing_of(run.get("overrides") or {}))
+            cells.setdefault(cell, []).append(budget)
+    order = protocol_order(
+        [r for r in runs if (protocol_of(r), spacing_of(r.get("overrides") or {})) in cells],
+        protocols,
+    )
+    rows: list[dict[str, Any]] = []
+    for protocol in order:
+        for spacing in sorted((s for p, s in cells if p == protocol), key=spacing_sort):
+            budgets = cells[(protocol, spacing)]
+            for name in _class_order(set().union(*(set(b) for b in budgets))):
+                if name == PILINGS_ROW:  # a ratio of medians does not add up over classes
+                    continue
+                entries = [b[name] for b in budgets if name in b]
+                row: dict[str, Any] = {
+                    "protocol": protocol, "spacing_m": spacing, "class": name,
+                    "runs": len(entries),
+                }  # fmt: skip
+                for key in (
+                    "fused_median_error_m",
+                    "inferred_median_error_m",
+                    "inferred_over_fused",
+                ):
+                    vals = [float(v) for e in entries if (v := e.get(key)) is not None]
+                    row[key] = sum(vals) / len(vals) if vals else None
                 rows.append(row)
     return rows

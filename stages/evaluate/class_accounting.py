@@ -15,6 +15,11 @@ class present and for "all structure" (every class but the seafloor) both maps r
   view, not occluded) within `tolerance_m` of a map point;
 - median error of the class's points, and for the inferred points alone.
 
+By *assigned* class (the class the classifier gave the point's object, `class_name` of
+the map) it also reports the median error of the fused and of the inferred points and
+their ratio (`assigned_classes`): the per-class error budget that decides which classes
+`infer` models by default (`stages.infer.config.DEFAULT_CLASSES`) is judged on these.
+
 Errors and classes are taken at the positions the evaluation judges (after the SLAM
 trajectory's SE(2) alignment when there is one, `frame`), voxels at the map's own
 positions, so the voxel counts add up to `summary.json`'s.
@@ -39,6 +44,7 @@ o3d = lazy("open3d")
 
 __all__ = [
     "ALL_STRUCTURE",
+    "assigned_class_errors",
     "class_table",
     "face_classes",
     "nearest_surface_class",
@@ -157,6 +163,26 @@ def remember_last(
     return remembered
 
 
+def assigned_class_errors(map_table: pa.Table, error_m: np.ndarray) -> dict[str, Any]:
+    """Median error of the fused and inferred points of every assigned class, and the
+    inferred over the fused median (None where either set is empty)."""
+    names = np.asarray(map_table.column("class_name").to_pylist(), dtype=object)
+    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
+    out: dict[str, Any] = {}
+    for name in sorted(set(names.tolist())):
+        of_class = names == name
+        fused = _median(error_m[of_class & (source == "fused")])
+        inferred = _median(error_m[of_class & (source == "inferred")])
+        out[name] = {
+            "fused_points": int((of_class & (source == "fused")).sum()),
+            "inferred_points": int((of_class & (source == "inferred")).sum()),
+            "fused_median_error_m": fused,
+            "inferred_median_error_m": inferred,
+            "inferred_over_fused": inferred / fused if inferred is not None and fused else None,
+        }
+    return out
+
+
 def per_class_metrics(
     map_table: pa.Table,
     mesh: Mesh,
@@ -195,4 +221,5 @@ def per_class_metrics(
         "classes": class_table(
             point_class, error_m, fused, voxels, sample_class, distance, tolerance_m
         ),
+        "assigned_classes": assigned_class_errors(map_table, error_m),
     }

@@ -228,6 +228,31 @@ def _per_class_table(metrics: dict[str, Any]) -> list[str]:
             f" | {_fmt(sem.get('completeness'))} | {_fmt(std.get('median_error_m'))}"
             f" | {_fmt((c.get('inferred') or {}).get('median_error_m'))} |"
         )
+    return [*lines, "", *_assigned_class_table(per_class.get("assigned_classes") or {})]
+
+
+def _assigned_class_table(classes: Mapping[str, Any]) -> list[str]:
+    """Markdown lines of the error budget by assigned class, or none."""
+    if not classes:
+        return []
+    lines = [
+        "### Error by assigned class",
+        "",
+        "The class the classifier gave each point's object; a class's inferred median over"
+        " its fused median is the per-class error budget (1.5x) that decides the classes"
+        " inferred by default.",
+        "",
+        "| assigned class | fused points | inferred points | median m fused | median m inferred"
+        " | inferred / fused |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, c in classes.items():
+        ratio = c.get("inferred_over_fused")
+        lines.append(
+            f"| {name} | {_fmt(c.get('fused_points'))} | {_fmt(c.get('inferred_points'))}"
+            f" | {_fmt(c.get('fused_median_error_m'))} | {_fmt(c.get('inferred_median_error_m'))}"
+            f" | {'-' if ratio is None else f'{ratio:.2f}x'} |"
+        )
     return [*lines, ""]
 
 

@@ -376,8 +376,8 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="evaluate",
-    # 6: metrics["submaps"], keyframes-only vs with submap frames (issue 21); input submaps.stats
-    version=6,
+    # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
+    version=7,
     config=EvaluateConfig,
     inputs=(
         "voxelize.map",
