@@ -12,10 +12,10 @@ with SLAM poses too), then from `metrics.json`:
 
     .venv/bin/python benchmarks/structure_targets.py [D.mcap ...] [--slam] [--set k=v ...]
 
-Without recordings it simulates seed 0 of the default marina and of the shipyard, quay
-and basin scenes (20 goals each) into data/bench/structure/ once (same scene and seed: same
-bytes). Stages already in the store are reused, so a rerun takes seconds. Prints one
-JSON document on stdout and the table on stderr.
+Without recordings it simulates seed 0 of the default marina and of the shipyard, quay,
+basin and terminal scenes (20 goals each) into data/bench/structure/ once (same scene and
+seed: same bytes). Stages already in the store are reused, so a rerun takes seconds.
+Prints one JSON document on stdout and the table on stderr.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_SCENES = ("marina", "shipyard", "quay", "basin")
+DEFAULT_SCENES = ("marina", "shipyard", "quay", "basin", "terminal")
 GOALS = {"accurate": 5.0, "completeness": 3.0, "error_ratio": 1.2, "inferred_m": 0.10, "class": 1.5}
 
 

@@ -48,8 +48,14 @@ def test_beam_anchor_starts_a_run_per_object_beam_and_surface() -> None:
     np.testing.assert_allclose(offset[:, 1], anchor)
 
 
-def _mission(scene: str, seed: int):
-    config = SimConfig(mission=MissionConfig(n_goals=4, duration_s=150.0))
+def _mission(scene: str, seed: int, goals: int | None = None):
+    """Real stage tables of a mission: 4 goals cut at 150 s, or all of `goals` goals."""
+    mission = (
+        MissionConfig(n_goals=4, duration_s=150.0)
+        if goals is None
+        else MissionConfig(n_goals=goals)
+    )
+    config = SimConfig(mission=mission)
     run = simulate(load_scene(REPO / "configs" / "scenes" / f"{scene}.yaml"), config, seed)
     frames = keyframe_indices(run, 4.0)
     T = {

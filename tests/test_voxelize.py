@@ -135,7 +135,11 @@ def test_points_are_registered_with_eq4_and_above_surface_dropped(scene) -> None
     got = np.c_[m.column("x_m"), m.column("y_m"), m.column("z_m")]
     np.testing.assert_allclose(sorted_rows(got), sorted_rows(below), atol=1e-9)
     dropped = out["summary"]["dropped_points"]
-    assert dropped == {"above_surface": len(world) - len(below), "without_pose": 0}
+    assert dropped == {
+        "above_surface": len(world) - len(below),
+        "without_pose": 0,
+        "contradicted": 0,
+    }
 
 
 def test_standard_map_is_all_fused_points_once_and_classes_come_from_infer(scene) -> None:
