@@ -13,6 +13,7 @@ RSS (`ru_maxrss`) after each stage, so the peak can be traced to the stage that 
 Prints medians over --repeat beside their goals.
 
     .venv/bin/python benchmarks/bench_submaps.py [--repeat 3] [--stride 1] [--dataset D.mcap]
+        [--set section.field=value ...]
 
 Without the demo's recording (`make demo`), the default marina is simulated once into
 data/bench/marina-seed0.mcap (`sonarmap simulate`, same scene and seed: same bytes).
@@ -39,7 +40,7 @@ TIMED = ("features", "fuse", "classify", "infer", "submaps", "voxelize")
 """The stages the target times (keyframes and slam are excluded)."""
 
 
-def _child(dataset: Path, store: Path, stride: int) -> None:
+def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> None:
     """One cold run in this process; prints per-stage wall, CPU and peak RSS as JSON."""
     sys.path.insert(0, str(ROOT))
     from pipeline.api import RunRequest, run_dataset
@@ -60,7 +61,7 @@ def _child(dataset: Path, store: Path, stride: int) -> None:
 
     request = RunRequest(
         dataset=dataset,
-        overrides=[f"keyframes.submap_stride={stride}"],
+        overrides=[f"keyframes.submap_stride={stride}", *overrides],
         store_dir=store,
         until="voxelize",
     )
@@ -91,12 +92,13 @@ def _dataset(path: Path) -> Path:
     return simulated
 
 
-def _one_run(dataset: Path, models: list[Path], stride: int) -> dict:
+def _one_run(dataset: Path, models: list[Path], stride: int, overrides: list[str]) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench_submaps_") as tmp:
         store = Path(tmp) / "store"
         for manifest in models:  # the model only: every mapping stage is computed
             shutil.copytree(manifest.parent, store / "train" / manifest.parent.name)
         cmd = [sys.executable, __file__, "--child", str(dataset), str(store), str(stride)]
+        cmd += overrides
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, check=True)
         doc = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -119,6 +121,7 @@ def _report(runs: list[dict], args: argparse.Namespace) -> dict:
     return {
         "dataset": str(args.dataset),
         "stride": args.stride,
+        "overrides": args.set,
         "repeat": args.repeat,
         "keyframes": first["keyframes"],
         "submap_frames": first["submap_frames"],
@@ -151,20 +154,21 @@ def _report(runs: list[dict], args: argparse.Namespace) -> dict:
 
 
 def main() -> None:
-    if len(sys.argv) == 5 and sys.argv[1] == "--child":
-        _child(Path(sys.argv[2]), Path(sys.argv[3]), int(sys.argv[4]))
+    if len(sys.argv) >= 5 and sys.argv[1] == "--child":
+        _child(Path(sys.argv[2]), Path(sys.argv[3]), int(sys.argv[4]), sys.argv[5:])
         return
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dataset", type=Path, default=ROOT / "data/demo/marina-seed0.mcap")
     ap.add_argument("--model-cache", type=Path, default=ROOT / "data/training/store")
     ap.add_argument("--stride", type=int, default=1)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--set", action="append", default=[], help="config override k=v (repeatable)")
     args = ap.parse_args()
     args.dataset = _dataset(args.dataset)
     models = sorted((args.model_cache / "train").glob("*/manifest.json"))
     if not models:
         raise SystemExit(f"{args.model_cache}: no trained model (run `make demo` once first)")
-    runs = [_one_run(args.dataset, models, args.stride) for _ in range(args.repeat)]
+    runs = [_one_run(args.dataset, models, args.stride, args.set) for _ in range(args.repeat)]
     print(json.dumps(_report(runs, args), indent=2))
 
 

@@ -45,35 +45,46 @@ class Mesh:
     vertex_properties: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def encode_points_ply(xyz_m: np.ndarray, rgb: np.ndarray, comment: str = "sonarmap") -> bytes:
+def encode_points_ply(
+    xyz_m: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
+    rgb: np.ndarray,
+    comment: str = "sonarmap",
+) -> bytes:
     """Binary little-endian PLY of a coloured point cloud.
 
     Args:
-        xyz_m: (n, 3) points [m], written as float32 x y z.
+        xyz_m: (n, 3) points [m], or their three (n,) coordinate arrays (no (n, 3) copy of
+            a dense map is then made), written as float32 x y z.
         rgb: (n, 3) uint8 colours, written as uchar red green blue.
         comment: one header comment line (no newlines).
 
     Returns:
         The PLY bytes (same inputs, same bytes).
     """
-    xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+    if isinstance(xyz_m, tuple):
+        coords = [np.asarray(c, dtype=np.float64).reshape(-1) for c in xyz_m]
+    else:
+        xyz = np.asarray(xyz_m, dtype=np.float64).reshape(-1, 3)
+        coords = [xyz[:, i] for i in range(3)]
+    n = len(coords[0])
     colours = np.asarray(rgb, dtype=np.uint8).reshape(-1, 3)
-    if len(xyz) != len(colours):
-        raise ValueError(f"{len(xyz)} points but {len(colours)} colours")
+    if any(len(c) != n for c in coords) or len(colours) != n:
+        raise ValueError(f"{n} points but {len(colours)} colours")
     dt = np.dtype(
         [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
     )
-    rows = np.empty(len(xyz), dtype=dt)
-    for i, name in enumerate(("x", "y", "z")):
-        rows[name] = xyz[:, i]
+    rows = np.empty(n, dtype=dt)
+    for name, c in zip(("x", "y", "z"), coords, strict=True):
+        rows[name] = c
     for i, name in enumerate(("red", "green", "blue")):
         rows[name] = colours[:, i]
     header = (
         f"ply\nformat binary_little_endian 1.0\ncomment {comment}\n"
-        f"element vertex {len(xyz)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
         "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
     )
-    return header.encode("ascii") + rows.tobytes()
+    # One copy of the vertex bytes (header + tobytes() would make two).
+    return b"".join((header.encode("ascii"), rows.view(np.uint8).data))
 
 
 @dataclass

@@ -30,6 +30,11 @@ def _column_ids(xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
 
 
+_QUERY_CHUNK = 1 << 19
+"""Inferred points judged per pass: the temporaries stay near 100 MB on a dense map of
+millions of points, whose own arrays already set the stage's peak memory."""
+
+
 def contradicted_by_fused(
     inferred_xyz_m: np.ndarray,
     fused_xyz_m: np.ndarray,
@@ -37,6 +42,7 @@ def contradicted_by_fused(
     cell_m: float,
     height_tolerance_m: float,
     min_fused: int,
+    rows: np.ndarray | None = None,
 ) -> np.ndarray:
     """Which inferred points no fused point of their column supports.
 
@@ -47,36 +53,36 @@ def contradicted_by_fused(
         height_tolerance_m: a fused point within this height of an inferred point in its
             column supports it.
         min_fused: columns with fewer fused points decide nothing.
+        rows: judge only these rows of `inferred_xyz_m` (None: all), without copying the
+            others.
 
     Returns:
-        (n,) bool: True where the column holds at least `min_fused` fused points and none
-        lies within `height_tolerance_m` of the point's height.
+        (len(rows) or n,) bool: True where the column holds at least `min_fused` fused
+        points and none lies within `height_tolerance_m` of the point's height.
     """
     q = np.asarray(inferred_xyz_m, np.float64).reshape(-1, 3)
     f = np.asarray(fused_xyz_m, np.float64).reshape(-1, 3)
-    if len(q) == 0 or len(f) == 0:
-        return np.zeros(len(q), bool)
-    f_col = _column_ids(f[:, :2], cell_m)
-    q_col = _column_ids(q[:, :2], cell_m)
-    columns, f_rank = np.unique(f_col, return_inverse=True)
+    judged = np.arange(len(q)) if rows is None else np.asarray(rows, np.int64)
+    out = np.zeros(len(judged), bool)
+    if len(judged) == 0 or len(f) == 0:
+        return out
+    columns, f_rank = np.unique(_column_ids(f[:, :2], cell_m), return_inverse=True)
     counts = np.bincount(f_rank, minlength=len(columns))
-    pos = np.searchsorted(columns, q_col)
-    pos_c = np.minimum(pos, len(columns) - 1)
-    in_known = columns[pos_c] == q_col
-    q_rank = np.where(in_known, pos_c, -1)
-    enough = in_known & (counts[pos_c] >= min_fused)
-    # Nearest fused height within the column: fused points sorted by (column, z), then
-    # one binary search of (column, z) per query, checking both neighbours.
-    order = np.lexsort((f[:, 2], f_rank))
-    f_rank_s, f_z = f_rank[order], f[order, 2]
     starts = np.concatenate([[0], np.cumsum(counts)])
-    lo = np.where(enough, starts[np.maximum(q_rank, 0)], 0)
-    hi = np.where(enough, starts[np.maximum(q_rank, 0) + 1], 0)
-    # Offsetting z by the column rank keeps one sorted key for all columns.
-    span = float(np.ptp(f_z)) + float(np.ptp(q[:, 2])) + 2.0 * height_tolerance_m + 1.0
-    f_key = f_rank_s * span + (f_z - f_z.min())
-    q_key = np.maximum(q_rank, 0) * span + (q[:, 2] - f_z.min())
-    at = np.clip(np.searchsorted(f_key, q_key), lo, np.maximum(hi - 1, lo))
-    below = np.clip(at - 1, lo, np.maximum(hi - 1, lo))
-    nearest = np.minimum(np.abs(f_z[at] - q[:, 2]), np.abs(f_z[below] - q[:, 2]))
-    return enough & (nearest > height_tolerance_m)
+    # Fused heights sorted by (column, z); offsetting z by the column rank times more than
+    # the height span keeps one sorted key for all columns, searched once per query.
+    order = np.lexsort((f[:, 2], f_rank))
+    f_z = f[order, 2]
+    z0, span = float(f_z.min()), float(np.ptp(f_z)) + 1.0
+    f_key = f_rank[order] * span + (f_z - z0)
+    for a in range(0, len(judged), _QUERY_CHUNK):
+        chunk = q[judged[a : a + _QUERY_CHUNK]]
+        q_col = _column_ids(chunk[:, :2], cell_m)
+        pos = np.minimum(np.searchsorted(columns, q_col), len(columns) - 1)
+        enough = (columns[pos] == q_col) & (counts[pos] >= min_fused)
+        lo, last = starts[pos], starts[pos + 1] - 1
+        at = np.clip(np.searchsorted(f_key, pos * span + (chunk[:, 2] - z0)), lo, last)
+        below = np.maximum(at - 1, lo)
+        nearest = np.minimum(np.abs(f_z[at] - chunk[:, 2]), np.abs(f_z[below] - chunk[:, 2]))
+        out[a : a + len(chunk)] = enough & (nearest > height_tolerance_m)
+    return out

@@ -150,7 +150,14 @@ def submap_world_points(
     if len(pose_ids):
         T_world_frame = T_world_base[at] @ T_kf_frame @ np.asarray(T_base_sonar, np.float64)
     posed = frame_posed[row]
-    world = transform_grouped(row[posed], xyz_columns(points)[posed], T_world_frame)
+    xyz = xyz_columns(points)
+    # Subsetting copies every point; a dense map is millions, and usually all are posed.
+    world = (
+        transform_grouped(row, xyz, T_world_frame)
+        if posed.all()
+        else transform_grouped(row[posed], xyz[posed], T_world_frame)
+    )
+    del xyz
     return (
         kf,
         fid,

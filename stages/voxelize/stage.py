@@ -183,25 +183,30 @@ def build_map(
         )
     posed = np.concatenate([p[3] for p in parts])
     world = np.concatenate([p[2] for p in parts]).reshape(-1, 3)
+    keyframe_parts, frame_parts = [p[0] for p in parts], [p[1] for p in parts]
+    source_parts, class_parts = [p[4] for p in parts], [p[5] for p in parts]
+    del parts  # the points live on in `world` only
     keep = world[:, 2] <= 0.0 if drop_above_surface else np.ones(len(world), bool)
     dropped = {"above_surface": int((~keep).sum()), "without_pose": int((~posed).sum())}
     if dropped["without_pose"]:
         logger.warning("%d points in keyframes without a pose dropped", dropped["without_pose"])
     rows = np.flatnonzero(posed)[keep]
     world = world[keep]
-    source_names, source_code = _codes(pa.chunked_array([p[4] for p in parts], pa.string()), rows)
-    class_names, class_code = _codes(pa.chunked_array([p[5] for p in parts], pa.string()), rows)
+    source_names, source_code = _codes(pa.chunked_array(source_parts, pa.string()), rows)
+    class_names, class_code = _codes(pa.chunked_array(class_parts, pa.string()), rows)
+    del source_parts, class_parts
     supported = _supported(world, source_names, source_code, class_names, class_code, evidence)
     dropped["contradicted"] = int((~supported).sum())
-    rows, world, source_code, class_code = (
-        rows[supported],
-        world[supported],
-        source_code[supported],
-        class_code[supported],
-    )
-    kf = np.concatenate([p[0] for p in parts])[rows]
-    frame = np.concatenate([p[1] for p in parts])[rows]
-    del parts, posed, rows
+    if not supported.all():
+        rows, world, source_code, class_code = (
+            rows[supported],
+            world[supported],
+            source_code[supported],
+            class_code[supported],
+        )
+    kf = np.concatenate(keyframe_parts)[rows]
+    frame = np.concatenate(frame_parts)[rows]
+    del keyframe_parts, frame_parts, posed, rows
     # Sort before building the table (MAP_SORT_KEYS, codes in string order), so each
     # column exists once: a dense map is millions of rows.
     order = np.lexsort((world[:, 2], world[:, 1], world[:, 0], class_code, source_code, frame, kf))
@@ -236,12 +241,14 @@ def _supported(
         i for i, c in enumerate(class_names.to_pylist()) if c in evidence.evidence_classes
     ]
     checked = (source == codes.get("inferred", -1)) & np.isin(class_code, checked_classes)
-    out[checked] = ~contradicted_by_fused(
-        world[checked],
+    rows = np.flatnonzero(checked)
+    out[rows] = ~contradicted_by_fused(
+        world,
         world[fused],
         cell_m=evidence.evidence_cell_m,
         height_tolerance_m=evidence.evidence_height_tolerance_m,
         min_fused=evidence.evidence_min_fused,
+        rows=rows,
     )
     return out
 
@@ -256,13 +263,15 @@ def _decode(names: pa.Array, codes: np.ndarray) -> pa.Array:
     return pa.DictionaryArray.from_arrays(pa.array(codes, pa.int32()), names).cast(pa.string())
 
 
+def _standard_rows(map_table: pa.Table) -> pa.Table:
+    return map_table.filter(pc.equal(map_table.column("source"), "fused"))
+
+
 def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
     """(n, 3) world points [m] of one map ("standard": fused rows, "semantic": all)."""
     if name not in MAP_NAMES:
         raise ValueError(f"unknown map {name!r}; expected one of {MAP_NAMES}")
-    t = map_table
-    if name == "standard":
-        t = t.filter(pc.equal(t.column("source"), "fused"))
+    t = _standard_rows(map_table) if name == "standard" else map_table
     return np.stack([t.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
 
 
@@ -319,18 +328,20 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config,
     )
     voxels = voxel_table(map_table, config.voxel_size_m)
-    semantic = map_xyz(map_table, "semantic")
-    z_range = (float(semantic[:, 2].min(initial=0.0)), float(semantic[:, 2].max(initial=0.0)))
-    del semantic
+    z_all = map_table.column("z_m").to_numpy()
+    z_range = (float(z_all.min(initial=0.0)), float(z_all.max(initial=0.0)))
     plys = {}
     for name in MAP_NAMES:
-        xyz = map_xyz(map_table, name)
+        # Column arrays, not an (n, 3) copy: the semantic map of a dense run is millions
+        # of points, and this loop set voxelize's peak memory.
+        t = map_table if name == "semantic" else _standard_rows(map_table)
+        x, y, z = (t.column(c).to_numpy() for c in _XYZ)
         plys[name] = encode_points_ply(
-            xyz,
-            height_colours(xyz[:, 2], z_range),
+            (x, y, z),
+            height_colours(z, z_range),
             f"sonarmap {name} map, world frame, coloured by height",
         )
-        del xyz
+        del t, x, y, z
     summary = {
         "voxel_size_m": config.voxel_size_m,
         "voxels": {
