@@ -26,7 +26,7 @@ __all__ = ["contradicted_by_fused"]
 
 def _column_ids(xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     ij = np.floor(np.asarray(xy_m, np.float64) / cell_m).astype(np.int64)
-    # 2^31 cells a side (2e8 km at 0.1 m) cannot collide.
+    # Unique for up to 2^31 cells a side (200,000 km at 0.1 m).
     return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
 
 
