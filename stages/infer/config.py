@@ -7,7 +7,12 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from schemas.classes import CLASS_NAMES, PILING_CLASSES, UNKNOWN_CLASS
+from schemas.classes import (
+    ASSIGNABLE_CLASSES,
+    PILING_CLASSES,
+    UNKNOWN_CLASS,
+    known_class_names,
+)
 from stages.base import StageConfig
 from stages.infer.height_model import UpdateRule
 from stages.infer.object_frame import IcpParams
@@ -54,7 +59,6 @@ poses, 4 m keyframes), stay within 1.5x their class's fused median and at or und
 1.5x budget on a held-out scene each (measured with the earlier classifier), truss on harbour seed 0 (1.67x, true and SLAM
 poses) and unknown on shipyard seed 0 (1.96x: its long hulls are 'unknown' with arg-max
 seawall)."""
-_INFERABLE = set(CLASS_NAMES) | {UNKNOWN_CLASS}
 
 
 class InferConfig(StageConfig):
@@ -174,10 +178,7 @@ class InferConfig(StageConfig):
     @field_validator("classes")
     @classmethod
     def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = sorted(set(value) - _INFERABLE)
-        if unknown:
-            raise ValueError(f"unknown classes {unknown}; known: {sorted(_INFERABLE)}")
-        return value
+        return known_class_names(value)
 
     @model_validator(mode="after")
     def _argmax_classes_are_inferred_beam_classes(self) -> InferConfig:
@@ -197,7 +198,7 @@ class InferConfig(StageConfig):
         bad = {
             borrower: lender
             for borrower, lender in self.borrowed_models.items()
-            if borrower not in _INFERABLE
+            if borrower not in ASSIGNABLE_CLASSES
             or borrower in self.classes
             or lender not in self.classes
             or self.frame_kind(lender) != "beam"
@@ -217,7 +218,7 @@ class InferConfig(StageConfig):
     @field_validator("frame_kinds")
     @classmethod
     def _known_frame_classes(cls, value: dict[str, FrameKind]) -> dict[str, FrameKind]:
-        unknown = sorted(set(value) - _INFERABLE)
+        unknown = sorted(set(value) - ASSIGNABLE_CLASSES)
         if unknown:
             raise ValueError(f"frame_kinds: unknown classes {unknown}")
         return value

@@ -39,7 +39,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from pydantic import Field, field_validator
 
-from schemas.classes import CLASS_NAMES, UNKNOWN_CLASS
+from schemas.classes import known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Output, Stage, StageConfig
@@ -77,7 +77,6 @@ settings on a grid (cells 0.5 / 1 / 2 m, tolerances 0.2-0.9 m, 3 / 5 / 8 fused p
 that drop at most 3 % of the accurate inferred beam-frame points (error <= 10 cm), the
 one that drops the most points with errors over 0.3 m: 1 m cells, 0.6 m, 5 points
 (2.9 % of the accurate points, 10 % of those over 0.3 m)."""
-_CHECKABLE = set(CLASS_NAMES) | {UNKNOWN_CLASS}
 
 
 class VoxelizeConfig(StageConfig):
@@ -105,10 +104,7 @@ class VoxelizeConfig(StageConfig):
     @field_validator("evidence_classes")
     @classmethod
     def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = sorted(set(value) - _CHECKABLE)
-        if unknown:
-            raise ValueError(f"unknown classes {unknown}; known: {sorted(_CHECKABLE)}")
-        return value
+        return known_class_names(value)
 
 
 def _class_lookup(fused: pa.Table, points: pa.Table) -> pa.Array:
