@@ -194,3 +194,64 @@ def test_a_tampered_cached_model_is_refused_and_the_store_keeps_nothing(
     with pytest.raises(ArtifactCorrupt, match=r"model\.pt.*sha256.*remove"):
         resolve_default_model(store, config)
     assert store.get("train", machine.key) is None and no_training == []
+
+
+def _fresh_machine(machine: Machine, name: str, shipped: Path) -> object:
+    """A config for a machine with no training recordings and an empty model cache."""
+    return _config(
+        machine.config,
+        f"training.directory={machine.root / name}",
+        f"training.shipped_models={shipped}",
+    )
+
+
+def _ship_tiny(machine: Machine, shipped: Path) -> None:
+    from pipeline.engine.session import dataset_spec
+    from pipeline.training.model import training_simulations
+    from pipeline.training.shipped import ship
+
+    training = _config(machine.config).training  # type: ignore[attr-defined]
+    sims = training_simulations(training)
+    fingerprints = [dataset_spec(s.out, machine.cache).fingerprint for s in sims]
+    ref = machine.cache.get("train", machine.key)
+    assert ref is not None
+    ship(ref, sims, fingerprints, shipped)
+
+
+def test_a_fresh_machine_takes_the_shipped_model_without_simulating_or_training(
+    machine: Machine, no_training: list[int]
+) -> None:
+    from pipeline.training.model_cache import planned_default_model
+
+    shipped = machine.root / "shipped"
+    _ship_tiny(machine, shipped)
+    config = _fresh_machine(machine, "fresh", shipped)
+    store = ArtifactStore(machine.root / "e")
+    assert planned_default_model(store, config) == (machine.key, True)
+    chosen = resolve_default_model(store, config)
+    assert (chosen.source, chosen.ref.key) == ("shipped", machine.key)
+    store.verify(chosen.ref)
+    # Nothing simulated: the training directory holds only the model cache.
+    assert [p.name for p in (machine.root / "fresh").iterdir()] == ["store"]
+    assert ArtifactStore(machine.root / "fresh" / "store").get("train", machine.key)
+    assert no_training == []
+    # A lock whose recipe is not this config's plans nothing: the simulation is needed.
+    stale = _config(
+        machine.config,
+        f"training.directory={machine.root / 'fresh-other'}",
+        f"training.shipped_models={shipped}",
+        "training.sets=[{scene: pier, seed: 8, goals: 3, duration_s: 70}]",
+    )
+    assert planned_default_model(store, stale) == ("", False)
+
+
+def test_a_tampered_shipped_model_is_refused(machine: Machine, no_training: list[int]) -> None:
+    shipped = machine.root / "shipped-tampered"
+    _ship_tiny(machine, shipped)
+    blob = next((shipped / "train").glob("*/model.pt"))
+    raw = blob.read_bytes()
+    blob.write_bytes(raw[:-1] + bytes([raw[-1] ^ 1]))
+    store = ArtifactStore(machine.root / "f")
+    with pytest.raises(ArtifactCorrupt, match=r"shipped model: .*model\.pt.*sha256"):
+        resolve_default_model(store, _fresh_machine(machine, "fresh-tampered", shipped))
+    assert store.get("train", machine.key) is None and no_training == []

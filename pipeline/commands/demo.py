@@ -33,15 +33,20 @@ def _stage_section(result: Any) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _training_simulations(config: Path | None, overrides: Sequence[str]) -> list[Any]:
+def _training_simulations(config: Path | None, overrides: Sequence[str], store: Path) -> list[Any]:
     """The default classifier's simulated missions under this config, so the demo can
-    simulate them beside the mapped scene instead of after it."""
+    simulate them beside the mapped scene instead of after it; none when the model is
+    at hand (the run's store, the model cache, or shipped with the project)."""
     from pipeline.engine.config import load_config
     from pipeline.engine.registry import all_stages, extra_sections
+    from pipeline.engine.store import ArtifactStore
     from pipeline.training.config import TrainingDataConfig
     from pipeline.training.model import training_simulations
+    from pipeline.training.model_cache import planned_default_model
 
     resolved = load_config(all_stages(), config, overrides, extra_sections())
+    if planned_default_model(ArtifactStore(store), resolved)[1]:
+        return []
     return training_simulations(getattr(resolved, "training", TrainingDataConfig()))
 
 
@@ -78,7 +83,7 @@ def register(app: typer.Typer) -> None:
         console.print(f"dataset: {dataset}")
         mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
         ensure_simulations(
-            [mapped, *_training_simulations(config, set_ or ())], os.cpu_count() or 1
+            [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
         )
         with StageProgress(enabled=True) as progress:
             result, summary = run_dataset(

@@ -6,6 +6,11 @@ images, CFAR features, with the `training.keyframes`/`training.features` setting
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
 file instead of label images (format: README, `schemas.annotations`).
+
+`sonarmap train --ship` takes no datasets: it resolves the default model of the
+`training` section (simulating and training only what this machine lacks) and writes it,
+with the lock of its training recordings, to `training.shipped_models`
+(`pipeline.training.shipped`), so that fresh clones use it instead of training.
 """
 
 from __future__ import annotations
@@ -31,8 +36,8 @@ __all__ = ["register"]
 def register(app: typer.Typer) -> None:
     @app.command("train")
     def train(
-        datasets: list[Path] = typer.Argument(
-            ...,
+        datasets: list[Path] | None = typer.Argument(
+            None,
             help="Labelled recordings: simulated (label images) or with "
             "<stem>.annotations.yaml beside them.",
         ),
@@ -42,6 +47,12 @@ def register(app: typer.Typer) -> None:
             "-o",
             help="Folder for model.pt, metrics.json, confusion.png.",
         ),
+        ship: bool = typer.Option(
+            False,
+            "--ship",
+            help="Write the default model and its training recordings' lock to "
+            "training.shipped_models (no datasets).",
+        ),
         config: Path | None = CONFIG_OPT,
         set_: list[str] | None = SET_OPT,
         store: Path = STORE_OPT,
@@ -49,6 +60,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
         import shutil
+
+        if ship:
+            if datasets:
+                raise typer.BadParameter("--ship trains the default model; give no datasets")
+            _ship(config, set_ or (), store, json_)
+            return
+        if not datasets:
+            raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
 
         from pipeline.api import RunRequest, plan_dataset
         from pipeline.engine.errors import SourceError
@@ -98,3 +117,37 @@ def register(app: typer.Typer) -> None:
                 f"  {name}: support={c['support']} precision={c['precision']} "
                 f"recall={c['recall']} accepted_precision={c['accepted_precision']}"
             )
+
+
+def _ship(
+    config: Path | None, overrides: list[str] | tuple[str, ...], store: Path, json_: bool
+) -> None:
+    """`train --ship`: the default model, resolved as a run would, into the shipped folder."""
+    from pipeline.engine.config import load_config
+    from pipeline.engine.errors import ConfigError
+    from pipeline.engine.registry import all_stages, extra_sections
+    from pipeline.engine.session import dataset_spec
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.model import training_datasets, training_simulations
+    from pipeline.training.model_cache import resolve_default_model
+    from pipeline.training.shipped import ship, shipped_root
+
+    resolved = load_config(all_stages(), config, overrides, extra_sections())
+    training: TrainingDataConfig = getattr(resolved, "training", TrainingDataConfig())
+    root = shipped_root(training.shipped_models)
+    if root is None:
+        raise ConfigError("training.shipped_models: null, so there is nowhere to ship to")
+    if training.recorded:
+        raise ConfigError("training.recorded: a shipped model is trained on simulations only")
+    sims = training_simulations(training)
+    paths = training_datasets(training)
+    run_store = ArtifactStore(store)
+    chosen = resolve_default_model(run_store, resolved)
+    fingerprints = [dataset_spec(p, run_store).fingerprint for p in paths]
+    ship(chosen.ref, sims, fingerprints, root)
+    doc = {"shipped": str(root), "key": chosen.ref.key, "source": chosen.source}
+    if json_:
+        emit_json(doc)
+        return
+    stderr_console().print(f"shipped train/{chosen.ref.key[:12]} -> {root}")

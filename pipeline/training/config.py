@@ -62,6 +62,12 @@ class TrainingDataConfig(ConfigModel):
         default_factory=lambda: FeaturesConfig.model_validate({}),
         description="CFAR features of the training datasets",
     )
+    shipped_models: str | None = Field(
+        default="configs/model",
+        description="read-only store of pretrained default models with the lock of their"
+        " training recordings (`pipeline.training.shipped`; relative: to the project);"
+        " null: always simulate and train here",
+    )
     follow_run: bool = Field(
         default=False,
         description="build the training datasets with the run's keyframes/features sections"

@@ -137,9 +137,13 @@ class Simulation:
     goals: int | None = None
     duration_s: float | None = None
 
+    def recipe(self) -> dict[str, Any]:
+        """What the recording's bytes depend on (scene sha256, seed, mission, simulator)."""
+        return _recipe(self.scene, self.seed, self.goals, self.duration_s)
+
     def is_current(self) -> bool:
         """The output exists with this recipe (nothing to simulate)."""
-        return _is_current(self.out, _recipe(self.scene, self.seed, self.goals, self.duration_s))
+        return _is_current(self.out, self.recipe())
 
     def ensure(self) -> Path:
         return ensure_simulation(

@@ -17,12 +17,13 @@ becomes an "annotations" artifact that `train` also reads, so editing it retrain
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
 
+from pipeline.engine.errors import SourceError
 from pipeline.engine.runner import DatasetSpec, execute, plan
 from pipeline.engine.session import dataset_spec
 from pipeline.engine.store import ArtifactRef, ArtifactStore
@@ -33,6 +34,7 @@ from stages.base import Stage
 
 __all__ = [
     "plan_training",
+    "recorded_datasets",
     "train_on",
     "training_config",
     "training_datasets",
@@ -111,12 +113,19 @@ def training_stage_for(
 
 
 def _bind_training(
-    datasets: Sequence[Path], config: BaseModel, store: ArtifactStore, *, compute: bool
+    datasets: Sequence[Path],
+    config: BaseModel,
+    store: ArtifactStore,
+    *,
+    compute: bool,
+    fingerprints: Mapping[Path, str] | None = None,
 ) -> tuple[Stage, dict[str, tuple[Stage, ArtifactRef]], DatasetSpec]:
     """The train stage and its bound inputs: computed artifacts, or key-only placeholders.
 
     With `compute=False` nothing is computed (annotation files, whose content is their
     key, are committed): the placeholders carry the keys the train stage's key needs.
+    `fingerprints` stand in for recordings not on disk (planning only: the shipped
+    model's lock, `pipeline.training.shipped`).
     """
     from pipeline.engine.registry import pipeline_stages
     from pipeline.training.annotations import ANNOTATIONS_STAGE, annotation_path, commit_annotations
@@ -133,7 +142,11 @@ def _bind_training(
             annotated.append(i)
     first = None
     for i, path in enumerate(datasets):
-        spec = dataset_spec(path, store)
+        if fingerprints and path in fingerprints:
+            assert not compute, "a locked fingerprint cannot be computed on"
+            spec = DatasetSpec(path, fingerprints[path], _not_on_disk(path))
+        else:
+            spec = dataset_spec(path, store)
         first = first or spec
         planned = plan(upstream, config, spec, store)
         if compute:
@@ -152,11 +165,27 @@ def _bind_training(
     return train, external, first
 
 
-def plan_training(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> str:
+def _not_on_disk(path: Path) -> Callable[[Any], Any]:
+    def refuse(_section: Any) -> Any:
+        raise SourceError(f"{path}: planned from the shipped model's lock, not simulated yet")
+
+    return refuse
+
+
+def plan_training(
+    datasets: Sequence[Path],
+    config: BaseModel,
+    store: ArtifactStore,
+    *,
+    fingerprints: Mapping[Path, str] | None = None,
+) -> str:
     """The `train` key `train_on` would produce, computing nothing (training datasets'
-    fingerprints are cached; their keyframes and features are only planned)."""
+    fingerprints are cached, or given by `fingerprints` for recordings not on disk;
+    their keyframes and features are only planned)."""
     config = training_config(config)
-    train, external, first = _bind_training(datasets, config, store, compute=False)
+    train, external, first = _bind_training(
+        datasets, config, store, compute=False, fingerprints=fingerprints
+    )
     return plan((train,), config, first, store, external=external)[0].key
 
 
@@ -201,10 +230,19 @@ def training_datasets(training: TrainingDataConfig) -> list[Path]:
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    from pipeline.engine.errors import SourceError
+    paths = [sim.ensure() for sim in training_simulations(training)]
+    return paths + recorded_datasets(training)
+
+
+def recorded_datasets(training: TrainingDataConfig) -> list[Path]:
+    """`training.recorded`, each checked for its annotation file.
+
+    Raises:
+        SourceError: a recorded dataset without its annotation file.
+    """
     from pipeline.training.annotations import annotation_path
 
-    paths = [sim.ensure() for sim in training_simulations(training)]
+    paths = []
     for recorded in training.recorded:
         path = Path(recorded)
         if annotation_path(path) is None:

@@ -10,7 +10,9 @@ so a fresh store on a machine that has the model trains nothing and builds nothi
 1. the run's store has the model (e.g. pulled from a colleague): use it, and publish it
    to the cache when the cache lacks it;
 2. the cache has it: check every file's sha256 against its manifest, copy it in;
-3. neither: train into the cache (once per machine), then copy it in.
+3. the project ships it (`configs/model`, `pipeline.training.shipped`): verified into
+   the cache, then copied in; planned from the shipped lock, so nothing is simulated;
+4. none: simulate the training sets, train into the cache (once per machine), copy it in.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ __all__ = [
     "copy_verified",
     "describe",
     "model_cache",
+    "planned_default_model",
     "resolve_default_model",
     "resolve_model",
 ]
@@ -48,7 +51,7 @@ DEFAULT_MODEL_CACHE = Path("data/training") / CACHE_DIR
 """The model cache of the default `training.directory` (where `push` looks; a test keeps
 it equal to `TrainingDataConfig().directory`, which stays the one default)."""
 
-Source = Literal["store", "model cache", "trained"]
+Source = Literal["store", "model cache", "shipped", "trained"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +83,7 @@ def describe(model: Mapping[str, Any]) -> str:
     where = {
         "store": "found in the store",
         "model cache": f"copied from the model cache {model.get('cache')}",
+        "shipped": f"the shipped model, copied to the model cache {model.get('cache')}",
         "trained": f"trained into the model cache {model.get('cache')}",
     }.get(str(model.get("source")), str(model.get("source")))
     return f"classifier: train/{str(model.get('key'))[:12]} ({where})"
@@ -125,44 +129,102 @@ def _record_use(store: ArtifactStore, ref: ArtifactRef, source: Source) -> None:
     store.record_run(f"model-{ref.key[:20]}", record)
 
 
+def _find_or_ship(
+    key: str, store: ArtifactStore, cache: ArtifactStore, shipped: ArtifactStore | None
+) -> tuple[ArtifactRef, Source] | None:
+    """The model `key` from the run's store, the model cache or the shipped models (those
+    two copied in, verified), or None when it must be trained."""
+    ref = store.get("train", key)
+    if ref is not None:
+        if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
+            copy_verified(ref, cache)
+        return ref, "store"
+    cached = cache.get("train", key)
+    source: Source = "model cache"
+    if cached is None and shipped is not None and (bundled := shipped.get("train", key)):
+        try:
+            cached = copy_verified(bundled, cache)
+        except ArtifactCorrupt as err:
+            raise ArtifactCorrupt(f"shipped model: {err} (restore {bundled.path})") from err
+        source = "shipped"
+    if cached is None:
+        return None
+    try:
+        return copy_verified(cached, store), source
+    except ArtifactCorrupt as err:
+        raise ArtifactCorrupt(f"model cache: {err} (remove {cached.path} to retrain)") from err
+
+
+def planned_default_model(store: ArtifactStore, config: BaseModel) -> tuple[str, bool]:
+    """The default model's key and whether it is at hand (store, cache or shipped), without
+    simulating or training: for the demo, which simulates only what it will need."""
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.model import plan_training, recorded_datasets, training_simulations
+    from pipeline.training.shipped import locked_fingerprints, shipped_store
+
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    sims = training_simulations(training)
+    locked = locked_fingerprints(sims, training.shipped_models)
+    if locked is None:
+        return "", False
+    cache = model_cache(config)
+    paths = [s.out for s in sims] + recorded_datasets(training)
+    key = plan_training(paths, config, cache, fingerprints=locked)
+    shipped = shipped_store(training.shipped_models)
+    at_hand = any(
+        s is not None and s.get("train", key) is not None for s in (store, cache, shipped)
+    )
+    return key, at_hand
+
+
 def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedModel:
-    """The default model for `classify` in `store`: reused, copied from the cache, or trained.
+    """The default model for `classify` in `store`: reused, copied from the cache or the
+    shipped models, or trained.
+
+    The key is planned first from the recordings on disk and, for those not simulated
+    yet, the shipped model's lock (`pipeline.training.shipped`), so a machine with the
+    model simulates nothing. Only a miss simulates the training sets, plans again from
+    the real files, and trains.
 
     Raises:
-        ArtifactCorrupt: the cached model's files do not match its manifest (the message
-            names the artifact directory to remove).
+        ArtifactCorrupt: the cached or shipped model's files do not match its manifest
+            (the message names the artifact directory to remove or restore).
         SourceError: a training dataset is unusable.
     """
     from pipeline.training.annotations import annotation_path
     from pipeline.training.config import TrainingDataConfig
     from pipeline.training.model import (
         plan_training,
+        recorded_datasets,
         train_on,
         training_datasets,
+        training_simulations,
         training_stage_for,
     )
+    from pipeline.training.shipped import locked_fingerprints, shipped_store
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     cache = model_cache(config)
-    paths = training_datasets(training)
+    shipped = shipped_store(training.shipped_models)
+    sims = training_simulations(training)
+    locked = locked_fingerprints(sims, training.shipped_models)
+    found = None
+    if locked is not None:
+        paths = [s.out for s in sims] + recorded_datasets(training)
+        found = _find_or_ship(
+            plan_training(paths, config, cache, fingerprints=locked), store, cache, shipped
+        )
+    if found is None:
+        paths = training_datasets(training)
+        key = plan_training(paths, config, cache)
+        found = _find_or_ship(key, store, cache, shipped)
+    source: Source
+    if found is None:
+        ref, source = copy_verified(train_on(paths, config, cache), store), "trained"
+    else:
+        ref, source = found
     annotated = [i for i, p in enumerate(paths) if annotation_path(p) is not None]
     stage = training_stage_for(len(paths), annotated)
-    key = plan_training(paths, config, cache)
-    source: Source
-    ref = store.get("train", key)
-    if ref is not None:
-        source = "store"
-        if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
-            copy_verified(ref, cache)
-    else:
-        cached = cache.get("train", key)
-        source = "model cache" if cached is not None else "trained"
-        if cached is None:
-            cached = train_on(paths, config, cache)
-        try:
-            ref = copy_verified(cached, store)
-        except ArtifactCorrupt as err:
-            raise ArtifactCorrupt(f"model cache: {err} (remove {cached.path} to retrain)") from err
     _record_use(store, ref, source)
     chosen = ResolvedModel(stage, ref, source, cache.root)
     log.info("%s", chosen.describe())

@@ -1,0 +1,143 @@
+"""The default classifier shipped with the code, so a fresh clone neither simulates nor trains.
+
+`configs/model/` is a read-only artifact store that holds the default model: the `train`
+artifact of the default `training` section, with its manifest (sha256 of every file).
+Beside it, `lock.json` names the recording that each training set's simulation
+produces: its file name, its recipe (scene sha256, seed, goals, simulator version) and
+its sha256, which is the recording's dataset fingerprint.
+
+The `train` key covers the training recordings' fingerprints. With the lock, it can be
+planned without them on disk: a training set whose recording is missing or stale takes
+the lock's fingerprint when the lock has its exact recipe. This rests on the
+simulator's rule that the same recipe gives the same bytes (`sim/version.py`), the
+rule that already lets a recipe sidecar stand for a recording. When the planned key is
+shipped, its files are checked against their sha256 and it enters the model cache
+like a pulled model.
+
+Anything that moves the model's key misses the shipped model, and the machine trains as
+before: a scene, the simulator version, a keyframes/features/train version or setting.
+`sonarmap train --ship` rewrites the shipped model from the one this machine resolves.
+`tests/test_shipped_model.py` fails while the shipped model is stale, so a change that
+retrains every new user's model says so in CI.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import uuid
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from pipeline.engine.hashing import canonical_json
+from pipeline.engine.store import ArtifactRef, ArtifactStore, verify_artifact_dir
+from pipeline.training.datasets import Simulation
+
+__all__ = [
+    "LOCK_FILE",
+    "PROJECT_ROOT",
+    "locked_fingerprints",
+    "read_lock",
+    "ship",
+    "shipped_root",
+    "shipped_store",
+]
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+LOCK_FILE = "lock.json"
+LOCK_FORMAT = 1
+
+
+def shipped_root(setting: str | None) -> Path | None:
+    """The shipped-model folder of `training.shipped_models` (relative: to the project)."""
+    if not setting:
+        return None
+    path = Path(setting)
+    return path if path.is_absolute() else PROJECT_ROOT / path
+
+
+def shipped_store(setting: str | None) -> ArtifactStore | None:
+    """The shipped models as a (read-only) artifact store, or None when there are none."""
+    root = shipped_root(setting)
+    return ArtifactStore(root) if root is not None and (root / "train").is_dir() else None
+
+
+def _entry_key(file_name: str, recipe: Mapping[str, Any]) -> str:
+    return f"{file_name}\n{canonical_json(dict(recipe)).decode()}"
+
+
+def read_lock(root: Path) -> dict[str, str]:
+    """{file name + canonical recipe: sha256} of `root/lock.json`; {} when absent or unreadable.
+
+    An unreadable lock only costs a simulation, so it is not an error.
+    """
+    try:
+        doc = json.loads((root / LOCK_FILE).read_text())
+        return {
+            _entry_key(str(d["file"]), d["recipe"]): str(d["sha256"])
+            for d in doc["datasets"]
+            if doc.get("format") == LOCK_FORMAT
+        }
+    except (OSError, ValueError, KeyError, TypeError):
+        return {}
+
+
+def locked_fingerprints(sims: Sequence[Simulation], setting: str | None) -> dict[Path, str] | None:
+    """Fingerprints for the simulations not on disk, from the lock.
+
+    Returns:
+        {recording path: sha256} for each simulation whose recording is missing or stale
+        (an up-to-date recording is fingerprinted from its file as usual); None when one
+        of those is not in the lock, so planning needs the simulation itself.
+    """
+    missing = [s for s in sims if not s.is_current()]
+    if not missing:
+        return {}
+    root = shipped_root(setting)
+    lock = read_lock(root) if root is not None else {}
+    found: dict[Path, str] = {}
+    for sim in missing:
+        sha = lock.get(_entry_key(sim.out.name, sim.recipe()))
+        if sha is None:
+            return None
+        found[sim.out] = sha
+    return found
+
+
+def ship(
+    ref: ArtifactRef, sims: Sequence[Simulation], fingerprints: Sequence[str], root: Path
+) -> Path:
+    """Replace the shipped model in `root` by `ref` and the lock of its simulations.
+
+    Args:
+        ref: the verified `train` artifact of the default training section.
+        sims: that section's simulations, whose recordings are on disk.
+        fingerprints: their dataset fingerprints, in the same order.
+        root: the shipped-model folder (`configs/model`).
+
+    The new folder is built beside the old one and swapped in by rename, so a failure
+    leaves the old one whole.
+    """
+    verify_artifact_dir(ref.path, ref.manifest)
+    tmp = root.with_name(f".{root.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}")
+    try:
+        shutil.copytree(ref.path, tmp / ref.stage / ref.key)
+        lock = {
+            "format": LOCK_FORMAT,
+            "train_key": ref.key,
+            "datasets": [
+                {"file": s.out.name, "recipe": s.recipe(), "sha256": fp}
+                for s, fp in zip(sims, fingerprints, strict=True)
+            ],
+        }
+        (tmp / LOCK_FILE).write_text(json.dumps(lock, indent=2, sort_keys=True) + "\n")
+        old = root.with_name(f".{root.name}.old-{os.getpid()}")
+        if root.exists():
+            root.rename(old)
+        tmp.rename(root)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return root
