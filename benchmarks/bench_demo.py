@@ -12,7 +12,7 @@ simulates the marina and builds every stage as a first run on a new machine woul
 
 Prints one JSON object with each mode's seconds (median of `--repeat`) and the goal.
 
-    .venv/bin/python benchmarks/bench_demo.py [--repeat 1] [--with-training]
+    .venv/bin/python benchmarks/bench_demo.py [--repeat 3] [--with-training]
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def _one_demo(shipped: bool) -> dict[str, float | str]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--with-training", action="store_true")
     args = parser.parse_args()
     modes = {"shipped": True} | ({"training": False} if args.with_training else {})
