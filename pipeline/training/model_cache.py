@@ -155,26 +155,36 @@ def _find_or_ship(
         raise ArtifactCorrupt(f"model cache: {err} (remove {cached.path} to retrain)") from err
 
 
-def planned_default_model(store: ArtifactStore, config: BaseModel) -> tuple[str, bool]:
-    """The default model's key and whether it is at hand (store, cache or shipped), without
-    simulating or training: for the demo, which simulates only what it will need."""
+def _planned_from_lock(config: BaseModel, cache: ArtifactStore) -> tuple[str, list[Path]] | None:
+    """The default model's key and datasets, planned without simulating: recordings on
+    disk are fingerprinted, the others taken from the shipped lock; None when the lock
+    lacks one of them (planning then needs the simulation)."""
     from pipeline.training.config import TrainingDataConfig
     from pipeline.training.model import plan_training, recorded_datasets, training_simulations
-    from pipeline.training.shipped import locked_fingerprints, shipped_store
+    from pipeline.training.shipped import locked_fingerprints
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     sims = training_simulations(training)
     locked = locked_fingerprints(sims, training.shipped_models)
     if locked is None:
-        return "", False
-    cache = model_cache(config)
+        return None
     paths = [s.out for s in sims] + recorded_datasets(training)
-    key = plan_training(paths, config, cache, fingerprints=locked)
-    shipped = shipped_store(training.shipped_models)
-    at_hand = any(
-        s is not None and s.get("train", key) is not None for s in (store, cache, shipped)
-    )
-    return key, at_hand
+    return plan_training(paths, config, cache, fingerprints=locked), paths
+
+
+def planned_default_model(store: ArtifactStore, config: BaseModel) -> tuple[str, bool]:
+    """The default model's key and whether it is at hand (store, cache or shipped), without
+    simulating or training: for the demo, which simulates only what it will need."""
+    from pipeline.training.config import TrainingDataConfig
+    from pipeline.training.shipped import shipped_store
+
+    cache = model_cache(config)
+    planned = _planned_from_lock(config, cache)
+    if planned is None:
+        return "", False
+    training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
+    places = (store, cache, shipped_store(training.shipped_models))
+    return planned[0], any(s is not None and s.get("train", planned[0]) for s in places)
 
 
 def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedModel:
@@ -195,25 +205,20 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
     from pipeline.training.config import TrainingDataConfig
     from pipeline.training.model import (
         plan_training,
-        recorded_datasets,
         train_on,
         training_datasets,
-        training_simulations,
         training_stage_for,
     )
-    from pipeline.training.shipped import locked_fingerprints, shipped_store
+    from pipeline.training.shipped import shipped_store
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     cache = model_cache(config)
     shipped = shipped_store(training.shipped_models)
-    sims = training_simulations(training)
-    locked = locked_fingerprints(sims, training.shipped_models)
     found = None
-    if locked is not None:
-        paths = [s.out for s in sims] + recorded_datasets(training)
-        found = _find_or_ship(
-            plan_training(paths, config, cache, fingerprints=locked), store, cache, shipped
-        )
+    planned = _planned_from_lock(config, cache)
+    if planned is not None:
+        key, paths = planned
+        found = _find_or_ship(key, store, cache, shipped)
     if found is None:
         paths = training_datasets(training)
         key = plan_training(paths, config, cache)
