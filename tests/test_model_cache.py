@@ -255,3 +255,26 @@ def test_a_tampered_shipped_model_is_refused(machine: Machine, no_training: list
     with pytest.raises(ArtifactCorrupt, match=r"shipped model: .*model\.pt.*sha256"):
         resolve_default_model(store, _fresh_machine(machine, "fresh-tampered", shipped))
     assert store.get("train", machine.key) is None and no_training == []
+
+
+def test_train_ship_writes_the_model_and_the_lock_a_fresh_machine_plans_from(
+    machine: Machine, no_training: list[int]
+) -> None:
+    from pipeline.training.model_cache import planned_default_model
+
+    shipped = machine.root / "shipped-cli"
+    args = [
+        "train", "--ship", "--config", str(machine.config),
+        "--set", f"training.shipped_models={shipped}",
+        "--store", str(machine.root / "g"), "--json",
+    ]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["key"] == machine.key
+    lock = json.loads((shipped / "lock.json").read_text())
+    assert lock["train_key"] == machine.key and len(lock["datasets"]) == 1
+    fresh = _fresh_machine(machine, "fresh-cli", shipped)
+    assert planned_default_model(ArtifactStore(machine.root / "h"), fresh) == (machine.key, True)
+    assert no_training == []
+    bad = CliRunner().invoke(app, ["train", "--ship", str(machine.dataset)])
+    assert bad.exit_code == 2 and "give no datasets" in bad.output
