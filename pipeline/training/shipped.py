@@ -75,11 +75,9 @@ def read_lock(root: Path) -> dict[str, str]:
     """
     try:
         doc = json.loads((root / LOCK_FILE).read_text())
-        return {
-            _entry_key(str(d["file"]), d["recipe"]): str(d["sha256"])
-            for d in doc["datasets"]
-            if doc.get("format") == LOCK_FORMAT
-        }
+        if doc.get("format") != LOCK_FORMAT:
+            return {}
+        return {_entry_key(str(d["file"]), d["recipe"]): str(d["sha256"]) for d in doc["datasets"]}
     except (OSError, ValueError, KeyError, TypeError):
         return {}
 
@@ -134,9 +132,15 @@ def ship(
         }
         (tmp / LOCK_FILE).write_text(json.dumps(lock, indent=2, sort_keys=True) + "\n")
         old = root.with_name(f".{root.name}.old-{os.getpid()}")
-        if root.exists():
+        had_old = root.exists()
+        if had_old:
             root.rename(old)
-        tmp.rename(root)
+        try:
+            tmp.rename(root)
+        except OSError:
+            if had_old:
+                old.rename(root)  # the old shipped model stays whole
+            raise
         shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
