@@ -62,28 +62,32 @@ def transfer_objects(
     cluster = cluster_features(xy, eps_m, min_samples, min_features)
     if (cluster < 0).all():
         return out
-    best_d = np.full(n, np.inf)
-    match = np.full(n, -1, np.int64)
+    clustered = np.flatnonzero(cluster >= 0)
+    # Only clustered returns vote; noise stays unassigned whatever it lies on.
+    best_d = np.full(clustered.size, np.inf)
+    match = np.full(clustered.size, -1, np.int64)
+    xy_clustered = xy[clustered]
     for T, objs in zip(T_kfsonar_framesonar, keyframe_objects, strict=True):
         if objs.tree is None:
             continue
-        moved = xy @ T[:2, :2].T + T[:2, 3]
+        moved = xy_clustered @ T[:2, :2].T + T[:2, 3]
         d, i = objs.tree.query(moved, distance_upper_bound=match_radius_m)
         better = np.isfinite(d) & (d < best_d)
         best_d[better] = d[better]
         match[better] = objs.object_id[i[better]]
-    voted = (cluster >= 0) & (match >= 0)
+    voted = match >= 0
     if not voted.any():
         return out
-    # Majority object per cluster (ties: the smaller object id).
-    pairs, counts = np.unique(
-        np.stack([cluster[voted], match[voted]], axis=1), axis=0, return_counts=True
+    # Majority object per cluster (ties: the smaller object id), counted over one int64
+    # code per (cluster, object) pair: sorted codes sort by cluster, then object.
+    objects, object_code = np.unique(match[voted], return_inverse=True)
+    codes, counts = np.unique(
+        cluster[clustered[voted]] * objects.size + object_code.reshape(-1), return_counts=True
     )
-    order = np.lexsort((pairs[:, 1], -counts, pairs[:, 0]))
-    pairs = pairs[order]
-    first = np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]
+    pair_cluster, pair_object = np.divmod(codes, objects.size)
+    order = np.lexsort((pair_object, -counts, pair_cluster))
+    first = np.r_[True, pair_cluster[order][1:] != pair_cluster[order][:-1]]
     winner = np.full(int(cluster.max()) + 1, -1, np.int64)
-    winner[pairs[first, 0]] = pairs[first, 1]
-    clustered = cluster >= 0
+    winner[pair_cluster[order][first]] = objects[pair_object[order][first]]
     out[clustered] = winner[cluster[clustered]]
     return out
