@@ -27,6 +27,7 @@ from pipeline.engine.hashing import canonical_json, recipe_key, stage_recipe
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from schemas import SCHEMA_VERSION
 from stages.base import Stage
+from stages.parallel import release_memory
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
 
@@ -254,21 +255,6 @@ def _build(
         return {"outputs": facts}
 
     return build
-
-
-def release_memory() -> None:
-    """Hand a finished stage's freed memory back to the system (Arrow's pool and glibc's
-    heap keep it otherwise), so a run's peak is its largest stage, not the sum."""
-    import contextlib
-    import ctypes
-
-    import pyarrow as pa
-
-    # no gc.collect(): stage outputs hold no cycles worth it, and a collection costs
-    # 0.1-0.5 s per stage once torch is loaded
-    pa.default_memory_pool().release_unused()
-    with contextlib.suppress(OSError, AttributeError):  # not glibc
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
 
 
 def execute(

@@ -3,19 +3,16 @@
 Each frame depends only on (scene, config, seed, its index) (`SimRun.frame` seeds its RNG
 per index), so frames rendered in any process, in any order, are the frames a serial run
 renders; they are yielded in index order, so the file's bytes do not depend on the
-number of workers. Processes, not threads: image formation is numpy code that holds the
-GIL between its calls. A worker costs
-about a second to start (spawn, importing open3d), and on a loaded machine the processes
+number of workers (`stages.parallel.ordered_map`, spawned processes: image formation is
+numpy code that holds the GIL between its calls). A worker costs
+about a second to start (importing open3d), and on a loaded machine the processes
 compete for the same cores (see benchmarks/bench_simulate.py), so one worker (serial, in
 this process) stays the default.
 """
 
 from __future__ import annotations
 
-import multiprocessing
-from collections import deque
 from collections.abc import Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
 from typing import Any
 
@@ -24,6 +21,7 @@ import numpy as np
 from schemas.sonar import SonarPing
 from sim.dataset import SimFrame, SimRun
 from sim.world import World
+from stages.parallel import ordered_map
 
 __all__ = ["rendered_frames"]
 
@@ -96,18 +94,6 @@ def rendered_frames(run: SimRun, workers: int) -> Iterator[SimFrame]:
         "trajectory": run.trajectory,
         "path": run.path,
     }
-    # spawn: forking a process whose open3d/TBB thread pools are running can deadlock.
-    ctx = multiprocessing.get_context("spawn")
-    ahead = 2 * workers
-    pool = ProcessPoolExecutor(workers, ctx, initializer=_start_worker, initargs=(state, 1))
-    try:
-        pending: deque[Future[tuple[SimFrame, dict[str, tuple[_Sparse, _Sparse]]]]] = deque()
-        for i in range(run.n_frames):
-            pending.append(pool.submit(_render, i))
-            if len(pending) > ahead:
-                yield _dense(*pending.popleft().result())
-        while pending:
-            yield _dense(*pending.popleft().result())
-    finally:
-        # A writer that stops early (an error, a full disk) waits for no further frames.
-        pool.shutdown(wait=True, cancel_futures=True)
+    # A writer that stops early (an error, a full disk) waits for no further frames.
+    for packed in ordered_map(_render, range(run.n_frames), workers, _start_worker, (state, 1)):
+        yield _dense(*packed)
