@@ -30,6 +30,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -47,6 +48,7 @@ def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> Non
 
     marks: dict[str, float] = {}
     stages: dict[str, dict[str, float]] = {}
+    tree = _TreeRss()
 
     def on_start(item) -> None:
         marks["wall"], marks["cpu"] = time.perf_counter(), time.process_time()
@@ -56,6 +58,7 @@ def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> Non
             "wall_s": time.perf_counter() - marks["wall"],
             "cpu_s": time.process_time() - marks["cpu"],
             "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "tree_peak_rss_mib": tree.peak_mib_since_last(),
             "computed": result.status != "hit",
         }
 
@@ -65,9 +68,74 @@ def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> Non
         store_dir=store,
         until="voxelize",
     )
-    _, summary = run_dataset(request, on_start=on_start, on_stage=on_stage)
+    try:
+        _, summary = run_dataset(request, on_start=on_start, on_stage=on_stage)
+    finally:
+        tree.stop()
     frames = _submap_frames(store)
-    print(json.dumps({"stages": stages, "keyframes": summary["keyframes"], **frames}))
+    workers = _workers(overrides, frames["submap_frames"])
+    print(json.dumps({"stages": stages, "keyframes": summary["keyframes"], **frames, **workers}))
+
+
+class _TreeRss:
+    """Peak resident memory of this process and its children together (the `submaps`
+    workers run beside it), sampled every 50 ms from /proc. ru_maxrss cannot give it:
+    a child's counts the parent's memory at the fork that started it."""
+
+    def __init__(self) -> None:
+        self._peak = self._last = 0.0
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _rss_mib(pid: int) -> float:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024
+        except OSError:
+            pass
+        return 0.0
+
+    def _children(self) -> list[int]:
+        me = os.getpid()
+        out = []
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == me:
+                    out.append(int(stat.parent.name))
+            except (OSError, ValueError, IndexError):
+                continue
+        return out
+
+    def _sample(self) -> None:
+        while not self._done.wait(0.05):
+            total = self._rss_mib(os.getpid()) + sum(map(self._rss_mib, self._children()))
+            self._peak = max(self._peak, total)
+            self._last = max(self._last, total)
+
+    def peak_mib_since_last(self) -> float:
+        """Peak since the previous call (or the start)."""
+        peak, self._last = self._last, 0.0
+        return round(peak, 1)
+
+    def stop(self) -> None:
+        self._done.set()
+        self._thread.join()
+
+
+def _workers(overrides: list[str], frames: int) -> dict[str, int]:
+    """The processes `submaps` mapped in (1: this one, no workers)."""
+    from stages.submaps.config import SubmapsConfig
+    from stages.submaps.workers import worker_count
+
+    setting = SubmapsConfig().workers
+    for item in overrides:
+        if item.startswith("submaps.workers="):
+            value = item.split("=", 1)[1]
+            setting = None if value in ("null", "None", "") else int(value)
+    return {"workers": worker_count(setting, frames)}
 
 
 def _submap_frames(store: Path) -> dict[str, int]:
@@ -118,6 +186,7 @@ def _report(runs: list[dict], args: argparse.Namespace) -> dict:
     sub_wall = _median(runs, lambda r: r["stages"]["submaps"]["wall_s"])
     sub_cpu = _median(runs, lambda r: r["stages"]["submaps"]["cpu_s"])
     rss = _median(runs, lambda r: max(s["peak_rss_mib"] for s in r["stages"].values()))
+    tree_rss = _median(runs, lambda r: max(s["tree_peak_rss_mib"] for s in r["stages"].values()))
     return {
         "dataset": str(args.dataset),
         "stride": args.stride,
@@ -148,6 +217,12 @@ def _report(runs: list[dict], args: argparse.Namespace) -> dict:
         "submaps_frames_per_cpu_s": round(first["submap_frames"] / sub_cpu, 1),
         "peak_rss_mib": round(rss, 1),
         "peak_rss_mib_goal": GOAL_PEAK_RSS_MIB,
+        "submaps_workers": first["workers"],
+        "peak_rss_mib_with_workers": round(tree_rss, 1),
+        "peak_rss_mib_with_workers_after": {
+            s: round(_median(runs, lambda r, s=s: r["stages"][s]["tree_peak_rss_mib"]), 1)
+            for s in first["stages"]
+        },
         "process_wall_s": round(_median(runs, lambda r: r["process_wall_s"]), 2),
         "load_average_1min": os.getloadavg()[0],
     }

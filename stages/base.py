@@ -104,7 +104,9 @@ class Stage:
         run: `run(config, inputs) -> {output name: value}`.
         key_excludes: fields of the stage's own section that do not enter its key, because
             the stage never reads them (they configure a later stage that lists the
-            section in `reads_sections`, e.g. `keyframes.submap_stride`).
+            section in `reads_sections`, e.g. `keyframes.submap_stride`), or because they
+            change how, never what, it computes (`submaps.workers`; a test holds the
+            bytes equal).
         reads_sections: other config sections the stage reads: bound as inputs
             `config.<section>` and hashed, whole, into its key.
         dataset_section: the section the "dataset" input is opened with (None: its own).

@@ -25,6 +25,7 @@ from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINT
 from sim.geometry import pose_to_matrix
 from stages.submaps.frames import pose_matrix, rpy_from_rotation, submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from stages.submaps.workers import worker_count
 from stages.voxelize.stage import build_map
 
 POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
@@ -267,10 +268,17 @@ class Runs:
     config: Path
 
 
+TWO_WORKERS_FORCED = (
+    *("--set", "keyframes.submap_stride=1", "--set", "submaps.workers=2"),
+    *("--force", "submaps"),
+)
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
     """The training mission mapped five times: stride 0, 1, 0, 1 with another match
-    radius, 1 with `submaps` forced (the mission doubles as the model's training set)."""
+    radius, 1 with `submaps` forced and mapped by two worker processes (the mission
+    doubles as the model's training set)."""
     root = tmp_path_factory.mktemp("submaps")
     config = root / "config.yaml"
     config.write_text(CONFIG.format(training=root / "training"))
@@ -291,7 +299,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> Runs:
         stride1,
         run(),
         run("--set", "keyframes.submap_stride=1", "--set", "submaps.match_radius_m=0.5"),
-        run("--set", "keyframes.submap_stride=1", "--force", "submaps"),
+        run(*TWO_WORKERS_FORCED),
         points_bytes,
         config,
     )
@@ -320,11 +328,14 @@ def test_the_stride_recomputes_submaps_voxelize_evaluate_only(runs: Runs) -> Non
         assert key == classify["inputs"]["train.model"]
 
 
-def test_a_forced_rerun_of_submaps_writes_the_same_bytes(runs: Runs) -> None:
+def test_a_forced_rerun_in_two_worker_processes_writes_the_same_bytes(runs: Runs) -> None:
+    # same key (workers are not in it), recomputed, and the same bytes as one process
     assert runs.forced["submaps"] == ("computed", runs.stride1["submaps"][1])
     assert statuses(runs.forced, (*UPSTREAM, "voxelize", "evaluate")) == {"hit"}
     again = (runs.forced["submaps"][1] / "submap_points.parquet").read_bytes()
     assert again == runs.points_bytes and len(again) > 1000
+    frames = json.loads((runs.forced["submaps"][1] / "stats.json").read_text())["frames"]
+    assert worker_count(2, frames) == 2  # enough frames for both workers to map some
 
 
 def test_frames_sit_between_keyframes_and_compose_to_their_dead_reckoning(runs: Runs) -> None:

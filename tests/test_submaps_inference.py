@@ -1,6 +1,6 @@
 """Dense submaps on real simulated images: frames between keyframes take the keyframe
 objects they see again and get heights from the keyframe-learnt class models, on the
-true surface (`stages.submaps.stage.frame_points`, `stages.submaps.transfer`)."""
+true surface (`stages.submaps.mapping.frame_points`, `stages.submaps.transfer`)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from stages.features.stage import FeaturesConfig, keyframe_features
 from stages.fuse.stage import FuseConfig, fuse_keyframe, sonar_offset
 from stages.infer.inputs import object_feature_rows
 from stages.infer.stage import InferConfig, learn_and_infer, points_table
-from stages.submaps.stage import frame_points
+from stages.submaps.mapping import frame_points
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 
 REPO = Path(__file__).resolve().parents[1]

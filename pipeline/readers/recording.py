@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -107,6 +108,11 @@ class SourceRecording:
         self._types = {t.topic: t.msgtype for t in self._topics}
         self._nav: PoseTrack | None = None
         self._pose_tracks: dict[str, PoseTrack] | None = None
+
+    def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
+        """Pickles as its path, options and topic roles: a worker process reopens the
+        file (open handles and decoded streams do not cross processes)."""
+        return _reopened, (self.source.path, self.options, self.roles)
 
     @property
     def name(self) -> str:
@@ -269,3 +275,9 @@ class SourceRecording:
             "topics": self.roles.as_dict(),
             "warnings": list(self.source.warnings),
         }
+
+
+def _reopened(path: Path, options: ReaderOptions, roles: Roles) -> SourceRecording:
+    from pipeline.readers.sources import open_source
+
+    return SourceRecording(open_source(path), options, roles)
