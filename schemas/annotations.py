@@ -75,7 +75,7 @@ class AnnotatedObject(_Model):
     @classmethod
     def _known_class(cls, name: str) -> str:
         if name not in CLASS_NAMES:
-            raise ValueError(f"unknown class {name!r} (one of: {', '.join(CLASS_NAMES)})")
+            raise ValueError(f"unknown class {name[:40]!r} (one of: {', '.join(CLASS_NAMES)})")
         return name
 
     @field_validator("polygon_m")
@@ -123,7 +123,10 @@ class AnnotatedObject(_Model):
 class AnnotatedKeyframe(_Model):
     """The objects drawn on one horizontal ping (where shapes overlap, the later wins)."""
 
-    t_ns: int = Field(ge=0, description="horizontal ping time [ns] (keyframes.parquet t_ns)")
+    # A keyframe time is an int64 (keyframes.parquet t_ns): larger values cannot match one.
+    t_ns: int = Field(
+        ge=0, le=2**63 - 1, description="horizontal ping time [ns] (keyframes.parquet t_ns)"
+    )
     objects: tuple[AnnotatedObject, ...] = ()
 
 

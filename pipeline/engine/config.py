@@ -18,9 +18,9 @@ from typing import Any, cast
 import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 
-from pipeline.engine.config_errors import validation_message
+from pipeline.engine.config_errors import one_line, short, validation_message
 from pipeline.engine.errors import ConfigError
-from pipeline.engine.yaml_files import read_yaml
+from pipeline.engine.yaml_files import YamlRefused, load_yaml_text, read_yaml
 from stages.base import Stage
 
 __all__ = [
@@ -94,7 +94,7 @@ def _field_annotation(model: type[BaseModel], path: list[str], where: str) -> An
     current: Any = model
     for i, part in enumerate(path):
         fields = getattr(current, "model_fields", None)
-        dotted = ".".join(path[: i + 1])
+        dotted = one_line(".".join(path[: i + 1]), MAX_KEY_CHARS)
         if fields is None:
             raise ConfigError(f"{where}: '{dotted}' is not a config section")
         if part not in fields:
@@ -122,18 +122,36 @@ def parse_override(model: type[BaseModel], text: str) -> tuple[list[str], Any]:
     """
     key, sep, raw = text.partition("=")
     if not sep or not key.strip():
-        raise ConfigError(f"override '{text}': expected section.field=value")
+        raise ConfigError(f"override {short(text)}: expected section.field=value")
     path = key.strip().split(".")
-    annotation = _field_annotation(model, path, f"override '{text}'")
+    where = f"--set {one_line(key.strip(), MAX_KEY_CHARS)}"
+    annotation = _field_annotation(model, path, where)
+    if len(raw) > MAX_OVERRIDE_CHARS:
+        raise ConfigError(f"{where}: value of {len(raw)} characters (at most {MAX_OVERRIDE_CHARS})")
     if _is_sequence_type(annotation) and not raw.strip().startswith("["):
-        return path, [_scalar(v) for v in raw.split(",") if v.strip() != ""]
-    return path, _scalar(raw)
+        return path, [_scalar(v, where) for v in raw.split(",") if v.strip() != ""]
+    return path, _scalar(raw, where)
 
 
-def _scalar(raw: str) -> Any:
+MAX_KEY_CHARS = 80
+"""Longest `--set` key quoted in a message."""
+
+MAX_OVERRIDE_CHARS = 1 << 16
+"""Longest `--set` value (a list of a few hundred numbers fits easily)."""
+
+
+def _scalar(raw: str, where: str) -> Any:
+    """A `--set` value read as YAML by the bounded loader; text that is not YAML stays text.
+
+    Refusals (aliases, duplicate keys, deep nesting, huge integers) are errors, not text.
+    """
+    if not raw.strip():
+        return ""
     try:
-        return yaml.safe_load(raw) if raw.strip() else ""
-    except yaml.YAMLError:
+        return load_yaml_text(raw, where, "value", ConfigError)
+    except ConfigError as err:
+        if isinstance(err.__cause__, YamlRefused):
+            raise
         return raw
 
 
@@ -156,7 +174,9 @@ def _check_keys(model: type[BaseModel], data: Mapping[str, Any], where: str, pre
         dotted = f"{prefix}{key}"
         if key not in fields:
             names = [f"{prefix}{f}" for f in fields]
-            raise ConfigError(f"{where}: unknown key '{dotted}'{_closest(dotted, names)}")
+            if not isinstance(key, str) or len(dotted) > MAX_KEY_CHARS:
+                raise ConfigError(f"{where}: unknown key {short(dotted)}")
+            raise ConfigError(f"{where}: unknown key '{one_line(dotted)}'{_closest(dotted, names)}")
         sub = fields[key].annotation
         if isinstance(value, Mapping) and isinstance(sub, type) and issubclass(sub, BaseModel):
             _check_keys(sub, value, where, f"{dotted}.")
@@ -175,7 +195,7 @@ def load_config(
             name), or a value of the wrong type; the message names file and key.
     """
     model = config_model_for(stages, extra_sections)
-    where = str(path) if path else "config"
+    where = one_line(str(path)) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:
         loaded = read_yaml(path, "config", ConfigError)
@@ -183,10 +203,17 @@ def load_config(
             raise ConfigError(f"{path}: expected a mapping of stage sections")
         data = loaded or {}
         _check_keys(model, data, where, "")
-    apply_overrides(data, [parse_override(model, o) for o in overrides])
+    parsed = [parse_override(model, o) for o in overrides]
+    apply_overrides(data, parsed)
     try:
         return model.model_validate(data)
     except ValidationError as err:
+        loc = list(err.errors()[0]["loc"])
+        # A bad value given on the command line is named as such, not as the file's.
+        for key, _ in reversed(parsed):
+            if loc[: len(key)] == key:
+                where = f"--set {one_line('.'.join(key), MAX_KEY_CHARS)}"
+                break
         raise ConfigError(validation_message(model, err, where)) from err
 
 

@@ -13,7 +13,37 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ValidationError
 
-__all__ = ["allowed_range", "validation_message"]
+__all__ = ["MAX_QUOTE_CHARS", "allowed_range", "one_line", "short", "validation_message"]
+
+MAX_QUOTE_CHARS = 60
+"""Longest quote of a bad value in a message (a value may be megabytes long)."""
+
+MAX_MESSAGE_CHARS = 300
+"""Longest validation problem text (a validator may embed the value it rejects)."""
+
+
+def one_line(text: str, limit: int | None = None) -> str:
+    """`text` with line breaks escaped (`\\n`), cut to `limit` characters with an ellipsis."""
+    text = text.replace("\r", "\\r").replace("\n", "\\n")
+    if limit is not None and len(text) > limit:
+        return text[: limit - 1] + "\u2026"
+    return text
+
+
+def short(value: Any, limit: int = MAX_QUOTE_CHARS) -> str:
+    """`repr(value)` cut to `limit` characters (with an ellipsis): a quote of a bad value.
+
+    Long strings and containers are cut before `repr`, so a huge value is never rendered.
+    """
+    if isinstance(value, int) and value.bit_length() > 4 * limit:
+        return f"<integer of {value.bit_length()} bits>"
+    if isinstance(value, str | bytes) and len(value) > limit:
+        value = value[:limit]
+        return repr(value)[: limit - 1] + "\u2026"
+    if isinstance(value, list | tuple | set | frozenset | dict) and len(value) > limit:
+        return f"<{type(value).__name__} of {len(value)} items>"
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "\u2026"
 
 
 def _unwrap(annotation: Any) -> tuple[Any, list[Any]]:
@@ -74,17 +104,17 @@ def _dotted(loc: Sequence[int | str]) -> str:
     text = ""
     for part in loc:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else str(part))
-    return text
+    return one_line(text, MAX_QUOTE_CHARS)
 
 
 def validation_message(model: type[BaseModel], err: ValidationError, where: str) -> str:
     """The first error as `where: section.field = value: problem (allowed: range)`."""
     first = err.errors()[0]
     loc = first["loc"]
-    problem = str(first["msg"]).removeprefix("Value error, ")
-    text = f"{where}: {_dotted(loc)}"
+    problem = one_line(str(first["msg"]).removeprefix("Value error, "), MAX_MESSAGE_CHARS)
+    text = f"{one_line(where)}: {_dotted(loc)}"
     if "input" in first and not isinstance(first["input"], dict):
-        text += f" = {first['input']!r}"
+        text += f" = {short(first['input'])}"
     bounds = allowed_range(model, loc)
     if bounds is not None and first["type"] in _OUT_OF_RANGE:
         return f"{text}: must be {bounds}"

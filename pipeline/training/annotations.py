@@ -16,6 +16,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from pipeline.engine.codecs import write_output
+from pipeline.engine.config_errors import one_line
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
@@ -27,6 +28,10 @@ from stages.classify.annotations import RASTER_VERSION
 __all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_annotations"]
 
 SUFFIXES = (".annotations.yaml", ".annotations.yml", ".annotations.json")
+
+ANNOTATIONS_MAX_BYTES = 4 << 20
+"""Largest annotation file read: some 25,000 annotated keyframes, far beyond a recording's
+few thousand, and still parsed in a few seconds."""
 
 
 def _never_run(config: Any, inputs: Any) -> dict[str, Any]:  # pragma: no cover
@@ -60,17 +65,18 @@ def annotation_path(dataset: Path) -> Path | None:
 def _message(err: ValidationError, path: Path) -> str:
     first = err.errors()[0]
     loc = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in first["loc"]).lstrip(".")
-    msg = str(first["msg"]).removeprefix("Value error, ")
+    msg = one_line(str(first["msg"]).removeprefix("Value error, "), 200)
     more = f" (and {err.error_count() - 1} more)" if err.error_count() > 1 else ""
-    return f"{path}: {loc or 'file'}: {msg}{more}"
+    return f"{one_line(str(path))}: {one_line(loc, 80) or 'file'}: {msg}{more}"
 
 
 def load_annotations(path: Path) -> AnnotationFile:
     """Read and validate an annotation file.
 
     Raises:
-        SourceError: unreadable, not YAML/JSON, or invalid; one line naming the file
-            and the field (e.g. `keyframes[2].objects[0].class_name`).
+        SourceError: unreadable, not YAML/JSON, refused by the bounded loader (aliases,
+            duplicate keys, depth, huge integers, over ANNOTATIONS_MAX_BYTES), or invalid;
+            one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
     return read_model(
         path,
@@ -79,6 +85,7 @@ def load_annotations(path: Path) -> AnnotationFile:
         SourceError,
         lambda err: _message(err, path),
         "expected a mapping with 'format' and 'keyframes'",
+        ANNOTATIONS_MAX_BYTES,
     )
 
 
