@@ -58,6 +58,16 @@ def training_config(config: BaseModel) -> BaseModel:
     return config.model_copy(update={k: v for k, v in sections.items() if k in fields})
 
 
+def _unmatched_is_bad_input(frames: Iterator[KeyframeImages]) -> Iterator[KeyframeImages]:
+    """`frames`, with annotations matching no keyframe raised as a SourceError (exit 2)."""
+    from stages.classify.annotations import UnmatchedAnnotations
+
+    try:
+        yield from frames
+    except UnmatchedAnnotations as err:
+        raise SourceError(str(err)) from err
+
+
 def training_stage_for(
     n_datasets: int, annotated: Sequence[int] = (), names: Sequence[str] = ()
 ) -> Stage:
@@ -69,7 +79,9 @@ def training_stage_for(
     images. `names` (the datasets' paths) only word error messages. Outputs and config
     are those of `stages.classify.train`.
     """
+    from pipeline.engine.config_errors import one_line
     from pipeline.engine.registry import training_stage
+    from pipeline.training.annotations import annotation_path
     from schemas.annotations import AnnotationFile
     from stages.classify.annotations import label_keyframes
     from stages.classify.train import train_classifier
@@ -103,7 +115,9 @@ def training_stage_for(
         if i not in annotated:
             return labelled(i, kf)
         doc = AnnotationFile.model_validate(bound[f"annotations_{i}.annotations"])
-        return label_keyframes(kf, doc, source=f"annotations of {name(i)}")
+        ann = annotation_path(Path(name(i))) if i < len(names) else None
+        source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
+        return _unmatched_is_bad_input(label_keyframes(kf, doc, source=source))
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
         pairs = [(frames(i, bound), bound[f"features_{i}.features"]) for i in range(n_datasets)]

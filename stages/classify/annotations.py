@@ -22,12 +22,24 @@ from stages._lazy import lazy
 
 mpath = lazy("matplotlib.path")
 
-__all__ = ["RASTER_VERSION", "label_keyframes", "rasterise"]
+__all__ = ["RASTER_VERSION", "UnmatchedAnnotations", "label_keyframes", "rasterise"]
 
 log = logging.getLogger(__name__)
 
 RASTER_VERSION = 1
 """Bumped whenever rasterisation could label a cell differently (it enters the train key)."""
+
+SHOWN_TIMES = 5
+"""Unmatched annotation times quoted in a message (the rest are counted)."""
+
+
+class UnmatchedAnnotations(ValueError):
+    """No annotated time matches a keyframe: bad input (the file or the recording), not a bug."""
+
+
+def _times(times: list[int]) -> str:
+    shown = ", ".join(str(t) for t in times[:SHOWN_TIMES])
+    return shown + (f", ... ({len(times) - SHOWN_TIMES} more)" if len(times) > SHOWN_TIMES else "")
 
 
 def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray:
@@ -77,15 +89,18 @@ def label_keyframes(
         Annotated keyframes with `horizontal.labels` set (uint8 class ids).
 
     Raises:
-        ValueError: after the last keyframe, if no entry matched any keyframe.
+        UnmatchedAnnotations: after the last keyframe, if no entry matched any keyframe
+            (entries that match none while others match are a logged warning).
     """
     entries = sorted(annotations.keyframes, key=lambda k: k.t_ns)
     times = np.array([k.t_ns for k in entries], np.int64)
     tol_ns = annotations.time_tolerance_ms * 1e6
     used: set[int] = set()
     n_frames = 0
+    lo_t, hi_t = np.iinfo(np.int64).max, np.iinfo(np.int64).min
     for frame in frames:
         n_frames += 1
+        lo_t, hi_t = min(lo_t, frame.t_ns), max(hi_t, frame.t_ns)
         i = int(np.searchsorted(times, frame.t_ns))
         near = [j for j in (i - 1, i) if 0 <= j < len(times)]
         j = min(near, key=lambda j: abs(int(times[j]) - frame.t_ns))
@@ -97,12 +112,16 @@ def label_keyframes(
             frame, horizontal=dataclasses.replace(frame.horizontal, labels=labels)
         )
     if not used:
-        raise ValueError(
-            f"{source}: none of its {len(times)} annotated times is within "
-            f"{annotations.time_tolerance_ms:g} ms of one of the {n_frames} keyframes' t_ns"
+        span = f", {lo_t} .. {hi_t}" if n_frames else ""
+        raise UnmatchedAnnotations(
+            f"{source}: keyframes[].t_ns: none of its {len(times)} annotated times "
+            f"({_times(times.tolist())}) is within {annotations.time_tolerance_ms:g} ms of "
+            f"one of the {n_frames} keyframes' t_ns{span}"
         )
     if len(used) < len(times):
-        log.info(
-            "%s: %d of %d annotated times match no keyframe (not selected by the keyframe spacing)",
-            source, len(times) - len(used), len(times),
+        unmatched = [int(t) for j, t in enumerate(times) if j not in used]
+        log.warning(
+            "%s: %d of %d annotated times match no keyframe and are not trained on "
+            "(t_ns %s; not selected by the keyframe spacing, or not in the recording)",
+            source, len(unmatched), len(times), _times(unmatched),
         )  # fmt: skip
