@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -13,6 +16,10 @@ SHARED_DATA = ROOT.parent / "shared" / "data"
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
+# Model and dataset caches in a throwaway folder, never the user's (pipeline.training.cache_dir).
+if not os.environ.get("SONARMAP_CACHE_DIR"):
+    os.environ["SONARMAP_CACHE_DIR"] = tempfile.mkdtemp(prefix="sonarmap-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["SONARMAP_CACHE_DIR"], True)
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any, cast
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError, create_model
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from pipeline.engine.config_errors import one_line, short, validation_message
 from pipeline.engine.errors import ConfigError
@@ -38,7 +38,9 @@ def _model_for(
     stages: tuple[Stage, ...], extras: tuple[tuple[str, type[BaseModel]], ...] = ()
 ) -> type[BaseModel]:
     fields: dict[str, Any] = {s.name: (s.config, s.config()) for s in stages}
-    fields.update({name: (model, model()) for name, model in extras})
+    # Built per config, not once: a section's defaults may read the environment (the
+    # `training` section's cache directory, `$SONARMAP_CACHE_DIR`).
+    fields.update({name: (model, Field(default_factory=model)) for name, model in extras})
     model: type[BaseModel] = cast(Any, create_model)(
         "PipelineConfig",
         __config__=ConfigDict(frozen=True, extra="forbid"),

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pydantic import Field, field_validator
 
 from pipeline.engine.errors import ConfigError
+from pipeline.training.cache_dir import default_training_directory
 from stages.base import ConfigModel
 from stages.features.stage import FeaturesConfig
 from stages.keyframes import KeyframesConfig
@@ -42,14 +43,20 @@ class TrainingDataConfig(ConfigModel):
     The mapped scene should not be among them (the default marina never is). Seeds are
     far from the study's 0..N-1. Simulated files go to `directory` and are reused; the
     trained models go to the model cache `<directory>/store` (`pipeline.training.model_cache`),
-    which every store on the machine reuses.
+    which every store of the user reuses. `directory` defaults to the user's cache
+    directory (`pipeline.training.cache_dir`), not to the working directory.
     """
 
     sets: tuple[TrainingSet, ...] = (
         TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
         TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
     )
-    directory: str = Field("data/training", min_length=1)
+    directory: str = Field(
+        default_factory=lambda: str(default_training_directory()),
+        min_length=1,
+        description="training datasets and the model cache (`<directory>/store`); default:"
+        " `<user cache dir>/sonarmap/training`, or `$SONARMAP_CACHE_DIR/training` when set",
+    )
     recorded: tuple[str, ...] = Field(
         default=(),
         description="field recordings to train on too; each needs <stem>.annotations.yaml beside it",

@@ -1,7 +1,8 @@
-"""One default model for every store on the machine: the model cache.
+"""One default model for every store of a user: the model cache.
 
 The default classifier is trained once into the model cache, an ordinary artifact store
-at `<training.directory>/store` (atomic commits, per-key locks, manifests with sha256),
+at `<training.directory>/store`, by default in the user's cache directory
+(`pipeline.training.cache_dir`), with atomic commits, per-key locks, manifests with sha256,
 which also holds the training datasets' keyframes and features. A run's store gets a
 verified copy of the `train` artifact it uses, so `show`, `push` and `pull` see the
 model where they always did. The `train` key is planned without computing anything,
@@ -29,6 +30,7 @@ from pydantic import BaseModel
 
 from pipeline.engine.errors import ArtifactCorrupt
 from pipeline.engine.store import ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
+from pipeline.training.cache_dir import default_training_directory
 from stages.base import Stage
 
 __all__ = [
@@ -47,8 +49,9 @@ log = logging.getLogger(__name__)
 CACHE_DIR = "store"
 """The model cache's folder inside `training.directory`."""
 
-DEFAULT_MODEL_CACHE = Path("data/training") / CACHE_DIR
-"""The model cache of the default `training.directory` (where `push` looks; a test keeps
+DEFAULT_MODEL_CACHE = default_training_directory() / CACHE_DIR
+"""The model cache of the default `training.directory`, in the user's cache directory or
+under `$SONARMAP_CACHE_DIR` as set when sonarmap starts (where `push` looks; a test keeps
 it equal to `TrainingDataConfig().directory`, which stays the one default)."""
 
 Source = Literal["store", "model cache", "shipped", "trained"]
