@@ -112,6 +112,13 @@ def test_non_regular_and_oversized_files_are_refused_before_reading(tmp_path: Pa
     _refused(["config", "check", str(big)], f"{CONFIG_MAX_BYTES + 1} bytes")
 
 
+def test_a_document_of_too_many_values_is_refused_while_composing() -> None:
+    text = "[" + ", ".join(["1"] * 11) + "]"
+    assert len(load_yaml_text(text, "x", "v", ConfigError, max_nodes=12)) == 11
+    with pytest.raises(ConfigError, match=r"^x: v refused \(line 1:\d+: more than 11 values"):
+        load_yaml_text(text, "x", "v", ConfigError, max_nodes=11)
+
+
 def test_valid_yaml_still_loads_and_the_last_set_wins(tmp_path: Path) -> None:
     path = tmp_path / "ok.yaml"
     path.write_text("keyframes: {spacing_m: 7}\n# a comment\nfeatures: {}\n")

@@ -8,6 +8,8 @@ make sonarmap build something large or recurse without end:
 - a mapping key given twice is refused (the last one silently winning loses data);
 - nesting deeper than `MAX_DEPTH` is refused while composing, before Python recursion;
 - an integer scalar longer than `MAX_INT_CHARS` is refused before `int()` sees it;
+- a document of more than its node cap (`CONFIG_MAX_NODES` by default) is refused while
+  composing, so the time spent on a file is bounded whatever its shape;
 - a file must be a regular file no larger than its cap (checked with `os.stat` before
   opening, and at most cap+1 bytes are read), so `/dev/zero` or a FIFO is refused.
 
@@ -37,6 +39,7 @@ ModelT = TypeVar("ModelT", bound=BaseModel)
 
 __all__ = [
     "CONFIG_MAX_BYTES",
+    "CONFIG_MAX_NODES",
     "MAX_DEPTH",
     "MAX_INT_CHARS",
     "YamlRefused",
@@ -54,6 +57,10 @@ MAX_DEPTH = 64
 
 MAX_INT_CHARS = 40
 """Longest integer scalar (a nanosecond time has 19 digits)."""
+
+CONFIG_MAX_NODES = 50_000
+"""Most scalars, mappings and sequences in a config (one has a few hundred): with the
+byte cap, this bounds the time to parse or refuse, whatever the document's shape."""
 
 
 class YamlRefused(yaml.MarkedYAMLError):
@@ -94,12 +101,14 @@ class BoundedLoader(_EventSource, Composer, SafeConstructor, Resolver):
     compose_sequence_node = Composer.compose_sequence_node
     compose_mapping_node = Composer.compose_mapping_node
 
-    def __init__(self, stream: str) -> None:
+    def __init__(self, stream: str, max_nodes: int = CONFIG_MAX_NODES) -> None:
         _EventSource.__init__(self, stream)
         Composer.__init__(self)
         SafeConstructor.__init__(self)
         Resolver.__init__(self)
         self._depth = 0
+        self._nodes = 0
+        self._max_nodes = max_nodes
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         event: Any = self.peek_event()
@@ -113,6 +122,13 @@ class BoundedLoader(_EventSource, Composer, SafeConstructor, Resolver):
             raise YamlRefused(
                 problem=f"anchor &{one_line(str(event.anchor), 40)} refused (anchors are not supported)",
                 problem_mark=event.start_mark,
+            )
+        self._nodes += 1
+        if self._nodes > self._max_nodes:
+            raise YamlRefused(
+                problem=f"more than {self._max_nodes} values (a YAML document this large is"
+                " not a sonarmap input)",
+                problem_mark=mark,
             )
         nested = isinstance(event, yaml.MappingStartEvent | yaml.SequenceStartEvent)
         if nested:
@@ -172,18 +188,25 @@ def yaml_error_line(err: yaml.YAMLError) -> str:
     return one_line(text)
 
 
-def load_yaml_text(text: str, where: str, what: str, error: type[PipelineError]) -> Any:
+def load_yaml_text(
+    text: str,
+    where: str,
+    what: str,
+    error: type[PipelineError],
+    max_nodes: int = CONFIG_MAX_NODES,
+) -> Any:
     """Parse YAML text with the bounded loader.
 
     Args:
         where: what names the text in messages (a path, `--set KEY`).
         what: what the text is ("config", "annotations").
         error: the error type to raise.
+        max_nodes: the most scalars, mappings and sequences accepted.
 
     Raises:
         error: refused or not YAML; one line naming `where` and the line:column.
     """
-    loader = BoundedLoader(text)
+    loader = BoundedLoader(text, max_nodes)
     try:
         return loader.get_single_data()
     except YamlRefused as err:
@@ -222,7 +245,11 @@ def _read_capped(path: Path, what: str, error: type[PipelineError], max_bytes: i
 
 
 def read_yaml(
-    path: Path, what: str, error: type[PipelineError], max_bytes: int = CONFIG_MAX_BYTES
+    path: Path,
+    what: str,
+    error: type[PipelineError],
+    max_bytes: int = CONFIG_MAX_BYTES,
+    max_nodes: int = CONFIG_MAX_NODES,
 ) -> Any:
     """Parse a UTF-8 YAML file with the bounded loader.
 
@@ -231,6 +258,7 @@ def read_yaml(
         what: what the file is, for messages ("config", "bag metadata").
         error: the error type to raise (ConfigError, SourceError).
         max_bytes: the largest file accepted.
+        max_nodes: the most scalars, mappings and sequences accepted.
 
     Raises:
         error: not a regular file, too large, unreadable, not UTF-8, not YAML, or refused
@@ -244,7 +272,7 @@ def read_yaml(
         raise error(
             f"{where}: {what} is not UTF-8 text (byte {err.start} is {err.object[err.start]:#04x})"
         ) from err
-    return load_yaml_text(text, where, what, error)
+    return load_yaml_text(text, where, what, error, max_nodes)
 
 
 def read_model(
@@ -255,6 +283,7 @@ def read_model(
     describe: Callable[[ValidationError], str],
     not_a_mapping: str,
     max_bytes: int = CONFIG_MAX_BYTES,
+    max_nodes: int = CONFIG_MAX_NODES,
 ) -> ModelT:
     """A YAML mapping validated as `model`; every fault is one `error` line.
 
@@ -262,7 +291,7 @@ def read_model(
         describe: the one-line message of a validation error.
         not_a_mapping: the message when the document is not a mapping.
     """
-    raw = read_yaml(path, what, error, max_bytes)
+    raw = read_yaml(path, what, error, max_bytes, max_nodes)
     if not isinstance(raw, dict):
         raise error(f"{one_line(str(path))}: {not_a_mapping}, got {type(raw).__name__}")
     try:

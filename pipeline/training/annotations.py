@@ -30,8 +30,11 @@ __all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_a
 SUFFIXES = (".annotations.yaml", ".annotations.yml", ".annotations.json")
 
 ANNOTATIONS_MAX_BYTES = 4 << 20
-"""Largest annotation file read: some 25,000 annotated keyframes, far beyond a recording's
-few thousand, and still parsed in a few seconds."""
+"""Largest annotation file read."""
+
+ANNOTATIONS_MAX_NODES = 150_000
+"""Most YAML values in an annotation file: some 8,000 keyframes of one box each (18
+values), far beyond what is drawn by hand, and parsed in a few seconds."""
 
 
 def _never_run(config: Any, inputs: Any) -> dict[str, Any]:  # pragma: no cover
@@ -75,7 +78,8 @@ def load_annotations(path: Path) -> AnnotationFile:
 
     Raises:
         SourceError: unreadable, not YAML/JSON, refused by the bounded loader (aliases,
-            duplicate keys, depth, huge integers, over ANNOTATIONS_MAX_BYTES), or invalid;
+            duplicate keys, depth, huge integers, over ANNOTATIONS_MAX_BYTES or
+            ANNOTATIONS_MAX_NODES), or invalid;
             one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
     return read_model(
@@ -86,6 +90,7 @@ def load_annotations(path: Path) -> AnnotationFile:
         lambda err: _message(err, path),
         "expected a mapping with 'format' and 'keyframes'",
         ANNOTATIONS_MAX_BYTES,
+        ANNOTATIONS_MAX_NODES,
     )
 
 
