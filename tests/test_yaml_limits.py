@@ -90,7 +90,8 @@ def test_a_long_bad_value_is_quoted_by_a_short_prefix(tmp_path: Path) -> None:
     err = _refused(["config", "check", str(path)], "keyframes.spacing_m = 'zzz")
     assert err.count("z") < 80
     # A huge list is counted, not printed; a huge integer by its size.
-    assert short(list(range(10**5))) == "<list of 100000 items>"
+    assert short(list(range(10**5))) == "[0, 1, 2, 3, 4, 5, ...]"
+    assert len(short(["z" * 10**6] * 50)) <= 60
     assert short(10**4000).startswith("<integer of")
 
 

@@ -202,7 +202,7 @@ def load_config(
     if path is not None:
         loaded = read_yaml(path, "config", ConfigError)
         if loaded is not None and not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: expected a mapping of stage sections")
+            raise ConfigError(f"{where}: expected a mapping of stage sections")
         data = loaded or {}
         _check_keys(model, data, where, "")
     parsed = [parse_override(model, o) for o in overrides]

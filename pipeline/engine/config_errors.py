@@ -6,6 +6,7 @@ message never restates a default or a limit by hand.
 
 from __future__ import annotations
 
+import reprlib
 import types
 import typing
 from collections.abc import Sequence
@@ -31,18 +32,18 @@ def one_line(text: str, limit: int | None = None) -> str:
 
 
 def short(value: Any, limit: int = MAX_QUOTE_CHARS) -> str:
-    """`repr(value)` cut to `limit` characters (with an ellipsis): a quote of a bad value.
-
-    Long strings and containers are cut before `repr`, so a huge value is never rendered.
-    """
+    """A repr of `value` of at most `limit` characters (with an ellipsis): a quote of a bad
+    value. `reprlib` elides long strings and containers while rendering, so a huge value
+    is never rendered whole."""
     if isinstance(value, int) and value.bit_length() > 4 * limit:
         return f"<integer of {value.bit_length()} bits>"
-    if isinstance(value, str | bytes) and len(value) > limit:
-        value = value[:limit]
-        return repr(value)[: limit - 1] + "\u2026"
-    if isinstance(value, list | tuple | set | frozenset | dict) and len(value) > limit:
-        return f"<{type(value).__name__} of {len(value)} items>"
-    text = repr(value)
+    quoter = reprlib.Repr()
+    quoter.maxstring = quoter.maxother = quoter.maxlong = limit
+    quoter.maxlist = quoter.maxtuple = quoter.maxset = quoter.maxdict = 6
+    try:
+        text = one_line(quoter.repr(value))
+    except ValueError:  # an int nested in a container past Python's 4,300-digit limit
+        return f"<{type(value).__name__}>"
     return text if len(text) <= limit else text[: limit - 1] + "\u2026"
 
 
