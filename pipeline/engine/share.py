@@ -1,11 +1,18 @@
 """Sharing artifacts: push to and pull from any fsspec URL, verified on the way in.
 
-A remote mirrors the store layout (`<remote>/<stage>/<key>/manifest.json` + files).
-Pulling downloads into a temporary directory inside the local store, checks that the
-key matches the manifest's recipe, that no path escapes the artifact directory, and
-every file's size and sha256; only when every requested artifact passes are they
-committed (atomically, one by one), so a tampered or truncated transfer leaves the
-local store unchanged. Manifests are JSON; nothing is ever unpickled.
+A remote mirrors the store layout (`<remote>/<stage>/<key>/manifest.json` + files), and
+an artifact exists there once its manifest does: push sends every file first and each
+manifest last (renamed into place where the filesystem can, one atomic PUT on S3), so
+a reader never sees a partial artifact and a directory without a manifest is ignored.
+A file already at the remote with the right size and sha256 is not sent again, which
+makes an interrupted push resumable.
+
+Pull trusts nothing the remote says until it has checked it (`pipeline.engine.trust`):
+the stage is not a reserved store folder and equals the recipe's and the path's, the key
+is the hash of the recipe, a model's file sha256 is pinned, every file is streamed with
+its declared size as a hard limit and hashed on the way, parses as the kind its name
+says (`model.pt` is loaded weights-only), and only then is anything committed. Manifests
+are JSON; nothing is ever unpickled.
 """
 
 from __future__ import annotations
@@ -14,13 +21,16 @@ import json
 import logging
 import re
 import shutil
-from collections.abc import Iterable, Sequence
+import uuid
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
+from pipeline.engine.hashing import recipe_key
 from pipeline.engine.integrity import check_parses
 from pipeline.engine.manifest import ADDRESS_PATTERN, parse_manifest
+from pipeline.engine.remotes import display, open_remote, read_only
 from pipeline.engine.store import (
     MANIFEST,
     ArtifactRef,
@@ -28,26 +38,34 @@ from pipeline.engine.store import (
     safe_relative,
     verify_artifact_dir,
 )
+from pipeline.engine.transfer import (
+    Job,
+    TransferStats,
+    download,
+    max_file_bytes,
+    os_error,
+    run_jobs,
+    upload,
+)
+from pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file, check_not_reserved
 
-__all__ = ["pull", "push"]
+__all__ = ["list_remote", "pull", "push"]
 
 log = logging.getLogger(__name__)
+MAX_MANIFEST_BYTES = 16 << 20
+_HEX = re.compile(r"^[0-9a-f]{1,64}$")
 
-
-def _fs(remote: str) -> tuple[Any, str]:
-    import fsspec
-
-    try:
-        fs, root = fsspec.core.url_to_fs(remote)
-    except (ImportError, ValueError) as err:
-        raise StoreError(f"remote {remote}: {err}") from err
-    return fs, root.rstrip("/")
+Leaf = Callable[[str, str, Mapping[str, Any]], bool]
 
 
 def _upstream_closure(
-    refs: Iterable[tuple[str, str]], manifest_of: Any, with_upstream: bool
+    refs: Iterable[tuple[str, str]],
+    manifest_of: Callable[[str, str], Mapping[str, Any]],
+    with_upstream: bool,
+    is_leaf: Leaf = lambda s, k, m: False,
 ) -> list[tuple[str, str]]:
-    """(stage, key) pairs with every upstream artifact, upstream first."""
+    """(stage, key) pairs with every upstream artifact, upstream first; a leaf (a shipped
+    model, whose provenance is its lock) is taken without its upstream."""
     order: list[tuple[str, str]] = []
     seen: set[tuple[str, str]] = set()
 
@@ -56,7 +74,7 @@ def _upstream_closure(
             return
         seen.add((stage, key))
         manifest = manifest_of(stage, key)
-        if with_upstream:
+        if with_upstream and not is_leaf(stage, key, manifest):
             # `input_artifacts` names the producing stage ("keyframes/<key>") even when the
             # input is bound under another name (training reads several datasets).
             addresses = manifest.get("input_artifacts") or {
@@ -67,7 +85,8 @@ def _upstream_closure(
                 # Checked before any I/O: "../x" would read outside the store or remote.
                 if not isinstance(address, str) or not re.fullmatch(ADDRESS_PATTERN, address):
                     raise ArtifactCorrupt(
-                        f"{stage}/{key[:12]}: upstream address {address!r} is not <stage>/<key>"
+                        f"{stage}/{key[:12]}: upstream address {str(address)[:80]!r} is not "
+                        "<stage>/<key>"
                     )
                 up_stage, _, up_key = address.partition("/")
                 visit(up_stage, up_key)
@@ -78,6 +97,18 @@ def _upstream_closure(
     return order
 
 
+def _write_manifest(fs: Any, dest: str, data: bytes) -> None:
+    """Make the artifact at `dest` visible: one atomic PUT on object stores, else a
+    temporary name renamed into place (a reader never reads half a manifest)."""
+    protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
+    if protocol in ("s3", "s3a", "gs", "gcs"):
+        fs.pipe_file(f"{dest}/{MANIFEST}", data)
+        return
+    tmp = f"{dest}/.{MANIFEST}.{uuid.uuid4().hex[:12]}.tmp"
+    fs.pipe_file(tmp, data)
+    fs.mv(tmp, f"{dest}/{MANIFEST}")
+
+
 def push(
     store: ArtifactStore,
     remote: str,
@@ -85,15 +116,27 @@ def push(
     *,
     with_upstream: bool = True,
     fallbacks: Sequence[ArtifactStore] = (),
+    policy: TrustPolicy | None = None,
+    stats: TransferStats | None = None,
 ) -> list[str]:
     """Copy artifacts (by stage name or key prefix; all when none given) to `remote`.
 
-    Files go first and the manifest last, so a reader never sees a partial artifact.
     Upstream artifacts missing from `store` are taken from `fallbacks` (the model cache
-    holds the training datasets a store's model was trained on). Returns the
-    "stage/key" addresses pushed.
+    holds the training datasets a store's model was trained on); a shipped model
+    (`policy.leaves`) is pushed without its training data. Returns the "stage/key"
+    addresses now at the remote.
+
+    Raises:
+        StoreError: an upstream artifact is missing everywhere (named), the remote is
+            read-only, full or unwritable (named, exit 2).
     """
-    fs, root = _fs(remote)
+    policy = policy or TrustPolicy()
+    stats = stats if stats is not None else TransferStats()
+    if read_only(remote):
+        raise StoreError(
+            f"remote {display(remote)} is read-only (http); push to a path, s3:// or sftp://"
+        )
+    fs, root = open_remote(remote)
     chosen = [store.find(t) for t in targets] if targets else list(store.iter_artifacts())
 
     def holder(stage: str, key: str) -> ArtifactRef:
@@ -103,30 +146,112 @@ def push(
                 return ref
         raise StoreError(f"{stage}/{key[:12]}: upstream artifact missing from {store.root}")
 
-    pushed = []
-    for stage, key in _upstream_closure(
-        ((r.stage, r.key) for r in chosen), lambda s, k: holder(s, k).manifest, with_upstream
-    ):
+    order = _upstream_closure(
+        ((r.stage, r.key) for r in chosen),
+        lambda s, k: holder(s, k).manifest,
+        with_upstream,
+        policy.is_leaf,
+    )
+    pending: list[ArtifactRef] = []
+    for stage, key in order:
         ref = holder(stage, key)
         store.verify(ref)
-        dest = f"{root}/{stage}/{key}"
-        if fs.exists(f"{dest}/{MANIFEST}"):
-            pushed.append(f"{stage}/{key}")
-            continue
-        for rel in ref.manifest["files"]:
-            fs.makedirs(f"{dest}/{Path(rel).parent.as_posix()}".rstrip("/."), exist_ok=True)
-            fs.put_file(str(ref.file(rel)), f"{dest}/{rel}")
-        fs.pipe_file(f"{dest}/{MANIFEST}", (ref.path / MANIFEST).read_bytes())
-        pushed.append(f"{stage}/{key}")
-    return pushed
+        if not _exists(fs, f"{root}/{stage}/{key}/{MANIFEST}", remote):
+            pending.append(ref)
+    jobs = []
+    for ref in pending:
+        dest = f"{root}/{ref.stage}/{ref.key}"
+        for rel, entry in sorted(ref.manifest["files"].items()):
+            label = f"{display(remote)}/{ref.stage}/{ref.key[:12]}/{rel}"
+            jobs.append(_upload_job(fs, ref.file(rel), f"{dest}/{rel}", entry, label))
+    run_jobs(jobs, f"push {display(remote)}", stats)
+    for ref in pending:  # upstream first: a visible artifact's inputs are visible too
+        dest = f"{root}/{ref.stage}/{ref.key}"
+        try:
+            _write_manifest(fs, dest, (ref.path / MANIFEST).read_bytes())
+        except OSError as err:
+            raise os_error(err, f"{display(remote)}/{ref.stage}/{ref.key[:12]}") from err
+    log.info("pushed %d artifacts to %s (%d files sent)", len(order), display(remote), stats.sent)
+    return [f"{s}/{k}" for s, k in order]
 
 
-def _remote_manifest(fs: Any, root: str, stage: str, key: str) -> dict[str, Any]:
-    where = f"remote {stage}/{key[:12]}"
+def _exists(fs: Any, path: str, remote: str) -> bool:
     try:
-        manifest: Any = json.loads(fs.cat_file(f"{root}/{stage}/{key}/{MANIFEST}"))
+        return bool(fs.exists(path))
+    except OSError as err:
+        raise os_error(err, display(remote)) from err
+
+
+def _upload_job(fs: Any, src: Path, dst: str, entry: Mapping[str, Any], label: str) -> Job:
+    size, sha = int(entry["size"]), str(entry["sha256"])
+
+    def run(progress: Callable[[int], None]) -> bool:
+        try:
+            return upload(fs, src, dst, size, sha, progress)
+        except OSError as err:
+            raise os_error(err, label) from err
+
+    return Job(run, size)
+
+
+# -- reading a remote ----------------------------------------------------------------------
+
+
+def _names(fs: Any, path: str) -> list[str]:
+    """Last path components under `path` (directories and files), [] when absent."""
+    try:
+        entries = fs.ls(path, detail=False)
+    except FileNotFoundError:
+        return []
+    return sorted({str(p).rstrip("/").rsplit("/", 1)[-1] for p in entries})
+
+
+def _keys(fs: Any, root: str, stage: str) -> list[str]:
+    """Keys of committed artifacts (with a manifest) of `stage` at the remote."""
+    return [
+        k
+        for k in _names(fs, f"{root}/{stage}")
+        if _HEX.match(k) and fs.exists(f"{root}/{stage}/{k}/{MANIFEST}")
+    ]
+
+
+def _stages(fs: Any, root: str) -> list[str]:
+    stages = []
+    for name in _names(fs, root):
+        try:
+            check_not_reserved(name, "remote")
+        except ArtifactCorrupt:
+            continue
+        stages.append(name)
+    return stages
+
+
+def list_remote(remote: str) -> list[str]:
+    """ "stage/key" of every complete artifact (manifest present) at `remote`."""
+    fs, root = open_remote(remote)
+    return [f"{s}/{k}" for s in _stages(fs, root) for k in _keys(fs, root, s)]
+
+
+def _read_capped(fs: Any, path: str, cap: int, where: str) -> bytes:
+    with fs.open(path, "rb") as f:
+        data: bytes = f.read(cap + 1)
+    if len(data) > cap:
+        raise ArtifactCorrupt(f"{where}: manifest is larger than {cap} bytes")
+    return data
+
+
+def _remote_manifest(
+    fs: Any, root: str, stage: str, key: str, policy: TrustPolicy
+) -> dict[str, Any]:
+    """The remote's manifest for `stage/key`, after every check that needs no file."""
+    where = f"remote {stage[:40]}/{key[:12]}"
+    check_not_reserved(stage, where)
+    try:
+        raw = _read_capped(fs, f"{root}/{stage}/{key}/{MANIFEST}", MAX_MANIFEST_BYTES, where)
     except FileNotFoundError as err:
         raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
+    try:
+        manifest: Any = json.loads(raw)
     except ValueError as err:
         raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
     model = parse_manifest(manifest, where)
@@ -135,77 +260,141 @@ def _remote_manifest(fs: Any, root: str, stage: str, key: str) -> dict[str, Any]
     if model.recipe is None:
         # Without a recipe nothing ties the key to the content: refuse rather than trust.
         raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
+    if model.recipe.get("stage") != stage:
+        raise ArtifactCorrupt(
+            f"{where}: recipe is for stage {str(model.recipe.get('stage'))[:40]!r}, not {stage!r}"
+        )
+    try:
+        if recipe_key(model.recipe) != key:
+            raise ArtifactCorrupt(f"{where}: key does not match the manifest's recipe")
+    except ArtifactCorrupt:
+        raise
+    except PipelineError as err:
+        raise ArtifactCorrupt(f"{where}: the manifest's recipe cannot be hashed") from err
+    cap = max_file_bytes()
+    for rel, entry in model.files.items():
+        if entry.size > cap:
+            raise ArtifactCorrupt(
+                f"{where}: '{rel[:80]}' declares {entry.size} bytes, over the {cap}-byte limit "
+                "(SONARMAP_MAX_FILE_BYTES)"
+            )
+    policy.check_model(stage, key, manifest, where)
     return dict(manifest)
 
 
 def _resolve_remote(fs: Any, root: str, target: str) -> list[tuple[str, str]]:
-    stages = [p.rsplit("/", 1)[-1] for p in fs.ls(root, detail=False) if fs.isdir(p)]
+    if not _HEX.match(target):
+        check_not_reserved(target, "pull")
+    stages = _stages(fs, root)
     if target in stages:
-        return [
-            (target, p.rsplit("/", 1)[-1]) for p in sorted(fs.ls(f"{root}/{target}", detail=False))
-        ]
-    hits = [
-        (s, p.rsplit("/", 1)[-1])
-        for s in stages
-        for p in fs.ls(f"{root}/{s}", detail=False)
-        if p.rsplit("/", 1)[-1].startswith(target)
-    ]
+        return [(target, k) for k in _keys(fs, root, target)]
+    hits = [(s, k) for s in stages for k in _keys(fs, root, s) if k.startswith(target)]
     if len(hits) != 1:
-        raise StoreError(f"remote: '{target}' matches {len(hits)} artifacts, expected 1")
+        raise StoreError(f"remote: '{target[:40]}' matches {len(hits)} artifacts, expected 1")
     return hits
 
 
+def _free_bytes(path: Path) -> int:
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return shutil.disk_usage(probe).free
+
+
 def pull(
-    store: ArtifactStore, remote: str, targets: Sequence[str] = (), *, with_upstream: bool = True
+    store: ArtifactStore,
+    remote: str,
+    targets: Sequence[str] = (),
+    *,
+    with_upstream: bool = True,
+    policy: TrustPolicy | None = None,
+    stats: TransferStats | None = None,
 ) -> list[ArtifactRef]:
     """Download, verify and commit artifacts from `remote` (all-or-nothing).
 
     Raises:
-        ArtifactCorrupt: a key that does not match its recipe, a path escaping the
-            artifact directory, a missing, truncated or altered file.
+        ArtifactCorrupt: a reserved stage, a key that does not match its recipe, an
+            unpinned model, a path escaping the artifact directory, a missing, oversized,
+            truncated or altered file, a file that does not parse.
+        StoreError: the store's disk is full or read-only (named).
     """
-    fs, root = _fs(remote)
-    if not fs.exists(root):
-        raise StoreError(f"remote {remote} does not exist")
+    policy = policy or TrustPolicy()
+    stats = stats if stats is not None else TransferStats()
+    fs, root = open_remote(remote)
+    try:
+        return _pull(store, fs, root, remote, targets, with_upstream, policy, stats)
+    except OSError as err:
+        where = err.filename if isinstance(err.filename, str) else str(store.root)
+        if not where.startswith(str(store.root)):
+            where = display(remote)
+        raise os_error(err, where) from err
+
+
+def _pull(
+    store: ArtifactStore,
+    fs: Any,
+    root: str,
+    remote: str,
+    targets: Sequence[str],
+    with_upstream: bool,
+    policy: TrustPolicy,
+    stats: TransferStats,
+) -> list[ArtifactRef]:
+    if not read_only(remote) and not fs.exists(root):
+        raise StoreError(f"remote {display(remote)} does not exist")
     wanted: list[tuple[str, str]] = []
-    if targets:
-        for t in targets:
-            wanted.extend(_resolve_remote(fs, root, t))
-    else:
-        for s in fs.ls(root, detail=False):
-            wanted.extend(_resolve_remote(fs, root, s.rsplit("/", 1)[-1]))
+    for t in targets or _stages(fs, root):
+        wanted.extend(_resolve_remote(fs, root, t))
     manifests: dict[tuple[str, str], dict[str, Any]] = {}
 
     def manifest_of(stage: str, key: str) -> dict[str, Any]:
         if (stage, key) not in manifests:
-            manifests[(stage, key)] = _remote_manifest(fs, root, stage, key)
+            manifests[(stage, key)] = _remote_manifest(fs, root, stage, key, policy)
         return manifests[(stage, key)]
 
-    order = _upstream_closure(wanted, manifest_of, with_upstream)
+    order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
+    missing = [(s, k) for s, k in order if store.get(s, k) is None]
+    need = sum(int(e["size"]) for s, k in missing for e in manifest_of(s, k)["files"].values())
+    free = _free_bytes(store.root)
+    if need > free:
+        raise StoreError(f"{store.root}: pull needs {need} bytes, the disk has {free} free")
     staging = store.tmp_path("pull")
     try:
-        staged = []
-        for stage, key in order:
-            if store.get(stage, key) is not None:
-                continue
-            manifest = manifest_of(stage, key)
+        jobs = []
+        for stage, key in missing:
             local = staging / stage / key
             local.mkdir(parents=True)
-            for rel in manifest.get("files", {}):
+            for rel, entry in manifest_of(stage, key)["files"].items():
                 dst = safe_relative(local, rel)
                 dst.parent.mkdir(parents=True, exist_ok=True)
-                try:
-                    fs.get_file(f"{root}/{stage}/{key}/{rel}", str(dst))
-                except FileNotFoundError as err:
-                    raise ArtifactCorrupt(
-                        f"remote {stage}/{key[:12]}: file '{rel}' missing"
-                    ) from err
+                jobs.append(
+                    _download_job(fs, f"{root}/{stage}/{key}/{rel}", dst, entry, stage, key, rel)
+                )
+        run_jobs(jobs, f"pull {display(remote)}", stats)
+        for stage, key in missing:
+            local, manifest = staging / stage / key, manifest_of(stage, key)
             verify_artifact_dir(local, manifest)
+            where = f"remote {stage}/{key[:12]}"
             for rel in manifest["files"]:
-                check_parses(safe_relative(local, rel), f"remote {stage}/{key[:12]}")
-            staged.append((local, manifest))
-        refs = [store.import_dir(local, manifest) for local, manifest in staged]
+                path = safe_relative(local, rel)
+                check_parses(path, where)
+                if path.suffix == ".pt" or rel == MODEL_FILE:
+                    check_model_file(path, where)
+        refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    log.info("pulled %d artifacts from %s", len(refs), remote)
+    log.info("pulled %d artifacts from %s", len(refs), display(remote))
     return refs
+
+
+def _download_job(
+    fs: Any, src: str, dst: Path, entry: Mapping[str, Any], stage: str, key: str, rel: str
+) -> Job:
+    size, sha = int(entry["size"]), str(entry["sha256"])
+    where = f"remote {stage}/{key[:12]}: file '{rel[:80]}'"
+
+    def run(progress: Callable[[int], None]) -> bool:
+        download(fs, src, dst, size, sha, where, progress)
+        return True
+
+    return Job(run, size)
