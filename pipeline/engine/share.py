@@ -252,7 +252,7 @@ def _remote_manifest(
         raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
     try:
         manifest: Any = json.loads(raw)
-    except ValueError as err:
+    except (ValueError, RecursionError) as err:  # RecursionError: nesting bombs
         raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
     model = parse_manifest(manifest, where)
     if model.stage != stage or model.key != key:
