@@ -313,9 +313,9 @@ def _no_big_file(work: Path, _done: Any) -> str | None:
 
 
 CASES = [
-    Case("sharing", "push of a fresh run (shipped model) with upstream", _push()),
+    Case("sharing", "push of a fresh run (shipped model) with upstream", _push(), (0,)),
     *[
-        Case("sharing", f"push {stage} of a fresh run", _push(stage))
+        Case("sharing", f"push {stage} of a fresh run", _push(stage), (0,))
         for stage in ("voxelize", "classify", "evaluate", "train")
     ],
     Case(
