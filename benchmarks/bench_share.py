@@ -88,8 +88,8 @@ def s3_remote(work: Path) -> Iterator[str]:
         }
     )
     try:
-        boto3.client("s3", endpoint_url=f"http://127.0.0.1:{port}").create_bucket(Bucket="b")
-        yield "s3://b/store"
+        boto3.client("s3", endpoint_url=f"http://127.0.0.1:{port}").create_bucket(Bucket="bench")
+        yield "s3://bench/store"
     finally:
         server.stop()
 

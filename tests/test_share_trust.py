@@ -236,13 +236,11 @@ def _fail_after(monkeypatch: pytest.MonkeyPatch, n: int, err: BaseException) -> 
     lock = threading.Lock()
 
     def flaky(fs: Any, src: Path, dst: str, *a: Any, **k: Any) -> bool:
-        with lock:
+        with lock:  # exactly `n` uploads start, whatever the pool's concurrency
             if len(sent) >= n:
                 raise err
-        done = real(fs, src, dst, *a, **k)
-        with lock:
             sent.append(dst)
-        return done
+        return real(fs, src, dst, *a, **k)
 
     monkeypatch.setattr(share, "upload", flaky)
     return sent
@@ -333,3 +331,32 @@ def test_trust_policy_refuses_a_bad_pin() -> None:
     res = _cli("pull", "/nonexistent", "--trust-model", "x" * 500)
     _one_error_line(res, "not a sha256")
     assert len(res.stderr) < 200
+
+
+def test_interrupted_pull_resumes_without_refetching_verified_files(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    _, remote = _toy_remote(tmp_path)
+    bob = ArtifactStore(tmp_path / "bob")
+    real = transfer.download
+    fetched: list[str] = []
+    lock = threading.Lock()
+
+    def flaky(fs: Any, src: str, *a: Any, **k: Any) -> None:
+        with lock:  # exactly two downloads start
+            if len(fetched) >= 2:
+                raise KeyboardInterrupt
+            fetched.append(src)
+        real(fs, src, *a, **k)
+
+    monkeypatch.setattr(share, "download", flaky)
+    with pytest.raises(KeyboardInterrupt):
+        pull(bob, str(remote))
+    assert list(bob.iter_artifacts()) == []
+    monkeypatch.setattr(share, "download", real)
+    stats = TransferStats()
+    refs = pull(bob, str(remote), stats=stats)
+    total = sum(len(r.manifest["files"]) for r in refs)
+    # Files are cached by sha256, so identical files of two artifacts are fetched once.
+    assert stats.skipped >= 2 and stats.sent <= total - 2 and stats.sent + stats.skipped == total
+    assert not any((bob.root / share.PULL_CACHE).iterdir())  # resume copies are removed

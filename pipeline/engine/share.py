@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import shutil
 import uuid
@@ -27,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
-from pipeline.engine.hashing import recipe_key
+from pipeline.engine.hashing import recipe_key, sha256_file
 from pipeline.engine.integrity import check_parses
 from pipeline.engine.manifest import ADDRESS_PATTERN, parse_manifest
 from pipeline.engine.remotes import display, open_remote, read_only
@@ -36,7 +37,6 @@ from pipeline.engine.store import (
     ArtifactRef,
     ArtifactStore,
     safe_relative,
-    verify_artifact_dir,
 )
 from pipeline.engine.transfer import (
     Job,
@@ -53,6 +53,8 @@ __all__ = ["list_remote", "pull", "push"]
 
 log = logging.getLogger(__name__)
 MAX_MANIFEST_BYTES = 16 << 20
+PULL_CACHE = ".cache/pull"
+"""Verified files of an unfinished pull, by sha256, so the next pull does not fetch them again."""
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
 
 Leaf = Callable[[str, str, Mapping[str, Any]], bool]
@@ -359,6 +361,7 @@ def _pull(
     if need > free:
         raise StoreError(f"{store.root}: pull needs {need} bytes, the disk has {free} free")
     staging = store.tmp_path("pull")
+    cache = store.root / PULL_CACHE
     try:
         jobs = []
         for stage, key in missing:
@@ -368,12 +371,14 @@ def _pull(
                 dst = safe_relative(local, rel)
                 dst.parent.mkdir(parents=True, exist_ok=True)
                 jobs.append(
-                    _download_job(fs, f"{root}/{stage}/{key}/{rel}", dst, entry, stage, key, rel)
+                    _download_job(
+                        fs, f"{root}/{stage}/{key}/{rel}", dst, entry, f"{stage}/{key}", rel, cache
+                    )
                 )
         run_jobs(jobs, f"pull {display(remote)}", stats)
         for stage, key in missing:
+            # Sizes and sha256s were checked while streaming, the key before any download.
             local, manifest = staging / stage / key, manifest_of(stage, key)
-            verify_artifact_dir(local, manifest)
             where = f"remote {stage}/{key[:12]}"
             for rel in manifest["files"]:
                 path = safe_relative(local, rel)
@@ -381,20 +386,56 @@ def _pull(
                 if path.suffix == ".pt" or rel == MODEL_FILE:
                     check_model_file(path, where)
         refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
+        _forget(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
+    except ArtifactCorrupt:
+        # A refused file is not worth resuming (it would be refused again).
+        _forget(cache, [manifest_of(s, k) for s, k in missing])
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     log.info("pulled %d artifacts from %s", len(refs), display(remote))
     return refs
 
 
+def _forget(cache: Path, manifests: Iterable[Mapping[str, Any]]) -> None:
+    for manifest in manifests:
+        for entry in manifest["files"].values():
+            (cache / str(entry["sha256"])).unlink(missing_ok=True)
+
+
 def _download_job(
-    fs: Any, src: str, dst: Path, entry: Mapping[str, Any], stage: str, key: str, rel: str
+    fs: Any,
+    src: str,
+    dst: Path,
+    entry: Mapping[str, Any],
+    address: str,
+    rel: str,
+    cache: Path,
 ) -> Job:
+    """Fetch one file into the store's resume cache (named by its sha256), then link it
+    into the staging directory; a file an interrupted pull already verified is reused."""
     size, sha = int(entry["size"]), str(entry["sha256"])
-    where = f"remote {stage}/{key[:12]}: file '{rel[:80]}'"
+    where = f"remote {address[: address.index('/') + 13]}: file '{rel[:80]}'"
+    cached = cache / sha
 
     def run(progress: Callable[[int], None]) -> bool:
-        download(fs, src, dst, size, sha, where, progress)
-        return True
+        sent = not (
+            cached.is_file() and cached.stat().st_size == size and sha256_file(cached) == sha
+        )
+        if sent:
+            cache.mkdir(parents=True, exist_ok=True)
+            part = cache / f".{sha[:16]}.{uuid.uuid4().hex[:8]}.part"
+            try:
+                download(fs, src, part, size, sha, where, progress)
+                os.replace(part, cached)
+            finally:
+                part.unlink(missing_ok=True)
+        else:
+            progress(size)
+        try:
+            os.link(cached, dst)
+        except OSError:
+            shutil.copyfile(cached, dst)
+        return sent
 
     return Job(run, size)

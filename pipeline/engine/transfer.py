@@ -117,8 +117,11 @@ def download(
     """
     digest = hashlib.sha256()
     written = 0
+    protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
+    # A plain web server may not serve byte ranges: read http(s) as one stream.
+    kwargs = {"block_size": 0} if protocol in ("http", "https") else {}
     try:
-        fin = fs.open(src, "rb")
+        fin = fs.open(src, "rb", **kwargs)
     except FileNotFoundError as err:
         raise ArtifactCorrupt(f"{where} missing") from err
     with fin, dst.open("wb") as fout:
