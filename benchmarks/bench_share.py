@@ -13,6 +13,11 @@ ones) is pushed to and pulled back from:
 Each pull goes into a fresh store and verifies every sha256 (while streaming, then again
 before the commit), so pull MB/s include hashing. A server that cannot start here is
 reported as skipped.
+
+Measured 2026-12-02 (134.2 MB, 2 cores shared with other jobs): file push 1.43 s
+(93.9 MB/s), pull 3.15 s (42.6 MB/s); s3 (moto) push 5.16 s (26.0 MB/s), pull 4.67 s
+(28.7 MB/s); sftp (local sshd) push 3.66 s (36.7 MB/s), pull 6.01 s (22.3 MB/s); http
+pull 2.71 s (49.5 MB/s).
 """
 
 from __future__ import annotations
@@ -165,6 +170,9 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=ROOT / "data" / "bench" / "share")
     parser.add_argument("--json", action="store_true")
     opts = parser.parse_args()
+    import logging
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # moto's request log
     work = opts.work.resolve()
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
