@@ -5,6 +5,7 @@ from __future__ import annotations
 import errno
 import io
 import json
+import os
 import shutil
 import threading
 import time
@@ -261,6 +262,45 @@ def test_interrupted_push_resumes_without_resending_and_shows_nothing_partial(
     total = sum(len(alice.get(*a.split("/")).manifest["files"]) for a in pushed)  # type: ignore[union-attr]
     assert stats.skipped == 2 and stats.sent == total - 2
     assert sorted(list_remote(str(remote))) == sorted(pushed)
+
+
+_KILLED_PUSH = """
+import os, signal, sys
+from pathlib import Path
+from pipeline.engine import share, transfer
+from pipeline.engine.store import ArtifactStore
+real, sent = share.upload, []
+def upload(*a, **k):
+    if len(sent) == 3:
+        os.kill(os.getpid(), signal.SIGKILL)  # no cleanup, no finally: a real kill -9
+    sent.append(1)
+    return real(*a, **k)
+share.upload = upload
+transfer.WORKERS = 1  # one file at a time: exactly three are complete
+share.push(ArtifactStore(Path(sys.argv[1])), sys.argv[2])
+"""
+
+
+def test_push_killed_with_sigkill_resumes_without_resending(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    alice, _ = _toy_remote(tmp_path)
+    remote = tmp_path / "remote2"
+    root = Path(__file__).resolve().parents[1]
+    killed = subprocess.run(
+        [sys.executable, "-c", _KILLED_PUSH, str(alice.root), str(remote)],
+        env={**os.environ, "PYTHONPATH": str(root)},
+        capture_output=True,
+        timeout=120,
+    )
+    assert killed.returncode == -9, killed.stderr
+    assert list_remote(str(remote)) == []
+    assert len([p for p in remote.rglob("*") if p.is_file()]) == 3
+    stats = TransferStats()
+    pushed = push(alice, str(remote), stats=stats)
+    total = sum(len(alice.get(*a.split("/")).manifest["files"]) for a in pushed)  # type: ignore[union-attr]
+    assert stats.skipped == 3 and stats.sent == total - 3
 
 
 def test_reader_never_sees_a_partial_artifact_during_a_push(
