@@ -25,6 +25,8 @@ _EXTRAS = {
     "https": "aiohttp",
     "gs": "gcsfs",
 }
+_IN_EXTRA = {"s3", "s3a", "ssh", "sftp", "http", "https"}
+"""Schemes whose library the `remotes` extra installs (`make setup` does)."""
 
 
 def display(remote: str) -> str:
@@ -64,9 +66,9 @@ def open_remote(remote: str) -> tuple[Any, str]:
         fs, root = fsspec.core.url_to_fs(remote)
     except ImportError as err:
         package = _EXTRAS.get(scheme, scheme)
+        how = "'sonarmap[remotes]'" if scheme in _IN_EXTRA else package
         raise StoreError(
-            f"remote {display(remote)}: needs {package}; install with "
-            f"`pip install 'sonarmap[remotes]'`"
+            f"remote {display(remote)}: needs {package}; install with `pip install {how}`"
         ) from err
     except (ValueError, OSError) as err:
         raise StoreError(f"remote {display(remote)}: {_scrub(str(err), remote)}") from err

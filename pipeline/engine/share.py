@@ -17,6 +17,7 @@ are JSON; nothing is ever unpickled.
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -326,9 +327,13 @@ def pull(
     try:
         return _pull(store, fs, root, remote, targets, with_upstream, policy, stats)
     except OSError as err:
-        where = err.filename if isinstance(err.filename, str) else str(store.root)
-        if not where.startswith(str(store.root)):
-            where = display(remote)
+        # A full or read-only disk is the store's; anything else without a local file
+        # name (refused connection, timeout, permission at the server) is the remote's.
+        local = isinstance(err.filename, str) and err.filename.startswith(str(store.root))
+        if local or err.errno in (errno.ENOSPC, errno.EROFS, errno.EDQUOT):
+            where = err.filename if local else str(store.root)
+        else:
+            where = f"remote {display(remote)}"
         raise os_error(err, where) from err
 
 
