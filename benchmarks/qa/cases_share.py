@@ -133,6 +133,48 @@ def _resumed(work: Path, done: Any) -> str | None:
     return None
 
 
+def _cli(work: Path, *args: str) -> None:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run(
+        [sys.executable, "-m", "pipeline", *args],
+        cwd=work,
+        env=env,
+        check=True,
+        capture_output=True,
+    )
+
+
+def _run_after_pull(work: Path) -> list[str]:
+    """A fresh machine (empty caches) pulls a colleague's run, then runs it."""
+    shutil.copyfile(_cached_run() / "rec.mcap", work / "rec.mcap")
+    _cli(work, "pull", str(_remote(work)))
+    return ["run", "rec.mcap", "--json"]
+
+
+def _computed_nothing(work: Path, done: Any) -> str | None:
+    computed = [s["stage"] for s in json.loads(done.stdout)["stages"] if s["status"] != "hit"]
+    return f"computed {computed}" if computed else None
+
+
+def _run_with_pinned_substitute(work: Path) -> list[str]:
+    """The user pins a substituted model: its run must not get the honest keys."""
+    shutil.copyfile(_cached_run() / "rec.mcap", work / "rec.mcap")
+    _reversed_classes(work)
+    model = _artifact(work / "remote", "train")
+    sha = json.loads((model / "manifest.json").read_text())["files"]["model.pt"]["sha256"]
+    _cli(work, "pull", str(work / "remote"), "train", "--trust-model", sha)
+    return ["run", "rec.mcap", "--json"]
+
+
+def _not_the_honest_keys(work: Path, done: Any) -> str | None:
+    honest = {p.parent.name for p in (_cached_run() / "remote").glob("*/*/manifest.json")}
+    stages = json.loads(done.stdout)["stages"]
+    same = [
+        s["stage"] for s in stages if s["stage"] in ("classify", "evaluate") and s["key"] in honest
+    ]
+    return f"{same} kept the honest keys" if same else None
+
+
 def _push_to_http(work: Path) -> list[str]:
     _fresh_run(work)
     return ["push", "http://127.0.0.1:9/remote"]
@@ -326,6 +368,14 @@ CASES = [
         _pulled_everything,
     ),
     Case("sharing", "push again sends nothing", _push_again, (0,), _sent_nothing),
+    Case(
+        "sharing",
+        "a fresh store that pulled a run computes nothing",
+        _run_after_pull,
+        (0,),
+        _computed_nothing,
+        max_seconds=60,
+    ),
     Case("sharing", "push resumes an interrupted push", _resume_partial, (0,), _resumed),
     Case("sharing", "push to a read-only http remote", _push_to_http),
     Case("sharing", "sftp URL with a password, unreachable", _password_url, (2,), _no_secret),
@@ -335,6 +385,14 @@ CASES = [
     Case("trust", "model with class_names reversed, sha256 updated", _reversed_classes),
     Case("trust", "model.pt of random bytes after zip magic, sha256 updated", _junk_model),
     Case("trust", "model.pt with a code-running pickle, pinned", _pickle_model, (2,), _not_pwned),
+    Case(
+        "trust",
+        "a pinned substitute model gets other classify/evaluate keys",
+        _run_with_pinned_substitute,
+        (0,),
+        _not_the_honest_keys,
+        max_seconds=120,
+    ),
     Case("trust", "recipe edited, key kept", _forged_recipe),
     Case("trust", "fuse recipe under features/", _other_stage_recipe),
     Case("trust", "manifest with stage runs", _plant("runs"), (2,), _no_store_dir("runs")),
