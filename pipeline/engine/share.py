@@ -109,7 +109,13 @@ def _write_manifest(fs: Any, dest: str, data: bytes) -> None:
         return
     tmp = f"{dest}/.{MANIFEST}.{uuid.uuid4().hex[:12]}.tmp"
     fs.pipe_file(tmp, data)
-    fs.mv(tmp, f"{dest}/{MANIFEST}")
+    try:
+        fs.mv(tmp, f"{dest}/{MANIFEST}")
+    except OSError:
+        # SFTP's rename refuses an existing target: another push committed it first.
+        if not fs.exists(f"{dest}/{MANIFEST}"):
+            raise
+        fs.rm(tmp)
 
 
 def push(
