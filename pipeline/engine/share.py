@@ -18,7 +18,6 @@ are JSON; nothing is ever unpickled.
 from __future__ import annotations
 
 import errno
-import json
 import logging
 import os
 import re
@@ -28,10 +27,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
-from pipeline.engine.hashing import recipe_key, sha256_file
+from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.hashing import sha256_file
 from pipeline.engine.integrity import check_parses
-from pipeline.engine.manifest import ADDRESS_PATTERN, parse_manifest
+from pipeline.engine.manifest import ADDRESS_PATTERN
+from pipeline.engine.remote_index import list_remote, remote_manifest, remote_stages, resolve_remote
 from pipeline.engine.remotes import display, open_remote, read_only
 from pipeline.engine.store import (
     MANIFEST,
@@ -43,20 +43,17 @@ from pipeline.engine.transfer import (
     Job,
     TransferStats,
     download,
-    max_file_bytes,
     os_error,
     run_jobs,
     upload,
 )
-from pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file, check_not_reserved
+from pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file
 
 __all__ = ["list_remote", "pull", "push"]
 
 log = logging.getLogger(__name__)
-MAX_MANIFEST_BYTES = 16 << 20
 PULL_CACHE = ".cache/pull"
 """Verified files of an unfinished pull, by sha256, so the next pull does not fetch them again."""
-_HEX = re.compile(r"^[0-9a-f]{1,64}$")
 
 Leaf = Callable[[str, str, Mapping[str, Any]], bool]
 
@@ -203,106 +200,6 @@ def _upload_job(fs: Any, src: Path, dst: str, entry: Mapping[str, Any], label: s
     return Job(run, size)
 
 
-# -- reading a remote ----------------------------------------------------------------------
-
-
-def _names(fs: Any, path: str) -> list[str]:
-    """Last path components under `path` (directories and files), [] when absent."""
-    try:
-        entries = fs.ls(path, detail=False)
-    except FileNotFoundError:
-        return []
-    return sorted({str(p).rstrip("/").rsplit("/", 1)[-1] for p in entries})
-
-
-def _keys(fs: Any, root: str, stage: str) -> list[str]:
-    """Keys of committed artifacts (with a manifest) of `stage` at the remote."""
-    return [
-        k
-        for k in _names(fs, f"{root}/{stage}")
-        if _HEX.match(k) and fs.exists(f"{root}/{stage}/{k}/{MANIFEST}")
-    ]
-
-
-def _stages(fs: Any, root: str) -> list[str]:
-    stages = []
-    for name in _names(fs, root):
-        try:
-            check_not_reserved(name, "remote")
-        except ArtifactCorrupt:
-            continue
-        stages.append(name)
-    return stages
-
-
-def list_remote(remote: str) -> list[str]:
-    """ "stage/key" of every complete artifact (manifest present) at `remote`."""
-    fs, root = open_remote(remote)
-    return [f"{s}/{k}" for s in _stages(fs, root) for k in _keys(fs, root, s)]
-
-
-def _read_capped(fs: Any, path: str, cap: int, where: str) -> bytes:
-    with fs.open(path, "rb") as f:
-        data: bytes = f.read(cap + 1)
-    if len(data) > cap:
-        raise ArtifactCorrupt(f"{where}: manifest is larger than {cap} bytes")
-    return data
-
-
-def _remote_manifest(
-    fs: Any, root: str, stage: str, key: str, policy: TrustPolicy
-) -> dict[str, Any]:
-    """The remote's manifest for `stage/key`, after every check that needs no file."""
-    where = f"remote {stage[:40]}/{key[:12]}"
-    check_not_reserved(stage, where)
-    try:
-        raw = _read_capped(fs, f"{root}/{stage}/{key}/{MANIFEST}", MAX_MANIFEST_BYTES, where)
-    except FileNotFoundError as err:
-        raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
-    try:
-        manifest: Any = json.loads(raw)
-    except (ValueError, RecursionError) as err:  # RecursionError: nesting bombs
-        raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
-    model = parse_manifest(manifest, where)
-    if model.stage != stage or model.key != key:
-        raise ArtifactCorrupt(f"{where}: manifest names another artifact")
-    if model.recipe is None:
-        # Without a recipe nothing ties the key to the content: refuse rather than trust.
-        raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
-    if model.recipe.get("stage") != stage:
-        raise ArtifactCorrupt(
-            f"{where}: recipe is for stage {str(model.recipe.get('stage'))[:40]!r}, not {stage!r}"
-        )
-    try:
-        if recipe_key(model.recipe) != key:
-            raise ArtifactCorrupt(f"{where}: key does not match the manifest's recipe")
-    except ArtifactCorrupt:
-        raise
-    except PipelineError as err:
-        raise ArtifactCorrupt(f"{where}: the manifest's recipe cannot be hashed") from err
-    cap = max_file_bytes()
-    for rel, entry in model.files.items():
-        if entry.size > cap:
-            raise ArtifactCorrupt(
-                f"{where}: '{rel[:80]}' declares {entry.size} bytes, over the {cap}-byte limit "
-                "(SONARMAP_MAX_FILE_BYTES)"
-            )
-    policy.check_model(stage, key, manifest, where)
-    return dict(manifest)
-
-
-def _resolve_remote(fs: Any, root: str, target: str) -> list[tuple[str, str]]:
-    if not _HEX.match(target):
-        check_not_reserved(target, "pull")
-    stages = _stages(fs, root)
-    if target in stages:
-        return [(target, k) for k in _keys(fs, root, target)]
-    hits = [(s, k) for s in stages for k in _keys(fs, root, s) if k.startswith(target)]
-    if len(hits) != 1:
-        raise StoreError(f"remote: '{target[:40]}' matches {len(hits)} artifacts, expected 1")
-    return hits
-
-
 def _free_bytes(path: Path) -> int:
     probe = path
     while not probe.exists() and probe != probe.parent:
@@ -356,13 +253,13 @@ def _pull(
     if not read_only(remote) and not fs.exists(root):
         raise StoreError(f"remote {display(remote)} does not exist")
     wanted: list[tuple[str, str]] = []
-    for t in targets or _stages(fs, root):
-        wanted.extend(_resolve_remote(fs, root, t))
+    for t in targets or remote_stages(fs, root):
+        wanted.extend(resolve_remote(fs, root, t))
     manifests: dict[tuple[str, str], dict[str, Any]] = {}
 
     def manifest_of(stage: str, key: str) -> dict[str, Any]:
         if (stage, key) not in manifests:
-            manifests[(stage, key)] = _remote_manifest(fs, root, stage, key, policy)
+            manifests[(stage, key)] = remote_manifest(fs, root, stage, key, policy)
         return manifests[(stage, key)]
 
     order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
