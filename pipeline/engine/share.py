@@ -252,8 +252,14 @@ def _pull(
 ) -> list[ArtifactRef]:
     if not read_only(remote) and not fs.exists(root):
         raise StoreError(f"remote {display(remote)} does not exist")
+    stages = list(targets) or remote_stages(fs, root)
+    if not stages and read_only(remote):
+        # A web server without directory listings looks empty.
+        raise StoreError(
+            f"remote {display(remote)} lists no stage folders (is directory listing enabled?)"
+        )
     wanted: list[tuple[str, str]] = []
-    for t in targets or remote_stages(fs, root):
+    for t in stages:
         wanted.extend(resolve_remote(fs, root, t))
     manifests: dict[tuple[str, str], dict[str, Any]] = {}
 
