@@ -400,3 +400,19 @@ def test_interrupted_pull_resumes_without_refetching_verified_files(
     # Files are cached by sha256, so identical files of two artifacts are fetched once.
     assert stats.skipped >= 2 and stats.sent <= total - 2 and stats.sent + stats.skipped == total
     assert not any((bob.root / share.PULL_CACHE).iterdir())  # resume copies are removed
+
+
+def test_a_fifo_or_device_in_a_remote_is_refused_without_blocking(tmp_path: Path) -> None:
+    from fsspec.implementations.local import LocalFileSystem
+
+    fifo = tmp_path / "f.bin"
+    os.mkfifo(fifo)
+    # Should the check regress, a writer opening the FIFO later unblocks the reader.
+    unblock = threading.Timer(10.0, lambda: fifo.open("wb").close())
+    unblock.start()
+    try:
+        for src in (fifo, Path("/dev/zero")):
+            with pytest.raises(ArtifactCorrupt, match="not a regular file"):
+                transfer.download(LocalFileSystem(), str(src), tmp_path / "o", 1, "0" * 64, "f")
+    finally:
+        unblock.cancel()

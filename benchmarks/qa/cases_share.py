@@ -342,6 +342,22 @@ def _nested_manifest(work: Path) -> list[str]:
     return ["pull", str(work / "remote"), "fuse"]
 
 
+def _special_file(kind: str) -> Callable[[Path], list[str]]:
+    """A listed file that is a FIFO (an open would block) or a link to /dev/zero."""
+
+    def build(work: Path) -> list[str]:
+        fuse = _artifact(_remote(work), "fuse")
+        name = next(n for n in json.loads((fuse / "manifest.json").read_text())["files"])
+        (fuse / name).unlink()
+        if kind == "fifo":
+            os.mkfifo(fuse / name)
+        else:
+            (fuse / name).symlink_to("/dev/zero")
+        return ["pull", str(work / "remote"), "fuse"]
+
+    return build
+
+
 def _small_cap(work: Path) -> list[str]:
     _remote(work)
     return ["pull", str(work / "remote")]
@@ -407,6 +423,10 @@ CASES = [
     Case("resources", "3 GB file listed as 100 bytes", _lying_size, (2,), _no_big_file),
     Case("resources", "file declaring 1 PB", _declared_petabyte),
     Case("resources", "40 MB manifest", _huge_manifest),
+    Case("resources", "a listed file that is a FIFO", _special_file("fifo")),
+    Case(
+        "resources", "a listed file linked to /dev/zero", _special_file("zero"), (2,), _no_big_file
+    ),
     Case("resources", "manifest nested 200,000 deep", _nested_manifest),
     Case(
         "resources",

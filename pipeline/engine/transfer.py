@@ -117,6 +117,13 @@ def download(
     """
     digest = hashlib.sha256()
     written = 0
+    try:
+        kind = fs.info(src).get("type", "file")
+    except FileNotFoundError as err:
+        raise ArtifactCorrupt(f"{where} missing") from err
+    if kind != "file":
+        # A FIFO would block the open forever, a device never ends: neither is an artifact.
+        raise ArtifactCorrupt(f"{where} is not a regular file ({str(kind)[:20]})")
     protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
     # A plain web server may not serve byte ranges: read http(s) as one stream.
     kwargs = {"block_size": 0} if protocol in ("http", "https") else {}
