@@ -6,7 +6,8 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.sonarmap-setup
-APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0
+# open3d's libraries; OpenSSH's server and client for the sftp:// sharing tests
+APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0 openssh-server openssh-client
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
 
@@ -20,7 +21,7 @@ $(STAMP): pyproject.toml Makefile
 	$(BIN)/python -m pip install -q --upgrade pip
 	@# torch first: a bare `torch` requirement would pull a multi-GB CUDA build.
 	$(BIN)/python -m pip install -q torch==$(TORCH_VERSION)
-	$(BIN)/python -m pip install -q -e '.[dev,ray]'
+	$(BIN)/python -m pip install -q -e '.[dev,ray,remotes]'
 	@touch $(STAMP)
 
 system-deps:
@@ -28,10 +29,10 @@ system-deps:
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
 	done; \
 	if [ -n "$$missing" ]; then \
-	  echo "installing Debian packages open3d needs:$$missing"; \
+	  echo "installing Debian packages:$$missing"; \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
 	  elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then sudo apt-get update -qq && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing; \
-	  else echo "error: open3d needs Debian packages:$$missing; run: sudo apt-get install -y$$missing" >&2; exit 2; fi; \
+	  else echo "error: sonarmap needs Debian packages:$$missing; run: sudo apt-get install -y$$missing" >&2; exit 2; fi; \
 	fi
 
 test: setup

@@ -85,6 +85,7 @@ def _plan(
         until=request.until,
         force=request.force,
         external=external,
+        content_keyed=("train",),
     )
     return ctx, planned, model
 

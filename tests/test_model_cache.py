@@ -23,6 +23,7 @@ from pipeline.engine.errors import ArtifactCorrupt
 from pipeline.engine.registry import all_stages, extra_sections
 from pipeline.engine.share import pull, push
 from pipeline.engine.store import ArtifactStore
+from pipeline.engine.trust import TrustPolicy
 from pipeline.training.config import TrainingDataConfig
 from pipeline.training.datasets import ensure_simulation, scene_path
 from pipeline.training.model import plan_training, training_datasets
@@ -170,7 +171,11 @@ def test_a_pulled_model_is_used_and_published_to_a_machine_without_it(
     shutil.copytree(machine.root / "training", other, ignore=shutil.ignore_patterns("store"))
     config = _config(machine.config, f"training.directory={other}")
     store = ArtifactStore(machine.root / "c")
-    assert {r.stage for r in pull(store, str(remote), ["train"])} == {
+    # A model from a remote is accepted only when pinned (pipeline.engine.trust).
+    model = ArtifactStore(machine.root / "a").get("train", machine.key)
+    assert model is not None
+    trusted = TrustPolicy.build([TrustPolicy.model_sha(model.manifest)])
+    assert {r.stage for r in pull(store, str(remote), ["train"], policy=trusted)} == {
         "keyframes",
         "features",
         "train",

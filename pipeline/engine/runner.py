@@ -12,7 +12,7 @@ import hashlib
 import logging
 import shutil
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -161,14 +161,25 @@ def plan(
     until: str | None = None,
     force: Sequence[str] = (),
     external: Mapping[str, tuple[Stage, ArtifactRef]] | None = None,
+    content_keyed: Collection[str] = (),
 ) -> list[PlannedStage]:
-    """Hit or miss, with the reason, for each stage up to and including `until`."""
+    """Hit or miss, with the reason, for each stage up to and including `until`.
+
+    `content_keyed` names external inputs (the model) whose files' sha256s enter the
+    recipe of every stage reading them, so other content under the same key can never
+    produce the same downstream keys.
+    """
     names = [s.name for s in stages]
     for name in [until, *force]:
         if name is not None and name not in names:
             raise ConfigError(f"unknown stage '{name}' (stages: {', '.join(names)})")
     external = dict(external or {})
     keys: dict[str, str] = {name: ref.key for name, (_, ref) in external.items()}
+    contents = {
+        name: recipe_key({k: v["sha256"] for k, v in external[name][1].manifest["files"].items()})
+        for name in content_keyed
+        if name in external
+    }
     previous = _previous_recipes(store, dataset.path)
     changed: set[str] = set()
     planned: list[PlannedStage] = []
@@ -189,6 +200,11 @@ def plan(
             schema_version=SCHEMA_VERSION,
             dataset_fingerprint=dataset.fingerprint if "dataset" in stage.inputs else None,
         )
+        read = {
+            i: contents[i.split(".", 1)[0]] for i in input_keys if i.split(".", 1)[0] in contents
+        }
+        if read:
+            recipe["input_content"] = dict(sorted(read.items()))
         key = recipe_key(recipe)
         keys[stage.name] = key
         exists = store.get(stage.name, key) is not None

@@ -1,53 +1,71 @@
 """Sharing artifacts: push to and pull from any fsspec URL, verified on the way in.
 
-A remote mirrors the store layout (`<remote>/<stage>/<key>/manifest.json` + files).
-Pulling downloads into a temporary directory inside the local store, checks that the
-key matches the manifest's recipe, that no path escapes the artifact directory, and
-every file's size and sha256; only when every requested artifact passes are they
-committed (atomically, one by one), so a tampered or truncated transfer leaves the
-local store unchanged. Manifests are JSON; nothing is ever unpickled.
+A remote mirrors the store layout (`<remote>/<stage>/<key>/manifest.json` + files), and
+an artifact exists there once its manifest does: push sends every file first and each
+manifest last (renamed into place where the filesystem can, one atomic PUT on S3), so
+a reader never sees a partial artifact and a directory without a manifest is ignored.
+A file already at the remote with the right size and sha256 is not sent again, which
+makes an interrupted push resumable.
+
+Pull trusts nothing the remote says until it has checked it (`pipeline.engine.trust`):
+the stage is not a reserved store folder and equals the recipe's and the path's, the key
+is the hash of the recipe, a model's file sha256 is pinned, every file is streamed with
+its declared size as a hard limit and hashed on the way, parses as the kind its name
+says (`model.pt` is loaded weights-only), and only then is anything committed. Manifests
+are JSON; nothing is ever unpickled.
 """
 
 from __future__ import annotations
 
-import json
+import errno
 import logging
+import os
 import re
 import shutil
-from collections.abc import Iterable, Sequence
+import uuid
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from pipeline.engine.hashing import sha256_file
 from pipeline.engine.integrity import check_parses
-from pipeline.engine.manifest import ADDRESS_PATTERN, parse_manifest
+from pipeline.engine.manifest import ADDRESS_PATTERN
+from pipeline.engine.remote_index import list_remote, remote_manifest, remote_stages, resolve_remote
+from pipeline.engine.remotes import display, open_remote, read_only
 from pipeline.engine.store import (
     MANIFEST,
     ArtifactRef,
     ArtifactStore,
     safe_relative,
-    verify_artifact_dir,
 )
+from pipeline.engine.transfer import (
+    Job,
+    TransferStats,
+    download,
+    os_error,
+    run_jobs,
+    upload,
+)
+from pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file
 
-__all__ = ["pull", "push"]
+__all__ = ["list_remote", "pull", "push"]
 
 log = logging.getLogger(__name__)
+PULL_CACHE = ".cache/pull"
+"""Verified files of an unfinished pull, by sha256, so the next pull does not fetch them again."""
 
-
-def _fs(remote: str) -> tuple[Any, str]:
-    import fsspec
-
-    try:
-        fs, root = fsspec.core.url_to_fs(remote)
-    except (ImportError, ValueError) as err:
-        raise StoreError(f"remote {remote}: {err}") from err
-    return fs, root.rstrip("/")
+Leaf = Callable[[str, str, Mapping[str, Any]], bool]
 
 
 def _upstream_closure(
-    refs: Iterable[tuple[str, str]], manifest_of: Any, with_upstream: bool
+    refs: Iterable[tuple[str, str]],
+    manifest_of: Callable[[str, str], Mapping[str, Any]],
+    with_upstream: bool,
+    is_leaf: Leaf = lambda s, k, m: False,
 ) -> list[tuple[str, str]]:
-    """(stage, key) pairs with every upstream artifact, upstream first."""
+    """(stage, key) pairs with every upstream artifact, upstream first; a leaf (a shipped
+    model, whose provenance is its lock) is taken without its upstream."""
     order: list[tuple[str, str]] = []
     seen: set[tuple[str, str]] = set()
 
@@ -56,7 +74,7 @@ def _upstream_closure(
             return
         seen.add((stage, key))
         manifest = manifest_of(stage, key)
-        if with_upstream:
+        if with_upstream and not is_leaf(stage, key, manifest):
             # `input_artifacts` names the producing stage ("keyframes/<key>") even when the
             # input is bound under another name (training reads several datasets).
             addresses = manifest.get("input_artifacts") or {
@@ -67,7 +85,8 @@ def _upstream_closure(
                 # Checked before any I/O: "../x" would read outside the store or remote.
                 if not isinstance(address, str) or not re.fullmatch(ADDRESS_PATTERN, address):
                     raise ArtifactCorrupt(
-                        f"{stage}/{key[:12]}: upstream address {address!r} is not <stage>/<key>"
+                        f"{stage}/{key[:12]}: upstream address {str(address)[:80]!r} is not "
+                        "<stage>/<key>"
                     )
                 up_stage, _, up_key = address.partition("/")
                 visit(up_stage, up_key)
@@ -78,6 +97,24 @@ def _upstream_closure(
     return order
 
 
+def _write_manifest(fs: Any, dest: str, data: bytes) -> None:
+    """Make the artifact at `dest` visible: one atomic PUT on object stores, else a
+    temporary name renamed into place (a reader never reads half a manifest)."""
+    protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
+    if protocol in ("s3", "s3a", "gs", "gcs"):
+        fs.pipe_file(f"{dest}/{MANIFEST}", data)
+        return
+    tmp = f"{dest}/.{MANIFEST}.{uuid.uuid4().hex[:12]}.tmp"
+    fs.pipe_file(tmp, data)
+    try:
+        fs.mv(tmp, f"{dest}/{MANIFEST}")
+    except OSError:
+        # SFTP's rename refuses an existing target: another push committed it first.
+        if not fs.exists(f"{dest}/{MANIFEST}"):
+            raise
+        fs.rm(tmp)
+
+
 def push(
     store: ArtifactStore,
     remote: str,
@@ -85,15 +122,27 @@ def push(
     *,
     with_upstream: bool = True,
     fallbacks: Sequence[ArtifactStore] = (),
+    policy: TrustPolicy | None = None,
+    stats: TransferStats | None = None,
 ) -> list[str]:
     """Copy artifacts (by stage name or key prefix; all when none given) to `remote`.
 
-    Files go first and the manifest last, so a reader never sees a partial artifact.
     Upstream artifacts missing from `store` are taken from `fallbacks` (the model cache
-    holds the training datasets a store's model was trained on). Returns the
-    "stage/key" addresses pushed.
+    holds the training datasets a store's model was trained on); a shipped model
+    (`policy.leaves`) is pushed without its training data. Returns the "stage/key"
+    addresses now at the remote.
+
+    Raises:
+        StoreError: an upstream artifact is missing everywhere (named), the remote is
+            read-only, full or unwritable (named, exit 2).
     """
-    fs, root = _fs(remote)
+    policy = policy or TrustPolicy()
+    stats = stats if stats is not None else TransferStats()
+    if read_only(remote):
+        raise StoreError(
+            f"remote {display(remote)} is read-only (http); push to a path, s3:// or sftp://"
+        )
+    fs, root = open_remote(remote)
     chosen = [store.find(t) for t in targets] if targets else list(store.iter_artifacts())
 
     def holder(stage: str, key: str) -> ArtifactRef:
@@ -103,109 +152,204 @@ def push(
                 return ref
         raise StoreError(f"{stage}/{key[:12]}: upstream artifact missing from {store.root}")
 
-    pushed = []
-    for stage, key in _upstream_closure(
-        ((r.stage, r.key) for r in chosen), lambda s, k: holder(s, k).manifest, with_upstream
-    ):
+    order = _upstream_closure(
+        ((r.stage, r.key) for r in chosen),
+        lambda s, k: holder(s, k).manifest,
+        with_upstream,
+        policy.is_leaf,
+    )
+    pending: list[ArtifactRef] = []
+    for stage, key in order:
         ref = holder(stage, key)
         store.verify(ref)
-        dest = f"{root}/{stage}/{key}"
-        if fs.exists(f"{dest}/{MANIFEST}"):
-            pushed.append(f"{stage}/{key}")
-            continue
-        for rel in ref.manifest["files"]:
-            fs.makedirs(f"{dest}/{Path(rel).parent.as_posix()}".rstrip("/."), exist_ok=True)
-            fs.put_file(str(ref.file(rel)), f"{dest}/{rel}")
-        fs.pipe_file(f"{dest}/{MANIFEST}", (ref.path / MANIFEST).read_bytes())
-        pushed.append(f"{stage}/{key}")
-    return pushed
+        if not _exists(fs, f"{root}/{stage}/{key}/{MANIFEST}", remote):
+            pending.append(ref)
+    jobs = []
+    for ref in pending:
+        dest = f"{root}/{ref.stage}/{ref.key}"
+        for rel, entry in sorted(ref.manifest["files"].items()):
+            label = f"{display(remote)}/{ref.stage}/{ref.key[:12]}/{rel}"
+            jobs.append(_upload_job(fs, ref.file(rel), f"{dest}/{rel}", entry, label))
+    run_jobs(jobs, f"push {display(remote)}", stats)
+    for ref in pending:  # upstream first: a visible artifact's inputs are visible too
+        dest = f"{root}/{ref.stage}/{ref.key}"
+        try:
+            _write_manifest(fs, dest, (ref.path / MANIFEST).read_bytes())
+        except OSError as err:
+            raise os_error(err, f"{display(remote)}/{ref.stage}/{ref.key[:12]}") from err
+    log.info("pushed %d artifacts to %s (%d files sent)", len(order), display(remote), stats.sent)
+    return [f"{s}/{k}" for s, k in order]
 
 
-def _remote_manifest(fs: Any, root: str, stage: str, key: str) -> dict[str, Any]:
-    where = f"remote {stage}/{key[:12]}"
+def _exists(fs: Any, path: str, remote: str) -> bool:
     try:
-        manifest: Any = json.loads(fs.cat_file(f"{root}/{stage}/{key}/{MANIFEST}"))
-    except FileNotFoundError as err:
-        raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
-    except ValueError as err:
-        raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
-    model = parse_manifest(manifest, where)
-    if model.stage != stage or model.key != key:
-        raise ArtifactCorrupt(f"{where}: manifest names another artifact")
-    if model.recipe is None:
-        # Without a recipe nothing ties the key to the content: refuse rather than trust.
-        raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
-    return dict(manifest)
+        return bool(fs.exists(path))
+    except OSError as err:
+        raise os_error(err, display(remote)) from err
 
 
-def _resolve_remote(fs: Any, root: str, target: str) -> list[tuple[str, str]]:
-    stages = [p.rsplit("/", 1)[-1] for p in fs.ls(root, detail=False) if fs.isdir(p)]
-    if target in stages:
-        return [
-            (target, p.rsplit("/", 1)[-1]) for p in sorted(fs.ls(f"{root}/{target}", detail=False))
-        ]
-    hits = [
-        (s, p.rsplit("/", 1)[-1])
-        for s in stages
-        for p in fs.ls(f"{root}/{s}", detail=False)
-        if p.rsplit("/", 1)[-1].startswith(target)
-    ]
-    if len(hits) != 1:
-        raise StoreError(f"remote: '{target}' matches {len(hits)} artifacts, expected 1")
-    return hits
+def _upload_job(fs: Any, src: Path, dst: str, entry: Mapping[str, Any], label: str) -> Job:
+    size, sha = int(entry["size"]), str(entry["sha256"])
+
+    def run(progress: Callable[[int], None]) -> bool:
+        try:
+            return upload(fs, src, dst, size, sha, progress)
+        except OSError as err:
+            raise os_error(err, label) from err
+
+    return Job(run, size)
+
+
+def _free_bytes(path: Path) -> int:
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return shutil.disk_usage(probe).free
 
 
 def pull(
-    store: ArtifactStore, remote: str, targets: Sequence[str] = (), *, with_upstream: bool = True
+    store: ArtifactStore,
+    remote: str,
+    targets: Sequence[str] = (),
+    *,
+    with_upstream: bool = True,
+    policy: TrustPolicy | None = None,
+    stats: TransferStats | None = None,
 ) -> list[ArtifactRef]:
     """Download, verify and commit artifacts from `remote` (all-or-nothing).
 
     Raises:
-        ArtifactCorrupt: a key that does not match its recipe, a path escaping the
-            artifact directory, a missing, truncated or altered file.
+        ArtifactCorrupt: a reserved stage, a key that does not match its recipe, an
+            unpinned model, a path escaping the artifact directory, a missing, oversized,
+            truncated or altered file, a file that does not parse.
+        StoreError: the store's disk is full or read-only (named).
     """
-    fs, root = _fs(remote)
-    if not fs.exists(root):
-        raise StoreError(f"remote {remote} does not exist")
+    policy = policy or TrustPolicy()
+    stats = stats if stats is not None else TransferStats()
+    fs, root = open_remote(remote)
+    try:
+        return _pull(store, fs, root, remote, targets, with_upstream, policy, stats)
+    except OSError as err:
+        # A full or read-only disk is the store's; anything else without a local file
+        # name (refused connection, timeout, permission at the server) is the remote's.
+        local = isinstance(err.filename, str) and err.filename.startswith(str(store.root))
+        if local or err.errno in (errno.ENOSPC, errno.EROFS, errno.EDQUOT):
+            where = err.filename if local else str(store.root)
+        else:
+            where = f"remote {display(remote)}"
+        raise os_error(err, where) from err
+
+
+def _pull(
+    store: ArtifactStore,
+    fs: Any,
+    root: str,
+    remote: str,
+    targets: Sequence[str],
+    with_upstream: bool,
+    policy: TrustPolicy,
+    stats: TransferStats,
+) -> list[ArtifactRef]:
+    if not read_only(remote) and not fs.exists(root):
+        raise StoreError(f"remote {display(remote)} does not exist")
+    stages = list(targets) or remote_stages(fs, root)
+    if not stages and read_only(remote):
+        # A web server without directory listings looks empty.
+        raise StoreError(
+            f"remote {display(remote)} lists no stage folders (is directory listing enabled?)"
+        )
     wanted: list[tuple[str, str]] = []
-    if targets:
-        for t in targets:
-            wanted.extend(_resolve_remote(fs, root, t))
-    else:
-        for s in fs.ls(root, detail=False):
-            wanted.extend(_resolve_remote(fs, root, s.rsplit("/", 1)[-1]))
+    for t in stages:
+        wanted.extend(resolve_remote(fs, root, t))
     manifests: dict[tuple[str, str], dict[str, Any]] = {}
 
     def manifest_of(stage: str, key: str) -> dict[str, Any]:
         if (stage, key) not in manifests:
-            manifests[(stage, key)] = _remote_manifest(fs, root, stage, key)
+            manifests[(stage, key)] = remote_manifest(fs, root, stage, key, policy)
         return manifests[(stage, key)]
 
-    order = _upstream_closure(wanted, manifest_of, with_upstream)
+    order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
+    missing = [(s, k) for s, k in order if store.get(s, k) is None]
+    need = sum(int(e["size"]) for s, k in missing for e in manifest_of(s, k)["files"].values())
+    free = _free_bytes(store.root)
+    if need > free:
+        raise StoreError(f"{store.root}: pull needs {need} bytes, the disk has {free} free")
     staging = store.tmp_path("pull")
+    cache = store.root / PULL_CACHE
     try:
-        staged = []
-        for stage, key in order:
-            if store.get(stage, key) is not None:
-                continue
-            manifest = manifest_of(stage, key)
+        jobs = []
+        for stage, key in missing:
             local = staging / stage / key
             local.mkdir(parents=True)
-            for rel in manifest.get("files", {}):
+            for rel, entry in manifest_of(stage, key)["files"].items():
                 dst = safe_relative(local, rel)
                 dst.parent.mkdir(parents=True, exist_ok=True)
-                try:
-                    fs.get_file(f"{root}/{stage}/{key}/{rel}", str(dst))
-                except FileNotFoundError as err:
-                    raise ArtifactCorrupt(
-                        f"remote {stage}/{key[:12]}: file '{rel}' missing"
-                    ) from err
-            verify_artifact_dir(local, manifest)
+                jobs.append(
+                    _download_job(
+                        fs, f"{root}/{stage}/{key}/{rel}", dst, entry, f"{stage}/{key}", rel, cache
+                    )
+                )
+        run_jobs(jobs, f"pull {display(remote)}", stats)
+        for stage, key in missing:
+            # Sizes and sha256s were checked while streaming, the key before any download.
+            local, manifest = staging / stage / key, manifest_of(stage, key)
+            where = f"remote {stage}/{key[:12]}"
             for rel in manifest["files"]:
-                check_parses(safe_relative(local, rel), f"remote {stage}/{key[:12]}")
-            staged.append((local, manifest))
-        refs = [store.import_dir(local, manifest) for local, manifest in staged]
+                path = safe_relative(local, rel)
+                check_parses(path, where)
+                if path.suffix == ".pt" or rel == MODEL_FILE:
+                    check_model_file(path, where)
+        refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
+        _forget(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
+    except ArtifactCorrupt:
+        # A refused file is not worth resuming (it would be refused again).
+        _forget(cache, [manifest_of(s, k) for s, k in missing])
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    log.info("pulled %d artifacts from %s", len(refs), remote)
+    log.info("pulled %d artifacts from %s", len(refs), display(remote))
     return refs
+
+
+def _forget(cache: Path, manifests: Iterable[Mapping[str, Any]]) -> None:
+    for manifest in manifests:
+        for entry in manifest["files"].values():
+            (cache / str(entry["sha256"])).unlink(missing_ok=True)
+
+
+def _download_job(
+    fs: Any,
+    src: str,
+    dst: Path,
+    entry: Mapping[str, Any],
+    address: str,
+    rel: str,
+    cache: Path,
+) -> Job:
+    """Fetch one file into the store's resume cache (named by its sha256), then link it
+    into the staging directory; a file an interrupted pull already verified is reused."""
+    size, sha = int(entry["size"]), str(entry["sha256"])
+    where = f"remote {address[: address.index('/') + 13]}: file '{rel[:80]}'"
+    cached = cache / sha
+
+    def run(progress: Callable[[int], None]) -> bool:
+        sent = not (
+            cached.is_file() and cached.stat().st_size == size and sha256_file(cached) == sha
+        )
+        if sent:
+            cache.mkdir(parents=True, exist_ok=True)
+            part = cache / f".{sha[:16]}.{uuid.uuid4().hex[:8]}.part"
+            try:
+                download(fs, src, part, size, sha, where, progress)
+                os.replace(part, cached)
+            finally:
+                part.unlink(missing_ok=True)
+        else:
+            progress(size)
+        try:
+            os.link(cached, dst)
+        except OSError:
+            shutil.copyfile(cached, dst)
+        return sent
+
+    return Job(run, size)

@@ -41,6 +41,7 @@ __all__ = [
     "locked_fingerprints",
     "read_lock",
     "ship",
+    "shipped_models",
     "shipped_root",
     "shipped_store",
 ]
@@ -62,6 +63,20 @@ def shipped_store(setting: str | None) -> ArtifactStore | None:
     """The shipped models as a (read-only) artifact store, or None when there are none."""
     root = shipped_root(setting)
     return ArtifactStore(root) if root is not None and (root / "train").is_dir() else None
+
+
+def shipped_models(setting: str | None) -> list[tuple[str, str, str]]:
+    """(stage, key, sha256 of model.pt) of every shipped model: the leaves and pins that
+    `push` and `pull` use (`pipeline.engine.trust.TrustPolicy`)."""
+    store = shipped_store(setting)
+    if store is None:
+        return []
+    found = []
+    for ref in store.iter_artifacts():
+        entry = (ref.manifest.get("files") or {}).get("model.pt") or {}
+        if entry.get("sha256"):
+            found.append((ref.stage, ref.key, str(entry["sha256"])))
+    return found
 
 
 def _entry_key(file_name: str, recipe: Mapping[str, Any]) -> str:

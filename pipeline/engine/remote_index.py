@@ -1,0 +1,130 @@
+"""Reading a remote: which complete artifacts it holds, and their manifests, checked.
+
+Everything here runs before a byte of an artifact's files is fetched: listing keeps only
+artifacts with a manifest (a push in progress is invisible) and skips the store's
+reserved folders; a manifest is read with a size cap and refused unless its stage is
+the path's and the recipe's, its key is its recipe's hash, every declared size is under
+the cap, and a model's sha256 is pinned (`pipeline.engine.trust`).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from typing import Any
+
+from pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
+from pipeline.engine.hashing import recipe_key
+from pipeline.engine.manifest import parse_manifest
+from pipeline.engine.remotes import open_remote
+from pipeline.engine.transfer import max_file_bytes
+from pipeline.engine.trust import TrustPolicy, check_not_reserved
+
+__all__ = [
+    "MAX_MANIFEST_BYTES",
+    "list_remote",
+    "remote_manifest",
+    "remote_stages",
+    "resolve_remote",
+]
+
+MANIFEST = "manifest.json"
+MAX_MANIFEST_BYTES = 16 << 20
+_HEX = re.compile(r"^[0-9a-f]{1,64}$")
+
+
+def _names(fs: Any, path: str) -> list[str]:
+    """Last path components under `path` (directories and files), [] when absent."""
+    try:
+        entries = fs.ls(path, detail=False)
+    except FileNotFoundError:
+        return []
+    return sorted({str(p).rstrip("/").rsplit("/", 1)[-1] for p in entries})
+
+
+def _keys(fs: Any, root: str, stage: str) -> list[str]:
+    """Keys of committed artifacts (with a manifest) of `stage` at the remote."""
+    return [
+        k
+        for k in _names(fs, f"{root}/{stage}")
+        if _HEX.match(k) and fs.exists(f"{root}/{stage}/{k}/{MANIFEST}")
+    ]
+
+
+def remote_stages(fs: Any, root: str) -> list[str]:
+    stages = []
+    for name in _names(fs, root):
+        try:
+            check_not_reserved(name, "remote")
+        except ArtifactCorrupt:
+            continue
+        stages.append(name)
+    return stages
+
+
+def list_remote(remote: str) -> list[str]:
+    """ "stage/key" of every complete artifact (manifest present) at `remote`."""
+    fs, root = open_remote(remote)
+    return [f"{s}/{k}" for s in remote_stages(fs, root) for k in _keys(fs, root, s)]
+
+
+def _read_capped(fs: Any, path: str, cap: int, where: str) -> bytes:
+    with fs.open(path, "rb") as f:
+        data: bytes = f.read(cap + 1)
+    if len(data) > cap:
+        raise ArtifactCorrupt(f"{where}: manifest is larger than {cap} bytes")
+    return data
+
+
+def remote_manifest(
+    fs: Any, root: str, stage: str, key: str, policy: TrustPolicy
+) -> dict[str, Any]:
+    """The remote's manifest for `stage/key`, after every check that needs no file."""
+    where = f"remote {stage[:40]}/{key[:12]}"
+    check_not_reserved(stage, where)
+    try:
+        raw = _read_capped(fs, f"{root}/{stage}/{key}/{MANIFEST}", MAX_MANIFEST_BYTES, where)
+    except FileNotFoundError as err:
+        raise StoreError(f"remote has no artifact {stage}/{key[:12]}") from err
+    try:
+        manifest: Any = json.loads(raw)
+    except (ValueError, RecursionError) as err:  # RecursionError: nesting bombs
+        raise ArtifactCorrupt(f"{where}: manifest is not JSON") from err
+    model = parse_manifest(manifest, where)
+    if model.stage != stage or model.key != key:
+        raise ArtifactCorrupt(f"{where}: manifest names another artifact")
+    if model.recipe is None:
+        # Without a recipe nothing ties the key to the content: refuse rather than trust.
+        raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
+    if model.recipe.get("stage") != stage:
+        raise ArtifactCorrupt(
+            f"{where}: recipe is for stage {str(model.recipe.get('stage'))[:40]!r}, not {stage!r}"
+        )
+    try:
+        if recipe_key(model.recipe) != key:
+            raise ArtifactCorrupt(f"{where}: key does not match the manifest's recipe")
+    except ArtifactCorrupt:
+        raise
+    except PipelineError as err:
+        raise ArtifactCorrupt(f"{where}: the manifest's recipe cannot be hashed") from err
+    cap = max_file_bytes()
+    for rel, entry in model.files.items():
+        if entry.size > cap:
+            raise ArtifactCorrupt(
+                f"{where}: '{rel[:80]}' declares {entry.size} bytes, over the {cap}-byte limit "
+                "(SONARMAP_MAX_FILE_BYTES)"
+            )
+    policy.check_model(stage, key, manifest, where)
+    return dict(manifest)
+
+
+def resolve_remote(fs: Any, root: str, target: str) -> list[tuple[str, str]]:
+    if not _HEX.match(target):
+        check_not_reserved(target, "pull")
+    stages = remote_stages(fs, root)
+    if target in stages:
+        return [(target, k) for k in _keys(fs, root, target)]
+    hits = [(s, k) for s in stages for k in _keys(fs, root, s) if k.startswith(target)]
+    if len(hits) != 1:
+        raise StoreError(f"remote: '{target[:40]}' matches {len(hits)} artifacts, expected 1")
+    return hits

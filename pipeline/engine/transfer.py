@@ -1,0 +1,215 @@
+"""File transfers between a local store and an fsspec remote: streamed, capped, hashed.
+
+Every byte read from a remote passes through `download`, which never writes past the
+size the manifest declares and hashes while it copies, so a file that lies about its
+size costs at most one chunk. `upload` skips a file the remote already holds with the
+right size and sha256, which is what makes an interrupted push resumable. A small
+thread pool runs the files of a batch concurrently; a byte progress bar goes to stderr
+when it is a terminal.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.engine.errors import ArtifactCorrupt, StoreError
+
+__all__ = [
+    "CHUNK",
+    "MAX_FILE_BYTES",
+    "Job",
+    "TransferStats",
+    "download",
+    "max_file_bytes",
+    "run_jobs",
+    "upload",
+]
+
+CHUNK = 1 << 20
+MAX_FILE_BYTES = 64 << 30
+"""Default cap on one file's declared size (`SONARMAP_MAX_FILE_BYTES` overrides it)."""
+WORKERS = 4
+
+
+def max_file_bytes() -> int:
+    """The largest single file `pull` accepts, from `SONARMAP_MAX_FILE_BYTES` or the default."""
+    raw = os.environ.get("SONARMAP_MAX_FILE_BYTES", "")
+    return int(raw) if raw.isdigit() and len(raw) < 20 else MAX_FILE_BYTES
+
+
+@dataclass
+class TransferStats:
+    """What a push or pull moved: files sent, files already at the destination, bytes."""
+
+    sent: int = 0
+    skipped: int = 0
+    bytes: int = 0
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def add(self, sent: bool, nbytes: int) -> None:
+        with self._lock:
+            if sent:
+                self.sent += 1
+                self.bytes += nbytes
+            else:
+                self.skipped += 1
+
+
+Progress = Callable[[int], None]
+
+
+def _sha256_remote(fs: Any, path: str) -> str:
+    digest = hashlib.sha256()
+    with fs.open(path, "rb") as f:
+        while chunk := f.read(CHUNK):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def _remote_size(fs: Any, path: str) -> int | None:
+    try:
+        info = fs.info(path)
+    except (FileNotFoundError, OSError):
+        return None
+    size = info.get("size")
+    return int(size) if isinstance(size, int) else None
+
+
+def upload(
+    fs: Any, src: Path, dst: str, size: int, sha256: str, progress: Progress = lambda n: None
+) -> bool:
+    """Copy `src` to `dst` unless `dst` already has this size and sha256; True when sent."""
+    if _remote_size(fs, dst) == size and _sha256_remote(fs, dst) == sha256:
+        progress(size)
+        return False
+    parent = dst.rsplit("/", 1)[0]
+    fs.makedirs(parent, exist_ok=True)
+    with src.open("rb") as fin, fs.open(dst, "wb") as fout:
+        while chunk := fin.read(CHUNK):
+            fout.write(chunk)
+            progress(len(chunk))
+    return True
+
+
+def download(
+    fs: Any,
+    src: str,
+    dst: Path,
+    size: int,
+    sha256: str,
+    where: str,
+    progress: Progress = lambda n: None,
+) -> None:
+    """Stream `src` into `dst`, refusing as soon as it runs past `size` bytes.
+
+    Raises:
+        ArtifactCorrupt: missing, larger or smaller than `size`, or another sha256
+            (`where` names the artifact and file).
+    """
+    digest = hashlib.sha256()
+    written = 0
+    try:
+        kind = fs.info(src).get("type", "file")
+    except FileNotFoundError as err:
+        raise ArtifactCorrupt(f"{where} missing") from err
+    if kind != "file":
+        # A FIFO would block the open forever, a device never ends: neither is an artifact.
+        raise ArtifactCorrupt(f"{where} is not a regular file ({str(kind)[:20]})")
+    protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
+    # A plain web server may not serve byte ranges: read http(s) as one stream.
+    kwargs = {"block_size": 0} if protocol in ("http", "https") else {}
+    try:
+        fin = fs.open(src, "rb", **kwargs)
+    except FileNotFoundError as err:
+        raise ArtifactCorrupt(f"{where} missing") from err
+    with fin, dst.open("wb") as fout:
+        # One byte past the declared size is enough to know the file lies.
+        while chunk := fin.read(min(CHUNK, size - written + 1)):
+            if written + len(chunk) > size:
+                raise ArtifactCorrupt(
+                    f"{where} is larger than the {size} bytes its manifest declares"
+                )
+            fout.write(chunk)
+            digest.update(chunk)
+            written += len(chunk)
+            progress(len(chunk))
+    if written != size:
+        raise ArtifactCorrupt(f"{where} has size {written}, its manifest says {size}")
+    if digest.hexdigest() != sha256:
+        raise ArtifactCorrupt(f"{where} sha256 does not match its manifest")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One file to move: `run(progress)` does it and says whether bytes were sent."""
+
+    run: Callable[[Progress], bool]
+    size: int
+
+
+@contextmanager
+def _progress_bar(total: int, label: str) -> Iterator[Progress]:
+    if not sys.stderr.isatty() or total == 0:
+        yield lambda n: None
+        return
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        DownloadColumn,
+        Progress,
+        TextColumn,
+        TransferSpeedColumn,
+    )
+
+    lock = threading.Lock()
+    with Progress(
+        TextColumn(label),
+        BarColumn(),
+        DownloadColumn(),
+        TransferSpeedColumn(),
+        console=Console(stderr=True),
+        transient=True,
+    ) as bar:
+        task = bar.add_task(label, total=total)
+
+        def advance(n: int) -> None:
+            with lock:
+                bar.advance(task, n)
+
+        yield advance
+
+
+def run_jobs(jobs: Sequence[Job], label: str, stats: TransferStats) -> None:
+    """Run `jobs` on a small thread pool; the first failure is raised once all have stopped."""
+    with _progress_bar(sum(j.size for j in jobs), label) as progress:
+        if len(jobs) <= 1:
+            for job in jobs:
+                stats.add(job.run(progress), job.size)
+            return
+        with ThreadPoolExecutor(max_workers=WORKERS) as pool:
+            futures = [(job, pool.submit(job.run, progress)) for job in jobs]
+            first: BaseException | None = None
+            for job, fut in futures:
+                try:
+                    stats.add(fut.result(), job.size)
+                except BaseException as err:  # re-raised below, after the pool drains
+                    first = first or err
+                    for _, later in futures:
+                        later.cancel()
+            if first is not None:
+                raise first
+
+
+def os_error(err: OSError, path: str) -> StoreError:
+    """One line for a failed write or read at `path` (disk full, read-only, permissions)."""
+    reason = err.strerror or type(err).__name__
+    return StoreError(f"{path}: {reason}")
