@@ -22,13 +22,19 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Show, without computing anything, which stages hit the cache and why others miss."""
-        from pipeline.api import RunRequest, plan_dataset
+        from pipeline.api import RunRequest, plan_status
 
         request = RunRequest(
             dataset, config_path=config, overrides=set_ or (), store_dir=store, until=until
         )
-        ctx, planned, _ = plan_dataset(request, with_external=False)
-        rows = [
+        ctx, planned, model, unplanned = plan_status(request)
+        rows = []
+        if model is not None:
+            status = "hit" if model.hit else "miss"
+            rows.append(
+                {"stage": "train", "key": model.key, "status": status, "reason": model.reason}
+            )
+        rows += [
             {
                 "stage": p.stage.name,
                 "key": p.key,
@@ -36,6 +42,10 @@ def register(app: typer.Typer) -> None:
                 "reason": p.reason,
             }
             for p in planned
+        ]
+        rows += [
+            {"stage": name, "key": "", "status": "miss", "reason": "after the model is trained"}
+            for name in unplanned
         ]
         if json_:
             emit_json({"dataset": str(dataset), "store": str(store), "stages": rows})

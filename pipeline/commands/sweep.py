@@ -68,13 +68,16 @@ def register(app: typer.Typer) -> None:
             tail = f": {o.error}" if o.error else ""
             typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
 
-        outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)
-        doc = write_sweep(outcomes, out_dir)
-        if json_:
-            emit_json(doc)
-        else:
-            typer.echo((out_dir / "table.md").read_text())
-            typer.echo(f"results: {out_dir}")
+        from pipeline.cli_errors import writes_under
+
+        with writes_under(store, out_dir):
+            outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)
+            doc = write_sweep(outcomes, out_dir)
+            if json_:
+                emit_json(doc)
+            else:
+                typer.echo((out_dir / "table.md").read_text())
+                typer.echo(f"results: {out_dir}")
         failed = [o for o in outcomes if o.status != "ok"]
         for o in failed:
             typer.echo(one_line(f"failed: {describe(o)}: {o.error}"), err=True)
