@@ -51,12 +51,13 @@ def register(app: typer.Typer) -> None:
             emit_json({"dataset": str(dataset), "store": str(store), "stages": rows})
             return
         from rich.console import Console
-        from rich.table import Table
 
-        table = Table(title=f"{dataset} ({ctx.dataset.fingerprint[:12]})")
-        for col in ("stage", "status", "key", "reason"):
-            table.add_column(col)
-        for r in rows:
-            colour = "green" if r["status"] == "hit" else "yellow"
-            table.add_row(r["stage"], f"[{colour}]{r['status']}[/]", r["key"][:12], r["reason"])
-        Console().print(table)
+        from pipeline.tables import print_table
+
+        print_table(
+            Console(),
+            f"{dataset} ({ctx.dataset.fingerprint[:12]})",
+            ("stage", "status", "key", "reason"),
+            [(r["stage"], r["status"], r["key"][:12], r["reason"]) for r in rows],
+            styles=["green" if r["status"] == "hit" else "yellow" for r in rows],
+        )
