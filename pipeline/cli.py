@@ -13,8 +13,8 @@ import typer
 from typer.core import TyperGroup
 
 from pipeline import __version__
-from pipeline.cli_errors import one_line, os_error_line
 from pipeline.commands import COMMAND_MODULES
+from pipeline.commands._errors import one_line, os_error_line
 from pipeline.engine.errors import PipelineError
 
 __all__ = ["app", "main"]

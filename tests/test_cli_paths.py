@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from pipeline.cli_errors import (
+from pipeline.commands._errors import (
     MAX_LINE_CHARS,
     display_path,
     one_line,

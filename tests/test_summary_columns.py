@@ -8,9 +8,9 @@ from typing import Any
 
 import pytest
 
+from pipeline.commands._tables import plain_lines
 from pipeline.engine.runner import RunResult, StageResult
 from pipeline.report_cli import print_summary
-from pipeline.tables import plain_lines
 
 STORE = "/home/researcher/field-campaigns/2026-harbour/store"
 LABEL = "median error m, SE(2)-aligned (rotation -0.34°)"
@@ -71,7 +71,7 @@ def _printed(
     "env",
     [
         {},  # not a terminal: a log file, CI, `| tee`
-        {"COLUMNS": "300"},  # not a terminal, whatever width it claims
+        {"COLUMNS": "100"},  # not a terminal, a width too narrow for the tables
         {"COLUMNS": "80", "FORCE_COLOR": "1", "TTY_COMPATIBLE": "1"},  # an 80-column terminal
     ],
 )

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 import pipeline.engine.registry
-from pipeline.experiments.sweep import RunOutcome, failure_exit_code
+from pipeline.experiments.sweep import RunOutcome
+from pipeline.experiments.sweep_checks import failure_exit_code
 
 TESTS = Path(__file__).resolve().parent
 

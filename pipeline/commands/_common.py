@@ -25,7 +25,7 @@ JSON_OPT = typer.Option(False, "--json", help="Print exactly one JSON document o
 
 def emit_json(doc: Any) -> None:
     """The one JSON document a `--json` command prints (strict: NaN/inf become null)."""
-    from pipeline.json_out import dumps_strict
+    from pipeline.formats.strict_json import dumps_strict
 
     sys.stdout.write(dumps_strict(doc) + "\n")
     sys.stdout.flush()

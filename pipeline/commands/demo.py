@@ -73,8 +73,8 @@ def register(app: typer.Typer) -> None:
         import shutil
 
         from pipeline.api import RunRequest, run_dataset
-        from pipeline.cli_errors import writes_under
         from pipeline.commands._common import stderr_console
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.progress import StageProgress
         from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 

@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
         from pipeline.api import RunRequest, run_dataset
-        from pipeline.cli_errors import writes_under
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.progress import StageProgress
 
         with writes_under(store):

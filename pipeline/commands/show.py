@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
-from pipeline.json_out import dumps_strict
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["register"]
 

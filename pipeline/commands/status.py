@@ -52,7 +52,7 @@ def register(app: typer.Typer) -> None:
             return
         from rich.console import Console
 
-        from pipeline.tables import print_table
+        from pipeline.commands._tables import print_table
 
         print_table(
             Console(),

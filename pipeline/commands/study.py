@@ -77,8 +77,8 @@ def register(app: typer.Typer) -> None:
         OUT/results/fig4_errors.png."""
         import time
 
-        from pipeline.cli_errors import writes_under
         from pipeline.commands._common import stderr_console
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.config import load_config
         from pipeline.engine.registry import all_stages, extra_sections
         from pipeline.experiments.study import write_study

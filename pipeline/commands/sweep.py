@@ -44,8 +44,9 @@ def register(app: typer.Typer) -> None:
         """
         import hashlib
 
-        from pipeline.cli_errors import display_path, one_line
-        from pipeline.experiments.sweep import check_inputs, expand, failure_exit_code, run_sweep
+        from pipeline.commands._errors import display_path, one_line
+        from pipeline.experiments.sweep import expand, run_sweep
+        from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
         from pipeline.experiments.sweep_output import write_sweep
 
         specs = expand(
@@ -68,7 +69,7 @@ def register(app: typer.Typer) -> None:
             tail = f": {o.error}" if o.error else ""
             typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
 
-        from pipeline.cli_errors import writes_under
+        from pipeline.commands._errors import writes_under
 
         with writes_under(store, out_dir):
             outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)

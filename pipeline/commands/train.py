@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
 
         from pipeline.api import RunRequest, plan_dataset
-        from pipeline.cli_errors import writes_under
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.errors import SourceError
         from pipeline.training.annotations import annotation_path
         from pipeline.training.model import train_on

@@ -38,7 +38,7 @@ from pipeline.experiments.study_tables import (
 from pipeline.experiments.sweep import (
     RunOutcome,
 )
-from pipeline.json_out import dumps_strict
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["render_markdown", "table_i", "write_study"]
 

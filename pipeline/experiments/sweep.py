@@ -9,13 +9,9 @@ must be a path every worker can reach (a shared filesystem).
 
 from __future__ import annotations
 
-import ctypes
 import itertools
 import logging
 import os
-import signal
-import sys
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -23,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ConfigError, PipelineError, SourceError
+from pipeline.engine.errors import ConfigError, PipelineError
 from pipeline.experiments.headline_columns import (
     frame_of,
     headline_columns,
@@ -31,6 +27,7 @@ from pipeline.experiments.headline_columns import (
     shared_frame,
 )
 from pipeline.experiments.submap_columns import submap_columns
+from pipeline.experiments.worker_life import die_with_parent
 
 __all__ = [
     "ALL_STRUCTURE",
@@ -38,10 +35,8 @@ __all__ = [
     "PILING_CLASSES",
     "RunOutcome",
     "RunSpec",
-    "check_inputs",
     "class_value",
     "expand",
-    "failure_exit_code",
     "group_label",
     "per_class",
     "run_sweep",
@@ -144,40 +139,12 @@ def run_one(spec: RunSpec) -> RunOutcome:
                 store_dir=Path(spec.store),
             )
         )
-    except PipelineError as err:
-        return RunOutcome(
-            spec.dataset,
-            overrides,
-            "failed",
-            time.perf_counter() - t0,
-            error=str(err),
-            exit_code=err.exit_code,
-            **tags,
-        )
-    except OSError as err:
-        # An unreadable dataset or unwritable store is bad input, as in `sonarmap run`.
-        code = 2 if err.filename is not None else 1
-        msg = f"{err.filename}: {err.strerror}" if code == 2 else f"{type(err).__name__}: {err}"
-        return RunOutcome(
-            spec.dataset,
-            overrides,
-            "failed",
-            time.perf_counter() - t0,
-            error=msg,
-            exit_code=code,
-            **tags,
-        )
-    except Exception as err:  # a bug in one run must not stop the sweep
+    except Exception as err:  # a failed run must not stop the sweep
         log.debug("sweep run failed", exc_info=True)
-        msg = f"{type(err).__name__}: {err}"
+        error, code = _failure(err)
+        seconds = time.perf_counter() - t0
         return RunOutcome(
-            spec.dataset,
-            overrides,
-            "failed",
-            time.perf_counter() - t0,
-            error=msg,
-            exit_code=1,
-            **tags,
+            spec.dataset, overrides, "failed", seconds, error=error, exit_code=code, **tags
         )
     stages = [dict(s.__dict__) for s in result.stages]
     return RunOutcome(
@@ -185,74 +152,14 @@ def run_one(spec: RunSpec) -> RunOutcome:
     )
 
 
-def check_inputs(specs: Sequence[RunSpec]) -> None:
-    """Refuse (exit 2) before the first run when a dataset or a config point is unusable.
-
-    Every dataset must exist and be readable as a recording (its files open, its format
-    is recognised); every distinct (config file, overrides) point must load. Raises
-    `SourceError` / `ConfigError` naming the first bad one.
-    """
-    from pipeline.engine.config import load_config
-    from pipeline.engine.registry import all_stages, alternative_graph, extra_sections
-    from pipeline.engine.session import _default_parts
-
-    for dataset in dict.fromkeys(s.dataset for s in specs):
-        path = Path(dataset)
-        if not path.exists():
-            raise SourceError(f"{path}: no such file or directory")
-        for part in _default_parts(path):
-            try:
-                with part.open("rb") as f:
-                    f.read(16)
-            except OSError as err:
-                raise SourceError(f"{part}: cannot read ({err.strerror})") from err
-        if alternative_graph() is None:
-            from pipeline.readers import open_source
-
-            open_source(path)
-    for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
-        load_config(
-            all_stages(), Path(config_path) if config_path else None, args, extra_sections()
-        )
-
-
-def failure_exit_code(outcomes: Sequence[RunOutcome]) -> int:
-    """The sweep's exit status: 0 when every run succeeded, 1 when any failed on a bug,
-    else 2 (every failure was bad input)."""
-    codes = {o.exit_code or 1 for o in outcomes if o.status != "ok"}
-    if not codes:
-        return 0
-    return 1 if 1 in codes else 2
-
-
-_PR_SET_PDEATHSIG = 1
-"""prctl(2) option: the signal a process gets when its parent dies (Linux)."""
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Pool-worker initializer: the worker dies when the sweep's process does.
-
-    Without it a `kill -9` of the sweep leaves its workers running (each holds a run's
-    memory). Linux delivers SIGKILL on the parent's death; elsewhere, and as a fallback,
-    a daemon thread polls the parent pid.
-    """
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-        except (OSError, AttributeError):
-            log.debug("prctl(PR_SET_PDEATHSIG) unavailable", exc_info=True)
-    if os.getppid() != parent_pid:  # the parent died before prctl took effect
-        os._exit(1)
-    threading.Thread(
-        target=_watch_parent, args=(parent_pid,), name="sweep-parent-watch", daemon=True
-    ).start()
-
-
-def _watch_parent(parent_pid: int) -> None:
-    while os.getppid() == parent_pid:
-        time.sleep(1.0)
-    os._exit(1)  # from a thread: ends the whole worker, whatever it is running
+def _failure(err: Exception) -> tuple[str, int]:
+    """A failed run's message and exit status: 2 for bad input (a `PipelineError` of
+    code 2, an OSError naming its file: as in `sonarmap run`), 1 for a bug."""
+    if isinstance(err, PipelineError):
+        return str(err), err.exit_code
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror}", 2
+    return f"{type(err).__name__}: {err}", 1
 
 
 def _local(
@@ -266,7 +173,7 @@ def _local(
         return outcomes
     results: dict[int, RunOutcome] = {}
     with ProcessPoolExecutor(
-        max_workers=jobs, initializer=_die_with_parent, initargs=(os.getpid(),)
+        max_workers=jobs, initializer=die_with_parent, initargs=(os.getpid(),)
     ) as pool:
         futures = {pool.submit(run_one, s): i for i, s in enumerate(specs)}
         for fut in as_completed(futures):

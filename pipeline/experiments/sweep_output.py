@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.experiments.sweep import RunOutcome, group_label, sweep_tables
-from pipeline.json_out import dumps_strict
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["write_sweep"]
 

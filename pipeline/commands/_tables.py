@@ -1,8 +1,9 @@
 """Tables on the terminal that never cut a header or a value.
 
-A rich table is printed only on a terminal wide enough for every cell at full width;
-otherwise (80 columns, a log file, CI, `| tee`) each row becomes one plain line of
-`header=value` pairs, which a narrow terminal may wrap but never truncates.
+A rich table is printed only when the console is wide enough for every cell at full
+width (a terminal's width; elsewhere $COLUMNS, else rich's 80); otherwise (80 columns,
+a log file, CI, `| tee`) each row becomes one plain line of `header=value` pairs, which
+a narrow terminal may wrap but never truncates.
 """
 
 from __future__ import annotations
@@ -16,8 +17,6 @@ __all__ = ["print_table"]
 def _fits(console: Any, table: Any) -> bool:
     from rich.measure import Measurement
 
-    if not console.is_terminal:
-        return False
     # Measured without the console's limit: the width every cell needs at full length.
     unbounded = console.options.update(width=1_000_000)
     width = Measurement.get(console, unbounded, table).maximum
