@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from pipeline.engine.errors import SourceError
 from pipeline.experiments.sweep import RunOutcome, RunSpec
@@ -16,17 +17,21 @@ def check_inputs(specs: Sequence[RunSpec]) -> None:
 
     Every distinct (config file, overrides) point must load (checked first); every
     dataset must exist and be readable as a recording (its files open, its format is
-    recognised). Raises `ConfigError` / `SourceError` naming the first bad one.
+    recognised, its sonar and navigation topics are found under every point's
+    `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
     """
     from pipeline.engine.config import load_config
     from pipeline.engine.registry import all_stages, alternative_graph, extra_sections
     from pipeline.engine.session import _default_parts
 
     # Config first (cheap, and what a typo in --set most likely is), then datasets.
+    readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording
     for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
-        load_config(
+        config = load_config(
             all_stages(), Path(config_path) if config_path else None, args, extra_sections()
         )
+        section = getattr(config, "keyframes", None)
+        readers.setdefault(repr(section), section)
     for dataset in dict.fromkeys(s.dataset for s in specs):
         path = Path(dataset)
         if not path.exists():
@@ -38,9 +43,12 @@ def check_inputs(specs: Sequence[RunSpec]) -> None:
             except OSError as err:
                 raise SourceError(f"{part}: cannot read ({err.strerror})") from err
         if alternative_graph() is None:
-            from pipeline.readers import open_source
+            # Opening reads the topic list and finds the sonar and navigation topics:
+            # a file with none of them is refused now, not after the other runs.
+            from pipeline.readers import open_recording
 
-            open_source(path)
+            for section in readers.values():
+                open_recording(path, section)
 
 
 def failure_exit_code(outcomes: Sequence[RunOutcome]) -> int:
