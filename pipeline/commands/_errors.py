@@ -20,6 +20,7 @@ __all__ = [
     "DISK_ERRNOS",
     "MAX_LINE_CHARS",
     "MAX_PATH_CHARS",
+    "check_writable",
     "display_path",
     "one_line",
     "os_error_line",
@@ -128,3 +129,12 @@ def writes_under(*roots: Path | None) -> Iterator[None]:
         where = " or ".join(display_path(r) for r in roots if r is not None)
         reason = disk.strerror or os.strerror(disk.errno or 0)
         raise OutputError(f"{where}: {reason} (while writing results)") from err
+
+
+def check_writable(folder: Path) -> None:
+    """Create `folder` and prove it takes a file, before any work is paid for (an
+    unwritable `--out` then fails in a second, not after the runs)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / f".write-test-{os.getpid()}"
+    probe.write_bytes(b"")
+    probe.unlink()

@@ -78,13 +78,14 @@ def register(app: typer.Typer) -> None:
         import time
 
         from pipeline.commands._common import stderr_console
-        from pipeline.commands._errors import writes_under
+        from pipeline.commands._errors import check_writable, writes_under
         from pipeline.engine.config import load_config
         from pipeline.engine.registry import all_stages, extra_sections
         from pipeline.experiments.study import write_study
         from pipeline.experiments.sweep import expand, run_sweep
         from pipeline.training.datasets import ensure_simulation, scene_path
 
+        check_writable(out)
         with writes_under(out, store):
             console = stderr_console()
             t0 = time.perf_counter()

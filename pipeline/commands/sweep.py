@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -44,7 +43,7 @@ def register(app: typer.Typer) -> None:
         """
         import hashlib
 
-        from pipeline.commands._errors import display_path, one_line
+        from pipeline.commands._errors import check_writable, display_path, one_line
         from pipeline.experiments.sweep import expand, run_sweep
         from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
         from pipeline.experiments.sweep_output import write_sweep
@@ -57,7 +56,7 @@ def register(app: typer.Typer) -> None:
         check_inputs(specs)
         ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
         out_dir = out or Path("data/sweeps") / ident[:12]
-        _check_writable(out_dir)
+        check_writable(out_dir)
         typer.echo(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)", err=True)
 
         def describe(o: RunOutcome) -> str:
@@ -92,11 +91,3 @@ def register(app: typer.Typer) -> None:
                 err=True,
             )
             raise typer.Exit(code)
-
-
-def _check_writable(out_dir: Path) -> None:
-    """Create the results folder and prove it takes a file, before any run is paid for."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    probe = out_dir / f".write-test-{os.getpid()}"
-    probe.write_bytes(b"")
-    probe.unlink()

@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
             raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
 
         from pipeline.api import RunRequest, plan_dataset
-        from pipeline.commands._errors import writes_under
+        from pipeline.commands._errors import check_writable, writes_under
         from pipeline.engine.errors import SourceError
         from pipeline.training.annotations import annotation_path
         from pipeline.training.model import train_on
@@ -80,6 +80,7 @@ def register(app: typer.Typer) -> None:
             for path in datasets:
                 if not path.exists():
                     raise SourceError(f"{path}: no such dataset")
+            check_writable(out)  # before training, not after
             request = RunRequest(
                 datasets[0],
                 config_path=config,
