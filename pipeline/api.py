@@ -144,15 +144,14 @@ def plan_status(
         planned = _plan_with(ctx, request, until, {}) if until else []
         return ctx, planned, model, names[first : last + 1]
     ref = ctx.store.get("train", key)
-    if ref is None:
-        # Not in this store yet: `run` copies it in under this key (or trains it).
-        ref = ArtifactRef("train", key, ctx.store.root / "train" / key, {})
-    if ctx.store.get("train", key) is not None:
+    if ref is not None:
         model = ModelStatus(key, True, "cached")
-    elif at_hand:
-        model = ModelStatus(key, False, "in the model cache or shipped models: copied on run")
     else:
-        model = ModelStatus(key, False, "not found: `run` trains it")
+        # Not in this store yet: `run` copies it in under this key (or trains it), so
+        # its readers are planned against that key.
+        ref = ArtifactRef("train", key, ctx.store.root / "train" / key, {})
+        where = "in the model cache or shipped models: copied on run"
+        model = ModelStatus(key, False, where if at_hand else "not found: `run` trains it")
     external = {"train": (training_stage(), ref)}
     return ctx, _plan_with(ctx, request, request.until, external), model, []
 

@@ -252,3 +252,19 @@ def test_json_with_non_finite_values_is_strict(tmp_path: Path) -> None:
     res = runner.invoke(app, ["ls", "--store", str(store.root), "--json"])
     assert res.exit_code == 0, res.output
     _strict(res.stdout)
+
+
+def test_status_without_a_plannable_model_lists_every_stage(real_run: dict[str, Path]) -> None:
+    """With no shipped lock the model's key needs its training sets simulated: `status`
+    still lists every stage, planning those before the model's readers."""
+    res = CliRunner().invoke(
+        app,
+        [
+            "status", str(real_run["link"]), "--store", str(real_run["store"]), "--json",
+            "--set", "training.shipped_models=null",
+        ],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    rows = {r["stage"]: r for r in _strict(res.stdout)["stages"]}
+    assert rows["train"]["status"] == "miss" and rows["keyframes"]["status"] == "hit"
+    assert rows["evaluate"]["status"] == "miss" and "model" in rows["evaluate"]["reason"]

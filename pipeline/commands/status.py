@@ -44,7 +44,12 @@ def register(app: typer.Typer) -> None:
             for p in planned
         ]
         rows += [
-            {"stage": name, "key": "", "status": "miss", "reason": "after the model is trained"}
+            {
+                "stage": name,
+                "key": "",
+                "status": "miss",
+                "reason": "planned once the model is trained",
+            }
             for name in unplanned
         ]
         if json_:
