@@ -20,7 +20,7 @@ def _preview(path: Path) -> str:
         head = table.slice(0, 5).to_pylist()
         return (
             f"{table.num_rows} rows\n{table.schema.to_string(show_schema_metadata=False)}\n"
-            + "\n".join(dumps_strict(r, indent=None) for r in head)
+            + "\n".join(dumps_strict(r, indent=None, sort_keys=False) for r in head)
         )
     if path.suffix in (".json", ".md", ".tum", ".yaml"):
         text = path.read_text()

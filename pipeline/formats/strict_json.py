@@ -34,8 +34,8 @@ def _default(value: Any) -> Any:
     return str(value)
 
 
-def dumps_strict(doc: Any, *, indent: int | None = 2) -> str:
-    """`doc` as strict JSON (RFC 8259): no NaN or Infinity, keys sorted."""
+def dumps_strict(doc: Any, *, indent: int | None = 2, sort_keys: bool = True) -> str:
+    """`doc` as strict JSON (RFC 8259): no NaN or Infinity; keys sorted by default."""
     return json.dumps(
-        to_json_safe(doc), indent=indent, sort_keys=True, default=_default, allow_nan=False
+        to_json_safe(doc), indent=indent, sort_keys=sort_keys, default=_default, allow_nan=False
     )
