@@ -18,7 +18,7 @@ from pipeline.engine.store import ArtifactRef
 from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
 
-__all__ = ["RunRequest", "plan_dataset", "run_dataset", "summarize"]
+__all__ = ["ModelStatus", "RunRequest", "plan_dataset", "plan_status", "run_dataset", "summarize"]
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +96,82 @@ def plan_dataset(
     """What `run` would do, without computing (with_external=False: nor training)."""
     ctx, planned, model = _plan(request, with_external)
     return ctx, planned, {} if model is None else {"train": (model.stage, model.ref)}
+
+
+@dataclass(frozen=True)
+class ModelStatus:
+    """The default classifier as `status` sees it, found without training or copying.
+
+    Attributes:
+        key: its planned key ("" when planning it needs the training sets simulated).
+        hit: the run's store already holds it.
+        reason: where `run` would take it from.
+    """
+
+    key: str
+    hit: bool
+    reason: str
+
+
+def plan_status(
+    request: RunRequest,
+) -> tuple[RunContext, list[PlannedStage], ModelStatus | None, list[str]]:
+    """What `run` would do, for every stage, the model's readers included, with no side
+    effect: the model is planned from its lock (nothing simulated, trained or copied).
+
+    Returns the context, the planned stages, the model's status (None when no stage up
+    to `until` reads it) and the names of the stages that could not be planned because
+    the model's key is not known yet (they all miss: `run` trains the model first).
+    """
+    ctx = _context(request)
+    names = [s.name for s in ctx.stages]
+    last = names.index(request.until) if request.until in names else len(names) - 1
+    readers = [
+        s.name for s in ctx.stages[: last + 1] if any(i.startswith("train.") for i in s.inputs)
+    ]
+    if not readers:
+        return ctx, _plan_with(ctx, request, request.until, {}), None, []
+    from pipeline.engine.artifact import ArtifactRef
+    from pipeline.engine.registry import training_stage
+    from pipeline.training.model_cache import planned_default_model
+
+    key, at_hand = planned_default_model(ctx.store, ctx.config)
+    if not key:
+        model = ModelStatus(
+            "", False, "not planned: `run` simulates its training sets and trains it"
+        )
+        first = names.index(readers[0])
+        until = names[first - 1] if first else None
+        planned = _plan_with(ctx, request, until, {}) if until else []
+        return ctx, planned, model, names[first : last + 1]
+    ref = ctx.store.get("train", key)
+    if ref is not None:
+        model = ModelStatus(key, True, "cached")
+    else:
+        # Not in this store yet: `run` copies it in under this key (or trains it), so
+        # its readers are planned against that key.
+        ref = ArtifactRef("train", key, ctx.store.root / "train" / key, {})
+        where = "in the model cache or shipped models: copied on run"
+        model = ModelStatus(key, False, where if at_hand else "not found: `run` trains it")
+    external = {"train": (training_stage(), ref)}
+    return ctx, _plan_with(ctx, request, request.until, external), model, []
+
+
+def _plan_with(
+    ctx: RunContext,
+    request: RunRequest,
+    until: str | None,
+    external: Mapping[str, tuple[Stage, ArtifactRef]],
+) -> list[PlannedStage]:
+    return plan(
+        ctx.stages,
+        ctx.config,
+        ctx.dataset,
+        ctx.store,
+        until=until,
+        force=request.force,
+        external=external,
+    )
 
 
 def run_dataset(

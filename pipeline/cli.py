@@ -6,6 +6,7 @@ import importlib
 import importlib.util
 import logging
 import sys
+from typing import NoReturn
 
 import click
 import typer
@@ -13,20 +14,34 @@ from typer.core import TyperGroup
 
 from pipeline import __version__
 from pipeline.commands import COMMAND_MODULES
+from pipeline.commands._errors import one_line, os_error_line
 from pipeline.engine.errors import PipelineError
 
 __all__ = ["app", "main"]
 
 
 class _ErrorMappingGroup(TyperGroup):
-    """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1)."""
+    """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1),
+    and an `OSError` naming a file into `error: PATH: reason` and exit 2."""
 
     def invoke(self, ctx: click.Context) -> object:  # type: ignore[override]
         try:
             return super().invoke(ctx)  # type: ignore[arg-type]
         except PipelineError as err:
-            typer.echo(f"error: {err}", err=True)
-            raise typer.Exit(err.exit_code) from err
+            _fail(str(err), err.exit_code, err)
+        except OSError as err:
+            # A path the user named (recording, --out, --store) that cannot be read or
+            # written is bad input; an OSError naming no file is left to surface as a bug.
+            line = os_error_line(err)
+            if line is None:
+                raise
+            _fail(line, 2, err)
+
+
+def _fail(message: str, code: int, cause: BaseException) -> NoReturn:
+    """Print `error: MESSAGE` as one safe line on stderr and exit with `code`."""
+    typer.echo(f"error: {one_line(message)}", err=True)
+    raise typer.Exit(code) from cause
 
 
 app = typer.Typer(

@@ -4,72 +4,89 @@ from __future__ import annotations
 
 from typing import Any
 
+from pipeline.commands._tables import print_table
 from pipeline.engine.runner import RunResult
 
 __all__ = ["print_summary"]
 
 
 def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
-    """Stage table, then the coverage table when the map stages ran."""
+    """Stage table, then the coverage table when the map stages ran.
+
+    Tables print whole or as plain lines (`pipeline.commands._tables.print_table`): no header or
+    value is ever cut, at 80 columns or in a log file.
+    """
     from rich.console import Console
-    from rich.table import Table
 
     console = Console()
-    table = Table(title=f"sonarmap run: {result.dataset}")
-    for col in ("stage", "status", "seconds", "artifact"):
-        table.add_column(col)
-    for r in result.stages:
-        table.add_row(r.stage, r.status, f"{r.seconds:.2f}", r.path)
-    console.print(table)
+    print_table(
+        console,
+        f"sonarmap run: {result.dataset}",
+        ("stage", "status", "seconds", "artifact"),
+        [(r.stage, r.status, f"{r.seconds:.2f}", str(r.path)) for r in result.stages],
+    )
     if summary.get("model"):
         from pipeline.training.model_cache import describe
 
-        console.print(describe(summary["model"]))
+        _line(console, describe(summary["model"]))
     voxels = summary.get("voxels")
     if voxels:
         metrics = summary.get("metrics") or {}
-        cov = Table(title=f"Coverage ({summary.get('voxel_size_m', 0.1)} m voxels)")
         errors = metrics.get("errors", {}) if isinstance(metrics, dict) else {}
         head = metrics.get("headline") or {} if isinstance(metrics, dict) else {}
         aligned = head.get("frame") == "aligned"
         error_cols = [head.get("label", "median error m")]
         error_cols += ["raw median error m"] if aligned else []
-        for col in ("map", "voxels", "accurate voxels", "completeness", *error_cols):
-            cov.add_column(col)
         whole = ((metrics.get("per_class") or {}).get("classes") or {}).get("all_structure", {})
+        rows: list[tuple[str, ...]] = []
         for name in ("standard", "semantic"):
             raw = (errors.get(name) or {}).get("median_m")
             lead = (head.get("median_m") or {}).get(name, raw)
             w = whole.get(name) or {}
-            cov.add_row(
-                name,
-                str(voxels.get(name)),
-                _fmt(w.get("accurate_voxels")),
-                _fmt(w.get("completeness"), "{:.3f}"),
-                _fmt(lead, "{:.3f}"),
-                *([_fmt(raw, "{:.3f}")] if aligned else []),
+            rows.append(
+                (
+                    name,
+                    str(voxels.get(name)),
+                    _fmt(w.get("accurate_voxels")),
+                    _fmt(w.get("completeness"), "{:.3f}"),
+                    _fmt(lead, "{:.3f}"),
+                    *([_fmt(raw, "{:.3f}")] if aligned else []),
+                )
             )
         if voxels.get("standard"):
             ratio = voxels["semantic"] / voxels["standard"]
-            cov.add_row(
-                "semantic/standard",
-                f"{ratio:.1f}x",
-                _ratio(whole, "accurate_voxels"),
-                _ratio(whole, "completeness"),
-                *[""] * len(error_cols),
+            rows.append(
+                (
+                    "semantic/standard",
+                    f"{ratio:.1f}x",
+                    _ratio(whole, "accurate_voxels"),
+                    _ratio(whole, "completeness"),
+                    *[""] * len(error_cols),
+                )
             )
-        console.print(cov)
+        print_table(
+            console,
+            f"Coverage ({summary.get('voxel_size_m', 0.1)} m voxels)",
+            ("map", "voxels", "accurate voxels", "completeness", *error_cols),
+            rows,
+        )
         if whole:
-            console.print(
+            _line(
+                console,
                 "accurate voxels: holding a point within"
                 f" {metrics['per_class'].get('tolerance_m')} m of the true surface;"
-                " completeness: of the visible structure surface (all classes but the seafloor)"
+                " completeness: of the visible structure surface (all classes but the seafloor)",
             )
         submaps = metrics.get("submaps") if isinstance(metrics, dict) else None
         if submaps:
-            console.print(_submaps_table(submaps))
+            _submaps_table(console, submaps)
     if summary.get("report"):
-        console.print(f"report: {summary['report']}")
+        _line(console, f"report: {summary['report']}")
+
+
+def _line(console: Any, text: str) -> None:
+    """One line of text, never re-wrapped by rich (a path stays whole and copyable)."""
+    console.print(text, soft_wrap=True, markup=False, highlight=False)
 
 
 def _fmt(value: Any, spec: str = "{}") -> str:
@@ -86,27 +103,24 @@ def _ratio(figures: dict[str, Any], key: str) -> str:
 _VARIANTS = (("keyframes_only", "keyframes only"), ("with_submaps", "with submaps"))
 
 
-def _submaps_table(block: dict[str, Any]) -> Any:
+def _submaps_table(console: Any, block: dict[str, Any]) -> None:
     """Keyframes-only vs with-submaps figures of both maps (evaluate's metrics["submaps"])."""
-    from rich.table import Table
-
     stride = block.get("stride")
-    table = Table(title=f"Dense submaps (stride {_fmt(stride)}, {block.get('frames')} frames)")
+    title = f"Dense submaps (stride {_fmt(stride)}, {block.get('frames')} frames)"
     aligned = block.get("frame") == "aligned"
     medians = ["median_error_m", *(["raw_median_error_m"] if aligned else [])]
-    table.add_column("map")
-    table.add_column("variant", no_wrap=True)
-    for col in ("voxels", "accurate voxels", "completeness", block.get("label") or "median m"):
-        table.add_column(col)
+    columns = ["map", "voxels", "accurate voxels", "completeness"]
+    columns.append(block.get("label") or "median m")
     if aligned:
-        table.add_column("raw median error m")
+        columns.append("raw median error m")
     keys = ("voxels", "accurate_voxels", "completeness", *medians)
+    rows: list[tuple[str, ...]] = []
     for name in ("standard", "semantic"):
         for variant, words in _VARIANTS:
             fig = (block.get(variant) or {}).get(name) or {}
             specs = ("{}", "{}", "{:.3f}", *["{:.3f}"] * len(medians))
             cells = (_fmt(fig.get(k), spec) for k, spec in zip(keys, specs, strict=True))
-            table.add_row(name if variant == "keyframes_only" else "", words, *cells)
+            rows.append((f"{name}, {words}", *cells))
         ratio = (block.get("ratio") or {}).get(name) or {}
-        table.add_row("", "ratio", *(_fmt(ratio.get(k), "{:.2f}x") for k in keys))
-    return table
+        rows.append((f"{name}, ratio", *(_fmt(ratio.get(k), "{:.2f}x") for k in keys)))
+    print_table(console, title, columns, rows)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -25,8 +24,10 @@ JSON_OPT = typer.Option(False, "--json", help="Print exactly one JSON document o
 
 
 def emit_json(doc: Any) -> None:
-    """The one JSON document a `--json` command prints."""
-    sys.stdout.write(json.dumps(doc, indent=2, sort_keys=True, default=str) + "\n")
+    """The one JSON document a `--json` command prints (strict: NaN/inf become null)."""
+    from pipeline.formats.strict_json import dumps_strict
+
+    sys.stdout.write(dumps_strict(doc) + "\n")
     sys.stdout.flush()
 
 

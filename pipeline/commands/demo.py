@@ -74,36 +74,38 @@ def register(app: typer.Typer) -> None:
 
         from pipeline.api import RunRequest, run_dataset
         from pipeline.commands._common import stderr_console
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.progress import StageProgress
         from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
-        console = stderr_console()
-        scene_file = scene_path(scene)
-        dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
-        console.print(f"dataset: {dataset}")
-        mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
-        ensure_simulations(
-            [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
-        )
-        with StageProgress(enabled=True) as progress:
-            result, summary = run_dataset(
-                RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
-                on_start=progress.on_start,
-                on_stage=progress.on_stage,
+        with writes_under(out, store):
+            console = stderr_console()
+            scene_file = scene_path(scene)
+            dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
+            console.print(f"dataset: {dataset}")
+            mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
+            ensure_simulations(
+                [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
             )
-        evaluate = result.artifacts.get("evaluate")
-        if evaluate is not None:
-            report_dir = out / "report"
-            shutil.rmtree(report_dir, ignore_errors=True)
-            report_dir.mkdir(parents=True)
-            for name in evaluate.manifest.get("files", {}):
-                shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
-            with (report_dir / "report.md").open("a") as report:
-                report.write(_stage_section(result))
-            summary["report"] = str(report_dir / "report.md")
-        if json_:
-            emit_json({**result.to_json(), "summary": summary})
-            return
-        from pipeline.report_cli import print_summary
+            with StageProgress(enabled=True) as progress:
+                result, summary = run_dataset(
+                    RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
+                    on_start=progress.on_start,
+                    on_stage=progress.on_stage,
+                )
+            evaluate = result.artifacts.get("evaluate")
+            if evaluate is not None:
+                report_dir = out / "report"
+                shutil.rmtree(report_dir, ignore_errors=True)
+                report_dir.mkdir(parents=True)
+                for name in evaluate.manifest.get("files", {}):
+                    shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
+                with (report_dir / "report.md").open("a") as report:
+                    report.write(_stage_section(result))
+                summary["report"] = str(report_dir / "report.md")
+            if json_:
+                emit_json({**result.to_json(), "summary": summary})
+                return
+            from pipeline.report_cli import print_summary
 
-        print_summary(result, summary)
+            print_summary(result, summary)

@@ -27,25 +27,27 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
         from pipeline.api import RunRequest, run_dataset
+        from pipeline.commands._errors import writes_under
         from pipeline.engine.progress import StageProgress
 
-        with StageProgress(enabled=not quiet) as progress:
-            request = RunRequest(
-                dataset,
-                config_path=config,
-                overrides=set_ or (),
-                store_dir=store,
-                until=until,
-                force=force or (),
-            )
-            result, summary = run_dataset(
-                request,
-                on_start=progress.on_start,
-                on_stage=progress.on_stage,
-            )
-        if json_:
-            emit_json({**result.to_json(), "summary": summary})
-            return
-        from pipeline.report_cli import print_summary
+        with writes_under(store):
+            with StageProgress(enabled=not quiet) as progress:
+                request = RunRequest(
+                    dataset,
+                    config_path=config,
+                    overrides=set_ or (),
+                    store_dir=store,
+                    until=until,
+                    force=force or (),
+                )
+                result, summary = run_dataset(
+                    request,
+                    on_start=progress.on_start,
+                    on_stage=progress.on_stage,
+                )
+            if json_:
+                emit_json({**result.to_json(), "summary": summary})
+                return
+            from pipeline.report_cli import print_summary
 
-        print_summary(result, summary)
+            print_summary(result, summary)

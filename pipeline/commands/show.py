@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
 
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["register"]
 
@@ -20,7 +20,7 @@ def _preview(path: Path) -> str:
         head = table.slice(0, 5).to_pylist()
         return (
             f"{table.num_rows} rows\n{table.schema.to_string(show_schema_metadata=False)}\n"
-            + "\n".join(json.dumps(r, default=str) for r in head)
+            + "\n".join(dumps_strict(r, indent=None, sort_keys=False) for r in head)
         )
     if path.suffix in (".json", ".md", ".tum", ".yaml"):
         text = path.read_text()
@@ -57,7 +57,7 @@ def register(app: typer.Typer) -> None:
         console.print(f"path: {ref.path}")
         if verify:
             console.print("[green]verified[/]: every file matches its sha256")
-        console.print_json(json.dumps(ref.manifest, default=str))
+        console.print_json(dumps_strict(ref.manifest))
         for name in ref.manifest.get("files", {}):
             console.rule(name)
             try:

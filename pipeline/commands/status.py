@@ -22,13 +22,19 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Show, without computing anything, which stages hit the cache and why others miss."""
-        from pipeline.api import RunRequest, plan_dataset
+        from pipeline.api import RunRequest, plan_status
 
         request = RunRequest(
             dataset, config_path=config, overrides=set_ or (), store_dir=store, until=until
         )
-        ctx, planned, _ = plan_dataset(request, with_external=False)
-        rows = [
+        ctx, planned, model, unplanned = plan_status(request)
+        rows = []
+        if model is not None:
+            status = "hit" if model.hit else "miss"
+            rows.append(
+                {"stage": "train", "key": model.key, "status": status, "reason": model.reason}
+            )
+        rows += [
             {
                 "stage": p.stage.name,
                 "key": p.key,
@@ -37,16 +43,26 @@ def register(app: typer.Typer) -> None:
             }
             for p in planned
         ]
+        rows += [
+            {
+                "stage": name,
+                "key": "",
+                "status": "miss",
+                "reason": "planned once the model is trained",
+            }
+            for name in unplanned
+        ]
         if json_:
             emit_json({"dataset": str(dataset), "store": str(store), "stages": rows})
             return
         from rich.console import Console
-        from rich.table import Table
 
-        table = Table(title=f"{dataset} ({ctx.dataset.fingerprint[:12]})")
-        for col in ("stage", "status", "key", "reason"):
-            table.add_column(col)
-        for r in rows:
-            colour = "green" if r["status"] == "hit" else "yellow"
-            table.add_row(r["stage"], f"[{colour}]{r['status']}[/]", r["key"][:12], r["reason"])
-        Console().print(table)
+        from pipeline.commands._tables import print_table
+
+        print_table(
+            Console(),
+            f"{dataset} ({ctx.dataset.fingerprint[:12]})",
+            ("stage", "status", "key", "reason"),
+            [(r["stage"], r["status"], r["key"][:12], r["reason"]) for r in rows],
+            styles=["green" if r["status"] == "hit" else "yellow" for r in rows],
+        )

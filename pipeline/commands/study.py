@@ -78,74 +78,81 @@ def register(app: typer.Typer) -> None:
         import time
 
         from pipeline.commands._common import stderr_console
+        from pipeline.commands._errors import check_writable, writes_under
         from pipeline.engine.config import load_config
         from pipeline.engine.registry import all_stages, extra_sections
         from pipeline.experiments.study import write_study
         from pipeline.experiments.sweep import expand, run_sweep
         from pipeline.training.datasets import ensure_simulation, scene_path
 
-        console = stderr_console()
-        t0 = time.perf_counter()
-        protocols = _protocols(configs or [], not no_default)
-        base = ["slam.mode=ground_truth", *(fixed or ())]
-        swept = f"keyframes.spacing_m={spacings}"
-        values = [v.strip() for v in spacings.split(",") if v.strip()]
-        for p in protocols:  # a typo fails now, not in every run
-            config = Path(p["config"]) if p["config"] else None
-            for v in values:
-                load_config(
-                    all_stages(), config, [*base, f"keyframes.spacing_m={v}"], extra_sections()
+        check_writable(out)
+        with writes_under(out, store):
+            console = stderr_console()
+            t0 = time.perf_counter()
+            protocols = _protocols(configs or [], not no_default)
+            base = ["slam.mode=ground_truth", *(fixed or ())]
+            swept = f"keyframes.spacing_m={spacings}"
+            values = [v.strip() for v in spacings.split(",") if v.strip()]
+            for p in protocols:  # a typo fails now, not in every run
+                config = Path(p["config"]) if p["config"] else None
+                for v in values:
+                    load_config(
+                        all_stages(), config, [*base, f"keyframes.spacing_m={v}"], extra_sections()
+                    )
+            scene_file = scene_path(scene)
+            datasets = []
+            for seed in range(trials):
+                cut = "" if duration_s is None else f"-{duration_s:g}s"
+                path = out / f"{scene_file.stem}-goals{goals}{cut}-seed{seed}.mcap"
+                console.print(f"trial {seed}: {path}")
+                datasets.append(
+                    ensure_simulation(scene_file, seed, path, goals=goals, duration_s=duration_s)
                 )
-        scene_file = scene_path(scene)
-        datasets = []
-        for seed in range(trials):
-            cut = "" if duration_s is None else f"-{duration_s:g}s"
-            path = out / f"{scene_file.stem}-goals{goals}{cut}-seed{seed}.mcap"
-            console.print(f"trial {seed}: {path}")
-            datasets.append(
-                ensure_simulation(scene_file, seed, path, goals=goals, duration_s=duration_s)
+            specs = [
+                spec
+                for p in protocols
+                for spec in expand(
+                    datasets,
+                    [swept],
+                    base_overrides=base,
+                    config_path=Path(p["config"]) if p["config"] else None,
+                    store=store,
+                    protocol=p["name"],
+                )
+            ]
+            console.print(
+                f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
+                f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"
             )
-        specs = [
-            spec
-            for p in protocols
-            for spec in expand(
-                datasets,
-                [swept],
-                base_overrides=base,
-                config_path=Path(p["config"]) if p["config"] else None,
-                store=store,
-                protocol=p["name"],
+            outcomes = run_sweep(
+                specs,
+                executor=executor,
+                jobs=jobs,
+                address=address,
+                on_done=lambda o: console.print(
+                    f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
+                    f"{o.seconds:.1f} s {o.error or ''}",
+                    markup=False,
+                    highlight=False,
+                ),
             )
-        ]
-        console.print(
-            f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
-            f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"
-        )
-        outcomes = run_sweep(
-            specs,
-            executor=executor,
-            jobs=jobs,
-            address=address,
-            on_done=lambda o: console.print(
-                f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
-                f"{o.seconds:.1f} s {o.error or ''}",
-                markup=False,
-                highlight=False,
-            ),
-        )
-        header = [
-            "Protocols: "
-            + ", ".join(f"{p['name']} ({p['config'] or 'sonarmap defaults'})" for p in protocols)
-            + ".",
-            f"Trials: {trials} (seeds 0..{trials - 1}) of scene {scene_file.stem}, {goals} goals"
-            + ("" if duration_s is None else f", cut at {duration_s:g} s")
-            + f"; spacings {', '.join(values)} m; overrides: {', '.join(base)}.",
-        ]
-        doc = write_study(outcomes, out / "results", protocols=protocols, header=header, started=t0)
-        if json_:
-            emit_json(doc)
-        else:
-            typer.echo(doc["table_i"])
-            typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
-        if all(o.status != "ok" for o in outcomes):
-            raise typer.Exit(1)
+            header = [
+                "Protocols: "
+                + ", ".join(
+                    f"{p['name']} ({p['config'] or 'sonarmap defaults'})" for p in protocols
+                )
+                + ".",
+                f"Trials: {trials} (seeds 0..{trials - 1}) of scene {scene_file.stem}, {goals} goals"
+                + ("" if duration_s is None else f", cut at {duration_s:g} s")
+                + f"; spacings {', '.join(values)} m; overrides: {', '.join(base)}.",
+            ]
+            doc = write_study(
+                outcomes, out / "results", protocols=protocols, header=header, started=t0
+            )
+            if json_:
+                emit_json(doc)
+            else:
+                typer.echo(doc["table_i"])
+                typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
+            if all(o.status != "ok" for o in outcomes):
+                raise typer.Exit(1)

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from pipeline.commands._common import CONFIG_OPT, JSON_OPT, STORE_OPT, emit_json
 
 __all__ = ["register"]
+
+if TYPE_CHECKING:
+    from pipeline.experiments.sweep import RunOutcome
 
 
 def register(app: typer.Typer) -> None:
@@ -31,42 +35,59 @@ def register(app: typer.Typer) -> None:
         store: Path = STORE_OPT,
         json_: bool = JSON_OPT,
     ) -> None:
-        """Run the cross product of DATASETS and --set values; write a mean/std table and plot."""
+        """Run the cross product of DATASETS and --set values; write a mean/std table and plot.
+
+        Every dataset and config point is checked before the first run. Exits non-zero
+        when any run failed (2: bad input, 1: a bug), after the others have finished and
+        the tables are written.
+        """
         import hashlib
 
-        from pipeline.commands._common import stderr_console
+        from pipeline.commands._errors import check_writable, display_path, one_line
         from pipeline.experiments.sweep import expand, run_sweep
+        from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
         from pipeline.experiments.sweep_output import write_sweep
 
         specs = expand(
             datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
         )
-        from pipeline.engine.config import load_config
-        from pipeline.engine.registry import all_stages, extra_sections
-
-        # Every point's config before the first run: a bad value fails now, not hours in.
-        for spec in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
-            load_config(all_stages(), Path(spec[0]) if spec[0] else None, spec[1], extra_sections())
-        console = stderr_console()
-        console.print(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)")
-
-        def done(o: object) -> None:
-            status = getattr(o, "status", "?")
-            colour = "green" if status == "ok" else "red"
-            console.print(
-                f"[{colour}]{status}[/] {Path(getattr(o, 'dataset', '')).name} "
-                f"{getattr(o, 'overrides', {})} {getattr(o, 'seconds', 0):.1f} s "
-                f"{getattr(o, 'error', '') or ''}"
-            )
-
-        outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)
+        # Every dataset and every point's config before the first run: a missing file or
+        # a bad value fails now, not hours in.
+        check_inputs(specs)
         ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
         out_dir = out or Path("data/sweeps") / ident[:12]
-        doc = write_sweep(outcomes, out_dir)
-        if json_:
-            emit_json(doc)
-        else:
-            typer.echo((out_dir / "table.md").read_text())
-            typer.echo(f"results: {out_dir}")
-        if all(o.status != "ok" for o in outcomes):
-            raise typer.Exit(1)
+        check_writable(out_dir)
+        typer.echo(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)", err=True)
+
+        def describe(o: RunOutcome) -> str:
+            overrides = ", ".join(f"{k}={v}" for k, v in o.overrides.items()) or "(defaults)"
+            return f"{display_path(o.dataset)} [{overrides}]"
+
+        def done(o: RunOutcome) -> None:
+            # Plain lines (not a rich console): a log file or CI keeps each on one line.
+            tail = f": {o.error}" if o.error else ""
+            typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
+
+        from pipeline.commands._errors import writes_under
+
+        with writes_under(store, out_dir):
+            outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)
+            doc = write_sweep(outcomes, out_dir)
+            if json_:
+                emit_json(doc)
+            else:
+                typer.echo((out_dir / "table.md").read_text())
+                typer.echo(f"results: {out_dir}")
+        failed = [o for o in outcomes if o.status != "ok"]
+        for o in failed:
+            typer.echo(one_line(f"failed: {describe(o)}: {o.error}"), err=True)
+        code = failure_exit_code(outcomes)
+        if code:
+            typer.echo(
+                one_line(
+                    f"error: {len(failed)} of {len(outcomes)} sweep runs failed, first "
+                    f"{describe(failed[0])}: {failed[0].error} (results in {out_dir})"
+                ),
+                err=True,
+            )
+            raise typer.Exit(code)

@@ -6,6 +6,7 @@ __all__ = [
     "ArtifactCorrupt",
     "ConfigError",
     "InternalError",
+    "OutputError",
     "PipelineError",
     "SourceError",
     "StageFailed",
@@ -45,3 +46,8 @@ class InternalError(PipelineError):
     """A bug in sonarmap rather than a problem with the input."""
 
     exit_code = 1
+
+
+class OutputError(PipelineError):
+    """An output location the user named (the store, `--out`) cannot take the write:
+    a full, read-only or over-quota filesystem. Bad input (exit 2), not a bug."""

@@ -130,12 +130,17 @@ class FingerprintCache:
     def dataset_fingerprint(self, parts: Sequence[Path], root: Path) -> str:
         """Fingerprint of a dataset made of several files (a bag directory, split bags).
 
-        Names are taken relative to `root` so moving the dataset keeps its fingerprint.
+        Names are taken relative to `root` so moving the dataset keeps its fingerprint;
+        a part that resolves outside `root` (a symlinked recording) is named by its file
+        name alone.
         """
         root = root.resolve()
         resolved = [p.resolve() for p in parts]
         entries = sorted(
-            (str(p.relative_to(root)) if p != root else p.name, self.file_digest(p))
+            (
+                str(p.relative_to(root)) if p != root and p.is_relative_to(root) else p.name,
+                self.file_digest(p),
+            )
             for p in resolved
         )
         if len(entries) == 1:

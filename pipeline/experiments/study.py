@@ -17,7 +17,6 @@ written as `table_i.md` and `study.json` beside what `write_sweep` writes.
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -39,6 +38,7 @@ from pipeline.experiments.study_tables import (
 from pipeline.experiments.sweep import (
     RunOutcome,
 )
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["render_markdown", "table_i", "write_study"]
 
@@ -284,5 +284,5 @@ def write_study(
     doc.update(protocols=[dict(p) for p in protocols], study=study, table_i=markdown)
     if "wall_s" in study:
         doc["wall_s"] = study["wall_s"]
-    (out_dir / "study.json").write_text(json.dumps(doc, indent=2, sort_keys=True, default=str))
+    (out_dir / "study.json").write_text(dumps_strict(doc))
     return doc

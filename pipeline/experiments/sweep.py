@@ -27,6 +27,7 @@ from pipeline.experiments.headline_columns import (
     shared_frame,
 )
 from pipeline.experiments.submap_columns import submap_columns
+from pipeline.experiments.worker_life import die_with_parent
 
 __all__ = [
     "ALL_STRUCTURE",
@@ -72,6 +73,8 @@ class RunOutcome:
     error: str | None = None
     protocol: str | None = None
     config_path: str | None = None
+    exit_code: int = 0
+    """0 when the run succeeded; 2 when it failed on bad input, 1 on a bug."""
 
     def stage_path(self, stage: str) -> Path | None:
         """The artifact directory of `stage` in this run (None when it did not run)."""
@@ -136,20 +139,27 @@ def run_one(spec: RunSpec) -> RunOutcome:
                 store_dir=Path(spec.store),
             )
         )
-    except PipelineError as err:
-        return RunOutcome(
-            spec.dataset, overrides, "failed", time.perf_counter() - t0, error=str(err), **tags
-        )
-    except Exception as err:  # a bug in one run must not stop the sweep
+    except Exception as err:  # a failed run must not stop the sweep
         log.debug("sweep run failed", exc_info=True)
-        msg = f"{type(err).__name__}: {err}"
+        error, code = _failure(err)
+        seconds = time.perf_counter() - t0
         return RunOutcome(
-            spec.dataset, overrides, "failed", time.perf_counter() - t0, error=msg, **tags
+            spec.dataset, overrides, "failed", seconds, error=error, exit_code=code, **tags
         )
     stages = [dict(s.__dict__) for s in result.stages]
     return RunOutcome(
         spec.dataset, overrides, "ok", round(time.perf_counter() - t0, 3), summary, stages, **tags
     )
+
+
+def _failure(err: Exception) -> tuple[str, int]:
+    """A failed run's message and exit status: 2 for bad input (a `PipelineError` of
+    code 2, an OSError naming its file: as in `sonarmap run`), 1 for a bug."""
+    if isinstance(err, PipelineError):
+        return str(err), err.exit_code
+    if isinstance(err, OSError) and err.filename is not None:
+        return f"{err.filename}: {err.strerror}", 2
+    return f"{type(err).__name__}: {err}", 1
 
 
 def _local(
@@ -162,7 +172,9 @@ def _local(
             done(outcomes[-1])
         return outcomes
     results: dict[int, RunOutcome] = {}
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    with ProcessPoolExecutor(
+        max_workers=jobs, initializer=die_with_parent, initargs=(os.getpid(),)
+    ) as pool:
         futures = {pool.submit(run_one, s): i for i, s in enumerate(specs)}
         for fut in as_completed(futures):
             results[futures[fut]] = fut.result()

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from pipeline.experiments.sweep import RunOutcome, group_label, sweep_tables
+from pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["write_sweep"]
 
@@ -48,5 +48,5 @@ def write_sweep(outcomes: Sequence[RunOutcome], out_dir: Path) -> dict[str, Any]
     if any(o.status == "ok" for o in outcomes):
         _plot(groups, out_dir / "sweep.png")
     doc = {"runs": [o.to_json() for o in outcomes], "groups": groups, "out": str(out_dir)}
-    (out_dir / "sweep.json").write_text(json.dumps(doc, indent=2, sort_keys=True, default=str))
+    (out_dir / "sweep.json").write_text(dumps_strict(doc))
     return doc

@@ -1,0 +1,60 @@
+"""A sweep's checks: its inputs before the first run, its exit status after the last."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from pipeline.engine.errors import SourceError
+from pipeline.experiments.sweep import RunOutcome, RunSpec
+
+__all__ = ["check_inputs", "failure_exit_code"]
+
+
+def check_inputs(specs: Sequence[RunSpec]) -> None:
+    """Refuse (exit 2) before the first run when a dataset or a config point is unusable.
+
+    Every distinct (config file, overrides) point must load (checked first); every
+    dataset must exist and be readable as a recording (its files open, its format is
+    recognised, its sonar and navigation topics are found under every point's
+    `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
+    """
+    from pipeline.engine.config import load_config
+    from pipeline.engine.registry import all_stages, alternative_graph, extra_sections
+    from pipeline.engine.session import _default_parts
+
+    # Config first (cheap, and what a typo in --set most likely is), then datasets.
+    readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording
+    for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
+        config = load_config(
+            all_stages(), Path(config_path) if config_path else None, args, extra_sections()
+        )
+        section = getattr(config, "keyframes", None)
+        readers.setdefault(repr(section), section)
+    for dataset in dict.fromkeys(s.dataset for s in specs):
+        path = Path(dataset)
+        if not path.exists():
+            raise SourceError(f"{path}: no such file or directory")
+        for part in _default_parts(path):
+            try:
+                with part.open("rb") as f:
+                    f.read(16)
+            except OSError as err:
+                raise SourceError(f"{part}: cannot read ({err.strerror})") from err
+        if alternative_graph() is None:
+            # Opening reads the topic list and finds the sonar and navigation topics:
+            # a file with none of them is refused now, not after the other runs.
+            from pipeline.readers import open_recording
+
+            for section in readers.values():
+                open_recording(path, section)
+
+
+def failure_exit_code(outcomes: Sequence[RunOutcome]) -> int:
+    """The sweep's exit status: 0 when every run succeeded, 1 when any failed on a bug,
+    else 2 (every failure was bad input)."""
+    codes = {o.exit_code or 1 for o in outcomes if o.status != "ok"}
+    if not codes:
+        return 0
+    return 1 if 1 in codes else 2

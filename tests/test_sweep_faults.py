@@ -1,0 +1,183 @@
+"""Sweeps refuse bad inputs before the first run, report failed runs with a non-zero exit
+after writing the tables, and their pool workers die with the sweep's process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import pipeline.engine.registry
+from pipeline.experiments.sweep import RunOutcome
+from pipeline.experiments.sweep_checks import failure_exit_code
+
+TESTS = Path(__file__).resolve().parent
+
+
+@pytest.fixture
+def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[Path]:
+    """Two toy datasets; the CLI and its sweep workers run the toy graph."""
+    monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS.parent)]))
+    monkeypatch.setenv("TOY_CALL_LOG", str(tmp_path / "calls.log"))
+    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
+        fn.cache_clear()
+    datasets = []
+    for i in range(2):
+        d = tmp_path / f"d{i}.bin"
+        d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
+        datasets.append(d)
+    yield datasets
+    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
+        fn.cache_clear()
+
+
+def _sweep(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "pipeline", "sweep", *args],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=os.environ.copy(),
+    )
+
+
+def _calls(tmp_path: Path) -> list[str]:
+    log = tmp_path / "calls.log"
+    return log.read_text().splitlines() if log.exists() else []
+
+
+def test_missing_dataset_is_refused_before_any_run(toy_env: list[Path], tmp_path: Path) -> None:
+    missing = tmp_path / "missing.bin"
+    res = _sweep(
+        *map(str, toy_env),
+        str(missing),
+        "--store",
+        str(tmp_path / "s"),
+        "--out",
+        str(tmp_path / "o"),
+    )
+    assert res.returncode == 2, res.stderr
+    errors = [ln for ln in res.stderr.splitlines() if ln.startswith("error:")]
+    assert errors == [f"error: {missing}: no such file or directory"]
+    assert "Traceback" not in res.stderr
+    assert _calls(tmp_path) == []  # not one stage ran
+
+
+def test_bad_config_point_is_refused_before_any_run(toy_env: list[Path], tmp_path: Path) -> None:
+    res = _sweep(
+        *map(str, toy_env),
+        "--set",
+        "double.factor=2,two",
+        "--store",
+        str(tmp_path / "s"),
+        "--out",
+        str(tmp_path / "o"),
+    )
+    assert res.returncode == 2, res.stderr
+    assert "double.factor" in res.stderr and "Traceback" not in res.stderr
+    assert _calls(tmp_path) == []
+
+
+def test_unwritable_out_is_refused_before_any_run(toy_env: list[Path], tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    res = _sweep(*map(str, toy_env), "--store", str(tmp_path / "s"), "--out", str(blocker / "o"))
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines()[-1].startswith(f"error: {blocker}")
+    assert _calls(tmp_path) == []
+
+
+def test_failed_runs_exit_nonzero_after_the_others_and_the_tables(
+    toy_env: list[Path], tmp_path: Path
+) -> None:
+    out = tmp_path / "o"
+    res = _sweep(
+        *map(str, toy_env),
+        "--set",
+        "summary.fail=false,true",
+        "--store",
+        str(tmp_path / "s"),
+        "--out",
+        str(out),
+        "-j",
+        "2",
+    )
+    assert res.returncode == 1, res.stderr  # the toy stage's RuntimeError is a bug, not input
+    failed = [ln for ln in res.stderr.splitlines() if ln.startswith("failed:")]
+    assert sorted(failed) == sorted(
+        f"failed: {d} [summary.fail=true]: stage summary failed: RuntimeError: deliberate failure"
+        for d in toy_env
+    )
+    assert len([ln for ln in res.stderr.splitlines() if ln.startswith("error:")]) == 1
+    table = (out / "table.md").read_text()
+    assert "| summary.fail=false | 2 |" in table  # the good runs were finished and tabled
+    assert (out / "sweep.parquet").stat().st_size > 0
+
+
+def test_exit_code_is_2_only_when_every_failure_is_bad_input() -> None:
+    ok = RunOutcome("a", {}, "ok", 1.0)
+    bad_input = RunOutcome("b", {}, "failed", 1.0, error="b: not a recording", exit_code=2)
+    bug = RunOutcome("c", {}, "failed", 1.0, error="KeyError", exit_code=1)
+    assert failure_exit_code([ok, ok]) == 0
+    assert failure_exit_code([ok, bad_input]) == 2
+    assert failure_exit_code([bad_input, bug, ok]) == 1
+
+
+def _alive(pid: int) -> bool:
+    """True while `pid` runs (a zombie waiting for its reaper counts as gone)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "pipeline",
+            "sweep",
+            *map(str, toy_env),
+            "--set",
+            "double.sleep_s=60",
+            "--store",
+            str(tmp_path / "s"),
+            "--out",
+            str(tmp_path / "o"),
+            "-j",
+            "2",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        env=os.environ.copy(),
+    )
+    try:
+        workers: set[int] = set()
+        deadline = time.monotonic() + 60
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            workers = {int(ln.split()[1]) for ln in _calls(tmp_path) if ln.startswith("double")}
+            time.sleep(0.1)
+        assert len(workers) == 2, "both workers should be inside the sleeping stage"
+        assert proc.pid not in workers
+        os.kill(proc.pid, signal.SIGKILL)  # the parent alone, not its process group
+        proc.wait()
+        deadline = time.monotonic() + 15
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not [p for p in workers if _alive(p)], "workers outlived the sweep"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for line in _calls(tmp_path):
+            pid = int(line.split()[1])
+            if _alive(pid) and pid != os.getpid():
+                os.kill(pid, signal.SIGKILL)
