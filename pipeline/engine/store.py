@@ -260,8 +260,22 @@ class ArtifactStore:
         runs = self.root / _RUNS
         runs.mkdir(parents=True, exist_ok=True)
         tmp = runs / f".{run_id}.{os.getpid()}.tmp"
-        tmp.write_text(json.dumps(record, indent=2, sort_keys=True))
-        tmp.replace(runs / f"{run_id}.json")
+        try:
+            tmp.write_text(json.dumps(record, indent=2, sort_keys=True))
+            tmp.replace(runs / f"{run_id}.json")
+        except BaseException:
+            # A full disk leaves the previous record whole, never half of a new one.
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            raise
+
+    def run_record(self, run_id: str) -> dict[str, Any] | None:
+        """The record of one run, or None (absent or unreadable)."""
+        with contextlib.suppress(OSError, ValueError):
+            record = json.loads((self.root / _RUNS / f"{run_id}.json").read_text())
+            if isinstance(record, dict):
+                return record
+        return None
 
     def run_records(self) -> list[dict[str, Any]]:
         """All run records, oldest first."""

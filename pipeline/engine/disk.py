@@ -1,0 +1,49 @@
+"""OSErrors from the store or a dataset as one-line `StoreError`s naming the path.
+
+A full disk, a read-only store, a name too long for the filesystem: the user can fix
+each, so they exit 2 like any bad input, with the path (its long components cut short)
+and the system's own words for the errno.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+
+from pipeline.engine.errors import StoreError
+
+__all__ = ["disk_error", "short_path"]
+
+_COMPONENT = 48  # characters kept of one path component
+_TOTAL = 240  # characters kept of the whole path
+
+
+def short_path(path: object) -> str:
+    """`path` on one line: control characters escaped, long components and long paths
+    cut short (an ENAMETOOLONG name is quoted, not printed whole)."""
+    text = os.fsdecode(path) if isinstance(path, str | bytes | os.PathLike) else str(path)
+    parts = [
+        p if len(p) <= _COMPONENT else f"{p[:_COMPONENT]}...({len(p)} chars)"
+        for p in text.split("/")
+    ]
+    text = "/".join(parts)
+    if len(text) > _TOTAL:
+        text = f"...{text[-_TOTAL:]}"
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def disk_error(err: OSError) -> StoreError:
+    """The one-line error for an OSError (the path, the errno's text and name)."""
+    reason = err.strerror or os.strerror(err.errno or 0) or type(err).__name__
+    name = errno.errorcode.get(err.errno or 0)
+    where = short_path(err.filename) if err.filename is not None else "the artifact store"
+    if err.filename2 is not None:
+        where += f" -> {short_path(err.filename2)}"
+    hint = {
+        errno.ENOSPC: "; free space (`sonarmap gc` removes unreferenced artifacts) and run again",
+        errno.EDQUOT: "; free space and run again",
+        errno.EROFS: "; use a writable --store",
+        errno.EACCES: "; check the permissions or use another --store",
+        errno.ENAMETOOLONG: "; use shorter paths",
+    }.get(err.errno or 0, "")
+    return StoreError(f"{where}: {reason}{f' ({name})' if name else ''}{hint}")
