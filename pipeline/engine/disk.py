@@ -14,7 +14,7 @@ from pipeline.engine.errors import StoreError
 
 __all__ = ["disk_error", "short_path"]
 
-_COMPONENT = 48  # characters kept of one path component
+_COMPONENT = 80  # characters kept of one path component (a 64-hex key stays whole)
 _TOTAL = 240  # characters kept of the whole path
 
 
@@ -32,11 +32,16 @@ def short_path(path: object) -> str:
     return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
-def disk_error(err: OSError) -> StoreError:
-    """The one-line error for an OSError (the path, the errno's text and name)."""
+def disk_error(err: OSError, where: object = None) -> StoreError:
+    """The one-line error for an OSError: the path (`where` when the error names none,
+    e.g. a failed fsync or a library's write), the errno's text and name."""
     reason = err.strerror or os.strerror(err.errno or 0) or type(err).__name__
+    reason = (reason.splitlines() or [""])[0][:120]
     name = errno.errorcode.get(err.errno or 0)
-    where = short_path(err.filename) if err.filename is not None else "the artifact store"
+    path = err.filename if err.filename is not None else where
+    where = "the artifact store" if path is None else f"writing {short_path(path)}"
+    if err.filename is not None:
+        where = short_path(err.filename)
     if err.filename2 is not None:
         where += f" -> {short_path(err.filename2)}"
     hint = {

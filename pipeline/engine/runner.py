@@ -288,7 +288,7 @@ def execute(
             lease.add(f"{ref.stage}/{ref.key}" for _, ref in (external or {}).values())
             return _execute(planned, config, dataset, store, external, on_stage, on_start)
     except OSError as err:
-        raise disk_error(err) from err
+        raise disk_error(err, store.root) from err
 
 
 def _execute(

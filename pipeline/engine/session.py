@@ -73,7 +73,7 @@ def dataset_spec(
     try:
         fingerprint = cache.dataset_fingerprint(files, root)
     except OSError as err:  # the store's cache on a full, read-only or odd filesystem
-        raise disk_error(err) from err
+        raise disk_error(err, store.root / ".cache") from err
     return DatasetSpec(path=path, fingerprint=fingerprint, open=opener or _default_open(path))
 
 
