@@ -35,20 +35,23 @@ def short_path(path: object) -> str:
 def disk_error(err: OSError, where: object = None) -> StoreError:
     """The one-line error for an OSError: the path (`where` when the error names none,
     e.g. a failed fsync or a library's write), the errno's text and name."""
-    reason = err.strerror or os.strerror(err.errno or 0) or type(err).__name__
+    if err.errno is None:  # a library's OSError (pyarrow's write errors) has only text
+        reason = str(err) or type(err).__name__
+    else:
+        reason = err.strerror or os.strerror(err.errno)
     reason = (reason.splitlines() or [""])[0][:120]
-    name = errno.errorcode.get(err.errno or 0)
-    path = err.filename if err.filename is not None else where
-    where = "the artifact store" if path is None else f"writing {short_path(path)}"
     if err.filename is not None:
-        where = short_path(err.filename)
-    if err.filename2 is not None:
-        where += f" -> {short_path(err.filename2)}"
+        place = short_path(err.filename)
+        if err.filename2 is not None:
+            place += f" -> {short_path(err.filename2)}"
+    else:
+        place = "the artifact store" if where is None else f"writing {short_path(where)}"
+    name = errno.errorcode.get(err.errno or -1)
     hint = {
         errno.ENOSPC: "; free space (`sonarmap gc` removes unreferenced artifacts) and run again",
         errno.EDQUOT: "; free space and run again",
         errno.EROFS: "; use a writable --store",
         errno.EACCES: "; check the permissions or use another --store",
         errno.ENAMETOOLONG: "; use shorter paths",
-    }.get(err.errno or 0, "")
-    return StoreError(f"{where}: {reason}{f' ({name})' if name else ''}{hint}")
+    }.get(err.errno or -1, "")
+    return StoreError(f"{place}: {reason}{f' ({name})' if name else ''}{hint}")
