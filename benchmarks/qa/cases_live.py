@@ -367,6 +367,123 @@ def _real_until(stage: str) -> Any:
     return build
 
 
+def _rewrite(src: Path, dst: Path, sonar: Any = None, nav: Any = None) -> None:
+    """Copy a recording, passing each sonar image (`sonar(msg, index, t)`) and each
+    dead-reckoning message (`nav(msg, index, count)`) through a change."""
+    import dataclasses as dc
+
+    from mcap.reader import make_reader
+
+    from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+
+    store = ros2_typestore()
+    with src.open("rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        nav_count = sum(
+            n
+            for c, n in summary.statistics.channel_message_counts.items()
+            if summary.channels[c].topic == "/odometry/dead_reckoning"
+        )
+        seen: dict[str, int] = {}
+        with dst.open("wb") as out, Ros2McapWriter(out) as writer:
+            for schema, channel, message in reader.iter_messages(log_time_order=True):
+                topic, data, t = channel.topic, bytes(message.data), message.log_time
+                i = seen[topic] = seen.get(topic, -1) + 1
+                if sonar is not None and topic in ("/sonar/horizontal", "/sonar/vertical"):
+                    msg, t = sonar(store.deserialize_cdr(data, schema.name), i, t, dc)
+                    data = bytes(store.serialize_cdr(msg, schema.name))
+                elif nav is not None and topic == "/odometry/dead_reckoning":
+                    msg = nav(store.deserialize_cdr(data, schema.name), i, nav_count, dc)
+                    data = bytes(store.serialize_cdr(msg, schema.name))
+                writer.write_raw(topic, schema.name, data, t)
+            for attachment in reader.iter_attachments():
+                writer.add_attachment(attachment.name, attachment.data, attachment.media_type)
+            for metadata in reader.iter_metadata():
+                writer.add_metadata(metadata.name, dict(metadata.metadata))
+
+
+def _image(msg: Any, dc: Any, ranges: Any, directions: Any, data: Any) -> Any:
+    image = dc.replace(msg.image, beam_count=len(directions), data=data)
+    return dc.replace(msg, ranges=ranges, beam_directions=directions, image=image)
+
+
+def _zero_beams(m: Any, i: int, t: int, dc: Any) -> Any:
+    import numpy as np
+
+    return _image(m, dc, m.ranges, [], np.zeros(0, np.uint8)), t
+
+
+def _one_pixel(m: Any, i: int, t: int, dc: Any) -> Any:
+    return _image(m, dc, m.ranges[:1], m.beam_directions[:1], m.image.data[:1]), t
+
+
+def _ranges(scale: float, reverse: bool = False) -> Any:
+    def change(m: Any, i: int, t: int, dc: Any) -> Any:
+        import numpy as np
+
+        ranges = (m.ranges[::-1] if reverse else m.ranges) * np.float32(scale)
+        return dc.replace(m, ranges=ranges.astype(np.float32)), t
+
+    return change
+
+
+def _one_timestamp(m: Any, i: int, t: int, dc: Any) -> Any:
+    stamp = dc.replace(m.header.stamp, sec=1_700_000_000, nanosec=0)
+    return dc.replace(m, header=dc.replace(m.header, stamp=stamp)), 1_700_000_000 * 10**9
+
+
+def _infinite_directions(m: Any, i: int, t: int, dc: Any) -> Any:
+    directions = [dc.replace(d, x=float("inf")) for d in m.beam_directions]
+    return dc.replace(m, beam_directions=directions), t
+
+
+HOSTILE_SONAR: dict[str, Any] = {
+    "all pings with zero beams": _zero_beams,
+    "1x1 images": _one_pixel,
+    "negative ranges": _ranges(-1.0),
+    "descending ranges": _ranges(1.0, reverse=True),
+    "ranges x1e30": _ranges(1e30),
+    "infinite beam directions": _infinite_directions,
+    "all sonar messages at one timestamp": _one_timestamp,
+}
+
+
+def _nav_jump(m: Any, i: int, n: int, dc: Any) -> Any:
+    """Dead reckoning 1 km off for the second half of the mission."""
+    if i < n // 2:
+        return m
+    p = m.pose.pose.position
+    pose = dc.replace(m.pose.pose, position=dc.replace(p, x=p.x + 1000.0))
+    return dc.replace(m, pose=dc.replace(m.pose, pose=pose))
+
+
+def _hostile(variant: str) -> Any:
+    def build(work: Path) -> list[str]:
+        clean = small_recording(work / "clean.mcap", seed=2, duration_s=45.0)
+        if variant == "1 km navigation jump":
+            _rewrite(clean, work / "rec.mcap", nav=_nav_jump)
+        else:
+            _rewrite(clean, work / "rec.mcap", sonar=HOSTILE_SONAR[variant])
+        return ["run", "rec.mcap", "--store", STORE, "-q", "--json"]
+
+    return build
+
+
+def _hostile_clean(work: Path) -> list[str]:
+    small_recording(work / "rec.mcap", seed=2, duration_s=45.0)
+    return ["run", "rec.mcap", "--store", STORE, "-q", "--json"]
+
+
+def _not_silent(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
+    """Exit 2 (judged by the campaign) or exit 0 with at least one warning."""
+    if done.returncode == 0 and "warning:" not in done.stderr:
+        summary = json.loads(done.stdout).get("summary", {})
+        return f"exit 0 without a warning (points {summary.get('points')})"
+    return None
+
+
 def _warns(*needles: str) -> Any:
     def check(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
         lines = [ln for ln in done.stderr.splitlines() if ln.startswith(("warning:", "error:"))]
@@ -549,6 +666,20 @@ CASES = [
         _real_until("fuse"),
         expect_exit=(0,),
         check=_warns("fuse: 0 fused points"),
+        **_REAL,
+    ),
+    *[
+        Case(
+            "empty maps", variant, _hostile(variant), expect_exit=(0, 2), check=_not_silent, **_REAL
+        )
+        for variant in (*HOSTILE_SONAR, "1 km navigation jump")
+    ],
+    Case(
+        "empty maps",
+        "clean 45 s recording is silent",
+        _hostile_clean,
+        expect_exit=(0,),
+        check=_silent,
         **_REAL,
     ),
     Case(
