@@ -150,6 +150,21 @@ def test_killed_run_keeps_its_finished_stages_and_its_lease_goes_stale(
     assert statuses["source"] == "hit" and statuses["double"] == "computed"
 
 
+def test_a_dead_processs_lease_protects_nothing(data: Path, tmp_path: Path) -> None:
+    store = tmp_path / "store"
+    orphans = _orphans(data, store)
+    pid = os.fork()
+    if pid == 0:  # claims every orphan, then dies without releasing its lease
+        RunLease(store).__enter__().add(orphans)
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert len(list((store / ".leases").glob("*.json"))) == 1
+    report = ArtifactStore(store).gc()
+    assert report["stale_leases"] == 1 and report["live_runs"] == 0
+    assert set(report["removed"]) == orphans
+    assert not list((store / ".leases").iterdir())
+
+
 def test_a_failed_stage_keeps_the_stages_before_it_through_gc(data: Path, tmp_path: Path) -> None:
     store = tmp_path / "store"
     with pytest.raises(StageFailed):

@@ -37,6 +37,7 @@ class RunLease:
         # The pid leads the name so `gc` can clean a killed owner's temporaries.
         self.id = f"{os.getpid()}-{uuid.uuid4().hex[:12]}"
         self.addresses: set[str] = set()
+        self.started_at = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
         self._fd: int | None = None
 
     @property
@@ -75,7 +76,7 @@ class RunLease:
         doc = {
             "pid": os.getpid(),
             "host": socket.gethostname(),
-            "started_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "started_at": self.started_at,
             "addresses": sorted(self.addresses),
         }
         tmp = self.dir / f".{self.id}.json.tmp"
