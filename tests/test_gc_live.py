@@ -123,7 +123,7 @@ def test_gc_during_a_live_run_keeps_its_artifacts_and_the_run_succeeds(
 
 
 def test_killed_run_keeps_its_finished_stages_and_its_lease_goes_stale(
-    data: Path, tmp_path: Path, gated: tuple[Path, Path]
+    data: Path, tmp_path: Path, gated: tuple[Path, Path], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     store = tmp_path / "store"
     calls, _gate = gated
@@ -145,7 +145,7 @@ def test_killed_run_keeps_its_finished_stages_and_its_lease_goes_stale(
     assert report["removed"] == [] and report["tmp_removed"] == 1  # double's commit
     assert {r.stage for r in ArtifactStore(store).iter_artifacts()} == {"source"}
     assert not list((store / ".leases").iterdir()) and not list((store / ".tmp").iterdir())
-    os.environ.pop("TOY_GATE")
+    monkeypatch.delenv("TOY_GATE")
     statuses = {r.stage: r.status for r in run_toy(data, store).stages}
     assert statuses["source"] == "hit" and statuses["double"] == "computed"
 
