@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
-__all__ = ["ConfigModel", "Output", "OutputKind", "Stage", "StageConfig"]
+__all__ = ["ConfigModel", "InputRejected", "Output", "OutputKind", "Stage", "StageConfig"]
 
 OutputKind = Literal["parquet", "json", "bytes", "frames"]
 """How the engine stores an output.
@@ -44,6 +44,19 @@ def _holds_bool(value: Any) -> bool:
     if isinstance(value, (list, tuple)):
         return any(_holds_bool(v) for v in value)
     return isinstance(value, bool)
+
+
+class InputRejected(ValueError):
+    """A stage refuses one of its inputs as bad data (not a bug in the stage).
+
+    `input` is the input's name ("dataset" or "<stage>.<output>"); the engine reports
+    the error as bad input (exit 2), naming the artifact file behind that input.
+    """
+
+    def __init__(self, input: str, reason: str) -> None:
+        super().__init__(f"{input}: {reason}")
+        self.input = input
+        self.reason = reason
 
 
 class ConfigModel(BaseModel):

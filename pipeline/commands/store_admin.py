@@ -59,10 +59,15 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Remove unreferenced artifacts, directories that are not artifacts, and leftovers
-        of killed runs."""
+        of killed runs. Artifacts of runs in progress, and the finished stages of
+        interrupted runs, are kept."""
+        from pipeline.engine.disk import disk_error
         from pipeline.engine.store import ArtifactStore
 
-        report = ArtifactStore(store).gc(dry_run=dry_run, broken=broken)
+        try:
+            report = ArtifactStore(store).gc(dry_run=dry_run, broken=broken)
+        except OSError as err:  # a read-only or vanished store: one line, exit 2
+            raise disk_error(err, store) from err
         if json_:
             emit_json(report)
             return
@@ -73,4 +78,5 @@ def register(app: typer.Typer) -> None:
             f"{verb} {len(report['removed'])} artifacts ({report['bytes_freed'] / 1e6:.1f} MB, "
             f"{len(report['broken'])} broken), {report['tmp_removed']} leftovers of killed runs; "
             f"kept {report['kept']}"
+            + (f", {report['live_runs']} runs in progress" if report["live_runs"] else "")
         )

@@ -1,4 +1,5 @@
-"""Rich progress on stderr for stage runs: one line per stage, spinner while computing."""
+"""Rich progress on stderr for stage runs: one line per stage, spinner while computing,
+and a `warning:` line for each empty or collapsed output a stage reports."""
 
 from __future__ import annotations
 
@@ -34,6 +35,11 @@ class StageProgress:
         )
 
     def on_stage(self, result: StageResult) -> None:
+        # Warnings show even with the progress disabled (`--quiet`), one line each.
+        for line in result.warnings:
+            self._progress.console.print(
+                f"warning: {line}", markup=False, highlight=False, soft_wrap=True
+            )
         task = self._tasks.get(result.stage)
         if task is None:
             return

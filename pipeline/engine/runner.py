@@ -8,7 +8,6 @@ artifacts to stage inputs, validates outputs and commits them atomically.
 
 from __future__ import annotations
 
-import hashlib
 import logging
 import shutil
 import time
@@ -20,13 +19,23 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from pipeline.engine import output_checks
 from pipeline.engine.codecs import read_verified, write_output
 from pipeline.engine.config import section_dict
-from pipeline.engine.errors import ConfigError, PipelineError, StageFailed
-from pipeline.engine.hashing import canonical_json, recipe_key, stage_recipe
+from pipeline.engine.disk import disk_error, short_path
+from pipeline.engine.errors import (
+    ConfigError,
+    PipelineError,
+    SourceError,
+    StageFailed,
+    StoreError,
+)
+from pipeline.engine.hashing import recipe_key, stage_recipe
+from pipeline.engine.leases import RunLease
+from pipeline.engine.run_records import previous_recipes, record_run
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from schemas import SCHEMA_VERSION
-from stages.base import Stage
+from stages.base import InputRejected, Stage
 from stages.parallel import release_memory
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
@@ -65,6 +74,7 @@ class StageResult:
     seconds: float
     path: str
     reason: str = ""
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass
@@ -73,12 +83,15 @@ class RunResult:
     store: str
     stages: list[StageResult] = field(default_factory=list)
     artifacts: dict[str, ArtifactRef] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    """Empty or collapsed outputs (`pipeline.engine.output_checks`), one line each."""
 
     def to_json(self) -> dict[str, Any]:
         return {
             "dataset": self.dataset,
             "store": self.store,
             "stages": [r.__dict__ for r in self.stages],
+            "warnings": list(self.warnings),
         }
 
 
@@ -90,37 +103,6 @@ def _software_versions() -> dict[str, str]:
         except metadata.PackageNotFoundError:
             continue
     return versions
-
-
-def run_id(dataset: Path, config: BaseModel, stages: Sequence[str] = ()) -> str:
-    """Identity of a run record: the dataset path, the whole effective config and the
-    stages run (and bound from outside), so a run over another part of the graph on
-    the same dataset (training's `train` after that dataset's `keyframes`) gets its
-    own record instead of overwriting it."""
-    digest = hashlib.sha256(
-        canonical_json(
-            {
-                "dataset": str(dataset.resolve()),
-                "config": config.model_dump(mode="json"),
-                "stages": sorted(stages),
-            }
-        )
-    )
-    return digest.hexdigest()[:20]
-
-
-def _previous_recipes(store: ArtifactStore, dataset: Path) -> dict[str, dict[str, Any]]:
-    """Per stage, its recipe in the most recent run on the same dataset path (to explain misses)."""
-    target = str(dataset.resolve())
-    recipes: dict[str, dict[str, Any]] = {}
-    for record in reversed(store.run_records()):
-        stages = record.get("stages")
-        if record.get("dataset") != target or not isinstance(stages, Mapping):
-            continue
-        for name, info in stages.items():
-            if isinstance(info, Mapping) and isinstance(info.get("recipe"), Mapping):
-                recipes.setdefault(name, dict(info["recipe"]))
-    return recipes
 
 
 def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
@@ -180,7 +162,7 @@ def plan(
         for name in content_keyed
         if name in external
     }
-    previous = _previous_recipes(store, dataset.path)
+    previous = previous_recipes(store, dataset.path)
     changed: set[str] = set()
     planned: list[PlannedStage] = []
     for stage in stages:
@@ -247,8 +229,32 @@ def _bind_inputs(
     return inputs
 
 
+def _rejected_input(
+    err: InputRejected,
+    stage: Stage,
+    refs: Mapping[str, ArtifactRef],
+    outputs_of: Mapping[str, Stage],
+    dataset: DatasetSpec,
+) -> SourceError:
+    """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
+    upstream, _, out_name = err.input.partition(".")
+    where = str(dataset.path) if err.input == "dataset" else err.input
+    if upstream in refs and upstream in outputs_of:
+        output = next((o for o in outputs_of[upstream].outputs if o.name == out_name), None)
+        ref = refs[upstream]
+        filename = output.filename if output is not None else out_name
+        where = f"{ref.stage}/{ref.key}/{filename}"
+    reason = (err.reason.splitlines() or [""])[0][:300]
+    return SourceError(f"{where}: {reason} (input of stage {stage.name})")
+
+
 def _build(
-    item: PlannedStage, section: Any, inputs: Mapping[str, Any]
+    item: PlannedStage,
+    section: Any,
+    inputs: Mapping[str, Any],
+    refs: Mapping[str, ArtifactRef],
+    outputs_of: Mapping[str, Stage],
+    dataset: DatasetSpec,
 ) -> Callable[[Path], Mapping[str, Any]]:
     stage = item.stage
     provenance = {"stage": stage.name, "version": str(stage.version), "key": item.key}
@@ -264,8 +270,10 @@ def _build(
                         raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
                     continue
                 facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
-        except PipelineError:
-            raise
+        except (PipelineError, OSError):
+            raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
+        except InputRejected as err:
+            raise _rejected_input(err, stage, refs, outputs_of, dataset) from err
         except Exception as err:
             raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
         return {"outputs": facts}
@@ -283,20 +291,58 @@ def execute(
     on_stage: Callable[[StageResult], None] | None = None,
     on_start: Callable[[PlannedStage], None] | None = None,
 ) -> RunResult:
-    """Compute the misses in order and commit them; hits are only looked up."""
-    external = dict(external or {})
+    """Compute the misses in order and commit them; hits are only looked up.
+
+    While it runs, a lease on the store holds every planned and external address, so
+    `gc` leaves them alone; the run record is rewritten as each stage commits, so an
+    interrupted run's finished stages stay referenced. Any OSError from the store or
+    the dataset becomes a one-line `StoreError` naming the path (exit 2).
+    """
+    try:
+        with RunLease(store.root) as lease:
+            lease.add(f"{p.stage.name}/{p.key}" for p in planned)
+            lease.add(f"{ref.stage}/{ref.key}" for _, ref in (external or {}).values())
+            return _execute(planned, config, dataset, store, external, on_stage, on_start)
+    except OSError as err:
+        raise disk_error(err, store.root) from err
+
+
+def _execute(
+    planned: Sequence[PlannedStage],
+    config: BaseModel,
+    dataset: DatasetSpec,
+    store: ArtifactStore,
+    external_in: Mapping[str, tuple[Stage, ArtifactRef]] | None,
+    on_stage: Callable[[StageResult], None] | None,
+    on_start: Callable[[PlannedStage], None] | None,
+) -> RunResult:
+    external = dict(external_in or {})
+    for name, (_, ext) in external.items():
+        # Looked up before the lease existed: make sure `gc` did not take it meanwhile.
+        with store.lock(ext.stage, ext.key):
+            if store.get(ext.stage, ext.key) is None:
+                raise StoreError(
+                    f"artifact {ext.stage}/{ext.key[:12]} ({name}) was removed while this run "
+                    "started (by `sonarmap gc`?); run again"
+                )
     outputs_of: dict[str, Stage] = {n: s for n, (s, _) in external.items()}
     refs: dict[str, ArtifactRef] = {n: r for n, (_, r) in external.items()}
     result = RunResult(dataset=str(dataset.path), store=str(store.root))
     versions = _software_versions()
     verified: set[tuple[str, str, str]] = set()  # each bound file is hashed once per run
+    done: dict[str, PlannedStage] = {}
     for item in planned:
         name = item.stage.name
         outputs_of[name] = item.stage
         t0 = time.perf_counter()
         if on_start is not None:
             on_start(item)
-        ref = None if not item.hit else store.get(name, item.key)
+        ref = None
+        if item.hit:
+            # Under the key's lock: a `gc` that chose this artifact before our lease
+            # existed removes it under the same lock, so we see it whole or not at all.
+            with store.lock(name, item.key):
+                ref = store.get(name, item.key)
         status = "hit"
         if ref is None:
             if item.reason == "forced":
@@ -317,13 +363,27 @@ def execute(
             }
             log.info("computing %s (%s)", name, item.reason)
             ref, reused = store.commit_or_reuse(
-                name, item.key, _build(item, section, inputs), manifest_extra
+                name,
+                item.key,
+                _build(item, section, inputs, refs, outputs_of, dataset),
+                manifest_extra,
             )
             status = "reused" if reused else "computed"
             del inputs
             release_memory()
         refs[name] = ref
         result.artifacts[name] = ref
+        done[name] = item
+        found = output_checks.check_stage(name, refs)
+        fatal = next((message for message, is_fatal in found if is_fatal), None)
+        if len(done) < len(planned) or fatal is not None:
+            # Finished work is referenced now, not only at the end of the run.
+            record_run(store, dataset, config, planned, external, done=done)
+        warnings = tuple(message for message, is_fatal in found if not is_fatal)
+        if fatal is not None:
+            cause = f"; first sign: {result.warnings[0]}" if result.warnings else ""
+            raise output_checks.EmptyMap(f"{short_path(dataset.path.name)}: {fatal}{cause}")
+        result.warnings.extend(warnings)
         stage_result = StageResult(
             stage=name,
             key=item.key,
@@ -331,11 +391,12 @@ def execute(
             seconds=round(time.perf_counter() - t0, 3),
             path=str(ref.path),
             reason=item.reason,
+            warnings=warnings,
         )
         result.stages.append(stage_result)
         if on_stage is not None:
             on_stage(stage_result)
-    _record(store, dataset, config, planned, external)
+    record_run(store, dataset, config, planned, external)
     return result
 
 
@@ -348,21 +409,3 @@ def _discard(store: ArtifactStore, stage: str, key: str) -> None:
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
             shutil.rmtree(trash, ignore_errors=True)
-
-
-def _record(
-    store: ArtifactStore,
-    dataset: DatasetSpec,
-    config: BaseModel,
-    planned: Sequence[PlannedStage],
-    external: Mapping[str, Any],
-) -> None:
-    record = {
-        "dataset": str(dataset.path.resolve()),
-        "fingerprint": dataset.fingerprint,
-        "updated_at": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime())
-        + f".{time.time_ns() % 10**9:09d}Z",
-        "stages": {p.stage.name: {"key": p.key, "recipe": p.recipe} for p in planned},
-    }
-    names = [p.stage.name for p in planned] + [f"external:{n}" for n in external]
-    store.record_run(run_id(dataset.path, config, names), record)

@@ -10,6 +10,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from pipeline.engine.config import load_config
+from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import FingerprintCache
 from pipeline.engine.runner import DatasetSpec
@@ -69,7 +70,10 @@ def dataset_spec(
         raise SourceError(f"{path}: no dataset files found")
     cache = FingerprintCache(store.root / ".cache" / "fingerprints.json")
     root = path if path.is_dir() else path.parent
-    fingerprint = cache.dataset_fingerprint(files, root)
+    try:
+        fingerprint = cache.dataset_fingerprint(files, root)
+    except OSError as err:  # the store's cache on a full, read-only or odd filesystem
+        raise disk_error(err, store.root / ".cache") from err
     return DatasetSpec(path=path, fingerprint=fingerprint, open=opener or _default_open(path))
 
 

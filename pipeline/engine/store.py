@@ -22,6 +22,7 @@ from typing import Any
 from filelock import FileLock
 
 from pipeline.engine.artifact import ArtifactRef, Problem
+from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
 from pipeline.engine.hashing import STORE_FORMAT_VERSION, sha256_file
 from pipeline.engine.integrity import recovery_hint, safe_relative, verify_artifact_dir, verify_file
@@ -184,7 +185,23 @@ class ArtifactStore:
         build: Callable[[Path], Mapping[str, Any]],
         manifest_extra: Mapping[str, Any],
     ) -> tuple[ArtifactRef, bool]:
-        """`commit`, also saying whether the artifact was reused (True) or built here."""
+        """`commit`, also saying whether the artifact was reused (True) or built here.
+
+        An OSError (full disk, read-only store, name too long) becomes a one-line
+        `StoreError` naming the path; the temporary directory goes, nothing is visible.
+        """
+        try:
+            return self._commit_or_reuse(stage, key, build, manifest_extra)
+        except OSError as err:
+            raise disk_error(err, self.artifact_dir(stage, key)) from err
+
+    def _commit_or_reuse(
+        self,
+        stage: str,
+        key: str,
+        build: Callable[[Path], Mapping[str, Any]],
+        manifest_extra: Mapping[str, Any],
+    ) -> tuple[ArtifactRef, bool]:
         with self.lock(stage, key):
             existing = self.get(stage, key)
             if existing is not None:
@@ -256,12 +273,30 @@ class ArtifactStore:
 
     # -- runs and garbage collection ----------------------------------------------------
     def record_run(self, run_id: str, record: Mapping[str, Any]) -> None:
-        """Remember which artifacts a run used (gc keeps what any run record references)."""
+        """Remember which artifacts a run used (gc keeps what any run record references).
+
+        An OSError becomes a one-line `StoreError`; the previous record stays whole.
+        """
         runs = self.root / _RUNS
-        runs.mkdir(parents=True, exist_ok=True)
         tmp = runs / f".{run_id}.{os.getpid()}.tmp"
-        tmp.write_text(json.dumps(record, indent=2, sort_keys=True))
-        tmp.replace(runs / f"{run_id}.json")
+        try:
+            runs.mkdir(parents=True, exist_ok=True)
+            tmp.write_text(json.dumps(record, indent=2, sort_keys=True))
+            tmp.replace(runs / f"{run_id}.json")
+        except BaseException as err:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+            if isinstance(err, OSError):
+                raise disk_error(err, runs / f"{run_id}.json") from err
+            raise
+
+    def run_record(self, run_id: str) -> dict[str, Any] | None:
+        """The record of one run, or None (absent or unreadable)."""
+        with contextlib.suppress(OSError, ValueError):
+            record = json.loads((self.root / _RUNS / f"{run_id}.json").read_text())
+            if isinstance(record, dict):
+                return record
+        return None
 
     def run_records(self) -> list[dict[str, Any]]:
         """All run records, oldest first."""

@@ -1,8 +1,16 @@
 """`sonarmap gc`: what the store keeps, and the leftovers it heals.
 
-Kept: every artifact a run record names, and everything reachable from those through
-their manifests' `input_artifacts` (a `train` model keeps the keyframes and features
-of every dataset it learnt from, so `push train` still finds them).
+Kept: every artifact a run record names or a live run's lease holds
+(`pipeline.engine.leases`), and everything reachable from those through their
+manifests' `input_artifacts` (a `train` model keeps the keyframes and features of
+every dataset it learnt from, so `push train` still finds them). Runs record each
+stage as it commits, so an interrupted run's finished stages are kept too.
+
+Races with a live run: the scan of artifacts comes first, then the leases, then the
+run records (a run writes its final record before dropping its lease, and claims an
+address in its lease before it commits or reads it). Each removal happens under the
+artifact's key lock and looks again at leases and records if either folder changed
+since; an artifact whose directory is newer than the start of `gc` is never removed.
 
 Removed:
 - unreferenced artifacts;
@@ -10,7 +18,8 @@ Removed:
   older version), or a manifest that does not validate;
 - with `broken=True`, artifacts whose files no longer match their manifest's sha256;
 - leftovers of killed processes: `.tmp/<name>-<pid>-<hex>` commits, pulls and discards,
-  `runs/.<id>.<pid>.tmp` and `.cache/fingerprints.tmp<pid>`, once that pid is gone.
+  `runs/.<id>.<pid>.tmp`, `.cache/fingerprints.tmp<pid>` and `.leases/.<pid>-<hex>.*.tmp`,
+  once that pid is gone; leases whose owner is gone (their flock is free).
   Temporaries of live processes are never touched; names without a pid (older
   versions) go when older than `stale_tmp_s`.
 Every removal is a rename out of sight first, so a reader never sees half a directory.
@@ -32,6 +41,7 @@ from filelock import Timeout
 from pipeline.engine.artifact import ArtifactRef, Problem
 from pipeline.engine.errors import StoreError
 from pipeline.engine.integrity import verify_artifact_dir
+from pipeline.engine.leases import LEASES, scan_leases
 from pipeline.engine.manifest import ADDRESS_PATTERN
 
 if TYPE_CHECKING:
@@ -42,6 +52,8 @@ __all__ = ["collect", "pid_alive", "reachable"]
 _TMP_PID = re.compile(r"-(\d+)-[0-9a-f]{8,12}$")
 _RUN_TMP_PID = re.compile(r"^\..+\.(\d+)\.tmp$")
 _FINGERPRINT_TMP_PID = re.compile(r"^fingerprints\.tmp(\d+)$")
+_TICK_NS = 50_000_000  # coarser than any filesystem's timestamp granularity we meet
+_LEASE_TMP_PID = re.compile(r"^\.(\d+)-[0-9a-f]{12}\.(?:lock|json)\.tmp$")
 
 
 def pid_alive(pid: int) -> bool:
@@ -95,12 +107,65 @@ def reachable(
     return keep
 
 
-def _remove_dir(store: ArtifactStore, stage: str, key: str, path: Path) -> bool:
-    """Rename out of sight, then delete; skipped while another process holds the key."""
+class _Roots:
+    """What must stay: leases' and run records' addresses and their upstream closure,
+    looked at again whenever the `.leases` or `runs` folder has changed."""
+
+    def __init__(self, store: ArtifactStore, refs: Mapping[tuple[str, str], ArtifactRef]) -> None:
+        self.store, self.refs = store, refs
+        self.live_runs = 0
+        self.keep: set[tuple[str, str]] = set()
+        self._seen: tuple[int, int] | None = None
+        self._read_ns = 0
+
+    def _stamp(self) -> tuple[int, int]:
+        stamps = []
+        for name in (LEASES, "runs"):
+            try:
+                stamps.append((self.store.root / name).stat().st_mtime_ns)
+            except OSError:
+                stamps.append(0)
+        return stamps[0], stamps[1]
+
+    def refresh(self, *, prune: bool = False) -> int:
+        """Read leases, then records; returns how many stale leases were removed."""
+        self._seen = self._stamp()
+        self._read_ns = time.time_ns()
+        leases = scan_leases(self.store.root, prune=prune)  # before the records: see above
+        records = self.store.run_records()
+        self.live_runs = leases.live
+        self.keep = reachable(self.refs, leases.addresses | _roots(records))
+        return leases.stale_removed
+
+    def holds(self, address: tuple[str, str]) -> bool:
+        """Whether `address` must stay, looking again if a run may have changed that."""
+        # A folder changed within a clock tick of the last read may have changed again
+        # without its mtime moving: such a stamp proves nothing, so read again.
+        unsure = self._seen is None or max(self._seen) >= self._read_ns - _TICK_NS
+        if unsure or self._stamp() != self._seen:
+            self.refresh()
+        return address in self.keep
+
+
+def _remove_dir(
+    store: ArtifactStore,
+    stage: str,
+    key: str,
+    path: Path,
+    roots: _Roots | None = None,
+    started_ns: int = 0,
+) -> bool:
+    """Rename out of sight, then delete; skipped while another process holds the key,
+    when a run claimed it meanwhile, or when it was committed after `gc` started."""
     try:
         with store.lock(stage, key).acquire(timeout=0.5):
             if not path.exists():
                 return False
+            if roots is not None and roots.holds((stage, key)):
+                return False
+            with contextlib.suppress(OSError):
+                if path.stat().st_mtime_ns >= started_ns > 0:
+                    return False
             trash = store.tmp_path(f"gc-{stage}")
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
@@ -118,6 +183,7 @@ def _leftovers(store: ArtifactStore, stale_tmp_s: float) -> list[Path]:
         (store.root / ".tmp", _TMP_PID, True),
         (store.root / "runs", _RUN_TMP_PID, False),
         (store.root / ".cache", _FINGERPRINT_TMP_PID, False),
+        (store.root / LEASES, _LEASE_TMP_PID, False),
     )
     for folder, pattern, old_without_pid in patterns:
         if not folder.is_dir():
@@ -163,8 +229,12 @@ def collect(
 
     Returns:
         {"removed": [stage/key...], "broken": ["stage/key: reason"...], "kept": int,
-         "tmp_removed": int, "bytes_freed": int}; `removed` includes the broken ones.
+         "tmp_removed": int, "bytes_freed": int, "live_runs": int, "stale_leases": int};
+        `removed` includes the broken ones.
     """
+    # Writers without a lease (a pull in progress) are covered by this: what they
+    # rename into place after now is never removed by this pass.
+    started_ns = time.time_ns()
     refs: dict[tuple[str, str], ArtifactRef] = {}
     bad: list[Problem] = []
     for item in store.scan():
@@ -179,7 +249,9 @@ def collect(
                 bad.append(Problem(item.stage, item.key, item.path, reason))
                 continue
         refs[(item.stage, item.key)] = item
-    keep = reachable(refs, _roots(store.run_records()))
+    roots = _Roots(store, refs)
+    stale_leases = roots.refresh(prune=not dry_run)
+    keep = set(roots.keep)
     removed, broken_lines, freed = [], [], 0
     for problem in bad:
         broken_lines.append(str(problem))
@@ -190,7 +262,7 @@ def collect(
     for address, ref in refs.items():
         if address in keep:
             continue
-        if dry_run or _remove_dir(store, ref.stage, ref.key, ref.path):
+        if dry_run or _remove_dir(store, ref.stage, ref.key, ref.path, roots, started_ns):
             removed.append(f"{ref.stage}/{ref.key}")
             freed += _size(ref)
     leftovers = _leftovers(store, stale_tmp_s)
@@ -203,4 +275,6 @@ def collect(
         "kept": len(keep),
         "tmp_removed": len(leftovers),
         "bytes_freed": freed,
+        "live_runs": roots.live_runs,
+        "stale_leases": stale_leases,
     }

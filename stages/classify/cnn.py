@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import contextlib
 import io
-import pickle
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -200,6 +199,11 @@ def model_from_bytes(data: bytes) -> tuple[PatchCNN, list[str], dict[str, Any]]:
             bool(cfg.get("spatial_dropout", False)),
         )  # fmt: skip
         model.load_state_dict(blob["state_dict"])
-    except (KeyError, TypeError, RuntimeError, EOFError, pickle.UnpicklingError) as err:
-        raise ValueError(f"not a sonarmap classifier model file: {err}") from err
+    except Exception as err:  # any failure to parse untrusted bytes is a bad file
+        # torch's own message is several lines and suggests loading unsafely: only
+        # the kind of failure is kept.
+        raise ValueError(
+            f"not a weights-only state dict of a sonarmap classifier model file "
+            f"({type(err).__name__}); refused without running any of its code"
+        ) from err
     return model.eval(), names, cfg

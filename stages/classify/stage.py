@@ -36,7 +36,7 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
-from stages.base import Output, Stage, StageConfig
+from stages.base import InputRejected, Output, Stage, StageConfig
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
@@ -359,7 +359,10 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
     model_bytes = inputs["train.model"]
     if not isinstance(model_bytes, bytes | bytearray):
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
-    model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+    try:
+        model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+    except ValueError as err:
+        raise InputRejected("train.model", str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
     mount = None if sensors is None else np.asarray(sensors["horizontal"]["T_base_sonar"], float)
     objects, links, busiest = classify_keyframes(

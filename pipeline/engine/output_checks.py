@@ -1,0 +1,106 @@
+"""Run-level guard against empty maps: row counts of each stage's outputs, checked
+as the stage commits (or is found cached).
+
+The counts come from the manifests (`outputs.<name>.rows`, written at commit), so a
+check reads no data. One table says, per stage, which counts are suspicious and the
+likely cause; a check marked `fatal` ends the run with exit 2 once what was computed
+is committed (a run that produces no map).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from pipeline.engine.artifact import ArtifactRef
+from pipeline.engine.errors import SourceError
+
+__all__ = ["CHECKS", "EmptyMap", "OutputCheck", "check_stage", "output_rows"]
+
+Rows = Mapping[str, int]
+"""Row counts by "stage.output" of the artifacts this run has so far."""
+
+
+class EmptyMap(SourceError):
+    """The run produced no map: every stage ran, but the input gave nothing to map."""
+
+
+@dataclass(frozen=True)
+class OutputCheck:
+    """After `stage`, warn with `message` (formatted with the counts) when `applies`."""
+
+    stage: str
+    applies: Callable[[Rows], bool]
+    message: str
+    fatal: bool = False
+
+
+def _n(rows: Rows, name: str) -> int:
+    return rows.get(name, -1)
+
+
+CHECKS: tuple[OutputCheck, ...] = (
+    OutputCheck(
+        "keyframes",
+        lambda r: 0 <= _n(r, "keyframes.keyframes") < 2,
+        "keyframes: {keyframes.keyframes} keyframes (a map needs at least 2): the pings may "
+        "have no beams, empty images or invalid ranges, or all share one timestamp",
+    ),
+    OutputCheck(
+        "features",
+        lambda r: _n(r, "features.features") == 0 and _n(r, "keyframes.keyframes") > 0,
+        "features: 0 features from {keyframes.keyframes} keyframes: the images may be "
+        "empty or all below the detection threshold",
+    ),
+    OutputCheck(
+        "fuse",
+        lambda r: _n(r, "fuse.fused") == 0 and _n(r, "features.features") > 0,
+        "fuse: 0 fused points from {features.features} features: the two sonars' features "
+        "never matched (a navigation jump, or sonar and navigation times that do not overlap)",
+    ),
+    OutputCheck(
+        "slam",
+        lambda r: 0 <= _n(r, "slam.poses") < 2 and _n(r, "keyframes.keyframes") >= 2,
+        "slam: {slam.poses} poses from {keyframes.keyframes} keyframes",
+    ),
+    OutputCheck(
+        "voxelize",
+        lambda r: _n(r, "voxelize.map") == 0,
+        "no map: voxelize's map has 0 points ({keyframes.keyframes} keyframes, "
+        "{features.features} features, {fuse.fused} fused points)",
+        fatal=True,
+    ),
+)
+
+
+def output_rows(refs: Mapping[str, ArtifactRef]) -> dict[str, int]:
+    """Row counts by "stage.output", from the manifests of `refs` (parquet outputs)."""
+    rows: dict[str, int] = {}
+    for name, ref in refs.items():
+        outputs = ref.manifest.get("outputs")
+        for out, facts in (outputs if isinstance(outputs, Mapping) else {}).items():
+            if isinstance(facts, Mapping) and isinstance(facts.get("rows"), int):
+                rows[f"{name}.{out}"] = facts["rows"]
+    return rows
+
+
+_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*\.[A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+def _fill(message: str, rows: Rows) -> str:
+    """`message` with each "{stage.output}" replaced by its row count ("?" if unknown)."""
+    return _FIELD.sub(lambda m: str(rows.get(m.group(1), "?")), message)
+
+
+def check_stage(
+    stage: str, refs: Mapping[str, ArtifactRef], checks: tuple[OutputCheck, ...] | None = None
+) -> list[tuple[str, bool]]:
+    """(message, fatal) for every check (default: `CHECKS`) of `stage` that applies to
+    the counts so far."""
+    rows = output_rows(refs)
+    found = []
+    for check in CHECKS if checks is None else checks:
+        if check.stage == stage and check.applies(rows):
+            found.append((_fill(check.message, rows), check.fatal))
+    return found
