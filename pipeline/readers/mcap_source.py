@@ -44,6 +44,10 @@ _OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
 _MAX_INDEX_BLOCK_SLACK = 1 << 20
 _CACHED_CHUNKS = 8
 _PREFETCH_CHUNKS = 2
+# Decompressed chunks held at once [declared bytes]: with chunks up to the reader's limit
+# (`limits.max_chunk_bytes`), memory stays bounded whatever the chunks declare.
+_CACHE_BYTES = 256 << 20
+_PREFETCH_MAX_BYTES = 32 << 20
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
@@ -196,19 +200,27 @@ class _McapFile:
         file reads, one-shot zstd and CRC release the GIL, so they overlap the caller.
         """
         for j in ahead:
-            self._submit(j)
-        return self._submit(k).result()
+            self._submit(j, prefetch=True)
+        future = self._submit(k)
+        assert future is not None
+        return future.result()
 
-    def _submit(self, k: int) -> Future[bytes]:
+    def _submit(self, k: int, prefetch: bool = False) -> Future[bytes] | None:
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
+        size = self.chunks[k].uncompressed_size
+        if prefetch and size > _PREFETCH_MAX_BYTES:
+            return None  # large chunks are read when needed, one at a time
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
         future = self._pool.submit(self._read_chunk_at, k)
         self._cache[k] = future
-        while len(self._cache) > _CACHED_CHUNKS:
-            self._cache.popitem(last=False)
+        # Bounded in count and in declared bytes (the newest entry always stays).
+        held = sum(self.chunks[j].uncompressed_size for j in self._cache)
+        while len(self._cache) > 1 and (len(self._cache) > _CACHED_CHUNKS or held > _CACHE_BYTES):
+            j, _ = self._cache.popitem(last=False)
+            held -= self.chunks[j].uncompressed_size
         return future
 
     def _read_chunk_at(self, k: int) -> bytes:
