@@ -60,6 +60,7 @@ def write_recording(
     nav: NavHook | None = None,
     layout: str = "recording",
     chunk_bytes: int = 256 * 1024,
+    nav_offset_ns: int = 0,
 ) -> dict[str, Any]:
     """Write a synthetic recording; returns its ping and navigation times.
 
@@ -68,6 +69,7 @@ def write_recording(
             where `bad_pings(k)` is True; the others keep the sane ones).
         same_time: every sonar message gets the first ping's time.
         nav: (t_ns, xyz, q_xyzw) -> (xyz, q_xyzw) applied to the navigation samples.
+        nav_offset_ns: added to the navigation times (moves them away from the pings).
         layout: "recording" (sonarmap's own writer) or "interleaved" (a recorder's: one
             chunk stream in time order, chunks of `chunk_bytes`).
     """
@@ -82,6 +84,7 @@ def write_recording(
     q = np.tile([0.0, 0.0, 0.0, 1.0], (len(s), 1))
     if nav is not None:
         xyz, q = nav(nav_t, xyz, q)
+    nav_t = nav_t + nav_offset_ns
     events: list[tuple[int, int, str, str, Any]] = []
     for k, t in enumerate(ping_t.tolist()):
         r = ranges if ranges is not None and bad_pings(k) else good_ranges

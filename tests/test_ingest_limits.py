@@ -218,6 +218,11 @@ REFUSED = {
         "1 range bins x 1 beams",
     ),
     "one timestamp": (dict(same_time=True), "/sonar/horizontal", "have the same time"),
+    "navigation after the pings": (
+        dict(nav_offset_ns=100 * 10**9),
+        "/sonar/horizontal",
+        "no ping can be posed",
+    ),
     "1 km navigation jump": (dict(nav=_jump), "/odometry/dead_reckoning", "jumps 1000 m"),
     "all-zero quaternions": (
         dict(nav=_zero_quats),

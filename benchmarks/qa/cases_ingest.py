@@ -279,6 +279,8 @@ REFUSED: list[tuple[str, dict[str, Any], tuple[str, ...]]] = [
     ("zero beams", dict(directions=np.zeros((0, 3))), (H, "0 beams")),
     ("1x1 images", dict(ranges=RANGES[:1], directions=DIRS[:1]), (H, "1 range bins x 1 beams")),
     ("one range bin", dict(ranges=RANGES[:1]), (H, "1 range bins")),
+    ("navigation 100 s after the pings", dict(nav_offset_ns=100 * 10**9), (H, "posed")),
+    ("navigation 1 h before the pings", dict(nav_offset_ns=-3600 * 10**9), (H, "posed")),
     ("all sonar messages at one timestamp", dict(same_time=True), (H, "same time")),
     (
         "1 km navigation jump",

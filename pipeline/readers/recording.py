@@ -216,7 +216,21 @@ class SourceRecording:
                 self._nav = self._dead_reckoning()
             else:
                 self._nav = PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+            self._check_overlap(self._nav)
         return self._nav
+
+    def _check_overlap(self, nav: PoseTrack) -> None:
+        """Refuse navigation that spans none of the horizontal pings: no ping can be posed."""
+        topic = self.roles.sonar.get("horizontal")
+        if len(nav) == 0 or topic is None:
+            return
+        t = self.ping_times_ns("horizontal")
+        if len(t) and not ((t >= nav.t_ns[0]) & (t <= nav.t_ns[-1])).any():
+            raise SourceError(
+                f"{self.source.path}: the navigation spans t_ns={int(nav.t_ns[0])}.."
+                f"{int(nav.t_ns[-1])} but no ping of {topic} (t_ns={int(t[0])}..{int(t[-1])}) "
+                "falls inside it, so no ping can be posed"
+            )
 
     def _dead_reckoning(self) -> PoseTrack:
         dvl_t, dvl_v, imu_t, imu_q, dep_t, dep = [], [], [], [], [], []
