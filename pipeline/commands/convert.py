@@ -10,10 +10,9 @@ input has only DVL + IMU + depth), ground truth on /ground_truth/odometry, mount
 from __future__ import annotations
 
 import heapq
-import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import typer
 
@@ -132,6 +131,7 @@ def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int
 def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, Any]:
     """Convert any supported recording into a ROS 2 MCAP; returns counts per topic."""
     from pipeline.engine.errors import SourceError
+    from pipeline.formats.atomic import atomic_output
     from pipeline.readers import ReaderOptions, SourceRecording, open_source
     from pipeline.readers.roles import detect_roles
     from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
@@ -155,12 +155,8 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
     counts: dict[str, int] = {}
     # Written beside `dst` and renamed on success: a recording that turns out unreadable
     # half-way never replaces (or leaves behind) an output file.
-    tmp = dst.with_name(f".{dst.name}.{os.getpid()}.tmp")
-    try:
-        _write(tmp, rec, roles, streams, counts, src, source.kind)
-        os.replace(tmp, dst)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_output(dst) as f:
+        _write(f, rec, roles, streams, counts, src, source.kind)
     return {
         "input": str(src),
         "output": str(dst),
@@ -172,7 +168,7 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
 
 
 def _write(
-    path: Path,
+    f: BinaryIO,
     rec: Any,
     roles: Any,
     streams: list[Iterator[Any]],
@@ -180,29 +176,26 @@ def _write(
     src: Path,
     kind: str,
 ) -> None:
-    """Stream every event into a new MCAP at `path`, fsynced; `counts` filled per topic."""
+    """Stream every event into a new MCAP written to `f`; `counts` filled per topic."""
     from pipeline.formats.rosmsg import recording_writer
     from schemas.topics import TOPIC_TF_STATIC
 
     first = True
-    with path.open("wb") as f:
-        with recording_writer(f) as w:
-            for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
-                if first:
-                    mounts = {s: rec.mountings()[s] for s in roles.sonar}
-                    w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
-                    counts[TOPIC_TF_STATIC] = 1
-                    first = False
-                if isinstance(msg, bytes):
-                    w.write_raw(topic, typ, msg, t)
-                else:
-                    w.write(topic, typ, msg, t)
-                counts[topic] = counts.get(topic, 0) + 1
-            for name, data in sorted(rec.attachments().items()):
-                w.add_attachment(name, data, "application/octet-stream")
-            w.add_metadata("sonarmap.convert", {"source": src.name, "format": kind})
-        f.flush()
-        os.fsync(f.fileno())
+    with recording_writer(f) as w:
+        for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
+            if first:
+                mounts = {s: rec.mountings()[s] for s in roles.sonar}
+                w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
+                counts[TOPIC_TF_STATIC] = 1
+                first = False
+            if isinstance(msg, bytes):
+                w.write_raw(topic, typ, msg, t)
+            else:
+                w.write(topic, typ, msg, t)
+            counts[topic] = counts.get(topic, 0) + 1
+        for name, data in sorted(rec.attachments().items()):
+            w.add_attachment(name, data, "application/octet-stream")
+        w.add_metadata("sonarmap.convert", {"source": src.name, "format": kind})
 
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:

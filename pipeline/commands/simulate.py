@@ -40,6 +40,7 @@ def simulate_cmd(
 
     from pipeline.commands._common import stderr_console
     from pipeline.engine.errors import ConfigError, SourceError
+    from pipeline.formats.atomic import atomic_output
     from pipeline.formats.sim_preview import render_preview
     from pipeline.formats.simulation import write_simulation
     from pipeline.training.datasets import read_scene, scene_path, sim_config
@@ -75,7 +76,9 @@ def simulate_cmd(
     if preview is not None:
         try:
             preview.parent.mkdir(parents=True, exist_ok=True)
-            preview.write_bytes(render_preview(run))
+            png = render_preview(run)
+            with atomic_output(preview) as f:
+                f.write(png)
         except OSError as err:
             raise SourceError(f"cannot write preview {preview}: {err}") from err
     console.print(

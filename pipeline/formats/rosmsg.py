@@ -34,8 +34,12 @@ __all__ = [
 # ping with its label image, or one truth-angle image (the simulator's 512 x 600 pings),
 # so a reader decompresses the navigation and the keyframes' images and little else,
 # without a chunk index per image (the summary and message indexes are parsed in Python).
+# The gathered small messages are also written out every SMALL_FLUSH_NS of log time, so
+# a copy cut anywhere keeps the navigation up to a few seconds before the cut (gathered
+# to the end, a cut copy would lose all of it, and with it every keyframe).
 SMALL_MESSAGE_BYTES = 64 * 1024
 RECORDING_CHUNK_BYTES = 512 * 1024
+SMALL_FLUSH_NS = 5_000_000_000
 
 
 def custom_msg_texts() -> dict[str, str]:
@@ -89,6 +93,8 @@ class Ros2McapWriter:
     tf) are gathered into chunks of their own instead of between the sonar images: a
     reader then gets the whole navigation stream without decompressing any image (the
     chunks overlap in time, which MCAP allows; readers order by the message indexes).
+    With `small_flush_ns`, those chunks are also written once they span that much log
+    time, so a copy cut short keeps the small messages written before the cut.
     """
 
     def __init__(
@@ -97,6 +103,7 @@ class Ros2McapWriter:
         *,
         chunk_size: int = 4 * 1024 * 1024,
         small_message_bytes: int | None = None,
+        small_flush_ns: int | None = None,
     ) -> None:
         self._writer = McapWriter(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
         self._writer.start(profile="ros2", library="sonarmap")
@@ -108,6 +115,7 @@ class Ros2McapWriter:
         self._small_bytes = small_message_bytes
         self._small: list[tuple[int, int, bytes, int]] = []
         self._small_size = 0
+        self._small_flush_ns = small_flush_ns
 
     def _channel(self, topic: str, typename: str) -> int:
         if topic in self._channels:
@@ -133,7 +141,10 @@ class Ros2McapWriter:
         if self._small_bytes is not None and len(cdr) <= self._small_bytes:
             self._small.append((cid, t_ns, cdr, self._sequence))
             self._small_size += len(cdr)
-            if self._small_size >= self._chunk_size:
+            span = self._small_flush_ns
+            if self._small_size >= self._chunk_size or (
+                span is not None and t_ns - self._small[0][1] >= span
+            ):
                 self._flush_small()
         else:
             self._writer.add_message(
@@ -182,7 +193,11 @@ class Ros2McapWriter:
 
 def recording_writer(stream: IO[bytes]) -> Ros2McapWriter:
     """A writer with the layout of the recordings sonarmap writes (simulator, `convert`):
-    navigation in chunks of its own, images in chunks of one or two images."""
+    navigation in chunks of its own (one per SMALL_FLUSH_NS of log time at most), images
+    in chunks of one or two images."""
     return Ros2McapWriter(
-        stream, chunk_size=RECORDING_CHUNK_BYTES, small_message_bytes=SMALL_MESSAGE_BYTES
+        stream,
+        chunk_size=RECORDING_CHUNK_BYTES,
+        small_message_bytes=SMALL_MESSAGE_BYTES,
+        small_flush_ns=SMALL_FLUSH_NS,
     )

@@ -12,17 +12,17 @@ name next to `path` and renamed into place.
 from __future__ import annotations
 
 import json
-import os
 import struct
-import tempfile
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pipeline.engine.errors import SourceError
+from pipeline.formats.atomic import atomic_output
 from pipeline.formats.frames_io import image_message
 from pipeline.formats.rosmsg import recording_writer, ros2_typestore
 from pipeline.formats.sim_render import rendered_frames
@@ -282,12 +282,12 @@ def write_simulation(
     t_first = int(t_ns_all[0])
     fast = _FastEncoder(run, build, sigma_dr)
     n_msgs = 0
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    except OSError as err:
-        raise SourceError(f"cannot write to {path.parent}: {err}") from err
-    try:
-        with os.fdopen(fd, "wb") as f, recording_writer(f) as w:
+    with ExitStack() as stack:
+        try:
+            f = stack.enter_context(atomic_output(path))
+        except OSError as err:
+            raise SourceError(f"cannot write to {path.parent}: {err}") from err
+        with recording_writer(f) as w:
             w.write(TOPIC_TF_STATIC, TF_TYPE, build.tf_static(t_first, run.T_base_sonar), t_first)
             n_msgs += 1
             for frame in rendered_frames(run, workers):
@@ -313,10 +313,6 @@ def write_simulation(
             w.add_attachment("scene.ply", run.world.to_ply_bytes(), "application/x-ply", t_first)
             w.add_attachment("scene.yaml", scene_yaml.encode(), "application/yaml", t_first)
             w.add_metadata("sonarmap", simulation_metadata(run))
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     seconds = time.perf_counter() - t0
     return {
         "path": str(path),

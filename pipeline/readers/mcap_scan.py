@@ -14,11 +14,15 @@ import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, Message, Schema
 
-__all__ = ["ChunkCorrupt", "ScanResult", "decompress_chunk", "scan_records"]
+from pipeline.engine.errors import SourceError
+from pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
+
+__all__ = ["ChunkCorrupt", "ChunkOverLimit", "ScanResult", "decompress_chunk", "scan_records"]
 
 _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 0x02, 0x03, 0x04, 0x05, 0x06
 MAGIC = b"\x89MCAP0\r\n"
@@ -69,31 +73,50 @@ def _inner_records(data: bytes) -> Iterator[Schema | Channel | Message]:
 
 
 def _partial_chunk(f: io.BufferedReader, offset: int) -> Iterator[Schema | Channel | Message]:
-    """Records from the readable prefix of a chunk cut at the end of the file."""
+    """Records from the readable prefix of a chunk cut at the end of the file (at most
+    its declared uncompressed size, itself within `max_chunk_bytes`, is decompressed)."""
     f.seek(offset)
     head = f.read(9 + 8 + 8 + 8 + 4 + 4)
     if len(head) < 41 or head[0] != _OP_CHUNK:
         return
+    (declared,) = struct.unpack_from("<Q", head, 25)
     (name_len,) = struct.unpack_from("<I", head, 37)
     compression = f.read(name_len).decode(errors="replace")
     f.read(8)  # records length
     payload = f.read()
+    cap = min(declared, max_chunk_bytes())
     try:
         if compression == "zstd":
             import zstandard
 
-            data = zstandard.ZstdDecompressor().decompressobj().decompress(payload)
+            with zstandard.ZstdDecompressor().stream_reader(payload) as reader:
+                data = _read_upto(reader, cap)
         elif compression == "lz4":
             import lz4.frame
 
-            data = lz4.frame.LZ4FrameDecompressor().decompress(payload)
+            data = lz4.frame.LZ4FrameDecompressor().decompress(payload, max_length=cap)
         elif compression == "":
-            data = payload
+            data = payload[:cap]
         else:
             return
     except Exception:  # a corrupt block: nothing more can be read
         return
     yield from _inner_records(data)
+
+
+def _read_upto(reader: Any, n: int) -> bytes:
+    """Up to n bytes from a zstd stream reader; a cut frame yields what decoded before it."""
+    parts, got = [], 0
+    while got < n:
+        try:
+            block = reader.read(min(n - got, 1 << 20))
+        except Exception:  # the cut: keep what was decoded
+            break
+        if not block:
+            break
+        parts.append(block)
+        got += len(block)
+    return b"".join(parts)
 
 
 def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | Message]:
@@ -122,7 +145,11 @@ def scan_records(path: Path, result: ScanResult) -> Iterator[Schema | Channel | 
             stream = ReadDataStream(io.BytesIO(body))
             try:
                 if opcode == _OP_CHUNK:
-                    inner = list(_inner_records(decompress_chunk(Chunk.read(stream))))
+                    try:
+                        inner = list(_inner_records(decompress_chunk(Chunk.read(stream))))
+                    except ChunkOverLimit as err:
+                        # Not damage to read past: the file asks for more memory than allowed.
+                        raise SourceError(f"{path}: MCAP chunk at byte offset {pos} {err}") from err
                 elif opcode == _OP_SCHEMA:
                     inner = [Schema.read(stream)]
                 elif opcode == _OP_CHANNEL:
@@ -152,26 +179,40 @@ class ChunkCorrupt(ValueError):
     """A chunk that does not decompress, or whose data fails its stored size or CRC."""
 
 
+class ChunkOverLimit(ChunkCorrupt):
+    """A chunk declaring more uncompressed bytes than `max_chunk_bytes` allows."""
+
+
 _ONE_SHOT_MAX_BYTES = 1 << 28
 """Largest chunk decompressed in one shot (one buffer of its size, GIL released)."""
 
 
 def _decompress(chunk: Chunk) -> bytes:
-    # One shot (a third faster, and it releases the GIL) only when the frame's own
-    # content size confirms the chunk's: a corrupt `uncompressed_size` must not size a
-    # preallocated buffer. Otherwise streaming.
+    # Output never exceeds the declared size plus one byte (which proves the lie), and
+    # the declared size is capped first: memory follows the limit, not the payload.
+    size = chunk.uncompressed_size
+    limit = max_chunk_bytes()
+    if size > limit:
+        raise ChunkOverLimit(
+            f"declares {size} bytes uncompressed, over the limit of {limit >> 20} MiB "
+            f"(set {CHUNK_LIMIT_ENV} to raise it)"
+        )
     try:
         if chunk.compression == "zstd":
             import zstandard
 
-            size = chunk.uncompressed_size
+            # One shot (a third faster, and it releases the GIL) only when the frame's own
+            # content size confirms the chunk's: zstandard sizes its buffer by the frame
+            # header, whatever `max_output_size` says. Otherwise a capped stream.
             if 0 < size <= _ONE_SHOT_MAX_BYTES and _zstd_content_size(chunk.data) == size:
                 return zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=size)
-            return zstandard.ZstdDecompressor().decompressobj().decompress(chunk.data)
+            with zstandard.ZstdDecompressor().stream_reader(bytes(chunk.data)) as reader:
+                return bytes(reader.read(size + 1))
         if chunk.compression == "lz4":
             import lz4.frame
 
-            return bytes(lz4.frame.decompress(chunk.data))
+            out = lz4.frame.LZ4FrameDecompressor().decompress(chunk.data, max_length=size + 1)
+            return bytes(out)
     # Decompressors raise their own types (ZstdError, RuntimeError, ...) on corrupt input.
     except Exception as err:
         raise ChunkCorrupt(f"{chunk.compression} data does not decompress ({err})") from err
@@ -195,8 +236,13 @@ def decompress_chunk(chunk: Chunk) -> bytes:
 
     Raises:
         ChunkCorrupt: the payload does not decompress, or its size or CRC is wrong.
+        ChunkOverLimit: it declares more than `max_chunk_bytes()` uncompressed.
     """
     data = _decompress(chunk)
+    if len(data) > chunk.uncompressed_size:
+        raise ChunkCorrupt(
+            f"decompresses to more than the {chunk.uncompressed_size} bytes it declares"
+        )
     if len(data) != chunk.uncompressed_size:
         raise ChunkCorrupt(
             f"decompressed to {len(data)} bytes, the chunk says {chunk.uncompressed_size}"

@@ -13,7 +13,6 @@ import struct
 from collections import OrderedDict, defaultdict
 from collections.abc import Collection, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -21,16 +20,13 @@ import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Message, Schema
+from mcap.records import Attachment, Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 
 from pipeline.engine.errors import SourceError
-from pipeline.readers.mcap_integrity import (
-    IndexCorrupt,
-    message_index_entries,
-    summary_crc_problem,
-)
+from pipeline.readers.mcap_index import index_locations
+from pipeline.readers.mcap_integrity import IndexCorrupt, summary_crc_problem
 from pipeline.readers.mcap_scan import ChunkCorrupt, ScanResult, decompress_chunk, scan_records
 from pipeline.readers.source_types import TopicInfo, check_counts
 from pipeline.readers.typestores import Ros2Decoder
@@ -40,10 +36,13 @@ __all__ = ["McapSource"]
 log = logging.getLogger(__name__)
 
 
-_OP_MESSAGE, _OP_CHUNK, _OP_MESSAGE_INDEX = 0x05, 0x06, 0x07
-_MAX_INDEX_BLOCK_SLACK = 1 << 20
+_OP_MESSAGE, _OP_CHUNK = 0x05, 0x06
 _CACHED_CHUNKS = 8
 _PREFETCH_CHUNKS = 2
+# Decompressed chunks held at once [declared bytes]: with chunks up to the reader's limit
+# (`limits.max_chunk_bytes`), memory stays bounded whatever the chunks declare.
+_CACHE_BYTES = 256 << 20
+_PREFETCH_MAX_BYTES = 32 << 20
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
@@ -56,62 +55,6 @@ def _summary(path: Path) -> tuple[Summary | None, str | None]:
             return SeekingReader(f).get_summary(), None
     except (McapError, struct.error, ValueError, EOFError, OverflowError):
         return None, None
-
-
-@dataclass(frozen=True)
-class _Locations:
-    """Where one channel's messages are: (n,) log times [ns] ascending, chunk numbers
-    (into the file's chunks sorted by offset) and byte offsets inside the uncompressed chunk."""
-
-    t: np.ndarray
-    chunk: np.ndarray
-    offset: np.ndarray
-
-
-def _index_block(f: BinaryIO, chunk: ChunkIndex, size: int) -> tuple[int, bytes]:
-    """(start offset, bytes) of the span holding all of a chunk's message indexes: one
-    read per chunk instead of one per channel (they follow the chunk back to back)."""
-    offsets = chunk.message_index_offsets.values()
-    start, end = min(offsets), max(offsets) + 9
-    # A damaged length must not size the read; a record past the block is read on its own.
-    if end <= start + chunk.message_index_length <= end + _MAX_INDEX_BLOCK_SLACK:
-        end = start + chunk.message_index_length
-    f.seek(start)
-    return start, f.read(min(end, size) - start)
-
-
-def _index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, _Locations]:
-    """Per channel, every message's time and place, from the chunks' message indexes."""
-    parts: dict[int, list[tuple[np.ndarray, int]]] = defaultdict(list)
-    size = path.stat().st_size
-    with path.open("rb") as f:
-        for k, chunk in enumerate(chunks):
-            if not chunk.message_index_offsets:
-                continue
-            start, block = _index_block(f, chunk, size)
-            for cid, offset in chunk.message_index_offsets.items():
-                at = offset - start
-                head = block[at : at + 9]
-                if len(head) < 9 or head[0] != _OP_MESSAGE_INDEX:
-                    raise IndexCorrupt(f"no message index at byte offset {offset}")
-                (length,) = struct.unpack_from("<Q", head, 1)
-                if offset + 9 + length > size:
-                    raise IndexCorrupt(f"message index at byte offset {offset} ends past the file")
-                if at + 9 + length > len(block):
-                    f.seek(offset + 9)
-                    body = f.read(length)
-                else:
-                    body = block[at + 9 : at + 9 + length]
-                entries = message_index_entries(body, offset, cid, chunk)
-                parts[cid].append((entries, k))
-    out = {}
-    for cid, items in parts.items():
-        t = np.concatenate([e[:, 0] for e, _ in items]).astype(np.int64)
-        chunk_no = np.concatenate([np.full(len(e), k, np.int64) for e, k in items])
-        off = np.concatenate([e[:, 1] for e, _ in items]).astype(np.int64)
-        order = np.lexsort((off, chunk_no, t))
-        out[cid] = _Locations(t[order], chunk_no[order], off[order])
-    return out
 
 
 class _McapFile:
@@ -132,7 +75,7 @@ class _McapFile:
             self.schemas = dict(self.summary.schemas)
             self.chunks = sorted(self.summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
             try:
-                self.locations = _index_locations(path, self.chunks)
+                self.locations = index_locations(path, self.chunks)
             except (IndexCorrupt, struct.error, ValueError) as err:
                 self.index_problem = f"{path}: {err}; read sequentially instead"
                 self.summary = None
@@ -196,19 +139,27 @@ class _McapFile:
         file reads, one-shot zstd and CRC release the GIL, so they overlap the caller.
         """
         for j in ahead:
-            self._submit(j)
-        return self._submit(k).result()
+            self._submit(j, prefetch=True)
+        future = self._submit(k)
+        assert future is not None
+        return future.result()
 
-    def _submit(self, k: int) -> Future[bytes]:
+    def _submit(self, k: int, prefetch: bool = False) -> Future[bytes] | None:
         if k in self._cache:
             self._cache.move_to_end(k)
             return self._cache[k]
+        size = self.chunks[k].uncompressed_size
+        if prefetch and size > _PREFETCH_MAX_BYTES:
+            return None  # large chunks are read when needed, one at a time
         if self._pool is None:
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
         future = self._pool.submit(self._read_chunk_at, k)
         self._cache[k] = future
-        while len(self._cache) > _CACHED_CHUNKS:
-            self._cache.popitem(last=False)
+        # Bounded in count and in declared bytes (the newest entry always stays).
+        held = sum(self.chunks[j].uncompressed_size for j in self._cache)
+        while len(self._cache) > 1 and (len(self._cache) > _CACHED_CHUNKS or held > _CACHE_BYTES):
+            j, _ = self._cache.popitem(last=False)
+            held -= self.chunks[j].uncompressed_size
         return future
 
     def _read_chunk_at(self, k: int) -> bytes:

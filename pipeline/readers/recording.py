@@ -11,6 +11,13 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
+from pipeline.readers.geometry_checks import (
+    MAX_JUMP_M,
+    MAX_SPEED_MPS,
+    navigation_glitches,
+    navigation_jump,
+    valid_pose_rows,
+)
 from pipeline.readers.navigation import dead_reckon, nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
 from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
@@ -108,6 +115,7 @@ class SourceRecording:
         self._types = {t.topic: t.msgtype for t in self._topics}
         self._nav: PoseTrack | None = None
         self._pose_tracks: dict[str, PoseTrack] | None = None
+        self._ping_times: dict[str, np.ndarray] = {}
 
     def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
         """Pickles as its path, options and topic roles: a worker process reopens the
@@ -127,7 +135,67 @@ class SourceRecording:
         return self.roles.ground_truth is not None
 
     def ping_times_ns(self, sonar: str) -> np.ndarray:
-        return np.unique(self.source.times(self.roles.sonar[sonar]))
+        if sonar not in self._ping_times:
+            topic = self.roles.sonar[sonar]
+            raw = self.source.times(topic)
+            times = np.unique(raw)
+            if len(raw) > 1 and len(times) == 1:
+                raise SourceError(
+                    f"{self.source.path}: {topic}: all {len(raw)} messages have the same "
+                    f"time t_ns={int(times[0])}; the recording's timestamps are broken"
+                )
+            if len(times) < len(raw):
+                self._warn(
+                    f"{self.source.path}: {topic}: dropped {len(raw) - len(times)} of "
+                    f"{len(raw)} pings (duplicate timestamps; the first of each is used)"
+                )
+            self._ping_times[sonar] = times
+        return self._ping_times[sonar]
+
+    def _warn(self, message: str) -> None:
+        self.source.warnings.append(message)
+        log.warning(message)
+
+    def _checked_rows(self, topic: str, rows: list[tuple[float, ...]]) -> PoseTrack:
+        """A navigation topic's rows as a PoseTrack, bad samples dropped with a warning:
+        non-finite positions or orientations, zero quaternions and isolated glitches.
+
+        Raises:
+            SourceError: no sample is usable, or the track jumps as no vehicle moves.
+        """
+        where = f"{self.source.path}: {topic}"
+        track = np.asarray(rows, np.float64).reshape(-1, 8)
+        n = len(track)
+        ok = valid_pose_rows(track[:, 1:4], track[:, 4:8])
+        if n and not ok.any():
+            raise SourceError(
+                f"{where}: none of the {n} navigation samples has a finite position and "
+                f"a finite, non-zero orientation quaternion (first at t_ns={int(track[0, 0])})"
+            )
+        if not ok.all():
+            self._warn(
+                f"{where}: dropped {n - int(ok.sum())} of {n} navigation samples "
+                "(non-finite position or orientation, or a zero quaternion)"
+            )
+        kept = [r for r, good in zip(rows, ok.tolist(), strict=True) if good]
+        out = pose_track_rows(kept)
+        glitch = navigation_glitches(out.t_ns, out.xyz_m)
+        if glitch.any():
+            self._warn(
+                f"{where}: dropped {int(glitch.sum())} of {len(out)} navigation samples "
+                f"(isolated jumps over {MAX_JUMP_M:g} m, first at t_ns={int(out.t_ns[glitch][0])})"
+            )
+            out = PoseTrack(out.t_ns[~glitch], out.xyz_m[~glitch], out.rpy_rad[~glitch])
+        k = navigation_jump(out.t_ns, out.xyz_m)
+        if k is not None:
+            dist = float(np.linalg.norm(out.xyz_m[k + 1] - out.xyz_m[k]))
+            dt = float(out.t_ns[k + 1] - out.t_ns[k]) * 1e-9
+            raise SourceError(
+                f"{where}: the navigation jumps {dist:.4g} m in {dt:.3g} s at "
+                f"t_ns={int(out.t_ns[k + 1])} (more than {MAX_SPEED_MPS:g} m/s; no vehicle "
+                "moves so: fix or cut the navigation there)"
+            )
+        return out
 
     def _tracks(self) -> dict[str, PoseTrack]:
         """Navigation and ground-truth tracks, read in one pass: where they share chunks
@@ -137,7 +205,7 @@ class SourceRecording:
             rows: dict[str, list[tuple[float, ...]]] = {t: [] for t in topics}
             for topic, t, m in self.source.messages(topics):
                 rows[topic].append((t, *nav_pose(m)))
-            self._pose_tracks = {topic: pose_track_rows(r) for topic, r in rows.items()}
+            self._pose_tracks = {topic: self._checked_rows(topic, r) for topic, r in rows.items()}
         return self._pose_tracks
 
     def navigation(self) -> PoseTrack:
@@ -148,7 +216,21 @@ class SourceRecording:
                 self._nav = self._dead_reckoning()
             else:
                 self._nav = PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+            self._check_overlap(self._nav)
         return self._nav
+
+    def _check_overlap(self, nav: PoseTrack) -> None:
+        """Refuse navigation that spans none of the horizontal pings: no ping can be posed."""
+        topic = self.roles.sonar.get("horizontal")
+        if len(nav) == 0 or topic is None:
+            return
+        t = self.ping_times_ns("horizontal")
+        if len(t) and not ((t >= nav.t_ns[0]) & (t <= nav.t_ns[-1])).any():
+            raise SourceError(
+                f"{self.source.path}: the navigation spans t_ns={int(nav.t_ns[0])}.."
+                f"{int(nav.t_ns[-1])} but no ping of {topic} (t_ns={int(t[0])}..{int(t[-1])}) "
+                "falls inside it, so no ping can be posed"
+            )
 
     def _dead_reckoning(self) -> PoseTrack:
         dvl_t, dvl_v, imu_t, imu_q, dep_t, dep = [], [], [], [], [], []
@@ -167,13 +249,28 @@ class SourceRecording:
             raise SourceError(
                 f"{self.source.path}: DVL {self.roles.dvl} or IMU {self.roles.imu} has no messages"
             )
+        # Bad IMU and depth samples are dropped (a non-finite DVL velocity is gated).
+        q = np.asarray(imu_q, np.float64).reshape(-1, 4)
+        ok_q = valid_pose_rows(np.zeros((len(q), 3)), q)
+        dep_a = np.asarray(dep, np.float64)
+        ok_d = np.isfinite(dep_a)
+        for name, ok in ((self.roles.imu, ok_q), (self.roles.depth, ok_d)):
+            if len(ok) and not ok.any():
+                raise SourceError(
+                    f"{self.source.path}: {name}: none of the {len(ok)} samples is finite"
+                )
+            if not ok.all():
+                self._warn(
+                    f"{self.source.path}: {name}: dropped {len(ok) - int(ok.sum())} of "
+                    f"{len(ok)} samples (non-finite values or a zero quaternion)"
+                )
         return dead_reckon(
             np.asarray(dvl_t, np.int64),
             np.asarray(dvl_v),
-            np.asarray(imu_t, np.int64),
-            np.asarray(imu_q),
-            np.asarray(dep_t, np.int64),
-            np.asarray(dep, np.float64),
+            np.asarray(imu_t, np.int64)[ok_q],
+            q[ok_q],
+            np.asarray(dep_t, np.int64)[ok_d],
+            dep_a[ok_d],
             self.options.dvl_max_velocity_mps,
         )
 
@@ -224,10 +321,15 @@ class SourceRecording:
             return ping
         order = self._column_order(parts["ping"], msgtype)
         labels = truth = None
-        if "labels" in parts:
-            labels = np.ascontiguousarray(decode_image(parts["labels"]).astype(np.uint8)[:, order])
-        if "truth" in parts:
-            truth = np.ascontiguousarray(decode_image(parts["truth"]).astype(np.float32)[:, order])
+        try:
+            if "labels" in parts:
+                image = decode_image(parts["labels"]).astype(np.uint8)
+                labels = np.ascontiguousarray(image[:, order])
+            if "truth" in parts:
+                image = decode_image(parts["truth"]).astype(np.float32)
+                truth = np.ascontiguousarray(image[:, order])
+        except (ValueError, OSError, IndexError) as err:
+            raise SourceError(f"{where}: bad label or truth image at t_ns={t} ({err})") from err
         return SonarPing(
             ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
         )

@@ -6,8 +6,9 @@ embedded definitions are used to deserialise, so custom types need no registrati
 
 from __future__ import annotations
 
+import bz2
 from collections import defaultdict
-from collections.abc import Collection, Iterator, Sequence
+from collections.abc import Callable, Collection, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -15,9 +16,37 @@ import numpy as np
 
 from pipeline.engine.errors import SourceError
 from pipeline.formats.rosmsg import ros1_typestore
+from pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
 from pipeline.readers.source_types import TimeIndexedSource
 
 __all__ = ["Ros1Source"]
+
+
+def _capped(compression: str, size: int, path: str, pos: int) -> Callable[[bytes], bytes]:
+    """A chunk decompressor whose output stops one byte past the declared size."""
+
+    def decompress(data: bytes) -> bytes:
+        try:
+            if compression == "bz2":
+                out = bz2.BZ2Decompressor().decompress(data, max_length=size + 1)
+            elif compression == "lz4":
+                import lz4.frame
+
+                out = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
+            else:
+                out = bytes(data)
+        except Exception as err:  # bz2/lz4 raise OSError, RuntimeError, ... on bad data
+            raise SourceError(
+                f"{path}: corrupt {compression} bag chunk at byte offset {pos} ({err})"
+            ) from err
+        if len(out) != size:
+            raise SourceError(
+                f"{path}: bag chunk at byte offset {pos} decompresses to "
+                f"{'more than' if len(out) > size else len(out)} bytes, it declares {size}"
+            )
+        return bytes(out)
+
+    return decompress
 
 
 class Ros1Source(TimeIndexedSource):
@@ -38,6 +67,7 @@ class Ros1Source(TimeIndexedSource):
                 f"{path}: cannot read ROS 1 bag ({err}); a bag cut before its index was "
                 "written must be reindexed (rosbag reindex) first"
             ) from err
+        self._bound_chunks()
         self._conns = defaultdict(list)
         for conn in self._reader.connections:
             self._conns[conn.topic].append(conn)
@@ -47,6 +77,30 @@ class Ros1Source(TimeIndexedSource):
             {topic: conns[0].msgtype for topic, conns in self._conns.items()},
             {topic: sum(c.msgcount for c in conns) for topic, conns in self._conns.items()},
         )
+
+    def _bound_chunks(self) -> None:
+        """Give every chunk a decompressor capped at the size its header declares, and
+        refuse a declared size over `max_chunk_bytes` (rosbags decompresses unbounded)."""
+        from rosbags.rosbag1.reader import Chunk, Header, RecordType
+
+        bag: Any = self._reader.readers[0]
+        limit = max_chunk_bytes()
+        for pos, chunk in list(getattr(bag, "chunks", {}).items()):
+            try:
+                bag.bio.seek(pos)
+                header = Header.read(bag.bio, RecordType.CHUNK)
+                compression, size = header.get_string("compression"), header.get_uint32("size")
+            except Exception as err:
+                raise SourceError(f"{self.path}: corrupt bag chunk at byte offset {pos}") from err
+            if size > limit:
+                raise SourceError(
+                    f"{self.path}: bag chunk at byte offset {pos} declares {size} bytes "
+                    f"uncompressed, over the limit of {limit >> 20} MiB "
+                    f"(set {CHUNK_LIMIT_ENV} to raise it)"
+                )
+            bag.chunks[pos] = Chunk(
+                chunk.datasize, chunk.datapos, _capped(compression, size, f"{self.path}", pos)
+            )
 
     def _index_times(self, conns: list[Any]) -> np.ndarray:
         """Message times from the bag's index (no chunk is decompressed)."""

@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
+from pipeline.readers.geometry_checks import beam_direction_problem, ping_problem
+from pipeline.readers.limits import MAX_IMAGE_PIXELS
 from schemas.sonar import SonarPing, beam_angles_from_directions
 
 __all__ = [
@@ -53,21 +55,45 @@ _IMAGE_DTYPES = {
 
 
 def decode_image(msg: Any) -> np.ndarray:
-    """sensor_msgs Image (single channel) or CompressedImage -> (h, w) array."""
+    """sensor_msgs Image (single channel) or CompressedImage -> (h, w) array.
+
+    Raises:
+        ValueError: the image is larger than `MAX_IMAGE_PIXELS`, its buffer does not hold
+            the size it declares, or a compressed image does not decode.
+    """
     if hasattr(msg, "format"):
         from PIL import Image
 
-        with Image.open(io.BytesIO(bytes(msg.data))) as im:
-            return np.asarray(im.convert("L"))
+        try:
+            with Image.open(io.BytesIO(bytes(msg.data))) as im:
+                # The header's size is checked before any pixel is decoded.
+                width, height = im.size
+                if width * height > MAX_IMAGE_PIXELS:
+                    raise ValueError(
+                        f"compressed image declares {width} x {height} pixels, over the "
+                        f"limit of {MAX_IMAGE_PIXELS}"
+                    )
+                return np.asarray(im.convert("L"))
+        except Image.DecompressionBombError as err:
+            raise ValueError(f"compressed image too large ({err})") from err
     dtype = np.dtype(_IMAGE_DTYPES.get(msg.encoding, np.uint8))
     dtype = dtype.newbyteorder(">" if msg.is_bigendian else "<")
-    rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)
-    width_bytes = msg.width * dtype.itemsize
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    n_bytes = len(msg.data)
+    if height * width > MAX_IMAGE_PIXELS:
+        raise ValueError(f"image declares {width} x {height} pixels, over the limit")
+    if step < width * dtype.itemsize or height * step != n_bytes:
+        raise ValueError(
+            f"image declares {height} rows of {step} bytes ({width} pixels of "
+            f"{msg.encoding[:20]!r}) but holds {n_bytes} bytes"
+        )
+    rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(height, step)
+    width_bytes = width * dtype.itemsize
     return (
         rows[:, :width_bytes]
         .copy()
         .view(dtype)
-        .reshape(msg.height, msg.width)
+        .reshape(height, width)
         .astype(dtype.newbyteorder("="))
     )
 
@@ -84,6 +110,9 @@ def _to_uint8(image: np.ndarray) -> np.ndarray:
 def _ping(
     t_ns: int, sonar: str, image: np.ndarray, ranges: np.ndarray, angles: np.ndarray
 ) -> SonarPing:
+    problem = ping_problem(image.shape, ranges, angles)
+    if problem is not None:
+        raise ValueError(problem)
     order = np.argsort(angles, kind="stable")
     if np.any(order != np.arange(len(order))):
         image, angles = image[:, order], angles[order]
@@ -154,6 +183,9 @@ def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
             f"ProjectedSonarImage with {len(dirs)} beam directions, beam_count {n_b}, "
             f"{len(ranges)} ranges and {data.size} bytes"
         )
+    problem = beam_direction_problem(dirs)
+    if problem is not None:
+        raise ValueError(problem)
     return _ping(
         t_ns, sonar, data.reshape(len(ranges), n_b), ranges, beam_angles_from_directions(dirs)
     )

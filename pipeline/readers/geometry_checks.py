@@ -1,0 +1,120 @@
+"""Sanity checks on the geometry a recording supplies, applied as it is read.
+
+Sonar pings with non-finite, negative, unordered or absurd ranges, non-finite or zero
+beam directions, or too few beams or range bins cannot be mapped: they are refused
+with the file, topic and time. Navigation samples with a non-finite position or
+orientation (or a zero quaternion) are dropped with a count; an isolated sample far
+from both neighbours (a glitch) too; a jump no vehicle makes refuses the recording.
+All checks are vectorised over the arrays of a ping or a whole track.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "MAX_JUMP_M",
+    "MAX_RANGE_M",
+    "MAX_SPEED_MPS",
+    "MIN_BEAMS",
+    "MIN_RANGE_BINS",
+    "beam_direction_problem",
+    "navigation_glitches",
+    "navigation_jump",
+    "ping_problem",
+    "valid_pose_rows",
+]
+
+MIN_BEAMS = 2
+MIN_RANGE_BINS = 2
+"""A ping needs at least two beams and two range bins to span an area."""
+
+MAX_RANGE_M = 10_000.0
+"""Imaging sonars reach a few hundred metres; a range beyond this is a corrupt field."""
+
+MAX_SPEED_MPS = 50.0
+MAX_JUMP_M = 50.0
+"""Two consecutive navigation samples further apart than MAX_JUMP_M at more than
+MAX_SPEED_MPS are not a vehicle's motion (an AUV moves at a few m/s; GPS noise of a
+few metres at 10 Hz stays under the distance)."""
+
+
+def beam_direction_problem(directions: np.ndarray) -> str | None:
+    """Why (n, 3) beam direction vectors are unusable, or None."""
+    d = np.asarray(directions, np.float64)
+    if not np.isfinite(d).all():
+        return (
+            f"{int((~np.isfinite(d).all(axis=1)).sum())} of {len(d)} beam directions are not finite"
+        )
+    zero = int((np.abs(d).sum(axis=1) == 0).sum())
+    if zero:
+        return f"{zero} of {len(d)} beam directions are zero vectors"
+    return None
+
+
+def ping_problem(
+    image_shape: tuple[int, ...], ranges_m: np.ndarray, angles_rad: np.ndarray
+) -> str | None:
+    """Why a decoded ping (image shape, (n_r,) ranges, (n_b,) angles) is unusable, or None."""
+    n_r, n_b = (int(x) for x in image_shape[:2])
+    if n_b < MIN_BEAMS or n_r < MIN_RANGE_BINS:
+        return f"{n_r} range bins x {n_b} beams (at least {MIN_RANGE_BINS} x {MIN_BEAMS} needed)"
+    r = np.asarray(ranges_m, np.float64)
+    a = np.asarray(angles_rad, np.float64)
+    if not np.isfinite(r).all():
+        return f"{int((~np.isfinite(r)).sum())} of {len(r)} ranges are not finite"
+    if r[0] < 0:
+        return f"negative range {r[0]:.4g} m"
+    if not (np.diff(r) > 0).all():
+        return "ranges do not increase from near to far"
+    if r[-1] > MAX_RANGE_M:
+        return f"range {r[-1]:.4g} m beyond {MAX_RANGE_M:g} m"
+    if not np.isfinite(a).all():
+        return f"{int((~np.isfinite(a)).sum())} of {len(a)} beam angles are not finite"
+    return None
+
+
+def valid_pose_rows(xyz: np.ndarray, q_xyzw: np.ndarray) -> np.ndarray:
+    """(n,) bool: a finite position and a finite, non-zero orientation quaternion."""
+    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+    q = np.asarray(q_xyzw, np.float64).reshape(-1, 4)
+    finite = np.asarray(np.isfinite(xyz).all(axis=1) & np.isfinite(q).all(axis=1), bool)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.sqrt((np.where(finite[:, None], q, 0.0) ** 2).sum(axis=1))
+    return finite & (norm > 1e-6) & np.isfinite(norm)
+
+
+def _implausible(t_ns: np.ndarray, xyz: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(k,) bool: the step from sample a[k] to b[k] is no vehicle's motion."""
+    dist = np.linalg.norm(xyz[b] - xyz[a], axis=1)
+    dt = np.maximum((t_ns[b] - t_ns[a]).astype(np.float64) * 1e-9, 1e-9)
+    return (dist > MAX_JUMP_M) & (dist / dt > MAX_SPEED_MPS)
+
+
+def navigation_glitches(t_ns: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """(n,) bool: isolated samples far from both neighbours, which are close to each other.
+
+    Args:
+        t_ns: (n,) int64 ascending, distinct times [ns].
+        xyz: (n, 3) positions [m].
+    """
+    n = len(t_ns)
+    out = np.zeros(n, bool)
+    if n < 3:
+        return out
+    i = np.arange(1, n - 1)
+    out[1:-1] = (
+        _implausible(t_ns, xyz, i - 1, i)
+        & _implausible(t_ns, xyz, i, i + 1)
+        & ~_implausible(t_ns, xyz, i - 1, i + 1)
+    )
+    return out
+
+
+def navigation_jump(t_ns: np.ndarray, xyz: np.ndarray) -> int | None:
+    """Index k of the first implausible step from sample k to k + 1, or None."""
+    if len(t_ns) < 2:
+        return None
+    k = np.arange(len(t_ns) - 1)
+    bad = np.flatnonzero(_implausible(t_ns, xyz, k, k + 1))
+    return int(bad[0]) if len(bad) else None
