@@ -20,7 +20,7 @@ from pipeline.engine.store import ArtifactStore
 if TYPE_CHECKING:
     from pipeline.engine.runner import DatasetSpec, PlannedStage
 
-__all__ = ["previous_recipes", "record_run", "run_id"]
+__all__ = ["miss_reason", "previous_recipes", "record_run", "run_id"]
 
 
 def run_id(dataset: Path, config: BaseModel, stages: Sequence[str] = ()) -> str:
@@ -84,3 +84,33 @@ def record_run(
         "stages": stages,
     }
     store.record_run(identity, record)
+
+
+def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
+    changes = []
+    for k in sorted(set(old) | set(new)):
+        if old.get(k) != new.get(k):
+            changes.append(f"{stage}.{k} {old.get(k)!r} -> {new.get(k)!r}")
+    return changes
+
+
+def miss_reason(
+    name: str, recipe: Mapping[str, Any], previous: Mapping[str, Any] | None, changed: set[str]
+) -> str:
+    """Why a stage misses the cache, from the recipe its last run recorded."""
+    if not previous:
+        return "not computed yet"
+    if previous.get("version") != recipe["version"]:
+        return f"version {previous.get('version')} -> {recipe['version']}"
+    diff = _config_diff(name, previous.get("config", {}), recipe["config"])
+    if diff:
+        return "config changed: " + ", ".join(diff)
+    if previous.get("dataset") != recipe.get("dataset"):
+        return "dataset content changed"
+    upstream = [s for s in recipe["inputs"] if s.split(".")[0] in changed]
+    if previous.get("inputs") != recipe["inputs"]:
+        names = sorted({u.split(".")[0] for u in upstream}) or sorted(
+            {k.split(".")[0] for k in recipe["inputs"]}
+        )
+        return "upstream " + ", ".join(names) + " recomputed"
+    return "artifact missing (removed or never committed)"

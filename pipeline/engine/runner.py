@@ -32,7 +32,7 @@ from pipeline.engine.errors import (
 )
 from pipeline.engine.hashing import recipe_key, stage_recipe
 from pipeline.engine.leases import RunLease
-from pipeline.engine.run_records import previous_recipes, record_run
+from pipeline.engine.run_records import miss_reason, previous_recipes, record_run
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from schemas import SCHEMA_VERSION
 from stages.base import InputRejected, Stage
@@ -105,35 +105,6 @@ def _software_versions() -> dict[str, str]:
     return versions
 
 
-def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
-    changes = []
-    for k in sorted(set(old) | set(new)):
-        if old.get(k) != new.get(k):
-            changes.append(f"{stage}.{k} {old.get(k)!r} -> {new.get(k)!r}")
-    return changes
-
-
-def _miss_reason(
-    name: str, recipe: Mapping[str, Any], previous: Mapping[str, Any] | None, changed: set[str]
-) -> str:
-    if not previous:
-        return "not computed yet"
-    if previous.get("version") != recipe["version"]:
-        return f"version {previous.get('version')} -> {recipe['version']}"
-    diff = _config_diff(name, previous.get("config", {}), recipe["config"])
-    if diff:
-        return "config changed: " + ", ".join(diff)
-    if previous.get("dataset") != recipe.get("dataset"):
-        return "dataset content changed"
-    upstream = [s for s in recipe["inputs"] if s.split(".")[0] in changed]
-    if previous.get("inputs") != recipe["inputs"]:
-        names = sorted({u.split(".")[0] for u in upstream}) or sorted(
-            {k.split(".")[0] for k in recipe["inputs"]}
-        )
-        return "upstream " + ", ".join(names) + " recomputed"
-    return "artifact missing (removed or never committed)"
-
-
 def plan(
     stages: Sequence[Stage],
     config: BaseModel,
@@ -196,7 +167,7 @@ def plan(
             hit, reason = True, "cached"
         else:
             hit = False
-            reason = _miss_reason(stage.name, recipe, previous.get(stage.name), changed)
+            reason = miss_reason(stage.name, recipe, previous.get(stage.name), changed)
         if not hit:
             changed.add(stage.name)
         planned.append(PlannedStage(stage, key, recipe, hit, reason))
