@@ -22,6 +22,11 @@ __all__ = ["ModelStatus", "RunRequest", "plan_dataset", "plan_status", "run_data
 
 log = logging.getLogger(__name__)
 
+MODEL_INPUTS = ("train",)
+"""External inputs whose files' sha256s enter their readers' keys (`runner.plan`'s
+`content_keyed`): a substituted model under an honest key never yields the honest
+downstream keys (README, Threat model)."""
+
 
 @dataclass(frozen=True)
 class RunRequest:
@@ -85,7 +90,7 @@ def _plan(
         until=request.until,
         force=request.force,
         external=external,
-        content_keyed=("train",),
+        content_keyed=MODEL_INPUTS,
     )
     return ctx, planned, model
 
@@ -131,28 +136,23 @@ def plan_status(
     ]
     if not readers:
         return ctx, _plan_with(ctx, request, request.until, {}), None, []
-    from pipeline.engine.artifact import ArtifactRef
     from pipeline.engine.registry import training_stage
-    from pipeline.training.model_cache import planned_default_model
+    from pipeline.training.model_cache import located_default_model
 
-    key, at_hand = planned_default_model(ctx.store, ctx.config)
-    if not key:
-        model = ModelStatus(
-            "", False, "not planned: `run` simulates its training sets and trains it"
-        )
+    key, ref = located_default_model(ctx.store, ctx.config)
+    if ref is None:
+        # The model's content enters its readers' keys (`MODEL_INPUTS`), so they cannot be
+        # planned before the model exists: they all miss, and `run` trains it first.
+        why = "its training sets simulated and it trained" if not key else "it trained"
+        model = ModelStatus(key, False, f"not at hand: `run` needs {why}")
         first = names.index(readers[0])
         until = names[first - 1] if first else None
         planned = _plan_with(ctx, request, until, {}) if until else []
         return ctx, planned, model, names[first : last + 1]
-    ref = ctx.store.get("train", key)
-    if ref is not None:
+    if ref.path == ctx.store.artifact_dir("train", key):
         model = ModelStatus(key, True, "cached")
     else:
-        # Not in this store yet: `run` copies it in under this key (or trains it), so
-        # its readers are planned against that key.
-        ref = ArtifactRef("train", key, ctx.store.root / "train" / key, {})
-        where = "in the model cache or shipped models: copied on run"
-        model = ModelStatus(key, False, where if at_hand else "not found: `run` trains it")
+        model = ModelStatus(key, False, "in the model cache or shipped models: copied on run")
     external = {"train": (training_stage(), ref)}
     return ctx, _plan_with(ctx, request, request.until, external), model, []
 
@@ -171,6 +171,7 @@ def _plan_with(
         until=until,
         force=request.force,
         external=external,
+        content_keyed=MODEL_INPUTS,
     )
 
 

@@ -92,7 +92,7 @@ def test_store_under_a_long_component_is_exit_2(toy_cli: Path, tmp_path: Path) -
     store = tmp_path / ("s" * 300)
     res = CliRunner().invoke(app, ["run", str(toy_cli), "--store", str(store)])
     assert res.exit_code == 2, res.output
-    assert _error_lines(res.stderr)[0].endswith("File name too long")
+    assert "File name too long" in _error_lines(res.stderr)[0]
 
 
 @pytest.mark.parametrize("name", ["new\nline.bin", "carriage\rreturn.bin", "esc\x1b[2J.bin"])

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import errno
 import os
-import unicodedata
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from pipeline.engine.errors import OutputError, PipelineError
+from pipeline.engine.text import MAX_LINE_CHARS, MAX_PATH_CHARS, display_path, one_line
 
 __all__ = [
     "DISK_ERRNOS",
@@ -26,58 +26,6 @@ __all__ = [
     "os_error_line",
     "writes_under",
 ]
-
-MAX_LINE_CHARS = 400
-"""The longest error line printed (the README's one-line contract)."""
-
-MAX_PATH_CHARS = 160
-"""Paths longer than this are shown with their middle elided (both ends name the file)."""
-
-_ELLIPSIS = "…"
-
-
-def _escape_char(ch: str) -> str:
-    """`\\n`-style escape of one character that must not reach the terminal raw."""
-    named = {"\n": "\\n", "\r": "\\r", "\t": "\\t", "\x1b": "\\e"}
-    if ch in named:
-        return named[ch]
-    code = ord(ch)
-    if code <= 0xFF:
-        return f"\\x{code:02x}"
-    return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
-
-
-def _unsafe(ch: str) -> bool:
-    # Cc: C0/C1 controls; Zl/Zp: line and paragraph separators; Cs: lone surrogates
-    # (undecodable bytes of a path, which stderr could not encode).
-    return unicodedata.category(ch) in ("Cc", "Zl", "Zp", "Cs")
-
-
-def escape(text: str) -> str:
-    """`text` with every control, separator or surrogate character escaped."""
-    if not any(_unsafe(ch) for ch in text):
-        return text
-    return "".join(_escape_char(ch) if _unsafe(ch) else ch for ch in text)
-
-
-def shorten(text: str, limit: int) -> str:
-    """`text` cut in the middle to at most `limit` characters (its ends are kept)."""
-    if len(text) <= limit:
-        return text
-    keep = limit - len(_ELLIPSIS)
-    head = keep // 2
-    return text[:head] + _ELLIPSIS + text[len(text) - (keep - head) :]
-
-
-def display_path(path: object) -> str:
-    """A path as one safe, bounded piece of text (bytes paths decoded as the OS would)."""
-    text = os.fsdecode(path) if isinstance(path, bytes | os.PathLike) else str(path)
-    return shorten(escape(text), MAX_PATH_CHARS)
-
-
-def one_line(message: str) -> str:
-    """`message` as a single printable line of at most `MAX_LINE_CHARS` characters."""
-    return shorten(escape(message), MAX_LINE_CHARS)
 
 
 def os_error_line(err: OSError) -> str | None:

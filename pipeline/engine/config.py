@@ -18,8 +18,9 @@ from typing import Any, cast
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
-from pipeline.engine.config_errors import one_line, short, validation_message
+from pipeline.engine.config_errors import short, validation_message
 from pipeline.engine.errors import ConfigError
+from pipeline.engine.text import one_line
 from pipeline.engine.yaml_files import YamlRefused, load_yaml_text, read_yaml
 from stages.base import Stage
 

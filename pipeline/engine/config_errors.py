@@ -14,21 +14,15 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ValidationError
 
-__all__ = ["MAX_QUOTE_CHARS", "allowed_range", "one_line", "short", "validation_message"]
+from pipeline.engine.text import one_line
+
+__all__ = ["MAX_QUOTE_CHARS", "allowed_range", "short", "validation_message"]
 
 MAX_QUOTE_CHARS = 60
 """Longest quote of a bad value in a message (a value may be megabytes long)."""
 
 MAX_MESSAGE_CHARS = 300
 """Longest validation problem text (a validator may embed the value it rejects)."""
-
-
-def one_line(text: str, limit: int | None = None) -> str:
-    """`text` with line breaks escaped (`\\n`), cut to `limit` characters with an ellipsis."""
-    text = text.replace("\r", "\\r").replace("\n", "\\n")
-    if limit is not None and len(text) > limit:
-        return text[: limit - 1] + "\u2026"
-    return text
 
 
 def short(value: Any, limit: int = MAX_QUOTE_CHARS) -> str:
@@ -41,10 +35,10 @@ def short(value: Any, limit: int = MAX_QUOTE_CHARS) -> str:
     quoter.maxstring = quoter.maxother = quoter.maxlong = limit
     quoter.maxlist = quoter.maxtuple = quoter.maxset = quoter.maxdict = 6
     try:
-        text = one_line(quoter.repr(value))
+        text = quoter.repr(value)
     except ValueError:  # an int nested in a container past Python's 4,300-digit limit
         return f"<{type(value).__name__}>"
-    return text if len(text) <= limit else text[: limit - 1] + "\u2026"
+    return one_line(text, limit)
 
 
 def _unwrap(annotation: Any) -> tuple[Any, list[Any]]:

@@ -11,25 +11,9 @@ import errno
 import os
 
 from pipeline.engine.errors import StoreError
+from pipeline.engine.text import display_path
 
-__all__ = ["disk_error", "short_path"]
-
-_COMPONENT = 80  # characters kept of one path component (a 64-hex key stays whole)
-_TOTAL = 240  # characters kept of the whole path
-
-
-def short_path(path: object) -> str:
-    """`path` on one line: control characters escaped, long components and long paths
-    cut short (an ENAMETOOLONG name is quoted, not printed whole)."""
-    text = os.fsdecode(path) if isinstance(path, str | bytes | os.PathLike) else str(path)
-    parts = [
-        p if len(p) <= _COMPONENT else f"{p[:_COMPONENT]}...({len(p)} chars)"
-        for p in text.split("/")
-    ]
-    text = "/".join(parts)
-    if len(text) > _TOTAL:
-        text = f"...{text[-_TOTAL:]}"
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+__all__ = ["disk_error"]
 
 
 def disk_error(err: OSError, where: object = None) -> StoreError:
@@ -41,11 +25,11 @@ def disk_error(err: OSError, where: object = None) -> StoreError:
         reason = err.strerror or os.strerror(err.errno)
     reason = (reason.splitlines() or [""])[0][:120]
     if err.filename is not None:
-        place = short_path(err.filename)
+        place = display_path(err.filename)
         if err.filename2 is not None:
-            place += f" -> {short_path(err.filename2)}"
+            place += f" -> {display_path(err.filename2)}"
     else:
-        place = "the artifact store" if where is None else f"writing {short_path(where)}"
+        place = "the artifact store" if where is None else f"writing {display_path(where)}"
     name = errno.errorcode.get(err.errno or -1)
     hint = {
         errno.ENOSPC: "; free space (`sonarmap gc` removes unreferenced artifacts) and run again",

@@ -22,7 +22,7 @@ from pydantic import BaseModel
 from pipeline.engine import output_checks
 from pipeline.engine.codecs import read_verified, write_output
 from pipeline.engine.config import section_dict
-from pipeline.engine.disk import disk_error, short_path
+from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import (
     ConfigError,
     PipelineError,
@@ -34,6 +34,7 @@ from pipeline.engine.hashing import recipe_key, stage_recipe
 from pipeline.engine.leases import RunLease
 from pipeline.engine.run_records import miss_reason, previous_recipes, record_run
 from pipeline.engine.store import ArtifactRef, ArtifactStore
+from pipeline.engine.text import display_path
 from schemas import SCHEMA_VERSION
 from stages.base import InputRejected, Stage
 from stages.parallel import release_memory
@@ -353,7 +354,7 @@ def _execute(
         warnings = tuple(message for message, is_fatal in found if not is_fatal)
         if fatal is not None:
             cause = f"; first sign: {result.warnings[0]}" if result.warnings else ""
-            raise output_checks.EmptyMap(f"{short_path(dataset.path.name)}: {fatal}{cause}")
+            raise output_checks.EmptyMap(f"{display_path(dataset.path.name)}: {fatal}{cause}")
         result.warnings.extend(warnings)
         stage_result = StageResult(
             stage=name,

@@ -32,8 +32,9 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from pipeline.engine.config_errors import one_line, short
+from pipeline.engine.config_errors import short
 from pipeline.engine.errors import PipelineError
+from pipeline.engine.text import one_line
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 

@@ -16,10 +16,10 @@ from typing import Any
 from pydantic import ValidationError
 
 from pipeline.engine.codecs import write_output
-from pipeline.engine.config_errors import one_line
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
+from pipeline.engine.text import one_line
 from pipeline.engine.yaml_files import read_model
 from schemas.annotations import AnnotationFile
 from stages.base import Output, Stage, StageConfig

@@ -79,8 +79,8 @@ def training_stage_for(
     images. `names` (the datasets' paths) only word error messages. Outputs and config
     are those of `stages.classify.train`.
     """
-    from pipeline.engine.config_errors import one_line
     from pipeline.engine.registry import training_stage
+    from pipeline.engine.text import one_line
     from pipeline.training.annotations import annotation_path
     from schemas.annotations import AnnotationFile
     from stages.classify.annotations import label_keyframes

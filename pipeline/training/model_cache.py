@@ -38,6 +38,7 @@ __all__ = [
     "ResolvedModel",
     "copy_verified",
     "describe",
+    "located_default_model",
     "model_cache",
     "planned_default_model",
     "resolve_default_model",
@@ -175,19 +176,29 @@ def _planned_from_lock(config: BaseModel, cache: ArtifactStore) -> tuple[str, li
     return plan_training(paths, config, cache, fingerprints=locked), paths
 
 
-def planned_default_model(store: ArtifactStore, config: BaseModel) -> tuple[str, bool]:
-    """The default model's key and whether it is at hand (store, cache or shipped), without
-    simulating or training: for the demo, which simulates only what it will need."""
+def located_default_model(
+    store: ArtifactStore, config: BaseModel
+) -> tuple[str, ArtifactRef | None]:
+    """The default model's key and where it is at hand (the store, the model cache or the
+    shipped models; None when nowhere), found without simulating, training or copying."""
     from pipeline.training.config import TrainingDataConfig
     from pipeline.training.shipped import shipped_store
 
     cache = model_cache(config)
     planned = _planned_from_lock(config, cache)
     if planned is None:
-        return "", False
+        return "", None
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     places = (store, cache, shipped_store(training.shipped_models))
-    return planned[0], any(s is not None and s.get("train", planned[0]) for s in places)
+    found = (s.get("train", planned[0]) for s in places if s is not None)
+    return planned[0], next((ref for ref in found if ref is not None), None)
+
+
+def planned_default_model(store: ArtifactStore, config: BaseModel) -> tuple[str, bool]:
+    """The default model's key and whether it is at hand (store, cache or shipped), without
+    simulating or training: for the demo, which simulates only what it will need."""
+    key, ref = located_default_model(store, config)
+    return key, ref is not None
 
 
 def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedModel:
