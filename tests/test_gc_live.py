@@ -419,3 +419,19 @@ def test_the_pipeline_checks_name_the_collapse_and_stay_silent_on_a_normal_run()
     assert check_stage("features", _refs({**normal, "features.features": 0}))
     [(message, fatal)] = check_stage("voxelize", _refs({**jump, "voxelize.map": 0}))
     assert fatal and message.startswith("no map: voxelize's map has 0 points (40 keyframes")
+
+
+def test_gc_removes_an_abandoned_pull_resume_file_once_stale(tmp_path: Path) -> None:
+    from pipeline.engine.artifact import PULL_CACHE
+    from pipeline.engine.store_gc import collect
+
+    store = ArtifactStore(tmp_path / "store")
+    cache = store.root / PULL_CACHE
+    cache.mkdir(parents=True)
+    fresh, old = cache / ("a" * 64), cache / ("b" * 64)
+    fresh.write_bytes(b"x" * 10)
+    old.write_bytes(b"y" * 10)
+    os.utime(old, (time.time() - 7200, time.time() - 7200))
+    report = collect(store, stale_tmp_s=3600.0)
+    assert report["tmp_removed"] == 1
+    assert fresh.exists() and not old.exists()

@@ -11,7 +11,12 @@ from typing import Any
 from pipeline.engine.errors import StoreError
 from pipeline.engine.integrity import safe_relative
 
-__all__ = ["ArtifactRef", "Problem"]
+__all__ = ["PULL_CACHE", "ArtifactRef", "Problem"]
+
+
+PULL_CACHE = ".cache/pull"
+"""Files an interrupted `pull` verified, by sha256, so the next pull resumes; `gc` removes
+them once stale."""
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from pipeline.engine.artifact import PULL_CACHE
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
 from pipeline.engine.hashing import sha256_file
 from pipeline.engine.integrity import check_parses
@@ -52,7 +53,6 @@ from pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file
 __all__ = ["list_remote", "pull", "push"]
 
 log = logging.getLogger(__name__)
-PULL_CACHE = ".cache/pull"
 """Verified files of an unfinished pull, by sha256, so the next pull does not fetch them again."""
 
 Leaf = Callable[[str, str, Mapping[str, Any]], bool]

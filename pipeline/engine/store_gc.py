@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any
 
 from filelock import Timeout
 
-from pipeline.engine.artifact import ArtifactRef, Problem
+from pipeline.engine.artifact import PULL_CACHE, ArtifactRef, Problem
 from pipeline.engine.errors import StoreError
 from pipeline.engine.integrity import verify_artifact_dir
 from pipeline.engine.leases import LEASES, scan_leases
@@ -53,6 +53,7 @@ _TMP_PID = re.compile(r"-(\d+)-[0-9a-f]{8,12}$")
 _RUN_TMP_PID = re.compile(r"^\..+\.(\d+)\.tmp$")
 _FINGERPRINT_TMP_PID = re.compile(r"^fingerprints\.tmp(\d+)$")
 _TICK_NS = 50_000_000  # coarser than any filesystem's timestamp granularity we meet
+_NEVER = re.compile(r"(?!)")  # pull-cache files carry no pid: their age decides
 _LEASE_TMP_PID = re.compile(r"^\.(\d+)-[0-9a-f]{12}\.(?:lock|json)\.tmp$")
 
 
@@ -184,6 +185,7 @@ def _leftovers(store: ArtifactStore, stale_tmp_s: float) -> list[Path]:
         (store.root / "runs", _RUN_TMP_PID, False),
         (store.root / ".cache", _FINGERPRINT_TMP_PID, False),
         (store.root / LEASES, _LEASE_TMP_PID, False),
+        (store.root / PULL_CACHE, _NEVER, True),
     )
     for folder, pattern, old_without_pid in patterns:
         if not folder.is_dir():
