@@ -69,9 +69,25 @@ def _root(
 ) -> None:
     """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
     level = logging.WARNING - 10 * min(verbose, 2)
-    logging.basicConfig(
-        level=level, stream=sys.stderr, format="%(levelname)s %(name)s: %(message)s"
-    )
+    logging.basicConfig(level=level, stream=sys.stderr)
+    for handler in logging.getLogger().handlers:
+        if type(handler) is logging.StreamHandler:  # ours, not a test harness's capture
+            handler.setFormatter(_UserFormatter(detailed=verbose > 0))
+
+
+class _UserFormatter(logging.Formatter):
+    """Warnings as the README's one-line `warning: ...` (user data escaped); with -v, the
+    level and logger name as well, for developers."""
+
+    def __init__(self, detailed: bool) -> None:
+        super().__init__("%(levelname)s %(name)s: %(message)s" if detailed else None)
+        self.detailed = detailed
+
+    def format(self, record: logging.LogRecord) -> str:
+        if self.detailed:
+            return super().format(record)
+        text = one_line(record.getMessage())
+        return f"{record.levelname.lower()}: {text}"
 
 
 for _name in COMMAND_MODULES:

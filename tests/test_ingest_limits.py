@@ -372,3 +372,27 @@ def test_convert_and_simulate_write_the_same_mode_following_the_umask(
     for name in ("conv.mcap", "sim.mcap", "p.png"):
         assert (tmp_path / name).stat().st_mode & 0o777 == 0o666 & ~umask, name
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_dropped_sample_is_one_warning_line_on_the_command_line(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    def nan_quats(t: np.ndarray, xyz: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = q.copy()
+        q[::3] = np.nan
+        return xyz, q
+
+    src = tmp_path / "nanq.mcap"
+    write_recording(src, n_pings=40, nav=nan_quats)
+    root = Path(__file__).resolve().parent.parent
+    res = subprocess.run(
+        [sys.executable, "-m", "pipeline", "run", str(src), "--store", str(tmp_path / "s")]
+        + ["--until", "keyframes", "-q"],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(root)},
+    )
+    assert res.returncode == 0, res.stderr
+    (line,) = [ln for ln in res.stderr.splitlines() if "dropped" in ln]
+    assert line.startswith("warning: ") and "dropped 70 of 210 navigation samples" in line
