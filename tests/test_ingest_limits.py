@@ -386,9 +386,9 @@ def test_a_dropped_sample_is_one_warning_line_on_the_command_line(tmp_path: Path
     src = tmp_path / "nanq.mcap"
     write_recording(src, n_pings=40, nav=nan_quats)
     root = Path(__file__).resolve().parent.parent
+    args = ["run", str(src), "--store", str(tmp_path / "s"), "--until", "keyframes", "-q"]
     res = subprocess.run(
-        [sys.executable, "-m", "pipeline", "run", str(src), "--store", str(tmp_path / "s")]
-        + ["--until", "keyframes", "-q"],
+        [sys.executable, "-m", "pipeline", *args],
         capture_output=True,
         text=True,
         env={**os.environ, "PYTHONPATH": str(root)},
