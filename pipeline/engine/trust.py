@@ -13,7 +13,6 @@ never pulled).
 
 from __future__ import annotations
 
-import io
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -106,16 +105,11 @@ class TrustPolicy:
 
 
 def check_model_file(path: Path, where: str) -> None:
-    """Load a model file the way `classify` will (`weights_only=True`: no pickle code runs)
-    and refuse it when that fails."""
-    import pickle
-
-    import torch
+    """Load a model file the way `classify` will (`model_from_bytes`: `weights_only=True`,
+    so no pickle code runs) and refuse it when that fails."""
+    from stages.classify.cnn import model_from_bytes
 
     try:
-        torch.load(io.BytesIO(path.read_bytes()), weights_only=True, map_location="cpu")
-    except (pickle.UnpicklingError, RuntimeError, ValueError, EOFError, OSError) as err:
-        first = (str(err).splitlines() or [type(err).__name__])[0][:120]
-        raise ArtifactCorrupt(
-            f"{where}: '{path.name}' is not a weights-only torch file ({first})"
-        ) from err
+        model_from_bytes(path.read_bytes())
+    except ValueError as err:
+        raise ArtifactCorrupt(f"{where}: '{path.name}' is {err}") from err
