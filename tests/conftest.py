@@ -7,6 +7,7 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -48,3 +49,23 @@ def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
     data = tmp_path / "raw.bin"
     data.write_bytes(bytes(range(256)) * 4)
     return data
+
+
+@pytest.fixture
+def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[list[Path]]:
+    """Two toy datasets; the CLI and its sweep workers (other processes) run the toy graph."""
+    import pipeline.engine.registry
+
+    monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT / "tests"), str(ROOT)]))
+    monkeypatch.setenv("TOY_CALL_LOG", str(tmp_path / "calls.log"))
+    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
+        fn.cache_clear()
+    datasets = []
+    for i in range(2):
+        d = tmp_path / f"d{i}.bin"
+        d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
+        datasets.append(d)
+    yield datasets
+    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
+        fn.cache_clear()

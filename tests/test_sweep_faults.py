@@ -12,29 +12,10 @@ from pathlib import Path
 
 import pytest
 
-import pipeline.engine.registry
 from pipeline.experiments.sweep import RunOutcome
 from pipeline.experiments.sweep_checks import failure_exit_code
 
 TESTS = Path(__file__).resolve().parent
-
-
-@pytest.fixture
-def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> list[Path]:
-    """Two toy datasets; the CLI and its sweep workers run the toy graph."""
-    monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), str(TESTS.parent)]))
-    monkeypatch.setenv("TOY_CALL_LOG", str(tmp_path / "calls.log"))
-    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
-        fn.cache_clear()
-    datasets = []
-    for i in range(2):
-        d = tmp_path / f"d{i}.bin"
-        d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
-        datasets.append(d)
-    yield datasets
-    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
-        fn.cache_clear()
 
 
 def _sweep(*args: str) -> subprocess.CompletedProcess[str]:

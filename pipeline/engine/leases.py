@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 
-__all__ = ["LEASES", "LeaseScan", "RunLease", "scan_leases"]
+__all__ = ["LEASES", "LeaseScan", "RunLease", "pid_alive", "scan_leases"]
 
 LEASES = ".leases"
 
@@ -107,7 +107,10 @@ class LeaseScan:
     stale_removed: int = 0
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Whether a process with this pid exists on this host (ours counts as alive)."""
+    if pid == os.getpid():
+        return True
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -135,7 +138,7 @@ def _owner_gone(lock: Path, doc: dict[str, object] | None) -> tuple[bool, int | 
         if doc is None or doc.get("host") != socket.gethostname():
             return False, None
         pid = doc.get("pid")
-        return not (isinstance(pid, int) and _pid_alive(pid)), None
+        return not (isinstance(pid, int) and pid_alive(pid)), None
     return True, fd
 
 

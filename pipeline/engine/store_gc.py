@@ -28,7 +28,6 @@ Every removal is a rename out of sight first, so a reader never sees half a dire
 from __future__ import annotations
 
 import contextlib
-import os
 import re
 import shutil
 import time
@@ -41,13 +40,13 @@ from filelock import Timeout
 from pipeline.engine.artifact import PULL_CACHE, ArtifactRef, Problem
 from pipeline.engine.errors import StoreError
 from pipeline.engine.integrity import verify_artifact_dir
-from pipeline.engine.leases import LEASES, scan_leases
+from pipeline.engine.leases import LEASES, pid_alive, scan_leases
 from pipeline.engine.manifest import ADDRESS_PATTERN
 
 if TYPE_CHECKING:
     from pipeline.engine.store import ArtifactStore
 
-__all__ = ["collect", "pid_alive", "reachable"]
+__all__ = ["collect", "reachable"]
 
 _TMP_PID = re.compile(r"-(\d+)-[0-9a-f]{8,12}$")
 _RUN_TMP_PID = re.compile(r"^\..+\.(\d+)\.tmp$")
@@ -55,19 +54,6 @@ _FINGERPRINT_TMP_PID = re.compile(r"^fingerprints\.tmp(\d+)$")
 _TICK_NS = 50_000_000  # coarser than any filesystem's timestamp granularity we meet
 _NEVER = re.compile(r"(?!)")  # pull-cache files carry no pid: their age decides
 _LEASE_TMP_PID = re.compile(r"^\.(\d+)-[0-9a-f]{12}\.(?:lock|json)\.tmp$")
-
-
-def pid_alive(pid: int) -> bool:
-    """Whether a process with this pid exists on this host (ours counts as alive)."""
-    if pid == os.getpid():
-        return True
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _upstream(ref: ArtifactRef) -> Iterator[tuple[str, str]]:
