@@ -28,7 +28,7 @@ def _cached_run() -> Path:
     if not (RUN / "remote" / "evaluate").is_dir():
         shutil.rmtree(RUN, ignore_errors=True)
         RUN.mkdir(parents=True)
-        small_recording(RUN / "rec.mcap")
+        small_recording(RUN / "rec.mcap", seed=2, duration_s=45.0)  # one with a map
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         for args in (["run", "rec.mcap"], ["push", "remote"]):
             subprocess.run(
