@@ -30,7 +30,7 @@ from pydantic import Field
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
 from schemas.sonar import KeyframeImages
-from stages.base import Output, Stage, StageConfig
+from stages.base import InputRejected, Output, Stage, StageConfig
 
 __all__ = [
     "STAGE",
@@ -278,9 +278,11 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         round(config.min_gap_s * 1e9),
     )
     if len(sel) == 0:
-        raise ValueError(
-            f"{rec.name}: no keyframe: {len(pairs.horizontal)} sonar pairs "
-            f"({len(h_t)} horizontal, {len(v_t)} vertical pings), {len(cand)} inside the navigation stream"
+        # Bad data, not a bug: the engine reports it as exit 2 naming the recording.
+        raise InputRejected(
+            "dataset",
+            f"no keyframe: {len(pairs.horizontal)} sonar pairs ({len(h_t)} horizontal, "
+            f"{len(v_t)} vertical pings), {len(cand)} inside the navigation stream",
         )
     k = cand[sel]
     log.info(
