@@ -1,6 +1,6 @@
 """The QA campaign: hostile inputs against the README's contract, counted per category.
 
-    python benchmarks/qa_campaign.py [--only SUBSTRING] [--json]
+    python benchmarks/qa_campaign.py [--only SUBSTRING] [--module NAME] [--json]
 
 Runs every case of `benchmarks/qa/cases_*.py` (see `benchmarks/qa/case.py`) as its own
 `python -m pipeline` process in a fresh directory, and prints, per category, how many
@@ -29,9 +29,9 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.qa.case import MAX_ERROR_CHARS, Case  # noqa: E402
 
 
-def load_cases() -> list[Case]:
+def load_cases(module: str = "*") -> list[Case]:
     cases: list[Case] = []
-    for module_path in sorted((HERE / "qa").glob("cases_*.py")):
+    for module_path in sorted((HERE / "qa").glob(f"cases_{module}.py")):
         module = importlib.import_module(f"benchmarks.qa.{module_path.stem}")
         cases.extend(module.CASES)
     return cases
@@ -100,6 +100,7 @@ def _one(name: str) -> None:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", default="", help="run the cases whose category/name holds this")
+    parser.add_argument("--module", default="*", help="only benchmarks/qa/cases_MODULE.py")
     parser.add_argument("--json", action="store_true", help="one JSON document on stdout")
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     opts = parser.parse_args()
@@ -109,7 +110,7 @@ def main() -> int:
     tried: Counter[str] = Counter()
     held: Counter[str] = Counter()
     failures: list[dict[str, object]] = []
-    for case in load_cases():
+    for case in load_cases(opts.module):
         name = f"{case.category}/{case.name}"
         if opts.only not in name:
             continue
