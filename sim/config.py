@@ -7,7 +7,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from sim.geometry import rot_rpy
+from stages.kernels.geometry import matrix_from_rpy_product, se3
 
 __all__ = ["MissionConfig", "Mounting", "NavigationNoise", "SimConfig", "SonarConfig"]
 
@@ -33,10 +33,7 @@ class Mounting(_Model):
 
     def matrix(self) -> np.ndarray:
         """(4, 4) T_base_sonar."""
-        t = np.eye(4)
-        t[:3, :3] = rot_rpy(*np.deg2rad(self.rpy_deg))
-        t[:3, 3] = self.translation_m
-        return t
+        return se3(matrix_from_rpy_product(np.deg2rad(self.rpy_deg)), self.translation_m)
 
 
 class SonarConfig(_Model):

@@ -9,12 +9,12 @@ import numpy as np
 
 from schemas.sonar import SonarPing
 from sim.config import SimConfig
-from sim.geometry import pose_to_matrix
 from sim.mission import Trajectory, dead_reckoning, plan_mission
 from sim.scene import Scene
 from sim.sonar import SonarModel
 from sim.version import SIM_VERSION
 from sim.world import World
+from stages.kernels.geometry import matrix_from_rpy_product, se3
 
 __all__ = ["SIM_VERSION", "SimFrame", "SimRun", "simulate"]
 
@@ -77,7 +77,7 @@ class SimRun:
         mounts = self.T_base_sonar
         gt = self.trajectory["gt_pose"][index]
         t_ns = int(self.trajectory["t_ns"][index])
-        T_world_base = pose_to_matrix(gt)
+        T_world_base = se3(matrix_from_rpy_product(gt[3:6]), gt[:3])
         rng = np.random.default_rng([self.seed, _FRAME_STREAM, index])
         pings = {
             s: models[s].render(self.world, T_world_base @ mounts[s], rng, t_ns)

@@ -25,8 +25,8 @@ from scipy.special import ndtri
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import SonarPing
 from sim.config import SonarConfig
-from sim.geometry import rot_x
 from sim.world import World
+from stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
 
 __all__ = ["SonarModel"]
 
@@ -49,7 +49,7 @@ class SonarModel:
         self.aperture_rad = np.deg2rad(cfg.aperture_deg)
         self._perm = np.random.default_rng(12345).permutation(self.k)
         roll = np.deg2rad(cfg.mounting.rpy_deg[0])
-        self.R_unrolled_sensor = rot_x(roll)
+        self.R_unrolled_sensor = matrix_from_rpy_product([roll, 0.0, 0.0])
         refl = np.zeros(len(CLASS_NAMES))
         for name, value in cfg.reflectivity.items():
             refl[CLASS_IDS[name]] = value
@@ -85,8 +85,8 @@ class SonarModel:
             self.angles_rad[:, None].astype(np.float64)
             + ndtri(np.clip((self._perm[None] + u2) / k, 0.005, 0.995)) * self._fan_sigma_rad
         )
-        ce = np.cos(e)
-        dirs = np.stack([ce * np.cos(a), ce * np.sin(a), np.sin(e)], axis=-1).reshape(-1, 3)
+        # Unit directions: Eq. 1 with R = 1 (bearing a across the fan, elevation e).
+        dirs = polar_to_xyz(1.0, a, e).reshape(-1, 3)
         return dirs, e.ravel()
 
     def _footprint(

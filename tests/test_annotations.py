@@ -29,8 +29,8 @@ MARGIN_M = 0.3
 
 def _truth_boxes(scene_path: Path, gt_pose: np.ndarray, t_base_sonar: np.ndarray) -> list[dict]:
     """Boxes a person would draw: every scene object's footprint, seen from the sonar."""
-    from sim.geometry import pose_to_matrix
     from sim.scene import load_scene
+    from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
     t_world_sonar = pose_to_matrix(gt_pose) @ t_base_sonar
     t_sonar_world = np.linalg.inv(t_world_sonar)

@@ -15,10 +15,10 @@ from schemas.classes import CLASS_IDS
 from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
-from sim.geometry import rot_z
 from sim.scene import load_scene
 from sim.world import World
 from stages.evaluate.stage import STAGE, EvaluateConfig, map_errors, surface_metrics
+from stages.kernels.geometry import matrix_from_rpy
 from stages.mesh_metrics import (
     ate_se2,
     mesh_distance,
@@ -155,7 +155,9 @@ def completeness(xyz: np.ndarray) -> dict[str, object]:
     mesh = decode_mesh_ply(tiny_ply())
     m = map_table(xyz, np.array(["fused"] * len(xyz)))
     errors, _ = map_errors(m, mesh)
-    T_world_sonar = np.stack([np.r_[np.c_[rot_z(y), [0, 0, -2]], [[0, 0, 0, 1]]] for y in YAWS])
+    T_world_sonar = np.stack(
+        [np.r_[np.c_[matrix_from_rpy([0.0, 0.0, y]), [0, 0, -2]], [[0, 0, 0, 1]]] for y in YAWS]
+    )
     comp, _, _ = surface_metrics(m, errors, mesh, T_world_sonar @ T_BASE_SONAR, EvaluateConfig())
     return comp
 
@@ -190,7 +192,7 @@ def test_the_far_side_of_a_piling_is_hidden_behind_its_near_side() -> None:
     centre = np.array([6.0, 3.0, -2.0])  # the tiny scene's round piling, radius 0.25 m
     u = centre / np.linalg.norm(centre[:2]) * [1, 1, 0]
     T = np.eye(4)
-    T[:3, :3] = rot_z(np.arctan2(3.0, 6.0))
+    T[:3, :3] = matrix_from_rpy([0.0, 0.0, np.arctan2(3.0, 6.0)])
     T[2, 3] = -2.0
     near, far = centre - 0.25 * u, centre + 0.25 * u
     scene = raycasting_scene(decode_mesh_ply(tiny_ply()))
@@ -203,7 +205,7 @@ def test_the_far_side_of_a_piling_is_hidden_behind_its_near_side() -> None:
 def test_ate_is_zero_after_a_rigid_motion_and_the_rms_of_what_is_left() -> None:
     rng = np.random.default_rng(3)
     truth = rng.uniform(-20, 20, (50, 2))
-    moved = truth @ rot_z(0.7)[:2, :2].T + [4.0, -2.0]
+    moved = truth @ matrix_from_rpy([0.0, 0.0, 0.7])[:2, :2].T + [4.0, -2.0]
     assert ate_se2(moved, truth) == pytest.approx(0.0, abs=1e-9)
     noise = rng.normal(0, 0.2, (50, 2))
     noise -= noise.mean(axis=0)
@@ -251,7 +253,7 @@ def test_without_ground_truth_counts_and_topdown_remain_and_skips_are_listed() -
 def test_a_map_moved_rigidly_with_its_trajectory_is_exact_after_alignment() -> None:
     centroid, _ = square_piling_faces()
     truth_xy = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
-    R, t = rot_z(np.deg2rad(2.0))[:2, :2], np.array([0.3, -0.2])
+    R, t = matrix_from_rpy([0.0, 0.0, np.deg2rad(2.0)])[:2, :2], np.array([0.3, -0.2])
     moved = centroid.copy()
     moved[:, :2] = centroid[:, :2] @ R.T + t
     inputs = stage_inputs(map_table(moved, np.array(["fused"] * len(moved))), True)

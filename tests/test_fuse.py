@@ -16,19 +16,20 @@ from schemas.fused import FUSED_SCHEMA
 from schemas.sonar import KeyframeImages
 from sim.config import SimConfig
 from sim.dataset import SimFrame, SimRun
-from sim.geometry import pose_to_matrix, rot_rpy
 from sim.scene import Scene
 from sim.world import World
 from stages.features.stage import FeaturesConfig, features_table
 from stages.fuse.association import assign_subproblems, image_patches
 from stages.fuse.stage import STAGE, FuseConfig, fuse_table, fused_points, sonar_offset
+from stages.kernels.geometry import matrix_from_rpy
+from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 logger = logging.getLogger(__name__)
 
 
 def _mount(xyz: tuple[float, float, float], rpy_deg: tuple[float, float, float]) -> np.ndarray:
     t = np.eye(4)
-    t[:3, :3] = rot_rpy(*np.deg2rad(rpy_deg))
+    t[:3, :3] = matrix_from_rpy(np.deg2rad(rpy_deg))
     t[:3, 3] = xyz
     return t
 
@@ -82,7 +83,7 @@ def test_eq1_with_the_fan_angle_as_elevation_is_off_at_the_overlap_corner() -> N
     """The measured deviation quoted in stages/fuse/stage.py: 2.5 cm at 10 m, theta = a_v = 10 deg
     (co-located sonars); the 0.1 m mounting offset alone moves z by ~0.1 m."""
     no_offset = np.eye(4)
-    no_offset[:3, :3] = rot_rpy(np.pi / 2, 0, 0)
+    no_offset[:3, :3] = matrix_from_rpy([np.pi / 2, 0, 0])
     a = np.deg2rad(10.0)
     xyz, _ = fused_points(np.array([10.0]), np.array([a]), np.array([a]), no_offset)
     dz = 10.0 * np.sin(a) - xyz[0, 2]

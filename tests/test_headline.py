@@ -15,9 +15,9 @@ from test_evaluate import (
 
 from pipeline.experiments.headline_columns import headline_header, shared_frame
 from pipeline.experiments.sweep import RunOutcome, sweep_tables
-from sim.geometry import rot_z
 from stages.evaluate.headline import headline_errors
 from stages.evaluate.stage import STAGE, EvaluateConfig
+from stages.kernels.geometry import matrix_from_rpy
 
 TRUTH_XY = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
 
@@ -25,7 +25,7 @@ TRUTH_XY = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
 def _rotated_run() -> dict:
     """A map and its SLAM trajectory turned 2° and shifted from the truth."""
     centroid, _ = square_piling_faces()
-    R, t = rot_z(np.deg2rad(2.0))[:2, :2], np.array([0.3, -0.2])
+    R, t = matrix_from_rpy([0.0, 0.0, np.deg2rad(2.0)])[:2, :2], np.array([0.3, -0.2])
     moved = centroid.copy()
     moved[:, :2] = centroid[:, :2] @ R.T + t
     inputs = stage_inputs(map_table(moved, np.array(["fused"] * len(moved))), True)

@@ -12,10 +12,10 @@ from test_infer import keyframe_indices, n_voxels, real_stage_tables, to_world
 
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
-from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
 from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.stage import InferConfig, infer_mission
+from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 REPO = Path(__file__).resolve().parents[1]
 NO_BORROWING = InferConfig(unknown_argmax_classes=(), borrowed_models={})

@@ -12,7 +12,7 @@ from pipeline.formats.map_mcap import MAP_TOPICS, TF_TOPIC, write_map_mcap
 from pipeline.formats.rosmsg import ros2_typestore
 from schemas.map import MAP_SCHEMA
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from sim.geometry import rot_rpy
+from stages.kernels.geometry import matrix_from_rpy
 
 
 def tables() -> tuple[pa.Table, pa.Table]:
@@ -86,7 +86,7 @@ def test_clouds_and_poses_read_back(tmp_path: Path) -> None:
             ]
         )
         np.testing.assert_allclose(
-            R, rot_rpy(row["roll_rad"], row["pitch_rad"], row["yaw_rad"]), atol=1e-12
+            R, matrix_from_rpy([row["roll_rad"], row["pitch_rad"], row["yaw_rad"]]), atol=1e-12
         )
         assert (tr.transform.translation.x, tr.transform.translation.y) == (row["x_m"], row["y_m"])
 

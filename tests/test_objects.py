@@ -15,7 +15,6 @@ from stages.classify.segmentation import (
     cluster_boxes,
     cluster_features,
     fan_outside_area_m2,
-    fan_xy,
     keep_clusters,
     majority_class,
 )
@@ -163,11 +162,6 @@ def test_horizontal_features_splits_by_keyframe_and_drops_vertical_rows() -> Non
     np.testing.assert_array_equal(split[3]["feature_id"], [7])
     with pytest.raises(ValueError, match="range_m"):
         horizontal_features(table.drop(["range_m"]))
-
-
-def test_fan_xy_follows_eq1_with_zero_elevation() -> None:
-    xy = fan_xy(np.array([2.0, 3.0]), np.array([0.0, np.pi / 2]))
-    np.testing.assert_allclose(xy, [[2.0, 0.0], [0.0, 3.0]], atol=1e-12)
 
 
 def test_linked_components_match_scikit_learn_dbscan() -> None:

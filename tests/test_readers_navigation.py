@@ -14,7 +14,8 @@ from test_readers_oculus import _oculus_ping, _ros1_header
 
 from pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
 from pipeline.readers import open_recording
-from pipeline.readers.navigation import dead_reckon, pose_track, quat_to_rpy
+from pipeline.readers.navigation import dead_reckon, pose_track
+from stages.kernels.geometry import rpy_from_quat as quat_to_rpy
 
 DVL_MSG = "Header header\ngeometry_msgs/Vector3 velocity\nfloat64 temperature\nfloat64 altitude\nfloat64 time\n"
 DEPTH_MSG = (

@@ -8,10 +8,10 @@ import pytest
 from schemas.classes import CLASS_IDS
 from schemas.sonar import SonarPing
 from sim.config import SimConfig
-from sim.geometry import pose_to_matrix
 from sim.scene import Scene
 from sim.sonar import SonarModel
 from sim.world import World
+from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 CFG = SimConfig()
 PILING = CLASS_IDS["cylindrical_piling"]

@@ -9,7 +9,6 @@ from stages.slam.scan_matching import (
     OccupancyScorer,
     icp_2d,
     match_scans,
-    polar_to_base,
     transform_points,
     voxel_downsample,
 )
@@ -72,10 +71,3 @@ def test_consensus_score_matches_a_reference_loop() -> None:
     occupied = np.argwhere(scorer.grid)[:50] * 0.1 + scorer.origin
     d = np.min(np.linalg.norm(occupied[:, None] - target[None], axis=2), axis=1)
     assert np.all(d <= 0.5 + 0.15)
-
-
-def test_polar_to_base_applies_mounting_at_zero_elevation() -> None:
-    T = np.eye(4)
-    T[:3, 3] = [0.5, 0.0, 0.1]
-    pts = polar_to_base(np.array([10.0, 4.0]), np.array([0.0, np.pi / 2]), T)
-    np.testing.assert_allclose(pts, [[10.5, 0.0], [0.5, 4.0]], atol=1e-12)

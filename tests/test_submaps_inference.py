@@ -16,12 +16,12 @@ from schemas.sonar import KeyframeImages
 from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
-from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
 from stages.features.stage import FeaturesConfig, keyframe_features
 from stages.fuse.stage import FuseConfig, fuse_keyframe, sonar_offset
 from stages.infer.inputs import object_feature_rows
 from stages.infer.stage import InferConfig, learn_and_infer, points_table
+from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 from stages.submaps.mapping import frame_points
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 

@@ -15,7 +15,7 @@ from schemas.fused import FUSED_SCHEMA
 from schemas.map import MAP_SCHEMA, VOXELS_SCHEMA
 from schemas.points import POINTS_SCHEMA
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from sim.geometry import pose_to_matrix
+from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 from stages.voxelize.stage import STAGE, VoxelizeConfig
 
 T_BASE_SONAR = np.array(

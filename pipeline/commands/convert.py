@@ -26,15 +26,10 @@ def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
 
     from pipeline.formats.rosmsg import ros2_typestore
     from schemas.topics import FRAME_ODOM
+    from stages.kernels.geometry import quat_from_rpy
 
     t = ros2_typestore().types
-    r, p, y = (float(v) / 2 for v in rpy)
-    q = (
-        np.sin(r) * np.cos(p) * np.cos(y) - np.cos(r) * np.sin(p) * np.sin(y),
-        np.cos(r) * np.sin(p) * np.cos(y) + np.sin(r) * np.cos(p) * np.sin(y),
-        np.cos(r) * np.cos(p) * np.sin(y) - np.sin(r) * np.sin(p) * np.cos(y),
-        np.cos(r) * np.cos(p) * np.cos(y) + np.sin(r) * np.sin(p) * np.sin(y),
-    )
+    q = quat_from_rpy(np.asarray(rpy, np.float64)).tolist()
     vec = t["geometry_msgs/msg/Vector3"]
     return t["nav_msgs/msg/Odometry"](
         header=t["std_msgs/msg/Header"](

@@ -20,6 +20,7 @@ import pyarrow as pa
 
 from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 from schemas.classes import CLASS_IDS, UNKNOWN_CLASS
+from stages.kernels.geometry import quat_from_rpy
 
 __all__ = [
     "FRAME_BASE",
@@ -96,22 +97,9 @@ def _cloud(rec: np.ndarray, t_ns: int) -> Any:
     )
 
 
-def _quaternion_rpy(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    """(x, y, z, w) of R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return (
-        float(sr * cp * cy - cr * sp * sy),
-        float(cr * sp * cy + sr * cp * sy),
-        float(cr * cp * sy - sr * sp * cy),
-        float(cr * cp * cy + sr * sp * sy),
-    )
-
-
 def _tf(row: dict[str, Any], t_ns: int) -> Any:
     t = ros2_typestore().types
-    q = _quaternion_rpy(row["roll_rad"], row["pitch_rad"], row["yaw_rad"])
+    q = quat_from_rpy([row["roll_rad"], row["pitch_rad"], row["yaw_rad"]]).tolist()
     transform = t["geometry_msgs/msg/Transform"](
         translation=t["geometry_msgs/msg/Vector3"](x=row["x_m"], y=row["y_m"], z=row["z_m"]),
         rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),

@@ -43,31 +43,11 @@ from schemas.topics import (
     TRUTH_ANGLE_TOPIC,
 )
 from sim.dataset import SIM_VERSION, SimRun
-from sim.geometry import rot_rpy
+from stages.kernels.geometry import matrix_from_rpy_product, quat_from_matrix
 
-__all__ = ["TF_TYPE", "quaternion_from_matrix", "write_simulation"]
+__all__ = ["TF_TYPE", "write_simulation"]
 
 TF_TYPE = "tf2_msgs/msg/TFMessage"
-
-
-def quaternion_from_matrix(r: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> unit quaternion (x, y, z, w) with w >= 0."""
-    m = np.asarray(r, dtype=np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * np.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k])
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = s / 4
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    qa = np.asarray(q)
-    qa /= np.linalg.norm(qa)
-    return -qa if qa[3] < 0 else qa
 
 
 class _Messages:
@@ -111,7 +91,7 @@ class _Messages:
         )
 
     def odometry(self, t_ns: int, pose: np.ndarray, vel_b: np.ndarray, sigma: float) -> Any:
-        q = quaternion_from_matrix(rot_rpy(*pose[3:6]))
+        q = quat_from_matrix(matrix_from_rpy_product(pose[3:6]))
         return self.odometry_raw(t_ns, np.concatenate([pose[:3], q, vel_b[:2]]), sigma)
 
     def odometry_raw(self, t_ns: int, v: np.ndarray, sigma: float) -> Any:
@@ -139,7 +119,7 @@ class _Messages:
         tfs = []
         for s in SONARS:
             m = mounts[s]
-            q = quaternion_from_matrix(m[:3, :3])
+            q = quat_from_matrix(m[:3, :3])
             tr = t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=m[0, 3], y=m[1, 3], z=m[2, 3]),
                 rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
@@ -209,7 +189,7 @@ class _FastEncoder:
         return self.tpl[topic].encode(t_ns, np.ascontiguousarray(arr).tobytes())
 
     def odometry(self, topic: str, t_ns: int, pose: np.ndarray, vel_b: np.ndarray) -> bytes:
-        q = quaternion_from_matrix(rot_rpy(*pose[3:6]))
+        q = quat_from_matrix(matrix_from_rpy_product(pose[3:6]))
         values = np.concatenate([pose[:3], q, vel_b[:2]])
         return self.tpl[topic].encode(t_ns, b"", values)
 

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from schemas.recording import PoseTrack
+from stages.kernels.geometry import rpy_from_quat
 
 __all__ = [
     "NAV_TYPES",
@@ -23,7 +24,6 @@ __all__ = [
     "nav_pose",
     "pose_track",
     "pose_track_rows",
-    "quat_to_rpy",
 ]
 
 NAV_TYPES: tuple[str, ...] = (
@@ -31,17 +31,6 @@ NAV_TYPES: tuple[str, ...] = (
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 )
-
-
-def quat_to_rpy(q_xyzw: np.ndarray) -> np.ndarray:
-    """(n, 4) quaternions (x, y, z, w) -> (n, 3) roll, pitch, yaw [rad], R = Rz Ry Rx."""
-    q = np.asarray(q_xyzw, np.float64).reshape(-1, 4)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-    yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return np.stack([roll, pitch, yaw], axis=1)
 
 
 def nav_pose(msg: Any) -> tuple[float, float, float, float, float, float, float]:
@@ -66,7 +55,7 @@ def pose_track_rows(rows: Sequence[tuple[float, ...]]) -> PoseTrack:
     v = np.array([r[1:] for r in rows], np.float64)
     t, first = np.unique(t, return_index=True)
     v = v[first]
-    return PoseTrack(t, v[:, :3], quat_to_rpy(v[:, 3:]))
+    return PoseTrack(t, v[:, :3], rpy_from_quat(v[:, 3:]))
 
 
 def dead_reckon(
@@ -100,7 +89,7 @@ def dead_reckon(
     last_good = np.maximum.accumulate(np.where(good, np.arange(len(t)), -1))
     v = np.where((last_good >= 0)[:, None], v[np.maximum(last_good, 0)], 0.0)
     # Attitude at the DVL times; yaw relative to the first IMU sample.
-    rpy = quat_to_rpy(imu_q_xyzw)
+    rpy = rpy_from_quat(np.asarray(imu_q_xyzw, np.float64).reshape(-1, 4))
     yaw = np.unwrap(rpy[:, 2]) - rpy[0, 2]
     att = np.stack([np.interp(t, imu_t_ns, c) for c in (rpy[:, 0], rpy[:, 1], yaw)], axis=1)
     # Trapezoid propagation of the body velocity rotated by the planar yaw.

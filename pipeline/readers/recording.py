@@ -25,6 +25,7 @@ from pipeline.readers.source_types import Source
 from schemas.recording import PoseTrack
 from schemas.sonar import SonarPing, beam_angles_from_directions
 from schemas.topics import FRAME_BASE, FRAME_SONAR, SONARS
+from stages.kernels.geometry import matrix_from_quat, matrix_from_rpy, se3
 
 __all__ = ["ReaderOptions", "SourceRecording", "mounting_matrix"]
 
@@ -77,31 +78,11 @@ class ReaderOptions:
 
 def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
     """(4, 4) T_parent_child from a translation [m] and roll/pitch/yaw [rad] (R = Rz Ry Rx)."""
-    r, p, y = rpy_rad
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    rot = np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = rot, np.asarray(xyz, np.float64)
-    return T
+    return se3(matrix_from_rpy(rpy_rad), xyz)
 
 
-def _quat_matrix(q: Any) -> np.ndarray:
-    x, y, z, w = q.x, q.y, q.z, q.w
-    n = np.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+def _floats(values: np.ndarray) -> str:
+    return ", ".join(f"{v:.6g}" for v in values.tolist())
 
 
 class SourceRecording:
@@ -360,12 +341,27 @@ class SourceRecording:
                         tf.header.frame_id.lstrip("/") == FRAME_BASE
                         and tf.child_frame_id.lstrip("/") == FRAME_SONAR[s]
                     ):
-                        T = np.eye(4)
-                        T[:3, :3] = _quat_matrix(tf.transform.rotation)
-                        tr = tf.transform.translation
-                        T[:3, 3] = (tr.x, tr.y, tr.z)
-                        out[s] = T
+                        out[s] = self._mounting(tf)
         return out
+
+    def _mounting(self, tf: Any) -> np.ndarray:
+        """(4, 4) T_base_sonar of a /tf_static transform; a rotation quaternion of zero or
+        non-finite norm, or a non-finite translation, is refused (it would place every
+        point of that sonar nowhere)."""
+        q, tr = tf.transform.rotation, tf.transform.translation
+        xyz = np.array([tr.x, tr.y, tr.z], np.float64)
+        where = f"{self.source.path}: {self.roles.tf_static}: transform {FRAME_BASE} -> "
+        where += tf.child_frame_id.lstrip("/")
+        if not np.all(np.isfinite(xyz)):
+            raise SourceError(f"{where}: translation is not finite ({_floats(xyz)})")
+        try:
+            return se3(matrix_from_quat([q.x, q.y, q.z, q.w]), xyz)
+        except ValueError:
+            quat = np.array([q.x, q.y, q.z, q.w], np.float64)
+            raise SourceError(
+                f"{where}: rotation quaternion (x, y, z, w) = ({_floats(quat)}) has zero "
+                "or non-finite norm"
+            ) from None
 
     def attachments(self) -> dict[str, bytes]:
         return self.source.attachments()

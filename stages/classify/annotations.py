@@ -19,6 +19,7 @@ from schemas.annotations import AnnotatedObject, AnnotationFile
 from schemas.classes import CLASS_IDS
 from schemas.sonar import KeyframeImages, SonarPing
 from stages._lazy import lazy
+from stages.kernels.geometry import fan_to_xy
 
 mpath = lazy("matplotlib.path")
 
@@ -57,7 +58,7 @@ def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray
     """
     r = np.asarray(ping.ranges_m, np.float64)[:, None]
     a = np.asarray(ping.angles_rad, np.float64)[None, :]
-    x, y = (r * np.cos(a)).ravel(), (r * np.sin(a)).ravel()
+    x, y = fan_to_xy(r, a).reshape(-1, 2).T
     out = np.zeros(x.shape, np.uint8)
     for obj in objects:
         poly = np.asarray(obj.vertices_m(), np.float64)

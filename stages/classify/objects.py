@@ -32,10 +32,10 @@ from stages.classify.segmentation import (
     cluster_features,
     fan_limits,
     fan_outside_area_m2,
-    fan_xy,
     keep_clusters,
     majority_class,
 )
+from stages.kernels.geometry import fan_to_xy
 
 ndimage = lazy("scipy.ndimage")
 
@@ -207,7 +207,7 @@ def extract_objects(
     Returns:
         The keyframe's objects (dropped clusters are none of them).
     """
-    xy = fan_xy(range_m, angle_rad)
+    xy = fan_to_xy(range_m, angle_rad)
     labels = cluster_features(xy, eps_m, min_samples, min_features)
     k = int(labels.max(initial=-1)) + 1
     if k and (min_area_m2 is not None or drop_fan_edge):

@@ -38,7 +38,6 @@ __all__ = [
     "cluster_features",
     "fan_limits",
     "fan_outside_area_m2",
-    "fan_xy",
     "keep_clusters",
     "majority_class",
 ]
@@ -46,21 +45,6 @@ __all__ = [
 
 FAN_EDGE_PIXEL_M = 0.05
 """Raster cell of the fan-edge rule [m]: the original's simulated Cartesian pixel."""
-
-
-def fan_xy(range_m: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
-    """Polar features -> fan-plane Cartesian (paper Eq. 1 with phi = 0).
-
-    Args:
-        range_m: (n,) ranges [m].
-        angle_rad: (n,) bearings theta [rad], positive left.
-
-    Returns:
-        (n, 2) float64 (x forward, y left) [m] in the horizontal sonar frame.
-    """
-    r = np.asarray(range_m, dtype=np.float64)
-    a = np.asarray(angle_rad, dtype=np.float64)
-    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
 
 
 def cluster_features(

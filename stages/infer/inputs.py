@@ -9,6 +9,7 @@ import numpy as np
 import pyarrow as pa
 
 from stages.infer.object_frame import ObjectOrigin
+from stages.kernels.geometry import fan_to_xy
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",
@@ -153,7 +154,9 @@ def sightings(rows: dict[str, np.ndarray], sl: slice, fused: dict[str, np.ndarra
         t_sorted[starts + (ends - starts - 1) // 2] + t_sorted[starts + (ends - starts) // 2]
     )
     d = t - median[group]
-    uv = np.stack([r * np.cos(d) - min_range[group], r * np.sin(d)], axis=1)
+    # Eq. 1 (phi = 0) in each object's frame: rotated by its median bearing, shifted by its
+    # nearest range along u.
+    uv = fan_to_xy(r, d) - np.column_stack([min_range[group], np.zeros(d.size)])
     fused_row = rows["fused_row"][sl]
     is_fused = fused_row >= 0
     fr_all = fused_row[is_fused]

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages._lazy import lazy
+from stages.kernels.geometry import fan_to_xy, se2
 
 o3d = lazy("open3d")
 
@@ -67,9 +68,8 @@ def to_object_frame(
     range_m: np.ndarray, bearing_rad: np.ndarray, origin: ObjectOrigin
 ) -> np.ndarray:
     """(n, 2) object-frame coordinates (u, v) [m] of returns at (range, bearing)."""
-    r = np.asarray(range_m, dtype=np.float64)
     d = np.asarray(bearing_rad, dtype=np.float64) - origin.bearing_rad
-    return np.stack([r * np.cos(d) - origin.range_m, r * np.sin(d)], axis=1)
+    return fan_to_xy(range_m, d).reshape(-1, 2) - np.array([origin.range_m, 0.0])
 
 
 def apply_se2(T: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -151,9 +151,7 @@ def register_2d(source: np.ndarray, target: np.ndarray, params: IcpParams) -> Re
     )
     T4 = np.asarray(result.transformation)
     yaw = float(np.arctan2(T4[1, 0], T4[0, 0]))
-    T = np.array(
-        [[np.cos(yaw), -np.sin(yaw), T4[0, 3]], [np.sin(yaw), np.cos(yaw), T4[1, 3]], [0, 0, 1.0]]
-    )
+    T = se2(T4[0, 3], T4[1, 3], yaw)
     ok = (
         result.fitness >= params.min_fitness
         and result.inlier_rmse <= params.max_rmse_m

@@ -26,6 +26,7 @@ from stages.infer.object_frame import (
     ObjectOrigin,
     apply_se2,
 )
+from stages.kernels.geometry import polar_to_xyz
 
 logger = logging.getLogger(__name__)
 
@@ -121,7 +122,17 @@ def predicted_points(
     conf = np.concatenate([q.conf_low, q.conf_high])
     elevation = np.arcsin(np.clip(z / np.maximum(r, 1e-9), -1.0, 1.0))
     keep = np.isfinite(z) & (np.abs(elevation) <= np.deg2rad(config.max_elevation_deg))
-    pts = spherical_points(r[keep], np.tile(bearing_rad, 2)[keep], elevation[keep], conf[keep])
+    r, bearing, elevation = r[keep], np.tile(bearing_rad, 2)[keep], elevation[keep]
+    x, y, z = np.ascontiguousarray(polar_to_xyz(r, bearing, elevation).T)
+    pts = {
+        "range_m": r,
+        "bearing_rad": bearing,
+        "elevation_rad": elevation,
+        "x_m": x,
+        "y_m": y,
+        "z_m": z,
+        "confidence": conf[keep],
+    }
     return pts, np.flatnonzero(keep) % max(n, 1)
 
 
@@ -249,19 +260,3 @@ def borrowed_sightings(
             (borrower, [s for s in sightings if s.class_name == borrower and extended(s)])
         )
     return [(b, routed) for b, routed in routes if routed]
-
-
-def spherical_points(
-    range_m: np.ndarray, bearing_rad: np.ndarray, elevation_rad: np.ndarray, conf: np.ndarray
-) -> dict[str, np.ndarray]:
-    """Paper Eq. 1: (R, theta, phi) -> (x, y, z) in the horizontal sonar frame."""
-    c = np.cos(elevation_rad)
-    return {
-        "range_m": range_m,
-        "bearing_rad": bearing_rad,
-        "elevation_rad": elevation_rad,
-        "x_m": range_m * c * np.cos(bearing_rad),
-        "y_m": range_m * c * np.sin(bearing_rad),
-        "z_m": range_m * np.sin(elevation_rad),
-        "confidence": conf,
-    }

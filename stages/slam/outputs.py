@@ -9,6 +9,7 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from stages.kernels.geometry import quat_from_rpy
 from stages.mesh_metrics import se2_alignment
 from stages.slam.scan_matching import transform_points
 
@@ -51,24 +52,7 @@ def factors_table(rows: list[dict[str, Any]], ids: np.ndarray) -> pa.Table:
 
 def tum_text(t_ns: np.ndarray, pose6: np.ndarray) -> bytes:
     """TUM trajectory ("t x y z qx qy qz qw", seconds and metres) for evo_ape / evo_traj."""
-    roll, pitch, yaw = pose6[:, 3] / 2, pose6[:, 4] / 2, pose6[:, 5] / 2
-    cr, sr, cp, sp, cy, sy = (
-        np.cos(roll),
-        np.sin(roll),
-        np.cos(pitch),
-        np.sin(pitch),
-        np.cos(yaw),
-        np.sin(yaw),
-    )
-    q = np.stack(
-        [
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy,
-        ],
-        axis=1,
-    )
+    q = quat_from_rpy(pose6[:, 3:6])
     lines = [
         f"{int(t) // 10**9}.{int(t) % 10**9:09d} " + " ".join(f"{v:.6f}" for v in (*p[:3], *qq))
         for t, p, qq in zip(t_ns, pose6, q, strict=True)

@@ -6,7 +6,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from stages.slam.scan_matching import polar_to_base, voxel_downsample
+from stages.kernels.geometry import fan_in_frame
+from stages.slam.scan_matching import voxel_downsample
 
 __all__ = ["keyframe_points", "leading_edges"]
 
@@ -60,7 +61,7 @@ def keyframe_points(
             features.column("range_bin").to_numpy()[keep],
         )
         kf, range_m, angle = kf[edge], range_m[edge], angle[edge]
-    pts = polar_to_base(range_m, angle, T_base_sonar)
+    pts = fan_in_frame(range_m, angle, T_base_sonar)[:, :2]
     order = np.argsort(kf, kind="stable")
     kf, pts = kf[order], pts[order]
     lo = np.searchsorted(kf, keyframe_ids, side="left")

@@ -41,7 +41,6 @@ __all__ = [
     "icp_covariance",
     "icp_with_covariance",
     "match_scans",
-    "polar_to_base",
     "transform_points",
     "voxel_downsample",
 ]
@@ -50,22 +49,6 @@ _CHUNK_ELEMENTS = 2_000_000
 
 _FOLD_LIMIT = 2**62
 """Voxel grids with fewer cells fold (x, y) indices into one int64 key."""
-
-
-def polar_to_base(
-    range_m: np.ndarray, bearing_rad: np.ndarray, T_base_sonar: np.ndarray
-) -> np.ndarray:
-    """Horizontal-sonar features at elevation 0 -> (N, 2) points in base_link (Eq. 1, phi = 0).
-
-    Args:
-        range_m: (N,) ranges [m].
-        bearing_rad: (N,) bearings theta [rad], positive left.
-        T_base_sonar: (4, 4) mounting of the horizontal sonar in base_link.
-    """
-    r = np.asarray(range_m, np.float64)
-    th = np.asarray(bearing_rad, np.float64)
-    p = np.stack([r * np.cos(th), r * np.sin(th), np.zeros_like(r), np.ones_like(r)], axis=1)
-    return (p @ np.asarray(T_base_sonar, np.float64).T)[:, :2]
 
 
 def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -16,24 +16,16 @@ import pyarrow as pa
 
 from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
+from stages.kernels.geometry import pose_from_se3
 from stages.voxelize.registration import pose_matrix
 
-__all__ = ["relative_poses", "rpy_from_rotation", "submap_frame_rows"]
-
-
-def rpy_from_rotation(R: np.ndarray) -> np.ndarray:
-    """(n, 3) roll, pitch, yaw of (n, 3, 3) rotations R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    R = np.asarray(R, np.float64).reshape(-1, 3, 3)
-    roll = np.arctan2(R[:, 2, 1], R[:, 2, 2])
-    pitch = np.arcsin(np.clip(-R[:, 2, 0], -1.0, 1.0))
-    yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0])
-    return np.stack([roll, pitch, yaw], axis=1)
+__all__ = ["relative_poses", "submap_frame_rows"]
 
 
 def relative_poses(T_world_kf: np.ndarray, T_world_frame: np.ndarray) -> np.ndarray:
     """(n, 6) x, y, z, roll, pitch, yaw of T_kf_frame = T_world_kf^-1 T_world_frame."""
     T = np.linalg.inv(T_world_kf) @ T_world_frame
-    return np.concatenate([T[:, :3, 3], rpy_from_rotation(T[:, :3, :3])], axis=1)
+    return pose_from_se3(T)
 
 
 def submap_frame_rows(

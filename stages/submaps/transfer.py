@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from stages.classify.segmentation import cluster_features, fan_xy
+from stages.classify.segmentation import cluster_features
+from stages.kernels.geometry import fan_to_xy
 
 __all__ = ["KeyframeObjectPoints", "transfer_objects"]
 
@@ -58,7 +59,7 @@ def transfer_objects(
     out = np.full(n, -1, np.int64)
     if n == 0:
         return out
-    xy = fan_xy(range_m, bearing_rad)
+    xy = fan_to_xy(range_m, bearing_rad)
     cluster = cluster_features(xy, eps_m, min_samples, min_features)
     if (cluster < 0).all():
         return out

@@ -7,11 +7,11 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.submaps import REL_POSE_COLUMNS
+from stages.kernels.geometry import se3_from_pose
 
 __all__ = [
     "pose_matrices",
     "pose_matrix",
-    "rotation_rpy",
     "submap_world_points",
     "transform_grouped",
     "world_points",
@@ -22,31 +22,12 @@ _XYZ = ("x_m", "y_m", "z_m")
 
 def pose_matrix(pose: np.ndarray) -> np.ndarray:
     """(n, 4, 4) transforms of (n, 6) poses x, y, z, roll, pitch, yaw (R = Rz Ry Rx)."""
-    p = np.asarray(pose, np.float64).reshape(-1, 6)
-    T = np.tile(np.eye(4), (len(p), 1, 1))
-    T[:, :3, :3] = rotation_rpy(p[:, 3], p[:, 4], p[:, 5])
-    T[:, :3, 3] = p[:, :3]
-    return T
+    return se3_from_pose(np.asarray(pose, np.float64).reshape(-1, 6))
 
 
 def xyz_columns(table: pa.Table) -> np.ndarray:
     """(n, 3) x_m, y_m, z_m of a table."""
     return np.stack([table.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-
-
-def rotation_rpy(roll_rad: np.ndarray, pitch_rad: np.ndarray, yaw_rad: np.ndarray) -> np.ndarray:
-    """(n, 3, 3) rotations R = Rz(yaw) Ry(pitch) Rx(roll) (extrinsic x-y-z, ROS RPY)."""
-    cr, sr = np.cos(roll_rad), np.sin(roll_rad)
-    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
-    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
-    return np.stack(
-        [
-            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-            np.stack([-sp, cp * sr, cp * cr], axis=-1),
-        ],
-        axis=-2,
-    )
 
 
 def pose_matrices(poses: pa.Table, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
