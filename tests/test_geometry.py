@@ -290,3 +290,78 @@ def test_the_one_home_check_catches_copies(tmp_path: Path) -> None:
     )
     found = {line.split(": ", 1)[1] for line in _offences([sample])}
     assert found == {"quat_to_rpy", *HAND_ROLLED} - {"Shepperd's method"}
+
+
+# --- the reader's use of it: /tf_static mountings ----------------------------------
+
+
+def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path:
+    """A small synthetic recording plus a /tf_static giving the horizontal sonar's mount."""
+    from ingest_recordings import write_recording
+    from mcap.reader import make_reader
+
+    from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+    from schemas.topics import FRAME_BASE, FRAME_SONAR, TOPIC_TF_STATIC
+
+    plain, out = tmp_path / "plain.mcap", tmp_path / "rec.mcap"
+    write_recording(plain, n_pings=4)
+    t = ros2_typestore().types
+    tf = t["geometry_msgs/msg/TransformStamped"](
+        header=t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=FRAME_BASE
+        ),
+        child_frame_id=FRAME_SONAR["horizontal"],
+        transform=t["geometry_msgs/msg/Transform"](
+            translation=t["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
+            rotation=t["geometry_msgs/msg/Quaternion"](x=quat[0], y=quat[1], z=quat[2], w=quat[3]),
+        ),
+    )
+    with plain.open("rb") as f, out.open("wb") as g, Ros2McapWriter(g) as w:
+        first = True
+        for schema, channel, m in make_reader(f).iter_messages():
+            if first:
+                w.write(
+                    TOPIC_TF_STATIC,
+                    "tf2_msgs/msg/TFMessage",
+                    t["tf2_msgs/msg/TFMessage"](transforms=[tf]),
+                    m.log_time,
+                )
+                first = False
+            assert schema is not None
+            w.write_raw(channel.topic, schema.name, m.data, m.log_time)
+    return out
+
+
+def _mountings(path: Path) -> dict[str, np.ndarray]:
+    from pipeline.readers import ReaderOptions, SourceRecording, open_source
+
+    return SourceRecording(open_source(path), ReaderOptions.from_config(None)).mountings()
+
+
+def test_a_tf_static_mounting_is_read_through_the_geometry_module(tmp_path: Path) -> None:
+    q = Rotation.from_euler("xyz", [0.1, -0.2, 0.3]).as_quat()
+    mounts = _mountings(_with_tf_static(tmp_path, list(2.0 * q), [0.5, 0.0, 0.1]))
+    np.testing.assert_allclose(
+        mounts["horizontal"][:3, :3], Rotation.from_quat(q).as_matrix(), atol=1e-12
+    )
+    np.testing.assert_array_equal(mounts["horizontal"][:3, 3], [0.5, 0.0, 0.1])
+
+
+@pytest.mark.parametrize(
+    ("quat", "xyz", "reason"),
+    [
+        ([0.0, 0.0, 0.0, 0.0], [0.5, 0.0, 0.1], "zero or non-finite norm"),
+        ([np.nan, 0.0, 0.0, 1.0], [0.5, 0.0, 0.1], "zero or non-finite norm"),
+        ([0.0, 0.0, 0.0, 1.0], [0.5, np.inf, 0.1], "translation is not finite"),
+    ],
+)
+def test_a_tf_static_mounting_without_a_pose_is_refused(
+    tmp_path: Path, quat: list[float], xyz: list[float], reason: str
+) -> None:
+    from pipeline.engine.errors import SourceError
+
+    path = _with_tf_static(tmp_path, quat, xyz)
+    with pytest.raises(
+        SourceError, match=rf"rec\.mcap: /tf_static: .*sonar_horizontal: .*{reason}"
+    ):
+        _mountings(path)

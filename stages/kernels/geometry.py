@@ -279,7 +279,8 @@ def matrix_from_quat(q_xyzw: object) -> np.ndarray:
     """
     q = _f64(q_xyzw)
     flat = q.reshape(-1, 4)
-    norm = np.linalg.norm(flat, axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(flat, axis=1)
     if not np.all(np.isfinite(norm) & (norm > 0)):
         raise ValueError("quaternion of zero or non-finite norm")
     R = _rotation().from_quat(flat).as_matrix()
