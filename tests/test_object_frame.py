@@ -9,12 +9,12 @@ from stages.infer.object_frame import (
     ClassFrame,
     IcpParams,
     ObjectOrigin,
-    apply_se2,
     object_origin,
     register_2d,
     to_object_frame,
     voxel_downsample_2d,
 )
+from stages.kernels.geometry import se2_apply as apply_se2
 
 
 def _l_shape(n: int = 120, seed: int = 0) -> np.ndarray:

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from stages._lazy import lazy
-from stages.kernels.geometry import fan_to_xy, se2
+from stages.kernels.geometry import fan_to_xy, se2, se2_apply
 
 o3d = lazy("open3d")
 
@@ -40,7 +40,6 @@ __all__ = [
     "IcpParams",
     "ObjectOrigin",
     "Registration",
-    "apply_se2",
     "object_origin",
     "to_object_frame",
     "voxel_downsample_2d",
@@ -70,11 +69,6 @@ def to_object_frame(
     """(n, 2) object-frame coordinates (u, v) [m] of returns at (range, bearing)."""
     d = np.asarray(bearing_rad, dtype=np.float64) - origin.bearing_rad
     return fan_to_xy(range_m, d).reshape(-1, 2) - np.array([origin.range_m, 0.0])
-
-
-def apply_se2(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a (3, 3) homogeneous 2D rigid transform to (n, 2) points."""
-    return np.asarray(points, dtype=np.float64) @ T[:2, :2].T + T[:2, 2]
 
 
 def voxel_downsample_2d(points: np.ndarray, voxel_m: float) -> np.ndarray:
@@ -196,7 +190,7 @@ class ClassFrame:
             return Registration(np.eye(3), 1.0, 0.0, True)
         result = self.register(points_obj)
         if result.ok:
-            merged = np.vstack([self.reference, apply_se2(result.T_ref_obj, points_obj)])
+            merged = np.vstack([self.reference, se2_apply(result.T_ref_obj, points_obj)])
             self.reference = voxel_downsample_2d(merged, self.params.voxel_m)
         else:
             logger.debug("object registration failed: fitness %.2f", result.fitness)

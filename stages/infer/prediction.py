@@ -24,9 +24,8 @@ from stages.infer.inputs import (
 from stages.infer.object_frame import (
     ClassFrame,
     ObjectOrigin,
-    apply_se2,
 )
-from stages.kernels.geometry import polar_to_xyz
+from stages.kernels.geometry import polar_to_xyz, se2_apply
 
 logger = logging.getLogger(__name__)
 
@@ -104,7 +103,7 @@ def update_object_class(
             logger.debug("object %d: registration failed, update skipped", s.object_id)
             continue
         transforms[s.object_id] = reg.T_ref_obj
-        uv.append(model_coords(apply_se2(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
+        uv.append(model_coords(se2_apply(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
         z.append(s.fused_z_m)
     if uv:
         state.model.update(np.vstack(uv), np.concatenate(z))
@@ -152,7 +151,7 @@ def query_object_sightings(
     """
     only2d = [~s.is_fused for s, _ in registered]
     uv = [
-        model_coords(apply_se2(T, s.uv_m[m]), s.origin, config.range_axis)
+        model_coords(se2_apply(T, s.uv_m[m]), s.origin, config.range_axis)
         for (s, T), m in zip(registered, only2d, strict=True)
     ]
     q = state.model.query(np.vstack(uv), config.confidence_threshold)
