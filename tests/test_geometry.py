@@ -234,8 +234,10 @@ REMOVED = (
     "rot_x",
     "rot_z",
     "rotation_rpy",
+    "pose_to_matrix",
+    "apply_se2",
 )
-"""The copies geometry.py replaced: six rotation helpers, three Eq. 1 copies, sim's."""
+"""The copies geometry.py replaced: six rotation helpers, three Eq. 1 copies, and others."""
 
 HAND_ROLLED = {
     "half-angle quaternion": r"np\.(?:cos|sin)\(\w+ / 2\)|/ 2 for \w+ in rpy",

@@ -66,7 +66,9 @@ def object_origin(range_m: np.ndarray, bearing_rad: np.ndarray) -> ObjectOrigin:
 def to_object_frame(
     range_m: np.ndarray, bearing_rad: np.ndarray, origin: ObjectOrigin
 ) -> np.ndarray:
-    """(n, 2) object-frame coordinates (u, v) [m] of returns at (range, bearing)."""
+    """(n, 2) object-frame coordinates (u, v) [m] of returns at (range, bearing):
+    Eq. 1 at phi = 0 in the frame turned by the origin's bearing theta0 and shifted by its
+    range R0, u = R cos(theta - theta0) - R0, v = R sin(theta - theta0)."""
     d = np.asarray(bearing_rad, dtype=np.float64) - origin.bearing_rad
     return fan_to_xy(range_m, d).reshape(-1, 2) - np.array([origin.range_m, 0.0])
 

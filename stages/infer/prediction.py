@@ -114,7 +114,10 @@ def predicted_points(
     q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: InferConfig
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Points of the MAP heights of n queried returns (0-2 each) and, per point, the
-    index of its return; heights outside +-max_elevation_deg are dropped."""
+    index of its return; heights outside +-max_elevation_deg are dropped.
+
+    A height z at range R gives the elevation phi = asin(z / R), and the point is paper
+    Eq. 1 of (R, theta, phi) in the horizontal sonar frame."""
     n = range_m.size
     r = np.tile(range_m, 2)
     z = np.concatenate([q.z_low_m, q.z_high_m])

@@ -20,11 +20,14 @@ Conventions (REP 103 / REP 105, the same everywhere in the project):
   x = R cos(phi) cos(theta), y = R cos(phi) sin(theta), z = R sin(phi).
   An imaging sonar does not measure phi; its fan-plane points take phi = 0.
 
-Every function takes arrays with any number of leading dimensions (n, ...) and
-returns float64. Conversions go through `scipy.spatial.transform.Rotation` where that
-gives the same bits as the arithmetic the pipeline's stored artifacts and the
-simulator's recordings were made with; the others are closed forms written once here
-and checked against scipy to 1e-12 in tests/test_geometry.py.
+Conversions, Eq. 1 and the SE(3)/SE(2) constructors take arrays with any number of
+leading dimensions (n, ...); `se3_apply`, `se2_apply` and `fan_in_frame` take one
+transform and (n, d) points. Everything returns float64. Conversions go through
+`scipy.spatial.transform.Rotation` where that gives the same bits as the arithmetic
+the pipeline's stored artifacts were made with; the others are one closed form each,
+checked against scipy to 1e-12 in tests/test_geometry.py. The simulator keeps its
+matrix-product form of R = Rz Ry Rx (`matrix_from_rpy_product`), with which the
+simulated recordings were made.
 """
 
 from __future__ import annotations
