@@ -34,7 +34,7 @@ def test_frames_between_keyframes_are_inferred_on_the_true_wall() -> None:
     kf_frames = keyframe_indices(run, 4.0)
     objects, links, features, fused = real_stage_tables(run, 4.0)
     icfg = InferConfig()
-    _, _, states = learn_and_infer(objects, links, features, fused, icfg, query=False)
+    _, _, states = learn_and_infer(objects, links, features, fused, icfg)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     rows = object_feature_rows(objects, links, horizontal, fused)
     class_of = dict(

@@ -135,6 +135,33 @@ class HeightModel:
         """True once Eq. 7 has been applied at least once."""
         return self.n_updates > 0
 
+    def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The learned cells in key order: (n, 2) int64 cell indices (i, j) (see
+        `cell_keys`), and their (n, n_z) mass and posterior probabilities."""
+        rows = self._order
+        ij = np.stack(np.divmod(self._sorted_keys, _STRIDE), axis=1) - _OFFSET
+        return ij, self._mass[rows], self._prob[rows]
+
+    def restore(self, ij: np.ndarray, mass: np.ndarray, prob: np.ndarray, n_updates: int) -> None:
+        """Replace the cells with those of `cells()` (of a model with this grid and
+        rule), so the model answers and updates as the one they were taken from."""
+        ij = np.asarray(ij, dtype=np.int64).reshape(-1, 2)
+        shape = (ij.shape[0], self.z_m.size)
+        if np.shape(mass) != shape or np.shape(prob) != shape:
+            raise ValueError(f"cells: mass and probabilities must be {shape}")
+        if ij.size and np.abs(ij).max() >= _OFFSET:
+            raise ValueError("cells: index out of the cell index range")
+        keys = (ij[:, 0] + _OFFSET) * _STRIDE + (ij[:, 1] + _OFFSET)
+        if np.any(np.diff(keys) <= 0):
+            raise ValueError("cells: indices must be unique and in key order")
+        self._keys = keys
+        self._order = np.arange(keys.size, dtype=np.int64)
+        self._sorted_keys = keys
+        self._mass = np.array(mass, dtype=np.float64, order="C")
+        self._prob = np.array(prob, dtype=np.float64, order="C")
+        self._reserve(16)
+        self.n_updates = int(n_updates)
+
     def cell_keys(self, uv_m: np.ndarray) -> np.ndarray:
         """Packed int64 cell keys of (n, 2) reference-frame points (u, v) [m]."""
         ij = np.floor(np.asarray(uv_m, dtype=np.float64).reshape(-1, 2) / self.cell_m + 0.5)

@@ -185,15 +185,13 @@ def update_and_query_beam_class(
     config: InferConfig,
     funnel: Funnel,
     update: bool = True,
-    query: bool = True,
 ) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
     is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
-    model (unless `update` is False: query only), the 2D-only ones are queried (unless
-    `query` is False: update only). Returns (points, object id per point), or None
-    before the model has data or without a query.
+    model (unless `update` is False: query only), the 2D-only ones are queried. Returns
+    (points, object id per point), or None before the model has data.
     """
     if not sightings:
         return None
@@ -209,7 +207,7 @@ def update_and_query_beam_class(
         funnel.counts["updated_objects"] += len(
             {s.object_id for s in sightings if s.is_fused.any()}
         )
-    if not query or not state.model.updated:
+    if not state.model.updated:
         return None
     funnel.counts["registered_objects"] += len(sightings)
     q = state.model.query(coords[~fused], config.confidence_threshold)

@@ -66,18 +66,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
-from stages.infer.config import FrameKind, InferConfig
-from stages.infer.height_model import CoarseFallbackModel, HeightModel, z_grid
+from stages.infer.class_models import class_model_tables, new_class_states
+from stages.infer.config import InferConfig
 from stages.infer.inputs import (
     column,
     object_feature_rows,
 )
 from stages.infer.inputs import sightings as _sightings
-from stages.infer.object_frame import (
-    ClassFrame,
-)
 from stages.infer.prediction import (
     FUNNEL_STEPS,
     ClassState,
@@ -147,22 +145,11 @@ def learn_and_infer(
     features: pa.Table,
     fused: pa.Table,
     config: InferConfig,
-    query: bool = True,
 ) -> tuple[pa.Table, dict[str, Any], dict[str, ClassState]]:
     """`infer_mission`, plus every class's reference frame and height model as they
-    stand after the last keyframe (what stage `submaps` queries its frames with).
-
-    query=False learns only: the same final models (queries change neither the
-    reference clouds nor the height models), no points (an empty table), and stats
-    without the query steps' counts."""
-    z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
-    states = {
-        c: ClassState(
-            ClassFrame(config.icp_params()),
-            _height_model(z, config, config.frame_kind(c)),
-        )
-        for c in config.classes
-    }
+    stand after the last keyframe (output `class_*`, what stage `submaps` queries its
+    frames with; queries change neither the reference clouds nor the height models)."""
+    states = new_class_states(config)
     funnels: dict[str, Funnel] = {}
     horizontal = features
     if "sonar" in features.column_names:
@@ -184,7 +171,6 @@ def learn_and_infer(
             states,
             config,
             funnels,
-            query,
         )
     ]
     sonar = features.column("sonar") if "sonar" in features.column_names else None
@@ -203,22 +189,6 @@ def learn_and_infer(
     return points_table(parts), stats, states
 
 
-def _height_model(
-    z: np.ndarray, config: InferConfig, kind: FrameKind
-) -> HeightModel | CoarseFallbackModel:
-    """A class's height model; beam frames have cells (s, R0) (`stages.infer.beam_frame`)."""
-    if kind == "beam":
-        cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
-        rule = config.beam_update_rule
-    else:
-        cells = (config.range_cell_m, config.cross_range_cell_m)
-        rule = "product"
-    model = HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
-    if kind == "object" and config.coarse_fallback_factor > 1:
-        return CoarseFallbackModel(model, config.coarse_fallback_factor)
-    return model
-
-
 def _process_keyframe(
     keyframe_id: int,
     rows: dict[str, np.ndarray],
@@ -227,16 +197,13 @@ def _process_keyframe(
     states: dict[str, ClassState],
     config: InferConfig,
     funnels: dict[str, Funnel],
-    query: bool = True,
 ) -> list[dict[str, Any]]:
-    """Update (Eq. 7) then query (Eq. 8-9, unless `query` is False) every inferred
-    class with one keyframe."""
+    """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
     sightings = _sightings(rows, rows_of_keyframe, fused_cols)
     parts = []
     for s in sightings:
-        if query:
-            pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-            parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
+        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
         funnel = funnels.setdefault(s.class_name, Funnel())
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
@@ -245,15 +212,14 @@ def _process_keyframe(
         state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
         if config.frame_kind(c) == "beam":
-            found = update_and_query_beam_class(state, of_class, config, funnel, query=query)
+            found = update_and_query_beam_class(state, of_class, config, funnel)
             if found is not None:
                 parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-            if query:
-                parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
+            parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
             continue
         transforms = update_object_class(state, of_class, config.range_axis)
         funnel.counts["updated_objects"] += len(transforms)
-        if not query or not state.model.updated:
+        if not state.model.updated:
             continue
         found = register_and_query(state, of_class, config, funnel, transforms)
         if found is not None:
@@ -331,25 +297,34 @@ def points_table(
 
 
 def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    points, stats = infer_mission(
+    points, stats, states = learn_and_infer(
         inputs["classify.objects"],
         inputs["classify.object_features"],
         inputs["features.features"],
         inputs["fuse.fused"],
         config,
     )
-    return {"points": points, "stats": stats}
+    reference, cells = class_model_tables(states)
+    return {"points": points, "stats": stats, "class_reference": reference, "class_cells": cells}
 
 
 STAGE = Stage(
     name="infer",
     # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
-    version=3,
+    # 4: the learned class models are outputs (class_reference, class_cells)
+    version=4,
     config=InferConfig,
     inputs=("classify.objects", "classify.object_features", "features.features", "fuse.fused"),
     outputs=(
         Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
         Output("stats", "json", "stats.json"),
+        Output(
+            "class_reference",
+            "parquet",
+            "class_reference.parquet",
+            schema=CLASS_REFERENCE_SCHEMA,
+        ),
+        Output("class_cells", "parquet", "class_cells.parquet", schema=CLASS_CELLS_SCHEMA),
     ),
     run=_run,
     description="object-class Bayesian height models; MAP heights for 2D-only returns",

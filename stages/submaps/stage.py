@@ -18,9 +18,9 @@ through, with the keyframe stages' own functions and config sections:
 3. classify: the clusters of its horizontal returns take the keyframe objects they see
    again (`stages.submaps.transfer`), instead of a CNN pass;
 4. infer: its 2D-only returns on inferred classes are queried (Eq. 8-9) in the class
-   models as they stand after the mission's last keyframe (`learn_and_infer`): the
-   models learn from keyframes only, so the keyframe map is the same with or without
-   submaps.
+   models as they stand after the mission's last keyframe (infer's outputs
+   `class_reference` and `class_cells`, read back, never relearned): the models learn
+   from keyframes only, so the keyframe map is the same with or without submaps.
 
 SLAM still uses keyframes only. `voxelize` registers a frame's points with
 T_world_kf(SLAM) T_kf_frame T_base_sonar (Eq. 4 extended).
@@ -47,12 +47,13 @@ from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import Output, Stage
+from stages.base import InputRejected, Output, Stage
 from stages.classify.stage import ClassifyConfig
 from stages.fuse.stage import sonar_offset
+from stages.infer.class_models import restore_class_states
 from stages.infer.config import InferConfig
 from stages.infer.inputs import column, object_feature_rows
-from stages.infer.stage import learn_and_infer
+from stages.infer.prediction import ClassState
 from stages.keyframes import KeyframesConfig, interpolate_poses, posed_pairs
 from stages.submaps.config import SubmapsConfig
 from stages.submaps.frames import submap_frame_rows
@@ -83,10 +84,12 @@ def map_submap_frames(
     object_features: pa.Table,
     features: pa.Table,
     fused: pa.Table,
+    states: Mapping[str, ClassState],
     sections: Mapping[str, Any],
     config: SubmapsConfig,
 ) -> tuple[pa.Table, pa.Table, dict[str, Any]]:
-    """Frames, points and loss accounting of a mission's submaps (module docstring).
+    """Frames, points and loss accounting of a mission's submaps (module docstring),
+    `states` the class models infer learned (`restore_class_states`).
 
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
     that many processes (`stages.submaps.workers`); the outputs are the same bytes.
@@ -108,7 +111,6 @@ def map_submap_frames(
         column(keyframes, "ping_index_horizontal", "keyframes"),
         h_idx, v_idx, posed.h_t_ns, posed.v_t_ns, posed.pose[pair_rows], gt, stride,
     )  # fmt: skip
-    _, _, states = learn_and_infer(objects, object_features, features, fused, icfg, query=False)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     mapper = FrameMapper(
         features=sections["features"],
@@ -165,6 +167,15 @@ def _pose_matrices(table: pa.Table, what: str) -> np.ndarray:
 _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 
 
+def _class_states(inputs: Mapping[str, Any]) -> dict[str, ClassState]:
+    try:
+        return restore_class_states(
+            inputs["infer.class_reference"], inputs["infer.class_cells"], inputs["config.infer"]
+        )
+    except ValueError as err:
+        raise InputRejected("infer.class_cells", str(err)) from err
+
+
 def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     frames, points, stats = map_submap_frames(
         inputs["dataset"],
@@ -174,6 +185,7 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs["classify.object_features"],
         inputs["features.features"],
         inputs["fuse.fused"],
+        _class_states(inputs),
         {s: inputs[f"config.{s}"] for s in _SECTIONS},
         config,
     )
@@ -184,7 +196,8 @@ STAGE = Stage(
     name="submaps",
     # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
     # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
-    version=3,
+    # 4: the class models are infer's outputs, read back (same bytes)
+    version=4,
     config=SubmapsConfig,
     inputs=(
         "dataset",
@@ -194,6 +207,8 @@ STAGE = Stage(
         "classify.object_features",
         "features.features",
         "fuse.fused",
+        "infer.class_reference",
+        "infer.class_cells",
     ),
     outputs=(
         Output("frames", "parquet", "submap_frames.parquet", schema=SUBMAP_FRAMES_SCHEMA),

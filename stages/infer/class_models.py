@@ -1,0 +1,143 @@
+"""The class models of a mission as tables and back (`schemas.class_models`).
+
+Stage `infer` learns one model per inferred class (`ClassState`: reference frame and
+height model, paper Eq. 7) and writes them; stage `submaps` reads them back and queries
+its frames with them (Eq. 8-9), so it never relearns them and its key follows infer's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
+from stages.infer.config import FrameKind, InferConfig
+from stages.infer.height_model import CoarseFallbackModel, HeightModel, z_grid
+from stages.infer.object_frame import ClassFrame
+from stages.infer.prediction import ClassState
+
+__all__ = ["class_model_tables", "new_class_states", "restore_class_states"]
+
+
+def new_class_states(config: InferConfig) -> dict[str, ClassState]:
+    """An empty model (no reference frame, no cells) for every inferred class."""
+    z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
+    return {
+        c: ClassState(
+            ClassFrame(config.icp_params()), _height_model(z, config, config.frame_kind(c))
+        )
+        for c in config.classes
+    }
+
+
+def _height_model(
+    z: np.ndarray, config: InferConfig, kind: FrameKind
+) -> HeightModel | CoarseFallbackModel:
+    """A class's height model; beam frames have cells (s, R0) (`stages.infer.beam_frame`)."""
+    if kind == "beam":
+        cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
+        rule = config.beam_update_rule
+    else:
+        cells = (config.range_cell_m, config.cross_range_cell_m)
+        rule = "product"
+    model = HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
+    if kind == "object" and config.coarse_fallback_factor > 1:
+        return CoarseFallbackModel(model, config.coarse_fallback_factor)
+    return model
+
+
+def _grids(model: HeightModel | CoarseFallbackModel) -> dict[str, HeightModel]:
+    if isinstance(model, CoarseFallbackModel):
+        return {"coarse": model.coarse, "fine": model.fine}
+    return {"fine": model}
+
+
+def _lists(values: np.ndarray) -> pa.ListArray:
+    """(n, k) float64 rows as a list<float64> array (one list per row)."""
+    n, k = values.shape
+    offsets = pa.array(np.arange(n + 1, dtype=np.int32) * k, pa.int32())
+    return pa.ListArray.from_arrays(offsets, pa.array(values.reshape(-1), pa.float64()))
+
+
+def class_model_tables(states: Mapping[str, ClassState]) -> tuple[pa.Table, pa.Table]:
+    """The reference clouds (`CLASS_REFERENCE_SCHEMA`) and the height-model cells
+    (`CLASS_CELLS_SCHEMA`) of every class, in schema order."""
+    refs, cells = [CLASS_REFERENCE_SCHEMA.empty_table()], [CLASS_CELLS_SCHEMA.empty_table()]
+    for c in sorted(states):
+        ref = states[c].frame.reference
+        if ref is not None and len(ref):
+            cloud = np.asarray(ref, np.float64).reshape(-1, 2)
+            refs.append(
+                pa.table(
+                    [pa.array([c] * len(cloud), pa.string()), cloud[:, 0], cloud[:, 1]],
+                    schema=CLASS_REFERENCE_SCHEMA,
+                )
+            )
+        for grid, model in sorted(_grids(states[c].model).items()):
+            ij, mass, prob = model.cells()
+            n = ij.shape[0]
+            cells.append(
+                pa.table(
+                    [
+                        pa.array([c] * n, pa.string()),
+                        pa.array([grid] * n, pa.string()),
+                        ij[:, 0],
+                        ij[:, 1],
+                        _lists(mass),
+                        _lists(prob),
+                        np.full(n, model.n_updates, np.int64),
+                    ],
+                    schema=CLASS_CELLS_SCHEMA,
+                )
+            )
+    return pa.concat_tables(refs), pa.concat_tables(cells)
+
+
+def _matrix(column: pa.ChunkedArray, n_z: int, what: str) -> np.ndarray:
+    """(n, n_z) float64 rows of a list<float64> column; every list must hold n_z values."""
+    flat = pa.concat_arrays(column.chunks) if column.num_chunks else pa.array([], column.type)
+    if flat.null_count or pc.any(pc.not_equal(pc.list_value_length(flat), n_z)).as_py():
+        raise ValueError(f"{what}: every cell needs {n_z} values (the infer z grid)")
+    return flat.flatten().to_numpy(zero_copy_only=False).reshape(-1, n_z)
+
+
+def restore_class_states(
+    reference: pa.Table, cells: pa.Table, config: InferConfig
+) -> dict[str, ClassState]:
+    """The class models of `class_model_tables`, read back for `config` (the section
+    they were learned with): each answers queries exactly as the written one.
+
+    Raises:
+        ValueError: a table names a class or grid that `config` has no model for, or its
+            cells do not fit the z grid.
+    """
+    states = new_class_states(config)
+    ref_class = reference.column("class_name").to_numpy(zero_copy_only=False)
+    cell_class = cells.column("class_name").to_numpy(zero_copy_only=False)
+    grid = cells.column("grid").to_numpy(zero_copy_only=False)
+    unknown = sorted((set(ref_class.tolist()) | set(cell_class.tolist())) - set(states))
+    if unknown:
+        raise ValueError(f"class models of {unknown[0][:40]!r}, not in infer.classes")
+    u, v = (reference.column(n).to_numpy() for n in ("u_m", "v_m"))
+    for c, state in states.items():
+        mine = ref_class == c
+        if mine.any():
+            state.frame.reference = np.stack([u[mine], v[mine]], axis=1)
+        grids = _grids(state.model)
+        for g in np.unique(grid[cell_class == c]).tolist():
+            if g not in grids:
+                raise ValueError(f"class {c}: no {str(g)[:20]!r} grid for its frame kind")
+            rows = np.flatnonzero((cell_class == c) & (grid == g))
+            part = cells.take(pa.array(rows))
+            n_z = grids[g].z_m.size
+            ij = np.stack([part.column(n).to_numpy() for n in ("cell_u", "cell_v")], axis=1)
+            grids[g].restore(
+                ij,
+                _matrix(part.column("mass"), n_z, f"class {c} mass"),
+                _matrix(part.column("probability"), n_z, f"class {c} probability"),
+                int(part.column("n_updates").to_numpy()[0]),
+            )
+    return states
