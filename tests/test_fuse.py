@@ -20,8 +20,9 @@ from sim.geometry import pose_to_matrix, rot_rpy
 from sim.scene import Scene
 from sim.world import World
 from stages.features.stage import FeaturesConfig, features_table
-from stages.fuse.association import assign_subproblems, image_patches
-from stages.fuse.stage import STAGE, FuseConfig, fuse_table, fused_points, sonar_offset
+from stages.fuse.stage import STAGE, FuseConfig, fuse_table
+from stages.kernels.association import assign_subproblems, image_patches
+from stages.kernels.fusion import fused_points, sonar_offset
 
 logger = logging.getLogger(__name__)
 

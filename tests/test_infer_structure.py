@@ -1,4 +1,4 @@
-"""Whole-structure inference (`stages.infer.beam_frame`): walls and hulls against simulator truth."""
+"""Whole-structure inference (`stages.kernels.beam_frame`): walls and hulls against simulator truth."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
-from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.stage import InferConfig, infer_mission
+from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
 
 REPO = Path(__file__).resolve().parents[1]
 NO_BORROWING = InferConfig(unknown_argmax_classes=(), borrowed_models={})

@@ -18,9 +18,9 @@ from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
 from pipeline.engine.runner import DatasetSpec, plan
 from pipeline.engine.store import ArtifactStore
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
-from stages.infer.class_models import class_model_tables, restore_class_states
 from stages.infer.stage import STAGE as INFER
 from stages.infer.stage import InferConfig, learn_and_infer
+from stages.kernels.class_models import class_model_tables, restore_class_states
 
 
 def _relabelled(inputs: dict[str, pa.Table], class_name: str) -> dict[str, pa.Table]:

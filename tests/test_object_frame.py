@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.infer.object_frame import (
+from stages.kernels.object_frame import (
     ClassFrame,
     IcpParams,
     ObjectOrigin,

@@ -23,7 +23,8 @@ from pipeline.training.model import plan_training, training_datasets
 from pipeline.training.model_cache import model_cache
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINTS_SCHEMA
 from sim.geometry import pose_to_matrix
-from stages.submaps.frames import pose_matrix, rpy_from_rotation, submap_frame_rows
+from stages.kernels.poses import pose_matrix
+from stages.submaps.frames import rpy_from_rotation, submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 from stages.submaps.workers import worker_count
 from stages.voxelize.stage import build_map

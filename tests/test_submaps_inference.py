@@ -18,10 +18,13 @@ from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.geometry import pose_to_matrix
 from sim.scene import load_scene
-from stages.features.stage import FeaturesConfig, keyframe_features
-from stages.fuse.stage import FuseConfig, fuse_keyframe, sonar_offset
-from stages.infer.inputs import object_feature_rows
-from stages.infer.stage import InferConfig, learn_and_infer, points_table
+from stages.features.stage import FeaturesConfig
+from stages.fuse.stage import FuseConfig
+from stages.infer.stage import InferConfig, learn_and_infer
+from stages.kernels.frame_features import keyframe_features
+from stages.kernels.fusion import fuse_keyframe, sonar_offset
+from stages.kernels.point_tables import points_table
+from stages.kernels.sightings import object_feature_rows
 from stages.submaps.mapping import frame_points
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 

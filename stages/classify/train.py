@@ -26,10 +26,10 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import KeyframeImages
-from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 from stages.classify.validation import confusion_png, evaluate
+from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN

@@ -14,12 +14,12 @@ from schemas.classes import (
     known_class_names,
 )
 from stages.base import StageConfig
-from stages.infer.height_model import UpdateRule
-from stages.infer.object_frame import IcpParams
+from stages.kernels.class_models import DEFAULT_FRAME_KINDS, FrameKind
+from stages.kernels.height_model import UpdateRule
+from stages.kernels.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
-FrameKind = Literal["object", "beam"]
 DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall")
 """The classes whose inferred median error stays within 1.5x that of their fused points
 (by the class the classifier assigned) on every scene measured at 4 m keyframes: marina
@@ -31,14 +31,6 @@ gantry truss called seawall, its true walls alone 1.02x). truss (basin 1.71x, te
 harbour) and "unknown" (marina 1.80x / 1.54x, terminal) miss it on those same scenes with
 all three listed (before the corner-trained classifier: truss harbour 1.75x, boat_hull
 `moorings` 2.38x, unknown marina 1.87x); all work when listed, with the beam frame."""
-DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
-    "cylindrical_piling": "object",
-    "rectangular_piling": "object",
-    "seawall": "beam",
-    "boat_hull": "beam",
-    "truss": "beam",
-    UNKNOWN_CLASS: "beam",
-}
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
 """The piling models' cells are empty for a quarter to a third of the returns they are
 asked about (mostly heights of 3-5 m and ranges past 20 m, where few fused points fall).
@@ -71,7 +63,7 @@ class InferConfig(StageConfig):
     frame_kinds: dict[str, FrameKind] = Field(
         default_factory=lambda: dict(DEFAULT_FRAME_KINDS),
         description="reference frame of each class: 'object' (ICP-registered object frame,"
-        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.infer.beam_frame);"
+        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.kernels.beam_frame);"
         " classes not listed use 'object'",
     )
     unknown_argmax_classes: tuple[str, ...] = Field(
@@ -104,7 +96,7 @@ class InferConfig(StageConfig):
     beam_update_rule: UpdateRule = Field(
         "mixture",
         description="beam frame: 'product' (Eq. 7, one height per cell) or 'mixture'"
-        " (Dirichlet counts of the heights a cell returns from; stages.infer.height_model)",
+        " (Dirichlet counts of the heights a cell returns from; stages.kernels.height_model)",
     )
     beam_range_cell_m: float | None = Field(
         None,
@@ -134,7 +126,7 @@ class InferConfig(StageConfig):
         le=64,
         description="object frames: a query whose cell has no data takes the answer of the"
         " cell this many times larger that contains it"
-        " (stages.infer.height_model.CoarseFallbackModel); 1: none (the paper)",
+        " (stages.kernels.height_model.CoarseFallbackModel); 1: none (the paper)",
     )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"

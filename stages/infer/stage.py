@@ -7,7 +7,7 @@ classes):
 
 1. Update (Sec. IV.D, Eq. 7): every object of the class with fused 3D points is put
    into its object frame (origin: minimum range, median bearing of all its 2D
-   returns; `stages.infer.object_frame`), registered to the class reference frame with ICP
+   returns; `stages.kernels.object_frame`), registered to the class reference frame with ICP
    (the first such object defines it) and, if the registration succeeded, its fused
    points update the class `HeightModel` at their (registered) range/bearing with
    their Cartesian height z. One model update per class and keyframe, so fused points
@@ -21,7 +21,7 @@ classes):
 
 Beyond the paper: seawalls (default on) and trusses and hulls (when listed), whose
 objects rarely fit in one image, use per-beam leading-edge frames instead of one ICP-registered class frame
-(`stages.infer.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
+(`stages.kernels.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
 pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
 "mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
 product would collapse to one mode). `infer.classes` set to the two piling classes is
@@ -69,22 +69,19 @@ import pyarrow.compute as pc
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.points import POINTS_SCHEMA
 from stages.base import Output, Stage
-from stages.infer.class_models import class_model_tables, new_class_states
 from stages.infer.config import InferConfig
-from stages.infer.inputs import (
-    column,
-    object_feature_rows,
-)
-from stages.infer.inputs import sightings as _sightings
-from stages.infer.prediction import (
+from stages.kernels.class_models import ClassState, class_model_tables, new_class_states
+from stages.kernels.class_query import (
     FUNNEL_STEPS,
-    ClassState,
     Funnel,
     borrowed_sightings,
     register_and_query,
     update_and_query_beam_class,
     update_object_class,
 )
+from stages.kernels.point_tables import points_table, tag_points
+from stages.kernels.sightings import column, object_feature_rows
+from stages.kernels.sightings import sightings as _sightings
 
 __all__ = [
     "STAGE",
@@ -92,8 +89,6 @@ __all__ = [
     "infer_mission",
     "infer_points",
     "learn_and_infer",
-    "points_table",
-    "tag_points",
 ]
 
 logger = logging.getLogger(__name__)
@@ -245,55 +240,6 @@ def _query_borrowers(
         if found is not None:
             parts.append(tag_points(found[0], keyframe_id, found[1], borrower, "inferred"))
     return parts
-
-
-def tag_points(
-    pts: dict[str, np.ndarray],
-    keyframe_id: int,
-    object_id: int | np.ndarray,
-    class_name: str,
-    source: str,
-) -> dict:
-    n = pts["range_m"].size
-    return {
-        **pts,
-        "keyframe_id": np.full(n, keyframe_id, dtype=np.int64),
-        "object_id": np.broadcast_to(np.asarray(object_id, dtype=np.int64), (n,)),
-        # strings per part, not per point: `_table` expands them in Arrow
-        "class_name": (class_name, n),
-        "source": (source, n),
-    }
-
-
-def points_table(
-    parts: list[dict[str, Any]],
-    schema: pa.Schema = POINTS_SCHEMA,
-    sort_keys: tuple[str, ...] = (
-        "keyframe_id",
-        "object_id",
-        "source",
-        "range_m",
-        "bearing_rad",
-        "z_m",
-    ),
-) -> pa.Table:
-    """Concatenate point dicts (`tag_points`) into a sorted table of `schema`."""
-    cols = {}
-    for f in schema:
-        values = [p[f.name] for p in parts]
-        if f.type == pa.string():
-            names, codes = np.unique([v[0] for v in values], return_inverse=True)
-            repeats = np.array([v[1] for v in values], dtype=np.int64)
-            cols[f.name] = (
-                pa.array(names.tolist(), pa.string()).take(np.repeat(codes.reshape(-1), repeats))
-                if values
-                else pa.array([], pa.string())
-            )
-            continue
-        data = np.concatenate(values) if values else np.empty(0)
-        cols[f.name] = pa.array(data, f.type)
-    table = pa.table(cols, schema=schema)
-    return table.sort_by([(k, "ascending") for k in sort_keys])
 
 
 def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:

@@ -16,7 +16,7 @@ import pyarrow as pa
 
 from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
-from stages.voxelize.registration import pose_matrix
+from stages.kernels.poses import pose_matrix
 
 __all__ = ["relative_poses", "rpy_from_rotation", "submap_frame_rows"]
 

@@ -13,10 +13,11 @@ submap frame (`stages.submaps.frames`, with T_kf_frame from dead reckoning). Eac
 frame, streamed from the recording one at a time, goes through what a keyframe goes
 through, with the keyframe stages' own functions and config sections:
 
-1. features: SOCA-CFAR on both images (`stages.features.stage.keyframe_features`);
-2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`stages.fuse.stage.fuse_keyframe`);
-3. classify: the clusters of its horizontal returns take the keyframe objects they see
-   again (`stages.submaps.transfer`), instead of a CNN pass;
+1. features: SOCA-CFAR on both images (`stages.kernels.frame_features`);
+2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`stages.kernels.fusion`);
+3. classify: the clusters of its horizontal returns (classify's own clustering, its
+   output `clustering`) take the keyframe objects they see again
+   (`stages.submaps.transfer`), instead of a CNN pass;
 4. infer: its 2D-only returns on inferred classes are queried (Eq. 8-9) in the class
    models as they stand after the mission's last keyframe (infer's outputs
    `class_reference` and `class_cells`, read back, never relearned): the models learn
@@ -48,32 +49,31 @@ from schemas.submaps import (
     SUBMAP_POINTS_SCHEMA,
 )
 from stages.base import InputRejected, Output, Stage
-from stages.classify.stage import ClassifyConfig
-from stages.fuse.stage import sonar_offset
-from stages.infer.class_models import restore_class_states
-from stages.infer.config import InferConfig
-from stages.infer.inputs import column, object_feature_rows
-from stages.infer.prediction import ClassState
+from stages.kernels.class_models import ClassModelSettings, ClassState, restore_class_states
+from stages.kernels.fusion import sonar_offset
+from stages.kernels.poses import pose_matrix
+from stages.kernels.sightings import column, object_feature_rows
 from stages.keyframes import KeyframesConfig, interpolate_poses, posed_pairs
 from stages.submaps.config import SubmapsConfig
 from stages.submaps.frames import submap_frame_rows
 from stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
 from stages.submaps.workers import mapped_chunks
-from stages.voxelize.registration import pose_matrix
 
 __all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
 
-_SECTIONS = ("keyframes", "features", "fuse", "classify", "infer", "train")
+_SECTIONS = ("keyframes", "features", "fuse", "infer")
 
 
-def _clustering(classify: ClassifyConfig, train: Any) -> tuple[float, int, int]:
-    """The classifier's clustering: classify's overrides, else the training section's."""
-    pick = [getattr(classify, n) for n in ("eps_m", "min_samples", "min_features")]
-    eps, samples, feats = (
-        v if v is not None else getattr(train, n)
-        for v, n in zip(pick, ("eps_m", "min_samples", "min_features"), strict=True)
-    )
-    return float(eps), int(samples), int(feats)
+def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
+    """The clustering classify used (its output `clustering`)."""
+    try:
+        return (
+            float(params["eps_m"]),
+            int(params["min_samples"]),
+            int(params["min_features"]),
+        )
+    except (KeyError, TypeError, ValueError) as err:
+        raise InputRejected("classify.clustering", f"no clustering parameters ({err})") from err
 
 
 def map_submap_frames(
@@ -85,18 +85,19 @@ def map_submap_frames(
     features: pa.Table,
     fused: pa.Table,
     states: Mapping[str, ClassState],
+    clustering: tuple[float, int, int],
     sections: Mapping[str, Any],
     config: SubmapsConfig,
 ) -> tuple[pa.Table, pa.Table, dict[str, Any]]:
     """Frames, points and loss accounting of a mission's submaps (module docstring),
-    `states` the class models infer learned (`restore_class_states`).
+    `states` the class models infer learned (`restore_class_states`) and `clustering`
+    (eps_m, min_samples, min_features) the one classify used.
 
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
     that many processes (`stages.submaps.workers`); the outputs are the same bytes.
     """
     kcfg: KeyframesConfig = sections["keyframes"]
-    icfg: InferConfig = sections["infer"]
-    clustering = _clustering(sections["classify"], sections["train"])
+    icfg: ClassModelSettings = sections["infer"]
     stride = kcfg.submap_stride
     empty_stats: dict[str, Any] = {"stride": stride, "frames": 0, "classes": {}}
     if stride == 0:
@@ -186,6 +187,7 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs["features.features"],
         inputs["fuse.fused"],
         _class_states(inputs),
+        _clustering(inputs["classify.clustering"]),
         {s: inputs[f"config.{s}"] for s in _SECTIONS},
         config,
     )
@@ -196,7 +198,8 @@ STAGE = Stage(
     name="submaps",
     # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
     # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
-    # 4: the class models are infer's outputs, read back (same bytes)
+    # 4: the class models are infer's outputs, read back, and the clustering classify's
+    # (same bytes)
     version=4,
     config=SubmapsConfig,
     inputs=(
@@ -205,6 +208,7 @@ STAGE = Stage(
         "keyframes.sensors",
         "classify.objects",
         "classify.object_features",
+        "classify.clustering",
         "features.features",
         "fuse.fused",
         "infer.class_reference",

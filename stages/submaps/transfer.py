@@ -2,7 +2,7 @@
 
 A submap frame is 0.1-2 m from its keyframe, so it sees the keyframe's objects again,
 from nearly the same place. Its horizontal returns are clustered as the classifier
-clusters a keyframe's (DBSCAN in the fan plane, `stages.classify.segmentation`), and
+clusters a keyframe's (DBSCAN in the fan plane, `stages.kernels.clustering`), and
 each cluster takes the object, and so the class, of the keyframe object that most of
 its returns lie on: a return lies on an object when, moved into the keyframe's sonar
 frame by the dead-reckoning motion between the two, it is within `match_radius_m` of
@@ -21,7 +21,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from stages.classify.segmentation import cluster_features, fan_xy
+from stages.classify.segmentation import fan_xy  # Eq. 1: the geometry module's (issue 36)
+from stages.kernels.clustering import cluster_features
 
 __all__ = ["KeyframeObjectPoints", "transfer_objects"]
 

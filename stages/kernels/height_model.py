@@ -1,7 +1,7 @@
 """Object-class height model P(z | range, bearing) (paper Sec. IV.D-E, Eq. 7-9).
 
 One `HeightModel` per object class holds, for every cell of a sparse 2D grid over
-the class's reference frame (`stages.infer.object_frame`), a discrete posterior over the
+the class's reference frame (`stages.kernels.object_frame`), a discrete posterior over the
 height z of the return, stored as log probabilities on a fixed z grid.
 
 - Cells: the reference frame is metric and aligned with the reference line of sight,
@@ -37,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 special = lazy("scipy.special")
 

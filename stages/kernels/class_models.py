@@ -1,28 +1,104 @@
-"""The class models of a mission as tables and back (`schemas.class_models`).
+"""The class models of a mission (paper Sec. IV.D, Eq. 7): their state, the settings
+they are built from, and their tables (`schemas.class_models`).
 
 Stage `infer` learns one model per inferred class (`ClassState`: reference frame and
-height model, paper Eq. 7) and writes them; stage `submaps` reads them back and queries
-its frames with them (Eq. 8-9), so it never relearns them and its key follows infer's.
+height model) and writes them; stage `submaps` reads them back and queries its frames
+with them (Eq. 8-9, `stages.kernels.class_query`), so it never relearns them and its
+key follows infer's.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Literal, Protocol
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
-from stages.infer.config import FrameKind, InferConfig
-from stages.infer.height_model import CoarseFallbackModel, HeightModel, z_grid
-from stages.infer.object_frame import ClassFrame
-from stages.infer.prediction import ClassState
+from schemas.classes import UNKNOWN_CLASS
+from stages.kernels.height_model import CoarseFallbackModel, HeightModel, UpdateRule, z_grid
+from stages.kernels.object_frame import ClassFrame, IcpParams
 
-__all__ = ["class_model_tables", "new_class_states", "restore_class_states"]
+__all__ = [
+    "DEFAULT_FRAME_KINDS",
+    "ClassModelSettings",
+    "ClassState",
+    "FrameKind",
+    "class_model_tables",
+    "new_class_states",
+    "restore_class_states",
+]
+
+FrameKind = Literal["object", "beam"]
 
 
-def new_class_states(config: InferConfig) -> dict[str, ClassState]:
+DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
+    "cylindrical_piling": "object",
+    "rectangular_piling": "object",
+    "seawall": "beam",
+    "boat_hull": "beam",
+    "truss": "beam",
+    UNKNOWN_CLASS: "beam",
+}
+
+
+class ClassModelSettings(Protocol):
+    """What the class models read of config section `infer` (`InferConfig`)."""
+
+    @property
+    def classes(self) -> tuple[str, ...]: ...
+    @property
+    def unknown_argmax_classes(self) -> tuple[str, ...]: ...
+    @property
+    def borrowed_models(self) -> dict[str, str]: ...
+    @property
+    def borrow_min_extent_m(self) -> float: ...
+    @property
+    def beam_gap_m(self) -> float: ...
+    @property
+    def beam_cell_m(self) -> float: ...
+    @property
+    def beam_update_rule(self) -> UpdateRule: ...
+    @property
+    def beam_range_cell_m(self) -> float | None: ...
+    @property
+    def z_min_m(self) -> float: ...
+    @property
+    def z_max_m(self) -> float: ...
+    @property
+    def z_step_m(self) -> float: ...
+    @property
+    def sigma_m(self) -> float: ...
+    @property
+    def range_axis(self) -> Literal["offset", "height_equivalent"]: ...
+    @property
+    def range_cell_m(self) -> float: ...
+    @property
+    def cross_range_cell_m(self) -> float: ...
+    @property
+    def coarse_fallback_factor(self) -> int: ...
+    @property
+    def confidence_threshold(self) -> float: ...
+    @property
+    def confidence_window_m(self) -> float: ...
+    @property
+    def max_elevation_deg(self) -> float: ...
+    def frame_kind(self, class_name: str) -> FrameKind: ...
+    def icp_params(self) -> IcpParams: ...
+
+
+@dataclass
+class ClassState:
+    """Reference frame and height model of one class."""
+
+    frame: ClassFrame
+    model: HeightModel | CoarseFallbackModel
+
+
+def new_class_states(config: ClassModelSettings) -> dict[str, ClassState]:
     """An empty model (no reference frame, no cells) for every inferred class."""
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
     return {
@@ -34,9 +110,9 @@ def new_class_states(config: InferConfig) -> dict[str, ClassState]:
 
 
 def _height_model(
-    z: np.ndarray, config: InferConfig, kind: FrameKind
+    z: np.ndarray, config: ClassModelSettings, kind: FrameKind
 ) -> HeightModel | CoarseFallbackModel:
-    """A class's height model; beam frames have cells (s, R0) (`stages.infer.beam_frame`)."""
+    """A class's height model; beam frames have cells (s, R0) (`stages.kernels.beam_frame`)."""
     if kind == "beam":
         cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
         rule = config.beam_update_rule
@@ -105,7 +181,7 @@ def _matrix(column: pa.ChunkedArray, n_z: int, what: str) -> np.ndarray:
 
 
 def restore_class_states(
-    reference: pa.Table, cells: pa.Table, config: InferConfig
+    reference: pa.Table, cells: pa.Table, config: ClassModelSettings
 ) -> dict[str, ClassState]:
     """The class models of `class_model_tables`, read back for `config` (the section
     they were learned with): each answers queries exactly as the written one.

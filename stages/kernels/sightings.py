@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from stages.infer.object_frame import ObjectOrigin
+from stages.kernels.object_frame import ObjectOrigin
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",

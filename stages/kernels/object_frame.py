@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 o3d = lazy("open3d")
 

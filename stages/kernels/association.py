@@ -49,7 +49,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 
