@@ -4,17 +4,10 @@ Each image is searched along range, per beam, by `stages.kernels.cfar.cfar_detec
 default; CA, GO and OS through config), ANDed with an intensity floor; every detected
 cell is one feature row (schema `schemas.features.FEATURES_SCHEMA`).
 
-Defaults (`FeaturesConfig`), chosen on the simulator and the real Oculus M1200d ping in
-`shared/data/oculus` (256 beams x 703 bins, 2 m range, a bright seabed band):
-10 training + 5 guard cells per side (the authors' Ntc = 20, Ngc = 10), Pfa = 0.1
-(tau_SOCA = 3.06 for N = 20 training cells; the authors used 0.1-0.2), intensity floor 20 levels. On the tiny
-simulated mission this detects 91 % of the labelled object cells, and 99.3 % of the
-detections lie within one range bin of a labelled cell (tests/test_features.py); on the
-real ping it gives 1,126 detections
-(0.6 % of the cells), on the leading edges of the seabed band. The floor only matters
-on nearly empty images (simulated water: Rayleigh noise of mean 4 levels, where SOCA
-alone false-alarms on ~0.7 % of the cells); the authors' floors (50 real, 145 sim) were
-set for denoised or Cartesian images and lose weak returns in ours.
+Defaults (`FeaturesConfig`): SOCA with 10 training + 5 guard cells per side (the
+authors' Ntc = 20, Ngc = 10), Pfa = 0.1 and an intensity floor of 20 levels, lower than
+the authors' floors, which were set for denoised or Cartesian images and lose weak
+returns in ours (docs/decisions/005-cfar-defaults.md).
 """
 
 from __future__ import annotations

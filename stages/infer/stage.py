@@ -34,26 +34,20 @@ object id and class name, `source="fused"`) and the inferred points
 (`source="inferred"`), schema `schemas.points.POINTS_SCHEMA`. Fused points that
 belong to no object are not repeated here (they are in `fuse.fused`).
 
+Outputs `class_reference` and `class_cells` (`schemas.class_models`): every class's
+reference cloud and height-model cells after the last keyframe, which stage `submaps`
+queries its frames with (`stages.kernels.class_models`).
+
 Deviations from the paper / original code (deliberate, see the module docstrings of
 `height_model` and `object_frame`): metric object frames shared by 2D and 3D points,
 a sparse unbounded cell grid, an explicit confidence threshold, failed ICP skipped,
 and predictions whose elevation falls outside the horizontal sonar's vertical
 aperture (`max_elevation_deg`) are dropped, since no return can come from there.
 
-Measured deviation, `range_axis="height_equivalent"` (default): the model's range
-axis is not the range offset u from the object origin but sign(u) sqrt(|u^2 + 2 R0 u|)
-(R0: the sighting's own minimum range), the height at which a vertical surface
-through the object's nearest point returns at range R0 + u. With the paper's offset
-axis, z of a piling at a given offset grows like sqrt(R0), so one model mixes
-incompatible heights from sightings at different distances. On the simulated pier
-(4 m keyframes, truth-built objects and 10 % fused overlap cells with 0.5 deg
-elevation noise, seeds 0-3) the median inferred-point distance to the true mesh was
-1.56-1.89x that of the fused points with "offset" and 1.17-1.28x with
-"height_equivalent" (coverage 21-47x vs 7-14x the fused voxels); after a later
-simulator change (wider labels), 1.20-1.26x vs 0.83-1.14x. Through the real CFAR
-and fusion stages (pier, seed 0, DBSCAN objects with their true class) the medians
-were 7.3 cm ("offset") vs 6.9 cm (fused points: 6.8 cm) and the coverage 4.7x vs
-5.1x. "offset" stays available for the paper's exact formulation.
+Deviation, `range_axis="height_equivalent"` (default): the model's range axis is
+sign(u) sqrt(|u^2 + 2 R0 u|) (R0: the sighting's own minimum range), not the offset u,
+because with u one model mixes a piling's heights seen from different distances;
+measurements in docs/decisions/001-height-equivalent-range-axis.md.
 """
 
 from __future__ import annotations

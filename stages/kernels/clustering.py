@@ -56,8 +56,8 @@ def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.n
 
     With min_samples 2 every point with a neighbour within eps is a core point, so each
     cluster is a connected component and the isolated points are noise (min_samples 1:
-    they are singleton clusters). Same partition as scikit-learn's DBSCAN, at about a
-    tenth of its per-keyframe overhead (its radius queries were 40 % of classify).
+    they are singleton clusters). Same partition as scikit-learn's DBSCAN, at a fraction of
+    its overhead (docs/decisions/010-dbscan-as-linked-components.md).
     """
     n = len(xy_m)
     pairs = spatial.cKDTree(xy_m).query_pairs(eps_m, output_type="ndarray")

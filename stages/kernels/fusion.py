@@ -10,14 +10,11 @@ Per frame:
 4. Point, Eq. 3: range R = (R_h + R_v) / 2, bearing theta from the horizontal feature,
    elevation from the vertical feature, as below; then Eq. 1 to Cartesian.
 
-Geometry (deviation from Eq. 1 with phi = vertical angle, measured): the vertical sonar's
-beam angle a_v is its fan angle atan2(z, x) at its own origin, not asin(z / R). With the
-vertical origin at the horizontal one, the point is x = R / sqrt(1 + tan^2 theta +
-tan^2 a_v), y = x tan theta, z = x tan a_v, while Eq. 1 with phi = a_v puts z higher by
-up to 0.25 % of R at the overlap corners (theta = a_v = 10 deg: 2.5 cm at 10 m). And the
-vertical sonar sits `T_base_sonar`-offset from the horizontal one (default 0.1 m above):
-ignoring that shifts z by about the offset (10 cm, a 1.9 deg elevation error at 3 m). So
-the point is computed exactly for any rigid mounting: it lies on the horizontal sonar's
+Geometry (deviation from Eq. 1 with phi = vertical angle): the vertical sonar's beam
+angle a_v is its fan angle atan2(z, x) at its own origin, not asin(z / R), and the two
+sonars are mounted apart, so Eq. 1 would misplace z (figures in
+docs/decisions/007-fused-point-geometry.md). The point is computed exactly for any
+rigid mounting: it lies on the horizontal sonar's
 bearing half-plane (through its origin, normal (-sin theta, cos theta, 0)) and on the
 vertical sonar's fan-angle plane (through its origin, normal R_hv (-sin a_v, cos a_v, 0)
 in the horizontal frame, the vertical sensor's own fan angle being atan2(y_s, x_s)), at

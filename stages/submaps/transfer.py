@@ -10,10 +10,9 @@ one of that object's returns. Objects of the next keyframe count too (a frame la
 its interval is closest to the next keyframe). A cluster that meets no object stays
 unclassified.
 
-This replaces the CNN on submap frames: a keyframe's class is already pooled over
-views (`stages.classify.view_pooling`), and classify costs about 37 ms of CPU per
-keyframe on the default marina against about 9 ms for this transfer per frame
-(`benchmarks/bench_submaps.py`, `benchmarks/bench_classify.py`).
+This replaces the CNN on submap frames, because a keyframe's class is already pooled
+over views and a transfer costs a fraction of a CNN pass
+(docs/decisions/009-submap-classes-by-transfer.md).
 """
 
 from __future__ import annotations

@@ -67,11 +67,8 @@ DEFAULT_EVIDENCE_CLASSES: tuple[str, ...] = tuple(
 )
 """The beam-frame classes: their frames need no registration, so nothing upstream checks
 that an object fits its class's model (a piling's ICP registration does). The check's
-three numbers come from one rule on marina seeds 0-4 (true poses, 4 m keyframes): of the
-settings on a grid (cells 0.5 / 1 / 2 m, tolerances 0.2-0.9 m, 3 / 5 / 8 fused points)
-that drop at most 3 % of the accurate inferred beam-frame points (error <= 10 cm), the
-one that drops the most points with errors over 0.3 m: 1 m cells, 0.6 m, 5 points
-(2.9 % of the accurate points, 10 % of those over 0.3 m)."""
+three numbers (1 m cells, 0.6 m, 5 points) come from one rule, measured in
+docs/decisions/008-fused-evidence-check.md."""
 
 
 class VoxelizeConfig(StageConfig):
