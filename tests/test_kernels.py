@@ -102,3 +102,25 @@ def test_bumping_infers_version_recomputes_submaps_and_what_follows(tmp_path: Pa
     assert changed == {"infer", "submaps", "voxelize", "evaluate"}
     submaps = next(s for s in stages if s.name == "submaps")
     assert {"infer.class_reference", "infer.class_cells"} <= set(submaps.inputs)
+
+
+def test_submaps_clusters_with_the_parameters_classify_used() -> None:
+    from stages.base import InputRejected
+    from stages.classify.stage import ClassifyConfig, clustering
+    from stages.submaps.stage import STAGE as SUBMAPS
+    from stages.submaps.stage import _clustering
+
+    model = {"eps_m": 0.3, "min_samples": 2, "min_features": 10}
+    used = clustering(ClassifyConfig(), model)
+    assert used == model
+    assert clustering(ClassifyConfig(eps_m=0.5, min_features=4), model) == {
+        **model,
+        "eps_m": 0.5,
+        "min_features": 4,
+    }
+    # one source: classify's output, not the config sections it was resolved from
+    assert "classify.clustering" in SUBMAPS.inputs
+    assert not {"classify", "train"} & set(SUBMAPS.reads_sections)
+    assert _clustering(used) == (0.3, 2, 10)
+    with pytest.raises(InputRejected, match=r"classify\.clustering"):
+        _clustering({"eps_m": 0.3})

@@ -39,7 +39,7 @@ reference cloud and height-model cells after the last keyframe, which stage `sub
 queries its frames with (`stages.kernels.class_models`).
 
 Deviations from the paper / original code (deliberate, see the module docstrings of
-`height_model` and `object_frame`): metric object frames shared by 2D and 3D points,
+`stages.kernels.height_model` and `.object_frame`): metric object frames shared by 2D and 3D points,
 a sparse unbounded cell grid, an explicit confidence threshold, failed ICP skipped,
 and predictions whose elevation falls outside the horizontal sonar's vertical
 aperture (`max_elevation_deg`) are dropped, since no return can come from there.
