@@ -20,7 +20,7 @@ from pipeline.engine.store import ArtifactStore
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from stages.infer.stage import STAGE as INFER
 from stages.infer.stage import InferConfig, learn_and_infer
-from stages.kernels.class_models import class_model_tables, restore_class_states
+from stages.kernels.class_models import ModelTableError, class_model_tables, restore_class_states
 
 
 def _relabelled(inputs: dict[str, pa.Table], class_name: str) -> dict[str, pa.Table]:
@@ -74,12 +74,24 @@ def test_class_models_read_back_answer_exactly_as_learned(tmp_path: Path, class_
     assert again[0].equals(reference) and again[1].equals(cells)
 
 
-def test_class_models_of_another_section_are_refused() -> None:
+def test_class_models_that_do_not_fit_the_section_are_refused_naming_the_table() -> None:
     reference, cells, _ = _learned("cylindrical_piling", InferConfig())
-    with pytest.raises(ValueError, match=r"not in infer\.classes"):
+    with pytest.raises(ModelTableError, match=r"not in infer\.classes") as err:
         restore_class_states(reference, cells, InferConfig(classes=("seawall",)))
-    with pytest.raises(ValueError, match="values"):
+    assert err.value.output == "class_reference"
+    with pytest.raises(ModelTableError, match="values") as err:
         restore_class_states(reference, cells, InferConfig(z_step_m=0.1))
+    assert err.value.output == "class_cells"
+    prob = cells.column("probability").combine_chunks()
+    values = prob.values.to_numpy().copy()
+    values[7] = np.nan
+    bad = cells.set_column(
+        cells.schema.get_field_index("probability"),
+        "probability",
+        pa.ListArray.from_arrays(prob.offsets, pa.array(values)),
+    )
+    with pytest.raises(ModelTableError, match="finite"):
+        restore_class_states(reference, bad, InferConfig())
 
 
 def _keys(stages: tuple, tmp_path: Path) -> dict[str, str]:
@@ -122,5 +134,11 @@ def test_submaps_clusters_with_the_parameters_classify_used() -> None:
     assert "classify.clustering" in SUBMAPS.inputs
     assert not {"classify", "train"} & set(SUBMAPS.reads_sections)
     assert _clustering(used) == (0.3, 2, 10)
-    with pytest.raises(InputRejected, match=r"classify\.clustering"):
-        _clustering({"eps_m": 0.3})
+    for bad in ({"eps_m": 0.3}, {**model, "eps_m": -1.0}, {**model, "eps_m": float("nan")},
+                {**model, "min_samples": 2.5}, {**model, "min_features": True},
+                {**model, "eps_m": "0.3" * 100}):  # fmt: skip
+        with pytest.raises(InputRejected, match=r"classify\.clustering") as err:
+            _clustering(bad)
+        assert len(str(err.value)) < 120
+    with pytest.raises(ValueError, match="min_samples"):
+        clustering(ClassifyConfig(), {**model, "min_samples": 0})

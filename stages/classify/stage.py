@@ -39,6 +39,7 @@ from stages.base import InputRejected, Output, Stage, StageConfig
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
+from stages.kernels.clustering import clustering_params
 from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
@@ -142,13 +143,11 @@ class ClassifyConfig(StageConfig):
 def clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any]) -> dict[str, Any]:
     """`eps_m`, `min_samples`, `min_features`: each the config's override, else the model
     file's (output `clustering`, so stage `submaps` clusters its frames the same way)."""
-    out: dict[str, Any] = {}
-    for name, kind in (("eps_m", float), ("min_samples", int), ("min_features", int)):
-        value = getattr(cfg, name)
-        if value is None and name not in model_config:
-            raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
-        out[name] = kind(float(model_config[name] if value is None else value))
-    return out
+    names = ("eps_m", "min_samples", "min_features")
+    picked = {n: model_config.get(n) if getattr(cfg, n) is None else getattr(cfg, n) for n in names}
+    for name in (n for n in names if picked[n] is None):
+        raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
+    return clustering_params(**picked)
 
 
 def _empty_features() -> dict[str, np.ndarray]:

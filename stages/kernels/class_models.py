@@ -27,6 +27,7 @@ __all__ = [
     "ClassModelSettings",
     "ClassState",
     "FrameKind",
+    "ModelTableError",
     "class_model_tables",
     "new_class_states",
     "restore_class_states",
@@ -172,12 +173,26 @@ def class_model_tables(states: Mapping[str, ClassState]) -> tuple[pa.Table, pa.T
     return pa.concat_tables(refs), pa.concat_tables(cells)
 
 
+class ModelTableError(ValueError):
+    """A class-model table that does not fit the config it is read with.
+
+    `output` is the table's output name ("class_reference" or "class_cells")."""
+
+    def __init__(self, output: str, reason: str) -> None:
+        super().__init__(f"{output}: {reason}")
+        self.output = output
+        self.reason = reason
+
+
 def _matrix(column: pa.ChunkedArray, n_z: int, what: str) -> np.ndarray:
-    """(n, n_z) float64 rows of a list<float64> column; every list must hold n_z values."""
+    """(n, n_z) finite float64 rows of a list<float64> column of n_z values each."""
     flat = pa.concat_arrays(column.chunks) if column.num_chunks else pa.array([], column.type)
     if flat.null_count or pc.any(pc.not_equal(pc.list_value_length(flat), n_z)).as_py():
         raise ValueError(f"{what}: every cell needs {n_z} values (the infer z grid)")
-    return flat.flatten().to_numpy(zero_copy_only=False).reshape(-1, n_z)
+    values = flat.flatten().to_numpy(zero_copy_only=False).reshape(-1, n_z)
+    if not np.isfinite(values).all():
+        raise ValueError(f"{what}: values must be finite")
+    return values
 
 
 def restore_class_states(
@@ -187,33 +202,58 @@ def restore_class_states(
     they were learned with): each answers queries exactly as the written one.
 
     Raises:
-        ValueError: a table names a class or grid that `config` has no model for, or its
-            cells do not fit the z grid.
+        ModelTableError: a table names a class or grid that `config` has no model for,
+            or holds values its model cannot take (cells off the z grid, non-finite
+            numbers, probabilities outside [0, 1]).
     """
     states = new_class_states(config)
-    ref_class = reference.column("class_name").to_numpy(zero_copy_only=False)
-    cell_class = cells.column("class_name").to_numpy(zero_copy_only=False)
-    grid = cells.column("grid").to_numpy(zero_copy_only=False)
-    unknown = sorted((set(ref_class.tolist()) | set(cell_class.tolist())) - set(states))
+    try:
+        _restore_references(reference, states)
+    except ValueError as err:
+        raise ModelTableError("class_reference", str(err)) from err
+    try:
+        _restore_cells(cells, states)
+    except ValueError as err:
+        raise ModelTableError("class_cells", str(err)) from err
+    return states
+
+
+def _classes(table: pa.Table, states: Mapping[str, ClassState]) -> np.ndarray:
+    names = table.column("class_name").to_numpy(zero_copy_only=False)
+    unknown = sorted(set(names.tolist()) - set(states))
     if unknown:
-        raise ValueError(f"class models of {unknown[0][:40]!r}, not in infer.classes")
-    u, v = (reference.column(n).to_numpy() for n in ("u_m", "v_m"))
+        raise ValueError(f"class {str(unknown[0])[:40]!r} is not in infer.classes")
+    return names
+
+
+def _restore_references(reference: pa.Table, states: Mapping[str, ClassState]) -> None:
+    names = _classes(reference, states)
+    uv = np.stack([reference.column(n).to_numpy() for n in ("u_m", "v_m")], axis=1)
+    if not np.isfinite(uv).all():
+        raise ValueError("reference points must be finite")
     for c, state in states.items():
-        mine = ref_class == c
+        mine = names == c
         if mine.any():
-            state.frame.reference = np.stack([u[mine], v[mine]], axis=1)
+            state.frame.reference = uv[mine]
+
+
+def _restore_cells(cells: pa.Table, states: Mapping[str, ClassState]) -> None:
+    cell_class = _classes(cells, states)
+    grid = cells.column("grid").to_numpy(zero_copy_only=False)
+    for c, state in states.items():
         grids = _grids(state.model)
         for g in np.unique(grid[cell_class == c]).tolist():
             if g not in grids:
                 raise ValueError(f"class {c}: no {str(g)[:20]!r} grid for its frame kind")
-            rows = np.flatnonzero((cell_class == c) & (grid == g))
-            part = cells.take(pa.array(rows))
+            part = cells.take(pa.array(np.flatnonzero((cell_class == c) & (grid == g))))
             n_z = grids[g].z_m.size
+            prob = _matrix(part.column("probability"), n_z, f"class {c} probability")
+            if ((prob < 0) | (prob > 1)).any():
+                raise ValueError(f"class {c}: probabilities outside [0, 1]")
             ij = np.stack([part.column(n).to_numpy() for n in ("cell_u", "cell_v")], axis=1)
             grids[g].restore(
                 ij,
                 _matrix(part.column("mass"), n_z, f"class {c} mass"),
-                _matrix(part.column("probability"), n_z, f"class {c} probability"),
+                prob,
                 int(part.column("n_updates").to_numpy()[0]),
             )
-    return states

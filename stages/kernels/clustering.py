@@ -4,6 +4,8 @@ between them, with the same parameters: `stages.classify.stage.clustering`)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from stages.kernels.lazy import lazy
@@ -13,7 +15,34 @@ sparse = lazy("scipy.sparse")
 csgraph = lazy("scipy.sparse.csgraph")
 sk_cluster = lazy("sklearn.cluster")
 
-__all__ = ["cluster_features"]
+__all__ = ["MAX_COUNT", "MAX_EPS_M", "cluster_features", "clustering_params"]
+
+MAX_EPS_M = 100.0
+MAX_COUNT = 100_000
+"""Bounds of the clustering parameters (those of `ClassifyConfig`'s overrides)."""
+
+
+def clustering_params(eps_m: object, min_samples: object, min_features: object) -> dict[str, Any]:
+    """`eps_m`, `min_samples`, `min_features` checked: 0 < eps_m <= MAX_EPS_M [m] and
+    whole counts in 1..MAX_COUNT.
+
+    Raises:
+        ValueError: a value of another type or outside its bounds (a short prefix quoted).
+    """
+    out: dict[str, Any] = {}
+    for name, value, kind in (
+        ("eps_m", eps_m, float),
+        ("min_samples", min_samples, int),
+        ("min_features", min_features, int),
+    ):
+        number = value if isinstance(value, int | float) and not isinstance(value, bool) else None
+        if number is None or not np.isfinite(number) or (kind is int and number != int(number)):
+            raise ValueError(f"{name} must be a {kind.__name__}, got {str(value)[:30]!r}")
+        low, high = (0.0, MAX_EPS_M) if kind is float else (1, MAX_COUNT)
+        if not (low < number <= high if kind is float else low <= number <= high):
+            raise ValueError(f"{name} {number:g} outside ({low:g}, {high:g}]")
+        out[name] = kind(number)
+    return out
 
 
 def cluster_features(

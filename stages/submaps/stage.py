@@ -49,7 +49,13 @@ from schemas.submaps import (
     SUBMAP_POINTS_SCHEMA,
 )
 from stages.base import InputRejected, Output, Stage
-from stages.kernels.class_models import ClassModelSettings, ClassState, restore_class_states
+from stages.kernels.class_models import (
+    ClassModelSettings,
+    ClassState,
+    ModelTableError,
+    restore_class_states,
+)
+from stages.kernels.clustering import clustering_params
 from stages.kernels.fusion import sonar_offset
 from stages.kernels.poses import pose_matrix
 from stages.kernels.sightings import column, object_feature_rows
@@ -67,13 +73,12 @@ _SECTIONS = ("keyframes", "features", "fuse", "infer")
 def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
     """The clustering classify used (its output `clustering`)."""
     try:
-        return (
-            float(params["eps_m"]),
-            int(params["min_samples"]),
-            int(params["min_features"]),
-        )
-    except (KeyError, TypeError, ValueError) as err:
-        raise InputRejected("classify.clustering", f"no clustering parameters ({err})") from err
+        checked = clustering_params(*(params[n] for n in ("eps_m", "min_samples", "min_features")))
+    except KeyError as err:
+        raise InputRejected("classify.clustering", f"no {str(err)[:30]}") from err
+    except (TypeError, ValueError) as err:
+        raise InputRejected("classify.clustering", str(err)) from err
+    return checked["eps_m"], checked["min_samples"], checked["min_features"]
 
 
 def map_submap_frames(
@@ -173,8 +178,8 @@ def _class_states(inputs: Mapping[str, Any]) -> dict[str, ClassState]:
         return restore_class_states(
             inputs["infer.class_reference"], inputs["infer.class_cells"], inputs["config.infer"]
         )
-    except ValueError as err:
-        raise InputRejected("infer.class_cells", str(err)) from err
+    except ModelTableError as err:
+        raise InputRejected(f"infer.{err.output}", err.reason) from err
 
 
 def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
