@@ -37,7 +37,8 @@ def clustering_params(eps_m: object, min_samples: object, min_features: object) 
     ):
         number = value if isinstance(value, int | float) and not isinstance(value, bool) else None
         if number is None or not np.isfinite(number) or (kind is int and number != int(number)):
-            raise ValueError(f"{name} must be a {kind.__name__}, got {str(value)[:30]!r}")
+            what = "a number" if kind is float else "an integer"
+            raise ValueError(f"{name} must be {what}, got {str(value)[:30]!r}")
         low, high = (0.0, MAX_EPS_M) if kind is float else (1, MAX_COUNT)
         if not (low < number <= high if kind is float else low <= number <= high):
             raise ValueError(f"{name} {number:g} outside ({low:g}, {high:g}]")

@@ -72,6 +72,8 @@ _SECTIONS = ("keyframes", "features", "fuse", "infer")
 
 def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
     """The clustering classify used (its output `clustering`)."""
+    if not isinstance(params, Mapping):
+        raise InputRejected("classify.clustering", "not a JSON object")
     try:
         checked = clustering_params(*(params[n] for n in ("eps_m", "min_samples", "min_features")))
     except KeyError as err:
