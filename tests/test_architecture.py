@@ -1,5 +1,6 @@
 """Imports flow one way: schemas <- stages.kernels <- stages <- pipeline, and
-schemas <- stages.kernels <- sim <- pipeline."""
+schemas <- stages.kernels <- sim <- pipeline; a stage never imports another stage
+(stages share through artifacts and the kernel layer)."""
 
 from __future__ import annotations
 
