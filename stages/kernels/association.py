@@ -1,6 +1,6 @@
 """Orthogonal stereo association per range bin (paper Sec. IV.B, Eq. 5 and 6).
 
-Per keyframe, after the overlap selection of `stages.fuse.stage`:
+Per frame, after the overlap selection of `stages.kernels.fusion`:
 1. Subproblems: features in the same range bin of both images (paper: "features at the
    same range"; the vertical features' ranges are binned with the horizontal sonar's
    range table, so the two images may differ in resolution); each is solved optimally (minimum total cost) with

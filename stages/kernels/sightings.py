@@ -1,5 +1,6 @@
-"""Inputs of stage `infer`: object features joined to their features and fused points,
-grouped into per-keyframe object sightings (vectorised; see `stages.infer.stage`)."""
+"""Object sightings of the class models: object features joined to their features and
+fused points, grouped into per-keyframe (or per-frame) object sightings (vectorised),
+for stage `infer` (keyframes) and stage `submaps` (the frames between them)."""
 
 from __future__ import annotations
 
