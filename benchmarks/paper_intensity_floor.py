@@ -64,7 +64,7 @@ def main() -> None:
     from sim.config import MissionConfig, SimConfig
     from sim.dataset import simulate
     from sim.scene import load_scene
-    from stages.features.cfar import cfar_detect
+    from stages.kernels.cfar import cfar_detect
 
     run = simulate(
         load_scene(scene_path(args.scene)),

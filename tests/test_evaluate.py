@@ -19,14 +19,14 @@ from sim.scene import load_scene
 from sim.world import World
 from stages.evaluate.stage import STAGE, EvaluateConfig, map_errors, surface_metrics
 from stages.kernels.geometry import matrix_from_rpy
-from stages.mesh_metrics import (
+from stages.kernels.mesh_metrics import (
     ate_se2,
     mesh_distance,
     raycasting_scene,
     surface_samples,
     visible_mask,
 )
-from stages.ply import decode_mesh_ply
+from stages.kernels.ply import decode_mesh_ply
 
 SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -19,8 +19,9 @@ from sim.dataset import SimFrame, SimRun
 from sim.scene import Scene
 from sim.world import World
 from stages.features.stage import FeaturesConfig, features_table
-from stages.fuse.association import assign_subproblems, image_patches
-from stages.fuse.stage import STAGE, FuseConfig, fuse_table, fused_points, sonar_offset
+from stages.fuse.stage import STAGE, FuseConfig, fuse_table
+from stages.kernels.association import assign_subproblems, image_patches
+from stages.kernels.fusion import fused_points, sonar_offset
 from stages.kernels.geometry import matrix_from_rpy
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 

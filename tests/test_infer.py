@@ -17,9 +17,9 @@ from schemas.points import POINTS_SCHEMA
 from sim.config import SimConfig
 from sim.dataset import SimRun, simulate
 from sim.scene import load_scene
-from stages.infer.object_frame import object_origin, to_object_frame
 from stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from stages.kernels.object_frame import object_origin, to_object_frame
 
 REPO = Path(__file__).resolve().parents[1]
 OBJECT_CLASSES = (1, 2, 3, 4, 5)

@@ -1,4 +1,4 @@
-"""Whole-structure inference (`stages.infer.beam_frame`): walls and hulls against simulator truth."""
+"""Whole-structure inference (`stages.kernels.beam_frame`): walls and hulls against simulator truth."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from test_infer import keyframe_indices, n_voxels, real_stage_tables, to_world
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.scene import load_scene
-from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
 from stages.infer.stage import InferConfig, infer_mission
+from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 REPO = Path(__file__).resolve().parents[1]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.infer.object_frame import (
+from stages.kernels.geometry import se2_apply as apply_se2
+from stages.kernels.object_frame import (
     ClassFrame,
     IcpParams,
     ObjectOrigin,
@@ -14,7 +15,6 @@ from stages.infer.object_frame import (
     to_object_frame,
     voxel_downsample_2d,
 )
-from stages.kernels.geometry import se2_apply as apply_se2
 
 
 def _l_shape(n: int = 120, seed: int = 0) -> np.ndarray:

@@ -13,11 +13,11 @@ from stages.classify.objects import crop_patches, extract_objects, horizontal_fe
 from stages.classify.segmentation import (
     cell_areas_m2,
     cluster_boxes,
-    cluster_features,
     fan_outside_area_m2,
     keep_clusters,
     majority_class,
 )
+from stages.kernels.clustering import cluster_features
 
 RANGES_M = ((np.arange(400) + 0.5) * 0.05).astype(np.float32)
 

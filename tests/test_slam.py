@@ -21,7 +21,8 @@ from schemas.classes import CLASS_IDS
 from schemas.features import FEATURES_SCHEMA
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from stages.features.stage import FeaturesConfig, detect_ping
+from stages.features.stage import FeaturesConfig
+from stages.kernels.frame_features import detect_ping
 from stages.slam.pose_graph import se2_between
 from stages.slam.stage import STAGE, SlamConfig
 

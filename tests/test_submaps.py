@@ -24,7 +24,8 @@ from pipeline.training.model_cache import model_cache
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINTS_SCHEMA
 from stages.kernels.geometry import rpy_from_matrix as rpy_from_rotation
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
-from stages.submaps.frames import pose_matrix, submap_frame_rows
+from stages.kernels.poses import pose_matrix
+from stages.submaps.frames import submap_frame_rows
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 from stages.submaps.workers import worker_count
 from stages.voxelize.stage import build_map

@@ -17,11 +17,14 @@ from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.scene import load_scene
-from stages.features.stage import FeaturesConfig, keyframe_features
-from stages.fuse.stage import FuseConfig, fuse_keyframe, sonar_offset
-from stages.infer.inputs import object_feature_rows
-from stages.infer.stage import InferConfig, learn_and_infer, points_table
+from stages.features.stage import FeaturesConfig
+from stages.fuse.stage import FuseConfig
+from stages.infer.stage import InferConfig, learn_and_infer
+from stages.kernels.frame_features import keyframe_features
+from stages.kernels.fusion import fuse_keyframe, sonar_offset
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from stages.kernels.point_tables import points_table
+from stages.kernels.sightings import object_feature_rows
 from stages.submaps.mapping import frame_points
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 
@@ -34,7 +37,7 @@ def test_frames_between_keyframes_are_inferred_on_the_true_wall() -> None:
     kf_frames = keyframe_indices(run, 4.0)
     objects, links, features, fused = real_stage_tables(run, 4.0)
     icfg = InferConfig()
-    _, _, states = learn_and_infer(objects, links, features, fused, icfg, query=False)
+    _, _, states = learn_and_infer(objects, links, features, fused, icfg)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     rows = object_feature_rows(objects, links, horizontal, fused)
     class_of = dict(

@@ -37,7 +37,7 @@ from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import display_path
 from schemas import SCHEMA_VERSION
 from stages.base import InputRejected, Stage
-from stages.parallel import release_memory
+from stages.kernels.parallel import release_memory
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
 

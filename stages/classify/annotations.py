@@ -18,8 +18,8 @@ import numpy as np
 from schemas.annotations import AnnotatedObject, AnnotationFile
 from schemas.classes import CLASS_IDS
 from schemas.sonar import KeyframeImages, SonarPing
-from stages._lazy import lazy
 from stages.kernels.geometry import fan_to_xy
+from stages.kernels.lazy import lazy
 
 mpath = lazy("matplotlib.path")
 

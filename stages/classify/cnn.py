@@ -15,8 +15,8 @@ Shape chain: 40 -> conv 38 -> pool 19 -> conv 17 -> pool 8 -> flatten c2*8*8 -> 
 -> n_classes. Dropout (active in training and at inference) sits after the second conv
 block and after the dense layer. Unlike the original, the first conv block has none: both conv blocks are
 then deterministic, computed once per patch, and only the dense head runs m times in
-one batched call (pass-major), which is ~10x cheaper than m full passes (measured 64 ms
-vs ~6 ms for 10 objects x 20 passes on one core). Masks come from an explicit
+one batched call (pass-major), far cheaper than m full passes
+(docs/decisions/011-mc-dropout-dense-head-only.md). Masks come from an explicit
 `torch.Generator`, so a seed fixes every prediction.
 """
 

@@ -25,17 +25,17 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.sonar import SonarPing
-from stages._lazy import lazy
 from stages.classify.segmentation import (
     cell_areas_m2,
     cluster_boxes,
-    cluster_features,
     fan_limits,
     fan_outside_area_m2,
     keep_clusters,
     majority_class,
 )
+from stages.kernels.clustering import cluster_features
 from stages.kernels.geometry import fan_to_xy
+from stages.kernels.lazy import lazy
 
 ndimage = lazy("scipy.ndimage")
 

@@ -1,7 +1,8 @@
 """Segmentation of one horizontal image's features into objects (paper Sec. IV.C).
 
-Features are clustered with DBSCAN in the fan plane (the number of objects is not known a
-priori) and clusters with fewer than n features are dropped as noise.
+Features are clustered with DBSCAN in the fan plane (`stages.kernels.clustering`: the
+number of objects is not known a priori) and clusters with fewer than n features are
+dropped as noise.
 
 Two cluster rules of the authors' simulation code (reference/original-implementation.md
 Sec. 4.1 step 5), off by default (`stages.classify.objects.extract_objects`):
@@ -24,18 +25,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages._lazy import lazy
-
-spatial = lazy("scipy.spatial")
-sparse = lazy("scipy.sparse")
-csgraph = lazy("scipy.sparse.csgraph")
-sk_cluster = lazy("sklearn.cluster")
-
 __all__ = [
     "FAN_EDGE_PIXEL_M",
     "cell_areas_m2",
     "cluster_boxes",
-    "cluster_features",
     "fan_limits",
     "fan_outside_area_m2",
     "keep_clusters",
@@ -45,64 +38,6 @@ __all__ = [
 
 FAN_EDGE_PIXEL_M = 0.05
 """Raster cell of the fan-edge rule [m]: the original's simulated Cartesian pixel."""
-
-
-def cluster_features(
-    xy_m: np.ndarray, eps_m: float, min_samples: int, min_features: int
-) -> np.ndarray:
-    """DBSCAN clusters of features, keeping clusters with at least `min_features` members.
-
-    Args:
-        xy_m: (n, 2) feature positions [m].
-        eps_m: DBSCAN neighbourhood radius [m].
-        min_samples: DBSCAN core-point neighbourhood count (the point itself included).
-        min_features: smallest cluster kept (paper's n).
-
-    Returns:
-        (n,) int64 object index per feature, 0..k-1 numbered in order of each cluster's
-        first feature, -1 for DBSCAN noise and dropped clusters.
-    """
-    n = len(xy_m)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
-    if min_samples <= 2:
-        raw = _linked_components(xy_m, eps_m, min_samples)
-    else:
-        raw = sk_cluster.DBSCAN(eps=eps_m, min_samples=min_samples).fit_predict(xy_m)
-    out = np.full(n, -1, dtype=np.int64)
-    valid = raw >= 0
-    if not valid.any():
-        return out
-    ids, first, counts = np.unique(raw[valid], return_index=True, return_counts=True)
-    keep = counts >= min_features
-    order = np.argsort(first[keep], kind="stable")
-    remap = np.full(ids.max() + 1, -1, dtype=np.int64)
-    remap[ids[keep][order]] = np.arange(int(keep.sum()))
-    out[valid] = remap[raw[valid]]
-    return out
-
-
-def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.ndarray:
-    """DBSCAN for min_samples <= 2, as connected components of the eps-neighbour graph.
-
-    With min_samples 2 every point with a neighbour within eps is a core point, so each
-    cluster is a connected component and the isolated points are noise (min_samples 1:
-    they are singleton clusters). Same partition as scikit-learn's DBSCAN, at about a
-    tenth of its per-keyframe overhead (its radius queries were 40 % of classify).
-    """
-    n = len(xy_m)
-    pairs = spatial.cKDTree(xy_m).query_pairs(eps_m, output_type="ndarray")
-    # CSR rows straight from the pairs, grouped by their first point: components need no
-    # sorted column indices, and sorting them (COO -> CSR) was most of the cost.
-    indptr = np.zeros(n + 1, np.int32)
-    np.cumsum(np.bincount(pairs[:, 0], minlength=n), out=indptr[1:])
-    neighbours = pairs[np.argsort(pairs[:, 0]), 1].astype(np.int32)
-    graph = sparse.csr_matrix((np.ones(len(pairs)), neighbours, indptr), (n, n))
-    _, comp = csgraph.connected_components(graph, directed=True, connection="weak")
-    if min_samples == 2:
-        isolated = np.bincount(comp, minlength=n)[comp] == 1
-        comp = np.where(isolated, -1, comp)
-    return comp.astype(np.int64)
 
 
 def keep_clusters(labels: np.ndarray, keep: np.ndarray) -> np.ndarray:

@@ -35,18 +35,19 @@ from pydantic import Field
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
-from stages._lazy import lazy
 from stages.base import InputRejected, Output, Stage, StageConfig
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
+from stages.kernels.clustering import clustering_params
+from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
 
 cnn = lazy("stages.classify.cnn")
 
-__all__ = ["STAGE", "ClassifyConfig", "classify_keyframes"]
+__all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "clustering"]
 
 log = logging.getLogger(__name__)
 
@@ -139,14 +140,14 @@ class ClassifyConfig(StageConfig):
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
 
-def _clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any], name: str) -> float:
-    """A clustering parameter: the config's override, else the model file's."""
-    value = getattr(cfg, name)
-    if value is not None:
-        return float(value)
-    if name not in model_config:
+def clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any]) -> dict[str, Any]:
+    """`eps_m`, `min_samples`, `min_features`: each the config's override, else the model
+    file's (output `clustering`, so stage `submaps` clusters its frames the same way)."""
+    names = ("eps_m", "min_samples", "min_features")
+    picked = {n: model_config.get(n) if getattr(cfg, n) is None else getattr(cfg, n) for n in names}
+    for name in (n for n in names if picked[n] is None):
         raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
-    return float(model_config[name])
+    return clustering_params(**picked)
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -274,9 +275,7 @@ def classify_keyframes(
     if cfg.pool_views and (keyframes is None or T_base_sonar is None):
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
     by_kf = horizontal_features(features)
-    eps_m = float(_clustering(cfg, model_config, "eps_m"))
-    min_samples = int(_clustering(cfg, model_config, "min_samples"))
-    min_features = int(_clustering(cfg, model_config, "min_features"))
+    eps_m, min_samples, min_features = clustering(cfg, model_config).values()
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
@@ -361,6 +360,7 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
     try:
         model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+        params = clustering(config, mcfg)
     except ValueError as err:
         raise InputRejected("train.model", str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
@@ -370,12 +370,13 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         keyframes, mount,
     )  # fmt: skip
     overlay = overlay_png(*busiest) if busiest is not None else None
-    return {"objects": objects, "object_features": links, "overlay": overlay}
+    return {"objects": objects, "object_features": links, "overlay": overlay, "clustering": params}
 
 
 STAGE = Stage(
     name="classify",
-    version=4,
+    # 5: output `clustering` (what submaps clusters its frames with)
+    version=5,
     config=ClassifyConfig,
     inputs=(
         "keyframes.frames",
@@ -390,6 +391,7 @@ STAGE = Stage(
             "object_features", "parquet", "object_features.parquet", schema=OBJECT_FEATURES_SCHEMA
         ),
         Output("overlay", "bytes", "overlay.png", optional=True),
+        Output("clustering", "json", "clustering.json"),
     ),
     run=_run,
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"

@@ -26,10 +26,10 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import KeyframeImages
-from stages._lazy import lazy
 from stages.base import Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 from stages.classify.validation import confusion_png, evaluate
+from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
@@ -202,12 +202,9 @@ def augment(x: torch.Tensor, cfg: TrainConfig, gen: torch.Generator) -> torch.Te
 
     Patches are cut in the line-of-sight frame, so the default flips mirror left-right
     only and rotations are small (an object's own yaw); near/far flips are optional.
-    Measured on unseen scenes (benchmarks/bench_classify.py): rotating a sonar patch is
-    not rotating the object (shading and the smear along the beam stay tied to the line
-    of sight), and +-20 deg cut piling recall at 0.99 from 0.56 to 0.42; additive noise
-    (sigma 0.05, then 0.02) buries the faint returns that tell an arc from a flat face
-    (0.56 -> 0.52 at 0.02) while the images already carry speckle. Both stay available,
-    with defaults at +-5 deg and no noise.
+    Rotations default to +-5 deg and noise to none, because rotating a sonar patch is not
+    rotating the object and noise buries faint returns; both stay available
+    (docs/decisions/012-small-rotations-no-noise.md).
 
     Args:
         x: (n, 1, s, s) patches in [0, 1].

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN

@@ -34,11 +34,10 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
-from stages._lazy import lazy
-from stages.mesh_metrics import nearest_distance, surface_samples
-from stages.ply import Mesh
-from stages.voxelize.registration import voxel_keys
-from stages.voxelize.stage import map_xyz
+from stages.kernels.lazy import lazy
+from stages.kernels.mesh_metrics import nearest_distance, surface_samples
+from stages.kernels.ply import Mesh
+from stages.kernels.voxels import map_xyz, voxel_keys
 
 o3d = lazy("open3d")
 
@@ -50,7 +49,6 @@ __all__ = [
     "nearest_surface_class",
     "per_class_metrics",
     "remember_last",
-    "voxel_keys",
 ]
 
 ALL_STRUCTURE = "all_structure"

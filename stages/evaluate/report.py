@@ -16,7 +16,7 @@ import numpy as np
 
 from schemas.classes import CLASS_IDS
 from stages.evaluate.submaps import submaps_markdown
-from stages.ply import Mesh
+from stages.kernels.ply import Mesh
 
 __all__ = [
     "SidePanel",

@@ -5,7 +5,7 @@ With a ground-truth mesh (`keyframes.scene_mesh`, the simulator's PLY attachment
 absolute error of every map point (distance to the mesh), its statistics per map
 (standard, semantic) and per source (fused, inferred), precision and completeness
 within `tolerance_m` (definitions and the visible-surface choice:
-`stages.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
+`stages.kernels.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
 poses in `keyframes.keyframes`: ATE of the SLAM and dead-reckoning trajectories after
 SE(2) alignment. Without them, the counts and the top-down map are still reported and
 `metrics["skipped"]` says what was left out and why.
@@ -35,7 +35,7 @@ from stages.evaluate.report import (
     truth_xy_m,
 )
 from stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
-from stages.mesh_metrics import (
+from stages.kernels.mesh_metrics import (
     ate_se2,
     error_stats,
     fraction_within,
@@ -46,9 +46,9 @@ from stages.mesh_metrics import (
     surface_samples,
     visible_mask,
 )
-from stages.ply import Mesh, decode_mesh_ply
-from stages.voxelize.registration import pose_matrices
-from stages.voxelize.stage import map_xyz
+from stages.kernels.ply import Mesh, decode_mesh_ply
+from stages.kernels.poses import pose_matrices
+from stages.kernels.voxels import map_xyz
 
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 
@@ -109,7 +109,7 @@ def surface_metrics(
     T_world_sonar: np.ndarray,
     config: EvaluateConfig,
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
-    """Completeness and precision of both maps (definitions: `stages.mesh_metrics`).
+    """Completeness and precision of both maps (definitions: `stages.kernels.mesh_metrics`).
 
     Returns:
         completeness {"standard", "semantic", "n_samples", "classes", "tolerance_m"},

@@ -10,7 +10,7 @@ figures evaluate already computes for the whole map, by the same functions:
   accounting (`stages.evaluate.class_accounting`): voxels holding a structure point
   within the tolerance of the true surface, and the fraction of the visible structure
   surface within the tolerance of a map point. The visible surface is the keyframes'
-  in both variants (the rule of `stages.mesh_metrics`), so completeness compares the
+  in both variants (the rule of `stages.kernels.mesh_metrics`), so completeness compares the
   two maps against the same samples;
 - median error: the headline figure (`stages.evaluate.headline`: SE(2)-aligned when the
   headline is) and the raw one beside it;
@@ -30,10 +30,10 @@ import pyarrow as pa
 
 from schemas.map import MAP_NAMES
 from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.evaluate.class_accounting import ALL_STRUCTURE, voxel_keys
+from stages.evaluate.class_accounting import ALL_STRUCTURE
 from stages.evaluate.headline import headline_errors
-from stages.mesh_metrics import error_stats
-from stages.voxelize.stage import map_xyz
+from stages.kernels.mesh_metrics import error_stats
+from stages.kernels.voxels import map_xyz, voxel_keys
 
 __all__ = ["FIGURES", "JudgedMap", "has_submap_rows", "submap_comparison", "submaps_markdown"]
 

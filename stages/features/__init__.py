@@ -1,16 +1,10 @@
 """The `features` stage (paper Sec. IV.C): SOCA-CFAR detections on both polar images.
 
 Modules:
-    stage: the stage.
-    cfar: the CFAR detectors.
+    stage: the stage: its config section and the features table, one keyframe at a time
+        through `stages.kernels.frame_features` (and `stages.kernels.cfar`).
 """
 
-from stages.features.stage import (
-    STAGE,
-    FeaturesConfig,
-    detect_ping,
-    features_table,
-    keyframe_features,
-)
+from stages.features.stage import STAGE, FeaturesConfig, features_table
 
-__all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
+__all__ = ["STAGE", "FeaturesConfig", "features_table"]

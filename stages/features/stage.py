@@ -1,20 +1,13 @@
 """Features: SOCA-CFAR detections on both polar images of every keyframe (paper Sec. IV.C).
 
-Each image is searched along range, per beam, by `stages.features.cfar.cfar_detect` (SOCA by
+Each image is searched along range, per beam, by `stages.kernels.cfar.cfar_detect` (SOCA by
 default; CA, GO and OS through config), ANDed with an intensity floor; every detected
 cell is one feature row (schema `schemas.features.FEATURES_SCHEMA`).
 
-Defaults (`FeaturesConfig`), chosen on the simulator and the real Oculus M1200d ping in
-`shared/data/oculus` (256 beams x 703 bins, 2 m range, a bright seabed band):
-10 training + 5 guard cells per side (the authors' Ntc = 20, Ngc = 10), Pfa = 0.1
-(tau_SOCA = 3.06 for N = 20 training cells; the authors used 0.1-0.2), intensity floor 20 levels. On the tiny
-simulated mission this detects 91 % of the labelled object cells, and 99.3 % of the
-detections lie within one range bin of a labelled cell (tests/test_features.py); on the
-real ping it gives 1,126 detections
-(0.6 % of the cells), on the leading edges of the seabed band. The floor only matters
-on nearly empty images (simulated water: Rayleigh noise of mean 4 levels, where SOCA
-alone false-alarms on ~0.7 % of the cells); the authors' floors (50 real, 145 sim) were
-set for denoised or Cartesian images and lose weak returns in ours.
+Defaults (`FeaturesConfig`): SOCA with 10 training + 5 guard cells per side (the
+authors' Ntc = 20, Ngc = 10), Pfa = 0.1 and an intensity floor of 20 levels, lower than
+the authors' floors, which were set for denoised or Cartesian images and lose weak
+returns in ours (docs/decisions/005-cfar-defaults.md).
 """
 
 from __future__ import annotations
@@ -27,9 +20,10 @@ import pyarrow as pa
 from pydantic import Field
 
 from schemas.features import FEATURES_SCHEMA, SONARS
-from schemas.sonar import KeyframeImages, SonarPing
+from schemas.sonar import KeyframeImages
 from stages.base import Output, Stage, StageConfig
-from stages.features.cfar import CfarMethod, cfar_detect
+from stages.kernels.cfar import CfarMethod
+from stages.kernels.frame_features import detect_ping, keyframe_features
 
 __all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
 
@@ -52,53 +46,6 @@ class FeaturesConfig(StageConfig):
     pfa: float = Field(0.1, gt=0.0, lt=1.0)
     os_rank: int = Field(0, ge=0, le=400)
     intensity_floor: float = Field(20.0, ge=0.0, le=65535.0)
-
-
-def detect_ping(ping: SonarPing, config: FeaturesConfig) -> tuple[np.ndarray, np.ndarray]:
-    """CFAR detections of one polar image.
-
-    Returns:
-        range_bin (n,), beam (n,) int64 cell indices, sorted by (range_bin, beam).
-    """
-    mask = cfar_detect(
-        ping.image,
-        config.train_cells_per_side,
-        config.guard_cells_per_side,
-        config.pfa,
-        config.method,
-        config.os_rank,
-        config.intensity_floor,
-    )
-    flat = np.flatnonzero(mask).astype(np.int64)
-    return flat // mask.shape[1], flat % mask.shape[1]
-
-
-def keyframe_features(frame: KeyframeImages, config: FeaturesConfig) -> dict[str, np.ndarray]:
-    """Feature columns of one keyframe (both sonars, horizontal rows first).
-
-    Returns:
-        {column: (n,) array} for every column of FEATURES_SCHEMA except `sonar`, which
-        is given as `sonar_index` (0 horizontal, 1 vertical).
-    """
-    parts: list[dict[str, np.ndarray]] = []
-    for s_index, sonar in enumerate(SONARS):
-        ping: SonarPing = getattr(frame, sonar)
-        rb, beam = detect_ping(ping, config)
-        parts.append(
-            {
-                "sonar_index": np.full(len(rb), s_index, np.int64),
-                "range_bin": rb,
-                "beam": beam,
-                "range_m": np.asarray(ping.ranges_m, np.float64)[rb],
-                "angle_rad": np.asarray(ping.angles_rad, np.float64)[beam],
-                "intensity": np.asarray(ping.image)[rb, beam].astype(np.float32),
-            }
-        )
-    cols = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-    n = len(cols["range_bin"])
-    cols["keyframe_id"] = np.full(n, frame.keyframe_id, np.int64)
-    cols["feature_id"] = np.arange(n, dtype=np.int64)
-    return cols
 
 
 def features_table(frames: Iterable[KeyframeImages], config: FeaturesConfig) -> pa.Table:

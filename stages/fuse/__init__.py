@@ -1,20 +1,11 @@
 """The `fuse` stage (paper Sec. IV.B): orthogonal stereo association of horizontal and vertical features.
 
 Modules:
-    stage: the stage: overlap, Eq. 3 points, the fused table.
-    association: subproblems per range bin, Eq. 5 cost and Eq. 6 confidence.
+    stage: the stage: its config section and the fused table, one keyframe at a time
+        through `stages.kernels.fusion` (overlap, Eq. 3 points) and
+        `stages.kernels.association` (Eq. 5 cost, Eq. 6 confidence).
 """
 
-from stages.fuse.association import ConfidenceRule, assign_subproblems, image_patches
-from stages.fuse.stage import STAGE, FuseConfig, fuse_keyframe, fused_points, sonar_offset
+from stages.fuse.stage import STAGE, FuseConfig, fuse_table
 
-__all__ = [
-    "STAGE",
-    "ConfidenceRule",
-    "FuseConfig",
-    "assign_subproblems",
-    "fuse_keyframe",
-    "fused_points",
-    "image_patches",
-    "sonar_offset",
-]
+__all__ = ["STAGE", "FuseConfig", "fuse_table"]

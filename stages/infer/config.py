@@ -14,51 +14,24 @@ from schemas.classes import (
     known_class_names,
 )
 from stages.base import StageConfig
-from stages.infer.height_model import UpdateRule
-from stages.infer.object_frame import IcpParams
+from stages.kernels.class_models import DEFAULT_FRAME_KINDS, FrameKind
+from stages.kernels.height_model import UpdateRule
+from stages.kernels.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
-FrameKind = Literal["object", "beam"]
 DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall")
 """The classes whose inferred median error stays within 1.5x that of their fused points
-(by the class the classifier assigned) on every scene measured at 4 m keyframes: marina
-seeds 0-9 with true poses; seed 0 of the marina, harbour, shipyard, quay, basin and
-terminal with true and with SLAM poses, with voxelize's fused-evidence check (seawall
-0.96-1.20x, pilings 0.89-1.09x; without the check the shipyard's seawall is 1.31x, its 20 m
-gantry truss called seawall, its true walls alone 1.02x). truss (basin 1.71x, terminal
-1.59x / 1.57x SLAM), boat_hull (shipyard 2.01x / 2.06x, terminal 1.93x / 2.04x, basin,
-harbour) and "unknown" (marina 1.80x / 1.54x, terminal) miss it on those same scenes with
-all three listed (before the corner-trained classifier: truss harbour 1.75x, boat_hull
-`moorings` 2.38x, unknown marina 1.87x); all work when listed, with the beam frame."""
-DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
-    "cylindrical_piling": "object",
-    "rectangular_piling": "object",
-    "seawall": "beam",
-    "boat_hull": "beam",
-    "truss": "beam",
-    UNKNOWN_CLASS: "beam",
-}
+on every scene measured (docs/decisions/002-default-inferred-classes.md)."""
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
-"""The piling models' cells are empty for a quarter to a third of the returns they are
-asked about (mostly heights of 3-5 m and ranges past 20 m, where few fused points fall).
-Factor 2, the first coarser level, answers part of those: on the ten marina trials
-(true poses) piling accurate voxels go from 3.7x to 4.2x the standard map's at 4 m
-keyframes and from 3.6x to 3.9x at 2 m, with the inferred piling median error at
-0.99-1.01x the fused (0.96-0.98x without)."""
+"""Object-frame models answer from cells this many times larger where their own cell
+is empty (`CoarseFallbackModel`): 2, the first coarser level, because it adds accurate
+piling voxels at the fused points' error (docs/decisions/003-coarse-fallback-factor.md)."""
 DEFAULT_BORROW_MIN_EXTENT_M = 8.0
-"""Borrowing (`borrowed_models`, `unknown_argmax_classes`, both off by default): a
-classifier that calls true seawall returns truss or unknown (30 % of the marina's before
-the training harbour's walls met at a corner, 5 % since) leaves them 2D, and
-such objects may take heights from the seawall model when their returns span at least
-this long (extended structure, the beam frame's premise). 8 m is the smallest extent on a
-2 m grid at which the borrowed heights of both classes, pooled over marina seeds 0-4 (true
-poses, 4 m keyframes), stay within 1.5x their class's fused median and at or under
-0.10 m (truss 1.24x / 0.091 m from 6 m on, unknown 1.31x / 0.098 m at 8 m); ungated
-1.50x / 0.110 m and 1.54x / 0.115 m. Why neither is a default: borrowed heights miss the
-1.5x budget on a held-out scene each (measured with the earlier classifier), truss on harbour seed 0 (1.67x, true and SLAM
-poses) and unknown on shipyard seed 0 (1.96x: its long hulls are 'unknown' with arg-max
-seawall)."""
+"""Borrowing (`borrowed_models`, `unknown_argmax_classes`, both off by default): an
+object takes heights from another class's beam-frame model only if its returns span at
+least this long (extended structure, the beam frame's premise); 8 m, and off by default,
+from the measurements in docs/decisions/004-borrowed-models-extent.md."""
 
 
 class InferConfig(StageConfig):
@@ -71,7 +44,7 @@ class InferConfig(StageConfig):
     frame_kinds: dict[str, FrameKind] = Field(
         default_factory=lambda: dict(DEFAULT_FRAME_KINDS),
         description="reference frame of each class: 'object' (ICP-registered object frame,"
-        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.infer.beam_frame);"
+        " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.kernels.beam_frame);"
         " classes not listed use 'object'",
     )
     unknown_argmax_classes: tuple[str, ...] = Field(
@@ -104,7 +77,7 @@ class InferConfig(StageConfig):
     beam_update_rule: UpdateRule = Field(
         "mixture",
         description="beam frame: 'product' (Eq. 7, one height per cell) or 'mixture'"
-        " (Dirichlet counts of the heights a cell returns from; stages.infer.height_model)",
+        " (Dirichlet counts of the heights a cell returns from; stages.kernels.height_model)",
     )
     beam_range_cell_m: float | None = Field(
         None,
@@ -134,7 +107,7 @@ class InferConfig(StageConfig):
         le=64,
         description="object frames: a query whose cell has no data takes the answer of the"
         " cell this many times larger that contains it"
-        " (stages.infer.height_model.CoarseFallbackModel); 1: none (the paper)",
+        " (stages.kernels.height_model.CoarseFallbackModel); 1: none (the paper)",
     )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"

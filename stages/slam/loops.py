@@ -57,8 +57,8 @@ def baseline_covariance_factor(
     """((g + d) / (g + d_ref))^2: a loop's covariance relative to one of baseline d_ref.
 
     The error of a loop measurement grows about linearly with the baseline d between its
-    keyframes, sigma ~ a + b d with g = a / b (`SlamConfig.loop_baseline_growth_m`; on
-    simulated marina missions RMS 0.035 m under 5 m to 0.23-0.33 m at 30-40 m), because
+    keyframes, sigma ~ a + b d with g = a / b (`SlamConfig.loop_baseline_growth_m`;
+    docs/decisions/013-loop-covariance-grows-with-baseline.md), because
     the two views of a structure see its leading edges at other ranges and incidences. The
     ICP covariance does not see that (it is about flat in d). The factor only moves weight
     from long loops to short ones; the overall loop weight stays the floor's and the
@@ -271,8 +271,8 @@ class LoopClosures:
         The incremental SSM starts from a global search with a wide correspondence gate,
         against three keyframes: with CFAR features (clutter, missed returns) its lateral
         error is several times the odometry's. From the optimised poses, ICP with the tight
-        gate against more keyframes cuts that error by a third on short marina missions
-        and by half on the long CFAR seed 3 (`benchmarks/bench_slam.py`). A match that
+        gate against more keyframes cuts that error
+        (docs/decisions/014-ssm-refinement.md). A match that
         loses its overlap keeps its first measurement.
         """
         c = self.cfg

@@ -10,7 +10,7 @@ import pyarrow as pa
 
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
 from stages.kernels.geometry import quat_from_rpy
-from stages.mesh_metrics import se2_alignment
+from stages.kernels.mesh_metrics import se2_alignment
 from stages.slam.scan_matching import transform_points
 
 __all__ = ["factors_table", "plot_png", "poses_table", "tum_text"]

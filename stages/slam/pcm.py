@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 from stages.slam.pose_graph import se2_adjoint, se2_between, se2_compose, se2_inverse, se2_log
 
 __all__ = [

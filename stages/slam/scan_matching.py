@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 from stages.slam.pose_graph import wrap_angle
 
 if TYPE_CHECKING:

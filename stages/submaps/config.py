@@ -27,7 +27,7 @@ class SubmapsConfig(StageConfig):
         1,
         ge=1,
         le=256,
-        description="processes mapping chunks of 64 frames (stages.parallel); None: one per"
+        description="processes mapping chunks of 64 frames (stages.kernels.parallel); None: one per"
         " available core. Not in the stage's key: the outputs are the same bytes for any"
         " number. 1 by measurement: on 2 cores, 2 workers map the default marina 0-25 %"
         " faster and hold about 0.8 GB more at once (benchmarks/bench_submaps.py)",

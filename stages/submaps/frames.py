@@ -17,7 +17,7 @@ import pyarrow as pa
 from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
 from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
 from stages.kernels.geometry import pose_from_se3
-from stages.voxelize.registration import pose_matrix
+from stages.kernels.poses import pose_matrix
 
 __all__ = ["relative_poses", "submap_frame_rows"]
 

@@ -19,18 +19,17 @@ from schemas.map import NO_CLASS
 from schemas.recording import Recording
 from schemas.sonar import KeyframeImages
 from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
-from stages.features.stage import FeaturesConfig, keyframe_features
-from stages.fuse.stage import FuseConfig, fuse_keyframe
-from stages.infer.config import InferConfig
-from stages.infer.inputs import sightings
-from stages.infer.prediction import (
-    ClassState,
+from stages.kernels.class_models import ClassModelSettings, ClassState
+from stages.kernels.class_query import (
     Funnel,
     borrowed_sightings,
     register_and_query,
     update_and_query_beam_class,
 )
-from stages.infer.stage import points_table, tag_points
+from stages.kernels.frame_features import CfarSettings, keyframe_features
+from stages.kernels.fusion import FusionSettings, fuse_keyframe
+from stages.kernels.point_tables import points_table, tag_points
+from stages.kernels.sightings import sightings
 from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 
 __all__ = ["COUNTS", "FRAMES_PER_CHUNK", "FrameMapper", "MappedChunk", "frame_points"]
@@ -66,7 +65,7 @@ class _KeyframeObjects:
 def _query(
     sights: list,
     states: Mapping[str, ClassState],
-    config: InferConfig,
+    config: ClassModelSettings,
     funnels: dict[str, Funnel],
 ) -> list[tuple[dict[str, np.ndarray], np.ndarray, str]]:
     """Eq. 8-9 for one frame's sightings, models unchanged: (points, object ids, class)."""
@@ -104,9 +103,9 @@ class FrameMapper:
     chunks of frames with the very code that maps them here.
     """
 
-    features: FeaturesConfig
-    fuse: FuseConfig
-    infer: InferConfig
+    features: CfarSettings
+    fuse: FusionSettings
+    infer: ClassModelSettings
     clustering: tuple[float, int, int]
     match_radius_m: float
     next_keyframe_objects: bool
@@ -192,7 +191,7 @@ def frame_points(
     fu: dict[str, np.ndarray],
     class_of: Mapping[int, str],
     states: Mapping[str, ClassState],
-    icfg: InferConfig,
+    icfg: ClassModelSettings,
     funnels: dict[str, Funnel],
 ) -> list[dict[str, Any]]:
     """Fused and inferred point parts of one submap frame (`points_table` rows).

@@ -13,14 +13,15 @@ submap frame (`stages.submaps.frames`, with T_kf_frame from dead reckoning). Eac
 frame, streamed from the recording one at a time, goes through what a keyframe goes
 through, with the keyframe stages' own functions and config sections:
 
-1. features: SOCA-CFAR on both images (`stages.features.stage.keyframe_features`);
-2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`stages.fuse.stage.fuse_keyframe`);
-3. classify: the clusters of its horizontal returns take the keyframe objects they see
-   again (`stages.submaps.transfer`), instead of a CNN pass;
+1. features: SOCA-CFAR on both images (`stages.kernels.frame_features`);
+2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`stages.kernels.fusion`);
+3. classify: the clusters of its horizontal returns (classify's own clustering, its
+   output `clustering`) take the keyframe objects they see again
+   (`stages.submaps.transfer`), instead of a CNN pass;
 4. infer: its 2D-only returns on inferred classes are queried (Eq. 8-9) in the class
-   models as they stand after the mission's last keyframe (`learn_and_infer`): the
-   models learn from keyframes only, so the keyframe map is the same with or without
-   submaps.
+   models as they stand after the mission's last keyframe (infer's outputs
+   `class_reference` and `class_cells`, read back, never relearned): the models learn
+   from keyframes only, so the keyframe map is the same with or without submaps.
 
 SLAM still uses keyframes only. `voxelize` registers a frame's points with
 T_world_kf(SLAM) T_kf_frame T_base_sonar (Eq. 4 extended).
@@ -47,32 +48,39 @@ from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import Output, Stage
-from stages.classify.stage import ClassifyConfig
-from stages.fuse.stage import sonar_offset
-from stages.infer.config import InferConfig
-from stages.infer.inputs import column, object_feature_rows
-from stages.infer.stage import learn_and_infer
+from stages.base import InputRejected, Output, Stage
+from stages.kernels.class_models import (
+    ClassModelSettings,
+    ClassState,
+    ModelTableError,
+    restore_class_states,
+)
+from stages.kernels.clustering import clustering_params
+from stages.kernels.fusion import sonar_offset
+from stages.kernels.poses import pose_matrix
+from stages.kernels.sightings import column, object_feature_rows
 from stages.keyframes import KeyframesConfig, interpolate_poses, posed_pairs
 from stages.submaps.config import SubmapsConfig
 from stages.submaps.frames import submap_frame_rows
 from stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
 from stages.submaps.workers import mapped_chunks
-from stages.voxelize.registration import pose_matrix
 
 __all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
 
-_SECTIONS = ("keyframes", "features", "fuse", "classify", "infer", "train")
+_SECTIONS = ("keyframes", "features", "fuse", "infer")
 
 
-def _clustering(classify: ClassifyConfig, train: Any) -> tuple[float, int, int]:
-    """The classifier's clustering: classify's overrides, else the training section's."""
-    pick = [getattr(classify, n) for n in ("eps_m", "min_samples", "min_features")]
-    eps, samples, feats = (
-        v if v is not None else getattr(train, n)
-        for v, n in zip(pick, ("eps_m", "min_samples", "min_features"), strict=True)
-    )
-    return float(eps), int(samples), int(feats)
+def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
+    """The clustering classify used (its output `clustering`)."""
+    if not isinstance(params, Mapping):
+        raise InputRejected("classify.clustering", "not a JSON object")
+    try:
+        checked = clustering_params(*(params[n] for n in ("eps_m", "min_samples", "min_features")))
+    except KeyError as err:
+        raise InputRejected("classify.clustering", f"no {str(err)[:30]}") from err
+    except (TypeError, ValueError) as err:
+        raise InputRejected("classify.clustering", str(err)) from err
+    return checked["eps_m"], checked["min_samples"], checked["min_features"]
 
 
 def map_submap_frames(
@@ -83,17 +91,20 @@ def map_submap_frames(
     object_features: pa.Table,
     features: pa.Table,
     fused: pa.Table,
+    states: Mapping[str, ClassState],
+    clustering: tuple[float, int, int],
     sections: Mapping[str, Any],
     config: SubmapsConfig,
 ) -> tuple[pa.Table, pa.Table, dict[str, Any]]:
-    """Frames, points and loss accounting of a mission's submaps (module docstring).
+    """Frames, points and loss accounting of a mission's submaps (module docstring),
+    `states` the class models infer learned (`restore_class_states`) and `clustering`
+    (eps_m, min_samples, min_features) the one classify used.
 
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
     that many processes (`stages.submaps.workers`); the outputs are the same bytes.
     """
     kcfg: KeyframesConfig = sections["keyframes"]
-    icfg: InferConfig = sections["infer"]
-    clustering = _clustering(sections["classify"], sections["train"])
+    icfg: ClassModelSettings = sections["infer"]
     stride = kcfg.submap_stride
     empty_stats: dict[str, Any] = {"stride": stride, "frames": 0, "classes": {}}
     if stride == 0:
@@ -108,7 +119,6 @@ def map_submap_frames(
         column(keyframes, "ping_index_horizontal", "keyframes"),
         h_idx, v_idx, posed.h_t_ns, posed.v_t_ns, posed.pose[pair_rows], gt, stride,
     )  # fmt: skip
-    _, _, states = learn_and_infer(objects, object_features, features, fused, icfg, query=False)
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     mapper = FrameMapper(
         features=sections["features"],
@@ -165,6 +175,15 @@ def _pose_matrices(table: pa.Table, what: str) -> np.ndarray:
 _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 
 
+def _class_states(inputs: Mapping[str, Any]) -> dict[str, ClassState]:
+    try:
+        return restore_class_states(
+            inputs["infer.class_reference"], inputs["infer.class_cells"], inputs["config.infer"]
+        )
+    except ModelTableError as err:
+        raise InputRejected(f"infer.{err.output}", err.reason) from err
+
+
 def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     frames, points, stats = map_submap_frames(
         inputs["dataset"],
@@ -174,6 +193,8 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs["classify.object_features"],
         inputs["features.features"],
         inputs["fuse.fused"],
+        _class_states(inputs),
+        _clustering(inputs["classify.clustering"]),
         {s: inputs[f"config.{s}"] for s in _SECTIONS},
         config,
     )
@@ -184,7 +205,9 @@ STAGE = Stage(
     name="submaps",
     # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
     # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
-    version=3,
+    # 4: the class models are infer's outputs, read back, and the clustering classify's
+    # (same bytes)
+    version=4,
     config=SubmapsConfig,
     inputs=(
         "dataset",
@@ -192,8 +215,11 @@ STAGE = Stage(
         "keyframes.sensors",
         "classify.objects",
         "classify.object_features",
+        "classify.clustering",
         "features.features",
         "fuse.fused",
+        "infer.class_reference",
+        "infer.class_cells",
     ),
     outputs=(
         Output("frames", "parquet", "submap_frames.parquet", schema=SUBMAP_FRAMES_SCHEMA),

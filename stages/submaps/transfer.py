@@ -2,7 +2,7 @@
 
 A submap frame is 0.1-2 m from its keyframe, so it sees the keyframe's objects again,
 from nearly the same place. Its horizontal returns are clustered as the classifier
-clusters a keyframe's (DBSCAN in the fan plane, `stages.classify.segmentation`), and
+clusters a keyframe's (DBSCAN in the fan plane, `stages.kernels.clustering`), and
 each cluster takes the object, and so the class, of the keyframe object that most of
 its returns lie on: a return lies on an object when, moved into the keyframe's sonar
 frame by the dead-reckoning motion between the two, it is within `match_radius_m` of
@@ -10,10 +10,9 @@ one of that object's returns. Objects of the next keyframe count too (a frame la
 its interval is closest to the next keyframe). A cluster that meets no object stays
 unclassified.
 
-This replaces the CNN on submap frames: a keyframe's class is already pooled over
-views (`stages.classify.view_pooling`), and classify costs about 37 ms of CPU per
-keyframe on the default marina against about 9 ms for this transfer per frame
-(`benchmarks/bench_submaps.py`, `benchmarks/bench_classify.py`).
+This replaces the CNN on submap frames, because a keyframe's class is already pooled
+over views and a transfer costs a fraction of a CNN pass
+(docs/decisions/009-submap-classes-by-transfer.md).
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from stages.classify.segmentation import cluster_features
+from stages.kernels.clustering import cluster_features
 from stages.kernels.geometry import fan_to_xy
 
 __all__ = ["KeyframeObjectPoints", "transfer_objects"]

@@ -7,11 +7,9 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.submaps import REL_POSE_COLUMNS
-from stages.kernels.geometry import se3_from_pose
+from stages.kernels.poses import pose_matrix
 
 __all__ = [
-    "pose_matrices",
-    "pose_matrix",
     "submap_world_points",
     "transform_grouped",
     "world_points",
@@ -20,36 +18,9 @@ __all__ = [
 _XYZ = ("x_m", "y_m", "z_m")
 
 
-def pose_matrix(pose: np.ndarray) -> np.ndarray:
-    """(n, 4, 4) transforms of (n, 6) poses x, y, z, roll, pitch, yaw (R = Rz Ry Rx)."""
-    return se3_from_pose(np.asarray(pose, np.float64).reshape(-1, 6))
-
-
 def xyz_columns(table: pa.Table) -> np.ndarray:
     """(n, 3) x_m, y_m, z_m of a table."""
     return np.stack([table.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-
-
-def pose_matrices(poses: pa.Table, prefix: str = "") -> tuple[np.ndarray, np.ndarray]:
-    """Keyframe poses as 4x4 transforms.
-
-    Args:
-        poses: table with keyframe_id and `{prefix}x_m ... {prefix}yaw_rad` [m, rad].
-        prefix: column prefix ("gt_" for the ground-truth columns of keyframes.parquet).
-
-    Returns:
-        keyframe ids (k,) int64 sorted ascending, and (k, 4, 4) T_world_base.
-    """
-    kf = np.asarray(poses.column("keyframe_id").to_numpy(), dtype=np.int64)
-    pose = np.stack(
-        [
-            np.asarray(poses.column(prefix + c).to_numpy(zero_copy_only=False), np.float64)
-            for c in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-        ],
-        axis=1,
-    )
-    order = np.argsort(kf, kind="stable")
-    return kf[order], pose_matrix(pose)[order]
 
 
 def world_points(
@@ -147,17 +118,3 @@ def submap_world_points(
         points.column("source").combine_chunks(),
         points.column("class_name").combine_chunks(),
     )
-
-
-def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
-    """(n,) int64 key of each (n, 3) voxel index, one key per distinct voxel, ordered as
-    the rows (ix, iy, iz) sort: counting unique keys is several times cheaper than
-    unique rows."""
-    ijk = np.asarray(voxel_ijk, dtype=np.int64).reshape(-1, 3)
-    if len(ijk) == 0:
-        return np.zeros(0, dtype=np.int64)
-    ijk = ijk - ijk.min(axis=0)
-    span = ijk.max(axis=0) + 1
-    if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
-        return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
-    return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]

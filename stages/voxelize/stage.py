@@ -43,23 +43,18 @@ from schemas.classes import known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Output, Stage, StageConfig
-from stages.infer.config import DEFAULT_FRAME_KINDS
-from stages.ply import encode_points_ply
+from stages.kernels.class_models import DEFAULT_FRAME_KINDS
+from stages.kernels.ply import encode_points_ply
+from stages.kernels.poses import pose_matrices
+from stages.kernels.voxels import map_xyz, standard_rows, voxel_keys
 from stages.voxelize.evidence import contradicted_by_fused
-from stages.voxelize.registration import (
-    pose_matrices,
-    submap_world_points,
-    voxel_keys,
-    world_points,
-    xyz_columns,
-)
+from stages.voxelize.registration import submap_world_points, world_points, xyz_columns
 
 __all__ = [
     "STAGE",
     "VoxelizeConfig",
     "build_map",
     "height_colours",
-    "map_xyz",
     "voxel_table",
 ]
 
@@ -72,11 +67,8 @@ DEFAULT_EVIDENCE_CLASSES: tuple[str, ...] = tuple(
 )
 """The beam-frame classes: their frames need no registration, so nothing upstream checks
 that an object fits its class's model (a piling's ICP registration does). The check's
-three numbers come from one rule on marina seeds 0-4 (true poses, 4 m keyframes): of the
-settings on a grid (cells 0.5 / 1 / 2 m, tolerances 0.2-0.9 m, 3 / 5 / 8 fused points)
-that drop at most 3 % of the accurate inferred beam-frame points (error <= 10 cm), the
-one that drops the most points with errors over 0.3 m: 1 m cells, 0.6 m, 5 points
-(2.9 % of the accurate points, 10 % of those over 0.3 m)."""
+three numbers (1 m cells, 0.6 m, 5 points) come from one rule, measured in
+docs/decisions/008-fused-evidence-check.md."""
 
 
 class VoxelizeConfig(StageConfig):
@@ -259,18 +251,6 @@ def _decode(names: pa.Array, codes: np.ndarray) -> pa.Array:
     return pa.DictionaryArray.from_arrays(pa.array(codes, pa.int32()), names).cast(pa.string())
 
 
-def _standard_rows(map_table: pa.Table) -> pa.Table:
-    return map_table.filter(pc.equal(map_table.column("source"), "fused"))
-
-
-def map_xyz(map_table: pa.Table, name: str) -> np.ndarray:
-    """(n, 3) world points [m] of one map ("standard": fused rows, "semantic": all)."""
-    if name not in MAP_NAMES:
-        raise ValueError(f"unknown map {name!r}; expected one of {MAP_NAMES}")
-    t = _standard_rows(map_table) if name == "standard" else map_table
-    return np.stack([t.column(c).to_numpy() for c in _XYZ], axis=1).reshape(-1, 3)
-
-
 def voxel_table(map_table: pa.Table, voxel_size_m: float) -> pa.Table:
     """Occupied voxels of both maps (`VOXELS_SCHEMA`, sorted by map, ix, iy, iz)."""
     parts: dict[str, list[Any]] = {k: [] for k in ("map", "ix", "iy", "iz", "n")}
@@ -330,7 +310,7 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     for name in MAP_NAMES:
         # Column arrays, not an (n, 3) copy: the semantic map of a dense run is millions
         # of points, and this loop set voxelize's peak memory.
-        t = map_table if name == "semantic" else _standard_rows(map_table)
+        t = map_table if name == "semantic" else standard_rows(map_table)
         x, y, z = (t.column(c).to_numpy() for c in _XYZ)
         plys[name] = encode_points_ply(
             (x, y, z),

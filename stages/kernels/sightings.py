@@ -1,5 +1,6 @@
-"""Inputs of stage `infer`: object features joined to their features and fused points,
-grouped into per-keyframe object sightings (vectorised; see `stages.infer.stage`)."""
+"""Object sightings of the class models: object features joined to their features and
+fused points, grouped into per-keyframe (or per-frame) object sightings (vectorised),
+for stage `infer` (keyframes) and stage `submaps` (the frames between them)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from stages.infer.object_frame import ObjectOrigin
 from stages.kernels.geometry import fan_to_xy
+from stages.kernels.object_frame import ObjectOrigin
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",

@@ -1,6 +1,6 @@
 """Orthogonal stereo association per range bin (paper Sec. IV.B, Eq. 5 and 6).
 
-Per keyframe, after the overlap selection of `stages.fuse.stage`:
+Per frame, after the overlap selection of `stages.kernels.fusion`:
 1. Subproblems: features in the same range bin of both images (paper: "features at the
    same range"; the vertical features' ranges are binned with the horizontal sonar's
    range table, so the two images may differ in resolution); each is solved optimally (minimum total cost) with
@@ -13,11 +13,8 @@ Per keyframe, after the overlap selection of `stages.fuse.stage`:
    sum L = the sum of the costs of those candidates and L_ij. C < 0 when the solution had
    to give a feature a worse partner than its best; C = 1 when neither feature had an
    alternative. Associations with C < `min_confidence` are culled. The default (-1) culls
-   none: on the simulator the patch cost does not predict 3D accuracy (low-cost pairs are
-   mostly dim, weak detections), and culling at C >= 0 kept 593 of 3377 points of the
-   test scene in tests/test_fuse.py and raised their median distance to the mesh from
-   0.072 m to 0.113 m (within 0.3 m: 92.9 % -> 86.5 %). The paper-literal per-row form
-   (best vs second-best candidate of the horizontal feature) did not predict it either.
+   none, because on the simulator C does not predict 3D accuracy
+   (docs/decisions/006-fuse-keeps-every-association.md).
    Options after the authors' code (reference/original-implementation.md Sec. 3.1 steps
    8-9), all off by default:
    - `min_subproblem_features`: a range bin is solved only when both its horizontal and
@@ -49,7 +46,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 

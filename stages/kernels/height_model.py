@@ -1,7 +1,7 @@
 """Object-class height model P(z | range, bearing) (paper Sec. IV.D-E, Eq. 7-9).
 
 One `HeightModel` per object class holds, for every cell of a sparse 2D grid over
-the class's reference frame (`stages.infer.object_frame`), a discrete posterior over the
+the class's reference frame (`stages.kernels.object_frame`), a discrete posterior over the
 height z of the return, stored as log probabilities on a fixed z grid.
 
 - Cells: the reference frame is metric and aligned with the reference line of sight,
@@ -37,7 +37,7 @@ from typing import Literal
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 special = lazy("scipy.special")
 
@@ -134,6 +134,33 @@ class HeightModel:
     def updated(self) -> bool:
         """True once Eq. 7 has been applied at least once."""
         return self.n_updates > 0
+
+    def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The learned cells in key order: (n, 2) int64 cell indices (i, j) (see
+        `cell_keys`), and their (n, n_z) mass and posterior probabilities."""
+        rows = self._order
+        ij = np.stack(np.divmod(self._sorted_keys, _STRIDE), axis=1) - _OFFSET
+        return ij, self._mass[rows], self._prob[rows]
+
+    def restore(self, ij: np.ndarray, mass: np.ndarray, prob: np.ndarray, n_updates: int) -> None:
+        """Replace the cells with those of `cells()` (of a model with this grid and
+        rule), so the model answers and updates as the one they were taken from."""
+        ij = np.asarray(ij, dtype=np.int64).reshape(-1, 2)
+        shape = (ij.shape[0], self.z_m.size)
+        if np.shape(mass) != shape or np.shape(prob) != shape:
+            raise ValueError(f"cells: mass and probabilities must be {shape}")
+        if ij.size and np.abs(ij).max() >= _OFFSET:
+            raise ValueError("cells: index out of the cell index range")
+        keys = (ij[:, 0] + _OFFSET) * _STRIDE + (ij[:, 1] + _OFFSET)
+        if np.any(np.diff(keys) <= 0):
+            raise ValueError("cells: indices must be unique and in key order")
+        self._keys = keys
+        self._order = np.arange(keys.size, dtype=np.int64)
+        self._sorted_keys = keys
+        self._mass = np.array(mass, dtype=np.float64, order="C")
+        self._prob = np.array(prob, dtype=np.float64, order="C")
+        self._reserve(16)
+        self.n_updates = int(n_updates)
 
     def cell_keys(self, uv_m: np.ndarray) -> np.ndarray:
         """Packed int64 cell keys of (n, 2) reference-frame points (u, v) [m]."""

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages._lazy import lazy
-from stages.ply import Mesh
+from stages.kernels.lazy import lazy
+from stages.kernels.ply import Mesh
 
 o3d = lazy("open3d")
 spatial = lazy("scipy.spatial")

@@ -33,7 +33,7 @@ from typing import Literal
 
 import numpy as np
 
-from stages._lazy import lazy
+from stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 special = lazy("scipy.special")

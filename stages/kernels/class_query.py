@@ -1,9 +1,11 @@
-"""Update and query of one class's height model with one keyframe (paper Eq. 7-9).
+"""Update and query of one class's height model with one keyframe or frame (paper
+Eq. 7-9), shared by stage `infer` (keyframes: update, then query) and stage `submaps`
+(its frames: query only, the models as infer left them).
 
 Object-frame classes (pilings) register each sighting into the class's reference frame
-(`stages.infer.object_frame`), update the model with its fused returns (Eq. 7) and query
+(`stages.kernels.object_frame`), update the model with its fused returns (Eq. 7) and query
 its 2D-only returns (Eq. 8-9); beam-frame classes (walls, trusses, hulls) put every
-return into its per-beam leading-edge frame (`stages.infer.beam_frame`) instead, in one
+return into its per-beam leading-edge frame (`stages.kernels.beam_frame`) instead, in one
 vectorised pass per keyframe. `Funnel` counts what each step loses (`stats.json`).
 """
 
@@ -15,29 +17,26 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from schemas.classes import UNKNOWN_CLASS
-from stages.infer.beam_frame import beam_anchor_range, beam_model_coords
-from stages.infer.config import InferConfig
-from stages.infer.height_model import CoarseFallbackModel, HeightModel, HeightQuery
-from stages.infer.inputs import (
-    Sighting,
-)
-from stages.infer.object_frame import (
-    ClassFrame,
-    ObjectOrigin,
-)
+from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
+from stages.kernels.class_models import ClassModelSettings, ClassState
 from stages.kernels.geometry import polar_to_xyz, se2_apply
+from stages.kernels.height_model import HeightQuery
+from stages.kernels.object_frame import ObjectOrigin
+from stages.kernels.sightings import Sighting
 
 logger = logging.getLogger(__name__)
 
-__all__ = []
-
-
-@dataclass
-class ClassState:
-    """Reference frame and height model of one class."""
-
-    frame: ClassFrame
-    model: HeightModel | CoarseFallbackModel
+__all__ = [
+    "FUNNEL_STEPS",
+    "Funnel",
+    "borrowed_sightings",
+    "model_coords",
+    "predicted_points",
+    "query_object_sightings",
+    "register_and_query",
+    "update_and_query_beam_class",
+    "update_object_class",
+]
 
 
 FUNNEL_STEPS = (
@@ -111,7 +110,7 @@ def update_object_class(
 
 
 def predicted_points(
-    q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: InferConfig
+    q: HeightQuery, range_m: np.ndarray, bearing_rad: np.ndarray, config: ClassModelSettings
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Points of the MAP heights of n queried returns (0-2 each) and, per point, the
     index of its return; heights outside +-max_elevation_deg are dropped.
@@ -141,7 +140,7 @@ def predicted_points(
 def query_object_sightings(
     state: ClassState,
     registered: list[tuple[Sighting, np.ndarray]],
-    config: InferConfig,
+    config: ClassModelSettings,
     funnel: Funnel,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Eq. 8-9 for the 2D-only returns of a keyframe's registered sightings of one class.
@@ -169,7 +168,7 @@ def query_object_sightings(
 def register_and_query(
     state: ClassState,
     sightings: list[Sighting],
-    config: InferConfig,
+    config: ClassModelSettings,
     funnel: Funnel,
     transforms: dict[int, np.ndarray] | None = None,
 ) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
@@ -195,18 +194,16 @@ def register_and_query(
 def update_and_query_beam_class(
     state: ClassState,
     sightings: list[Sighting],
-    config: InferConfig,
+    config: ClassModelSettings,
     funnel: Funnel,
     update: bool = True,
-    query: bool = True,
 ) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
-    is put into its beam frame (`stages.infer.beam_frame`), the fused ones update the class
-    model (unless `update` is False: query only), the 2D-only ones are queried (unless
-    `query` is False: update only). Returns (points, object id per point), or None
-    before the model has data or without a query.
+    is put into its beam frame (`stages.kernels.beam_frame`), the fused ones update the class
+    model (unless `update` is False: query only), the 2D-only ones are queried. Returns
+    (points, object id per point), or None before the model has data.
     """
     if not sightings:
         return None
@@ -222,7 +219,7 @@ def update_and_query_beam_class(
         funnel.counts["updated_objects"] += len(
             {s.object_id for s in sightings if s.is_fused.any()}
         )
-    if not query or not state.model.updated:
+    if not state.model.updated:
         return None
     funnel.counts["registered_objects"] += len(sightings)
     q = state.model.query(coords[~fused], config.confidence_threshold)
@@ -233,7 +230,7 @@ def update_and_query_beam_class(
 
 
 def borrowed_sightings(
-    lender: str, sightings: list[Sighting], config: InferConfig
+    lender: str, sightings: list[Sighting], config: ClassModelSettings
 ) -> list[tuple[str, list[Sighting]]]:
     """(borrowing class, its sightings) that take heights from `lender`'s model, query
     only: 'unknown' objects whose arg-max class it is (`unknown_argmax_classes`) and

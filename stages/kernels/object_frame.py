@@ -30,8 +30,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages._lazy import lazy
 from stages.kernels.geometry import fan_to_xy, se2, se2_apply
+from stages.kernels.lazy import lazy
 
 o3d = lazy("open3d")
 
