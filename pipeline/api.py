@@ -68,7 +68,7 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
     from outside the dataset's graph)."""
     names = [s.name for s in ctx.stages]
     last = names.index(until) if until in names else len(names) - 1
-    needs = {i.split(".")[0] for s in ctx.stages[: last + 1] for i in s.inputs}
+    needs = {i.stage for s in ctx.stages[: last + 1] for i in s.inputs}
     if "train" not in needs:
         return None
     from pipeline.training.model_cache import resolve_default_model
@@ -131,9 +131,7 @@ def plan_status(
     ctx = _context(request)
     names = [s.name for s in ctx.stages]
     last = names.index(request.until) if request.until in names else len(names) - 1
-    readers = [
-        s.name for s in ctx.stages[: last + 1] if any(i.startswith("train.") for i in s.inputs)
-    ]
+    readers = [s.name for s in ctx.stages[: last + 1] if "train" in s.upstream]
     if not readers:
         return ctx, _plan_with(ctx, request, request.until, {}), None, []
     from pipeline.engine.registry import training_stage

@@ -30,7 +30,7 @@ from pydantic import Field
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
 from schemas.sonar import KeyframeImages
-from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.base import DATASET, Output, Stage, StageConfig, StageInputError
 
 __all__ = [
     "STAGE",
@@ -279,8 +279,8 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     if len(sel) == 0:
         # Bad data, not a bug: the engine reports it as exit 2 naming the recording.
-        raise InputRejected(
-            "dataset",
+        raise StageInputError(
+            DATASET,
             f"no keyframe: {len(pairs.horizontal)} sonar pairs ({len(h_t)} horizontal, "
             f"{len(v_t)} vertical pings), {len(cand)} inside the navigation stream",
         )
@@ -333,7 +333,7 @@ STAGE = Stage(
     name="keyframes",
     version=1,
     config=KeyframesConfig,
-    inputs=("dataset",),
+    inputs=(DATASET,),
     outputs=(
         Output("keyframes", "parquet", "keyframes.parquet", schema=KEYFRAMES_SCHEMA),
         Output("frames", "frames", "keyframes.mcap"),

@@ -36,7 +36,7 @@ from pipeline.engine.run_records import miss_reason, previous_recipes, record_ru
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import display_path
 from schemas import SCHEMA_VERSION
-from stages.base import InputRejected, Stage
+from stages.base import Input, Output, Stage, StageInputError
 from stages.parallel import release_memory
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
@@ -140,23 +140,22 @@ def plan(
     for stage in stages:
         input_keys = {}
         for item in stage.inputs:
-            if item == "dataset":
+            if item.is_dataset:
                 continue
-            upstream = item.split(".", 1)[0]
-            if upstream not in keys:
-                raise ConfigError(f"stage {stage.name}: input '{item}' has no producer in this run")
-            input_keys[item] = keys[upstream]
+            if item.stage not in keys:
+                raise ConfigError(
+                    f"stage {stage.name}: input '{item.name}' has no producer in this run"
+                )
+            input_keys[item.name] = keys[item.stage]
         recipe = stage_recipe(
             stage=stage.name,
             version=stage.version,
             config=section_dict(config, stage.name, stage.key_excludes, stage.reads_sections),
             input_keys=input_keys,
             schema_version=SCHEMA_VERSION,
-            dataset_fingerprint=dataset.fingerprint if "dataset" in stage.inputs else None,
+            dataset_fingerprint=dataset.fingerprint if stage.reads_dataset else None,
         )
-        read = {
-            i: contents[i.split(".", 1)[0]] for i in input_keys if i.split(".", 1)[0] in contents
-        }
+        read = {i.name: contents[i.stage] for i in stage.inputs if i.stage in contents}
         if read:
             recipe["input_content"] = dict(sorted(read.items()))
         key = recipe_key(recipe)
@@ -177,6 +176,13 @@ def plan(
     return planned
 
 
+def _output(stage: Stage, producer: Stage, item: Input) -> Output:
+    output = next((o for o in producer.outputs if o.name == item.output), None)
+    if output is None:
+        raise ConfigError(f"stage {stage.name}: {item.stage} has no output '{item.output}'")
+    return output
+
+
 def _bind_inputs(
     item: PlannedStage,
     refs: Mapping[str, ArtifactRef],
@@ -185,36 +191,42 @@ def _bind_inputs(
     config: BaseModel,
     verified: set[tuple[str, str, str]],
 ) -> dict[str, Any]:
+    """The stage's `run` mapping: each input's value under its `Input.name`, and the
+    sections it reads under "config.<section>". A json output with a `record` type is
+    handed over as that record; a file it refuses is bad input naming that file."""
     stage = item.stage
     inputs: dict[str, Any] = {f"config.{s}": getattr(config, s) for s in stage.reads_sections}
+    columns = dict(stage.input_columns)
     for name in stage.inputs:
-        if name == "dataset":
-            inputs[name] = dataset.open(getattr(config, stage.dataset_section or stage.name))
+        if name.is_dataset:
+            inputs[name.name] = dataset.open(getattr(config, stage.dataset_section or stage.name))
             continue
-        upstream, _, out_name = name.partition(".")
-        producer = outputs_of[upstream]
-        output = next((o for o in producer.outputs if o.name == out_name), None)
-        if output is None:
-            raise ConfigError(f"stage {item.stage.name}: {upstream} has no output '{out_name}'")
-        columns = dict(stage.input_columns).get(name)
-        inputs[name] = read_verified(refs[upstream], output, verified, columns)
+        output = _output(stage, outputs_of[name.stage], name)
+        value = read_verified(refs[name.stage], output, verified, columns.get(name))
+        if output.record is not None and value is not None:
+            try:
+                value = output.record.from_json(value)
+            except ValueError as err:
+                rejected = StageInputError(name, str(err))
+                raise _rejected_input(rejected, stage, refs, outputs_of, dataset) from err
+        inputs[name.name] = value
     return inputs
 
 
 def _rejected_input(
-    err: InputRejected,
+    err: StageInputError,
     stage: Stage,
     refs: Mapping[str, ArtifactRef],
     outputs_of: Mapping[str, Stage],
     dataset: DatasetSpec,
 ) -> SourceError:
     """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
-    upstream, _, out_name = err.input.partition(".")
-    where = str(dataset.path) if err.input == "dataset" else err.input
-    if upstream in refs and upstream in outputs_of:
-        output = next((o for o in outputs_of[upstream].outputs if o.name == out_name), None)
-        ref = refs[upstream]
-        filename = output.filename if output is not None else out_name
+    item = err.input
+    where = str(dataset.path) if item.is_dataset else item.name
+    if item.stage in refs and item.stage in outputs_of:
+        output = next((o for o in outputs_of[item.stage].outputs if o.name == item.output), None)
+        ref = refs[item.stage]
+        filename = output.filename if output is not None else item.output
         where = f"{ref.stage}/{ref.key}/{filename}"
     reason = (err.reason.splitlines() or [""])[0][:300]
     return SourceError(f"{where}: {reason} (input of stage {stage.name})")
@@ -244,7 +256,7 @@ def _build(
                 facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
         except (PipelineError, OSError):
             raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
-        except InputRejected as err:
+        except StageInputError as err:
             raise _rejected_input(err, stage, refs, outputs_of, dataset) from err
         except Exception as err:
             raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
@@ -327,7 +339,7 @@ def _execute(
                 "config": item.recipe["config"],
                 "inputs": {k: v for k, v in item.recipe["inputs"].items()},
                 "input_artifacts": {
-                    k: f"{outputs_of[k.split('.', 1)[0]].name}/{v}"
+                    k: f"{outputs_of[Input.parse(k).stage].name}/{v}"
                     for k, v in item.recipe["inputs"].items()
                 },
                 "dataset_path": str(dataset.path),

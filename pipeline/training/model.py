@@ -30,7 +30,7 @@ from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
 from pipeline.training.datasets import Simulation
 from schemas.sonar import KeyframeImages
-from stages.base import Stage
+from stages.base import Input, Stage
 
 __all__ = [
     "plan_training",
@@ -88,12 +88,12 @@ def training_stage_for(
 
     base = training_stage()
     inputs = tuple(
-        name
+        item
         for i in range(n_datasets)
-        for name in (
-            f"keyframes_{i}.frames",
-            f"features_{i}.features",
-            *([f"annotations_{i}.annotations"] if i in annotated else []),
+        for item in (
+            Input(f"keyframes_{i}", "frames"),
+            Input(f"features_{i}", "features"),
+            *([Input(f"annotations_{i}", "annotations")] if i in annotated else []),
         )
     )
 

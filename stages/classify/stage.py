@@ -36,7 +36,7 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
-from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig, StageInputError
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
@@ -362,7 +362,7 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
     try:
         model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
     except ValueError as err:
-        raise InputRejected("train.model", str(err)) from err
+        raise StageInputError("train.model", str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
     mount = None if sensors is None else np.asarray(sensors["horizontal"]["T_base_sonar"], float)
     objects, links, busiest = classify_keyframes(
@@ -378,11 +378,11 @@ STAGE = Stage(
     version=4,
     config=ClassifyConfig,
     inputs=(
-        "keyframes.frames",
-        "keyframes.keyframes",
-        "keyframes.sensors",
-        "features.features",
-        "train.model",
+        Input("keyframes", "frames"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+        Input("train", "model"),
     ),
     outputs=(
         Output("objects", "parquet", "objects.parquet", schema=OBJECTS_SCHEMA),

@@ -23,7 +23,7 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth
 from stages.evaluate.report import (
@@ -380,14 +380,14 @@ STAGE = Stage(
     version=7,
     config=EvaluateConfig,
     inputs=(
-        "voxelize.map",
-        "voxelize.summary",
-        "keyframes.keyframes",
-        "keyframes.scene_mesh",
-        "keyframes.sensors",
-        "slam.poses",
-        "infer.stats",
-        "submaps.stats",
+        Input("voxelize", "map"),
+        Input("voxelize", "summary"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "scene_mesh"),
+        Input("keyframes", "sensors"),
+        Input("slam", "poses"),
+        Input("infer", "stats"),
+        Input("submaps", "stats"),
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),

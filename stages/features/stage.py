@@ -28,7 +28,7 @@ from pydantic import Field
 
 from schemas.features import FEATURES_SCHEMA, SONARS
 from schemas.sonar import KeyframeImages, SonarPing
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.features.cfar import CfarMethod, cfar_detect
 
 __all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
@@ -134,7 +134,7 @@ STAGE = Stage(
     name="features",
     version=1,
     config=FeaturesConfig,
-    inputs=("keyframes.frames",),
+    inputs=(Input("keyframes", "frames"),),
     outputs=(Output("features", "parquet", "features.parquet", schema=FEATURES_SCHEMA),),
     run=run,
     description="SOCA-CFAR detections on both polar images of every keyframe",

@@ -35,7 +35,7 @@ from pydantic import Field, model_validator
 
 from schemas.fused import FUSED_SCHEMA
 from schemas.sonar import KeyframeImages
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.fuse.association import ConfidenceRule, assign_subproblems, image_patches
 
 __all__ = [
@@ -287,7 +287,7 @@ STAGE = Stage(
     name="fuse",
     version=1,
     config=FuseConfig,
-    inputs=("keyframes.frames", "keyframes.sensors", "features.features"),
+    inputs=(Input("keyframes", "frames"), Input("keyframes", "sensors"), Input("features", "features")),
     outputs=(Output("fused", "parquet", "fused.parquet", schema=FUSED_SCHEMA),),
     run=run,
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",

@@ -67,7 +67,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.points import POINTS_SCHEMA
-from stages.base import Output, Stage
+from stages.base import Input, Output, Stage
 from stages.infer.config import FrameKind, InferConfig
 from stages.infer.height_model import CoarseFallbackModel, HeightModel, z_grid
 from stages.infer.inputs import (
@@ -346,7 +346,7 @@ STAGE = Stage(
     # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
     version=3,
     config=InferConfig,
-    inputs=("classify.objects", "classify.object_features", "features.features", "fuse.fused"),
+    inputs=(Input("classify", "objects"), Input("classify", "object_features"), Input("features", "features"), Input("fuse", "fused")),
     outputs=(
         Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
         Output("stats", "json", "stats.json"),

@@ -43,7 +43,7 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
-from stages.base import Output, Stage
+from stages.base import Input, Output, Stage
 from stages.slam.config import SlamConfig
 from stages.slam.frontend import SlamResult, run_slam
 from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
@@ -129,7 +129,7 @@ STAGE = Stage(
     name="slam",
     version=9,
     config=SlamConfig,
-    inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
+    inputs=(Input("keyframes", "keyframes"), Input("keyframes", "sensors"), Input("features", "features")),
     outputs=(
         Output("poses", "parquet", "poses.parquet", schema=POSES_SCHEMA),
         Output("factors", "parquet", "factors.parquet", schema=FACTORS_SCHEMA),

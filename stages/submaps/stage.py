@@ -47,7 +47,7 @@ from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import Output, Stage
+from stages.base import DATASET, Input, Output, Stage
 from stages.classify.stage import ClassifyConfig
 from stages.fuse.stage import sonar_offset
 from stages.infer.config import InferConfig
@@ -187,13 +187,13 @@ STAGE = Stage(
     version=3,
     config=SubmapsConfig,
     inputs=(
-        "dataset",
-        "keyframes.keyframes",
-        "keyframes.sensors",
-        "classify.objects",
-        "classify.object_features",
-        "features.features",
-        "fuse.fused",
+        DATASET,
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("classify", "objects"),
+        Input("classify", "object_features"),
+        Input("features", "features"),
+        Input("fuse", "fused"),
     ),
     outputs=(
         Output("frames", "parquet", "submap_frames.parquet", schema=SUBMAP_FRAMES_SCHEMA),

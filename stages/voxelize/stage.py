@@ -42,7 +42,7 @@ from pydantic import Field, field_validator
 from schemas.classes import known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.infer.config import DEFAULT_FRAME_KINDS
 from stages.ply import encode_points_ply
 from stages.voxelize.evidence import contradicted_by_fused
@@ -366,17 +366,17 @@ STAGE = Stage(
     version=3,
     config=VoxelizeConfig,
     inputs=(
-        "infer.points",
-        "fuse.fused",
-        "slam.poses",
-        "keyframes.sensors",
-        "submaps.frames",
-        "submaps.points",
+        Input("infer", "points"),
+        Input("fuse", "fused"),
+        Input("slam", "poses"),
+        Input("keyframes", "sensors"),
+        Input("submaps", "frames"),
+        Input("submaps", "points"),
     ),
     input_columns=(
-        ("infer.points", ("keyframe_id", "source", "class_name", *_XYZ)),
-        ("fuse.fused", ("keyframe_id", *_XYZ)),
-        ("submaps.points", ("frame_id", "source", "class_name", *_XYZ)),
+        (Input("infer", "points"), ("keyframe_id", "source", "class_name", *_XYZ)),
+        (Input("fuse", "fused"), ("keyframe_id", *_XYZ)),
+        (Input("submaps", "points"), ("frame_id", "source", "class_name", *_XYZ)),
     ),
     outputs=(
         Output("map", "parquet", "map.parquet", schema=MAP_SCHEMA),
