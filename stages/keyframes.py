@@ -29,6 +29,7 @@ from pydantic import Field
 
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.base import DATASET, Output, Stage, StageConfig, StageInputError
 
@@ -337,7 +338,7 @@ STAGE = Stage(
     outputs=(
         Output("keyframes", "parquet", "keyframes.parquet", schema=KEYFRAMES_SCHEMA),
         Output("frames", "frames", "keyframes.mcap"),
-        Output("sensors", "json", "sensors.json"),
+        Output("sensors", "json", "sensors.json", record=Sensors),
         Output("scene_mesh", "bytes", "scene.ply", optional=True),
     ),
     run=run,

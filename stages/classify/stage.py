@@ -33,7 +33,9 @@ import pyarrow as pa
 from pydantic import Field
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from schemas.model_settings import ModelSettings
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
 from stages.base import Input, Output, Stage, StageConfig, StageInputError
@@ -139,14 +141,16 @@ class ClassifyConfig(StageConfig):
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
 
-def _clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any], name: str) -> float:
+def _clustering(cfg: ClassifyConfig, settings: ModelSettings, name: str) -> float:
     """A clustering parameter: the config's override, else the model file's."""
     value = getattr(cfg, name)
-    if value is not None:
-        return float(value)
-    if name not in model_config:
-        raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
-    return float(model_config[name])
+    if value is None:
+        value = getattr(settings, name)
+    if value is None:
+        raise StageInputError(
+            Input("train", "model"), f"the model file has no {name!r}; set classify.{name}"
+        )
+    return float(value)
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -226,7 +230,10 @@ def _pooled(
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
     if any(c.null_count for c in cols):
-        raise ValueError("keyframes: x_m, y_m or yaw_rad has nulls; set classify.pool_views=false")
+        raise StageInputError(
+            Input("keyframes", "keyframes"),
+            "x_m, y_m or yaw_rad has nulls; set classify.pool_views=false",
+        )
     pose = np.column_stack([c.to_numpy() for c in cols]).astype(np.float64)
     obj_kf = geometry.column("keyframe_id").to_numpy()
     row = np.searchsorted(kf_ids, obj_kf)
@@ -250,7 +257,7 @@ def classify_keyframes(
     features: pa.Table,
     model: PatchCNN,
     class_names: list[str],
-    model_config: Mapping[str, Any],
+    settings: ModelSettings,
     cfg: ClassifyConfig,
     keyframes: pa.Table | None = None,
     T_base_sonar: np.ndarray | None = None,
@@ -260,9 +267,8 @@ def classify_keyframes(
     Args:
         frames: keyframe images in keyframe order (read one at a time).
         features: features.parquet (only horizontal rows are used).
-        model: the classifier; class_names: its output names; model_config: the
-            model file's config (clustering `eps_m`, `min_samples`, `min_features`;
-            patch `margin_m`, `min_side_m`, `size_px`).
+        model: the classifier; class_names: its output names; settings: the model
+            file's clustering and patch settings.
         cfg: clustering, acceptance and pooling config.
         keyframes: keyframes.parquet (dead-reckoning poses) and T_base_sonar: (4, 4)
             mounting of the horizontal sonar; both needed when `cfg.pool_views`.
@@ -274,9 +280,9 @@ def classify_keyframes(
     if cfg.pool_views and (keyframes is None or T_base_sonar is None):
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
     by_kf = horizontal_features(features)
-    eps_m = float(_clustering(cfg, model_config, "eps_m"))
-    min_samples = int(_clustering(cfg, model_config, "min_samples"))
-    min_features = int(_clustering(cfg, model_config, "min_features"))
+    eps_m = float(_clustering(cfg, settings, "eps_m"))
+    min_samples = int(_clustering(cfg, settings, "min_samples"))
+    min_features = int(_clustering(cfg, settings, "min_features"))
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
@@ -292,16 +298,17 @@ def classify_keyframes(
         objs = extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
             eps_m=eps_m, min_samples=min_samples, min_features=min_features,
-            margin_m=float(model_config["margin_m"]), min_side_m=float(model_config["min_side_m"]),
-            size_px=int(model_config["size_px"]), min_area_m2=cfg.min_object_area_m2,
+            margin_m=settings.margin_m, min_side_m=settings.min_side_m,
+            size_px=settings.size_px, min_area_m2=cfg.min_object_area_m2,
             drop_fan_edge=cfg.drop_fan_edge_objects, fan_edge_margin_m=cfg.fan_edge_margin_m,
             fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
         )  # fmt: skip
         if oracle:
             if objs.true_class_id is None:
-                raise ValueError(
+                raise StageInputError(
+                    Input("keyframes", "frames"),
                     f"classify.labels=ground_truth: keyframe {frame.keyframe_id} has no label"
-                    " image (a field recording?); use classify.labels=cnn"
+                    " image (a field recording?); use classify.labels=cnn",
                 )
             truths.append(objs.true_class_id.astype(np.int64))
             mean = var = np.zeros((objs.count, len(class_names)))
@@ -361,12 +368,13 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
     try:
         model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+        settings = ModelSettings.from_config(mcfg)
     except ValueError as err:
-        raise StageInputError("train.model", str(err)) from err
+        raise StageInputError(Input("train", "model"), str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
-    mount = None if sensors is None else np.asarray(sensors["horizontal"]["T_base_sonar"], float)
+    mount = None if sensors is None else Sensors.of(sensors).horizontal.T_base_sonar
     objects, links, busiest = classify_keyframes(
-        inputs["keyframes.frames"], inputs["features.features"], model, names, mcfg, config,
+        inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount,
     )  # fmt: skip
     overlay = overlay_png(*busiest) if busiest is not None else None

@@ -23,6 +23,7 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
+from schemas.sensors import Sensors
 from stages.base import Input, Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth
@@ -275,9 +276,9 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     summary: dict[str, Any] = inputs["voxelize.summary"]
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     poses: pa.Table = inputs["slam.poses"]
-    sensors: dict[str, Any] = inputs["keyframes.sensors"] or {}
+    sensors = Sensors.of(inputs["keyframes.sensors"] or {})
     mesh_bytes: bytes | None = inputs.get("keyframes.scene_mesh")
-    T_base_sonar = np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
+    T_base_sonar = sensors.horizontal.T_base_sonar
     metrics: dict[str, Any] = {
         "voxel_size_m": summary.get("voxel_size_m"),
         "voxels": summary.get("voxels", {}),
@@ -368,7 +369,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         np.stack([poses.column("x_m").to_numpy(), poses.column("y_m").to_numpy()], axis=1),
     )
     figures = [FIGURES[k] for k in FIGURES if outputs[k] is not None]
-    dataset = str((sensors.get("source") or {}).get("name", "unknown"))
+    dataset = str(sensors.source.get("name", "unknown"))
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
     outputs["metrics"] = metrics
     return outputs

@@ -34,6 +34,7 @@ import pyarrow.compute as pc
 from pydantic import Field, model_validator
 
 from schemas.fused import FUSED_SCHEMA
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.base import Input, Output, Stage, StageConfig
 from stages.fuse.association import ConfidenceRule, assign_subproblems, image_patches
@@ -94,22 +95,13 @@ class FuseConfig(StageConfig):
         return self
 
 
-def sonar_offset(sensors: Mapping[str, Any]) -> np.ndarray:
+def sonar_offset(sensors: Sensors | Mapping[str, Any]) -> np.ndarray:
     """(4, 4) T_h_v: the vertical sonar's pose in the horizontal sonar frame.
 
     Raises:
         ValueError: a sonar's T_base_sonar is missing or not a 4x4 rigid transform.
     """
-    mats = {}
-    for s in ("horizontal", "vertical"):
-        try:
-            m = np.asarray(sensors[s]["T_base_sonar"], dtype=np.float64)
-        except (KeyError, TypeError) as err:
-            raise ValueError(f"fuse: sensors has no {s}.T_base_sonar") from err
-        if m.shape != (4, 4) or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
-            raise ValueError(f"fuse: sensors.{s}.T_base_sonar is not a 4x4 rigid transform")
-        mats[s] = m
-    return np.linalg.inv(mats["horizontal"]) @ mats["vertical"]
+    return Sensors.of(sensors).T_h_v
 
 
 def fused_points(
@@ -254,7 +246,7 @@ def _feature_arrays(features: pa.Table) -> dict[str, np.ndarray]:
 def fuse_table(
     frames: Sequence[KeyframeImages],
     features: pa.Table,
-    sensors: Mapping[str, Any],
+    sensors: Sensors | Mapping[str, Any],
     config: FuseConfig,
 ) -> pa.Table:
     """`fused.parquet` for all keyframes (one keyframe's images in memory at a time)."""
@@ -287,7 +279,11 @@ STAGE = Stage(
     name="fuse",
     version=1,
     config=FuseConfig,
-    inputs=(Input("keyframes", "frames"), Input("keyframes", "sensors"), Input("features", "features")),
+    inputs=(
+        Input("keyframes", "frames"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
     outputs=(Output("fused", "parquet", "fused.parquet", schema=FUSED_SCHEMA),),
     run=run,
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",

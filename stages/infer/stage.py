@@ -346,7 +346,12 @@ STAGE = Stage(
     # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
     version=3,
     config=InferConfig,
-    inputs=(Input("classify", "objects"), Input("classify", "object_features"), Input("features", "features"), Input("fuse", "fused")),
+    inputs=(
+        Input("classify", "objects"),
+        Input("classify", "object_features"),
+        Input("features", "features"),
+        Input("fuse", "fused"),
+    ),
     outputs=(
         Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
         Output("stats", "json", "stats.json"),

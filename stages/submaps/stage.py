@@ -43,6 +43,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.recording import Recording
+from schemas.sensors import Sensors
 from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
@@ -78,7 +79,7 @@ def _clustering(classify: ClassifyConfig, train: Any) -> tuple[float, int, int]:
 def map_submap_frames(
     rec: Recording,
     keyframes: pa.Table,
-    sensors: Mapping[str, Any],
+    sensors: Sensors | Mapping[str, Any],
     objects: pa.Table,
     object_features: pa.Table,
     features: pa.Table,
@@ -126,7 +127,7 @@ def map_submap_frames(
             )
         ),
         states=states,
-        T_base_sonar=np.asarray(sensors["horizontal"]["T_base_sonar"], np.float64),
+        T_base_sonar=Sensors.of(sensors).horizontal.T_base_sonar,
         T_h_v=sonar_offset(sensors),
         kf_pose=_pose_matrices(keyframes, "keyframes"),
         frame_pose=_pose_matrices(frames, "submap frames"),

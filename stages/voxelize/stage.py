@@ -41,6 +41,7 @@ from pydantic import Field, field_validator
 
 from schemas.classes import known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
+from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Input, Output, Stage, StageConfig
 from stages.infer.config import DEFAULT_FRAME_KINDS
@@ -309,10 +310,7 @@ def height_colours(z_m: np.ndarray, z_range_m: tuple[float, float] | None = None
 
 
 def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    sensors = inputs["keyframes.sensors"]
-    T_base_sonar = np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
-    if T_base_sonar.shape != (4, 4):
-        raise ValueError(f"sensors.horizontal.T_base_sonar: expected 4x4, got {T_base_sonar.shape}")
+    T_base_sonar = Sensors.of(inputs["keyframes.sensors"]).horizontal.T_base_sonar
     map_table, dropped = build_map(
         inputs["infer.points"],
         inputs["fuse.fused"],
