@@ -106,7 +106,9 @@ class Sensors:
         """Read the dict of `sensors.json`; a ValueError names the bad field."""
         if not isinstance(doc, Mapping):
             raise ValueError("sensors is not a JSON object")
-        sonars = {r: SonarMount.from_json(r, doc[r]) for r in SONAR_ROLES if r in doc}
+        sonars: dict[str, SonarMount] = {
+            r: SonarMount.from_json(r, doc[r]) for r in SONAR_ROLES if r in doc
+        }
         flags = {}
         for name in ("has_ground_truth", "has_labels"):
             value = doc.get(name, False)

@@ -19,7 +19,7 @@ from pipeline.engine.store import ArtifactStore
 from stages.base import Input
 
 if TYPE_CHECKING:
-    from pipeline.engine.runner import DatasetSpec, PlannedStage
+    from pipeline.engine.planned import DatasetSpec, PlannedStage
 
 __all__ = ["miss_reason", "previous_recipes", "record_run", "run_id"]
 

@@ -24,7 +24,9 @@ from typing import Any
 from pydantic import BaseModel
 
 from pipeline.engine.errors import SourceError
-from pipeline.engine.runner import DatasetSpec, execute, plan
+from pipeline.engine.planned import DatasetSpec
+from pipeline.engine.planner import plan
+from pipeline.engine.runner import execute
 from pipeline.engine.session import dataset_spec
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
@@ -179,8 +181,8 @@ def _bind_training(
     return train, external, first
 
 
-def _not_on_disk(path: Path) -> Callable[[Any], Any]:
-    def refuse(_section: Any) -> Any:
+def _not_on_disk(path: Path) -> Callable[[Path, Any], Any]:
+    def refuse(_path: Path, _section: Any) -> Any:
         raise SourceError(f"{path}: planned from the shipped model's lock, not simulated yet")
 
     return refuse

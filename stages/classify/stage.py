@@ -143,13 +143,10 @@ class ClassifyConfig(StageConfig):
 
 def _clustering(cfg: ClassifyConfig, settings: ModelSettings, name: str) -> float:
     """A clustering parameter: the config's override, else the model file's."""
-    value = getattr(cfg, name)
+    value = next((v for v in (getattr(cfg, name), getattr(settings, name)) if v is not None), None)
     if value is None:
-        value = getattr(settings, name)
-    if value is None:
-        raise StageInputError(
-            Input("train", "model"), f"the model file has no {name!r}; set classify.{name}"
-        )
+        why = f"the model file has no {name!r}; set classify.{name}"
+        raise StageInputError(Input("train", "model"), why)
     return float(value)
 
 
@@ -230,10 +227,8 @@ def _pooled(
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
     if any(c.null_count for c in cols):
-        raise StageInputError(
-            Input("keyframes", "keyframes"),
-            "x_m, y_m or yaw_rad has nulls; set classify.pool_views=false",
-        )
+        why = "x_m, y_m or yaw_rad has nulls; set classify.pool_views=false"
+        raise StageInputError(Input("keyframes", "keyframes"), why)
     pose = np.column_stack([c.to_numpy() for c in cols]).astype(np.float64)
     obj_kf = geometry.column("keyframe_id").to_numpy()
     row = np.searchsorted(kf_ids, obj_kf)

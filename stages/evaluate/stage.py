@@ -278,7 +278,6 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     poses: pa.Table = inputs["slam.poses"]
     sensors = Sensors.of(inputs["keyframes.sensors"] or {})
     mesh_bytes: bytes | None = inputs.get("keyframes.scene_mesh")
-    T_base_sonar = sensors.horizontal.T_base_sonar
     metrics: dict[str, Any] = {
         "voxel_size_m": summary.get("voxel_size_m"),
         "voxels": summary.get("voxels", {}),
@@ -318,7 +317,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics.get("errors_aligned"),
             poses_are_ground_truth(keyframes, poses),
         )
-        T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
+        T_ws = _visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
 
         visible = remember_last(
             lambda samples: visible_mask(
