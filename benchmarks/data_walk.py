@@ -57,15 +57,7 @@ def main(argv: list[str]) -> dict[str, Any]:
         from benchmarks.qa.fixtures import small_recording
 
         recording = small_recording(Path(tempfile.mkdtemp()) / "rec.mcap", duration_s=45.0)
-    command = (
-        next(
-            getattr(run_command, n).__code__
-            for n in ("run", "run_command")
-            if hasattr(run_command, n) and hasattr(getattr(run_command, n), "__code__")
-        )
-        if hasattr(run_command, "run")
-        else None
-    )
+    command: CodeType | None = None  # the `run` command's code, found on its first call
     targets = {
         pipeline.readers.dataset_fingerprint_parts.__code__: "fingerprinted",
         pipeline.readers.open_recording.__code__: "opened",
@@ -77,12 +69,9 @@ def main(argv: list[str]) -> dict[str, Any]:
         nonlocal command
         if event != "call":
             return
-        if (
-            command is None
-            and frame.f_code.co_name == "run"
-            and frame.f_code.co_filename == (run_command.__file__)
-        ):
-            command = frame.f_code
+        code = frame.f_code
+        if command is None and code.co_name == "run" and code.co_filename == run_command.__file__:
+            command = code
         what = targets.get(frame.f_code)
         if what is not None and what not in stacks and command is not None:
             stacks[what] = _stack(frame, command)

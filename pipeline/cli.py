@@ -75,7 +75,8 @@ def _root(
     # graph is built from it once and handed to every command through the context.
     from pipeline.engine.registry import GRAPH_ENV
 
-    ctx.obj = GraphChoice(os.environ.get(GRAPH_ENV))
+    if not isinstance(ctx.obj, GraphChoice):  # else: given by a program embedding the CLI
+        ctx.obj = GraphChoice(os.environ.get(GRAPH_ENV))
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, stream=sys.stderr)
     for handler in logging.getLogger().handlers:

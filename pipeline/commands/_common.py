@@ -52,11 +52,12 @@ def stderr_console() -> Any:
 
 class GraphChoice:
     """The stage graph of one CLI invocation: named once by the root command (from
-    `$SONARMAP_GRAPH`), built when a command first asks for it (`ls` never does)."""
+    `$SONARMAP_GRAPH`), built when a command first asks for it (`ls` never does).
+    A program embedding the CLI passes its own, built graph as the context's `obj`."""
 
-    def __init__(self, spec: str | None) -> None:
+    def __init__(self, spec: str | None, graph: Graph | None = None) -> None:
         self.spec = spec
-        self._graph: Graph | None = None
+        self._graph = graph
 
     def graph(self) -> Graph:
         if self._graph is None:
