@@ -68,7 +68,7 @@ class Sensors:
 
     Attributes:
         sonars: role ("horizontal", "vertical") -> its mounting; a role may be absent
-            only in hand-made inputs (`sonar` then raises).
+            only in hand-made inputs read by `of` (`sonar` then raises).
         has_ground_truth: the recording carries true poses (a simulation).
         has_labels: its sonar images carry per-pixel class labels.
         source: the reader's description of the recording (format, topics, name).
@@ -102,13 +102,13 @@ class Sensors:
         return np.linalg.inv(self.horizontal.T_base_sonar) @ self.vertical.T_base_sonar
 
     @classmethod
-    def from_json(cls, doc: Any) -> Sensors:
-        """Read the dict of `sensors.json`; a ValueError names the bad field."""
+    def from_json(cls, doc: Any, *, partial: bool = False) -> Sensors:
+        """Read the dict of `sensors.json`; a ValueError names the bad field. Both
+        sonars must be there unless `partial`."""
         if not isinstance(doc, Mapping):
             raise ValueError("sensors is not a JSON object")
-        sonars: dict[str, SonarMount] = {
-            r: SonarMount.from_json(r, doc[r]) for r in SONAR_ROLES if r in doc
-        }
+        roles = [r for r in SONAR_ROLES if r in doc or not partial]
+        sonars: dict[str, SonarMount] = {r: SonarMount.from_json(r, doc.get(r)) for r in roles}
         flags = {}
         for name in ("has_ground_truth", "has_labels"):
             value = doc.get(name, False)
@@ -124,9 +124,10 @@ class Sensors:
 
     @classmethod
     def of(cls, value: Sensors | Mapping[str, Any]) -> Sensors:
-        """`value` itself, or the record read from a `sensors.json` dict (a stage's `run`
-        called directly, as tests do, gets the dict)."""
-        return value if isinstance(value, Sensors) else cls.from_json(value)
+        """`value` itself, or the record read from a `sensors.json` dict, a sonar missing
+        only when it is asked for (a stage's `run` called directly, as tests do, gets
+        the dict)."""
+        return value if isinstance(value, Sensors) else cls.from_json(value, partial=True)
 
     def to_json(self) -> dict[str, Any]:
         """The dict `sensors.json` holds (the keyframes stage's, key for key)."""

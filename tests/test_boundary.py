@@ -182,14 +182,16 @@ def test_sensors_record_reads_sensors_json_and_gives_it_back() -> None:
     T = np.linalg.inv(np.asarray(MOUNT)) @ np.asarray(SENSORS["vertical"]["T_base_sonar"])
     np.testing.assert_allclose(sensors.T_h_v, T)
     assert sensors.has_ground_truth and sensors.source["name"] == "x"
-    partial = Sensors.from_json({"horizontal": SENSORS["horizontal"]})
+    with pytest.raises(ValueError, match=r"sensors has no vertical\.T_base_sonar"):
+        Sensors.from_json({"horizontal": SENSORS["horizontal"]})  # as the engine reads it
+    partial = Sensors.of({"horizontal": SENSORS["horizontal"]})
     with pytest.raises(ValueError, match=r"sensors has no vertical\.T_base_sonar"):
         _ = partial.vertical
     for bad, match in (
         ({"horizontal": {"T_base_sonar": [[1, 2], [3, 4]]}}, "4x4"),
         ({"horizontal": {"T_base_sonar": "eye"}}, "4x4"),
         ({"horizontal": {}}, "has no horizontal.T_base_sonar"),
-        ({"has_labels": "yes"}, "has_labels is not true or false"),
+        ({**SENSORS, "has_labels": "yes"}, "has_labels is not true or false"),
         ([1, 2], "not a JSON object"),
     ):
         with pytest.raises(ValueError, match=match):

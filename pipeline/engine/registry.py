@@ -104,7 +104,14 @@ def load_graph(spec: str | None) -> Graph:
         raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: cannot load ({err})") from err
     if isinstance(found, Graph):
         return found if found.spec == spec else Graph(**{**found.__dict__, "spec": spec})
-    return Graph(stages=tuple(found.stages), parts=found.parts, open=found.open, spec=spec)
+    try:
+        stages = tuple(found.stages)
+        graph = Graph(stages=stages, parts=found.parts, open=found.open, spec=spec)
+    except (AttributeError, TypeError) as err:
+        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph ({err})") from err
+    if not stages or not all(isinstance(s, Stage) for s in stages):
+        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph (no stages)")
+    return graph
 
 
 # Shorthands for the real pipeline (config tools and tests); they read no environment.

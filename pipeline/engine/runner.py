@@ -41,6 +41,8 @@ from stages.parallel import release_memory
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
 
 log = logging.getLogger(__name__)
+_REASON_CHARS = 200
+"""Most characters of a stage's refusal quoted in the error line."""
 _VERSIONED = ("sonarmap", "numpy", "pyarrow", "mcap", "rosbags", "torch", "gtsam", "open3d-cpu")
 
 
@@ -143,7 +145,10 @@ def _rejected_input(
         ref = refs[item.stage]
         filename = output.filename if output is not None else item.output
         where = f"{ref.stage}/{ref.key}/{filename}"
-    reason = (err.reason.splitlines() or [""])[0][:300]
+    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
+    # characters whatever the stage put in it.
+    reason = (err.reason.splitlines() or [""])[0]
+    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
     return SourceError(f"{where}: {reason} (input of stage {stage.name})")
 
 
