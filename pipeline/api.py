@@ -1,6 +1,8 @@
-"""The engine's front door for the real pipeline: plan and run a dataset, summarise it.
+"""The engine's front door: plan and run a dataset through a graph, summarise it.
 
 `run`, `status`, `demo` and `sweep` all go through here so their behaviour matches.
+Every function takes the graph the CLI built (`pipeline.engine.registry.Graph`);
+None means the real pipeline's.
 """
 
 from __future__ import annotations
@@ -12,8 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.engine.codecs import read_verified
-from pipeline.engine.runner import PlannedStage, RunResult, StageResult, execute, plan
-from pipeline.engine.session import DEFAULT_STORE, RunContext, make_context
+from pipeline.engine.planned import PlannedStage
+from pipeline.engine.planner import plan
+from pipeline.engine.registry import Graph, default_graph
+from pipeline.engine.runner import RunResult, StageResult, execute
+from pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
 from pipeline.engine.store import ArtifactRef
 from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
@@ -49,14 +54,10 @@ class RunRequest:
     force: Sequence[str] = ()
 
 
-def _context(request: RunRequest) -> RunContext:
-    from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
-
-    return make_context(
+def _context(request: RunRequest, graph: Graph) -> RunContext:
+    return open_context(
         request.dataset,
-        stages=pipeline_stages(),
-        config_stages=all_stages(),
-        extra_sections=extra_sections(),
+        graph,
         config_path=request.config_path,
         overrides=request.overrides,
         store_dir=request.store_dir,
@@ -68,7 +69,7 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
     from outside the dataset's graph)."""
     names = [s.name for s in ctx.stages]
     last = names.index(until) if until in names else len(names) - 1
-    needs = {i.split(".")[0] for s in ctx.stages[: last + 1] for i in s.inputs}
+    needs = {i.stage for s in ctx.stages[: last + 1] for i in s.inputs}
     if "train" not in needs:
         return None
     from pipeline.training.model_cache import resolve_default_model
@@ -77,9 +78,9 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
 
 
 def _plan(
-    request: RunRequest, with_external: bool
+    request: RunRequest, graph: Graph, with_external: bool
 ) -> tuple[RunContext, list[PlannedStage], ResolvedModel | None]:
-    ctx = _context(request)
+    ctx = _context(request, graph)
     model = _model(ctx, request.until) if with_external else None
     external = {} if model is None else {"train": (model.stage, model.ref)}
     planned = plan(
@@ -96,10 +97,10 @@ def _plan(
 
 
 def plan_dataset(
-    request: RunRequest, *, with_external: bool = True
+    request: RunRequest, graph: Graph | None = None, *, with_external: bool = True
 ) -> tuple[RunContext, list[PlannedStage], dict[str, tuple[Stage, ArtifactRef]]]:
     """What `run` would do, without computing (with_external=False: nor training)."""
-    ctx, planned, model = _plan(request, with_external)
+    ctx, planned, model = _plan(request, graph or default_graph(), with_external)
     return ctx, planned, {} if model is None else {"train": (model.stage, model.ref)}
 
 
@@ -119,7 +120,7 @@ class ModelStatus:
 
 
 def plan_status(
-    request: RunRequest,
+    request: RunRequest, graph: Graph | None = None
 ) -> tuple[RunContext, list[PlannedStage], ModelStatus | None, list[str]]:
     """What `run` would do, for every stage, the model's readers included, with no side
     effect: the model is planned from its lock (nothing simulated, trained or copied).
@@ -128,15 +129,13 @@ def plan_status(
     to `until` reads it) and the names of the stages that could not be planned because
     the model's key is not known yet (they all miss: `run` trains the model first).
     """
-    ctx = _context(request)
+    graph = graph or default_graph()
+    ctx = _context(request, graph)
     names = [s.name for s in ctx.stages]
     last = names.index(request.until) if request.until in names else len(names) - 1
-    readers = [
-        s.name for s in ctx.stages[: last + 1] if any(i.startswith("train.") for i in s.inputs)
-    ]
+    readers = [s.name for s in ctx.stages[: last + 1] if "train" in s.upstream]
     if not readers:
         return ctx, _plan_with(ctx, request, request.until, {}), None, []
-    from pipeline.engine.registry import training_stage
     from pipeline.training.model_cache import located_default_model
 
     key, ref = located_default_model(ctx.store, ctx.config)
@@ -153,7 +152,8 @@ def plan_status(
         model = ModelStatus(key, True, "cached")
     else:
         model = ModelStatus(key, False, "in the model cache or shipped models: copied on run")
-    external = {"train": (training_stage(), ref)}
+    assert graph.training is not None, "a stage reads train.model: the graph trains it"
+    external = {"train": (graph.training, ref)}
     return ctx, _plan_with(ctx, request, request.until, external), model, []
 
 
@@ -177,6 +177,7 @@ def _plan_with(
 
 def run_dataset(
     request: RunRequest,
+    graph: Graph | None = None,
     *,
     on_start: Callable[[PlannedStage], None] | None = None,
     on_stage: Callable[[StageResult], None] | None = None,
@@ -185,7 +186,7 @@ def run_dataset(
 
     The summary's "model" names the classifier used and where it came from.
     """
-    ctx, planned, model = _plan(request, True)
+    ctx, planned, model = _plan(request, graph or default_graph(), True)
     external = {} if model is None else {"train": (model.stage, model.ref)}
     result = execute(
         planned,

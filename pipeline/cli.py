@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import logging
+import os
 import sys
 from typing import NoReturn
 
@@ -14,6 +15,7 @@ from typer.core import TyperGroup
 
 from pipeline import __version__
 from pipeline.commands import COMMAND_MODULES
+from pipeline.commands._common import GraphChoice
 from pipeline.commands._errors import one_line, os_error_line
 from pipeline.engine.errors import PipelineError
 
@@ -62,12 +64,19 @@ def _version(value: bool) -> None:
 
 @app.callback()
 def _root(
+    ctx: typer.Context,
     version: bool = typer.Option(
         False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
     ),
     verbose: int = typer.Option(0, "--verbose", "-v", count=True, help="More logging on stderr."),
 ) -> None:
     """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
+    # The one place the alternative graph's variable is read (`registry.GRAPH_ENV`): the
+    # graph is built from it once and handed to every command through the context.
+    from pipeline.engine.registry import GRAPH_ENV
+
+    if not isinstance(ctx.obj, GraphChoice):  # else: given by a program embedding the CLI
+        ctx.obj = GraphChoice(os.environ.get(GRAPH_ENV))
     level = logging.WARNING - 10 * min(verbose, 2)
     logging.basicConfig(level=level, stream=sys.stderr)
     for handler in logging.getLogger().handlers:

@@ -15,7 +15,16 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
-__all__ = ["ConfigModel", "InputRejected", "Output", "OutputKind", "Stage", "StageConfig"]
+__all__ = [
+    "DATASET",
+    "ConfigModel",
+    "Input",
+    "Output",
+    "OutputKind",
+    "Stage",
+    "StageConfig",
+    "StageInputError",
+]
 
 OutputKind = Literal["parquet", "json", "bytes", "frames"]
 """How the engine stores an output.
@@ -46,17 +55,56 @@ def _holds_bool(value: Any) -> bool:
     return isinstance(value, bool)
 
 
-class InputRejected(ValueError):
-    """A stage refuses one of its inputs as bad data (not a bug in the stage).
+@dataclass(frozen=True, order=True)
+class Input:
+    """One input of a stage: output `output` of upstream stage `stage`, or the raw
+    recording (`DATASET`).
 
-    `input` is the input's name ("dataset" or "<stage>.<output>"); the engine reports
-    the error as bad input (exit 2), naming the artifact file behind that input.
+    `name` ("<stage>.<output>", or "dataset") is the key the stage's `run` finds the
+    value under, and the text hashed into the stage's key (unchanged from when inputs
+    were written as dotted strings, so keys stay the same).
     """
 
-    def __init__(self, input: str, reason: str) -> None:
-        super().__init__(f"{input}: {reason}")
-        self.input = input
+    stage: str
+    output: str
+
+    @property
+    def name(self) -> str:
+        return "dataset" if self == DATASET else f"{self.stage}.{self.output}"
+
+    @property
+    def is_dataset(self) -> bool:
+        return self == DATASET
+
+    @classmethod
+    def parse(cls, name: str) -> Input:
+        """The input named `name` ("<stage>.<output>" or "dataset")."""
+        if name == "dataset":
+            return DATASET
+        stage, dot, output = name.partition(".")
+        if not (stage and dot and output):
+            raise ValueError(f"input {name[:80]!r}: expected '<stage>.<output>' or 'dataset'")
+        return cls(stage, output)
+
+    def __str__(self) -> str:
+        return self.name
+
+
+DATASET = Input("", "dataset")
+"""The raw recording (bound to the first stage, opened with its config section)."""
+
+
+class StageInputError(ValueError):
+    """A stage refuses one of its inputs as bad data (not a bug in the stage).
+
+    The engine reports it as bad input (exit 2): one line with the stage's `reason`,
+    naming the file behind `input` (the artifact's file, or the recording).
+    """
+
+    def __init__(self, input: Input | str, reason: str) -> None:
+        self.input = input if isinstance(input, Input) else Input.parse(input)
         self.reason = reason
+        super().__init__(f"{self.input.name}: {reason}")
 
 
 class ConfigModel(BaseModel):
@@ -101,6 +149,10 @@ class Output:
     schema: Any = None
     """For parquet outputs: the `pyarrow.Schema` from `schemas/` the table must match
     (the engine validates column names and types before committing)."""
+    record: Any = None
+    """For json outputs: a record type from `schemas/` (`from_json(doc)`, `to_json()`)
+    that readers of the output receive instead of the dict (e.g. `schemas.sensors.Sensors`);
+    the file holds the dict as written."""
 
 
 @dataclass(frozen=True)
@@ -111,8 +163,9 @@ class Stage:
         name: stage name, also the config section and the store folder.
         version: bumped by hand whenever the output could change (helpers included).
         config: the frozen pydantic model of this stage's config section.
-        inputs: names the engine binds: "dataset" (the raw recording, first stage only)
-            or "<stage>.<output>" of an upstream stage.
+        inputs: what the engine binds, as `Input`s: `DATASET` (the raw recording, first
+            stage only) or `Input(stage, output)` of an upstream stage; `run` finds each
+            under its `Input.name`. (Dotted strings are read as `Input.parse` reads them.)
         outputs: what `run` returns, by name.
         run: `run(config, inputs) -> {output name: value}`.
         key_excludes: fields of the stage's own section that do not enter its key, because
@@ -130,23 +183,28 @@ class Stage:
     name: str
     version: int
     config: type[StageConfig]
-    inputs: tuple[str, ...]
+    inputs: tuple[Input, ...]
     outputs: tuple[Output, ...]
     run: Callable[[Any, Mapping[str, Any]], Mapping[str, Any]]
     description: str = ""
     key_excludes: tuple[str, ...] = ()
     reads_sections: tuple[str, ...] = ()
     dataset_section: str | None = None
-    input_columns: tuple[tuple[str, tuple[str, ...]], ...] = ()
+    input_columns: tuple[tuple[Input, tuple[str, ...]], ...] = ()
+
+    def __post_init__(self) -> None:
+        def typed(item: Input | str) -> Input:
+            return Input.parse(item) if isinstance(item, str) else item
+
+        object.__setattr__(self, "inputs", tuple(map(typed, self.inputs)))
+        columns = tuple((typed(i), tuple(c)) for i, c in self.input_columns)
+        object.__setattr__(self, "input_columns", columns)
 
     @property
     def upstream(self) -> tuple[str, ...]:
         """Names of the upstream stages this stage reads from (in input order, unique)."""
-        seen: list[str] = []
-        for item in self.inputs:
-            if item == "dataset":
-                continue
-            stage = item.split(".", 1)[0]
-            if stage not in seen:
-                seen.append(stage)
-        return tuple(seen)
+        return tuple(dict.fromkeys(i.stage for i in self.inputs if not i.is_dataset))
+
+    @property
+    def reads_dataset(self) -> bool:
+        return DATASET in self.inputs

@@ -29,8 +29,9 @@ from pydantic import Field
 
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.base import DATASET, Output, Stage, StageConfig, StageInputError
 
 __all__ = [
     "STAGE",
@@ -279,8 +280,8 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     if len(sel) == 0:
         # Bad data, not a bug: the engine reports it as exit 2 naming the recording.
-        raise InputRejected(
-            "dataset",
+        raise StageInputError(
+            DATASET,
             f"no keyframe: {len(pairs.horizontal)} sonar pairs ({len(h_t)} horizontal, "
             f"{len(v_t)} vertical pings), {len(cand)} inside the navigation stream",
         )
@@ -333,11 +334,11 @@ STAGE = Stage(
     name="keyframes",
     version=1,
     config=KeyframesConfig,
-    inputs=("dataset",),
+    inputs=(DATASET,),
     outputs=(
         Output("keyframes", "parquet", "keyframes.parquet", schema=KEYFRAMES_SCHEMA),
         Output("frames", "frames", "keyframes.mcap"),
-        Output("sensors", "json", "sensors.json"),
+        Output("sensors", "json", "sensors.json", record=Sensors),
         Output("scene_mesh", "bytes", "scene.ply", optional=True),
     ),
     run=run,

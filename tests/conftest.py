@@ -33,19 +33,9 @@ def shared_data() -> Path:
 
 @pytest.fixture
 def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
-    """Point the CLI's registry at the toy stages and the dataset opener at raw bytes;
-    returns a toy dataset file."""
-    import toy_stages
-
-    import pipeline.engine.registry
-    import pipeline.engine.session
-
-    monkeypatch.setattr(pipeline.engine.registry, "pipeline_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.registry, "all_stages", lambda: toy_stages.TOY_STAGES)
-    monkeypatch.setattr(pipeline.engine.session, "_default_parts", lambda p: [p])
-    monkeypatch.setattr(
-        pipeline.engine.session, "_default_open", lambda p: lambda _section: p.read_bytes()
-    )
+    """The CLI (in this process) runs the toy graph (`toy_stages.GRAPH`, named by
+    $SONARMAP_GRAPH as a user would); returns a toy dataset file."""
+    monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
     data = tmp_path / "raw.bin"
     data.write_bytes(bytes(range(256)) * 4)
     return data
@@ -54,18 +44,12 @@ def toy_cli(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Path:
 @pytest.fixture
 def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[list[Path]]:
     """Two toy datasets; the CLI and its sweep workers (other processes) run the toy graph."""
-    import pipeline.engine.registry
-
     monkeypatch.setenv("SONARMAP_GRAPH", "toy_stages:GRAPH")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT / "tests"), str(ROOT)]))
     monkeypatch.setenv("TOY_CALL_LOG", str(tmp_path / "calls.log"))
-    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
-        fn.cache_clear()
     datasets = []
     for i in range(2):
         d = tmp_path / f"d{i}.bin"
         d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
         datasets.append(d)
     yield datasets
-    for fn in (pipeline.engine.registry.pipeline_stages, pipeline.engine.registry.all_stages):
-        fn.cache_clear()

@@ -39,19 +39,11 @@ def _pending(path: Path, name: str) -> bool:
     return any(name == a or name.startswith(a + ".") for a in allowed)
 
 
-def _imports(path: Path, runtime_only: bool = False) -> list[str]:
-    """Modules a file imports (function bodies included); runtime_only leaves out those
-    under `if TYPE_CHECKING:` (annotations only, never executed)."""
+def _imports(path: Path) -> list[str]:
+    """Modules a file imports (function bodies and `if TYPE_CHECKING:` blocks included)."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    typing_only = set()
-    if runtime_only:
-        for node in ast.walk(tree):
-            if isinstance(node, ast.If) and ast.unparse(node.test).endswith("TYPE_CHECKING"):
-                typing_only |= {id(n) for stmt in node.body for n in ast.walk(stmt)}
     names = []
     for node in ast.walk(tree):
-        if id(node) in typing_only:
-            continue
         if isinstance(node, ast.Import):
             names.extend(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -179,16 +171,17 @@ STAGE_PACKAGES = (
 """Stages of more than one module: each is a package named after the stage."""
 
 
-def _module_name(path: Path) -> str:
-    name = ".".join(path.relative_to(ROOT).with_suffix("").parts)
-    return name.removesuffix(".__init__")
-
-
-def _import_graph() -> dict[str, set[str]]:
-    """Module -> the project modules it imports when run (function bodies included)."""
-    paths = {_module_name(p): p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")}
+def _import_graph(root: Path = ROOT) -> dict[str, set[str]]:
+    """Module -> the project modules it imports (function bodies and imports under
+    `if TYPE_CHECKING:` included: a type-only circle is still two modules that cannot
+    be read, or moved, one without the other)."""
+    paths = {
+        ".".join(p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p
+        for pkg in PACKAGES
+        for p in (root / pkg).rglob("*.py")
+    }
     return {
-        name: {t for t in _imports(path, runtime_only=True) if t in paths and t != name}
+        name: {t for t in _imports(path) if t in paths and t != name}
         for name, path in paths.items()
     }
 
@@ -218,6 +211,15 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_no_import_cycles() -> None:
     assert _cycles(_import_graph()) == []
+
+
+def test_a_circle_through_a_type_only_import_counts(tmp_path: Path) -> None:
+    pkg = tmp_path / "pipeline"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("from pipeline.b import B\n")
+    typed = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pipeline.a import A\n"
+    (pkg / "b.py").write_text(typed)
+    assert _cycles(_import_graph(tmp_path)) == [["pipeline.a", "pipeline.b", "pipeline.a"]]
 
 
 def test_the_cycle_finder_finds_a_cycle() -> None:

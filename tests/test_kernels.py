@@ -18,6 +18,7 @@ from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
 from pipeline.engine.runner import DatasetSpec, plan
 from pipeline.engine.store import ArtifactStore
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
+from stages.base import Input
 from stages.infer.stage import STAGE as INFER
 from stages.infer.stage import InferConfig, learn_and_infer
 from stages.kernels.class_models import ModelTableError, class_model_tables, restore_class_states
@@ -113,11 +114,12 @@ def test_bumping_infers_version_recomputes_submaps_and_what_follows(tmp_path: Pa
     changed = {name for name in before if before[name] != after[name]}
     assert changed == {"infer", "submaps", "voxelize", "evaluate"}
     submaps = next(s for s in stages if s.name == "submaps")
-    assert {"infer.class_reference", "infer.class_cells"} <= set(submaps.inputs)
+    assert {Input("infer", "class_reference"), Input("infer", "class_cells")} <= set(submaps.inputs)
 
 
 def test_submaps_clusters_with_the_parameters_classify_used() -> None:
-    from stages.base import InputRejected
+    from stages.base import Input
+    from stages.base import StageInputError as InputRejected
     from stages.classify.stage import ClassifyConfig, clustering
     from stages.submaps.stage import STAGE as SUBMAPS
     from stages.submaps.stage import _clustering
@@ -131,7 +133,7 @@ def test_submaps_clusters_with_the_parameters_classify_used() -> None:
         "min_features": 4,
     }
     # one source: classify's output, not the config sections it was resolved from
-    assert "classify.clustering" in SUBMAPS.inputs
+    assert Input("classify", "clustering") in SUBMAPS.inputs
     assert not {"classify", "train"} & set(SUBMAPS.reads_sections)
     assert _clustering(used) == (0.3, 2, 10)
     for bad in ({"eps_m": 0.3}, {**model, "eps_m": -1.0}, {**model, "eps_m": float("nan")},

@@ -13,7 +13,7 @@ from test_readers_mcap import T0, trajectory, write_synthetic
 from pipeline.readers import open_recording
 from schemas.keyframes import KEYFRAMES_SCHEMA
 from schemas.recording import PoseTrack
-from stages.base import InputRejected
+from stages.base import DATASET, StageInputError
 from stages.keyframes import STAGE, KeyframesConfig, interpolate_poses, pair_pings, select_keyframes
 
 
@@ -131,7 +131,7 @@ def test_no_keyframe_when_navigation_misses_the_pings(tmp_path: Path) -> None:
     path = tmp_path / "d.mcap"
     write_synthetic(path, n_pings=4, labels=False)
     cfg = KeyframesConfig(pair_tolerance_s=0.001)
-    # Bad data, not a bug: the engine reports an InputRejected as exit 2 naming the file.
-    with pytest.raises(InputRejected, match="no keyframe: 0 sonar pairs") as refused:
+    # Bad data, not a bug: the engine reports a StageInputError as exit 2 naming the file.
+    with pytest.raises(StageInputError, match="no keyframe: 0 sonar pairs") as refused:
         STAGE.run(cfg, {"dataset": open_recording(path, cfg)})
-    assert refused.value.input == "dataset"
+    assert refused.value.input == DATASET

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
+from toy_stages import GRAPH
 
 from pipeline.experiments.sweep import expand, run_sweep
 from pipeline.experiments.sweep_output import write_sweep
@@ -30,7 +31,7 @@ def test_local_sweep_shares_artifacts_and_isolates_failures(
     specs = expand(
         toy_env, ["double.factor=2,3", "summary.fail=false,true"], store=tmp_path / "store"
     )
-    outcomes = run_sweep(specs, executor="local", jobs=2)
+    outcomes = run_sweep(specs, executor="local", jobs=2, graph=GRAPH)
     assert [o.status for o in outcomes].count("failed") == 4
     assert all("summary" in (o.error or "") for o in outcomes if o.status == "failed")
     calls = _calls(tmp_path)
@@ -70,7 +71,7 @@ def test_cli_sweep_json(toy_env: list[Path], tmp_path: Path) -> None:
 def test_ray_sweep_runs_on_a_real_local_ray_instance(toy_env: list[Path], tmp_path: Path) -> None:
     pytest.importorskip("ray")
     specs = expand(toy_env, ["double.factor=2,3"], store=tmp_path / "store")
-    outcomes = run_sweep(specs, executor="ray", jobs=2)
+    outcomes = run_sweep(specs, executor="ray", jobs=2, graph=GRAPH)
     assert [o.status for o in outcomes] == ["ok"] * 4
     calls = _calls(tmp_path)
     assert calls.count("source") == 2 and calls.count("double") == 4

@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from stages.base import Output, Stage, StageConfig
+from pipeline.engine.registry import Graph
+from stages.base import DATASET, Input, Output, Stage, StageConfig
 
 CALLS: Counter[str] = Counter()
 
@@ -80,37 +81,43 @@ def _count(config: CountConfig, inputs: dict[str, Any]) -> dict[str, Any]:
 
 
 SOURCE = Stage(
-    "source", 1, SourceConfig, ("dataset",), (Output("table", "parquet", "t.parquet"),), _source
+    "source", 1, SourceConfig, (DATASET,), (Output("table", "parquet", "t.parquet"),), _source
 )
 DOUBLE = Stage(
     "double",
     1,
     DoubleConfig,
-    ("source.table",),
+    (Input("source", "table"),),
     (Output("table", "parquet", "d.parquet"), Output("blob", "bytes", "d.bin")),
     _double,
 )
 SUMMARY = Stage(
-    "summary", 1, SummaryConfig, ("double.table",), (Output("summary", "json", "s.json"),), _summary
+    "summary",
+    1,
+    SummaryConfig,
+    (Input("double", "table"),),
+    (Output("summary", "json", "s.json"),),
+    _summary,
 )
 COUNT = Stage(
-    "count", 1, CountConfig, ("source.table",), (Output("hist", "parquet", "h.parquet"),), _count
+    "count",
+    1,
+    CountConfig,
+    (Input("source", "table"),),
+    (Output("hist", "parquet", "h.parquet"),),
+    _count,
 )
 TOY_STAGES = (SOURCE, DOUBLE, SUMMARY, COUNT)
 
 
-class ToyGraph:
-    """The toy graph as an alternative graph for $SONARMAP_GRAPH (CLI, sweep workers)."""
-
-    stages = TOY_STAGES
-
-    @staticmethod
-    def parts(path: Path) -> list[Path]:
-        return [path]
-
-    @staticmethod
-    def open(path: Path, _section: Any) -> bytes:
-        return path.read_bytes()
+def _parts(path: Path) -> list[Path]:
+    return [path]
 
 
-GRAPH = ToyGraph()
+def _open(path: Path, _section: Any) -> bytes:
+    return path.read_bytes()
+
+
+GRAPH = Graph(stages=TOY_STAGES, parts=_parts, open=_open)
+"""The toy graph: passed to the engine directly, or named as $SONARMAP_GRAPH=toy_stages:GRAPH
+for the CLI (and so its sweep workers)."""

@@ -4,11 +4,23 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 
-__all__ = ["CONFIG_OPT", "JSON_OPT", "SET_OPT", "STORE_OPT", "emit_json", "stderr_console"]
+if TYPE_CHECKING:
+    from pipeline.engine.registry import Graph
+
+__all__ = [
+    "CONFIG_OPT",
+    "JSON_OPT",
+    "SET_OPT",
+    "STORE_OPT",
+    "GraphChoice",
+    "cli_graph",
+    "emit_json",
+    "stderr_console",
+]
 
 CONFIG_OPT = typer.Option(
     None, "--config", "-c", help="Pipeline config YAML (one section per stage)."
@@ -36,3 +48,29 @@ def stderr_console() -> Any:
     from rich.console import Console
 
     return Console(stderr=True)
+
+
+class GraphChoice:
+    """The stage graph of one CLI invocation: named once by the root command (from
+    `$SONARMAP_GRAPH`), built when a command first asks for it (`ls` never does).
+    A program embedding the CLI passes its own, built graph as the context's `obj`."""
+
+    def __init__(self, spec: str | None, graph: Graph | None = None) -> None:
+        self.spec = spec
+        self._graph = graph
+
+    def graph(self) -> Graph:
+        if self._graph is None:
+            from pipeline.engine.registry import load_graph
+
+            self._graph = load_graph(self.spec)
+        return self._graph
+
+
+def cli_graph(ctx: typer.Context) -> Graph:
+    """The graph this invocation runs (the root command's `GraphChoice`); the real
+    pipeline's when the command was invoked without the root (its own Typer app)."""
+    choice = ctx.find_root().obj
+    if not isinstance(choice, GraphChoice):
+        choice = GraphChoice(None)
+    return choice.graph()

@@ -6,9 +6,37 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, SET_OPT, emit_json
+from pipeline.commands._common import JSON_OPT, SET_OPT, cli_graph, emit_json
 
-__all__ = ["register"]
+__all__ = ["check", "dump", "register"]
+
+
+def dump(
+    ctx: typer.Context,
+    config: Path | None = typer.Option(None, "--config", "-c", help="Config YAML to merge."),
+    set_: list[str] | None = SET_OPT,
+    json_: bool = JSON_OPT,
+) -> None:
+    """Print the effective config (defaults, then the file, then --set)."""
+    from pipeline.engine.config import dump_yaml, load_config
+
+    graph = cli_graph(ctx)
+    cfg = load_config(graph.config_stages, config, set_ or (), graph.extra_sections)
+    if json_:
+        emit_json(cfg.model_dump(mode="json"))
+    else:
+        typer.echo(dump_yaml(cfg), nl=False)
+
+
+def check(
+    ctx: typer.Context, file: Path = typer.Argument(..., help="Config YAML to validate.")
+) -> None:
+    """Validate a config file; exit 2 with the offending key on error."""
+    from pipeline.engine.config import load_config
+
+    graph = cli_graph(ctx)
+    load_config(graph.config_stages, file, (), graph.extra_sections)
+    typer.echo(f"{file}: ok")
 
 
 def register(app: typer.Typer) -> None:
@@ -16,28 +44,5 @@ def register(app: typer.Typer) -> None:
         help="Inspect and validate pipeline configuration.", no_args_is_help=True
     )
     app.add_typer(config_app, name="config")
-
-    @config_app.command("dump")
-    def dump(
-        config: Path | None = typer.Option(None, "--config", "-c", help="Config YAML to merge."),
-        set_: list[str] | None = SET_OPT,
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Print the effective config (defaults, then the file, then --set)."""
-        from pipeline.engine.config import dump_yaml, load_config
-        from pipeline.engine.registry import all_stages, extra_sections
-
-        cfg = load_config(all_stages(), config, set_ or (), extra_sections())
-        if json_:
-            emit_json(cfg.model_dump(mode="json"))
-        else:
-            typer.echo(dump_yaml(cfg), nl=False)
-
-    @config_app.command("check")
-    def check(file: Path = typer.Argument(..., help="Config YAML to validate.")) -> None:
-        """Validate a config file; exit 2 with the offending key on error."""
-        from pipeline.engine.config import load_config
-        from pipeline.engine.registry import all_stages, extra_sections
-
-        load_config(all_stages(), file, (), extra_sections())
-        typer.echo(f"{file}: ok")
+    config_app.command("dump")(dump)
+    config_app.command("check")(check)

@@ -9,9 +9,16 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
+from pipeline.commands._common import (
+    CONFIG_OPT,
+    JSON_OPT,
+    SET_OPT,
+    STORE_OPT,
+    cli_graph,
+    emit_json,
+)
 
-__all__ = ["register"]
+__all__ = ["demo", "register"]
 
 
 def _stage_section(result: Any) -> str:
@@ -50,62 +57,60 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     return training_simulations(getattr(resolved, "training", TrainingDataConfig()))
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("demo")
-    def demo(
-        out: Path = typer.Option(
-            Path("data/demo"), "--out", help="Where the dataset and report go."
-        ),
-        scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
-        seed: int = typer.Option(0, "--seed", min=0, help="Simulation seed."),
-        goals: int | None = typer.Option(
-            None, "--goals", min=1, help="Mission goals (default 20)."
-        ),
-        duration_s: float | None = typer.Option(
-            None, "--duration-s", help="Cut the mission short."
-        ),
-        config: Path | None = CONFIG_OPT,
-        set_: list[str] | None = SET_OPT,
-        store: Path = STORE_OPT,
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """The whole pipeline on a simulated marina, ending with the coverage table and report."""
-        import shutil
+def demo(
+    ctx: typer.Context,
+    out: Path = typer.Option(Path("data/demo"), "--out", help="Where the dataset and report go."),
+    scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Simulation seed."),
+    goals: int | None = typer.Option(None, "--goals", min=1, help="Mission goals (default 20)."),
+    duration_s: float | None = typer.Option(None, "--duration-s", help="Cut the mission short."),
+    config: Path | None = CONFIG_OPT,
+    set_: list[str] | None = SET_OPT,
+    store: Path = STORE_OPT,
+    json_: bool = JSON_OPT,
+) -> None:
+    """The whole pipeline on a simulated marina, ending with the coverage table and report."""
+    import shutil
 
-        from pipeline.api import RunRequest, run_dataset
-        from pipeline.commands._common import stderr_console
-        from pipeline.commands._errors import writes_under
-        from pipeline.engine.progress import StageProgress
-        from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+    from pipeline.api import RunRequest, run_dataset
+    from pipeline.commands._common import stderr_console
+    from pipeline.commands._errors import writes_under
+    from pipeline.engine.progress import StageProgress
+    from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
-        with writes_under(out, store):
-            console = stderr_console()
-            scene_file = scene_path(scene)
-            dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
-            console.print(f"dataset: {dataset}")
-            mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
-            ensure_simulations(
-                [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
+    with writes_under(out, store):
+        console = stderr_console()
+        scene_file = scene_path(scene)
+        dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
+        console.print(f"dataset: {dataset}")
+        mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
+        ensure_simulations(
+            [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
+        )
+        with StageProgress(enabled=True) as progress:
+            result, summary = run_dataset(
+                RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
+                cli_graph(ctx),
+                on_start=progress.on_start,
+                on_stage=progress.on_stage,
             )
-            with StageProgress(enabled=True) as progress:
-                result, summary = run_dataset(
-                    RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
-                    on_start=progress.on_start,
-                    on_stage=progress.on_stage,
-                )
-            evaluate = result.artifacts.get("evaluate")
-            if evaluate is not None:
-                report_dir = out / "report"
-                shutil.rmtree(report_dir, ignore_errors=True)
-                report_dir.mkdir(parents=True)
-                for name in evaluate.manifest.get("files", {}):
-                    shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
-                with (report_dir / "report.md").open("a") as report:
-                    report.write(_stage_section(result))
-                summary["report"] = str(report_dir / "report.md")
-            if json_:
-                emit_json({**result.to_json(), "summary": summary})
-                return
-            from pipeline.report_cli import print_summary
+        evaluate = result.artifacts.get("evaluate")
+        if evaluate is not None:
+            report_dir = out / "report"
+            shutil.rmtree(report_dir, ignore_errors=True)
+            report_dir.mkdir(parents=True)
+            for name in evaluate.manifest.get("files", {}):
+                shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
+            with (report_dir / "report.md").open("a") as report:
+                report.write(_stage_section(result))
+            summary["report"] = str(report_dir / "report.md")
+        if json_:
+            emit_json({**result.to_json(), "summary": summary})
+            return
+        from pipeline.report_cli import print_summary
 
-            print_summary(result, summary)
+        print_summary(result, summary)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("demo")(demo)

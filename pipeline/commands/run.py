@@ -6,48 +6,50 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, emit_json
+from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, cli_graph, emit_json
 
-__all__ = ["register"]
+__all__ = ["register", "run"]
+
+
+def run(
+    ctx: typer.Context,
+    dataset: Path = typer.Argument(..., help="Recording: ROS 2 MCAP, bag directory, ROS 1 bag."),
+    config: Path | None = CONFIG_OPT,
+    set_: list[str] | None = SET_OPT,
+    until: str | None = typer.Option(None, "--until", help="Stop after this stage."),
+    force: list[str] | None = typer.Option(None, "--force", help="Recompute this stage."),
+    store: Path = STORE_OPT,
+    json_: bool = JSON_OPT,
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
+) -> None:
+    """Run the mapping pipeline on DATASET, reusing every cached stage."""
+    from pipeline.api import RunRequest, run_dataset
+    from pipeline.commands._errors import writes_under
+    from pipeline.engine.progress import StageProgress
+
+    with writes_under(store):
+        with StageProgress(enabled=not quiet) as progress:
+            request = RunRequest(
+                dataset,
+                config_path=config,
+                overrides=set_ or (),
+                store_dir=store,
+                until=until,
+                force=force or (),
+            )
+            result, summary = run_dataset(
+                request,
+                cli_graph(ctx),
+                on_start=progress.on_start,
+                on_stage=progress.on_stage,
+            )
+        if json_:
+            emit_json({**result.to_json(), "summary": summary})
+            return
+        from pipeline.report_cli import print_summary
+
+        print_summary(result, summary)
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("run")
-    def run(
-        dataset: Path = typer.Argument(
-            ..., help="Recording: ROS 2 MCAP, bag directory, ROS 1 bag."
-        ),
-        config: Path | None = CONFIG_OPT,
-        set_: list[str] | None = SET_OPT,
-        until: str | None = typer.Option(None, "--until", help="Stop after this stage."),
-        force: list[str] | None = typer.Option(None, "--force", help="Recompute this stage."),
-        store: Path = STORE_OPT,
-        json_: bool = JSON_OPT,
-        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
-    ) -> None:
-        """Run the mapping pipeline on DATASET, reusing every cached stage."""
-        from pipeline.api import RunRequest, run_dataset
-        from pipeline.commands._errors import writes_under
-        from pipeline.engine.progress import StageProgress
-
-        with writes_under(store):
-            with StageProgress(enabled=not quiet) as progress:
-                request = RunRequest(
-                    dataset,
-                    config_path=config,
-                    overrides=set_ or (),
-                    store_dir=store,
-                    until=until,
-                    force=force or (),
-                )
-                result, summary = run_dataset(
-                    request,
-                    on_start=progress.on_start,
-                    on_stage=progress.on_stage,
-                )
-            if json_:
-                emit_json({**result.to_json(), "summary": summary})
-                return
-            from pipeline.report_cli import print_summary
-
-            print_summary(result, summary)
+    app.command("run")(run)

@@ -14,7 +14,7 @@ if TYPE_CHECKING:
     from pipeline.engine.store import ArtifactStore
     from pipeline.engine.trust import TrustPolicy
 
-__all__ = ["register"]
+__all__ = ["pull", "push", "register"]
 
 _UPSTREAM = typer.Option(True, "--upstream/--no-upstream", help="Include upstream artifacts.")
 _REMOTE = typer.Argument(
@@ -37,102 +37,105 @@ def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
     return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped)
 
 
+def push(
+    remote: str = _REMOTE,
+    targets: list[str] | None = typer.Argument(None, help="Stage names or key prefixes."),
+    store: Path = STORE_OPT,
+    upstream: bool = _UPSTREAM,
+    model_cache: Path = typer.Option(
+        DEFAULT_MODEL_CACHE,
+        "--model-cache",
+        help="Model cache (`<training.directory>/store`) holding a model's training data.",
+    ),
+    json_: bool = JSON_OPT,
+) -> None:
+    """Copy artifacts (and by default everything upstream of them) to REMOTE.
+
+    A shipped model is sent without its training data (its lock is its provenance);
+    files already at REMOTE with the right sha256 are not sent again.
+    """
+    from pipeline.engine.remotes import display
+    from pipeline.engine.share import push as do_push
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.engine.transfer import TransferStats
+
+    stats = TransferStats()
+    cache = ArtifactStore(model_cache)
+    pushed = do_push(
+        ArtifactStore(store),
+        remote,
+        targets or (),
+        with_upstream=upstream,
+        fallbacks=[cache],
+        policy=_policy([], None),
+        stats=stats,
+    )
+    if json_:
+        emit_json(
+            {
+                "remote": display(remote),
+                "pushed": pushed,
+                "files_sent": stats.sent,
+                "files_already_there": stats.skipped,
+                "bytes_sent": stats.bytes,
+            }
+        )
+    else:
+        typer.echo(
+            f"pushed {len(pushed)} artifacts to {display(remote)} "
+            f"({stats.sent} files sent, {stats.skipped} already there)"
+        )
+
+
+def pull(
+    remote: str = _REMOTE,
+    targets: list[str] | None = typer.Argument(None, help="Stage names or key prefixes."),
+    store: Path = STORE_OPT,
+    upstream: bool = _UPSTREAM,
+    trust_model: list[str] | None = typer.Option(
+        None,
+        "--trust-model",
+        help="sha256 of a model.pt to accept (besides the shipped model). Repeatable; "
+        "also SONARMAP_TRUSTED_MODELS.",
+    ),
+    model_cache: Path = typer.Option(
+        DEFAULT_MODEL_CACHE,
+        "--model-cache",
+        help="Model cache: models trained there are trusted.",
+    ),
+    json_: bool = JSON_OPT,
+) -> None:
+    """Fetch artifacts from REMOTE, verifying keys and sha256s before committing.
+
+    A model is accepted only when its sha256 is pinned: the shipped model's, one
+    trained in the model cache, or one given with --trust-model.
+    """
+    from pipeline.engine.remotes import display
+    from pipeline.engine.share import pull as do_pull
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.engine.transfer import TransferStats
+
+    stats = TransferStats()
+    refs = do_pull(
+        ArtifactStore(store),
+        remote,
+        targets or (),
+        with_upstream=upstream,
+        policy=_policy(trust_model or [], ArtifactStore(model_cache)),
+        stats=stats,
+    )
+    if json_:
+        emit_json(
+            {
+                "remote": display(remote),
+                "pulled": [f"{r.stage}/{r.key}" for r in refs],
+                "bytes_received": stats.bytes,
+            }
+        )
+    else:
+        typer.echo(f"pulled {len(refs)} artifacts from {display(remote)}")
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("push")
-    def push(
-        remote: str = _REMOTE,
-        targets: list[str] | None = typer.Argument(None, help="Stage names or key prefixes."),
-        store: Path = STORE_OPT,
-        upstream: bool = _UPSTREAM,
-        model_cache: Path = typer.Option(
-            DEFAULT_MODEL_CACHE,
-            "--model-cache",
-            help="Model cache (`<training.directory>/store`) holding a model's training data.",
-        ),
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Copy artifacts (and by default everything upstream of them) to REMOTE.
-
-        A shipped model is sent without its training data (its lock is its provenance);
-        files already at REMOTE with the right sha256 are not sent again.
-        """
-        from pipeline.engine.remotes import display
-        from pipeline.engine.share import push as do_push
-        from pipeline.engine.store import ArtifactStore
-        from pipeline.engine.transfer import TransferStats
-
-        stats = TransferStats()
-        cache = ArtifactStore(model_cache)
-        pushed = do_push(
-            ArtifactStore(store),
-            remote,
-            targets or (),
-            with_upstream=upstream,
-            fallbacks=[cache],
-            policy=_policy([], None),
-            stats=stats,
-        )
-        if json_:
-            emit_json(
-                {
-                    "remote": display(remote),
-                    "pushed": pushed,
-                    "files_sent": stats.sent,
-                    "files_already_there": stats.skipped,
-                    "bytes_sent": stats.bytes,
-                }
-            )
-        else:
-            typer.echo(
-                f"pushed {len(pushed)} artifacts to {display(remote)} "
-                f"({stats.sent} files sent, {stats.skipped} already there)"
-            )
-
-    @app.command("pull")
-    def pull(
-        remote: str = _REMOTE,
-        targets: list[str] | None = typer.Argument(None, help="Stage names or key prefixes."),
-        store: Path = STORE_OPT,
-        upstream: bool = _UPSTREAM,
-        trust_model: list[str] | None = typer.Option(
-            None,
-            "--trust-model",
-            help="sha256 of a model.pt to accept (besides the shipped model). Repeatable; "
-            "also SONARMAP_TRUSTED_MODELS.",
-        ),
-        model_cache: Path = typer.Option(
-            DEFAULT_MODEL_CACHE,
-            "--model-cache",
-            help="Model cache: models trained there are trusted.",
-        ),
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Fetch artifacts from REMOTE, verifying keys and sha256s before committing.
-
-        A model is accepted only when its sha256 is pinned: the shipped model's, one
-        trained in the model cache, or one given with --trust-model.
-        """
-        from pipeline.engine.remotes import display
-        from pipeline.engine.share import pull as do_pull
-        from pipeline.engine.store import ArtifactStore
-        from pipeline.engine.transfer import TransferStats
-
-        stats = TransferStats()
-        refs = do_pull(
-            ArtifactStore(store),
-            remote,
-            targets or (),
-            with_upstream=upstream,
-            policy=_policy(trust_model or [], ArtifactStore(model_cache)),
-            stats=stats,
-        )
-        if json_:
-            emit_json(
-                {
-                    "remote": display(remote),
-                    "pulled": [f"{r.stage}/{r.key}" for r in refs],
-                    "bytes_received": stats.bytes,
-                }
-            )
-        else:
-            typer.echo(f"pulled {len(refs)} artifacts from {display(remote)}")
+    app.command("push")(push)
+    app.command("pull")(pull)

@@ -9,7 +9,7 @@ import typer
 from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
 from pipeline.formats.strict_json import dumps_strict
 
-__all__ = ["register"]
+__all__ = ["register", "show"]
 
 
 def _preview(path: Path) -> str:
@@ -28,40 +28,38 @@ def _preview(path: Path) -> str:
     return f"{path.stat().st_size} bytes"
 
 
+def show(
+    target: str = typer.Argument(..., help="A stage name (its newest artifact) or a key prefix."),
+    store: Path = STORE_OPT,
+    verify: bool = typer.Option(False, "--verify", help="Re-hash every file against the manifest."),
+    json_: bool = JSON_OPT,
+) -> None:
+    """Print an artifact's manifest and a preview of each file."""
+    from pipeline.engine.store import ArtifactStore
+
+    st = ArtifactStore(store)
+    ref = st.find(target)
+    if verify:
+        st.verify(ref)
+    if json_:
+        emit_json({"path": str(ref.path), "verified": verify, "manifest": ref.manifest})
+        return
+    from rich.console import Console
+
+    console = Console()
+    console.rule(f"{ref.stage} {ref.key}")
+    console.print(f"path: {ref.path}")
+    if verify:
+        console.print("[green]verified[/]: every file matches its sha256")
+    console.print_json(dumps_strict(ref.manifest))
+    for name in ref.manifest.get("files", {}):
+        console.rule(name)
+        try:
+            preview = _preview(ref.file(name))
+        except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
+            preview = f"unreadable ({type(err).__name__}); check with `show --verify`"
+        console.print(preview, markup=False, highlight=False)
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("show")
-    def show(
-        target: str = typer.Argument(
-            ..., help="A stage name (its newest artifact) or a key prefix."
-        ),
-        store: Path = STORE_OPT,
-        verify: bool = typer.Option(
-            False, "--verify", help="Re-hash every file against the manifest."
-        ),
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Print an artifact's manifest and a preview of each file."""
-        from pipeline.engine.store import ArtifactStore
-
-        st = ArtifactStore(store)
-        ref = st.find(target)
-        if verify:
-            st.verify(ref)
-        if json_:
-            emit_json({"path": str(ref.path), "verified": verify, "manifest": ref.manifest})
-            return
-        from rich.console import Console
-
-        console = Console()
-        console.rule(f"{ref.stage} {ref.key}")
-        console.print(f"path: {ref.path}")
-        if verify:
-            console.print("[green]verified[/]: every file matches its sha256")
-        console.print_json(dumps_strict(ref.manifest))
-        for name in ref.manifest.get("files", {}):
-            console.rule(name)
-            try:
-                preview = _preview(ref.file(name))
-            except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
-                preview = f"unreadable ({type(err).__name__}); check with `show --verify`"
-            console.print(preview, markup=False, highlight=False)
+    app.command("show")(show)

@@ -6,11 +6,11 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from pipeline.commands._common import JSON_OPT, STORE_OPT, cli_graph, emit_json
 from pipeline.experiments.study import table_i
 from pipeline.experiments.study_tables import PAPER_TABLE_I
 
-__all__ = ["PAPER_TABLE_I", "register", "table_i"]
+__all__ = ["PAPER_TABLE_I", "register", "study", "table_i"]
 
 
 def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | None]]:
@@ -37,122 +37,121 @@ def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | 
     return protocols
 
 
+def study(
+    ctx: typer.Context,
+    trials: int = typer.Option(10, "--trials", min=1, help="Simulated trials (seeds 0..N-1)."),
+    goals: int = typer.Option(20, "--goals", min=1, help="Random goals per trial."),
+    duration_s: float | None = typer.Option(
+        None,
+        "--duration-s",
+        min=1.0,
+        help="Cut each mission after S seconds (default: all goals).",
+    ),
+    scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
+    spacings: str = typer.Option(
+        "2,4", "--spacings", help="Keyframe spacings in metres, comma-separated."
+    ),
+    configs: list[Path] | None = typer.Option(
+        None,
+        "--config",
+        "-c",
+        help="A protocol to compare: pipeline config YAML, named by its stem. Repeatable.",
+    ),
+    no_default: bool = typer.Option(
+        False, "--no-default", help="Leave out the protocol of sonarmap's own defaults."
+    ),
+    fixed: list[str] | None = typer.Option(
+        None, "--fix", help="Override for every protocol's runs: section.field=value."
+    ),
+    executor: str = typer.Option("local", "--executor", help="local or ray."),
+    jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
+    address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
+    out: Path = typer.Option(Path("data/study"), "--out", help="Datasets and results folder."),
+    store: Path = STORE_OPT,
+    json_: bool = JSON_OPT,
+) -> None:
+    """Simulate N trials and map each, with true poses, at every spacing under every
+    protocol (the defaults and each --config); print Table I beside the paper's, write
+    it with the per-class accounting to OUT/results/table_i.md and Fig. 4 to
+    OUT/results/fig4_errors.png."""
+    import time
+
+    from pipeline.commands._common import stderr_console
+    from pipeline.commands._errors import check_writable, writes_under
+    from pipeline.engine.config import load_config
+    from pipeline.experiments.study import write_study
+    from pipeline.experiments.sweep import expand, run_sweep
+    from pipeline.training.datasets import ensure_simulation, scene_path
+
+    check_writable(out)
+    graph = cli_graph(ctx)
+    with writes_under(out, store):
+        console = stderr_console()
+        t0 = time.perf_counter()
+        protocols = _protocols(configs or [], not no_default)
+        base = ["slam.mode=ground_truth", *(fixed or ())]
+        swept = f"keyframes.spacing_m={spacings}"
+        values = [v.strip() for v in spacings.split(",") if v.strip()]
+        for p in protocols:  # a typo fails now, not in every run
+            config = Path(p["config"]) if p["config"] else None
+            for v in values:
+                overrides = [*base, f"keyframes.spacing_m={v}"]
+                load_config(graph.config_stages, config, overrides, graph.extra_sections)
+        scene_file = scene_path(scene)
+        datasets = []
+        for seed in range(trials):
+            cut = "" if duration_s is None else f"-{duration_s:g}s"
+            path = out / f"{scene_file.stem}-goals{goals}{cut}-seed{seed}.mcap"
+            console.print(f"trial {seed}: {path}")
+            datasets.append(
+                ensure_simulation(scene_file, seed, path, goals=goals, duration_s=duration_s)
+            )
+        specs = [
+            spec
+            for p in protocols
+            for spec in expand(
+                datasets,
+                [swept],
+                base_overrides=base,
+                config_path=Path(p["config"]) if p["config"] else None,
+                store=store,
+                protocol=p["name"],
+            )
+        ]
+        console.print(
+            f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
+            f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"
+        )
+        outcomes = run_sweep(
+            specs,
+            graph=graph,
+            executor=executor,
+            jobs=jobs,
+            address=address,
+            on_done=lambda o: console.print(
+                f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
+                f"{o.seconds:.1f} s {o.error or ''}",
+                markup=False,
+                highlight=False,
+            ),
+        )
+        header = [
+            "Protocols: "
+            + ", ".join(f"{p['name']} ({p['config'] or 'sonarmap defaults'})" for p in protocols)
+            + ".",
+            f"Trials: {trials} (seeds 0..{trials - 1}) of scene {scene_file.stem}, {goals} goals"
+            + ("" if duration_s is None else f", cut at {duration_s:g} s")
+            + f"; spacings {', '.join(values)} m; overrides: {', '.join(base)}.",
+        ]
+        doc = write_study(outcomes, out / "results", protocols=protocols, header=header, started=t0)
+        if json_:
+            emit_json(doc)
+        else:
+            typer.echo(doc["table_i"])
+            typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
+        if all(o.status != "ok" for o in outcomes):
+            raise typer.Exit(1)
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("study")
-    def study(
-        trials: int = typer.Option(10, "--trials", min=1, help="Simulated trials (seeds 0..N-1)."),
-        goals: int = typer.Option(20, "--goals", min=1, help="Random goals per trial."),
-        duration_s: float | None = typer.Option(
-            None,
-            "--duration-s",
-            min=1.0,
-            help="Cut each mission after S seconds (default: all goals).",
-        ),
-        scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
-        spacings: str = typer.Option(
-            "2,4", "--spacings", help="Keyframe spacings in metres, comma-separated."
-        ),
-        configs: list[Path] | None = typer.Option(
-            None,
-            "--config",
-            "-c",
-            help="A protocol to compare: pipeline config YAML, named by its stem. Repeatable.",
-        ),
-        no_default: bool = typer.Option(
-            False, "--no-default", help="Leave out the protocol of sonarmap's own defaults."
-        ),
-        fixed: list[str] | None = typer.Option(
-            None, "--fix", help="Override for every protocol's runs: section.field=value."
-        ),
-        executor: str = typer.Option("local", "--executor", help="local or ray."),
-        jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
-        address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
-        out: Path = typer.Option(Path("data/study"), "--out", help="Datasets and results folder."),
-        store: Path = STORE_OPT,
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Simulate N trials and map each, with true poses, at every spacing under every
-        protocol (the defaults and each --config); print Table I beside the paper's, write
-        it with the per-class accounting to OUT/results/table_i.md and Fig. 4 to
-        OUT/results/fig4_errors.png."""
-        import time
-
-        from pipeline.commands._common import stderr_console
-        from pipeline.commands._errors import check_writable, writes_under
-        from pipeline.engine.config import load_config
-        from pipeline.engine.registry import all_stages, extra_sections
-        from pipeline.experiments.study import write_study
-        from pipeline.experiments.sweep import expand, run_sweep
-        from pipeline.training.datasets import ensure_simulation, scene_path
-
-        check_writable(out)
-        with writes_under(out, store):
-            console = stderr_console()
-            t0 = time.perf_counter()
-            protocols = _protocols(configs or [], not no_default)
-            base = ["slam.mode=ground_truth", *(fixed or ())]
-            swept = f"keyframes.spacing_m={spacings}"
-            values = [v.strip() for v in spacings.split(",") if v.strip()]
-            for p in protocols:  # a typo fails now, not in every run
-                config = Path(p["config"]) if p["config"] else None
-                for v in values:
-                    load_config(
-                        all_stages(), config, [*base, f"keyframes.spacing_m={v}"], extra_sections()
-                    )
-            scene_file = scene_path(scene)
-            datasets = []
-            for seed in range(trials):
-                cut = "" if duration_s is None else f"-{duration_s:g}s"
-                path = out / f"{scene_file.stem}-goals{goals}{cut}-seed{seed}.mcap"
-                console.print(f"trial {seed}: {path}")
-                datasets.append(
-                    ensure_simulation(scene_file, seed, path, goals=goals, duration_s=duration_s)
-                )
-            specs = [
-                spec
-                for p in protocols
-                for spec in expand(
-                    datasets,
-                    [swept],
-                    base_overrides=base,
-                    config_path=Path(p["config"]) if p["config"] else None,
-                    store=store,
-                    protocol=p["name"],
-                )
-            ]
-            console.print(
-                f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
-                f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"
-            )
-            outcomes = run_sweep(
-                specs,
-                executor=executor,
-                jobs=jobs,
-                address=address,
-                on_done=lambda o: console.print(
-                    f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
-                    f"{o.seconds:.1f} s {o.error or ''}",
-                    markup=False,
-                    highlight=False,
-                ),
-            )
-            header = [
-                "Protocols: "
-                + ", ".join(
-                    f"{p['name']} ({p['config'] or 'sonarmap defaults'})" for p in protocols
-                )
-                + ".",
-                f"Trials: {trials} (seeds 0..{trials - 1}) of scene {scene_file.stem}, {goals} goals"
-                + ("" if duration_s is None else f", cut at {duration_s:g} s")
-                + f"; spacings {', '.join(values)} m; overrides: {', '.join(base)}.",
-            ]
-            doc = write_study(
-                outcomes, out / "results", protocols=protocols, header=header, started=t0
-            )
-            if json_:
-                emit_json(doc)
-            else:
-                typer.echo(doc["table_i"])
-                typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
-            if all(o.status != "ok" for o in outcomes):
-                raise typer.Exit(1)
+    app.command("study")(study)

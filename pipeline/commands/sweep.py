@@ -7,87 +7,93 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, STORE_OPT, emit_json
+from pipeline.commands._common import CONFIG_OPT, JSON_OPT, STORE_OPT, cli_graph, emit_json
 
-__all__ = ["register"]
+__all__ = ["register", "sweep"]
 
 if TYPE_CHECKING:
     from pipeline.experiments.sweep import RunOutcome
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("sweep")
-    def sweep(
-        datasets: list[Path] = typer.Argument(..., help="Recordings to sweep over."),
-        set_: list[str] | None = typer.Option(
-            None, "--set", "-s", help="Swept values: section.field=v1,v2 (cross product)."
-        ),
-        fixed: list[str] | None = typer.Option(
-            None, "--fix", help="Fixed override for every run: section.field=value."
-        ),
-        config: Path | None = CONFIG_OPT,
-        executor: str = typer.Option("local", "--executor", help="local (process pool) or ray."),
-        jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
-        address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
-        out: Path | None = typer.Option(
-            None, "--out", help="Results folder (default data/sweeps/<id>)."
-        ),
-        store: Path = STORE_OPT,
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Run the cross product of DATASETS and --set values; write a mean/std table and plot.
+def sweep(
+    ctx: typer.Context,
+    datasets: list[Path] = typer.Argument(..., help="Recordings to sweep over."),
+    set_: list[str] | None = typer.Option(
+        None, "--set", "-s", help="Swept values: section.field=v1,v2 (cross product)."
+    ),
+    fixed: list[str] | None = typer.Option(
+        None, "--fix", help="Fixed override for every run: section.field=value."
+    ),
+    config: Path | None = CONFIG_OPT,
+    executor: str = typer.Option("local", "--executor", help="local (process pool) or ray."),
+    jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
+    address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
+    out: Path | None = typer.Option(
+        None, "--out", help="Results folder (default data/sweeps/<id>)."
+    ),
+    store: Path = STORE_OPT,
+    json_: bool = JSON_OPT,
+) -> None:
+    """Run the cross product of DATASETS and --set values; write a mean/std table and plot.
 
-        Every dataset and config point is checked before the first run. Exits non-zero
-        when any run failed (2: bad input, 1: a bug), after the others have finished and
-        the tables are written.
-        """
-        import hashlib
+    Every dataset and config point is checked before the first run. Exits non-zero
+    when any run failed (2: bad input, 1: a bug), after the others have finished and
+    the tables are written.
+    """
+    import hashlib
 
-        from pipeline.commands._errors import check_writable, display_path, one_line
-        from pipeline.experiments.sweep import expand, run_sweep
-        from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
-        from pipeline.experiments.sweep_output import write_sweep
+    from pipeline.commands._errors import check_writable, display_path, one_line
+    from pipeline.experiments.sweep import expand, run_sweep
+    from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
+    from pipeline.experiments.sweep_output import write_sweep
 
-        specs = expand(
-            datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
+    specs = expand(
+        datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
+    )
+    # Every dataset and every point's config before the first run: a missing file or
+    # a bad value fails now, not hours in.
+    graph = cli_graph(ctx)
+    check_inputs(specs, graph)
+    ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
+    out_dir = out or Path("data/sweeps") / ident[:12]
+    check_writable(out_dir)
+    typer.echo(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)", err=True)
+
+    def describe(o: RunOutcome) -> str:
+        overrides = ", ".join(f"{k}={v}" for k, v in o.overrides.items()) or "(defaults)"
+        return f"{display_path(o.dataset)} [{overrides}]"
+
+    def done(o: RunOutcome) -> None:
+        # Plain lines (not a rich console): a log file or CI keeps each on one line.
+        tail = f": {o.error}" if o.error else ""
+        typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
+
+    from pipeline.commands._errors import writes_under
+
+    with writes_under(store, out_dir):
+        outcomes = run_sweep(
+            specs, executor=executor, jobs=jobs, address=address, on_done=done, graph=graph
         )
-        # Every dataset and every point's config before the first run: a missing file or
-        # a bad value fails now, not hours in.
-        check_inputs(specs)
-        ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
-        out_dir = out or Path("data/sweeps") / ident[:12]
-        check_writable(out_dir)
-        typer.echo(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)", err=True)
+        doc = write_sweep(outcomes, out_dir)
+        if json_:
+            emit_json(doc)
+        else:
+            typer.echo((out_dir / "table.md").read_text())
+            typer.echo(f"results: {out_dir}")
+    failed = [o for o in outcomes if o.status != "ok"]
+    for o in failed:
+        typer.echo(one_line(f"failed: {describe(o)}: {o.error}"), err=True)
+    code = failure_exit_code(outcomes)
+    if code:
+        typer.echo(
+            one_line(
+                f"error: {len(failed)} of {len(outcomes)} sweep runs failed, first "
+                f"{describe(failed[0])}: {failed[0].error} (results in {out_dir})"
+            ),
+            err=True,
+        )
+        raise typer.Exit(code)
 
-        def describe(o: RunOutcome) -> str:
-            overrides = ", ".join(f"{k}={v}" for k, v in o.overrides.items()) or "(defaults)"
-            return f"{display_path(o.dataset)} [{overrides}]"
 
-        def done(o: RunOutcome) -> None:
-            # Plain lines (not a rich console): a log file or CI keeps each on one line.
-            tail = f": {o.error}" if o.error else ""
-            typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
-
-        from pipeline.commands._errors import writes_under
-
-        with writes_under(store, out_dir):
-            outcomes = run_sweep(specs, executor=executor, jobs=jobs, address=address, on_done=done)
-            doc = write_sweep(outcomes, out_dir)
-            if json_:
-                emit_json(doc)
-            else:
-                typer.echo((out_dir / "table.md").read_text())
-                typer.echo(f"results: {out_dir}")
-        failed = [o for o in outcomes if o.status != "ok"]
-        for o in failed:
-            typer.echo(one_line(f"failed: {describe(o)}: {o.error}"), err=True)
-        code = failure_exit_code(outcomes)
-        if code:
-            typer.echo(
-                one_line(
-                    f"error: {len(failed)} of {len(outcomes)} sweep runs failed, first "
-                    f"{describe(failed[0])}: {failed[0].error} (results in {out_dir})"
-                ),
-                err=True,
-            )
-            raise typer.Exit(code)
+def register(app: typer.Typer) -> None:
+    app.command("sweep")(sweep)

@@ -62,49 +62,48 @@ def topics_report(path: Path, options: Any = None) -> dict[str, Any]:
     }
 
 
+def topics(
+    path: Path = typer.Argument(
+        ..., help="MCAP file, ROS 2 bag directory, ROS 1 bag or raw Oculus capture."
+    ),
+    json_: bool = JSON_OPT,
+) -> None:
+    """List topics like `ros2 bag info`, with the sonar/navigation roles sonarmap detects."""
+    report = topics_report(path)
+    if json_:
+        emit_json(report)
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(
+        title=f"{path} ({report['format']}, {report['messages']} messages, "
+        f"{report['duration_s']:.2f} s)"
+    )
+    for col in ("topic", "type", "count", "rate Hz", "span s", "role"):
+        table.add_column(col, justify="right" if col in ("count", "rate Hz", "span s") else "left")
+    for t in report["topics"]:
+        span = (t["last_ns"] - t["first_ns"]) * 1e-9 if t["first_ns"] is not None else 0.0
+        count = str(t["count"])
+        if t["indexed_count"] is not None and t["indexed_count"] != t["count"]:
+            count += f" (index: {t['indexed_count']})"
+        table.add_row(
+            t["topic"],
+            t["type"],
+            count,
+            f"{t['rate_hz']:.2f}",
+            f"{span:.2f}",
+            ", ".join(t["roles"]),
+        )
+    console = Console()
+    console.print(table)
+    err = Console(stderr=True)
+    if report["roles_error"]:
+        err.print(f"[yellow]roles:[/] {report['roles_error']}")
+    for w in report["warnings"]:
+        err.print(f"[yellow]warning:[/] {w}")
+
+
 def register(app: typer.Typer) -> None:
     """Add the `topics` command."""
-
-    @app.command("topics")
-    def topics(
-        path: Path = typer.Argument(
-            ..., help="MCAP file, ROS 2 bag directory, ROS 1 bag or raw Oculus capture."
-        ),
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """List topics like `ros2 bag info`, with the sonar/navigation roles sonarmap detects."""
-        report = topics_report(path)
-        if json_:
-            emit_json(report)
-            return
-        from rich.console import Console
-        from rich.table import Table
-
-        table = Table(
-            title=f"{path} ({report['format']}, {report['messages']} messages, "
-            f"{report['duration_s']:.2f} s)"
-        )
-        for col in ("topic", "type", "count", "rate Hz", "span s", "role"):
-            table.add_column(
-                col, justify="right" if col in ("count", "rate Hz", "span s") else "left"
-            )
-        for t in report["topics"]:
-            span = (t["last_ns"] - t["first_ns"]) * 1e-9 if t["first_ns"] is not None else 0.0
-            count = str(t["count"])
-            if t["indexed_count"] is not None and t["indexed_count"] != t["count"]:
-                count += f" (index: {t['indexed_count']})"
-            table.add_row(
-                t["topic"],
-                t["type"],
-                count,
-                f"{t['rate_hz']:.2f}",
-                f"{span:.2f}",
-                ", ".join(t["roles"]),
-            )
-        console = Console()
-        console.print(table)
-        err = Console(stderr=True)
-        if report["roles_error"]:
-            err.print(f"[yellow]roles:[/] {report['roles_error']}")
-        for w in report["warnings"]:
-            err.print(f"[yellow]warning:[/] {w}")
+    app.command("topics")(topics)

@@ -26,104 +26,108 @@ from pipeline.commands._common import (
     JSON_OPT,
     SET_OPT,
     STORE_OPT,
+    cli_graph,
     emit_json,
     stderr_console,
 )
 
-__all__ = ["register"]
+__all__ = ["register", "train"]
+
+
+def train(
+    ctx: typer.Context,
+    datasets: list[Path] | None = typer.Argument(
+        None,
+        help="Labelled recordings: simulated (label images) or with "
+        "<stem>.annotations.yaml beside them.",
+    ),
+    out: Path = typer.Option(
+        Path("data/model"),
+        "--out",
+        "-o",
+        help="Folder for model.pt, metrics.json, confusion.png.",
+    ),
+    ship: bool = typer.Option(
+        False,
+        "--ship",
+        help="Write the default model and its training recordings' lock to "
+        "training.shipped_models (no datasets).",
+    ),
+    config: Path | None = CONFIG_OPT,
+    set_: list[str] | None = SET_OPT,
+    store: Path = STORE_OPT,
+    json_: bool = JSON_OPT,
+) -> None:
+    """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
+    import shutil
+
+    if ship:
+        if datasets:
+            raise typer.BadParameter("--ship trains the default model; give no datasets")
+        _ship(config, set_ or (), store, json_)
+        return
+    if not datasets:
+        raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
+
+    from pipeline.api import RunRequest, plan_dataset
+    from pipeline.commands._errors import check_writable, writes_under
+    from pipeline.engine.errors import SourceError
+    from pipeline.training.annotations import annotation_path
+    from pipeline.training.model import train_on
+
+    with writes_under(out, store):
+        t0 = time.perf_counter()
+        for path in datasets:
+            if not path.exists():
+                raise SourceError(f"{path}: no such dataset")
+        check_writable(out)  # before training, not after
+        request = RunRequest(
+            datasets[0],
+            config_path=config,
+            overrides=set_ or (),
+            store_dir=store,
+            until="features",
+        )
+        context, _, _ = plan_dataset(request, cli_graph(ctx), with_external=False)
+        try:
+            ref = train_on(datasets, context.config, context.store)
+        except ValueError as err:
+            raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
+        out.mkdir(parents=True, exist_ok=True)
+        from pipeline.engine.integrity import verify_file
+
+        for name in ("model.pt", "metrics.json", "confusion.png"):
+            shutil.copyfile(verify_file(ref, name), out / name)
+        metrics = json.loads((ref.path / "metrics.json").read_text())
+        trained = {"metrics": metrics}
+        doc = {
+            "datasets": [str(p) for p in datasets],
+            "annotations": {
+                str(p): str(a) if (a := annotation_path(p)) else None for p in datasets
+            },
+            "out": str(out),
+            "artifact": str(ref.path),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "metrics": trained["metrics"],
+        }
+        if json_:
+            emit_json(doc)
+            return
+        console = stderr_console()
+        m = trained["metrics"]
+        console.print(f"model -> {out / 'model.pt'} ({doc['seconds']} s)")
+        console.print(
+            f"validation: n={m['n']} accuracy={m['accuracy']} accepted={m['accepted_fraction']}"
+        )
+        for name, c in m["classes"].items():
+            console.print(
+                f"  {name}: support={c['support']} precision={c['precision']} "
+                f"recall={c['recall']} accepted_precision={c['accepted_precision']}"
+            )
 
 
 def register(app: typer.Typer) -> None:
-    @app.command("train")
-    def train(
-        datasets: list[Path] | None = typer.Argument(
-            None,
-            help="Labelled recordings: simulated (label images) or with "
-            "<stem>.annotations.yaml beside them.",
-        ),
-        out: Path = typer.Option(
-            Path("data/model"),
-            "--out",
-            "-o",
-            help="Folder for model.pt, metrics.json, confusion.png.",
-        ),
-        ship: bool = typer.Option(
-            False,
-            "--ship",
-            help="Write the default model and its training recordings' lock to "
-            "training.shipped_models (no datasets).",
-        ),
-        config: Path | None = CONFIG_OPT,
-        set_: list[str] | None = SET_OPT,
-        store: Path = STORE_OPT,
-        json_: bool = JSON_OPT,
-    ) -> None:
-        """Train the MC-dropout CNN classifier on labelled datasets (`train.*` config)."""
-        import shutil
-
-        if ship:
-            if datasets:
-                raise typer.BadParameter("--ship trains the default model; give no datasets")
-            _ship(config, set_ or (), store, json_)
-            return
-        if not datasets:
-            raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
-
-        from pipeline.api import RunRequest, plan_dataset
-        from pipeline.commands._errors import check_writable, writes_under
-        from pipeline.engine.errors import SourceError
-        from pipeline.training.annotations import annotation_path
-        from pipeline.training.model import train_on
-
-        with writes_under(out, store):
-            t0 = time.perf_counter()
-            for path in datasets:
-                if not path.exists():
-                    raise SourceError(f"{path}: no such dataset")
-            check_writable(out)  # before training, not after
-            request = RunRequest(
-                datasets[0],
-                config_path=config,
-                overrides=set_ or (),
-                store_dir=store,
-                until="features",
-            )
-            ctx, _, _ = plan_dataset(request, with_external=False)
-            try:
-                ref = train_on(datasets, ctx.config, ctx.store)
-            except ValueError as err:
-                raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
-            out.mkdir(parents=True, exist_ok=True)
-            from pipeline.engine.integrity import verify_file
-
-            for name in ("model.pt", "metrics.json", "confusion.png"):
-                shutil.copyfile(verify_file(ref, name), out / name)
-            metrics = json.loads((ref.path / "metrics.json").read_text())
-            trained = {"metrics": metrics}
-            doc = {
-                "datasets": [str(p) for p in datasets],
-                "annotations": {
-                    str(p): str(a) if (a := annotation_path(p)) else None for p in datasets
-                },
-                "out": str(out),
-                "artifact": str(ref.path),
-                "seconds": round(time.perf_counter() - t0, 3),
-                "metrics": trained["metrics"],
-            }
-            if json_:
-                emit_json(doc)
-                return
-            console = stderr_console()
-            m = trained["metrics"]
-            console.print(f"model -> {out / 'model.pt'} ({doc['seconds']} s)")
-            console.print(
-                f"validation: n={m['n']} accuracy={m['accuracy']} accepted={m['accepted_fraction']}"
-            )
-            for name, c in m["classes"].items():
-                console.print(
-                    f"  {name}: support={c['support']} precision={c['precision']} "
-                    f"recall={c['recall']} accepted_precision={c['accepted_precision']}"
-                )
+    app.command("train")(train)
 
 
 def _ship(

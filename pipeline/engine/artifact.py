@@ -1,6 +1,7 @@
 """What a store holds: a committed artifact, and a directory that is not one.
 
-Plain records, below the store and its garbage collector, so both can use them."""
+Plain records (and the path check their files go through), below the store, its
+integrity checks and its garbage collector, so all of them can use them."""
 
 from __future__ import annotations
 
@@ -8,15 +9,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import StoreError
-from pipeline.engine.integrity import safe_relative
+from pipeline.engine.errors import ArtifactCorrupt, StoreError
 
-__all__ = ["PULL_CACHE", "ArtifactRef", "Problem"]
+__all__ = ["PULL_CACHE", "ArtifactRef", "Problem", "safe_relative"]
 
 
 PULL_CACHE = ".cache/pull"
 """Files an interrupted `pull` verified, by sha256, so the next pull resumes; `gc` removes
 them once stale."""
+
+
+def safe_relative(root: Path, relative: str) -> Path:
+    """`root / relative`, refusing absolute paths and anything that escapes `root`."""
+    candidate = Path(relative)
+    if candidate.is_absolute() or ".." in candidate.parts or relative.strip() == "":
+        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
+    resolved = (root / candidate).resolve()
+    if not resolved.is_relative_to(root.resolve()):
+        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
+    return root / candidate
 
 
 @dataclass(frozen=True)

@@ -10,19 +10,16 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from pipeline.engine.artifact import ArtifactRef, safe_relative
 from pipeline.engine.errors import ArtifactCorrupt, PipelineError
 from pipeline.engine.hashing import recipe_key, sha256_file
 from pipeline.engine.manifest import parse_manifest
 
-if TYPE_CHECKING:
-    from pipeline.engine.artifact import ArtifactRef
-
 __all__ = [
     "check_parses",
     "recovery_hint",
-    "safe_relative",
     "verify_artifact_dir",
     "verify_file",
 ]
@@ -33,17 +30,6 @@ _MANIFEST = "manifest.json"
 def recovery_hint(stage: str) -> str:
     """How a user gets rid of a corrupt artifact (appended to every corruption error)."""
     return f"remove it with `sonarmap gc --broken`, or recompute it with `--force {stage}`"
-
-
-def safe_relative(root: Path, relative: str) -> Path:
-    """`root / relative`, refusing absolute paths and anything that escapes `root`."""
-    candidate = Path(relative)
-    if candidate.is_absolute() or ".." in candidate.parts or relative.strip() == "":
-        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
-    resolved = (root / candidate).resolve()
-    if not resolved.is_relative_to(root.resolve()):
-        raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
-    return root / candidate
 
 
 def verify_file(ref: ArtifactRef, name: str) -> Path:

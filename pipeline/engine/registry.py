@@ -1,48 +1,80 @@
-"""The explicit, ordered stage registry (the only place that imports `stages`)."""
+"""The stage graph: the real pipeline's, or an alternative one (the only place that
+imports `stages`' stage modules).
+
+The CLI builds the graph once (`load_graph` of `$SONARMAP_GRAPH`, read there and
+nowhere else) and passes it to the session, planner, sweep workers and commands.
+"""
 
 from __future__ import annotations
 
-import functools
 import importlib
-import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
+
+from pydantic import BaseModel
 
 from pipeline.engine.errors import ConfigError
 from stages.base import Stage
 
 __all__ = [
     "GRAPH_ENV",
+    "Graph",
     "all_stages",
-    "alternative_graph",
+    "default_graph",
+    "extra_sections",
+    "load_graph",
     "pipeline_stages",
     "stage_by_name",
+    "training_stage",
 ]
 
 GRAPH_ENV = "SONARMAP_GRAPH"
-"""`module:attribute` of an alternative graph object (with `.stages`, `.parts(path)` and
-`.open(path, section)`): lets tests and experiments run other stage graphs through the
-same engine, also in sweep workers (environment variables reach every process)."""
+"""`module:attribute` of an alternative graph (a `Graph`, or any object with `.stages`,
+`.parts(path)` and `.open(path, section)`): lets tests and experiments run other stage
+graphs through the same engine. Read by the CLI only."""
 
 
-def alternative_graph() -> Any | None:
-    """The graph named by $SONARMAP_GRAPH, or None for the real pipeline."""
-    spec = os.environ.get(GRAPH_ENV)
-    if not spec:
-        return None
-    module, _, attr = spec.partition(":")
-    try:
-        return getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError) as err:
-        raise ConfigError(f"${GRAPH_ENV}={spec}: cannot load ({err})") from err
+@dataclass(frozen=True)
+class Graph:
+    """The stages a run executes and how it finds and opens its dataset.
+
+    Attributes:
+        stages: the mapping stages, in order (the first reads `DATASET`).
+        parts: path -> the files whose contents fingerprint the dataset.
+        open: (path, the reading stage's config section) -> the object bound to its
+            `DATASET` input (a `schemas.recording.Recording` for the real pipeline).
+        training: the classifier-training stage (None: the graph trains nothing).
+        extra_sections: config sections of the engine that are not stages.
+        spec: the `module:attribute` it was loaded from (None: the real pipeline).
+    """
+
+    stages: tuple[Stage, ...]
+    parts: Callable[[Path], Sequence[Path]]
+    open: Callable[[Path, Any], Any]
+    training: Stage | None = None
+    extra_sections: Mapping[str, type[BaseModel]] = field(default_factory=dict)
+    spec: str | None = None
+
+    @property
+    def config_stages(self) -> tuple[Stage, ...]:
+        """Every stage with a config section: the mapping stages, then training."""
+        return self.stages if self.training is None else (*self.stages, self.training)
+
+    def stage(self, name: str) -> Stage:
+        for stage in self.config_stages:
+            if stage.name == name:
+                return stage
+        raise KeyError(name)
 
 
-@functools.cache
-def pipeline_stages() -> tuple[Stage, ...]:
-    """The stages `sonarmap run` executes, in order."""
-    alt = alternative_graph()
-    if alt is not None:
-        return tuple(alt.stages)
+def default_graph() -> Graph:
+    """The real pipeline: keyframes to evaluate, recordings read by `pipeline.readers`."""
+    from pipeline.readers import dataset_fingerprint_parts, open_recording
+    from pipeline.training.config import TrainingDataConfig
     from stages.classify.stage import STAGE as classify
+    from stages.classify.train import STAGE as train
     from stages.evaluate.stage import STAGE as evaluate
     from stages.features.stage import STAGE as features
     from stages.fuse.stage import STAGE as fuse
@@ -52,36 +84,58 @@ def pipeline_stages() -> tuple[Stage, ...]:
     from stages.submaps import STAGE as submaps
     from stages.voxelize import STAGE as voxelize
 
-    return (keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate)
+    return Graph(
+        stages=(keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate),
+        parts=dataset_fingerprint_parts,
+        open=open_recording,
+        training=train,
+        extra_sections={"training": TrainingDataConfig},
+    )
 
 
-@functools.cache
+def load_graph(spec: str | None) -> Graph:
+    """The graph named by `spec` (`module:attribute`), or the real pipeline's (None, "")."""
+    if not spec:
+        return default_graph()
+    module, _, attr = spec.partition(":")
+    try:
+        found = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError, ValueError) as err:
+        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: cannot load ({err})") from err
+    if isinstance(found, Graph):
+        return found if found.spec == spec else Graph(**{**found.__dict__, "spec": spec})
+    try:
+        stages = tuple(found.stages)
+        graph = Graph(stages=stages, parts=found.parts, open=found.open, spec=spec)
+    except (AttributeError, TypeError) as err:
+        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph ({err})") from err
+    if not stages or not all(isinstance(s, Stage) for s in stages):
+        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph (no stages)")
+    return graph
+
+
+# Shorthands for the real pipeline (config tools and tests); they read no environment.
+def pipeline_stages() -> tuple[Stage, ...]:
+    """The real pipeline's mapping stages, in order."""
+    return default_graph().stages
+
+
 def training_stage() -> Stage:
-    """The classifier-training stage (its inputs are other, labelled datasets)."""
-    from stages.classify.train import STAGE as train
-
+    """The real pipeline's classifier-training stage."""
+    train = default_graph().training
+    assert train is not None
     return train
 
 
-@functools.cache
 def all_stages() -> tuple[Stage, ...]:
-    """Every stage with a config section: the mapping graph plus training."""
-    if alternative_graph() is not None:
-        return pipeline_stages()
-    return (*pipeline_stages(), training_stage())
+    """Every stage of the real pipeline with a config section (mapping plus training)."""
+    return default_graph().config_stages
 
 
 def extra_sections() -> dict[str, Any]:
-    """Config sections of the engine that are not stages (none for alternative graphs)."""
-    if alternative_graph() is not None:
-        return {}
-    from pipeline.training.config import TrainingDataConfig
-
-    return {"training": TrainingDataConfig}
+    """Config sections of the real pipeline that are not stages."""
+    return dict(default_graph().extra_sections)
 
 
 def stage_by_name(name: str) -> Stage:
-    for stage in all_stages():
-        if stage.name == name:
-            return stage
-    raise KeyError(name)
+    return default_graph().stage(name)

@@ -16,9 +16,10 @@ from pydantic import BaseModel
 
 from pipeline.engine.hashing import canonical_json
 from pipeline.engine.store import ArtifactStore
+from stages.base import Input
 
 if TYPE_CHECKING:
-    from pipeline.engine.runner import DatasetSpec, PlannedStage
+    from pipeline.engine.planned import DatasetSpec, PlannedStage
 
 __all__ = ["miss_reason", "previous_recipes", "record_run", "run_id"]
 
@@ -107,10 +108,10 @@ def miss_reason(
         return "config changed: " + ", ".join(diff)
     if previous.get("dataset") != recipe.get("dataset"):
         return "dataset content changed"
-    upstream = [s for s in recipe["inputs"] if s.split(".")[0] in changed]
+    producers = {name: Input.parse(name).stage for name in recipe["inputs"]}
     if previous.get("inputs") != recipe["inputs"]:
-        names = sorted({u.split(".")[0] for u in upstream}) or sorted(
-            {k.split(".")[0] for k in recipe["inputs"]}
+        names = sorted({p for p in producers.values() if p in changed}) or sorted(
+            set(producers.values())
         )
         return "upstream " + ", ".join(names) + " recomputed"
     return "artifact missing (removed or never committed)"

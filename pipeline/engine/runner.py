@@ -1,9 +1,9 @@
-"""Planner and runner: decide hit or miss per stage (with the reason), then execute.
+"""The runner: compute a plan's misses in order and commit them.
 
-The planner computes every stage's key from its config section, version, input keys
-and (first stage) the dataset fingerprint, without touching artifacts' contents.
-The runner computes the misses in order under a per-key lock, binds upstream
-artifacts to stage inputs, validates outputs and commits them atomically.
+Each miss is computed under its key's lock in the store: the runner binds upstream
+artifacts (and, for the stage reading `DATASET`, the dataset the graph opens) to the
+stage's inputs, calls the stage, validates its outputs and commits them atomically.
+The plan comes from `pipeline.engine.planner`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import shutil
 import time
-from collections.abc import Callable, Collection, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -21,7 +21,6 @@ from pydantic import BaseModel
 
 from pipeline.engine import output_checks
 from pipeline.engine.codecs import read_verified, write_output
-from pipeline.engine.config import section_dict
 from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import (
     ConfigError,
@@ -30,41 +29,21 @@ from pipeline.engine.errors import (
     StageFailed,
     StoreError,
 )
-from pipeline.engine.hashing import recipe_key, stage_recipe
 from pipeline.engine.leases import RunLease
-from pipeline.engine.run_records import miss_reason, previous_recipes, record_run
+from pipeline.engine.planned import DatasetSpec, PlannedStage
+from pipeline.engine.planner import plan
+from pipeline.engine.run_records import record_run
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import display_path
-from schemas import SCHEMA_VERSION
-from stages.base import InputRejected, Stage
+from stages.base import Input, Output, Stage, StageInputError
 from stages.kernels.parallel import release_memory
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
 
 log = logging.getLogger(__name__)
+_REASON_CHARS = 200
+"""Most characters of a stage's refusal quoted in the error line."""
 _VERSIONED = ("sonarmap", "numpy", "pyarrow", "mcap", "rosbags", "torch", "gtsam", "open3d-cpu")
-
-
-@dataclass(frozen=True)
-class DatasetSpec:
-    """The raw dataset a run reads: its path, content fingerprint and an opener.
-
-    `open(stage_config)` returns what the first stage's "dataset" input binds to
-    (a `Recording` for real runs); it is only called when that stage must run.
-    """
-
-    path: Path
-    fingerprint: str
-    open: Callable[[Any], Any]
-
-
-@dataclass(frozen=True)
-class PlannedStage:
-    stage: Stage
-    key: str
-    recipe: dict[str, Any]
-    hit: bool
-    reason: str
 
 
 @dataclass(frozen=True)
@@ -106,75 +85,11 @@ def _software_versions() -> dict[str, str]:
     return versions
 
 
-def plan(
-    stages: Sequence[Stage],
-    config: BaseModel,
-    dataset: DatasetSpec,
-    store: ArtifactStore,
-    *,
-    until: str | None = None,
-    force: Sequence[str] = (),
-    external: Mapping[str, tuple[Stage, ArtifactRef]] | None = None,
-    content_keyed: Collection[str] = (),
-) -> list[PlannedStage]:
-    """Hit or miss, with the reason, for each stage up to and including `until`.
-
-    `content_keyed` names external inputs (the model) whose files' sha256s enter the
-    recipe of every stage reading them, so other content under the same key can never
-    produce the same downstream keys.
-    """
-    names = [s.name for s in stages]
-    for name in [until, *force]:
-        if name is not None and name not in names:
-            raise ConfigError(f"unknown stage '{name}' (stages: {', '.join(names)})")
-    external = dict(external or {})
-    keys: dict[str, str] = {name: ref.key for name, (_, ref) in external.items()}
-    contents = {
-        name: recipe_key({k: v["sha256"] for k, v in external[name][1].manifest["files"].items()})
-        for name in content_keyed
-        if name in external
-    }
-    previous = previous_recipes(store, dataset.path)
-    changed: set[str] = set()
-    planned: list[PlannedStage] = []
-    for stage in stages:
-        input_keys = {}
-        for item in stage.inputs:
-            if item == "dataset":
-                continue
-            upstream = item.split(".", 1)[0]
-            if upstream not in keys:
-                raise ConfigError(f"stage {stage.name}: input '{item}' has no producer in this run")
-            input_keys[item] = keys[upstream]
-        recipe = stage_recipe(
-            stage=stage.name,
-            version=stage.version,
-            config=section_dict(config, stage.name, stage.key_excludes, stage.reads_sections),
-            input_keys=input_keys,
-            schema_version=SCHEMA_VERSION,
-            dataset_fingerprint=dataset.fingerprint if "dataset" in stage.inputs else None,
-        )
-        read = {
-            i: contents[i.split(".", 1)[0]] for i in input_keys if i.split(".", 1)[0] in contents
-        }
-        if read:
-            recipe["input_content"] = dict(sorted(read.items()))
-        key = recipe_key(recipe)
-        keys[stage.name] = key
-        exists = store.get(stage.name, key) is not None
-        if stage.name in force:
-            hit, reason = False, "forced"
-        elif exists:
-            hit, reason = True, "cached"
-        else:
-            hit = False
-            reason = miss_reason(stage.name, recipe, previous.get(stage.name), changed)
-        if not hit:
-            changed.add(stage.name)
-        planned.append(PlannedStage(stage, key, recipe, hit, reason))
-        if stage.name == until:
-            break
-    return planned
+def _output(stage: Stage, producer: Stage, item: Input) -> Output:
+    output = next((o for o in producer.outputs if o.name == item.output), None)
+    if output is None:
+        raise ConfigError(f"stage {stage.name}: {item.stage} has no output '{item.output}'")
+    return output
 
 
 def _bind_inputs(
@@ -184,73 +99,92 @@ def _bind_inputs(
     dataset: DatasetSpec,
     config: BaseModel,
     verified: set[tuple[str, str, str]],
+    opened: dict[str, Any],
 ) -> dict[str, Any]:
+    """The stage's `run` mapping: each input's value under its `Input.name`, and the
+    sections it reads under "config.<section>". A json output with a `record` type is
+    handed over as that record; a file it refuses is bad input naming that file.
+
+    The dataset is opened by the graph's `open` once per run and config section
+    (`opened`): the stages reading it (keyframes, submaps) share what it has read."""
     stage = item.stage
     inputs: dict[str, Any] = {f"config.{s}": getattr(config, s) for s in stage.reads_sections}
+    columns = dict(stage.input_columns)
     for name in stage.inputs:
-        if name == "dataset":
-            inputs[name] = dataset.open(getattr(config, stage.dataset_section or stage.name))
+        if name.is_dataset:
+            section = getattr(config, stage.dataset_section or stage.name)
+            once = section.model_dump_json() if isinstance(section, BaseModel) else repr(section)
+            if once not in opened:
+                opened[once] = dataset.open(dataset.path, section)
+            inputs[name.name] = opened[once]
             continue
-        upstream, _, out_name = name.partition(".")
-        producer = outputs_of[upstream]
-        output = next((o for o in producer.outputs if o.name == out_name), None)
-        if output is None:
-            raise ConfigError(f"stage {item.stage.name}: {upstream} has no output '{out_name}'")
-        columns = dict(stage.input_columns).get(name)
-        inputs[name] = read_verified(refs[upstream], output, verified, columns)
+        output = _output(stage, outputs_of[name.stage], name)
+        value = read_verified(refs[name.stage], output, verified, columns.get(name))
+        if output.record is not None and value is not None:
+            try:
+                value = output.record.from_json(value)
+            except ValueError as err:
+                rejected = StageInputError(name, str(err))
+                raise _rejected_input(rejected, stage, refs, outputs_of, dataset) from err
+        inputs[name.name] = value
     return inputs
 
 
 def _rejected_input(
-    err: InputRejected,
+    err: StageInputError,
     stage: Stage,
     refs: Mapping[str, ArtifactRef],
     outputs_of: Mapping[str, Stage],
     dataset: DatasetSpec,
 ) -> SourceError:
     """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
-    upstream, _, out_name = err.input.partition(".")
-    where = str(dataset.path) if err.input == "dataset" else err.input
-    if upstream in refs and upstream in outputs_of:
-        output = next((o for o in outputs_of[upstream].outputs if o.name == out_name), None)
-        ref = refs[upstream]
-        filename = output.filename if output is not None else out_name
+    item = err.input
+    where = str(dataset.path) if item.is_dataset else item.name
+    if item.stage in refs and item.stage in outputs_of:
+        output = next((o for o in outputs_of[item.stage].outputs if o.name == item.output), None)
+        ref = refs[item.stage]
+        filename = output.filename if output is not None else item.output
         where = f"{ref.stage}/{ref.key}/{filename}"
-    reason = (err.reason.splitlines() or [""])[0][:300]
+    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
+    # characters whatever the stage put in it.
+    reason = (err.reason.splitlines() or [""])[0]
+    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
     return SourceError(f"{where}: {reason} (input of stage {stage.name})")
 
 
-def _build(
+def _compute(
     item: PlannedStage,
     section: Any,
     inputs: Mapping[str, Any],
+    tmp: Path,
     refs: Mapping[str, ArtifactRef],
     outputs_of: Mapping[str, Stage],
     dataset: DatasetSpec,
-) -> Callable[[Path], Mapping[str, Any]]:
+) -> dict[str, Any]:
+    """Run the stage and write its outputs into `tmp`; the manifest's extra fields.
+
+    A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
+    any other exception of the stage is a `StageFailed` (exit 1).
+    """
     stage = item.stage
     provenance = {"stage": stage.name, "version": str(stage.version), "key": item.key}
-
-    def build(tmp: Path) -> Mapping[str, Any]:
-        try:
-            values = stage.run(section, inputs)
-            facts: dict[str, Any] = {}
-            for output in stage.outputs:
-                value = values.get(output.name)
-                if value is None:
-                    if not output.optional:
-                        raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
-                    continue
-                facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
-        except (PipelineError, OSError):
-            raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
-        except InputRejected as err:
-            raise _rejected_input(err, stage, refs, outputs_of, dataset) from err
-        except Exception as err:
-            raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
-        return {"outputs": facts}
-
-    return build
+    try:
+        values = stage.run(section, inputs)
+        facts: dict[str, Any] = {}
+        for output in stage.outputs:
+            value = values.get(output.name)
+            if value is None:
+                if not output.optional:
+                    raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
+                continue
+            facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
+    except (PipelineError, OSError):
+        raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
+    except StageInputError as err:
+        raise _rejected_input(err, stage, refs, outputs_of, dataset) from err
+    except Exception as err:
+        raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
+    return {"outputs": facts}
 
 
 def execute(
@@ -302,6 +236,7 @@ def _execute(
     result = RunResult(dataset=str(dataset.path), store=str(store.root))
     versions = _software_versions()
     verified: set[tuple[str, str, str]] = set()  # each bound file is hashed once per run
+    opened: dict[str, Any] = {}  # the dataset, opened once per run and config section
     done: dict[str, PlannedStage] = {}
     for item in planned:
         name = item.stage.name
@@ -320,27 +255,27 @@ def _execute(
             if item.reason == "forced":
                 _discard(store, name, item.key)
             section = getattr(config, name)
-            inputs = _bind_inputs(item, refs, outputs_of, dataset, config, verified)
+            inputs = _bind_inputs(item, refs, outputs_of, dataset, config, verified, opened)
             manifest_extra = {
                 "version": item.stage.version,
                 "recipe": item.recipe,
                 "config": item.recipe["config"],
                 "inputs": {k: v for k, v in item.recipe["inputs"].items()},
                 "input_artifacts": {
-                    k: f"{outputs_of[k.split('.', 1)[0]].name}/{v}"
+                    k: f"{outputs_of[Input.parse(k).stage].name}/{v}"
                     for k, v in item.recipe["inputs"].items()
                 },
                 "dataset_path": str(dataset.path),
                 "software": versions,
             }
             log.info("computing %s (%s)", name, item.reason)
-            ref, reused = store.commit_or_reuse(
-                name,
-                item.key,
-                _build(item, section, inputs, refs, outputs_of, dataset),
-                manifest_extra,
-            )
-            status = "reused" if reused else "computed"
+            with store.staging(name, item.key, manifest_extra) as slot:
+                if slot.tmp is not None:  # not committed by another process meanwhile
+                    slot.extra = _compute(
+                        item, section, inputs, slot.tmp, refs, outputs_of, dataset
+                    )
+            ref = slot.committed()
+            status = "computed" if slot.tmp is not None else "reused"
             del inputs
             release_memory()
         refs[name] = ref

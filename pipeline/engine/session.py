@@ -1,4 +1,4 @@
-"""Glue between the CLI and the engine: resolve a dataset, config and store into a plan."""
+"""Glue between the CLI and the engine: resolve a dataset, config and store into a context."""
 
 from __future__ import annotations
 
@@ -13,59 +13,23 @@ from pipeline.engine.config import load_config
 from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import FingerprintCache
-from pipeline.engine.runner import DatasetSpec
+from pipeline.engine.planned import DatasetSpec
+from pipeline.engine.registry import Graph, default_graph
 from pipeline.engine.store import ArtifactStore
 from stages.base import Stage
 
-__all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context"]
+__all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_context"]
 
 DEFAULT_STORE = Path("data/store")
 
 
-def _default_parts(path: Path) -> list[Path]:
-    from pipeline.engine.registry import alternative_graph
-
-    alt = alternative_graph()
-    if alt is not None:
-        return list(alt.parts(path))
-    from pipeline.readers import dataset_fingerprint_parts
-
-    return list(dataset_fingerprint_parts(path))
-
-
-def _default_open(path: Path) -> Callable[[Any], Any]:
-    """The dataset's opener. A recording is opened once per reader config and run: the
-    stages reading it (keyframes, submaps) share what it has read (its navigation,
-    which on interleaved recordings costs a pass decompressing every chunk)."""
-    opened: dict[str, Any] = {}
-
-    def opener(section: Any) -> Any:
-        from pipeline.engine.registry import alternative_graph
-
-        alt = alternative_graph()
-        if alt is not None:
-            return alt.open(path, section)
-        from pipeline.readers import open_recording
-
-        key = section.model_dump_json() if isinstance(section, BaseModel) else repr(section)
-        if key not in opened:
-            opened[key] = open_recording(path, section)
-        return opened[key]
-
-    return opener
-
-
-def dataset_spec(
-    path: Path,
-    store: ArtifactStore,
-    *,
-    parts: Callable[[Path], list[Path]] | None = None,
-    opener: Callable[[Any], Any] | None = None,
-) -> DatasetSpec:
-    """Fingerprint a dataset (cached by size/mtime/inode) and prepare its opener."""
+def dataset_spec(path: Path, store: ArtifactStore, graph: Graph | None = None) -> DatasetSpec:
+    """Fingerprint a dataset as `graph` (default: the real pipeline) finds its files
+    (cached by size/mtime/inode); the spec carries the graph's opener."""
+    graph = graph or default_graph()
     if not path.exists():
         raise SourceError(f"{path}: no such file or directory")
-    files = (parts or _default_parts)(path)
+    files = list(graph.parts(path))
     if not files:
         raise SourceError(f"{path}: no dataset files found")
     cache = FingerprintCache(store.root / ".cache" / "fingerprints.json")
@@ -74,7 +38,7 @@ def dataset_spec(
         fingerprint = cache.dataset_fingerprint(files, root)
     except OSError as err:  # the store's cache on a full, read-only or odd filesystem
         raise disk_error(err, store.root / ".cache") from err
-    return DatasetSpec(path=path, fingerprint=fingerprint, open=opener or _default_open(path))
+    return DatasetSpec(path=path, fingerprint=fingerprint, open=graph.open)
 
 
 @dataclass(frozen=True)
@@ -83,6 +47,20 @@ class RunContext:
     config: BaseModel
     store: ArtifactStore
     dataset: DatasetSpec
+
+
+def open_context(
+    dataset: Path,
+    graph: Graph,
+    *,
+    config_path: Path | None = None,
+    overrides: Sequence[str] = (),
+    store_dir: Path = DEFAULT_STORE,
+) -> RunContext:
+    """`graph` on `dataset`: validate the config first (cheap), then fingerprint."""
+    config = load_config(graph.config_stages, config_path, overrides, graph.extra_sections)
+    store = ArtifactStore(store_dir)
+    return RunContext(graph.stages, config, store, dataset_spec(dataset, store, graph))
 
 
 def make_context(
@@ -97,8 +75,21 @@ def make_context(
     parts: Callable[[Path], list[Path]] | None = None,
     opener: Callable[[Any], Any] | None = None,
 ) -> RunContext:
-    """Validate config first (cheap), then fingerprint the dataset."""
+    """A context for explicit stages (tests, benchmarks): the real pipeline's way of
+    finding and opening a dataset unless `parts` / `opener(section)` replace it."""
     config = load_config(config_stages or stages, config_path, overrides, extra_sections)
     store = ArtifactStore(store_dir)
-    spec = dataset_spec(dataset, store, parts=parts, opener=opener)
-    return RunContext(tuple(stages), config, store, spec)
+    found: Callable[[Path], Sequence[Path]] | None = parts
+    opened = None if opener is None else _by_section(opener)
+    if found is None or opened is None:
+        real = default_graph()
+        found, opened = found or real.parts, opened or real.open
+    graph = Graph(tuple(stages), found, opened)
+    return RunContext(tuple(stages), config, store, dataset_spec(dataset, store, graph))
+
+
+def _by_section(opener: Callable[[Any], Any]) -> Callable[[Path, Any], Any]:
+    def open_dataset(_path: Path, section: Any) -> Any:
+        return opener(section)
+
+    return open_dataset

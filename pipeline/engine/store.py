@@ -16,16 +16,17 @@ import shutil
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from filelock import FileLock
 
-from pipeline.engine.artifact import ArtifactRef, Problem
+from pipeline.engine.artifact import ArtifactRef, Problem, safe_relative
 from pipeline.engine.disk import disk_error
 from pipeline.engine.errors import ArtifactCorrupt, StoreError
 from pipeline.engine.hashing import STORE_FORMAT_VERSION, sha256_file
-from pipeline.engine.integrity import recovery_hint, safe_relative, verify_artifact_dir, verify_file
+from pipeline.engine.integrity import recovery_hint, verify_artifact_dir, verify_file
 from pipeline.engine.manifest import read_manifest
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "ArtifactRef",
     "ArtifactStore",
     "Problem",
+    "Staging",
     "recovery_hint",
     "safe_relative",
     "verify_artifact_dir",
@@ -58,6 +60,30 @@ def _fsync_dir(path: Path) -> None:
 def _fsync_file(path: Path) -> None:
     with path.open("rb") as f:
         os.fsync(f.fileno())
+
+
+@dataclass
+class Staging:
+    """An artifact being committed under its key's lock (`ArtifactStore.staging`).
+
+    Attributes:
+        tmp: the empty temporary directory to write the files into (None: another
+            process committed the artifact first; it is reused).
+        extra: manifest fields the writer adds (e.g. row counts).
+    """
+
+    store: ArtifactStore
+    stage: str
+    key: str
+    tmp: Path | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def committed(self) -> ArtifactRef:
+        """The artifact, once the staging block has left."""
+        ref = self.store.get(self.stage, self.key)
+        if ref is None:  # pragma: no cover - committed or found under the lock
+            raise StoreError(f"{self.stage}/{self.key}: commit vanished")
+        return ref
 
 
 class ArtifactStore:
@@ -185,62 +211,63 @@ class ArtifactStore:
         build: Callable[[Path], Mapping[str, Any]],
         manifest_extra: Mapping[str, Any],
     ) -> tuple[ArtifactRef, bool]:
-        """`commit`, also saying whether the artifact was reused (True) or built here.
+        """`commit`, also saying whether the artifact was reused (True) or built here."""
+        with self.staging(stage, key, manifest_extra) as slot:
+            if slot.tmp is not None:
+                slot.extra = dict(build(slot.tmp))
+        return slot.committed(), slot.tmp is None
+
+    @contextlib.contextmanager
+    def staging(self, stage: str, key: str, manifest_extra: Mapping[str, Any]) -> Iterator[Staging]:
+        """Hold the key's lock; the caller writes the artifact's files into `slot.tmp`
+        (None: another process committed it first, reuse it) and sets `slot.extra`
+        (manifest fields). On leaving, the files are fsynced, the manifest written
+        last and the directory renamed into place; on an exception nothing is visible.
 
         An OSError (full disk, read-only store, name too long) becomes a one-line
-        `StoreError` naming the path; the temporary directory goes, nothing is visible.
+        `StoreError` naming the path; the temporary directory goes.
         """
+        slot = Staging(self, stage, key)
         try:
-            return self._commit_or_reuse(stage, key, build, manifest_extra)
+            with self.lock(stage, key):
+                if self.get(stage, key) is not None:
+                    yield slot
+                    return
+                slot.tmp = self.tmp_path(f"{stage}-{key[:16]}")
+                slot.tmp.mkdir(parents=True)
+                try:
+                    t0 = time.perf_counter()
+                    yield slot
+                    self._finish(slot.tmp, stage, key, {**manifest_extra, **slot.extra}, t0)
+                except BaseException:
+                    shutil.rmtree(slot.tmp, ignore_errors=True)
+                    raise
         except OSError as err:
             raise disk_error(err, self.artifact_dir(stage, key)) from err
 
-    def _commit_or_reuse(
-        self,
-        stage: str,
-        key: str,
-        build: Callable[[Path], Mapping[str, Any]],
-        manifest_extra: Mapping[str, Any],
-    ) -> tuple[ArtifactRef, bool]:
-        with self.lock(stage, key):
-            existing = self.get(stage, key)
-            if existing is not None:
-                return existing, True
-            tmp = self.tmp_path(f"{stage}-{key[:16]}")
-            tmp.mkdir(parents=True)
-            try:
-                t0 = time.perf_counter()
-                extra = dict(build(tmp))
-                files = {}
-                for f in sorted(p for p in tmp.rglob("*") if p.is_file()):
-                    _fsync_file(f)
-                    rel = f.relative_to(tmp).as_posix()
-                    files[rel] = {"sha256": sha256_file(f), "size": f.stat().st_size}
-                manifest = {
-                    **dict(manifest_extra),
-                    **extra,
-                    "stage": stage,
-                    "key": key,
-                    "files": files,
-                    "store_format": STORE_FORMAT_VERSION,
-                    "build_seconds": round(time.perf_counter() - t0, 3),
-                    "created_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                }
-                (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True))
-                _fsync_file(tmp / MANIFEST)
-                _fsync_dir(tmp)
-                final = self.artifact_dir(stage, key)
-                final.parent.mkdir(parents=True, exist_ok=True)
-                self._clear_non_artifact(final)
-                tmp.rename(final)
-                _fsync_dir(final.parent)
-            except BaseException:
-                shutil.rmtree(tmp, ignore_errors=True)
-                raise
-        ref = self.get(stage, key)
-        if ref is None:  # pragma: no cover - rename succeeded, so this cannot happen
-            raise StoreError(f"{stage}/{key}: commit vanished")
-        return ref, False
+    def _finish(self, tmp: Path, stage: str, key: str, extra: Mapping[str, Any], t0: float) -> None:
+        files = {}
+        for f in sorted(p for p in tmp.rglob("*") if p.is_file()):
+            _fsync_file(f)
+            rel = f.relative_to(tmp).as_posix()
+            files[rel] = {"sha256": sha256_file(f), "size": f.stat().st_size}
+        manifest = {
+            **dict(extra),
+            "stage": stage,
+            "key": key,
+            "files": files,
+            "store_format": STORE_FORMAT_VERSION,
+            "build_seconds": round(time.perf_counter() - t0, 3),
+            "created_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        }
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True))
+        _fsync_file(tmp / MANIFEST)
+        _fsync_dir(tmp)
+        final = self.artifact_dir(stage, key)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        self._clear_non_artifact(final)
+        tmp.rename(final)
+        _fsync_dir(final.parent)
 
     def _clear_non_artifact(self, final: Path) -> None:
         """Move a manifest-less directory at `final` aside (we hold its key's lock).

@@ -33,9 +33,9 @@ import shutil
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
-from filelock import Timeout
+from filelock import BaseFileLock, Timeout
 
 from pipeline.engine.artifact import PULL_CACHE, ArtifactRef, Problem
 from pipeline.engine.errors import StoreError
@@ -43,8 +43,18 @@ from pipeline.engine.integrity import verify_artifact_dir
 from pipeline.engine.leases import LEASES, pid_alive, scan_leases
 from pipeline.engine.manifest import ADDRESS_PATTERN
 
-if TYPE_CHECKING:
-    from pipeline.engine.store import ArtifactStore
+
+class CollectedStore(Protocol):
+    """What `collect` needs of the store (`pipeline.engine.store.ArtifactStore`): named
+    here so the collector does not import the store that calls it."""
+
+    root: Path
+
+    def lock(self, stage: str, key: str) -> BaseFileLock: ...
+    def run_records(self) -> list[dict[str, Any]]: ...
+    def scan(self) -> Iterator[ArtifactRef | Problem]: ...
+    def tmp_path(self, prefix: str) -> Path: ...
+
 
 __all__ = ["collect", "reachable"]
 
@@ -98,7 +108,7 @@ class _Roots:
     """What must stay: leases' and run records' addresses and their upstream closure,
     looked at again whenever the `.leases` or `runs` folder has changed."""
 
-    def __init__(self, store: ArtifactStore, refs: Mapping[tuple[str, str], ArtifactRef]) -> None:
+    def __init__(self, store: CollectedStore, refs: Mapping[tuple[str, str], ArtifactRef]) -> None:
         self.store, self.refs = store, refs
         self.live_runs = 0
         self.keep: set[tuple[str, str]] = set()
@@ -135,7 +145,7 @@ class _Roots:
 
 
 def _remove_dir(
-    store: ArtifactStore,
+    store: CollectedStore,
     stage: str,
     key: str,
     path: Path,
@@ -162,7 +172,7 @@ def _remove_dir(
     return True
 
 
-def _leftovers(store: ArtifactStore, stale_tmp_s: float) -> list[Path]:
+def _leftovers(store: CollectedStore, stale_tmp_s: float) -> list[Path]:
     """Temporaries whose owner is gone (or, without a pid in the name, are old)."""
     found: list[Path] = []
     now = time.time()
@@ -207,7 +217,7 @@ def _size(ref: ArtifactRef) -> int:
 
 
 def collect(
-    store: ArtifactStore,
+    store: CollectedStore,
     *,
     dry_run: bool = False,
     broken: bool = False,

@@ -17,7 +17,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.engine.errors import ConfigError, PipelineError
 from pipeline.experiments.headline_columns import (
@@ -43,6 +43,9 @@ __all__ = [
     "stage_path",
     "sweep_tables",
 ]
+
+if TYPE_CHECKING:
+    from pipeline.engine.registry import Graph
 
 log = logging.getLogger(__name__)
 
@@ -123,8 +126,8 @@ def expand(
     ]
 
 
-def run_one(spec: RunSpec) -> RunOutcome:
-    """Run one sweep point; never raises (failures become a failed outcome)."""
+def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
+    """Run one point through `graph` (None: the real pipeline); a failure is its outcome."""
     from pipeline.api import RunRequest, run_dataset
 
     t0 = time.perf_counter()
@@ -137,7 +140,8 @@ def run_one(spec: RunSpec) -> RunOutcome:
                 config_path=Path(spec.config_path) if spec.config_path else None,
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
-            )
+            ),
+            graph,
         )
     except Exception as err:  # a failed run must not stop the sweep
         log.debug("sweep run failed", exc_info=True)
@@ -163,19 +167,19 @@ def _failure(err: Exception) -> tuple[str, int]:
 
 
 def _local(
-    specs: Sequence[RunSpec], jobs: int, done: Callable[[RunOutcome], None]
+    specs: Sequence[RunSpec], jobs: int, done: Callable[[RunOutcome], None], graph: Graph | None
 ) -> list[RunOutcome]:
     if jobs <= 1:
         outcomes = []
         for s in specs:
-            outcomes.append(run_one(s))
+            outcomes.append(run_one(s, graph))
             done(outcomes[-1])
         return outcomes
     results: dict[int, RunOutcome] = {}
     with ProcessPoolExecutor(
         max_workers=jobs, initializer=die_with_parent, initargs=(os.getpid(),)
     ) as pool:
-        futures = {pool.submit(run_one, s): i for i, s in enumerate(specs)}
+        futures = {pool.submit(run_one, s, graph): i for i, s in enumerate(specs)}
         for fut in as_completed(futures):
             results[futures[fut]] = fut.result()
             done(results[futures[fut]])
@@ -183,7 +187,11 @@ def _local(
 
 
 def _ray(
-    specs: Sequence[RunSpec], jobs: int, address: str | None, done: Callable[[RunOutcome], None]
+    specs: Sequence[RunSpec],
+    jobs: int,
+    address: str | None,
+    done: Callable[[RunOutcome], None],
+    graph: Graph | None,
 ) -> list[RunOutcome]:
     try:
         import ray
@@ -191,11 +199,8 @@ def _ray(
         raise ConfigError(
             "--executor ray needs the 'ray' package (pip install 'sonarmap[ray]')"
         ) from err
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if k in ("PYTHONPATH", "SONARMAP_GRAPH", "OMP_NUM_THREADS")
-    }
+    # The graph travels with each task; PYTHONPATH lets workers import its modules.
+    env = {k: v for k, v in os.environ.items() if k in ("PYTHONPATH", "OMP_NUM_THREADS")}
     started = False
     if not ray.is_initialized():
         kwargs: dict[str, Any] = {
@@ -210,7 +215,7 @@ def _ray(
         started = True
     try:
         remote = ray.remote(num_cpus=1)(run_one)
-        pending = {remote.remote(s): i for i, s in enumerate(specs)}
+        pending = {remote.remote(s, graph): i for i, s in enumerate(specs)}  # type: ignore[call-arg]
         results: dict[int, RunOutcome] = {}
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=1)
@@ -231,13 +236,15 @@ def run_sweep(
     jobs: int = 1,
     address: str | None = None,
     on_done: Callable[[RunOutcome], None] | None = None,
+    graph: Graph | None = None,
 ) -> list[RunOutcome]:
-    """Execute every run; outcomes in the order of `specs`."""
+    """Execute every run through `graph` (None: the real pipeline; each worker gets it
+    with its run); outcomes in the order of `specs`."""
     done = on_done or (lambda _o: None)
     if executor == "local":
-        return _local(specs, jobs, done)
+        return _local(specs, jobs, done, graph)
     if executor == "ray":
-        return _ray(specs, jobs, address, done)
+        return _ray(specs, jobs, address, done, graph)
     raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
 
 

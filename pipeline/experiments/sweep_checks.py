@@ -4,15 +4,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pipeline.engine.errors import SourceError
 from pipeline.experiments.sweep import RunOutcome, RunSpec
 
+if TYPE_CHECKING:
+    from pipeline.engine.registry import Graph
+
 __all__ = ["check_inputs", "failure_exit_code"]
 
 
-def check_inputs(specs: Sequence[RunSpec]) -> None:
+def check_inputs(specs: Sequence[RunSpec], graph: Graph) -> None:
     """Refuse (exit 2) before the first run when a dataset or a config point is unusable.
 
     Every distinct (config file, overrides) point must load (checked first); every
@@ -21,34 +24,28 @@ def check_inputs(specs: Sequence[RunSpec]) -> None:
     `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
     """
     from pipeline.engine.config import load_config
-    from pipeline.engine.registry import all_stages, alternative_graph, extra_sections
-    from pipeline.engine.session import _default_parts
 
     # Config first (cheap, and what a typo in --set most likely is), then datasets.
     readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording
     for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
-        config = load_config(
-            all_stages(), Path(config_path) if config_path else None, args, extra_sections()
-        )
+        path = Path(config_path) if config_path else None
+        config = load_config(graph.config_stages, path, args, graph.extra_sections)
         section = getattr(config, "keyframes", None)
         readers.setdefault(repr(section), section)
     for dataset in dict.fromkeys(s.dataset for s in specs):
         path = Path(dataset)
         if not path.exists():
             raise SourceError(f"{path}: no such file or directory")
-        for part in _default_parts(path):
+        for part in graph.parts(path):
             try:
                 with part.open("rb") as f:
                     f.read(16)
             except OSError as err:
                 raise SourceError(f"{part}: cannot read ({err.strerror})") from err
-        if alternative_graph() is None:
-            # Opening reads the topic list and finds the sonar and navigation topics:
-            # a file with none of them is refused now, not after the other runs.
-            from pipeline.readers import open_recording
-
-            for section in readers.values():
-                open_recording(path, section)
+        # Opening reads the topic list and finds the sonar and navigation topics: a
+        # file with none of them is refused now, not after the other runs.
+        for section in readers.values():
+            graph.open(path, section)
 
 
 def failure_exit_code(outcomes: Sequence[RunOutcome]) -> int:

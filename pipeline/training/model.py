@@ -24,13 +24,15 @@ from typing import Any
 from pydantic import BaseModel
 
 from pipeline.engine.errors import SourceError
-from pipeline.engine.runner import DatasetSpec, execute, plan
+from pipeline.engine.planned import DatasetSpec
+from pipeline.engine.planner import plan
+from pipeline.engine.runner import execute
 from pipeline.engine.session import dataset_spec
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
 from pipeline.training.datasets import Simulation
 from schemas.sonar import KeyframeImages
-from stages.base import Stage
+from stages.base import Input, Stage
 
 __all__ = [
     "plan_training",
@@ -88,12 +90,12 @@ def training_stage_for(
 
     base = training_stage()
     inputs = tuple(
-        name
+        item
         for i in range(n_datasets)
-        for name in (
-            f"keyframes_{i}.frames",
-            f"features_{i}.features",
-            *([f"annotations_{i}.annotations"] if i in annotated else []),
+        for item in (
+            Input(f"keyframes_{i}", "frames"),
+            Input(f"features_{i}", "features"),
+            *([Input(f"annotations_{i}", "annotations")] if i in annotated else []),
         )
     )
 
@@ -179,8 +181,8 @@ def _bind_training(
     return train, external, first
 
 
-def _not_on_disk(path: Path) -> Callable[[Any], Any]:
-    def refuse(_section: Any) -> Any:
+def _not_on_disk(path: Path) -> Callable[[Path, Any], Any]:
+    def refuse(_path: Path, _section: Any) -> Any:
         raise SourceError(f"{path}: planned from the shipped model's lock, not simulated yet")
 
     return refuse

@@ -33,13 +33,15 @@ import pyarrow as pa
 from pydantic import Field
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from schemas.model_settings import ModelSettings
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig, StageInputError
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
-from stages.kernels.clustering import clustering_params
+from stages.kernels.clustering import clustering
 from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
@@ -140,16 +142,6 @@ class ClassifyConfig(StageConfig):
     overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
 
 
-def clustering(cfg: ClassifyConfig, model_config: Mapping[str, Any]) -> dict[str, Any]:
-    """`eps_m`, `min_samples`, `min_features`: each the config's override, else the model
-    file's (output `clustering`, so stage `submaps` clusters its frames the same way)."""
-    names = ("eps_m", "min_samples", "min_features")
-    picked = {n: model_config.get(n) if getattr(cfg, n) is None else getattr(cfg, n) for n in names}
-    for name in (n for n in names if picked[n] is None):
-        raise ValueError(f"train.model: the model file has no {name!r}; set classify.{name}")
-    return clustering_params(**picked)
-
-
 def _empty_features() -> dict[str, np.ndarray]:
     z_i, z_f = np.zeros(0, np.int64), np.zeros(0, np.float64)
     return {"feature_id": z_i, "range_bin": z_i, "beam": z_i, "range_m": z_f, "angle_rad": z_f}
@@ -227,7 +219,8 @@ def _pooled(
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
     if any(c.null_count for c in cols):
-        raise ValueError("keyframes: x_m, y_m or yaw_rad has nulls; set classify.pool_views=false")
+        why = "x_m, y_m or yaw_rad has nulls; set classify.pool_views=false"
+        raise StageInputError(Input("keyframes", "keyframes"), why)
     pose = np.column_stack([c.to_numpy() for c in cols]).astype(np.float64)
     obj_kf = geometry.column("keyframe_id").to_numpy()
     row = np.searchsorted(kf_ids, obj_kf)
@@ -251,7 +244,7 @@ def classify_keyframes(
     features: pa.Table,
     model: PatchCNN,
     class_names: list[str],
-    model_config: Mapping[str, Any],
+    settings: ModelSettings,
     cfg: ClassifyConfig,
     keyframes: pa.Table | None = None,
     T_base_sonar: np.ndarray | None = None,
@@ -261,9 +254,8 @@ def classify_keyframes(
     Args:
         frames: keyframe images in keyframe order (read one at a time).
         features: features.parquet (only horizontal rows are used).
-        model: the classifier; class_names: its output names; model_config: the
-            model file's config (clustering `eps_m`, `min_samples`, `min_features`;
-            patch `margin_m`, `min_side_m`, `size_px`).
+        model: the classifier; class_names: its output names; settings: the model
+            file's clustering and patch settings.
         cfg: clustering, acceptance and pooling config.
         keyframes: keyframes.parquet (dead-reckoning poses) and T_base_sonar: (4, 4)
             mounting of the horizontal sonar; both needed when `cfg.pool_views`.
@@ -275,7 +267,7 @@ def classify_keyframes(
     if cfg.pool_views and (keyframes is None or T_base_sonar is None):
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
     by_kf = horizontal_features(features)
-    eps_m, min_samples, min_features = clustering(cfg, model_config).values()
+    eps_m, min_samples, min_features = clustering(cfg, settings).values()
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
@@ -291,16 +283,17 @@ def classify_keyframes(
         objs = extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
             eps_m=eps_m, min_samples=min_samples, min_features=min_features,
-            margin_m=float(model_config["margin_m"]), min_side_m=float(model_config["min_side_m"]),
-            size_px=int(model_config["size_px"]), min_area_m2=cfg.min_object_area_m2,
+            margin_m=settings.margin_m, min_side_m=settings.min_side_m,
+            size_px=settings.size_px, min_area_m2=cfg.min_object_area_m2,
             drop_fan_edge=cfg.drop_fan_edge_objects, fan_edge_margin_m=cfg.fan_edge_margin_m,
             fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
         )  # fmt: skip
         if oracle:
             if objs.true_class_id is None:
-                raise ValueError(
+                raise StageInputError(
+                    Input("keyframes", "frames"),
                     f"classify.labels=ground_truth: keyframe {frame.keyframe_id} has no label"
-                    " image (a field recording?); use classify.labels=cnn"
+                    " image (a field recording?); use classify.labels=cnn",
                 )
             truths.append(objs.true_class_id.astype(np.int64))
             mean = var = np.zeros((objs.count, len(class_names)))
@@ -360,13 +353,14 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
     try:
         model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
-        params = clustering(config, mcfg)
+        settings = ModelSettings.from_config(mcfg)
+        params = clustering(config, settings)
     except ValueError as err:
-        raise InputRejected("train.model", str(err)) from err
+        raise StageInputError(Input("train", "model"), str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
-    mount = None if sensors is None else np.asarray(sensors["horizontal"]["T_base_sonar"], float)
+    mount = None if sensors is None else Sensors.of(sensors).horizontal.T_base_sonar
     objects, links, busiest = classify_keyframes(
-        inputs["keyframes.frames"], inputs["features.features"], model, names, mcfg, config,
+        inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount,
     )  # fmt: skip
     overlay = overlay_png(*busiest) if busiest is not None else None
@@ -379,11 +373,11 @@ STAGE = Stage(
     version=5,
     config=ClassifyConfig,
     inputs=(
-        "keyframes.frames",
-        "keyframes.keyframes",
-        "keyframes.sensors",
-        "features.features",
-        "train.model",
+        Input("keyframes", "frames"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+        Input("train", "model"),
     ),
     outputs=(
         Output("objects", "parquet", "objects.parquet", schema=OBJECTS_SCHEMA),

@@ -26,7 +26,7 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, CLASS_NAMES
 from schemas.sonar import KeyframeImages
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 from stages.classify.validation import confusion_png, evaluate
 from stages.kernels.lazy import lazy
@@ -342,7 +342,7 @@ STAGE = Stage(
     name="train",
     version=2,
     config=TrainConfig,
-    inputs=("keyframes.frames", "features.features"),
+    inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
         Output("model", "bytes", "model.pt"),
         Output("metrics", "json", "metrics.json"),

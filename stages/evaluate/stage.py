@@ -23,7 +23,8 @@ from pydantic import Field
 
 from schemas.classes import CLASS_IDS, PILING_CLASSES
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
-from stages.base import Output, Stage, StageConfig
+from schemas.sensors import Sensors
+from stages.base import Input, Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth
 from stages.evaluate.report import (
@@ -275,9 +276,8 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     summary: dict[str, Any] = inputs["voxelize.summary"]
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     poses: pa.Table = inputs["slam.poses"]
-    sensors: dict[str, Any] = inputs["keyframes.sensors"] or {}
+    sensors = Sensors.of(inputs["keyframes.sensors"] or {})
     mesh_bytes: bytes | None = inputs.get("keyframes.scene_mesh")
-    T_base_sonar = np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
     metrics: dict[str, Any] = {
         "voxel_size_m": summary.get("voxel_size_m"),
         "voxels": summary.get("voxels", {}),
@@ -317,7 +317,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics.get("errors_aligned"),
             poses_are_ground_truth(keyframes, poses),
         )
-        T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
+        T_ws = _visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
 
         visible = remember_last(
             lambda samples: visible_mask(
@@ -368,7 +368,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         np.stack([poses.column("x_m").to_numpy(), poses.column("y_m").to_numpy()], axis=1),
     )
     figures = [FIGURES[k] for k in FIGURES if outputs[k] is not None]
-    dataset = str((sensors.get("source") or {}).get("name", "unknown"))
+    dataset = str(sensors.source.get("name", "unknown"))
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
     outputs["metrics"] = metrics
     return outputs
@@ -380,14 +380,14 @@ STAGE = Stage(
     version=7,
     config=EvaluateConfig,
     inputs=(
-        "voxelize.map",
-        "voxelize.summary",
-        "keyframes.keyframes",
-        "keyframes.scene_mesh",
-        "keyframes.sensors",
-        "slam.poses",
-        "infer.stats",
-        "submaps.stats",
+        Input("voxelize", "map"),
+        Input("voxelize", "summary"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "scene_mesh"),
+        Input("keyframes", "sensors"),
+        Input("slam", "poses"),
+        Input("infer", "stats"),
+        Input("submaps", "stats"),
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),

@@ -21,7 +21,7 @@ from pydantic import Field
 
 from schemas.features import FEATURES_SCHEMA, SONARS
 from schemas.sonar import KeyframeImages
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.cfar import CfarMethod
 from stages.kernels.frame_features import detect_ping, keyframe_features
 
@@ -81,7 +81,7 @@ STAGE = Stage(
     name="features",
     version=1,
     config=FeaturesConfig,
-    inputs=("keyframes.frames",),
+    inputs=(Input("keyframes", "frames"),),
     outputs=(Output("features", "parquet", "features.parquet", schema=FEATURES_SCHEMA),),
     run=run,
     description="SOCA-CFAR detections on both polar images of every keyframe",

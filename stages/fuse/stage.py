@@ -16,8 +16,9 @@ import pyarrow.compute as pc
 from pydantic import Field, model_validator
 
 from schemas.fused import FUSED_SCHEMA
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.association import ConfidenceRule
 from stages.kernels.fusion import fuse_keyframe, sonar_offset
 
@@ -104,7 +105,7 @@ def _feature_arrays(features: pa.Table) -> dict[str, np.ndarray]:
 def fuse_table(
     frames: Sequence[KeyframeImages],
     features: pa.Table,
-    sensors: Mapping[str, Any],
+    sensors: Sensors | Mapping[str, Any],
     config: FuseConfig,
 ) -> pa.Table:
     """`fused.parquet` for all keyframes (one keyframe's images in memory at a time)."""
@@ -137,7 +138,11 @@ STAGE = Stage(
     name="fuse",
     version=1,
     config=FuseConfig,
-    inputs=("keyframes.frames", "keyframes.sensors", "features.features"),
+    inputs=(
+        Input("keyframes", "frames"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
     outputs=(Output("fused", "parquet", "fused.parquet", schema=FUSED_SCHEMA),),
     run=run,
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",

@@ -62,7 +62,7 @@ import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.points import POINTS_SCHEMA
-from stages.base import Output, Stage
+from stages.base import Input, Output, Stage
 from stages.infer.config import InferConfig
 from stages.kernels.class_models import ClassState, class_model_tables, new_class_states
 from stages.kernels.class_query import (
@@ -254,7 +254,12 @@ STAGE = Stage(
     # 4: the learned class models are outputs (class_reference, class_cells)
     version=4,
     config=InferConfig,
-    inputs=("classify.objects", "classify.object_features", "features.features", "fuse.fused"),
+    inputs=(
+        Input("classify", "objects"),
+        Input("classify", "object_features"),
+        Input("features", "features"),
+        Input("fuse", "fused"),
+    ),
     outputs=(
         Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
         Output("stats", "json", "stats.json"),

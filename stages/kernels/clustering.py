@@ -4,6 +4,7 @@ between them, with the same parameters: `stages.classify.stage.clustering`)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,9 @@ sparse = lazy("scipy.sparse")
 csgraph = lazy("scipy.sparse.csgraph")
 sk_cluster = lazy("sklearn.cluster")
 
-__all__ = ["MAX_COUNT", "MAX_EPS_M", "cluster_features", "clustering_params"]
+__all__ = ["MAX_COUNT", "MAX_EPS_M", "cluster_features", "clustering", "clustering_params"]
+
+CLUSTERING_NAMES = ("eps_m", "min_samples", "min_features")
 
 MAX_EPS_M = 100.0
 MAX_COUNT = 100_000
@@ -102,3 +105,27 @@ def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.n
         isolated = np.bincount(comp, minlength=n)[comp] == 1
         comp = np.where(isolated, -1, comp)
     return comp.astype(np.int64)
+
+
+def clustering(overrides: object, settings: object) -> dict[str, Any]:
+    """`eps_m`, `min_samples`, `min_features`: each the override's (classify's config)
+    unless None, else the model file's (`schemas.model_settings.ModelSettings` or its
+    dict), checked by `clustering_params`; stage `classify` writes them as its output
+    `clustering`, so stage `submaps` clusters its frames the same way.
+
+    Raises:
+        ValueError: neither gives one, or a value is out of bounds.
+    """
+
+    def model_value(name: str) -> object:
+        if isinstance(settings, Mapping):
+            return settings.get(name)
+        return getattr(settings, name, None)
+
+    picked = {
+        n: model_value(n) if getattr(overrides, n) is None else getattr(overrides, n)
+        for n in CLUSTERING_NAMES
+    }
+    for name in (n for n in CLUSTERING_NAMES if picked[n] is None):
+        raise ValueError(f"the model file has no {name!r}; set classify.{name}")
+    return clustering_params(**picked)

@@ -29,6 +29,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.kernels.association import ConfidenceRule, assign_subproblems, image_patches
 
@@ -56,22 +57,13 @@ class FusionSettings(Protocol):
     def max_cost_ratio(self) -> float | None: ...
 
 
-def sonar_offset(sensors: Mapping[str, Any]) -> np.ndarray:
+def sonar_offset(sensors: Sensors | Mapping[str, Any]) -> np.ndarray:
     """(4, 4) T_h_v: the vertical sonar's pose in the horizontal sonar frame.
 
     Raises:
         ValueError: a sonar's T_base_sonar is missing or not a 4x4 rigid transform.
     """
-    mats = {}
-    for s in ("horizontal", "vertical"):
-        try:
-            m = np.asarray(sensors[s]["T_base_sonar"], dtype=np.float64)
-        except (KeyError, TypeError) as err:
-            raise ValueError(f"fuse: sensors has no {s}.T_base_sonar") from err
-        if m.shape != (4, 4) or not np.allclose(m[:3, :3] @ m[:3, :3].T, np.eye(3), atol=1e-6):
-            raise ValueError(f"fuse: sensors.{s}.T_base_sonar is not a 4x4 rigid transform")
-        mats[s] = m
-    return np.linalg.inv(mats["horizontal"]) @ mats["vertical"]
+    return Sensors.of(sensors).T_h_v
 
 
 def fused_points(

@@ -42,8 +42,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from schemas.sensors import Sensors
 from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
-from stages.base import Output, Stage
+from stages.base import Input, Output, Stage, StageInputError
 from stages.slam.config import SlamConfig
 from stages.slam.frontend import SlamResult, run_slam
 from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
@@ -67,7 +68,10 @@ def _pose_columns(keyframes: pa.Table, prefix: str) -> np.ndarray:
     names = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
     cols = [keyframes.column(prefix + n) for n in names]
     if any(col.null_count for col in cols):
-        raise ValueError(f"keyframes: column {prefix}x_m.. has nulls (no such poses in the data)")
+        raise StageInputError(
+            Input("keyframes", "keyframes"),
+            f"column {prefix}x_m.. has nulls (no such poses in the data)",
+        )
     return np.stack([col.to_numpy() for col in cols], axis=1).astype(np.float64)
 
 
@@ -75,12 +79,12 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage entry point: keyframes, sensors, features -> poses, factors, trajectory, plot."""
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     if keyframes.num_rows == 0:
-        raise ValueError("slam: the keyframes table is empty")
+        raise StageInputError(Input("keyframes", "keyframes"), "the keyframes table is empty")
     ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     t_ns = keyframes.column("t_ns").to_numpy().astype(np.int64)
     dr = _pose_columns(keyframes, "")
     gt = None if keyframes.column("gt_x_m").null_count else _pose_columns(keyframes, "gt_")
-    T_base_sonar = np.asarray(inputs["keyframes.sensors"]["horizontal"]["T_base_sonar"], float)
+    T_base_sonar = Sensors.of(inputs["keyframes.sensors"]).horizontal.T_base_sonar
     points = keyframe_points(
         ids,
         inputs["features.features"],
@@ -91,7 +95,10 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     dr_se2 = dr[:, [0, 1, 5]]
     if config.mode == "ground_truth":
         if gt is None:
-            raise ValueError("slam: mode ground_truth, but the keyframes carry no ground truth")
+            raise StageInputError(
+                Input("keyframes", "keyframes"),
+                "slam.mode is ground_truth, but the recording carries no ground truth",
+            )
         pose6, cov, rows = gt, np.zeros((len(ids), 3, 3)), []
     else:
         result = run_slam(config, dr_se2, points, (t_ns - t_ns[0]) * 1e-9)
@@ -129,7 +136,11 @@ STAGE = Stage(
     name="slam",
     version=9,
     config=SlamConfig,
-    inputs=("keyframes.keyframes", "keyframes.sensors", "features.features"),
+    inputs=(
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
     outputs=(
         Output("poses", "parquet", "poses.parquet", schema=POSES_SCHEMA),
         Output("factors", "parquet", "factors.parquet", schema=FACTORS_SCHEMA),

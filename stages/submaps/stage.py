@@ -44,11 +44,12 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.recording import Recording
+from schemas.sensors import Sensors
 from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import InputRejected, Output, Stage
+from stages.base import DATASET, Input, Output, Stage, StageInputError
 from stages.kernels.class_models import (
     ClassModelSettings,
     ClassState,
@@ -73,20 +74,20 @@ _SECTIONS = ("keyframes", "features", "fuse", "infer")
 def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
     """The clustering classify used (its output `clustering`)."""
     if not isinstance(params, Mapping):
-        raise InputRejected("classify.clustering", "not a JSON object")
+        raise StageInputError(Input("classify", "clustering"), "not a JSON object")
     try:
         checked = clustering_params(*(params[n] for n in ("eps_m", "min_samples", "min_features")))
     except KeyError as err:
-        raise InputRejected("classify.clustering", f"no {str(err)[:30]}") from err
+        raise StageInputError(Input("classify", "clustering"), f"no {str(err)[:30]}") from err
     except (TypeError, ValueError) as err:
-        raise InputRejected("classify.clustering", str(err)) from err
+        raise StageInputError(Input("classify", "clustering"), str(err)) from err
     return checked["eps_m"], checked["min_samples"], checked["min_features"]
 
 
 def map_submap_frames(
     rec: Recording,
     keyframes: pa.Table,
-    sensors: Mapping[str, Any],
+    sensors: Sensors | Mapping[str, Any],
     objects: pa.Table,
     object_features: pa.Table,
     features: pa.Table,
@@ -136,7 +137,7 @@ def map_submap_frames(
             )
         ),
         states=states,
-        T_base_sonar=np.asarray(sensors["horizontal"]["T_base_sonar"], np.float64),
+        T_base_sonar=Sensors.of(sensors).horizontal.T_base_sonar,
         T_h_v=sonar_offset(sensors),
         kf_pose=_pose_matrices(keyframes, "keyframes"),
         frame_pose=_pose_matrices(frames, "submap frames"),
@@ -181,7 +182,7 @@ def _class_states(inputs: Mapping[str, Any]) -> dict[str, ClassState]:
             inputs["infer.class_reference"], inputs["infer.class_cells"], inputs["config.infer"]
         )
     except ModelTableError as err:
-        raise InputRejected(f"infer.{err.output}", err.reason) from err
+        raise StageInputError(Input("infer", err.output), err.reason) from err
 
 
 def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
@@ -210,16 +211,16 @@ STAGE = Stage(
     version=4,
     config=SubmapsConfig,
     inputs=(
-        "dataset",
-        "keyframes.keyframes",
-        "keyframes.sensors",
-        "classify.objects",
-        "classify.object_features",
-        "classify.clustering",
-        "features.features",
-        "fuse.fused",
-        "infer.class_reference",
-        "infer.class_cells",
+        DATASET,
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("classify", "objects"),
+        Input("classify", "object_features"),
+        Input("classify", "clustering"),
+        Input("features", "features"),
+        Input("fuse", "fused"),
+        Input("infer", "class_reference"),
+        Input("infer", "class_cells"),
     ),
     outputs=(
         Output("frames", "parquet", "submap_frames.parquet", schema=SUBMAP_FRAMES_SCHEMA),

@@ -41,8 +41,9 @@ from pydantic import Field, field_validator
 
 from schemas.classes import known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
+from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.base import Output, Stage, StageConfig
+from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.class_models import DEFAULT_FRAME_KINDS
 from stages.kernels.ply import encode_points_ply
 from stages.kernels.poses import pose_matrices
@@ -289,10 +290,7 @@ def height_colours(z_m: np.ndarray, z_range_m: tuple[float, float] | None = None
 
 
 def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    sensors = inputs["keyframes.sensors"]
-    T_base_sonar = np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
-    if T_base_sonar.shape != (4, 4):
-        raise ValueError(f"sensors.horizontal.T_base_sonar: expected 4x4, got {T_base_sonar.shape}")
+    T_base_sonar = Sensors.of(inputs["keyframes.sensors"]).horizontal.T_base_sonar
     map_table, dropped = build_map(
         inputs["infer.points"],
         inputs["fuse.fused"],
@@ -346,17 +344,17 @@ STAGE = Stage(
     version=3,
     config=VoxelizeConfig,
     inputs=(
-        "infer.points",
-        "fuse.fused",
-        "slam.poses",
-        "keyframes.sensors",
-        "submaps.frames",
-        "submaps.points",
+        Input("infer", "points"),
+        Input("fuse", "fused"),
+        Input("slam", "poses"),
+        Input("keyframes", "sensors"),
+        Input("submaps", "frames"),
+        Input("submaps", "points"),
     ),
     input_columns=(
-        ("infer.points", ("keyframe_id", "source", "class_name", *_XYZ)),
-        ("fuse.fused", ("keyframe_id", *_XYZ)),
-        ("submaps.points", ("frame_id", "source", "class_name", *_XYZ)),
+        (Input("infer", "points"), ("keyframe_id", "source", "class_name", *_XYZ)),
+        (Input("fuse", "fused"), ("keyframe_id", *_XYZ)),
+        (Input("submaps", "points"), ("frame_id", "source", "class_name", *_XYZ)),
     ),
     outputs=(
         Output("map", "parquet", "map.parquet", schema=MAP_SCHEMA),

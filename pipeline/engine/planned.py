@@ -1,0 +1,41 @@
+"""What a run is about and what the planner decided: plain records, no behaviour.
+
+They sit apart from the planner and runner so run records, progress and the session
+can name them without importing either.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from stages.base import Stage
+
+__all__ = ["DatasetSpec", "PlannedStage"]
+
+
+@dataclass(frozen=True)
+class DatasetSpec:
+    """The raw dataset a run reads: its path, content fingerprint and the graph's opener.
+
+    `open(path, section)` (the graph's `open`) returns what the first stage's `DATASET`
+    input binds to (a `Recording` for real runs); the runner calls it only when that
+    stage must run, once per run and config section.
+    """
+
+    path: Path
+    fingerprint: str
+    open: Callable[[Path, Any], Any]
+
+
+@dataclass(frozen=True)
+class PlannedStage:
+    """One stage of a plan: its key, the recipe hashed into it, hit or miss and why."""
+
+    stage: Stage
+    key: str
+    recipe: dict[str, Any]
+    hit: bool
+    reason: str
