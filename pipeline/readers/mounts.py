@@ -171,6 +171,7 @@ class SensorGeometry:
             self._warn(
                 f"{self.source.path}: {name}: "
                 + " and ".join(f"keyframes.{name}_mount_{p}{_UNIT[p]}" for p in overridden)
-                + f" override the recording's mount of frame {frame!r}"
+                + (" overrides" if len(overridden) == 1 else " override")
+                + f" the recording's mount of frame {frame!r}"
             )
         return T, info
