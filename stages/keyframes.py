@@ -63,10 +63,21 @@ class KeyframesConfig(StageConfig):
         horizontal_topic, vertical_topic: sonar topics (None: found by type/name).
         navigation_topic: Odometry/PoseStamped/PoseWithCovarianceStamped topic (None: found).
         ground_truth_topic: true pose topic (None: /ground_truth/odometry if present).
-        dvl_topic, imu_topic, depth_topic: dead-reckoning inputs when no navigation topic.
-        dvl_max_velocity_mps: DVL velocity gate of the dead reckoning [m/s].
+        dvl_topic, imu_topic: dead-reckoning inputs when no navigation topic.
+        depth_topic: depth source (FluidPressure, a `depth` field, or a pose's z); with a
+            navigation topic it replaces the navigation's z.
+        dvl_max_velocity_mps: DVL samples faster than this are dropped as implausible [m/s]
+            (a limit well above vehicle speed; the drops are counted and reported).
+        water_density_kg_m3, gravity_m_s2: depth from pressure, (p - p_surface) / (rho g).
+        surface_pressure_pa: p_surface [Pa] (None: from `surface_pressure_from_first_s`,
+            else one standard atmosphere).
+        surface_pressure_from_first_s: take p_surface as the median pressure of the
+            recording's first seconds (the vehicle at the surface).
         image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images.
-        *_mount_xyz_m, *_mount_rpy_deg: T_base_sonar when the data has no /tf_static.
+        base_frame: the vehicle frame mounts are composed from in the recording's tf tree.
+        *_mount_xyz_m, *_mount_rpy_deg: T_base_sensor; None takes it from the recording's
+            /tf_static (/tf) tree by the sensor messages' frame_id, else a default (warned).
+            Set, they override the recording.
         submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
             k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
             only (the paper). Read by `submaps` only, so it is not in this stage's key.
@@ -83,13 +94,21 @@ class KeyframesConfig(StageConfig):
     dvl_topic: str | None = Field(None, min_length=1)
     imu_topic: str | None = Field(None, min_length=1)
     depth_topic: str | None = Field(None, min_length=1)
-    dvl_max_velocity_mps: float = Field(0.5, gt=0.0, le=50.0)
+    dvl_max_velocity_mps: float = Field(5.0, gt=0.0, le=50.0)
+    water_density_kg_m3: float = Field(1025.0, ge=900.0, le=1100.0)
+    gravity_m_s2: float = Field(9.80665, ge=9.7, le=9.9)
+    surface_pressure_pa: float | None = Field(None, ge=50_000.0, le=120_000.0)
+    surface_pressure_from_first_s: float | None = Field(None, gt=0.0, le=3600.0)
     image_fov_deg: float = Field(130.0, gt=0.0, le=360.0)
     image_max_range_m: float = Field(30.0, gt=0.0, le=1000.0)
-    horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.0)
-    horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (0.0, 0.0, 0.0)
-    vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.1)
-    vertical_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (90.0, 0.0, 0.0)
+    base_frame: str = Field("base_link", min_length=1, max_length=200)
+    horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
+    horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
+    vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
+    vertical_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
+    dvl_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
+    dvl_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
+    imu_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
     submap_stride: int = Field(0, ge=0, le=10000)
 
 
@@ -308,7 +327,10 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         s: {"T_base_sonar": np.asarray(mounts[s], np.float64).round(12).tolist()}
         for s in ("horizontal", "vertical")
     }
+    # Where each role's topic, frame and mount came from (recording, config or default).
+    provenance = getattr(rec, "provenance", None)
     sensors.update(
+        provenance=provenance() if callable(provenance) else {},
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),
         source={**{k2: v for k2, v in rec.describe().items() if k2 != "path"}, "name": rec.name},

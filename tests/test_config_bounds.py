@@ -74,7 +74,11 @@ def _override(dotted: str, index: int | None, value: str) -> list[str]:
     if index is None:
         return [*extra, f"{dotted}={value}"]
     section, name = dotted.split(".")
-    default = list(getattr(getattr(_default(), section), name))
+    current = getattr(getattr(_default(), section), name)
+    if current is None:  # unset (e.g. a mount taken from the recording): any valid tuple
+        kind, _ = _scalar(dict(_sections())[section].model_fields[name].annotation)
+        current = [0] * len(typing.get_args(kind))
+    default = list(current)
     items = [repr(v) for v in default]
     items[index] = value
     return [*extra, f"{dotted}=[{', '.join(items)}]"]

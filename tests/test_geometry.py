@@ -303,7 +303,7 @@ def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path
     from mcap.reader import make_reader
 
     from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-    from schemas.topics import FRAME_BASE, FRAME_SONAR, TOPIC_TF_STATIC
+    from schemas.topics import FRAME_BASE, TOPIC_TF_STATIC
 
     plain, out = tmp_path / "plain.mcap", tmp_path / "rec.mcap"
     write_recording(plain, n_pings=4)
@@ -312,7 +312,7 @@ def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path
         header=t["std_msgs/msg/Header"](
             stamp=t["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id=FRAME_BASE
         ),
-        child_frame_id=FRAME_SONAR["horizontal"],
+        child_frame_id="sonar",  # the frame_id of the synthetic recording's sonar images
         transform=t["geometry_msgs/msg/Transform"](
             translation=t["geometry_msgs/msg/Vector3"](x=xyz[0], y=xyz[1], z=xyz[2]),
             rotation=t["geometry_msgs/msg/Quaternion"](x=quat[0], y=quat[1], z=quat[2], w=quat[3]),
@@ -364,6 +364,6 @@ def test_a_tf_static_mounting_without_a_pose_is_refused(
 
     path = _with_tf_static(tmp_path, quat, xyz)
     with pytest.raises(
-        SourceError, match=rf"rec\.mcap: /tf_static: .*sonar_horizontal: .*{reason}"
+        SourceError, match=rf"rec\.mcap: /tf_static: .*-> sonar: .*{reason}"
     ):
         _mountings(path)

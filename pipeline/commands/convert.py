@@ -3,8 +3,9 @@
 Sonars become `marine_acoustic_msgs/msg/ProjectedSonarImage` on /sonar/horizontal and
 /sonar/vertical (with their label/truth images when present), navigation becomes
 `nav_msgs/msg/Odometry` on /odometry/dead_reckoning (dead reckoning computed when the
-input has only DVL + IMU + depth), ground truth on /ground_truth/odometry, mountings on
-/tf_static, attachments copied. Streaming: memory does not grow with the recording.
+input has only DVL + IMU + depth), ground truth on /ground_truth/odometry, the sonar
+mounts the recording (or config) gives on /tf_static (base_link -> sonar_*, chains
+composed; a sonar without one gets none, never a default), attachments copied. Streaming: memory does not grow with the recording.
 """
 
 from __future__ import annotations
@@ -158,6 +159,7 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
         "format": source.kind,
         "roles": roles.as_dict(),
         "topics": dict(sorted(counts.items())),
+        "provenance": rec.provenance(),
         "warnings": list(source.warnings),
     }
 
@@ -179,9 +181,10 @@ def _write(
     with recording_writer(f) as w:
         for t, _, topic, typ, msg in heapq.merge(*streams, key=lambda e: (e[0], e[1])):
             if first:
-                mounts = {s: rec.mountings()[s] for s in roles.sonar}
-                w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
-                counts[TOPIC_TF_STATIC] = 1
+                mounts = _recorded_mounts(rec, roles)
+                if mounts:
+                    w.write(TOPIC_TF_STATIC, "tf2_msgs/msg/TFMessage", _tf_static(t, mounts), t)
+                    counts[TOPIC_TF_STATIC] = 1
                 first = False
             if isinstance(msg, bytes):
                 w.write_raw(topic, typ, msg, t)
@@ -191,6 +194,30 @@ def _write(
         for name, data in sorted(rec.attachments().items()):
             w.add_attachment(name, data, "application/octet-stream")
         w.add_metadata("sonarmap.convert", {"source": src.name, "format": kind})
+
+
+def _recorded_mounts(rec: Any, roles: Any) -> dict[str, Any]:
+    """The sonar mounts the recording (or the user's config) gives: a default mount is not
+    written, so mount settings on the converted file still apply (it has none to override)."""
+    mounts = rec.mountings()
+    provenance = rec.provenance()
+    return {
+        s: mounts[s]
+        for s in roles.sonar
+        if "default" not in (provenance[f"{s}_sonar"].get(f"mount_{p}") for p in ("xyz", "rpy"))
+    }
+
+
+def _vector(item: str, value: str) -> Any:
+    """`[x, y, z]` -> a tuple of floats (a mount); any other text stays a string."""
+    from pipeline.engine.errors import ConfigError
+
+    if not value.strip().startswith("["):
+        return value
+    try:
+        return tuple(float(v) for v in value.strip()[1:-1].split(","))
+    except ValueError:
+        raise ConfigError(f"--set {item[:80]!r}: expected [x, y, z] numbers") from None
 
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:
@@ -207,7 +234,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
         try:
             out[key] = float(value)
         except ValueError:
-            out[key] = value
+            out[key] = _vector(item, value)
     return out
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -43,12 +44,44 @@ def run(
                 on_start=progress.on_start,
                 on_stage=progress.on_stage,
             )
+        sensors = _sensors(result)
         if json_:
-            emit_json({**result.to_json(), "summary": summary})
+            emit_json({**result.to_json(), "summary": {**summary, **sensors}})
             return
         from pipeline.report_cli import print_summary
 
         print_summary(result, summary)
+        _print_sensors(sensors)
+
+
+def _sensors(result: Any) -> dict[str, Any]:
+    """Where each role's topic, frame and values came from, and the reader's warnings
+    (substitutions and drops, with counts), from the keyframes artifact's sensors.json."""
+    import json
+
+    ref = result.artifacts.get("keyframes")
+    path = None if ref is None else Path(ref.path) / "sensors.json"
+    if path is None or not path.is_file():
+        return {}
+    doc = json.loads(path.read_text())
+    return {
+        "provenance": doc.get("provenance", {}),
+        "reader_warnings": (doc.get("source") or {}).get("warnings", []),
+    }
+
+
+def _print_sensors(sensors: dict[str, Any]) -> None:
+    """One line per role: topic [type], frame and the source of its values."""
+    for role, info in sorted((sensors.get("provenance") or {}).items()):
+        parts = [f"{info.get('topic') or '-'}"]
+        if info.get("frame"):
+            parts.append(f"frame {info['frame']}")
+        sources = {k: v for k, v in info.items() if k.startswith("mount_") or k == "source"}
+        sources.update({k: v for k, v in info.items() if k == "surface_pressure"})
+        parts += [f"{k} from {v}" for k, v in sorted(sources.items())]
+        typer.echo(f"{role}: " + ", ".join(parts))
+    for line in sensors.get("reader_warnings") or []:
+        typer.echo(f"reader warning: {line}")
 
 
 def register(app: typer.Typer) -> None:

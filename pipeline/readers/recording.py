@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from pipeline.engine.errors import SourceError
+from pipeline.readers.dead_reckoning import NavigationSensors
 from pipeline.readers.geometry_checks import (
     MAX_JUMP_M,
     MAX_SPEED_MPS,
@@ -18,16 +19,18 @@ from pipeline.readers.geometry_checks import (
     navigation_jump,
     valid_pose_rows,
 )
-from pipeline.readers.navigation import dead_reckon, nav_pose, pose_track_rows
+from pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
+from pipeline.readers.navigation import nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
 from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
 from pipeline.readers.source_types import Source
+from pipeline.readers.tf_tree import TfTree
 from schemas.recording import PoseTrack
 from schemas.sonar import SonarPing, beam_angles_from_directions
-from schemas.topics import FRAME_BASE, FRAME_SONAR, SONARS
-from stages.kernels.geometry import matrix_from_quat, matrix_from_rpy, se3
+from schemas.topics import FRAME_BASE
+from stages.kernels.geometry import matrix_from_quat, se3
 
-__all__ = ["ReaderOptions", "SourceRecording", "mounting_matrix"]
+__all__ = ["DEFAULT_SONAR_MOUNTS", "ReaderOptions", "SourceRecording", "mounting_matrix"]
 
 log = logging.getLogger(__name__)
 
@@ -38,8 +41,9 @@ class ReaderOptions:
     `stages.keyframes.KeyframesConfig`'s).
 
     Defaults: topics found by type; polar-image beam table 130 deg over 30 m (the
-    paper's Oculus settings); the authors' DVL gate 0.5 m/s; the project's default
-    sonar mountings (DESIGN conventions) when the recording has no /tf_static.
+    paper's Oculus settings); DVL samples above 5 m/s dropped as implausible; mounts
+    from the recording's tf tree, else the project's default sonar mountings (DESIGN
+    conventions, `DEFAULT_SONAR_MOUNTS`) with a warning.
     """
 
     horizontal_topic: str | None
@@ -52,10 +56,18 @@ class ReaderOptions:
     dvl_max_velocity_mps: float
     image_fov_deg: float
     image_max_range_m: float
-    horizontal_mount_xyz_m: tuple[float, float, float]
-    horizontal_mount_rpy_deg: tuple[float, float, float]
-    vertical_mount_xyz_m: tuple[float, float, float]
-    vertical_mount_rpy_deg: tuple[float, float, float]
+    horizontal_mount_xyz_m: tuple[float, float, float] | None
+    horizontal_mount_rpy_deg: tuple[float, float, float] | None
+    vertical_mount_xyz_m: tuple[float, float, float] | None
+    vertical_mount_rpy_deg: tuple[float, float, float] | None
+    water_density_kg_m3: float = 1025.0
+    gravity_m_s2: float = 9.80665
+    surface_pressure_pa: float | None = None
+    surface_pressure_from_first_s: float | None = None
+    base_frame: str = FRAME_BASE
+    dvl_mount_xyz_m: tuple[float, float, float] | None = None
+    dvl_mount_rpy_deg: tuple[float, float, float] | None = None
+    imu_mount_rpy_deg: tuple[float, float, float] | None = None
 
     @classmethod
     def from_config(cls, config: Any) -> ReaderOptions:
@@ -76,16 +88,11 @@ class ReaderOptions:
         return cls(**kwargs)
 
 
-def mounting_matrix(xyz: Sequence[float], rpy_rad: Sequence[float]) -> np.ndarray:
-    """(4, 4) T_parent_child from a translation [m] and roll/pitch/yaw [rad] (R = Rz Ry Rx)."""
-    return se3(matrix_from_rpy(rpy_rad), xyz)
-
-
 def _floats(values: np.ndarray) -> str:
     return ", ".join(f"{v:.6g}" for v in values.tolist())
 
 
-class SourceRecording:
+class SourceRecording(NavigationSensors):
     """The keyframes stage's view of a recording (implements `schemas.recording.Recording`)."""
 
     def __init__(self, source: Source, options: ReaderOptions, roles: Roles | None = None) -> None:
@@ -97,6 +104,9 @@ class SourceRecording:
         self._nav: PoseTrack | None = None
         self._pose_tracks: dict[str, PoseTrack] | None = None
         self._ping_times: dict[str, np.ndarray] = {}
+        self._mounts: dict[str, np.ndarray] | None = None
+        self._tf: TfTree | None = None
+        self._provenance: dict[str, Any] = {}
 
     def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
         """Pickles as its path, options and topic roles: a worker process reopens the
@@ -192,7 +202,11 @@ class SourceRecording:
     def navigation(self) -> PoseTrack:
         if self._nav is None:
             if self.roles.navigation is not None:
-                self._nav = self._tracks()[self.roles.navigation]
+                self._nav = self._with_depth(self._tracks()[self.roles.navigation])
+                self._provenance["navigation"] = {
+                    **self._role(self.roles.navigation),
+                    "source": "recording",
+                }
             elif self.roles.dvl is not None:
                 self._nav = self._dead_reckoning()
             else:
@@ -212,48 +226,6 @@ class SourceRecording:
                 f"{int(nav.t_ns[-1])} but no ping of {topic} (t_ns={int(t[0])}..{int(t[-1])}) "
                 "falls inside it, so no ping can be posed"
             )
-
-    def _dead_reckoning(self) -> PoseTrack:
-        dvl_t, dvl_v, imu_t, imu_q, dep_t, dep = [], [], [], [], [], []
-        topics = [t for t in (self.roles.dvl, self.roles.imu, self.roles.depth) if t]
-        for topic, t, m in self.source.messages(topics):
-            if topic == self.roles.dvl:
-                dvl_t.append(t)
-                dvl_v.append((m.velocity.x, m.velocity.y, m.velocity.z))
-            elif topic == self.roles.imu:
-                imu_t.append(t)
-                imu_q.append((m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w))
-            else:
-                dep_t.append(t)
-                dep.append(m.depth)
-        if not dvl_t or not imu_t:
-            raise SourceError(
-                f"{self.source.path}: DVL {self.roles.dvl} or IMU {self.roles.imu} has no messages"
-            )
-        # Bad IMU and depth samples are dropped (a non-finite DVL velocity is gated).
-        q = np.asarray(imu_q, np.float64).reshape(-1, 4)
-        ok_q = valid_pose_rows(np.zeros((len(q), 3)), q)
-        dep_a = np.asarray(dep, np.float64)
-        ok_d = np.isfinite(dep_a)
-        for name, ok in ((self.roles.imu, ok_q), (self.roles.depth, ok_d)):
-            if len(ok) and not ok.any():
-                raise SourceError(
-                    f"{self.source.path}: {name}: none of the {len(ok)} samples is finite"
-                )
-            if not ok.all():
-                self._warn(
-                    f"{self.source.path}: {name}: dropped {len(ok) - int(ok.sum())} of "
-                    f"{len(ok)} samples (non-finite values or a zero quaternion)"
-                )
-        return dead_reckon(
-            np.asarray(dvl_t, np.int64),
-            np.asarray(dvl_v),
-            np.asarray(imu_t, np.int64)[ok_q],
-            q[ok_q],
-            np.asarray(dep_t, np.int64)[ok_d],
-            dep_a[ok_d],
-            self.options.dvl_max_velocity_mps,
-        )
 
     def ground_truth(self) -> PoseTrack | None:
         return None if self.roles.ground_truth is None else self._tracks()[self.roles.ground_truth]
@@ -324,33 +296,31 @@ class SourceRecording:
         n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
         return np.arange(n)[::-1]
 
-    def mountings(self) -> dict[str, np.ndarray]:
-        o = self.options
-        out = {
-            s: mounting_matrix(
-                getattr(o, f"{s}_mount_xyz_m"), np.deg2rad(getattr(o, f"{s}_mount_rpy_deg"))
-            )
-            for s in SONARS
-        }
-        if self.roles.tf_static is None:
-            return out
-        for _, _, msg in self.source.messages([self.roles.tf_static]):
-            for tf in msg.transforms:
-                for s in SONARS:
-                    if (
-                        tf.header.frame_id.lstrip("/") == FRAME_BASE
-                        and tf.child_frame_id.lstrip("/") == FRAME_SONAR[s]
-                    ):
-                        out[s] = self._mounting(tf)
-        return out
+    def tf_tree(self) -> TfTree:
+        """The recording's /tf_static tree (and /tf, whose first value of each edge is used)."""
+        if self._tf is None:
+            tree = TfTree()
+            topics = [t for t in (self.roles.tf_static, self.roles.tf) if t]
+            for topic, _, msg in self.source.messages(topics):
+                for tf in msg.transforms:
+                    T = self._mounting(tf, topic)
+                    tree.add(tf.header.frame_id, tf.child_frame_id, T)
+            if tree.changing:
+                self._warn(
+                    f"{self.source.path}: /tf: {len(tree.changing)} transforms change during "
+                    f"the recording ({', '.join(f'{a}->{b}' for a, b in sorted(tree.changing)[:3])}"
+                    "); their first value is used as a fixed mount"
+                )
+            self._tf = tree
+        return self._tf
 
-    def _mounting(self, tf: Any) -> np.ndarray:
-        """(4, 4) T_base_sonar of a /tf_static transform; a rotation quaternion of zero or
-        non-finite norm, or a non-finite translation, is refused (it would place every
-        point of that sonar nowhere)."""
+    def _mounting(self, tf: Any, topic: str) -> np.ndarray:
+        """(4, 4) T_parent_child of a /tf or /tf_static transform; a rotation quaternion of
+        zero or non-finite norm, or a non-finite translation, is refused (it would place
+        every point of a sensor below it nowhere)."""
         q, tr = tf.transform.rotation, tf.transform.translation
         xyz = np.array([tr.x, tr.y, tr.z], np.float64)
-        where = f"{self.source.path}: {self.roles.tf_static}: transform {FRAME_BASE} -> "
+        where = f"{self.source.path}: {topic}: transform {tf.header.frame_id.lstrip('/')} -> "
         where += tf.child_frame_id.lstrip("/")
         if not np.all(np.isfinite(xyz)):
             raise SourceError(f"{where}: translation is not finite ({_floats(xyz)})")

@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.engine.errors import SourceError
+from pipeline.readers.depth import FLUID_PRESSURE_TYPE
+from pipeline.readers.dvl import TWIST_TYPES, is_dvl_type
 from pipeline.readers.navigation import NAV_TYPES
 from pipeline.readers.sonar_decode import IMAGE_SONAR_TYPES, SONAR_TYPES
 from pipeline.readers.source_types import TopicInfo
@@ -26,6 +28,7 @@ _HINTS = {
 }
 _GT_HINTS = ("ground_truth", "groundtruth", "gt_")
 IMU_TYPE = "sensor_msgs/msg/Imu"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
 
 
 @dataclass
@@ -41,13 +44,14 @@ class Roles:
     imu: str | None = None
     depth: str | None = None
     tf_static: str | None = None
+    tf: str | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-able {role: topic}."""
         out: dict[str, Any] = {f"{s}_sonar": t for s, t in self.sonar.items()}
         out.update({f"{s}_labels": t for s, t in self.labels.items()})
         out.update({f"{s}_truth_angle": t for s, t in self.truth_angle.items()})
-        for key in ("navigation", "ground_truth", "dvl", "imu", "depth", "tf_static"):
+        for key in ("navigation", "ground_truth", "dvl", "imu", "depth", "tf_static", "tf"):
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
         return out
@@ -136,6 +140,10 @@ def _navigation(
         gt = [t for t in nav if any(h in t.lower() for h in _GT_HINTS)]
         if TOPIC_GROUND_TRUTH in gt or len(gt) == 1:
             roles.ground_truth = TOPIC_GROUND_TRUTH if TOPIC_GROUND_TRUTH in gt else gt[0]
+    # A configured depth topic replaces the navigation's z; it must exist either way.
+    depth = getattr(options, "depth_topic", None)
+    if depth:
+        roles.depth = _pick(path, topics, options, "depth_topic", _any_depth)
     if getattr(options, "navigation_topic", None):
         roles.navigation = _configured(
             path, topics, options.navigation_topic, NAV_TYPES, "navigation_topic"
@@ -149,7 +157,7 @@ def _navigation(
         raise _fail(
             path, listing, f"{len(nav)} candidate navigation topics {nav}", "navigation_topic"
         )
-    _dead_reckoning_inputs(topics, options, roles)
+    _dead_reckoning_inputs(path, topics, options, roles)
     if roles.dvl is None and require:
         raise _fail(
             path,
@@ -160,19 +168,64 @@ def _navigation(
         )
 
 
-def _dead_reckoning_inputs(topics: dict[str, TopicInfo], options: Any, roles: Roles) -> None:
-    def pick(key: str, match: Any) -> str | None:
-        configured = getattr(options, key, None)
-        if configured:
-            return str(configured) if configured in topics else None
-        found = [t for t, i in topics.items() if match(i.msgtype)]
-        return found[0] if len(found) == 1 else None
+def _missing(
+    path: Path, topics: dict[str, TopicInfo], key: str, name: str, fits: Any
+) -> SourceError:
+    """A configured topic that is not in the recording: name it and list the candidates."""
+    candidates = [t for t, i in topics.items() if fits(t, i.msgtype)]
+    listing = ", ".join(f"{t} [{topics[t].msgtype}]" for t in candidates) or "none"
+    return SourceError(
+        f"{path}: keyframes.{key}: topic {name} is not in the recording "
+        f"(candidates: {listing}; all topics: {len(topics)})"
+    )
 
-    dvl = pick("dvl_topic", lambda m: m.split("/")[-1] in ("DVL", "BottomTrack"))
-    imu = pick("imu_topic", lambda m: m == IMU_TYPE)
+
+def _is_dvl(topic: str, msgtype: str) -> bool:
+    return is_dvl_type(msgtype) or (msgtype in TWIST_TYPES and "dvl" in topic.lower())
+
+
+def _is_depth(topic: str, msgtype: str) -> bool:
+    return msgtype == FLUID_PRESSURE_TYPE or msgtype.split("/")[-1] == "Depth"
+
+
+def _is_imu(topic: str, msgtype: str) -> bool:
+    return msgtype == IMU_TYPE
+
+
+def _any_depth(topic: str, msgtype: str) -> bool:
+    """Candidates for a configured depth topic: depth/pressure messages and poses."""
+    return _is_depth(topic, msgtype) or msgtype in NAV_TYPES
+
+
+def _pick(
+    path: Path, topics: dict[str, TopicInfo], options: Any, key: str, fits: Any
+) -> str | None:
+    """A role's topic: the configured one (which must exist), else the only candidate."""
+    configured = getattr(options, key, None)
+    if configured:
+        if configured not in topics:
+            raise _missing(path, topics, key, str(configured), fits)
+        return str(configured)
+    found = [t for t, i in topics.items() if fits(t, i.msgtype)]
+    if len(found) > 1:
+        raise _fail(path, list(topics.values()), f"{len(found)} candidate topics {found}", key)
+    return found[0] if found else None
+
+
+def _dead_reckoning_inputs(
+    path: Path, topics: dict[str, TopicInfo], options: Any, roles: Roles
+) -> None:
+    dvl = _pick(path, topics, options, "dvl_topic", _is_dvl)
+    imu = _pick(path, topics, options, "imu_topic", _is_imu)
     if dvl and imu:
         roles.dvl, roles.imu = dvl, imu
-        roles.depth = pick("depth_topic", lambda m: m.split("/")[-1] == "Depth")
+        roles.depth = _pick(
+            path,
+            topics,
+            options,
+            "depth_topic",
+            _any_depth if getattr(options, "depth_topic", None) else _is_depth,
+        )
 
 
 def detect_roles(
@@ -199,4 +252,6 @@ def detect_roles(
     _navigation(path, by_name, options, roles, require_pair)
     if TOPIC_TF_STATIC in by_name:
         roles.tf_static = TOPIC_TF_STATIC
+    if "/tf" in by_name and by_name["/tf"].msgtype == TF_TYPE:
+        roles.tf = "/tf"
     return roles

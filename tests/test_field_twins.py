@@ -1,0 +1,325 @@
+"""Field twins: one simulated mission re-encoded the way real vehicles' drivers publish
+it (rosbag2, renamed topics and frames, a two-link tf chain, DVL + IMU + FluidPressure in
+their own mounted frames, an Odometry-only navigation) maps, with no config at all, to the
+same world as the canonical recording: keyframe depth within 0.10 m, fused-map voxels
+overlapping the canonical ones (IoU >= 0.8)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from rosbags.rosbag2 import StoragePlugin, Writer
+from scipy.spatial.transform import Rotation
+
+ROOT = Path(__file__).resolve().parents[1]
+VOXEL_M = 0.1
+SCENE = "moorings"
+P_ATM = 101_325.0
+RHO_G = 1025.0 * 9.80665
+"""The reader's defaults: the twins carry no config."""
+
+H_TOPIC, V_TOPIC = "/oculus_m750d/sonar_image", "/oculus_m1200d/sonar_image"
+H_FRAME, V_FRAME = "m750d_link", "m1200d_link"
+T_BASE_MOUNT = np.eye(4)
+T_BASE_MOUNT[:3, :3] = Rotation.from_euler("xyz", [0.0, 0.1, 0.3]).as_matrix()
+T_BASE_MOUNT[:3, 3] = (0.35, -0.05, 0.12)
+"""base_link -> sonar_mount: the bracket both sonars hang from (tilted, offset)."""
+DVL_RPY, DVL_XYZ = (180.0, 0.0, 45.0), (-0.2, 0.1, -0.15)
+IMU_RPY = (180.0, 0.0, -90.0)
+
+
+@dataclass
+class Canonical:
+    path: Path
+    run: Any
+    world: set[tuple[int, int, int]]
+    keyframes: Any
+
+
+def _engine(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> dict[str, Path]:
+    """keyframes -> features -> fuse on `dataset`; artifact directory per stage."""
+    from pipeline.engine.runner import execute, plan
+    from pipeline.engine.session import make_context
+    from stages.features.stage import STAGE as FEATURES
+    from stages.fuse.stage import STAGE as FUSE
+    from stages.keyframes import STAGE as KEYFRAMES
+
+    ctx = make_context(
+        dataset, stages=[KEYFRAMES, FEATURES, FUSE], overrides=overrides, store_dir=store
+    )
+    result = execute(plan(ctx.stages, ctx.config, ctx.dataset, ctx.store), *_rest(ctx))
+    return {r.stage: Path(r.path) for r in result.stages}
+
+
+def _rest(ctx: Any) -> tuple[Any, Any, Any]:
+    return ctx.config, ctx.dataset, ctx.store
+
+
+def _pose_matrices(kf: Any) -> np.ndarray:
+    cols = ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"]
+    p = np.column_stack([kf[c].to_numpy() for c in cols])
+    T = np.tile(np.eye(4), (len(p), 1, 1))
+    T[:, :3, :3] = Rotation.from_euler("ZYX", p[:, [5, 4, 3]]).as_matrix()
+    T[:, :3, 3] = p[:, :3]
+    return T
+
+
+def _fused_world(arts: dict[str, Path], align: np.ndarray | None = None) -> np.ndarray:
+    """Fused points in the world: keyframe pose @ the artifact's horizontal mount @ point."""
+    kf = pq.read_table(arts["keyframes"] / "keyframes.parquet")
+    sensors = json.loads((arts["keyframes"] / "sensors.json").read_text())
+    T_bs = np.asarray(sensors["horizontal"]["T_base_sonar"])
+    fused = pq.read_table(arts["fuse"] / "fused.parquet")
+    T_wb = _pose_matrices(kf)
+    if align is not None:
+        T_wb = align @ T_wb
+    T = T_wb[fused["keyframe_id"].to_numpy()] @ T_bs
+    p = np.column_stack([fused[c].to_numpy() for c in ("x_m", "y_m", "z_m")])
+    return np.einsum("nij,nj->ni", T[:, :3, :3], p) + T[:, :3, 3]
+
+
+def _voxels(points: np.ndarray) -> set[tuple[int, int, int]]:
+    return set(map(tuple, np.floor(points / VOXEL_M).astype(np.int64).tolist()))
+
+
+def _iou(a: set[Any], b: set[Any]) -> float:
+    return len(a & b) / max(len(a | b), 1)
+
+
+@pytest.fixture(scope="module")
+def canonical(tmp_path_factory: pytest.TempPathFactory) -> Canonical:
+    from pipeline.formats.simulation import write_simulation
+    from sim.config import SimConfig
+    from sim.dataset import simulate
+    from sim.scene import load_scene
+
+    scene = ROOT / "configs" / "scenes" / f"{SCENE}.yaml"
+    base = SimConfig()
+    mission = base.mission.model_copy(update={"n_goals": 2, "duration_s": 30.0})
+    run = simulate(load_scene(scene), base.model_copy(update={"mission": mission}), 3)
+    tmp = tmp_path_factory.mktemp("twins")
+    path = tmp / "canonical.mcap"
+    write_simulation(run, path, scene_yaml=scene.read_text())
+    arts = _engine(path, tmp / "store")
+    kf = pq.read_table(arts["keyframes"] / "keyframes.parquet")
+    assert len(kf) >= 5
+    return Canonical(path, run, _voxels(_fused_world(arts)), kf)
+
+
+# --- re-encoding as drivers publish ------------------------------------------------------
+
+
+def _types() -> Any:
+    from pipeline.formats.rosmsg import ros2_typestore
+
+    return ros2_typestore()
+
+
+def _header(t: Any, t_ns: int, frame: str) -> Any:
+    stamp = t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
+
+
+def _vec(t: Any, v: Any) -> Any:
+    return t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+
+def _tf(t: Any, t_ns: int, parent: str, child: str, T: np.ndarray) -> Any:
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    return t["geometry_msgs/msg/TransformStamped"](
+        header=_header(t, t_ns, parent),
+        child_frame_id=child,
+        transform=t["geometry_msgs/msg/Transform"](
+            translation=_vec(t, T[:3, 3]),
+            rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+        ),
+    )
+
+
+def _mount(rpy_deg: Any, xyz: Any) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", np.deg2rad(rpy_deg)).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+def _nav_samples(run: Any, rate_hz: float = 10.0) -> dict[str, np.ndarray]:
+    """The canonical dead-reckoning motion at `rate_hz`: time, position, yaw, body
+    velocity and yaw rate (the same motion the canonical Odometry carries)."""
+    t_p = run.trajectory["t_ns"]
+    dr = run.trajectory["dr_pose"]
+    t = np.arange(t_p[0], t_p[-1] + 1, round(1e9 / rate_hz), dtype=np.int64)
+    rel, rel_p = (t - t_p[0]) * 1e-9, (t_p - t_p[0]) * 1e-9
+    xyz = np.column_stack([np.interp(rel, rel_p, dr[:, i]) for i in range(3)])
+    yaw = np.interp(rel, rel_p, np.unwrap(dr[:, 5]))
+    v_w = np.zeros_like(xyz)
+    v_w[:-1] = np.diff(xyz, axis=0) * rate_hz
+    v_w[-1] = v_w[-2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    v_b = np.column_stack([c * v_w[:, 0] + s * v_w[:, 1], -s * v_w[:, 0] + c * v_w[:, 1], 0 * c])
+    rate = np.gradient(yaw, rel)
+    return {"t": t, "xyz": xyz, "yaw": yaw, "v_b": v_b, "yaw_rate": rate}
+
+
+def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
+    """Re-encode the canonical recording as a rosbag2 (MCAP storage) with the drivers'
+    names; `navigation` is "odometry" (a renamed Odometry) or "dvl" (DVL + IMU + Bar30)."""
+    from mcap.reader import make_reader
+
+    store = _types()
+    t = store.types
+    rename = {"/sonar/horizontal": (H_TOPIC, H_FRAME), "/sonar/vertical": (V_TOPIC, V_FRAME)}
+    mounts = canonical.run.T_base_sonar
+    events: list[tuple[int, str, str, Any]] = []
+    with canonical.path.open("rb") as f:
+        for schema, channel, m in make_reader(f).iter_messages():
+            if channel.topic in rename or (
+                navigation == "odometry" and channel.topic == "/odometry/dead_reckoning"
+            ):
+                msg = store.deserialize_cdr(m.data, schema.name)
+                topic, frame = rename.get(channel.topic, ("/bluerov2/odometry", ""))
+                if frame:
+                    msg.header.frame_id = frame
+                events.append((m.log_time, topic, schema.name, msg))
+    t0 = int(canonical.run.trajectory["t_ns"][0])
+    inv_mount = np.linalg.inv(T_BASE_MOUNT)
+    transforms = [
+        _tf(t, t0, "base_link", "sonar_mount", T_BASE_MOUNT),
+        _tf(t, t0, "sonar_mount", H_FRAME, inv_mount @ mounts["horizontal"]),
+        _tf(t, t0, "sonar_mount", V_FRAME, inv_mount @ mounts["vertical"]),
+    ]
+    if navigation == "dvl":
+        T_dvl, T_imu = _mount(DVL_RPY, DVL_XYZ), _mount(IMU_RPY, (0.0, 0.05, 0.02))
+        transforms += [
+            _tf(t, t0, "base_link", "dvl_link", T_dvl),
+            _tf(t, t0, "base_link", "imu_link", T_imu),
+        ]
+        events += _dvl_imu_pressure(t, _nav_samples(canonical.run), T_dvl, T_imu)
+    events.append(
+        (
+            t0,
+            "/tf_static",
+            "tf2_msgs/msg/TFMessage",
+            t["tf2_msgs/msg/TFMessage"](transforms=transforms),
+        )
+    )
+    events.sort(key=lambda e: (e[0], e[1]))
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns: dict[str, Any] = {}
+        for t_ns, topic, typ, msg in events:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=store)
+            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
+    return out
+
+
+def _dvl_imu_pressure(
+    t: Any, nav: dict[str, np.ndarray], T_dvl: np.ndarray, T_imu: np.ndarray
+) -> list[tuple[int, str, str, Any]]:
+    """DVL in its frame (mount rotation, lever arm), IMU attitude and rate in its frame,
+    absolute pressure of a Bar30 (Pa)."""
+    omega_b = np.column_stack([0 * nav["yaw_rate"], 0 * nav["yaw_rate"], nav["yaw_rate"]])
+    v_point = nav["v_b"] + np.cross(omega_b, T_dvl[:3, 3])
+    v_dvl = v_point @ T_dvl[:3, :3]  # R_base_dvl^T v
+    R_wb = Rotation.from_euler("z", nav["yaw"][:, None])
+    q_imu = (R_wb * Rotation.from_matrix(T_imu[:3, :3])).as_quat()
+    w_imu = omega_b @ T_imu[:3, :3]
+    pressure = P_ATM + RHO_G * -nav["xyz"][:, 2]
+    cov = np.zeros(36)
+    out = []
+    for k, t_ns in enumerate(nav["t"].tolist()):
+        twist = t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](
+                linear=_vec(t, v_dvl[k]), angular=_vec(t, (0.0, 0.0, 0.0))
+            ),
+            covariance=cov,
+        )
+        dvl = t["geometry_msgs/msg/TwistWithCovarianceStamped"](
+            header=_header(t, t_ns, "dvl_link"), twist=twist
+        )
+        q = q_imu[k]
+        imu = t["sensor_msgs/msg/Imu"](
+            header=_header(t, t_ns, "imu_link"),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
+            orientation_covariance=np.zeros(9),
+            angular_velocity=_vec(t, w_imu[k]),
+            angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=_vec(t, (0.0, 0.0, 9.81)),
+            linear_acceleration_covariance=np.zeros(9),
+        )
+        bar30 = t["sensor_msgs/msg/FluidPressure"](
+            header=_header(t, t_ns, "bar30_link"), fluid_pressure=float(pressure[k]), variance=0.0
+        )
+        out += [
+            (t_ns, "/dvl/twist", "geometry_msgs/msg/TwistWithCovarianceStamped", dvl),
+            (t_ns, "/mavros/imu/data", "sensor_msgs/msg/Imu", imu),
+            (t_ns, "/bar30/pressure", "sensor_msgs/msg/FluidPressure", bar30),
+        ]
+    return out
+
+
+def _compare(canonical: Canonical, arts: dict[str, Path], align: bool) -> tuple[float, float]:
+    """(largest keyframe depth difference [m], fused-map voxel IoU) against the canonical.
+    `align`: the twin's world starts at its first keyframe (dead reckoning has no
+    absolute origin), so it is moved onto the canonical's first keyframe."""
+    kf = pq.read_table(arts["keyframes"] / "keyframes.parquet")
+    ref = canonical.keyframes
+    t_ref = ref["t_ns"].to_numpy()
+    idx = np.clip(np.searchsorted(t_ref, kf["t_ns"].to_numpy()), 0, len(t_ref) - 1)
+    dz = np.abs(kf["z_m"].to_numpy() - ref["z_m"].to_numpy()[idx])
+    M = None
+    if align:
+        first = kf["t_ns"].to_numpy()[0]
+        assert first == t_ref[0]
+        M = _pose_matrices(ref.slice(0, 1))[0] @ np.linalg.inv(_pose_matrices(kf.slice(0, 1))[0])
+    return float(dz.max()), _iou(_voxels(_fused_world(arts, M)), canonical.world)
+
+
+# --- the targets ----------------------------------------------------------------------
+
+
+def test_odometry_twin_with_renamed_topics_frames_and_tf_chain_maps_the_same_world(
+    canonical: Canonical, tmp_path: Path
+) -> None:
+    twin = write_twin(canonical, tmp_path / "bluerov2_odom", "odometry")
+    arts = _engine(twin, tmp_path / "store")
+    dz, iou = _compare(canonical, arts, align=False)
+    assert dz <= 0.10 and iou >= 0.99, (dz, iou)
+    sensors = json.loads((arts["keyframes"] / "sensors.json").read_text())
+    for s in ("horizontal", "vertical"):
+        np.testing.assert_allclose(
+            sensors[s]["T_base_sonar"], canonical.run.T_base_sonar[s], atol=1e-9
+        )
+    prov = sensors["provenance"]
+    assert prov["horizontal_sonar"]["topic"] == H_TOPIC
+    assert prov["horizontal_sonar"]["tf_chain"] == ["base_link", "sonar_mount", H_FRAME]
+    assert (
+        prov["vertical_sonar"]["mount_xyz"] == prov["vertical_sonar"]["mount_rpy"] == ("recording")
+    )
+    assert prov["navigation"] == {
+        "topic": "/bluerov2/odometry",
+        "type": "nav_msgs/msg/Odometry",
+        "source": "recording",
+    }
+    assert sensors["source"]["warnings"] == []
+
+
+def test_dvl_imu_pressure_twin_in_mounted_frames_maps_the_same_world(
+    canonical: Canonical, tmp_path: Path
+) -> None:
+    twin = write_twin(canonical, tmp_path / "bluerov2_dvl", "dvl")
+    arts = _engine(twin, tmp_path / "store")
+    dz, iou = _compare(canonical, arts, align=True)
+    assert dz <= 0.10 and iou >= 0.8, (dz, iou)
+    prov = json.loads((arts["keyframes"] / "sensors.json").read_text())["provenance"]
+    assert prov["dvl"]["frame"] == "dvl_link" and prov["dvl"]["mount_xyz"] == "recording"
+    assert prov["imu"]["frame"] == "imu_link" and prov["imu"]["mount_rpy"] == "recording"
+    assert prov["depth"]["topic"] == "/bar30/pressure"
+    assert prov["depth"]["surface_pressure"] == "default"
+    assert prov["dvl"]["dropped"] == {}
