@@ -25,7 +25,8 @@ their dead-reckoning pose relative to it, T_world_kf T_kf_frame T_base_sonar; th
 `frame_id` column tells them from the keyframes' own points (-1).
 
 Outputs: `map` (`schemas.map.MAP_SCHEMA`), `voxels` (`VOXELS_SCHEMA`), `summary`
-(voxel and point counts), and each map as a binary PLY coloured by height.
+(voxel and point counts), and each map as a binary PLY coloured by height with vertex
+properties class_id, source and keyframe_id (`stages.kernels.map_codes`).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Output, Stage, StageConfig
 from stages.infer.config import DEFAULT_FRAME_KINDS
+from stages.kernels.map_codes import class_ids, source_ids
 from stages.ply import encode_points_ply
 from stages.voxelize.evidence import contradicted_by_fused
 from stages.voxelize.registration import (
@@ -336,6 +338,11 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             (x, y, z),
             height_colours(z, z_range),
             f"sonarmap {name} map, world frame, coloured by height",
+            {
+                "class_id": class_ids(t.column("class_name")),
+                "source": source_ids(t.column("source"), t.column("frame_id").to_numpy()),
+                "keyframe_id": t.column("keyframe_id").to_numpy().astype(np.int32),
+            },
         )
         del t, x, y, z
     summary = {
@@ -363,7 +370,7 @@ STAGE = Stage(
     name="voxelize",
     # 2: map.parquet gains frame_id; submap frames join the maps
     # 3: inferred beam-frame points that the fused points contradict are dropped
-    version=3,
+    version=4,  # 4: the PLYs gain vertex properties class_id, source, keyframe_id
     config=VoxelizeConfig,
     inputs=(
         "infer.points",
