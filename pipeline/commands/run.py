@@ -24,13 +24,18 @@ def register(app: typer.Typer) -> None:
         store: Path = STORE_OPT,
         json_: bool = JSON_OPT,
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
+        live: bool = typer.Option(
+            False, "--live", help="Serve each finished stage to Foxglove (WebSocket, 127.0.0.1)."
+        ),
+        live_port: int = typer.Option(8765, "--live-port", min=0, max=65535, help="0: any free."),
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
         from pipeline.api import RunRequest, run_dataset
         from pipeline.commands._errors import writes_under
         from pipeline.engine.progress import StageProgress
+        from pipeline.live.session import live_session
 
-        with writes_under(store):
+        with writes_under(store), live_session(live, port=live_port) as view:
             with StageProgress(enabled=not quiet) as progress:
                 request = RunRequest(
                     dataset,
@@ -43,7 +48,7 @@ def register(app: typer.Typer) -> None:
                 result, summary = run_dataset(
                     request,
                     on_start=progress.on_start,
-                    on_stage=progress.on_stage,
+                    on_stage=view.chain(progress.on_stage),
                 )
             if json_:
                 emit_json({**result.to_json(), "summary": summary})
