@@ -22,7 +22,8 @@ def register(app: typer.Typer) -> None:
         port: int = typer.Option(8765, "--port", min=0, max=65535, help="0: any free port."),
     ) -> None:
         """Serve the run of DATASET with this config (found as `status` finds it) to
-        Foxglove on ws://127.0.0.1:PORT until Ctrl-C; computes nothing."""
+        Foxglove on ws://127.0.0.1:PORT until Ctrl-C; computes nothing, and checks every
+        file against its manifest first."""
         from pipeline.api import RunRequest, plan_status
         from pipeline.engine.errors import SourceError
         from pipeline.engine.text import display_path
@@ -36,6 +37,12 @@ def register(app: typer.Typer) -> None:
                 f"{display_path(str(dataset))}: no finished stage for this config in store "
                 f"{display_path(str(store))}; run `sonarmap run` on it first"
             )
+        from pipeline.engine.integrity import verify_artifact_dir
+
+        for p in hits:  # a shared store's files are checked before anyone sees them
+            ref = ctx.store.get(p.stage.name, p.key)
+            if ref is not None:
+                verify_artifact_dir(ref.path, ref.manifest)
         with live_session(True, port=port) as session:
             assert session.feed is not None
             for p in hits:

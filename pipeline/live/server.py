@@ -112,8 +112,8 @@ class LiveServer:
                     self._stage(*item)
                 elif kind == "subscribe":
                     self._replay(item)
-            except Exception:  # a view must never take the run down with it
-                log.exception("live view: %s failed", kind)
+            except Exception as err:  # a view must never take the run down with it
+                log.warning("live view: %s not published (%s)", kind, str(err)[:200])
 
     def _stage(self, topics: tuple[str, ...], builder: Builder) -> None:
         if any(self._channels[t].has_sinks() for t in topics):

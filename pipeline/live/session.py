@@ -47,10 +47,10 @@ class LiveSession:
 
 @contextmanager
 def live_session(
-    enabled: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT
+    enabled: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, linger: bool = True
 ) -> Iterator[LiveSession]:
     """Start the live server when `enabled` and print `live: ws://HOST:PORT` on stderr;
-    when the block ends without an error, keep serving until Ctrl-C."""
+    when the block ends without an error and `linger`, keep serving until Ctrl-C."""
     if not enabled:
         yield LiveSession(None)
         return
@@ -67,6 +67,7 @@ def live_session(
         )
         session = LiveSession(LiveFeed(server, pipeline_stages()))
         yield session
-        session.serve_until_interrupted()  # only after a run that ended well
+        if linger:
+            session.serve_until_interrupted()  # only after a run that ended well
     finally:
         server.stop()

@@ -10,17 +10,20 @@ import numpy as np
 from schemas.sonar import KeyframeImages, SonarPing
 from stages.evaluate.foxglove_scene import SceneMessage, foxglove_messages, timestamp
 
-__all__ = ["FAN_HEIGHT_PX", "fan_image", "fan_messages"]
+__all__ = ["FAN_HEIGHT_PX", "fan_image", "fan_lookup", "fan_messages"]
 
 FAN_HEIGHT_PX = 256
 """Rows of a fan image: the sonar's maximum range spans them."""
 
 
-def fan_image(ping: SonarPing, height_px: int = FAN_HEIGHT_PX) -> np.ndarray:
-    """(height, width) uint8: the polar image drawn as its fan, sensor at the bottom
-    centre, range up, positive angles to the left; 0 outside the fan (nearest bin)."""
-    ranges = np.asarray(ping.ranges_m, np.float64)
-    angles = np.asarray(ping.angles_rad, np.float64)
+def fan_lookup(
+    ranges_m: np.ndarray, angles_rad: np.ndarray, height_px: int = FAN_HEIGHT_PX
+) -> tuple[np.ndarray, tuple[int, int]]:
+    """Where each fan pixel reads the polar image: (height * width,) flat index into the
+    (n_ranges, n_beams) image, -1 outside the fan (nearest bin), and the fan's shape.
+    Sensor at the bottom centre, range up, positive angles to the left."""
+    ranges = np.asarray(ranges_m, np.float64)
+    angles = np.asarray(angles_rad, np.float64)
     r_max = float(ranges[-1]) if ranges.size else 1.0
     res = r_max / max(height_px - 1, 1)
     half = float(np.max(np.abs(angles))) if angles.size else 0.0
@@ -36,17 +39,33 @@ def fan_image(ping: SonarPing, height_px: int = FAN_HEIGHT_PX) -> np.ndarray:
     ai = np.where(np.abs(angles[ai - 1] - a) <= np.abs(angles[ai] - a), ai - 1, ai)
     step = float(np.median(np.diff(angles))) if len(angles) > 1 else 0.0
     inside = (r >= ranges[0]) & (r <= r_max) & (a >= angles[0] - step) & (a <= angles[-1] + step)
-    image = np.asarray(ping.image, np.uint8)
-    return np.where(inside, image[ri, ai], 0).astype(np.uint8)
+    flat = np.where(inside, ri * len(angles) + ai, -1).reshape(-1)
+    return flat, (height_px, len(cols))
+
+
+def fan_image(ping: SonarPing, height_px: int = FAN_HEIGHT_PX) -> np.ndarray:
+    """(height, width) uint8: the polar image drawn as its fan (`fan_lookup`), 0 outside."""
+    flat, shape = fan_lookup(ping.ranges_m, ping.angles_rad, height_px)
+    return _draw(np.asarray(ping.image, np.uint8), flat, shape)
+
+
+def _draw(image: np.ndarray, flat: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    padded = np.append(image.reshape(-1), np.uint8(0))  # index -1 reads the 0 appended
+    return padded[flat].reshape(shape)
 
 
 def fan_messages(frames: Iterable[KeyframeImages]) -> list[SceneMessage]:
     """Each keyframe's horizontal and vertical image as a mono8 fan at its ping time."""
     fm = foxglove_messages()
     out = []
+    # a sonar's bins rarely change over a mission: one lookup per distinct geometry
+    lookups: dict[tuple[bytes, bytes], tuple[np.ndarray, tuple[int, int]]] = {}
     for kf in frames:
         for sonar, ping in (("horizontal", kf.horizontal), ("vertical", kf.vertical)):
-            img = fan_image(ping)
+            geometry = (np.asarray(ping.ranges_m).tobytes(), np.asarray(ping.angles_rad).tobytes())
+            if geometry not in lookups:
+                lookups[geometry] = fan_lookup(ping.ranges_m, ping.angles_rad)
+            img = _draw(np.asarray(ping.image, np.uint8), *lookups[geometry])
             msg = fm.RawImage(
                 timestamp=timestamp(ping.t_ns),
                 frame_id=f"sonar_{sonar}",
