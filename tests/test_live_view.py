@@ -165,3 +165,16 @@ def test_busy_port_is_refused_naming_it() -> None:
             LiveServer(port=first.port)
     finally:
         first.stop()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [["view", "r.mcap", "--port", "70000"], ["run", "r.mcap", "--live", "--live-port", "-1"]],
+)
+def test_port_out_of_range_is_one_line_exit_2(tmp_path: Path, args: list[str]) -> None:
+    (tmp_path / "r.mcap").write_bytes(b"")
+    args = [str(tmp_path / a) if a == "r.mcap" else a for a in args]
+    result = CliRunner().invoke(app, [*args, "--store", str(tmp_path / "s")])
+    assert result.exit_code == 2
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: --") and "port" in lines[0]

@@ -146,6 +146,17 @@ def _view_missing_file(work: Path) -> list[str]:
     return ["view", "rec.mcap", "--port", "0"]
 
 
+def _view_bad_set(work: Path) -> list[str]:
+    _fresh_run(work)
+    return ["view", "rec.mcap", "--set", "keyframes.spacing_m=-1", "--port", "0"]
+
+
+def _view_store_is_file(work: Path) -> list[str]:
+    _fresh_run(work)
+    (work / "store.txt").write_text("not a store")
+    return ["view", "rec.mcap", "--store", "store.txt", "--port", "0"]
+
+
 def _run_live_port_range(work: Path) -> list[str]:
     small_recording(work / "rec.mcap", seed=2, duration_s=45.0)
     return ["run", "rec.mcap", "--live", "--live-port", "-1"]
@@ -212,6 +223,8 @@ CASES: list[Case] = [
     Case("exit codes", "view: other config", _view_other_config, check=_names("rec.mcap")),
     Case("exit codes", "view: --port 70000", _view_port_range, check=_names("port")),
     Case("exit codes", "view: port busy", _view_port_busy, check=_names("cannot listen")),
+    Case("exit codes", "view: --set out of bounds", _view_bad_set, check=_names("spacing_m")),
+    Case("exit codes", "view: --store is a file", _view_store_is_file, check=_names("store.txt")),
     Case("exit codes", "run --live-port -1", _run_live_port_range, check=_names("live-port")),
     Case("exit codes", "run --live: port busy", _run_live_port_busy, check=_names("cannot listen")),
     Case(

@@ -19,7 +19,7 @@ def register(app: typer.Typer) -> None:
         config: Path | None = CONFIG_OPT,
         set_: list[str] | None = SET_OPT,
         store: Path = STORE_OPT,
-        port: int = typer.Option(8765, "--port", min=0, max=65535, help="0: any free port."),
+        port: int = typer.Option(8765, "--port", help="0: any free port."),
     ) -> None:
         """Serve the run of DATASET with this config (found as `status` finds it) to
         Foxglove on ws://127.0.0.1:PORT until Ctrl-C; computes nothing, and checks every
@@ -27,8 +27,9 @@ def register(app: typer.Typer) -> None:
         from pipeline.api import RunRequest, plan_status
         from pipeline.engine.errors import SourceError
         from pipeline.engine.text import display_path
-        from pipeline.live.session import live_session
+        from pipeline.live.session import check_port, live_session
 
+        check_port(port, "--port")
         request = RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store)
         ctx, planned, _model, unplanned = plan_status(request)
         hits = [p for p in planned if p.hit]
@@ -43,7 +44,7 @@ def register(app: typer.Typer) -> None:
             ref = ctx.store.get(p.stage.name, p.key)
             if ref is not None:
                 verify_artifact_dir(ref.path, ref.manifest)
-        with live_session(True, port=port) as session:
+        with live_session(True, port=port, option="--port") as session:
             assert session.feed is not None
             for p in hits:
                 session.feed.add(p.stage.name, ctx.store.artifact_dir(p.stage.name, p.key))

@@ -9,7 +9,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from typing import Any
 
-__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "LiveSession", "live_session"]
+__all__ = ["DEFAULT_HOST", "DEFAULT_PORT", "LiveSession", "check_port", "live_session"]
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8765
@@ -45,15 +45,29 @@ class LiveSession:
                 pass
 
 
+def check_port(port: int, option: str) -> None:
+    """ConfigError (exit 2) naming `option` unless 0 <= port <= 65535."""
+    if not 0 <= port <= 65535:
+        from pipeline.engine.errors import ConfigError
+
+        raise ConfigError(f"{option} {port}: a port is 0 (any free one) to 65535")
+
+
 @contextmanager
 def live_session(
-    enabled: bool, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, linger: bool = True
+    enabled: bool,
+    host: str = DEFAULT_HOST,
+    port: int = DEFAULT_PORT,
+    linger: bool = True,
+    option: str = "--live-port",
 ) -> Iterator[LiveSession]:
     """Start the live server when `enabled` and print `live: ws://HOST:PORT` on stderr;
-    when the block ends without an error and `linger`, keep serving until Ctrl-C."""
+    when the block ends without an error and `linger`, keep serving until Ctrl-C.
+    `option` names the port in the error for one out of range."""
     if not enabled:
         yield LiveSession(None)
         return
+    check_port(port, option)
     from pipeline.engine.registry import pipeline_stages
     from pipeline.live.feed import LiveFeed
     from pipeline.live.server import LiveServer
