@@ -9,7 +9,7 @@ maps again with each point's error.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -72,17 +72,17 @@ class _Reader:
         return int(max(keyframes.column("t_ns").to_pylist(), default=0))
 
 
-def _keyframes(read: _Reader) -> list[SceneMessage]:
+def _keyframes(read: _Reader) -> Iterator[SceneMessage]:
     from stages.evaluate.foxglove_images import fan_messages
     from stages.evaluate.foxglove_scene import mesh_messages, trajectory_messages
     from stages.ply import decode_mesh_ply
 
     keyframes = read("keyframes.keyframes")
-    out = [*fan_messages(read("keyframes.frames")), *trajectory_messages(keyframes, None)]
+    yield from trajectory_messages(keyframes, None)
     mesh = read("keyframes.scene_mesh")
     if mesh is not None:
-        out += mesh_messages(decode_mesh_ply(mesh), min(keyframes.column("t_ns").to_pylist()))
-    return out
+        yield from mesh_messages(decode_mesh_ply(mesh), min(keyframes.column("t_ns").to_pylist()))
+    yield from fan_messages(read("keyframes.frames"))
 
 
 def _fuse(read: _Reader) -> list[SceneMessage]:
@@ -118,7 +118,7 @@ _TRAJECTORIES = (
     "/trajectory/ground_truth",
 )
 _MAPS = ("/map/standard", "/map/semantic")
-_JOBS: dict[str, tuple[tuple[str, ...], Callable[[_Reader], list[SceneMessage]]]] = {
+_JOBS: dict[str, tuple[tuple[str, ...], Callable[[_Reader], Iterable[SceneMessage]]]] = {
     "keyframes": (
         ("/sonar/horizontal/fan", "/sonar/vertical/fan", "/ground_truth/mesh", *_TRAJECTORIES),
         _keyframes,

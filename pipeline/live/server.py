@@ -12,7 +12,8 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from foxglove.websocket import ServerListener
@@ -24,9 +25,11 @@ __all__ = ["Builder", "LiveServer"]
 
 log = logging.getLogger(__name__)
 
-Builder = Callable[[], Sequence[SceneMessage]]
+Builder = Callable[[], Iterable[SceneMessage]]
 """Builds one stage's messages from its artifacts (run on the server's worker thread)."""
 
+REPLAY_MAX = 200
+"""Messages per topic kept for a client that subscribes late (the latest)."""
 _SUBSCRIBE_WAIT_S = 2.0
 """How long a replay waits for the server to register a new subscription."""
 
@@ -123,17 +126,16 @@ class LiveServer:
             for t in topics:
                 self._pending[t] = builder
 
-    def _publish(self, messages: Sequence[SceneMessage]) -> None:
-        batches: dict[str, list[tuple[bytes, int]]] = {}
-        for m in messages:
-            batches.setdefault(m.topic, []).append((m.message.encode(), m.log_time_ns))
+    def _publish(self, messages: Iterable[SceneMessage]) -> None:
+        batches: dict[str, deque[tuple[bytes, int]]] = {}
+        for m in messages:  # logged as built: a long mission's images are never all held
+            data = m.message.encode()
+            batches.setdefault(m.topic, deque(maxlen=REPLAY_MAX)).append((data, m.log_time_ns))
+            self._channels[m.topic].log(data, log_time=m.log_time_ns)
         with self._lock:
             for topic, batch in batches.items():
-                self._latest[topic] = batch
+                self._latest[topic] = list(batch)
                 self._pending.pop(topic, None)
-        for topic, batch in batches.items():
-            for data, t in batch:
-                self._channels[topic].log(data, log_time=t)
 
     def _replay(self, topic: str) -> None:
         channel = self._channels.get(topic)

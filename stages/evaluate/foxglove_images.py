@@ -3,7 +3,7 @@ in Cartesian pixels as the sonar sees it, sensor at the bottom centre, range up.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 
 import numpy as np
 
@@ -54,14 +54,15 @@ def _draw(image: np.ndarray, flat: np.ndarray, shape: tuple[int, int]) -> np.nda
     return padded[flat].reshape(shape)
 
 
-def fan_messages(frames: Iterable[KeyframeImages]) -> list[SceneMessage]:
-    """Each keyframe's horizontal and vertical image as a mono8 fan at its ping time."""
+def fan_messages(frames: Iterable[KeyframeImages]) -> Iterator[SceneMessage]:
+    """Each keyframe's horizontal and vertical image as a mono8 fan at its ping time,
+    made as the frames are read (a keyframe's two in time order)."""
     fm = foxglove_messages()
-    out = []
     # a sonar's bins rarely change over a mission: one lookup per distinct geometry
     lookups: dict[tuple[bytes, bytes], tuple[np.ndarray, tuple[int, int]]] = {}
     for kf in frames:
-        for sonar, ping in (("horizontal", kf.horizontal), ("vertical", kf.vertical)):
+        pair = (("horizontal", kf.horizontal), ("vertical", kf.vertical))
+        for sonar, ping in sorted(pair, key=lambda p: (p[1].t_ns, p[0] == "vertical")):
             geometry = (np.asarray(ping.ranges_m).tobytes(), np.asarray(ping.angles_rad).tobytes())
             if geometry not in lookups:
                 lookups[geometry] = fan_lookup(ping.ranges_m, ping.angles_rad)
@@ -75,5 +76,4 @@ def fan_messages(frames: Iterable[KeyframeImages]) -> list[SceneMessage]:
                 step=img.shape[1],
                 data=img.tobytes(),
             )
-            out.append(SceneMessage(f"/sonar/{sonar}/fan", msg, int(ping.t_ns)))
-    return out
+            yield SceneMessage(f"/sonar/{sonar}/fan", msg, int(ping.t_ns))

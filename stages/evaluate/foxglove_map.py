@@ -3,6 +3,7 @@ with foxglove-sdk's MCAP writer into bytes (protobuf Foxglove schemas, zstd chun
 
 from __future__ import annotations
 
+import heapq
 import io
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -27,9 +28,17 @@ from stages.ply import Mesh
 __all__ = ["encode_map_mcap", "evaluate_map_mcap", "map_mcap"]
 
 
-def encode_map_mcap(messages: Sequence[SceneMessage], metadata: dict[str, str]) -> bytes:
+def encode_map_mcap(
+    messages: Sequence[SceneMessage],
+    metadata: dict[str, str],
+    stream: Iterable[SceneMessage] = (),
+) -> bytes:
     """An MCAP file (bytes) of the messages, written by foxglove-sdk with protobuf
-    Foxglove schemas; ordered by log time then topic, so same messages, same bytes."""
+    Foxglove schemas, ordered by log time then topic: same messages, same bytes.
+
+    `stream` (already in that order, e.g. one image per keyframe) is merged in as it is
+    read, so its messages are never all in memory at once.
+    """
     import foxglove
     import foxglove.messages
     from foxglove.mcap import MCAPWriteOptions
@@ -41,12 +50,16 @@ def encode_map_mcap(messages: Sequence[SceneMessage], metadata: dict[str, str]) 
     with foxglove.open_mcap(buffer, context=context, writer_options=options) as writer:
         writer.write_metadata("sonarmap_map", metadata)
         channels: dict[str, Any] = {}
-        for topic in sorted({m.topic for m in messages}, key=order.__getitem__):
-            schema = getattr(foxglove.messages, TOPIC_SCHEMAS[topic]).get_schema()
-            channels[topic] = foxglove.Channel(
-                topic, schema=schema, message_encoding="protobuf", context=context
-            )
-        for m in sorted(messages, key=lambda m: (m.log_time_ns, order[m.topic])):
+
+        def key(m: SceneMessage) -> tuple[int, int]:
+            return (m.log_time_ns, order[m.topic])
+
+        for m in heapq.merge(sorted(messages, key=key), stream, key=key):
+            if m.topic not in channels:  # created as first met: a deterministic order
+                schema = getattr(foxglove.messages, TOPIC_SCHEMAS[m.topic]).get_schema()
+                channels[m.topic] = foxglove.Channel(
+                    m.topic, schema=schema, message_encoding="protobuf", context=context
+                )
             channels[m.topic].log(m.message.encode(), log_time=m.log_time_ns)
     return buffer.getvalue()
 
@@ -69,7 +82,6 @@ def map_mcap(
         *map_messages(map_table, t_last, errors),
         *trajectory_messages(keyframes, poses),
         *(object_messages(objects, poses, T_base_sonar) if objects is not None else []),
-        *(fan_messages(frames) if frames is not None else []),
         *(mesh_messages(mesh, t_first) if mesh is not None else []),
     ]
     fused = pc.equal(map_table.column("source"), "fused")
@@ -80,7 +92,8 @@ def map_mcap(
         "keyframes": str(keyframes.num_rows),
         "has_error_field": str(errors is not None).lower(),
     }
-    return encode_map_mcap(messages, metadata)
+    images = fan_messages(frames) if frames is not None else ()
+    return encode_map_mcap(messages, metadata, images)
 
 
 def evaluate_map_mcap(
