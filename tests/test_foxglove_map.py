@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import io
 import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -24,7 +23,6 @@ from stages.evaluate.foxglove_map import map_mcap
 from stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
 from stages.ply import Mesh
 
-ROOT = Path(__file__).resolve().parent.parent
 K = 3
 T0 = 1_700_000_000_000_000_000
 
@@ -221,10 +219,19 @@ def test_fan_image_puts_a_bright_bin_where_its_range_and_bearing_fall() -> None:
     assert fan[0, 0] == 0 and fan[-1, centre] == 0  # outside the fan, below min range
 
 
-def test_layout_names_topics_the_map_has() -> None:
-    layout = json.loads((ROOT / "configs" / "foxglove" / "sonarmap-layout.json").read_text())
-    text = json.dumps(layout)
-    for topic in ("/map/semantic", "/map/standard", "/trajectory/slam", "/sonar/horizontal/fan"):
-        assert topic in text
-    assert any(k.startswith("3D!") for k in layout["configById"])
-    assert any(k.startswith("Image!") for k in layout["configById"])
+def test_shipped_layout_is_the_sdk_layout_and_names_the_map_topics() -> None:
+    from pipeline.formats.foxglove_layout import LAYOUT_PATH, layout_json
+
+    text = LAYOUT_PATH.read_text()
+    assert text == layout_json()  # regenerate: python -m pipeline.formats.foxglove_layout
+    layout = json.loads(text)
+    panels = [item["content"] for item in layout["content"]["items"]]
+    assert panels[0]["panelType"] == "ThreeDee"
+    assert set(panels[0]["config"]["topics"]) <= set(TOPIC_SCHEMAS)
+    assert panels[0]["config"]["topics"]["/map/semantic"]["colorField"] == "class_id"
+    images = [item["content"] for item in panels[1]["items"]]
+    assert [p["panelType"] for p in images] == ["Image", "Image"]
+    assert [p["config"]["imageMode"]["imageTopic"] for p in images] == [
+        "/sonar/horizontal/fan",
+        "/sonar/vertical/fan",
+    ]
