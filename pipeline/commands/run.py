@@ -27,7 +27,7 @@ def register(app: typer.Typer) -> None:
         live: bool = typer.Option(
             False, "--live", help="Serve each finished stage to Foxglove (WebSocket, 127.0.0.1)."
         ),
-        live_port: int = typer.Option(8765, "--live-port", help="0: any free port."),
+        live_port: int = typer.Option(8765, "--live-port", help="Port of --live (0: any free)."),
     ) -> None:
         """Run the mapping pipeline on DATASET, reusing every cached stage."""
         from pipeline.api import RunRequest, run_dataset

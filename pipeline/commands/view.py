@@ -21,9 +21,11 @@ def register(app: typer.Typer) -> None:
         store: Path = STORE_OPT,
         port: int = typer.Option(8765, "--port", help="0: any free port."),
     ) -> None:
-        """Serve the run of DATASET with this config (found as `status` finds it) to
-        Foxglove on ws://127.0.0.1:PORT until Ctrl-C; computes nothing, and checks every
-        file against its manifest first."""
+        """Serve DATASET's finished run to Foxglove (WebSocket) until Ctrl-C.
+
+        The run of this config, found as `status` finds it, on ws://127.0.0.1:PORT;
+        computes nothing, and checks every file against its manifest first.
+        """
         from pipeline.api import RunRequest, plan_status
         from pipeline.engine.errors import SourceError
         from pipeline.engine.text import display_path
