@@ -363,7 +363,5 @@ def test_a_tf_static_mounting_without_a_pose_is_refused(
     from pipeline.engine.errors import SourceError
 
     path = _with_tf_static(tmp_path, quat, xyz)
-    with pytest.raises(
-        SourceError, match=rf"rec\.mcap: /tf_static: .*-> sonar: .*{reason}"
-    ):
+    with pytest.raises(SourceError, match=rf"rec\.mcap: /tf_static: .*-> sonar: .*{reason}"):
         _mountings(path)

@@ -18,5 +18,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "sweep",
     "study",
     "share",
+    "view",
 )
 """Order in which commands appear in `sonarmap --help`."""

@@ -22,13 +22,18 @@ def run(
     store: Path = STORE_OPT,
     json_: bool = JSON_OPT,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
+    live: bool = typer.Option(
+        False, "--live", help="Serve each finished stage to Foxglove (WebSocket, 127.0.0.1)."
+    ),
+    live_port: int = typer.Option(8765, "--live-port", help="Port of --live (0: any free)."),
 ) -> None:
     """Run the mapping pipeline on DATASET, reusing every cached stage."""
     from pipeline.api import RunRequest, run_dataset
     from pipeline.commands._errors import writes_under
     from pipeline.engine.progress import StageProgress
+    from pipeline.live.session import live_session
 
-    with writes_under(store):
+    with writes_under(store), live_session(live, port=live_port) as view:
         with StageProgress(enabled=not quiet) as progress:
             request = RunRequest(
                 dataset,
@@ -42,7 +47,7 @@ def run(
                 request,
                 cli_graph(ctx),
                 on_start=progress.on_start,
-                on_stage=progress.on_stage,
+                on_stage=view.chain(progress.on_stage),
             )
         sensors = _sensors(result)
         if json_:

@@ -16,7 +16,15 @@ from typing import Any, Literal
 import numpy as np
 import pyarrow as pa
 
-__all__ = ["Frame", "headline_errors", "headline_label", "poses_are_ground_truth"]
+from stages.kernels.poses import pose_matrices
+
+__all__ = [
+    "Frame",
+    "headline_errors",
+    "headline_label",
+    "poses_are_ground_truth",
+    "visibility_poses",
+]
 
 Frame = Literal["aligned", "ground_truth_poses", "raw"]
 """aligned: SE(2)-aligned SLAM map; ground_truth_poses: mapped with the true poses;
@@ -84,3 +92,11 @@ def headline_errors(
         "median_m": median,
         "raw_median_m": raw,
     }
+
+
+def visibility_poses(keyframes: pa.Table, poses: pa.Table, T_base_sonar: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) T_world_sonar of every keyframe: ground truth when complete, else SLAM."""
+    gt = keyframes.column("gt_x_m")
+    table, prefix = (keyframes, "gt_") if gt.null_count == 0 and len(gt) else (poses, "")
+    _, T = pose_matrices(table, prefix)
+    return T @ T_base_sonar

@@ -9,6 +9,8 @@ within `tolerance_m` (definitions and the visible-surface choice:
 poses in `keyframes.keyframes`: ATE of the SLAM and dead-reckoning trajectories after
 SE(2) alignment. Without them, the counts and the top-down map are still reported and
 `metrics["skipped"]` says what was left out and why.
+
+`map.mcap`: all of it for Foxglove (`stages.evaluate.foxglove_scene`).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from schemas.sensors import Sensors
 from stages.base import Input, Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
-from stages.evaluate.headline import headline_errors, poses_are_ground_truth
+from stages.evaluate.foxglove_map import evaluate_map_mcap
+from stages.evaluate.headline import headline_errors, poses_are_ground_truth, visibility_poses
 from stages.evaluate.report import (
     SidePanel,
     error_boxplot_png,
@@ -48,7 +51,6 @@ from stages.kernels.mesh_metrics import (
     visible_mask,
 )
 from stages.kernels.ply import Mesh, decode_mesh_ply
-from stages.kernels.poses import pose_matrices
 from stages.kernels.voxels import map_xyz
 
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
@@ -222,14 +224,6 @@ def aligned_map_errors(
     }
 
 
-def _visibility_poses(keyframes: pa.Table, poses: pa.Table, T_base_sonar: np.ndarray) -> np.ndarray:
-    """(k, 4, 4) T_world_sonar of every keyframe: ground truth when complete, else SLAM."""
-    gt = keyframes.column("gt_x_m")
-    table, prefix = (keyframes, "gt_") if gt.null_count == 0 and len(gt) else (poses, "")
-    _, T = pose_matrices(table, prefix)
-    return T @ T_base_sonar
-
-
 def _side_panels(
     map_table: pa.Table, mesh: Mesh, samples: np.ndarray, n_panels: int
 ) -> list[SidePanel]:
@@ -317,7 +311,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics.get("errors_aligned"),
             poses_are_ground_truth(keyframes, poses),
         )
-        T_ws = _visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
+        T_ws = visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
 
         visible = remember_last(
             lambda samples: visible_mask(
@@ -371,13 +365,14 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     dataset = str(sensors.source.get("name", "unknown"))
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
     outputs["metrics"] = metrics
+    outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
     return outputs
 
 
 STAGE = Stage(
     name="evaluate",
     # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
-    version=7,
+    version=8,  # 8: map.mcap for Foxglove (issue 40), its inputs frames and objects
     config=EvaluateConfig,
     inputs=(
         Input("voxelize", "map"),
@@ -388,12 +383,15 @@ STAGE = Stage(
         Input("slam", "poses"),
         Input("infer", "stats"),
         Input("submaps", "stats"),
+        Input("keyframes", "frames"),
+        Input("classify", "objects"),
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),
         Output("errors", "parquet", "errors.parquet", optional=True, schema=ERRORS_SCHEMA),
         Output("report", "bytes", "report.md"),
         *(Output(k, "bytes", f, optional=True) for k, f in FIGURES.items()),
+        Output("map_mcap", "bytes", "map.mcap"),
     ),
     run=_run,
     description="map error to the ground-truth mesh, completeness, ATE, figures and report",

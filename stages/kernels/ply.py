@@ -1,7 +1,7 @@
 """PLY in memory: point clouds out (binary little-endian) and triangle meshes in.
 
-Stages never open files, so PLY is built from and parsed into bytes here with numpy
-structured arrays. The reader supports what the simulator writes
+Stages never open files, so PLY is built into bytes (by `plyfile`) and parsed from
+bytes here with numpy structured arrays. The reader supports what the simulator writes
 (`sim.world.World.to_ply_bytes`: binary little-endian vertex x y z + per-vertex ids,
 faces as uchar-count int index lists) and ASCII PLY with the same elements; list
 properties are read for triangles (count 3) only.
@@ -9,6 +9,8 @@ properties are read for triangles (count 3) only.
 
 from __future__ import annotations
 
+import io
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,18 +51,23 @@ def encode_points_ply(
     xyz_m: np.ndarray | tuple[np.ndarray, np.ndarray, np.ndarray],
     rgb: np.ndarray,
     comment: str = "sonarmap",
+    properties: Mapping[str, np.ndarray] | None = None,
 ) -> bytes:
-    """Binary little-endian PLY of a coloured point cloud.
+    """Binary little-endian PLY of a coloured point cloud, written by `plyfile`.
 
     Args:
         xyz_m: (n, 3) points [m], or their three (n,) coordinate arrays (no (n, 3) copy of
             a dense map is then made), written as float32 x y z.
         rgb: (n, 3) uint8 colours, written as uchar red green blue.
         comment: one header comment line (no newlines).
+        properties: further per-vertex properties by name, in order, each (n,) with the
+            dtype it is written as (e.g. uint8 -> uchar, int32 -> int).
 
     Returns:
         The PLY bytes (same inputs, same bytes).
     """
+    from plyfile import PlyData, PlyElement
+
     if isinstance(xyz_m, tuple):
         coords = [np.asarray(c, dtype=np.float64).reshape(-1) for c in xyz_m]
     else:
@@ -68,23 +75,24 @@ def encode_points_ply(
         coords = [xyz[:, i] for i in range(3)]
     n = len(coords[0])
     colours = np.asarray(rgb, dtype=np.uint8).reshape(-1, 3)
+    extra = {k: np.asarray(v).reshape(-1) for k, v in (properties or {}).items()}
     if any(len(c) != n for c in coords) or len(colours) != n:
         raise ValueError(f"{n} points but {len(colours)} colours")
-    dt = np.dtype(
-        [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    )
-    rows = np.empty(n, dtype=dt)
+    if any(len(v) != n for v in extra.values()):
+        raise ValueError(f"{n} points but a property of another length")
+    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1")]
+    fields += [("blue", "u1"), *((k, v.dtype.newbyteorder("<").str) for k, v in extra.items())]
+    rows = np.empty(n, dtype=np.dtype(fields))
     for name, c in zip(("x", "y", "z"), coords, strict=True):
         rows[name] = c
     for i, name in enumerate(("red", "green", "blue")):
         rows[name] = colours[:, i]
-    header = (
-        f"ply\nformat binary_little_endian 1.0\ncomment {comment}\n"
-        f"element vertex {n}\nproperty float x\nproperty float y\nproperty float z\n"
-        "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
-    )
-    # One copy of the vertex bytes (header + tobytes() would make two).
-    return b"".join((header.encode("ascii"), rows.view(np.uint8).data))
+    for name, v in extra.items():
+        rows[name] = v
+    out = io.BytesIO()
+    vertex = PlyElement.describe(rows, "vertex")
+    PlyData([vertex], text=False, byte_order="<", comments=[comment]).write(out)
+    return out.getvalue()
 
 
 @dataclass

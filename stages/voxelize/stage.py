@@ -25,7 +25,8 @@ their dead-reckoning pose relative to it, T_world_kf T_kf_frame T_base_sonar; th
 `frame_id` column tells them from the keyframes' own points (-1).
 
 Outputs: `map` (`schemas.map.MAP_SCHEMA`), `voxels` (`VOXELS_SCHEMA`), `summary`
-(voxel and point counts), and each map as a binary PLY coloured by height.
+(voxel and point counts), and each map as a binary PLY coloured by height with vertex
+properties class_id, source and keyframe_id (`stages.kernels.map_codes`).
 """
 
 from __future__ import annotations
@@ -45,11 +46,12 @@ from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.class_models import DEFAULT_FRAME_KINDS
+from stages.kernels.map_codes import class_ids, source_ids
 from stages.kernels.ply import encode_points_ply
 from stages.kernels.poses import pose_matrices
+from stages.kernels.registration import submap_world_points, world_points, xyz_columns
 from stages.kernels.voxels import map_xyz, standard_rows, voxel_keys
 from stages.voxelize.evidence import contradicted_by_fused
-from stages.voxelize.registration import submap_world_points, world_points, xyz_columns
 
 __all__ = [
     "STAGE",
@@ -314,6 +316,11 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             (x, y, z),
             height_colours(z, z_range),
             f"sonarmap {name} map, world frame, coloured by height",
+            {
+                "class_id": class_ids(t.column("class_name")),
+                "source": source_ids(t.column("source"), t.column("frame_id").to_numpy()),
+                "keyframe_id": t.column("keyframe_id").to_numpy().astype(np.int32),
+            },
         )
         del t, x, y, z
     summary = {
@@ -341,7 +348,7 @@ STAGE = Stage(
     name="voxelize",
     # 2: map.parquet gains frame_id; submap frames join the maps
     # 3: inferred beam-frame points that the fused points contradict are dropped
-    version=3,
+    version=4,  # 4: the PLYs gain vertex properties class_id, source, keyframe_id
     config=VoxelizeConfig,
     inputs=(
         Input("infer", "points"),
