@@ -15,7 +15,9 @@ def classification_scores(objects: pa.Table) -> dict[str, Any]:
     """Per-class precision (among accepted predictions) and recall, when labels exist.
 
     Returns {"objects": n, "accepted": n, "per_class": {name: {"precision", "recall",
-    "support"}}, "piling_recall": r}; only counts when `true_class_name` is present.
+    "support"}}, "piling_recall": r}; only counts when `true_class_name` is present
+    and labels at least one object: an unlabelled recording has no precision to report,
+    not a precision of zero.
     """
     n = objects.num_rows
     result: dict[str, Any] = {"objects": n}
@@ -23,6 +25,8 @@ def classification_scores(objects: pa.Table) -> dict[str, Any]:
         return result
     predicted = objects.column("class_name").to_pylist()
     truth = objects.column("true_class_name").to_pylist()
+    if not any(truth):
+        return result
     accepted = [p != UNKNOWN_CLASS for p in predicted]
     result["accepted"] = int(sum(accepted))
     per_class: dict[str, Any] = {}
