@@ -86,7 +86,7 @@ def coco_document(
         for name, cid in sorted(class_ids.items(), key=lambda kv: kv[1])
         if cid > 0
     ]
-    annotations = []
+    annotations: list[dict[str, Any]] = []
     for image in images:
         for obj in image.objects:
             row = _annotation(obj, image.geometry, class_ids[obj.class_name])

@@ -111,8 +111,8 @@ def export_labels(
     coco_path = folder / f"{recording.stem}.coco.json"
     _write(folder / GEOMETRY_FILE, (json.dumps(geometry, indent=1) + "\n").encode())
     _write(coco_path, (json.dumps(doc, indent=1) + "\n").encode())
-    shapes = sum(len(i.objects) for i in exported)
-    return ExportResult(folder, coco_path, len(exported), shapes)
+    n_shapes = sum(len(i.objects) for i in exported)
+    return ExportResult(folder, coco_path, len(exported), n_shapes)
 
 
 def _read_json(path: Path, what: str) -> dict[str, Any]:
