@@ -36,7 +36,8 @@ from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
 from stages._lazy import lazy
-from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.base import InputRejected, Output, Stage
+from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
@@ -53,7 +54,7 @@ log = logging.getLogger(__name__)
 _SEED_STRIDE = 1_000_003
 
 
-class ClassifyConfig(StageConfig):
+class ClassifyConfig(ModelChoice):
     """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
 
     The clustering defaults live once, in `stages.classify.train.TrainConfig`: a model is trained
@@ -392,6 +393,7 @@ STAGE = Stage(
         Output("overlay", "bytes", "overlay.png", optional=True),
     ),
     run=_run,
+    key_excludes=MODEL_CHOICE_FIELDS,
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
     " pooled over the keyframes that see them",
 )
