@@ -72,6 +72,13 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
     needs = {i.stage for s in ctx.stages[: last + 1] for i in s.inputs}
     if "train" not in needs:
         return None
+    classify = getattr(ctx.config, "classify", None)
+    if classify is not None and classify.model is not None:
+        from pipeline.training.model_choice import resolve_given_model
+
+        return resolve_given_model(
+            classify.model, ctx.store, ctx.config, classify.allow_unvalidated_model
+        )
     from pipeline.training.model_cache import resolve_default_model
 
     return resolve_default_model(ctx.store, ctx.config)

@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 
-from sim.scene import BoatHull, CylindricalPiling, Primitive, RectangularPiling, Seawall, Truss
+from sim.geometry import rot_z
+from sim.scene import (
+    BoatHull,
+    CylindricalPiling,
+    MeshObject,
+    Primitive,
+    RectangularPiling,
+    SceneError,
+    Seawall,
+    Truss,
+)
 
-__all__ = ["Mesh", "beam_mesh", "box_mesh", "primitive_mesh", "seafloor_mesh"]
+__all__ = ["Mesh", "beam_mesh", "box_mesh", "file_mesh", "primitive_mesh", "seafloor_mesh"]
 
 Mesh = tuple[np.ndarray, np.ndarray]
 """(vertices (v, 3) float64, triangles (t, 3) int32)."""
@@ -170,9 +181,26 @@ def _merge(meshes: list[Mesh]) -> Mesh:
     return np.concatenate(verts), np.concatenate(tris).astype(np.int32)
 
 
+def file_mesh(obj: MeshObject, floor_z: float) -> Mesh:
+    """A mesh file's triangles, scaled, turned about z and placed (`MeshObject`)."""
+    import open3d as o3d
+
+    mesh = o3d.io.read_triangle_mesh(Path(obj.file))
+    v = np.asarray(mesh.vertices, np.float64)
+    t = np.asarray(mesh.triangles, np.int32)
+    if len(t) == 0 or not np.isfinite(v).all():
+        raise SceneError(f"mesh {obj.file}: no triangles, or not a mesh open3d can read")
+    v = (v * obj.scale) @ rot_z(np.deg2rad(obj.yaw_deg)).T
+    bottom = floor_z if obj.z_m is None else obj.z_m
+    v += np.array([obj.position_m[0], obj.position_m[1], bottom - v[:, 2].min()])
+    return v, t
+
+
 def primitive_mesh(obj: Primitive, seafloor_depth_m: float) -> Mesh:
     """World-frame triangle mesh of one scene primitive."""
     floor_z = -seafloor_depth_m
+    if isinstance(obj, MeshObject):
+        return file_mesh(obj, floor_z)
     if isinstance(obj, CylindricalPiling):
         return _cylinder(
             obj.position_m[0], obj.position_m[1], obj.radius_m, floor_z, _top(obj.height_m, floor_z)

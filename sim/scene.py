@@ -16,7 +16,11 @@ A scene YAML looks like::
 
 Helpers (`piling_row`, `piling_grid`) expand into individual pilings; every expanded
 object gets an object id (0, 1, ... in file order) that the label images and the
-ground-truth mesh carry.
+ground-truth mesh carry. Structures of a site of your own come from mesh files, listed
+after the objects (their ids follow them)::
+
+    meshes:
+      - {class: seawall, file: meshes/caisson.obj, position_m: [4, -6], yaw_deg: 30, scale: 1.0}
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_valida
 __all__ = [
     "BoatHull",
     "CylindricalPiling",
+    "MeshObject",
     "PilingGrid",
     "PilingRow",
     "PilingSpec",
@@ -199,7 +204,25 @@ class PilingGrid(_Model):
         return out
 
 
-Primitive = CylindricalPiling | RectangularPiling | Seawall | BoatHull | Truss
+class MeshObject(_Model):
+    """A triangle mesh from a file (OBJ, PLY, STL, read with open3d), of any class of the
+    class table, scaled, turned by `yaw_deg` about z and moved to `position_m`; standing on
+    the seafloor unless `z_m` puts its lowest point elsewhere."""
+
+    class_name: str = Field(alias="class", min_length=1, max_length=64)
+    name: str | None = None
+    file: str = Field(min_length=1, max_length=4096, description="relative to the scene file")
+    position_m: Vec2
+    z_m: float | None = Field(default=None, description="height of its lowest point [m]")
+    yaw_deg: float = Field(default=0.0, ge=-360.0, le=360.0)
+    scale: float = Field(default=1.0, gt=0.0, le=1000.0)
+
+    @property
+    def kind(self) -> str:
+        return self.class_name
+
+
+Primitive = CylindricalPiling | RectangularPiling | Seawall | BoatHull | Truss | MeshObject
 SceneObject = Annotated[
     CylindricalPiling | RectangularPiling | Seawall | BoatHull | Truss | PilingRow | PilingGrid,
     Field(discriminator="kind"),
@@ -218,6 +241,9 @@ class Scene(_Model):
         default=40.0, ge=0.0, description="seafloor extends past the area"
     )
     objects: list[SceneObject] = Field(default_factory=list)
+    meshes: list[MeshObject] = Field(
+        default_factory=list, description="objects from mesh files, after `objects`"
+    )
 
     @model_validator(mode="after")
     def _check_area(self) -> Scene:
@@ -234,7 +260,7 @@ class Scene(_Model):
                 out.extend(obj.expand())
             else:
                 out.append(obj)
-        return out
+        return [*out, *self.meshes]
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -253,7 +279,21 @@ def load_scene(path: str | Path) -> Scene:
     if not isinstance(raw, dict):
         raise SceneError(f"scene {p} must be a YAML mapping, got {type(raw).__name__}")
     try:
-        return Scene.model_validate(raw)
+        scene = Scene.model_validate(raw)
     except ValidationError as err:
         lines = [f"  {'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in err.errors()]
         raise SceneError(f"invalid scene {p}:\n" + "\n".join(lines)) from err
+    return _meshes_found(scene, p)
+
+
+def _meshes_found(scene: Scene, path: Path) -> Scene:
+    """The scene with each mesh file's path made absolute (relative to the scene file)."""
+    if not scene.meshes:
+        return scene
+    meshes = []
+    for i, m in enumerate(scene.meshes):
+        file = (path.parent / m.file).resolve()
+        if not file.is_file():
+            raise SceneError(f"scene {path}: meshes[{i}].file: no such file {file}")
+        meshes.append(m.model_copy(update={"file": str(file)}))
+    return scene.model_copy(update={"meshes": meshes})

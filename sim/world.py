@@ -9,7 +9,7 @@ import open3d as o3d
 
 from schemas.classes import CLASS_IDS
 from sim.meshes import primitive_mesh, seafloor_mesh
-from sim.scene import Scene
+from sim.scene import Scene, SceneError
 
 __all__ = ["ObjectInfo", "World"]
 
@@ -39,6 +39,12 @@ class World:
         self.cast_threads = int(cast_threads)
         meshes = [primitive_mesh(p, scene.seafloor_depth_m) for p in scene.primitives()]
         names = [p.name or f"{p.kind}_{i}" for i, p in enumerate(scene.primitives())]
+        unknown = sorted({p.kind for p in scene.primitives()} - set(CLASS_IDS))
+        if unknown:
+            raise SceneError(
+                f"scene {scene.name}: class {unknown[0]!r:.60} is not in the class table"
+                f" ({', '.join(CLASS_IDS)})"
+            )
         classes = [CLASS_IDS[p.kind] for p in scene.primitives()]
         meshes.append(seafloor_mesh(scene.area_m, scene.seafloor_depth_m, scene.seafloor_margin_m))
         names.append("seafloor")

@@ -14,6 +14,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "topics",
     "convert",
     "train",
+    "label",
     "demo",
     "sweep",
     "study",

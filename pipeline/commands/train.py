@@ -96,8 +96,11 @@ def train(
         out.mkdir(parents=True, exist_ok=True)
         from pipeline.engine.integrity import verify_file
 
-        for name in ("model.pt", "metrics.json", "confusion.png"):
+        # Every file and the manifest: the folder is then a model a run can be pointed
+        # at (`--set classify.model=DIR`), checked against the manifest's sha256s.
+        for name in ref.manifest.get("files", {}):
             shutil.copyfile(verify_file(ref, name), out / name)
+        shutil.copyfile(ref.path / "manifest.json", out / "manifest.json")
         metrics = json.loads((ref.path / "metrics.json").read_text())
         trained = {"metrics": metrics}
         doc = {

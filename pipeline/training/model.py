@@ -119,7 +119,8 @@ def training_stage_for(
         doc = AnnotationFile.model_validate(bound[f"annotations_{i}.annotations"])
         ann = annotation_path(Path(name(i))) if i < len(names) else None
         source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
-        return _unmatched_is_bad_input(label_keyframes(kf, doc, source=source))
+        features = bound[f"features_{i}.features"]
+        return _unmatched_is_bad_input(label_keyframes(kf, doc, source=source, features=features))
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
         pairs = [(frames(i, bound), bound[f"features_{i}.features"]) for i in range(n_datasets)]

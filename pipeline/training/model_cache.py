@@ -55,7 +55,7 @@ DEFAULT_MODEL_CACHE = default_training_directory() / CACHE_DIR
 under `$SONARMAP_CACHE_DIR` as set when sonarmap starts (where `push` looks; a test keeps
 it equal to `TrainingDataConfig().directory`, which stays the one default)."""
 
-Source = Literal["store", "model cache", "shipped", "trained"]
+Source = Literal["store", "model cache", "shipped", "trained", "given"]
 
 
 @dataclass(frozen=True)
@@ -89,6 +89,7 @@ def describe(model: Mapping[str, Any]) -> str:
         "model cache": f"copied from the model cache {model.get('cache')}",
         "shipped": f"the shipped model, copied to the model cache {model.get('cache')}",
         "trained": f"trained into the model cache {model.get('cache')}",
+        "given": "given by classify.model",
     }.get(str(model.get("source")), str(model.get("source")))
     return f"classifier: train/{str(model.get('key'))[:12]} ({where})"
 

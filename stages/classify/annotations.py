@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
+import pyarrow as pa
 
 from schemas.annotations import AnnotatedObject, AnnotationFile
 from schemas.classes import CLASS_IDS
@@ -23,7 +24,13 @@ from stages.kernels.lazy import lazy
 
 mpath = lazy("matplotlib.path")
 
-__all__ = ["RASTER_VERSION", "UnmatchedAnnotations", "label_keyframes", "rasterise"]
+__all__ = [
+    "RASTER_VERSION",
+    "UnmatchedAnnotations",
+    "label_keyframes",
+    "objects_without_features",
+    "rasterise",
+]
 
 log = logging.getLogger(__name__)
 
@@ -72,8 +79,40 @@ def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray
     return out.reshape(len(ping.ranges_m), len(ping.angles_rad))
 
 
+def objects_without_features(
+    objects: Sequence[AnnotatedObject], range_m: np.ndarray, angle_rad: np.ndarray
+) -> list[int]:
+    """Indices of the annotated shapes that hold none of a keyframe's horizontal features
+    (range [m], bearing [rad]): they label no detected object, so they train nothing."""
+    xy = np.stack([range_m * np.cos(angle_rad), range_m * np.sin(angle_rad)], axis=1)
+    empty = []
+    for i, obj in enumerate(objects):
+        if len(xy) == 0 or not mpath.Path(np.asarray(obj.vertices_m())).contains_points(xy).any():
+            empty.append(i)
+    return empty
+
+
+def _horizontal_features(features: pa.Table | None) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    if features is None:
+        return {}
+    horizontal = np.asarray(features.column("sonar").to_pylist(), dtype=object) == "horizontal"
+    kf = features.column("keyframe_id").to_numpy()[horizontal]
+    r = features.column("range_m").to_numpy()[horizontal]
+    a = features.column("angle_rad").to_numpy()[horizontal]
+    order = np.argsort(kf, kind="stable")
+    ids, starts = np.unique(kf[order], return_index=True)
+    bounds = [*starts[1:], len(order)]
+    return {
+        int(k): (r[order[s:e]], a[order[s:e]]) for k, s, e in zip(ids, starts, bounds, strict=True)
+    }
+
+
 def label_keyframes(
-    frames: Iterable[KeyframeImages], annotations: AnnotationFile, *, source: str = "annotations"
+    frames: Iterable[KeyframeImages],
+    annotations: AnnotationFile,
+    *,
+    source: str = "annotations",
+    features: pa.Table | None = None,
 ) -> Iterator[KeyframeImages]:
     """The annotated keyframes, their horizontal label images replaced by the annotations.
 
@@ -85,6 +124,8 @@ def label_keyframes(
         frames: keyframes in any order (read lazily, one at a time).
         annotations: the validated annotation file.
         source: name used in messages (the file).
+        features: the recording's features table; shapes holding none of their
+            keyframe's horizontal features are then named in a warning.
 
     Yields:
         Annotated keyframes with `horizontal.labels` set (uint8 class ids).
@@ -97,6 +138,8 @@ def label_keyframes(
     times = np.array([k.t_ns for k in entries], np.int64)
     tol_ns = annotations.time_tolerance_ms * 1e6
     used: set[int] = set()
+    by_keyframe = _horizontal_features(features)
+    no_features: list[str] = []
     n_frames = 0
     lo_t, hi_t = np.iinfo(np.int64).max, np.iinfo(np.int64).min
     for frame in frames:
@@ -108,6 +151,12 @@ def label_keyframes(
         if abs(int(times[j]) - frame.t_ns) > tol_ns:
             continue
         used.add(j)
+        if features is not None:
+            r, a = by_keyframe.get(frame.keyframe_id, (np.zeros(0), np.zeros(0)))
+            for k in objects_without_features(entries[j].objects, r, a):
+                no_features.append(
+                    f"t_ns {times[j]} object {k} ({entries[j].objects[k].class_name})"
+                )
         labels = rasterise(frame.horizontal, entries[j].objects)
         yield dataclasses.replace(
             frame, horizontal=dataclasses.replace(frame.horizontal, labels=labels)
@@ -119,6 +168,13 @@ def label_keyframes(
             f"({_times(times.tolist())}) is within {annotations.time_tolerance_ms:g} ms of "
             f"one of the {n_frames} keyframes' t_ns{span}"
         )
+    if no_features:
+        log.warning(
+            "%s: %d annotated shapes hold no detected feature and train nothing: %s%s"
+            " (draw shapes over the returns; axes: x forward, y left, metres)",
+            source, len(no_features), "; ".join(no_features[:SHOWN_TIMES]),
+            f"; ... ({len(no_features) - SHOWN_TIMES} more)" if len(no_features) > SHOWN_TIMES else "",
+        )  # fmt: skip
     if len(used) < len(times):
         unmatched = [int(t) for j, t in enumerate(times) if j not in used]
         log.warning(

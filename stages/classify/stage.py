@@ -37,7 +37,8 @@ from schemas.model_settings import ModelSettings
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import Input, Output, Stage, StageConfig, StageInputError
+from stages.base import Input, Output, Stage, StageInputError
+from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
@@ -56,7 +57,7 @@ log = logging.getLogger(__name__)
 _SEED_STRIDE = 1_000_003
 
 
-class ClassifyConfig(StageConfig):
+class ClassifyConfig(ModelChoice):
     """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
 
     The clustering defaults live once, in `stages.classify.train.TrainConfig`: a model is trained
@@ -388,6 +389,7 @@ STAGE = Stage(
         Output("clustering", "json", "clustering.json"),
     ),
     run=_run,
+    key_excludes=MODEL_CHOICE_FIELDS,
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
     " pooled over the keyframes that see them",
 )

@@ -278,6 +278,27 @@ def _learned_classes(class_id: np.ndarray, min_samples: int) -> list[int]:
     return [int(c) for c in np.flatnonzero(counts >= min_samples)]
 
 
+def _say_what_is_not_learned(
+    class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int
+) -> None:
+    """Warnings for each labelled class left out for too few objects, and for a model with
+    nothing to validate on: neither is ever silent."""
+    counts = np.bincount(class_id[train], minlength=len(CLASS_NAMES))
+    for c in np.flatnonzero(counts > 0):
+        if c != 0 and int(c) not in ids:
+            log.warning(
+                "class %s: %d training objects, under train.min_class_samples=%d: not learned",
+                CLASS_NAMES[c], counts[c], min_samples,
+            )  # fmt: skip
+    if not np.isin(class_id[val], ids).any():
+        log.warning(
+            "no validation object of a learned class (%d held out in all): the model's"
+            " figures are empty and it is unvalidated; label more keyframes across the"
+            " recording (validation holds out blocks of keyframe time)",
+            int(val.sum()),
+        )
+
+
 def train_classifier(
     datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
 ) -> dict[str, Any]:
@@ -303,6 +324,7 @@ def _train_classifier(
     samples = collect_samples(datasets, cfg)
     train, val = split_train_val(samples, cfg)
     ids = _learned_classes(samples.class_id[train], cfg.min_class_samples)
+    _say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples)
     if len(ids) < 2:
         raise ValueError(
             f"need two classes with >= {cfg.min_class_samples} training objects, "

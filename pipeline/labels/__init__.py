@@ -1,0 +1,1 @@
+"""Labelling keyframes in standard annotation tools: fan images and COCO JSON."""

@@ -1,0 +1,175 @@
+"""COCO object-detection JSON <-> sonarmap annotations (pure: dicts in, dicts out).
+
+The fields written are those of the COCO "object detection" data format
+(https://cocodataset.org/#format-data): `images` (id, file_name, width, height),
+`categories` (id, name, supercategory), `annotations` (id, image_id, category_id,
+segmentation as a list of polygons [x1, y1, x2, y2, ...], bbox [x, y, width, height],
+area, iscrowd), plus `info` and `licenses`. CVAT and Label Studio both import and export
+this format. Coordinates are pixels of the exported fan image (`pipeline.labels.fan_image`).
+
+A sonarmap box becomes a COCO annotation with a bbox and an empty segmentation (the tools
+show it as a rectangle); a polygon becomes a one-polygon segmentation with its bbox.
+Category ids are the class ids of the class table (COCO needs ids >= 1; "none" is not a
+category).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from pipeline.labels.fan_image import FanGeometry, metres_to_pixels, pixels_to_metres
+from schemas.annotations import AnnotatedObject
+
+__all__ = ["CocoError", "ExportedImage", "coco_document", "objects_from_coco"]
+
+METRE_DECIMALS = 6
+"""Imported metres are rounded to a micrometre: far below any sonar pixel, and enough that
+a shape exported and imported again reads back as the numbers that were typed."""
+
+
+class CocoError(ValueError):
+    """A COCO file sonarmap cannot turn into annotations (the message names the entry)."""
+
+
+@dataclass(frozen=True)
+class ExportedImage:
+    """One exported keyframe image: its COCO entry, its geometry and its shapes."""
+
+    image_id: int
+    file_name: str
+    t_ns: int
+    keyframe_id: int
+    geometry: FanGeometry
+    objects: Sequence[AnnotatedObject] = ()
+
+
+def _polygon_px(vertices_m: Sequence[tuple[float, float]], g: FanGeometry) -> list[float]:
+    return [float(v) for v in metres_to_pixels(np.asarray(vertices_m), g).ravel()]
+
+
+def _bbox(flat: Sequence[float]) -> list[float]:
+    u, v = np.asarray(flat[0::2], np.float64), np.asarray(flat[1::2], np.float64)
+    return [float(u.min()), float(v.min()), float(u.max() - u.min()), float(v.max() - v.min())]
+
+
+def _shoelace(flat: Sequence[float]) -> float:
+    u, v = np.asarray(flat[0::2], np.float64), np.asarray(flat[1::2], np.float64)
+    return float(0.5 * abs(np.dot(u, np.roll(v, -1)) - np.dot(v, np.roll(u, -1))))
+
+
+def _annotation(obj: AnnotatedObject, g: FanGeometry, category_id: int) -> dict[str, Any]:
+    if obj.polygon_m is not None:
+        flat = _polygon_px(obj.polygon_m, g)
+        bbox, segmentation, area = _bbox(flat), [flat], _shoelace(flat)
+    else:
+        bbox = _bbox(_polygon_px(obj.vertices_m(), g))
+        segmentation, area = [], bbox[2] * bbox[3]
+    return {
+        "category_id": category_id,
+        "segmentation": segmentation,
+        "bbox": bbox,
+        "area": area,
+        "iscrowd": 0,
+    }
+
+
+def coco_document(
+    images: Sequence[ExportedImage], class_ids: Mapping[str, int], description: str
+) -> dict[str, Any]:
+    """The COCO JSON of exported images and their (pre-)labels."""
+    categories = [
+        {"id": cid, "name": name, "supercategory": "structure"}
+        for name, cid in sorted(class_ids.items(), key=lambda kv: kv[1])
+        if cid > 0
+    ]
+    annotations: list[dict[str, Any]] = []
+    for image in images:
+        for obj in image.objects:
+            row = _annotation(obj, image.geometry, class_ids[obj.class_name])
+            annotations.append({"id": len(annotations) + 1, "image_id": image.image_id, **row})
+    return {
+        "info": {"description": description, "version": "1.0"},
+        "licenses": [],
+        "images": [
+            {
+                "id": i.image_id,
+                "file_name": i.file_name,
+                "width": i.geometry.width_px,
+                "height": i.geometry.height_px,
+            }
+            for i in images
+        ],
+        "categories": categories,
+        "annotations": annotations,
+    }
+
+
+def _rounded(xy: np.ndarray) -> list[tuple[float, float]]:
+    return [(round(float(x), METRE_DECIMALS), round(float(y), METRE_DECIMALS)) for x, y in xy]
+
+
+def _numbers(value: Any, what: str, count: int | None = None) -> list[float]:
+    ok = isinstance(value, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in value
+    )
+    if not ok or (count is not None and len(value) != count):
+        raise CocoError(f"{what}: expected {count or 'a list of'} numbers")
+    return [float(v) for v in value]
+
+
+def _shapes(ann: Mapping[str, Any], g: FanGeometry, where: str) -> list[dict[str, Any]]:
+    """The sonarmap shapes ({"polygon_m": ...} or {"box_m": ...}) of one COCO annotation."""
+    segmentation = ann.get("segmentation") or []
+    if isinstance(segmentation, dict) or ann.get("iscrowd") == 1:
+        raise CocoError(f"{where}: an RLE mask (iscrowd) is not a shape; export polygons or boxes")
+    if not isinstance(segmentation, list):
+        raise CocoError(f"{where}.segmentation: expected a list of polygons")
+    shapes = []
+    for k, poly in enumerate(segmentation):
+        flat = _numbers(poly, f"{where}.segmentation[{k}]")
+        if len(flat) < 6 or len(flat) % 2:
+            raise CocoError(f"{where}.segmentation[{k}]: a polygon needs 3 or more (x, y) pairs")
+        xy = pixels_to_metres(np.reshape(flat, (-1, 2)), g)
+        shapes.append({"polygon_m": _rounded(xy)})
+    if shapes:
+        return shapes
+    u, v, w, h = _numbers(ann.get("bbox"), f"{where}.bbox", 4)
+    corners = pixels_to_metres(np.array([[u, v], [u + w, v + h]]), g)
+    (x_hi, y_hi), (x_lo, y_lo) = _rounded(corners)
+    return [{"box_m": {"x_min_m": x_lo, "x_max_m": x_hi, "y_min_m": y_lo, "y_max_m": y_hi}}]
+
+
+def objects_from_coco(
+    doc: Mapping[str, Any], geometry_of: Mapping[int, FanGeometry]
+) -> dict[int, list[AnnotatedObject]]:
+    """{COCO image id: its objects, in annotation order} for the images in geometry_of.
+
+    Raises:
+        CocoError: an annotation's category, image or shape cannot be read (naming it).
+    """
+    names = {}
+    for c in doc.get("categories") or []:
+        if isinstance(c, dict) and isinstance(c.get("id"), int):
+            names[c["id"]] = str(c.get("name"))
+    out: dict[int, list[AnnotatedObject]] = {i: [] for i in geometry_of}
+    for n, ann in enumerate(doc.get("annotations") or []):
+        where = f"annotations[{n}] (id {ann.get('id')!r:.20})" if isinstance(ann, dict) else ""
+        if not isinstance(ann, dict):
+            raise CocoError(f"annotations[{n}]: expected an object")
+        image_id = ann.get("image_id")
+        if image_id not in out:
+            raise CocoError(f"{where}: image_id {image_id!r:.20} is not an exported image")
+        name = names.get(ann.get("category_id"))
+        if name is None:
+            raise CocoError(f"{where}: category_id {ann.get('category_id')!r:.20} is not listed")
+        for shape in _shapes(ann, geometry_of[image_id], where):
+            try:
+                out[image_id].append(AnnotatedObject(class_name=name, **shape))
+            except ValueError as err:
+                first = str(err).splitlines()[-1].strip() if str(err) else "invalid shape"
+                raise CocoError(f"{where}: {first[:200]}") from None
+    return out

@@ -1,0 +1,227 @@
+"""`sonarmap label export` / `import`: keyframe images and COCO files in and out of a folder.
+
+Export writes, into the folder:
+
+- `images/<stem>_kf<id>_t<t_ns>.png`: each chosen keyframe's horizontal image as a
+  Cartesian fan (`pipeline.labels.fan_image`);
+- `<stem>.coco.json`: the COCO file (`pipeline.labels.coco`) with the images, the class
+  table as categories and, optionally, shapes to start from;
+- `geometry.json`: per image, the keyframe's time and the pixel-to-metre map, and the
+  recording it came from. Import reads it back, so the COCO file itself carries nothing
+  a labelling tool could drop.
+
+Import turns the COCO file's polygons and boxes into the recording's annotation file
+(`<stem>.annotations.yaml`, `schemas.annotations`).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.engine.errors import SourceError
+from pipeline.engine.text import one_line
+from pipeline.formats.atomic import atomic_output
+from pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
+from pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
+from schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
+from schemas.sonar import KeyframeImages
+
+__all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
+
+GEOMETRY_FILE = "geometry.json"
+GEOMETRY_FORMAT = "sonarmap-label-geometry/1"
+COCO_MAX_BYTES = 64 << 20
+"""Largest COCO file read: some 200,000 polygons, far beyond hand labelling."""
+
+
+@dataclass(frozen=True)
+class ExportResult:
+    folder: Path
+    coco: Path
+    images: int
+    shapes: int
+
+
+def _png(pixels: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(pixels, mode="L").save(buf, format="PNG", optimize=False)
+    return buf.getvalue()
+
+
+def _write(path: Path, data: bytes) -> None:
+    with atomic_output(path) as f:
+        f.write(data)
+
+
+def export_labels(
+    recording: Path,
+    folder: Path,
+    frames: Sequence[KeyframeImages],
+    times_ns: Mapping[int, int],
+    objects: Mapping[int, Sequence[AnnotatedObject]],
+    class_ids: Mapping[str, int],
+    time_tolerance_ms: float,
+    pixel_m: float | None = None,
+) -> ExportResult:
+    """Write the chosen keyframes' images, geometry and COCO file into `folder`.
+
+    Args:
+        recording: the recording (named in geometry.json, found again by import).
+        folder: output folder (created).
+        frames: the chosen keyframes.
+        times_ns: keyframe id -> the time written for it (the keyframe's, or an existing
+            annotation's within tolerance, so that its round trip is exact).
+        objects: keyframe id -> shapes to start from (existing labels or the classifier's).
+        class_ids: the class table (name -> id).
+        time_tolerance_ms: written to geometry.json and back into the annotation file.
+        pixel_m: pixel side [m] (None: each image's range resolution).
+    """
+    images_dir = folder / "images"
+    images_dir.mkdir(parents=True, exist_ok=True)
+    exported = []
+    for n, frame in enumerate(frames, start=1):
+        t_ns = int(times_ns.get(frame.keyframe_id, frame.t_ns))
+        name = f"{recording.stem}_kf{frame.keyframe_id:05d}_t{t_ns}.png"
+        g = fan_geometry(frame.horizontal, pixel_m)
+        _write(images_dir / name, _png(fan_image(frame.horizontal, g)))
+        shapes = tuple(objects.get(frame.keyframe_id, ()))
+        exported.append(ExportedImage(n, f"images/{name}", t_ns, frame.keyframe_id, g, shapes))
+    doc = coco_document(exported, class_ids, f"sonarmap keyframes of {recording.name}")
+    geometry = {
+        "format": GEOMETRY_FORMAT,
+        "recording": str(recording.resolve()),
+        "time_tolerance_ms": time_tolerance_ms,
+        "frame": "horizontal sonar fan plane: x forward, y left [m]; "
+        "u = (y_left_m - y) / pixel_m, v = (x_top_m - x) / pixel_m (COCO pixels)",
+        "images": {
+            i.file_name: {"image_id": i.image_id, "t_ns": i.t_ns, "keyframe_id": i.keyframe_id}
+            | i.geometry.to_json()
+            for i in exported
+        },
+    }
+    coco_path = folder / f"{recording.stem}.coco.json"
+    _write(folder / GEOMETRY_FILE, (json.dumps(geometry, indent=1) + "\n").encode())
+    _write(coco_path, (json.dumps(doc, indent=1) + "\n").encode())
+    n_shapes = sum(len(i.objects) for i in exported)
+    return ExportResult(folder, coco_path, len(exported), n_shapes)
+
+
+def _read_json(path: Path, what: str) -> dict[str, Any]:
+    try:
+        size = path.stat().st_size
+        if size > COCO_MAX_BYTES:
+            raise SourceError(f"{path}: {what} of {size} bytes, over {COCO_MAX_BYTES}")
+        doc = json.loads(path.read_bytes(), parse_constant=_no_constant)
+    except OSError as err:
+        raise SourceError(f"{path}: cannot read {what} ({err.strerror or err})") from None
+    except (ValueError, RecursionError) as err:
+        raise SourceError(f"{path}: not a {what} ({one_line(str(err), 120)})") from None
+    if not isinstance(doc, dict):
+        raise SourceError(f"{path}: not a {what} (expected a JSON object)")
+    return doc
+
+
+def _no_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _match(file_name: str, known: Mapping[str, Any]) -> str | None:
+    """The exported image a tool's file name stands for: the same path, the same base
+    name, or a base name the tool prefixed (Label Studio writes `<hash>-<name>`)."""
+    if file_name in known:
+        return file_name
+    base = Path(file_name).name
+    by_base = {Path(k).name: k for k in known}
+    if base in by_base:
+        return by_base[base]
+    hits = [k for b, k in by_base.items() if base.endswith("-" + b) or base.endswith("_" + b)]
+    return hits[0] if len(hits) == 1 else None
+
+
+def import_labels(
+    coco_path: Path,
+    recording: Path | None = None,
+    out: Path | None = None,
+    *,
+    force: bool = False,
+    include_empty: bool = False,
+) -> tuple[Path, AnnotationFile]:
+    """Write the annotation file a COCO file describes; returns its path and content.
+
+    Images without shapes are left out (not yet labelled) unless `include_empty` (labelled
+    as holding no object). The annotation file goes beside the recording named in
+    geometry.json (or `recording`), or to `out`.
+
+    Raises:
+        SourceError: the COCO file, geometry.json or a shape cannot be read (one line
+            naming the file and entry), or the annotation file exists and `force` is off.
+    """
+    geometry_path = coco_path.parent / GEOMETRY_FILE
+    geo = _read_json(geometry_path, "label geometry file (written by `sonarmap label export`)")
+    if geo.get("format") != GEOMETRY_FORMAT or not isinstance(geo.get("images"), dict):
+        raise SourceError(f"{geometry_path}: not a {GEOMETRY_FORMAT} file")
+    doc = _read_json(coco_path, "COCO JSON file")
+    geometry_of: dict[int, FanGeometry] = {}
+    t_of: dict[int, int] = {}
+    for n, image in enumerate(doc.get("images") or []):
+        name = image.get("file_name") if isinstance(image, dict) else None
+        key = _match(str(name), geo["images"]) if name is not None else None
+        if key is None:
+            raise SourceError(
+                f"{coco_path}: images[{n}] file_name {one_line(str(name), 80)!r} is not an "
+                f"image exported into {coco_path.parent}"
+            )
+        entry = geo["images"][key]
+        fields = {k: entry[k] for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")}
+        geometry_of[image.get("id")] = FanGeometry(**fields)
+        t_of[image.get("id")] = int(entry["t_ns"])
+    try:
+        objects = objects_from_coco(doc, geometry_of)
+    except CocoError as err:
+        raise SourceError(f"{coco_path}: {err}") from None
+    keyframes = [
+        AnnotatedKeyframe(t_ns=t_of[i], objects=tuple(objs))
+        for i, objs in sorted(objects.items(), key=lambda kv: t_of[kv[0]])
+        if objs or include_empty
+    ]
+    if not keyframes:
+        raise SourceError(f"{coco_path}: no image holds a polygon or box (nothing to import)")
+    annotations = AnnotationFile(
+        time_tolerance_ms=float(geo.get("time_tolerance_ms", 1.0)), keyframes=tuple(keyframes)
+    )
+    if out is None:
+        source = recording or Path(str(geo.get("recording", "")))
+        out = source.parent / f"{source.stem}.annotations.yaml"
+    text = annotation_yaml(annotations)
+    if out.exists() and not force and out.read_text() != text:
+        raise SourceError(f"{out}: exists with other labels; pass --force to replace it")
+    _write(out, text.encode())
+    return out, annotations
+
+
+def annotation_yaml(annotations: AnnotationFile) -> str:
+    """The annotation file's YAML text: flow style per shape, one shape a line."""
+    import yaml
+
+    doc = annotations.model_dump(mode="json", exclude_none=True)
+    head = {k: v for k, v in doc.items() if k != "keyframes"}
+    lines = [yaml.safe_dump(head, sort_keys=False).rstrip(), "keyframes:"]
+    for kf in doc["keyframes"]:
+        lines.append(f"  - t_ns: {kf['t_ns']}")
+        if not kf["objects"]:
+            lines.append("    objects: []")
+            continue
+        lines.append("    objects:")
+        for obj in kf["objects"]:
+            flow = yaml.safe_dump(obj, default_flow_style=True, sort_keys=False, width=10**6)
+            lines.append(f"      - {flow.strip()}")
+    return "\n".join(lines) + "\n"
