@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import ast
+import pickle
 import sys
 from pathlib import Path
 from types import FrameType
@@ -128,11 +129,13 @@ def test_a_key_hashes_the_same_text_as_when_inputs_were_strings(tmp_path: Path) 
     assert planned["double"].key == recipe_key(expected)
 
 
-def test_every_real_stage_declares_typed_inputs() -> None:
+def test_every_real_stage_declares_typed_inputs_and_the_graph_travels_to_workers() -> None:
     graph = default_graph()
     for stage in graph.config_stages:
         assert all(isinstance(i, Input) for i in stage.inputs), stage.name
     assert graph.stages[0].inputs == (DATASET,)
+    # Sweep workers get the graph with their run (pickled by a process pool or Ray).
+    assert pickle.loads(pickle.dumps(graph)).config_stages == graph.config_stages
 
 
 def test_a_stage_refusing_the_recording_exits_2_naming_it(tmp_path: Path) -> None:
