@@ -64,7 +64,17 @@ class KeyframesConfig(StageConfig):
         ground_truth_topic: true pose topic (None: /ground_truth/odometry if present).
         dvl_topic, imu_topic, depth_topic: dead-reckoning inputs when no navigation topic.
         dvl_max_velocity_mps: DVL velocity gate of the dead reckoning [m/s].
-        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images.
+        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images (both
+            sonars; evenly spaced beams) where a sonar has no preset or table of its own.
+        horizontal_sonar, vertical_sonar: the sonar's geometry: a preset name
+            (`configs/sonars/`, e.g. "oculus-m750d-750khz", "aris3000-128") or a CSV/YAML
+            file of beam angles [deg] in image-column order, positive to the sonar's left.
+            Gives polar images their (possibly uneven) beam table, and every sonar its
+            fan, range and vertical aperture in `sensors.json` (None: from the messages).
+        horizontal_image_max_range_m, vertical_image_max_range_m: range of that sonar's
+            polar images [m] (None: image_max_range_m).
+        message_definitions: `.msg` / `.idl` files of custom ROS 2 message types the
+            recording uses (a .msg file's type is its path: pkg/msg/Name.msg).
         *_mount_xyz_m, *_mount_rpy_deg: T_base_sonar when the data has no /tf_static.
         submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
             k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
@@ -85,6 +95,13 @@ class KeyframesConfig(StageConfig):
     dvl_max_velocity_mps: float = Field(0.5, gt=0.0, le=50.0)
     image_fov_deg: float = Field(130.0, gt=0.0, le=360.0)
     image_max_range_m: float = Field(30.0, gt=0.0, le=1000.0)
+    horizontal_sonar: str | None = Field(None, min_length=1, max_length=4096)
+    vertical_sonar: str | None = Field(None, min_length=1, max_length=4096)
+    horizontal_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
+    vertical_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
+    message_definitions: tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...] = Field(
+        (), max_length=64
+    )
     horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.0)
     horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] = (0.0, 0.0, 0.0)
     vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] = (0.5, 0.0, 0.1)
@@ -228,6 +245,37 @@ def _table(
     return pa.table(cols, schema=KEYFRAMES_SCHEMA)
 
 
+def _sonar_geometry(
+    rec: Recording, sonar: str, idx: np.ndarray, described: Mapping[str, Any]
+) -> dict[str, Any]:
+    """The sonar's fan, range window, vertical aperture and beam table, for every later
+    stage to take from `sensors.json`: the reader's description (preset, table file or
+    config) where the messages do not carry it, else the first keyframe's decoded ping."""
+    ping = next(iter(rec.pings(sonar, idx[:1], labels=False)))
+    angles = np.sort(np.rad2deg(ping.angles_rad.astype(np.float64)))
+    known = dict((described.get("sonars") or {}).get(sonar) or {})
+    n = len(angles)
+    # A table of beam centres spans n - 1 spacings; the fan covers n (half a beam each side).
+    span = float(angles[-1] - angles[0]) * n / (n - 1) if n > 1 else 0.0
+    fov = known.pop("fov_deg", None)
+    step = np.diff(angles)
+    out: dict[str, Any] = {
+        "fov_deg": round(float(fov) if fov is not None else span, 3),
+        "max_range_m": round(float(ping.ranges_m[-1]) + ping.range_resolution_m / 2, 3),
+        "min_range_m": round(max(float(ping.ranges_m[0]) - ping.range_resolution_m / 2, 0.0), 3),
+        "vertical_aperture_deg": known.pop("vertical_aperture_deg", None),
+        "beams": {
+            "count": n,
+            "first_deg": round(float(angles[0]), 4),
+            "last_deg": round(float(angles[-1]), 4),
+            "min_spacing_deg": round(float(step.min()), 4) if n > 1 else 0.0,
+            "max_spacing_deg": round(float(step.max()), 4) if n > 1 else 0.0,
+        },
+    }
+    out["geometry"] = known or {"beam_table": "message"}
+    return out
+
+
 def _frames(
     rec: Recording, t_h: np.ndarray, t_v: np.ndarray, h_idx: np.ndarray, v_idx: np.ndarray
 ) -> Iterator[KeyframeImages]:
@@ -307,10 +355,16 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         s: {"T_base_sonar": np.asarray(mounts[s], np.float64).round(12).tolist()}
         for s in ("horizontal", "vertical")
     }
+    described = rec.describe()
+    for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
+        sensors[s].update(_sonar_geometry(rec, s, idx, described))
     sensors.update(
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),
-        source={**{k2: v for k2, v in rec.describe().items() if k2 != "path"}, "name": rec.name},
+        source={
+            **{k2: v for k2, v in described.items() if k2 not in ("path", "sonars")},
+            "name": rec.name,
+        },
         pairing={
             "horizontal_pings": len(h_t),
             "vertical_pings": len(v_t),
@@ -331,7 +385,7 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="keyframes",
-    version=1,
+    version=2,
     config=KeyframesConfig,
     inputs=("dataset",),
     outputs=(

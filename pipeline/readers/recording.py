@@ -20,7 +20,12 @@ from pipeline.readers.geometry_checks import (
 )
 from pipeline.readers.navigation import dead_reckon, nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
-from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
+from pipeline.readers.sonar_decode import (
+    beam_directions,
+    decode_image,
+    decode_sonar,
+    sonar_descriptions,
+)
 from pipeline.readers.source_types import Source
 from schemas.recording import PoseTrack
 from schemas.sonar import SonarPing, beam_angles_from_directions
@@ -51,6 +56,11 @@ class ReaderOptions:
     dvl_max_velocity_mps: float
     image_fov_deg: float
     image_max_range_m: float
+    horizontal_sonar: str | None
+    vertical_sonar: str | None
+    horizontal_image_max_range_m: float | None
+    vertical_image_max_range_m: float | None
+    message_definitions: tuple[str, ...]
     horizontal_mount_xyz_m: tuple[float, float, float]
     horizontal_mount_rpy_deg: tuple[float, float, float]
     vertical_mount_xyz_m: tuple[float, float, float]
@@ -375,6 +385,7 @@ class SourceRecording:
             "path": str(self.source.path),
             "format": self.source.kind,
             "topics": self.roles.as_dict(),
+            "sonars": sonar_descriptions(self.options, self.roles.sonar, self._types, self.source),
             "warnings": list(self.source.warnings),
         }
 

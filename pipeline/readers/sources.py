@@ -1,5 +1,5 @@
-"""Raw message sources: one interface over MCAP files, rosbag2 directories, ROS 1 bags
-and raw Oculus captures.
+"""Raw message sources: one interface over MCAP files, rosbag2 directories, ROS 1 bags,
+raw Oculus captures and ARIS recordings.
 
 A source lists its topics (type, count, time span) and streams `(topic, t_ns, message)`
 in log-time order, deserialising only the messages asked for. Times are log (receive)
@@ -43,9 +43,11 @@ def _sniff(path: Path) -> str:
         return "oculus-raw"
     if head.startswith(b"SQLite format 3"):
         return "sqlite3"
+    if head.startswith(b"DDF\x05"):
+        return "aris"
     raise SourceError(
         f"{path}: not a recording sonarmap can read (expected MCAP, ROS 1 bag, ROS 2 bag "
-        "directory or raw Oculus capture)"
+        "directory, raw Oculus capture or ARIS file)"
     )
 
 
@@ -69,6 +71,10 @@ def open_source(path: Path) -> Source:
         from pipeline.readers.sqlite_source import SqliteSource
 
         return SqliteSource(path, [path], None)
+    if kind == "aris":
+        from pipeline.readers.aris import ArisSource
+
+        return ArisSource(path)
     return _open_rosbag2(path)
 
 
