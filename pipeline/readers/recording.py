@@ -393,4 +393,4 @@ class SourceRecording:
 def _reopened(path: Path, options: ReaderOptions, roles: Roles) -> SourceRecording:
     from pipeline.readers.sources import open_source
 
-    return SourceRecording(open_source(path), options, roles)
+    return SourceRecording(open_source(path, options.message_definitions), options, roles)

@@ -31,11 +31,18 @@ class SqliteSource(TimeIndexedSource):
 
     kind = "rosbag2-sqlite3"
 
-    def __init__(self, path: Path, files: Sequence[Path], indexed: dict[str, int] | None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        files: Sequence[Path],
+        indexed: dict[str, int] | None,
+        extra_types: dict[str, Any] | None = None,
+    ) -> None:
         self.path = path
         self.warnings: list[str] = []
         self._files = list(files)
-        self._decoder = Ros2Decoder()
+        # sqlite bags carry no message definitions: custom types come from the user's files.
+        self._decoder = Ros2Decoder(extra_types=extra_types)
         self._types: dict[str, str] = {}
         times: dict[str, list[np.ndarray]] = {}
         for f in self._files:
