@@ -31,6 +31,7 @@ from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import PoseTrack, Recording
 from schemas.sonar import KeyframeImages
 from stages.base import InputRejected, Output, Stage, StageConfig
+from stages.sonar_geometry import sonar_geometry
 
 __all__ = [
     "STAGE",
@@ -245,37 +246,6 @@ def _table(
     return pa.table(cols, schema=KEYFRAMES_SCHEMA)
 
 
-def _sonar_geometry(
-    rec: Recording, sonar: str, idx: np.ndarray, described: Mapping[str, Any]
-) -> dict[str, Any]:
-    """The sonar's fan, range window, vertical aperture and beam table, for every later
-    stage to take from `sensors.json`: the reader's description (preset, table file or
-    config) where the messages do not carry it, else the first keyframe's decoded ping."""
-    ping = next(iter(rec.pings(sonar, idx[:1], labels=False)))
-    angles = np.sort(np.rad2deg(ping.angles_rad.astype(np.float64)))
-    known = dict((described.get("sonars") or {}).get(sonar) or {})
-    n = len(angles)
-    # A table of beam centres spans n - 1 spacings; the fan covers n (half a beam each side).
-    span = float(angles[-1] - angles[0]) * n / (n - 1) if n > 1 else 0.0
-    fov = known.pop("fov_deg", None)
-    step = np.diff(angles)
-    out: dict[str, Any] = {
-        "fov_deg": round(float(fov) if fov is not None else span, 3),
-        "max_range_m": round(float(ping.ranges_m[-1]) + ping.range_resolution_m / 2, 3),
-        "min_range_m": round(max(float(ping.ranges_m[0]) - ping.range_resolution_m / 2, 0.0), 3),
-        "vertical_aperture_deg": known.pop("vertical_aperture_deg", None),
-        "beams": {
-            "count": n,
-            "first_deg": round(float(angles[0]), 4),
-            "last_deg": round(float(angles[-1]), 4),
-            "min_spacing_deg": round(float(step.min()), 4) if n > 1 else 0.0,
-            "max_spacing_deg": round(float(step.max()), 4) if n > 1 else 0.0,
-        },
-    }
-    out["geometry"] = known or {"beam_table": "message"}
-    return out
-
-
 def _frames(
     rec: Recording, t_h: np.ndarray, t_v: np.ndarray, h_idx: np.ndarray, v_idx: np.ndarray
 ) -> Iterator[KeyframeImages]:
@@ -357,7 +327,8 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     }
     described = rec.describe()
     for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
-        sensors[s].update(_sonar_geometry(rec, s, idx, described))
+        ping = next(iter(rec.pings(s, idx[:1], labels=False)))  # the first keyframe's
+        sensors[s].update(sonar_geometry(ping, (described.get("sonars") or {}).get(s)))
     sensors.update(
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),

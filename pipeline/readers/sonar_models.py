@@ -142,13 +142,16 @@ def _text_table(path: Path, where: str) -> np.ndarray:
 
     raw = _read_capped(path, "beam table", ConfigError, _MAX_TABLE_BYTES)
     values: list[str] = []
+    header_allowed = True
     for k, line in enumerate(raw.decode("utf-8", "replace").splitlines()):
         tokens = [t for t in re.split(r"[,;\s]+", line.split("#", 1)[0]) if t]
         if not tokens:
             continue
         bad = [t for t in tokens if not _NUMBER.match(t)]
-        if bad and not values and k == 0:
-            continue  # a header row ("angle_deg")
+        if bad and header_allowed:
+            header_allowed = False
+            continue  # the first non-comment line may be a header ("angle_deg")
+        header_allowed = False
         if bad:
             raise ConfigError(f"{where}:{k + 1}: {bad[0][:20]!r} is not a number of degrees")
         values.extend(tokens)

@@ -50,9 +50,6 @@ from stages.ply import Mesh, decode_mesh_ply
 from stages.voxelize.registration import pose_matrices
 from stages.voxelize.stage import map_xyz
 
-LEGACY_FAN_DEG = 130.0
-"""The fan assumed for keyframes artifacts without `fov_deg` in sensors.json (the paper's M750d)."""
-
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 
 logger = logging.getLogger(__name__)
@@ -81,13 +78,7 @@ class EvaluateConfig(StageConfig):
     max_range_m: float = Field(
         30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
     )
-    fan_width_deg: float | None = Field(
-        None,
-        gt=0.0,
-        le=360.0,
-        description="horizontal sonar fan [deg]; None: the horizontal sonar's fov_deg from"
-        " the keyframes sensors (130 where they have none)",
-    )
+    fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
     aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
     side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
 
@@ -132,7 +123,7 @@ def surface_metrics(
             samples,
             T_world_sonar,
             config.max_range_m,
-            np.deg2rad(config.fan_width_deg or LEGACY_FAN_DEG) / 2,
+            np.deg2rad(config.fan_width_deg or 130.0) / 2,  # 130: artifacts without a fan
             np.deg2rad(config.aperture_deg) / 2,
             raycasting_scene(mesh),
         )
@@ -300,9 +291,6 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "inference": inputs.get("infer.stats") or {},
     }
     outputs: dict[str, Any] = {"errors": None, **{k: None for k in FIGURES}}
-    if config.fan_width_deg is None:  # the fan from one place: the keyframes sensors
-        fan = (sensors.get("horizontal") or {}).get("fov_deg")
-        config = config.model_copy(update={"fan_width_deg": float(fan or LEGACY_FAN_DEG)})
     mesh = decode_mesh_ply(mesh_bytes) if mesh_bytes is not None else None
     judged: JudgedMap | None = None
     voxel_size = float(summary.get("voxel_size_m") or 0.1)
@@ -330,10 +318,10 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             poses_are_ground_truth(keyframes, poses),
         )
         T_ws = _visibility_poses(keyframes, poses, T_base_sonar)
-
+        fan = config.fan_width_deg or sensors["horizontal"].get("fov_deg", 130.0)  # one place
         visible = remember_last(
             lambda samples: visible_mask(
-                samples, T_ws, config.max_range_m, np.deg2rad(config.fan_width_deg or LEGACY_FAN_DEG) / 2,
+                samples, T_ws, config.max_range_m, np.deg2rad(fan) / 2,
                 np.deg2rad(config.aperture_deg) / 2, scene,
             )
         )  # fmt: skip
@@ -353,7 +341,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics["headline"], metrics["per_class"], class_figures,
         )  # fmt: skip
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
-            map_table, errors, mesh, T_ws, config
+            map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan})
         )
         outputs["errors"] = errors
         err = errors.column("error_m").to_numpy()
