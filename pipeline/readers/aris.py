@@ -11,18 +11,17 @@ sound speed and sample timing:
 
     range[k] = (SampleStartDelay + k * SamplePeriod) [us] * 1e-6 * SoundSpeed / 2
 
-Frames are read lazily through a read-only memory map: opening a file reads only the
-frame headers, and memory stays flat whatever its length.
+Frames are read lazily: opening a file reads only the frame headers (in batches, keeping
+just their times), so memory stays flat whatever the file's length.
 """
 
 from __future__ import annotations
 
 import logging
-import mmap
 from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
@@ -62,6 +61,7 @@ _SYSTEM_BEAMS = {0: (48, 96), 1: (64, 128), 2: (48,)}
 MAX_SAMPLES_PER_BEAM = 16384
 """ARIS sonars sample at most a few thousand times per beam; a header claiming more is
 refused before anything is sized from it."""
+_HEADER_BATCH = 1024
 _SOUND_SPEED_MPS = (1300.0, 1800.0)
 """Sound speed in water, fresh to salt, cold to warm, with margin."""
 
@@ -110,21 +110,27 @@ class ArisSource(TimeIndexedSource):
     def __init__(self, path: Path) -> None:
         self.path = path
         self.warnings: list[str] = []
+        self._file: BinaryIO | None = None
         size = path.stat().st_size
         if size < 2 * HEADER_BYTES:
             raise SourceError(
                 f"{path}: {size} bytes; an ARIS file needs a {HEADER_BYTES}-byte file header "
                 "and at least one frame"
             )
-        with path.open("rb") as f:
-            self._map = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
-        head = np.frombuffer(self._map, FILE_HEADER, 1, 0)[0]
+        with path.open("rb") as self._file:
+            self._open_headers(size)
+        self._file = None
+
+    def _open_headers(self, size: int) -> None:
+        """Read and check the file header and every frame header (file open)."""
+        path = self.path
+        head = np.frombuffer(self._read(0, HEADER_BYTES), FILE_HEADER, 1)[0]
         if int(head["Version"]) != SIGNATURE:
             raise SourceError(
                 f"{path}: not an ARIS file (byte 0 holds {int(head['Version']):#010x}, "
                 f"expected {SIGNATURE:#010x})"
             )
-        first = np.frombuffer(self._map, FRAME_HEADER, 1, HEADER_BYTES)[0]
+        first = np.frombuffer(self._read(HEADER_BYTES, HEADER_BYTES), FRAME_HEADER, 1)[0]
         self._check_first(first)
         mode = int(first["PingMode"])
         self.n_beams = BEAMS_BY_PING_MODE[mode]
@@ -143,19 +149,37 @@ class ArisSource(TimeIndexedSource):
                 f"{self.frame_bytes} bytes); frame {n} onwards is cut short and dropped, "
                 f"{n} frames read"
             )
-        record = np.dtype([("h", FRAME_HEADER), ("s", np.uint8, (self.n_beams * self.n_samples,))])
-        self._frames = np.ndarray((n,), record, self._map, HEADER_BYTES)
-        headers = self._frames["h"]
-        self._check_frames(headers)
-        self.system = _SYSTEMS.get(
-            int(first["TheSystemType"]), f"type {int(first['TheSystemType'])}"
-        )
+        system = int(first["TheSystemType"])
+        self.system = _SYSTEMS.get(system, f"type {system}")
         self.table = load_sonar(_PRESET_BY_BEAMS[self.n_beams])
-        self._check_lens(headers, int(first["TheSystemType"]))
-        times = headers["FrameTime"].astype(np.int64) * 1000
+        times, telephoto = self._scan_headers(n, first)
+        self._check_lens(telephoto, n, system)
         self._order = np.argsort(times, kind="stable")
         self._frame_times = times
         self._set_topics(path, {ARIS_TOPIC: times[self._order]}, {ARIS_TOPIC: ARIS_TYPE}, None)
+
+    def _read(self, offset: int, size: int) -> bytes:
+        if self._file is not None:  # while opening: one handle for every header
+            self._file.seek(offset)
+            return self._file.read(size)
+        with self.path.open("rb") as f:
+            f.seek(offset)
+            return f.read(size)
+
+    def _scan_headers(self, n: int, first: np.void) -> tuple[np.ndarray, int]:
+        """Check every frame header, in batches (memory flat in the frame count; the first
+        bad frame stops the scan). Returns (n,) int64 frame times [ns] and the number of
+        frames with a telephoto lens."""
+        times = np.empty(n, np.int64)
+        telephoto = 0
+        for start in range(0, n, _HEADER_BATCH):
+            k = range(start, min(n, start + _HEADER_BATCH))
+            raw = b"".join(self._read(HEADER_BYTES + i * self.frame_bytes, HEADER_BYTES) for i in k)
+            h = np.frombuffer(raw, FRAME_HEADER)
+            self._check_frames(h, start, first)
+            times[start : start + len(h)] = h["FrameTime"].astype(np.int64) * 1000
+            telephoto += int(np.count_nonzero(h["LargeLens"]))
+        return times, telephoto
 
     def _warn(self, message: str) -> None:
         # Collected, not logged: every command prints a source's warnings once.
@@ -182,14 +206,14 @@ class ArisSource(TimeIndexedSource):
                 f"(expected 1 to {MAX_SAMPLES_PER_BEAM})"
             )
 
-    def _check_frames(self, h: np.ndarray) -> None:
-        """Every frame: signature, same size as the first, ordered samples, sane timing."""
+    def _check_frames(self, h: np.ndarray, start: int, first: np.void) -> None:
+        """Frames start.. : signature, same size as frame 0, ordered samples, sane timing."""
         checks = (
             ("Version", h["Version"] != SIGNATURE, f"signature, expected {SIGNATURE:#010x}"),
-            ("PingMode", h["PingMode"] != h["PingMode"][0], "PingMode differs from frame 0's"),
+            ("PingMode", h["PingMode"] != first["PingMode"], "PingMode differs from frame 0's"),
             (
                 "SamplesPerBeam",
-                h["SamplesPerBeam"] != h["SamplesPerBeam"][0],
+                h["SamplesPerBeam"] != first["SamplesPerBeam"],
                 "SamplesPerBeam differs from frame 0's (every ARIS frame has one size)",
             ),
             (
@@ -210,25 +234,25 @@ class ArisSource(TimeIndexedSource):
         )
         for name, bad, what in checks:
             if bad.any():
-                k = int(np.flatnonzero(bad)[0])
-                value = h[name][k].item()
+                j = int(np.flatnonzero(bad)[0])
+                value = h[name][j].item()
                 shown = f"{value:#010x}" if name == "Version" else f"{value:.6g}"
+                k = start + j
                 raise SourceError(
                     f"{self.path}: frame {k} (byte {_field_at(k, self.frame_bytes, name)}): "
-                    f"{name} {shown[:20]}: {what}; {int(bad.sum())} of {len(h)} frames"
+                    f"{name} {shown[:20]}: {what}"
                 )
 
-    def _check_lens(self, h: np.ndarray, system: int) -> None:
+    def _check_lens(self, telephoto: int, n: int, system: int) -> None:
         """Warn where the bundled beam table may not be the sonar's own."""
         if self.n_beams not in _SYSTEM_BEAMS.get(system, (self.n_beams,)):
             self._warn(
                 f"{self.path}: the frames say {self.system} but {self.n_beams} beams; "
                 f"bearings from the {self.table.name} table (the only one with {self.n_beams})"
             )
-        tele = h["LargeLens"] != 0
-        if tele.any():
+        if telephoto:
             self._warn(
-                f"{self.path}: {int(tele.sum())} of {len(h)} frames say a telephoto lens "
+                f"{self.path}: {telephoto} of {n} frames say a telephoto lens "
                 f"(LargeLens); no telephoto beam table is bundled, so bearings are from the "
                 f"standard-lens table {self.table.name} (fan {self.table.fov_deg:.4g} deg); "
                 "give the telephoto table as keyframes.horizontal_sonar (a CSV of angles)"
@@ -236,12 +260,16 @@ class ArisSource(TimeIndexedSource):
 
     def frame(self, k: int) -> ArisFrame:
         """Decode frame k (0-based, file order)."""
-        rec = self._frames[k]
-        h = rec["h"]
+        raw = self._read(HEADER_BYTES + k * self.frame_bytes, self.frame_bytes)
+        if len(raw) != self.frame_bytes:
+            raise SourceError(f"{self.path}: frame {k} was cut short while being read")
+        h = np.frombuffer(raw, FRAME_HEADER, 1)[0]
         c = float(h["SoundSpeed"])
         start_us, period_us = float(h["SampleStartDelay"]), float(h["SamplePeriod"])
         ranges = (start_us + period_us * np.arange(self.n_samples)) * 1e-6 * c / 2.0
-        image = np.array(rec["s"]).reshape(self.n_samples, self.n_beams)
+        image = np.frombuffer(raw, np.uint8, offset=HEADER_BYTES).reshape(
+            self.n_samples, self.n_beams
+        )
         platform_keys = ("Heading", "Pitch", "Roll", "Depth")
         platform = {k2.lower(): float(h[k2]) for k2 in platform_keys}
         angles = self.table.beam_angles_deg
