@@ -93,7 +93,7 @@ def test_table_files_and_their_refusals(tmp_path: Path) -> None:
         load_sonar("m750")
 
 
-def _polar_recording(path: Path, images: list[np.ndarray]) -> None:
+def _polar_recording(path: Path, images: list[np.ndarray], labels: bool = False) -> None:
     t = ros2_typestore().types
     with path.open("wb") as f, Ros2McapWriter(f) as w:
         for k, image in enumerate(images):
@@ -110,6 +110,8 @@ def _polar_recording(path: Path, images: list[np.ndarray]) -> None:
                     data=image.reshape(-1),
                 )
                 w.write(topic, "sensor_msgs/msg/Image", msg, tk)
+                if labels:  # a label image equal to the sonar image, column for column
+                    w.write(f"{topic}/labels", "sensor_msgs/msg/Image", msg, tk)
             w.write(TOPIC_DEAD_RECKONING, ODOMETRY_TYPE, odom_msg(tk, 1.0 * k, 0.0, -2.0, 0.0), tk)
 
 
@@ -179,3 +181,21 @@ def test_the_fan_falls_back_to_130_for_old_sensors_and_config_wins() -> None:
     new = {"horizontal": {"fov_deg": 27.579}}
     assert with_sensor_fan(SlamConfig(), new).nssm_aperture_deg == 27.579
     assert with_sensor_fan(SlamConfig(nssm_aperture_deg=90), new).nssm_aperture_deg == 90
+
+
+@pytest.mark.parametrize("ascending", [True, False])
+def test_label_images_follow_the_tables_column_order(tmp_path: Path, ascending: bool) -> None:
+    rng = np.random.default_rng(5)
+    images = [rng.integers(0, 255, (N_RANGES, N_BEAMS), dtype=np.uint8) for _ in range(3)]
+    path = tmp_path / "labelled.mcap"
+    _polar_recording(path, images, labels=True)
+    table = np.linspace(-14.0, 14.0, N_BEAMS) ** 3 / 14.0**2  # uneven, ascending
+    csv = tmp_path / "table.csv"
+    csv.write_text("\n".join(f"{a:.6f}" for a in (table if ascending else table[::-1])))
+    cfg = KeyframesConfig(
+        horizontal_topic=H_TOPIC, vertical_topic=V_TOPIC, horizontal_sonar=str(csv)
+    )
+    ping = next(open_recording(path, cfg).pings("horizontal", [1]))
+    assert ping.labels is not None
+    np.testing.assert_array_equal(ping.labels, ping.image)
+    np.testing.assert_array_equal(ping.image, images[1] if ascending else images[1][:, ::-1])

@@ -21,7 +21,9 @@ from pipeline.readers.geometry_checks import (
 from pipeline.readers.navigation import dead_reckon, nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
 from pipeline.readers.sonar_decode import (
+    IMAGE_SONAR_TYPES,
     beam_directions,
+    configured_sonar,
     decode_image,
     decode_sonar,
     sonar_descriptions,
@@ -329,7 +331,7 @@ class SourceRecording:
         ping = decode_sonar(parts["ping"], msgtype, t, sonar, self.options, where)
         if "labels" not in parts and "truth" not in parts:
             return ping
-        order = self._column_order(parts["ping"], msgtype)
+        order = self._column_order(parts["ping"], msgtype, sonar)
         labels = truth = None
         try:
             if "labels" in parts:
@@ -344,9 +346,11 @@ class SourceRecording:
             ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
         )
 
-    @staticmethod
-    def _column_order(msg: Any, msgtype: str) -> np.ndarray:
+    def _column_order(self, msg: Any, msgtype: str, sonar: str) -> np.ndarray:
         """The column permutation the sonar decoder applied (to apply to label images)."""
+        model = configured_sonar(self.options, sonar) if msgtype in IMAGE_SONAR_TYPES else None
+        if model is not None and model.beam_angles_deg is not None:
+            return np.argsort(model.beam_angles_deg, kind="stable")
         if msgtype.endswith("ProjectedSonarImage"):
             d = beam_directions(msg)
             return np.argsort(beam_angles_from_directions(d), kind="stable")
