@@ -30,9 +30,20 @@ class SonarMount:
 
     Attributes:
         T_base_sonar: (4, 4) float64 read-only rigid transform, sonar frame -> base_link.
+        details: the rest of the sonar's entry as written (its fan `fov_deg`, range
+            window, vertical aperture, beam summary and where they came from).
     """
 
     T_base_sonar: np.ndarray
+    details: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def fov_deg(self) -> float | None:
+        """The sonar's fan [deg] as the keyframes stage found it (None: not recorded)."""
+        value = self.details.get("fov_deg")
+        return (
+            float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+        )
 
     @classmethod
     def from_json(cls, role: str, doc: Any) -> SonarMount:
@@ -51,7 +62,8 @@ class SonarMount:
         if not rigid or not np.allclose(m[3], (0.0, 0.0, 0.0, 1.0)):
             raise ValueError(f"sensors.{where} is not a 4x4 rigid transform")
         m.setflags(write=False)
-        return cls(m)
+        rest = {k: v for k, v in doc.items() if k != "T_base_sonar"}
+        return cls(m, MappingProxyType(rest))
 
 
 def _frozen(doc: Any, name: str) -> Mapping[str, Any]:
@@ -73,6 +85,8 @@ class Sensors:
         has_labels: its sonar images carry per-pixel class labels.
         source: the reader's description of the recording (format, topics, name).
         pairing: counts of the ping pairing (pings, pairs, unpaired, keyframes).
+        extra: the file's other entries as written (e.g. `provenance`: where each role's
+            topic, frame and mount came from).
     """
 
     sonars: Mapping[str, SonarMount]
@@ -80,6 +94,7 @@ class Sensors:
     has_labels: bool = False
     source: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
     pairing: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    extra: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
     def sonar(self, role: SonarRole) -> SonarMount:
         """The mounting of sonar `role`; ValueError when the record has none."""
@@ -115,10 +130,12 @@ class Sensors:
             if not isinstance(value, bool):
                 raise ValueError(f"sensors.{name} is not true or false")
             flags[name] = value
+        known = {*SONAR_ROLES, "has_ground_truth", "has_labels", "source", "pairing"}
         return cls(
             MappingProxyType(sonars),
             source=_frozen(doc.get("source"), "source"),
             pairing=_frozen(doc.get("pairing"), "pairing"),
+            extra=MappingProxyType({k: v for k, v in doc.items() if k not in known}),
             **flags,
         )
 
@@ -132,7 +149,7 @@ class Sensors:
     def to_json(self) -> dict[str, Any]:
         """The dict `sensors.json` holds (the keyframes stage's, key for key)."""
         doc: dict[str, Any] = {
-            role: {"T_base_sonar": mount.T_base_sonar.tolist()}
+            role: {"T_base_sonar": mount.T_base_sonar.tolist(), **mount.details}
             for role, mount in self.sonars.items()
         }
         doc.update(
@@ -140,5 +157,6 @@ class Sensors:
             has_labels=self.has_labels,
             source=dict(self.source),
             pairing=dict(self.pairing),
+            **self.extra,
         )
         return doc

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.geometry import rot_z
 from sim.scene import (
     BoatHull,
     CylindricalPiling,
@@ -18,6 +17,7 @@ from sim.scene import (
     Seawall,
     Truss,
 )
+from stages.kernels.geometry import matrix_from_rpy
 
 __all__ = ["Mesh", "beam_mesh", "box_mesh", "file_mesh", "primitive_mesh", "seafloor_mesh"]
 
@@ -190,7 +190,7 @@ def file_mesh(obj: MeshObject, floor_z: float) -> Mesh:
     t = np.asarray(mesh.triangles, np.int32)
     if len(t) == 0 or not np.isfinite(v).all():
         raise SceneError(f"mesh {obj.file}: no triangles, or not a mesh open3d can read")
-    v = (v * obj.scale) @ rot_z(np.deg2rad(obj.yaw_deg)).T
+    v = (v * obj.scale) @ matrix_from_rpy([0.0, 0.0, np.deg2rad(obj.yaw_deg)]).T
     bottom = floor_z if obj.z_m is None else obj.z_m
     v += np.array([obj.position_m[0], obj.position_m[1], bottom - v[:, 2].min()])
     return v, t

@@ -32,6 +32,7 @@ from schemas.recording import PoseTrack, Recording
 from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.base import DATASET, Output, Stage, StageConfig, StageInputError
+from stages.kernels.sonar_geometry import sonar_geometry
 
 __all__ = [
     "STAGE",
@@ -73,7 +74,17 @@ class KeyframesConfig(StageConfig):
             else one standard atmosphere).
         surface_pressure_from_first_s: take p_surface as the median pressure of the
             recording's first seconds (the vehicle at the surface).
-        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images.
+        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images (both
+            sonars; evenly spaced beams) where a sonar has no preset or table of its own.
+        horizontal_sonar, vertical_sonar: the sonar's geometry: a preset name
+            (`configs/sonars/`, e.g. "oculus-m750d-750khz", "aris3000-128") or a CSV/YAML
+            file of beam angles [deg] in image-column order, positive to the sonar's left.
+            Gives polar images their (possibly uneven) beam table, and every sonar its
+            fan, range and vertical aperture in `sensors.json` (None: from the messages).
+        horizontal_image_max_range_m, vertical_image_max_range_m: range of that sonar's
+            polar images [m] (None: image_max_range_m).
+        message_definitions: `.msg` / `.idl` files of custom ROS 2 message types the
+            recording uses (a .msg file's type is its path: pkg/msg/Name.msg).
         base_frame: the vehicle frame mounts are composed from in the recording's tf tree.
         *_mount_xyz_m, *_mount_rpy_deg: T_base_sensor; None takes it from the recording's
             /tf_static (/tf) tree by the sensor messages' frame_id, else a default (warned).
@@ -101,6 +112,13 @@ class KeyframesConfig(StageConfig):
     surface_pressure_from_first_s: float | None = Field(None, gt=0.0, le=3600.0)
     image_fov_deg: float = Field(130.0, gt=0.0, le=360.0)
     image_max_range_m: float = Field(30.0, gt=0.0, le=1000.0)
+    horizontal_sonar: str | None = Field(None, min_length=1, max_length=4096)
+    vertical_sonar: str | None = Field(None, min_length=1, max_length=4096)
+    horizontal_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
+    vertical_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
+    message_definitions: tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...] = Field(
+        (), max_length=64
+    )
     base_frame: str = Field("base_link", min_length=1, max_length=200)
     horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
     horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
@@ -329,11 +347,18 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     }
     # Where each role's topic, frame and mount came from (recording, config or default).
     provenance = getattr(rec, "provenance", None)
+    described = rec.describe()
+    for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
+        ping = next(iter(rec.pings(s, idx[:1], labels=False)))  # the first keyframe's
+        sensors[s].update(sonar_geometry(ping, (described.get("sonars") or {}).get(s)))
     sensors.update(
         provenance=provenance() if callable(provenance) else {},
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),
-        source={**{k2: v for k2, v in rec.describe().items() if k2 != "path"}, "name": rec.name},
+        source={
+            **{k2: v for k2, v in described.items() if k2 not in ("path", "sonars")},
+            "name": rec.name,
+        },
         pairing={
             "horizontal_pings": len(h_t),
             "vertical_pings": len(v_t),
@@ -354,7 +379,7 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="keyframes",
-    version=1,
+    version=2,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(

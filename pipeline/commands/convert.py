@@ -133,7 +133,7 @@ def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, An
     from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
 
     opts = ReaderOptions.from_config(options)
-    source = open_source(src)
+    source = open_source(src, opts.message_definitions)
     roles = detect_roles(src, source.topics(), opts, require_pair=False)
     if not roles.sonar:
         from pipeline.readers.roles import topic_listing

@@ -19,16 +19,15 @@ def topics_report(path: Path, options: Any = None) -> dict[str, Any]:
     from pipeline.readers.mcap_source import McapSource
     from pipeline.readers.roles import detect_roles
 
-    source = open_source(path)
+    opts = ReaderOptions.from_config(options)
+    source = open_source(path, opts.message_definitions)
     if isinstance(source, McapSource):
         # Runs check only the chunks they decompress; the inspection command checks them all.
         source.verify()
     topics = source.topics()
     roles_error = None
     try:
-        roles = detect_roles(
-            path, topics, ReaderOptions.from_config(options), require_pair=False
-        ).as_dict()
+        roles = detect_roles(path, topics, opts, require_pair=False).as_dict()
     except SourceError as err:
         roles, roles_error = {}, str(err)
     by_topic: dict[str, list[str]] = {}
@@ -67,9 +66,15 @@ def topics(
         ..., help="MCAP file, ROS 2 bag directory, ROS 1 bag or raw Oculus capture."
     ),
     json_: bool = JSON_OPT,
+    msg: list[Path] = typer.Option(
+        [],
+        "--msg",
+        help="A .msg (at <package>/msg/<Name>.msg) or .idl file of a custom message type"
+        " the recording uses. Repeatable.",
+    ),
 ) -> None:
     """List topics like `ros2 bag info`, with the sonar/navigation roles sonarmap detects."""
-    report = topics_report(path)
+    report = topics_report(path, {"message_definitions": tuple(str(m) for m in msg)})
     if json_:
         emit_json(report)
         return

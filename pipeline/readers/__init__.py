@@ -37,4 +37,5 @@ def open_recording(path: Path, config: Any = None) -> SourceRecording:
     Raises:
         SourceError: unreadable file, no/ambiguous sonar or navigation topics.
     """
-    return SourceRecording(open_source(Path(path)), ReaderOptions.from_config(config))
+    options = ReaderOptions.from_config(config)
+    return SourceRecording(open_source(Path(path), options.message_definitions), options)

@@ -22,7 +22,14 @@ from pipeline.readers.geometry_checks import (
 from pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
 from pipeline.readers.navigation import nav_pose, pose_track_rows
 from pipeline.readers.roles import Roles, detect_roles
-from pipeline.readers.sonar_decode import beam_directions, decode_image, decode_sonar
+from pipeline.readers.sonar_decode import (
+    IMAGE_SONAR_TYPES,
+    beam_directions,
+    configured_sonar,
+    decode_image,
+    decode_sonar,
+    sonar_descriptions,
+)
 from pipeline.readers.source_types import Source
 from pipeline.readers.tf_tree import TfTree
 from schemas.recording import PoseTrack
@@ -56,6 +63,11 @@ class ReaderOptions:
     dvl_max_velocity_mps: float
     image_fov_deg: float
     image_max_range_m: float
+    horizontal_sonar: str | None
+    vertical_sonar: str | None
+    horizontal_image_max_range_m: float | None
+    vertical_image_max_range_m: float | None
+    message_definitions: tuple[str, ...]
     horizontal_mount_xyz_m: tuple[float, float, float] | None
     horizontal_mount_rpy_deg: tuple[float, float, float] | None
     vertical_mount_xyz_m: tuple[float, float, float] | None
@@ -272,7 +284,7 @@ class SourceRecording(NavigationSensors):
         ping = decode_sonar(parts["ping"], msgtype, t, sonar, self.options, where)
         if "labels" not in parts and "truth" not in parts:
             return ping
-        order = self._column_order(parts["ping"], msgtype)
+        order = self._column_order(parts["ping"], msgtype, sonar)
         labels = truth = None
         try:
             if "labels" in parts:
@@ -287,9 +299,11 @@ class SourceRecording(NavigationSensors):
             ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
         )
 
-    @staticmethod
-    def _column_order(msg: Any, msgtype: str) -> np.ndarray:
+    def _column_order(self, msg: Any, msgtype: str, sonar: str) -> np.ndarray:
         """The column permutation the sonar decoder applied (to apply to label images)."""
+        model = configured_sonar(self.options, sonar) if msgtype in IMAGE_SONAR_TYPES else None
+        if model is not None and model.beam_angles_deg is not None:
+            return np.argsort(model.beam_angles_deg, kind="stable")
         if msgtype.endswith("ProjectedSonarImage"):
             d = beam_directions(msg)
             return np.argsort(beam_angles_from_directions(d), kind="stable")
@@ -341,6 +355,7 @@ class SourceRecording(NavigationSensors):
             "path": str(self.source.path),
             "format": self.source.kind,
             "topics": self.roles.as_dict(),
+            "sonars": sonar_descriptions(self.options, self.roles.sonar, self._types, self.source),
             "warnings": list(self.source.warnings),
         }
 
@@ -348,4 +363,4 @@ class SourceRecording(NavigationSensors):
 def _reopened(path: Path, options: ReaderOptions, roles: Roles) -> SourceRecording:
     from pipeline.readers.sources import open_source
 
-    return SourceRecording(open_source(path), options, roles)
+    return SourceRecording(open_source(path, options.message_definitions), options, roles)

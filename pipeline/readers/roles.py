@@ -95,6 +95,13 @@ def _sonars(
         t for t, i in topics.items() if i.msgtype in SONAR_TYPES and t not in chosen.values()
     ]
     listing = list(topics.values())
+    if require_pair and len(candidates) + len(chosen) == 1:
+        raise _fail(
+            path,
+            listing,
+            "one sonar topic, but sonarmap maps an orthogonal pair (horizontal + vertical)",
+            "horizontal_topic and keyframes.vertical_topic",
+        )
     if not candidates and not chosen:
         if require_pair:
             raise _fail(

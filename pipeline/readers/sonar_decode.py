@@ -4,6 +4,8 @@ Every decoder returns the project's polar convention: rows = range bins near -> 
 (`ranges_m` = bin centres), columns = beams with `angles_rad` ascending and positive to
 the sensor's left (bearing for the horizontal sonar, elevation for the vertical one).
 Oculus bearings are positive to starboard, so Oculus images are mirrored left-right.
+A polar `sensor_msgs` image takes its beam angles from the sonar's configured preset or
+table file (`keyframes.<role>_sonar`), else even spacing over `image_fov_deg`.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 from pipeline.engine.errors import SourceError
 from pipeline.readers.geometry_checks import beam_direction_problem, ping_problem
 from pipeline.readers.limits import MAX_IMAGE_PIXELS
+from pipeline.readers.sonar_models import SonarModel, even_beam_angles, load_sonar
 from schemas.sonar import SonarPing, beam_angles_from_directions
 
 __all__ = [
@@ -26,20 +29,23 @@ __all__ = [
     "SONAR_TYPES",
     "ProjectedArrays",
     "beam_directions",
+    "configured_sonar",
     "decode_image",
     "decode_sonar",
     "oculus_arrays",
     "parse_projected_cdr",
+    "sonar_descriptions",
 ]
 
 PROJECTED = "marine_acoustic_msgs/msg/ProjectedSonarImage"
 OCULUS = "sonar_oculus/msg/OculusPing"
 OCULUS_RAW_MSG = "sonar_oculus/msg/OculusPingUncompressed"
 OCULUS_FILE = "oculus/SimplePingResult"
+ARIS = "aris/Frame"
 IMAGE = "sensor_msgs/msg/Image"
 COMPRESSED = "sensor_msgs/msg/CompressedImage"
 
-SONAR_TYPES: tuple[str, ...] = (PROJECTED, OCULUS, OCULUS_RAW_MSG, OCULUS_FILE)
+SONAR_TYPES: tuple[str, ...] = (PROJECTED, OCULUS, OCULUS_RAW_MSG, OCULUS_FILE, ARIS)
 """Types recognised as sonar automatically."""
 IMAGE_SONAR_TYPES: tuple[str, ...] = (IMAGE, COMPRESSED)
 """Polar images accepted as sonar only when a topic is configured (beam table from config)."""
@@ -206,13 +212,71 @@ def _oculus_file(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
     return _ping(t_ns, sonar, *oculus_arrays(msg.image, msg.bearings_cdeg, msg.range_resolution_m))
 
 
-def _polar_image(msg: Any, t_ns: int, sonar: str, beam_table: Any) -> SonarPing:
+def configured_sonar(options: Any, sonar: str) -> SonarModel | None:
+    """The preset or beam-table file configured for a sonar role (`<role>_sonar`), if any."""
+    spec = getattr(options, f"{sonar}_sonar", None)
+    return load_sonar(str(spec)) if spec else None
+
+
+def _table_angles(model: SonarModel | None, n_beams: int) -> np.ndarray | None:
+    """The configured beam table [rad] in column order, None when it has none."""
+    if model is None or model.beam_angles_deg is None:
+        return None
+    if len(model.beam_angles_deg) != n_beams:
+        raise ValueError(
+            f"the image has {n_beams} beams but the beam table of {model.source} has "
+            f"{len(model.beam_angles_deg)} angles"
+        )
+    return np.deg2rad(model.beam_angles_deg)
+
+
+def _polar_image(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
     image = decode_image(msg)
     n_r, n_b = image.shape
-    fov = np.deg2rad(beam_table.image_fov_deg)
-    angles = np.linspace(fov / 2, -fov / 2, n_b)  # column 0 = port (left), as Oculus images
-    ranges = (np.arange(n_r) + 0.5) * (beam_table.image_max_range_m / n_r)
+    model = configured_sonar(options, sonar)
+    angles = _table_angles(model, n_b)
+    if angles is None:
+        # column 0 = port (left), as Oculus images
+        angles = even_beam_angles(model.fov_deg if model else options.image_fov_deg, n_b)
+    max_range = getattr(options, f"{sonar}_image_max_range_m", None) or options.image_max_range_m
+    ranges = (np.arange(n_r) + 0.5) * (max_range / n_r)
     return _ping(t_ns, sonar, image, ranges, angles)
+
+
+def sonar_descriptions(
+    options: Any, sonar_topics: dict[str, str], msgtypes: dict[str, str], source: Any
+) -> dict[str, dict[str, Any]]:
+    """Per sonar role, the geometry the messages do not carry: where the beam table comes
+    from and, from a preset or table file, fan, vertical aperture and datasheet range.
+
+    `fov_deg` is given only where it is not read from the messages' own beam table
+    (polar images; ARIS frames, whose table is the maker's preset with its beam edges).
+    """
+    out: dict[str, dict[str, Any]] = {}
+    for s, topic in sonar_topics.items():
+        msgtype = msgtypes.get(topic, "")
+        model = configured_sonar(options, s)
+        if model is None and msgtype == ARIS:
+            model = getattr(source, "table", None)
+        entry: dict[str, Any] = {"beam_table": "message"}
+        if model is not None:
+            entry.update(model.summary())
+            entry["beam_table"] = model.source if model.beam_angles_deg is not None else "message"
+            if model.vertical_aperture_deg is not None:
+                entry["vertical_aperture_deg"] = model.vertical_aperture_deg
+            if model.max_range_m is not None:
+                entry["datasheet_max_range_m"] = model.max_range_m
+        if msgtype in IMAGE_SONAR_TYPES or msgtype == ARIS:
+            entry["fov_deg"] = float(model.fov_deg if model else options.image_fov_deg)
+            if model is None or model.beam_angles_deg is None:
+                entry["beam_table"] = "even spacing"
+        out[s] = entry
+    return out
+
+
+def _aris(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
+    angles = _table_angles(configured_sonar(options, sonar), len(msg.angles_rad))
+    return _ping(t_ns, sonar, msg.image, msg.ranges_m, msg.angles_rad if angles is None else angles)
 
 
 _DECODERS: dict[str, Callable[[Any, int, str, Any], SonarPing]] = {
@@ -220,6 +284,7 @@ _DECODERS: dict[str, Callable[[Any, int, str, Any], SonarPing]] = {
     OCULUS: _oculus,
     OCULUS_RAW_MSG: _oculus,
     OCULUS_FILE: _oculus_file,
+    ARIS: _aris,
     IMAGE: _polar_image,
     COMPRESSED: _polar_image,
 }
@@ -235,7 +300,8 @@ def decode_sonar(
         msgtype: its type name.
         t_ns: ping time [ns].
         sonar: "horizontal" or "vertical".
-        options: reader options (`image_fov_deg`, `image_max_range_m` for polar images).
+        options: reader options (`<sonar>_sonar`, `image_fov_deg`, `image_max_range_m`,
+            `<sonar>_image_max_range_m` for polar images and beam tables).
         where: "file topic" for error messages.
 
     Raises:

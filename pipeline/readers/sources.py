@@ -1,5 +1,5 @@
-"""Raw message sources: one interface over MCAP files, rosbag2 directories, ROS 1 bags
-and raw Oculus captures.
+"""Raw message sources: one interface over MCAP files, rosbag2 directories, ROS 1 bags,
+raw Oculus captures and ARIS recordings.
 
 A source lists its topics (type, count, time span) and streams `(topic, t_ns, message)`
 in log-time order, deserialising only the messages asked for. Times are log (receive)
@@ -9,6 +9,7 @@ times in integer nanoseconds; they are what pairs the sonars and the navigation.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,16 +44,29 @@ def _sniff(path: Path) -> str:
         return "oculus-raw"
     if head.startswith(b"SQLite format 3"):
         return "sqlite3"
+    if head.startswith(b"DDF\x05"):
+        return "aris"
     raise SourceError(
         f"{path}: not a recording sonarmap can read (expected MCAP, ROS 1 bag, ROS 2 bag "
-        "directory or raw Oculus capture)"
+        "directory, raw Oculus capture or ARIS file)"
     )
 
 
-def open_source(path: Path) -> Source:
-    """Open any supported recording as a `Source` (SourceError when it cannot be read)."""
+def open_source(path: Path, message_definitions: Sequence[str | Path] = ()) -> Source:
+    """Open any supported recording as a `Source` (SourceError when it cannot be read).
+
+    Args:
+        path: the recording.
+        message_definitions: `.msg` / `.idl` files of custom types, for the formats that
+            carry no definitions of their own (rosbag2 sqlite3); MCAP and ROS 1 bags embed them.
+    """
     path = Path(path)
     kind = _sniff(path)
+    extra = None
+    if message_definitions:
+        from pipeline.readers.typestores import load_message_types
+
+        extra = load_message_types(message_definitions)
     if kind == "mcap":
         from pipeline.readers.mcap_source import McapSource
 
@@ -68,8 +82,12 @@ def open_source(path: Path) -> Source:
     if kind == "sqlite3":
         from pipeline.readers.sqlite_source import SqliteSource
 
-        return SqliteSource(path, [path], None)
-    return _open_rosbag2(path)
+        return SqliteSource(path, [path], None, extra)
+    if kind == "aris":
+        from pipeline.readers.aris import ArisSource
+
+        return ArisSource(path)
+    return _open_rosbag2(path, extra)
 
 
 def _bag_metadata(path: Path) -> dict[str, Any]:
@@ -85,7 +103,7 @@ def _bag_metadata(path: Path) -> dict[str, Any]:
         ) from err
 
 
-def _open_rosbag2(path: Path) -> Source:
+def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Source:
     meta = _bag_metadata(path)
     files = [path / name for name in meta.get("relative_file_paths", [])]
     missing = [str(f) for f in files if not f.is_file()]
@@ -103,7 +121,7 @@ def _open_rosbag2(path: Path) -> Source:
     if storage == "sqlite3":
         from pipeline.readers.sqlite_source import SqliteSource
 
-        return SqliteSource(path, files, indexed)
+        return SqliteSource(path, files, indexed, extra_types)
     raise SourceError(f"{path}: unsupported rosbag2 storage {storage!r} (mcap or sqlite3)")
 
 

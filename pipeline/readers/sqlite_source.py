@@ -3,6 +3,11 @@
 rosbags 0.11.9 silently yields no messages from some official sqlite3 bags (the QoS
 text in metadata.yaml differs from the database's), so the database tables are read
 here and the counts are checked against metadata.yaml.
+
+Reading never writes beside the recording: each database is opened read-only and
+immutable (`?mode=ro&immutable=1`), so sqlite neither creates the `-shm`/`-wal` files a
+WAL-mode database otherwise gets on open nor needs a writable directory (archive shares,
+mounted disk images).
 """
 
 from __future__ import annotations
@@ -26,14 +31,22 @@ class SqliteSource(TimeIndexedSource):
 
     kind = "rosbag2-sqlite3"
 
-    def __init__(self, path: Path, files: Sequence[Path], indexed: dict[str, int] | None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        files: Sequence[Path],
+        indexed: dict[str, int] | None,
+        extra_types: dict[str, Any] | None = None,
+    ) -> None:
         self.path = path
         self.warnings: list[str] = []
         self._files = list(files)
-        self._decoder = Ros2Decoder()
+        # sqlite bags carry no message definitions: custom types come from the user's files.
+        self._decoder = Ros2Decoder(extra_types=extra_types)
         self._types: dict[str, str] = {}
         times: dict[str, list[np.ndarray]] = {}
         for f in self._files:
+            self._check_wal(f)
             with self._connect(f) as db:
                 for name, typ in db.execute("SELECT name, type FROM topics"):
                     self._types.setdefault(name, typ)
@@ -46,10 +59,22 @@ class SqliteSource(TimeIndexedSource):
         sorted_times = {k: np.sort(np.concatenate(v)) for k, v in times.items()}
         self._set_topics(path, sorted_times, self._types, indexed)
 
+    def _check_wal(self, f: Path) -> None:
+        """An immutable open does not read a write-ahead log: say so when one holds data."""
+        wal = f.with_name(f.name + "-wal")
+        if wal.is_file() and wal.stat().st_size > 0:
+            self.warnings.append(
+                f"{wal}: {wal.stat().st_size} bytes of write-ahead log not checkpointed into "
+                f"{f.name} are not read (sonarmap never writes beside a recording; open the bag "
+                "once with sqlite3 where it is writable to fold them in)"
+            )
+
     @staticmethod
     def _connect(f: Path) -> sqlite3.Connection:
         try:
-            db = sqlite3.connect(f"file:{f}?mode=ro", uri=True)
+            # A file: URI so that '?', '#' and '%' in the path are percent-encoded.
+            uri = f"{f.resolve().as_uri()}?mode=ro&immutable=1"
+            db = sqlite3.connect(uri, uri=True)
             db.execute("SELECT count(*) FROM messages").fetchone()
         except sqlite3.DatabaseError as err:
             raise SourceError(f"{f}: not a readable rosbag2 sqlite3 database ({err})") from err

@@ -84,7 +84,7 @@ def objects_without_features(
 ) -> list[int]:
     """Indices of the annotated shapes that hold none of a keyframe's horizontal features
     (range [m], bearing [rad]): they label no detected object, so they train nothing."""
-    xy = np.stack([range_m * np.cos(angle_rad), range_m * np.sin(angle_rad)], axis=1)
+    xy = fan_to_xy(range_m, angle_rad).reshape(-1, 2)
     empty = []
     for i, obj in enumerate(objects):
         if len(xy) == 0 or not mpath.Path(np.asarray(obj.vertices_m())).contains_points(xy).any():

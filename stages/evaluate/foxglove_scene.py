@@ -34,6 +34,7 @@ import pyarrow.compute as pc
 
 from schemas.map import NO_CLASS
 from schemas.submaps import KEYFRAME_FRAME_ID
+from stages.kernels.geometry import quat_from_rpy
 from stages.kernels.map_codes import class_ids, source_ids
 from stages.kernels.ply import Mesh
 from stages.kernels.poses import pose_matrices
@@ -107,18 +108,7 @@ def timestamp(t_ns: int) -> Any:
 
 def _quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """(n, 4) x y z w of R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.stack(
-        [
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-            cr * cp * cy + sr * sp * sy,
-        ],
-        axis=1,
-    )
+    return quat_from_rpy(np.stack([roll, pitch, yaw], axis=-1))
 
 
 def cloud_records(table: pa.Table, error_m: np.ndarray | None = None) -> np.ndarray:

@@ -81,7 +81,7 @@ class EvaluateConfig(StageConfig):
     max_range_m: float = Field(
         30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
     )
-    fan_width_deg: float = Field(130.0, gt=0.0, le=360.0, description="horizontal sonar fan")
+    fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
     aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
     side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
 
@@ -126,7 +126,7 @@ def surface_metrics(
             samples,
             T_world_sonar,
             config.max_range_m,
-            np.deg2rad(config.fan_width_deg) / 2,
+            np.deg2rad(config.fan_width_deg or 130.0) / 2,  # 130: artifacts without a fan
             np.deg2rad(config.aperture_deg) / 2,
             raycasting_scene(mesh),
         )
@@ -312,10 +312,10 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             poses_are_ground_truth(keyframes, poses),
         )
         T_ws = visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
-
+        fan = config.fan_width_deg or sensors.horizontal.fov_deg or 130.0  # one place
         visible = remember_last(
             lambda samples: visible_mask(
-                samples, T_ws, config.max_range_m, np.deg2rad(config.fan_width_deg) / 2,
+                samples, T_ws, config.max_range_m, np.deg2rad(fan) / 2,
                 np.deg2rad(config.aperture_deg) / 2, scene,
             )
         )  # fmt: skip
@@ -335,7 +335,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics["headline"], metrics["per_class"], class_figures,
         )  # fmt: skip
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
-            map_table, errors, mesh, T_ws, config
+            map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan})
         )
         outputs["errors"] = errors
         err = errors.column("error_m").to_numpy()

@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from collections.abc import Mapping
+from typing import Annotated, Any, Literal
 
 from pydantic import Field
 
+from schemas.sensors import Sensors
 from stages.base import StageConfig
 from stages.slam.pcm import CHI2_99_3DOF
 
@@ -147,7 +149,13 @@ class SlamConfig(StageConfig):
         description="loop targets tried after the best one fails its checks (each from"
         " another stretch of the track)",
     )
-    nssm_aperture_deg: float = Field(130.0, gt=0, le=360)
+    nssm_aperture_deg: float | None = Field(
+        None,
+        gt=0,
+        le=360,
+        description="horizontal fan of the loop-target visibility test [deg]; None: the"
+        " horizontal sonar's fov_deg from the keyframes sensors (130 where they have none)",
+    )
     nssm_window_xy_m: tuple[_WindowM, _WindowM] = (1.0, 5.0)
     nssm_window_yaw_deg: tuple[_WindowDeg, _WindowDeg] = (5.73, 20.0)
     nssm_max_translation_m: float = Field(10.0, gt=0, le=10000)
@@ -212,3 +220,17 @@ class SlamConfig(StageConfig):
     pcm_min_clique: int = Field(2, ge=1, le=10000)
     pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, le=1000000, description="chi2(0.99, 3)")
     plot_max_points: int = Field(30000, ge=0, le=100000000)
+
+
+LEGACY_FAN_DEG = 130.0
+"""The fan assumed for keyframes artifacts written before sensors.json carried `fov_deg`
+(the paper's Oculus M750d)."""
+
+
+def with_sensor_fan(config: SlamConfig, sensors: Sensors | Mapping[str, Any] | None) -> SlamConfig:
+    """`config` with `nssm_aperture_deg` set: as configured, else the horizontal sonar's
+    fan from the keyframes sensors, else `LEGACY_FAN_DEG`."""
+    if config.nssm_aperture_deg is not None:
+        return config
+    fan = None if sensors is None else Sensors.of(sensors).horizontal.fov_deg
+    return config.model_copy(update={"nssm_aperture_deg": float(fan or LEGACY_FAN_DEG)})

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.slam.config import SlamConfig
+from stages.slam.config import LEGACY_FAN_DEG, SlamConfig
 from stages.slam.pcm import chain_covariance, maximum_clique, pairwise_consistency
 from stages.slam.pose_graph import (
     PlanarPoseGraph,
@@ -115,7 +115,7 @@ class LoopClosures:
         r = np.hypot(local[:, 0], local[:, 1])
         bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
         visible = (r < max_range_m) & (
-            bearing < np.deg2rad(c.nssm_aperture_deg) / 2 + 5 * sigma_yaw
+            bearing < np.deg2rad(c.nssm_aperture_deg or LEGACY_FAN_DEG) / 2 + 5 * sigma_yaw
         )
         visible &= heading[owner] <= max_heading
         counts = np.bincount(owner[visible], minlength=k)

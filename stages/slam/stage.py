@@ -45,7 +45,7 @@ import pyarrow as pa
 from schemas.sensors import Sensors
 from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
 from stages.base import Input, Output, Stage, StageInputError
-from stages.slam.config import SlamConfig
+from stages.slam.config import SlamConfig, with_sensor_fan
 from stages.slam.frontend import SlamResult, run_slam
 from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
 from stages.slam.points import keyframe_points, leading_edges
@@ -77,6 +77,7 @@ def _pose_columns(keyframes: pa.Table, prefix: str) -> np.ndarray:
 
 def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage entry point: keyframes, sensors, features -> poses, factors, trajectory, plot."""
+    config = with_sensor_fan(config, inputs["keyframes.sensors"])  # the fan from one place
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     if keyframes.num_rows == 0:
         raise StageInputError(Input("keyframes", "keyframes"), "the keyframes table is empty")
