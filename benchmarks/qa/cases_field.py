@@ -76,11 +76,14 @@ def _twice_pressure(events: list[Any]) -> list[Any]:
 def _changing_tf(events: list[Any]) -> list[Any]:
     from test_field_twins import _mount, _tf, _types
 
+    # The DVL's frame is on /tf only (not /tf_static), and its transform turns.
     t = _types().types
     out = list(events)
+    for e in _topic(events, "/dvl/twist"):
+        e[3].header.frame_id = "dvl_head"
     for k, e in enumerate(_topic(events, "/mavros/imu/data")[:20]):
-        T = _mount((0.0, 0.0, 2.0 * k), (0.0, 0.0, 0.0))
-        msg = t["tf2_msgs/msg/TFMessage"](transforms=[_tf(t, e[0], "base_link", "dvl_link", T)])
+        T = _mount((180.0, 0.0, 45.0 + 2.0 * k), (-0.2, 0.1, -0.15))
+        msg = t["tf2_msgs/msg/TFMessage"](transforms=[_tf(t, e[0], "base_link", "dvl_head", T)])
         out.append((e[0], "/tf", "tf2_msgs/msg/TFMessage", msg))
     return out
 
@@ -166,7 +169,7 @@ def _cases() -> list[Case]:
         ("DVL and IMU frames not in any tf tree", {"tf": False}, ("dvl", "default mount")),
         ("DVL spikes at 40 m/s", {"edit": _dvl(_spikes)}, ("dropped", "faster than 5 m/s", "DVL samples")),
         ("no depth sensor", {"edit": _drop("/bar30/pressure")}, ("no depth topic", "z = 0")),
-        ("a /tf edge that changes", {"edit": _changing_tf}, ("/tf", "change", "first value")),
+        ("a /tf edge that changes", {"edit": _changing_tf}, ("/tf", "base_link->dvl_head", "changes", "first value")),
         ("config mount over the recording's", {"sets": ("keyframes.horizontal_mount_xyz_m=[0.4, 0, 0]",)},
          ("horizontal_mount_xyz_m overrides", "m750d_link")),
         ("config IMU mount over the recording's", {"sets": ("keyframes.imu_mount_rpy_deg=[180, 0, -90]",)},

@@ -11,7 +11,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from pipeline.engine.errors import SourceError
 from pipeline.readers.depth import (
@@ -91,6 +90,8 @@ class NavigationSensors(SensorGeometry):
         R_bi = T_imu[:3, :3]
         if not np.allclose(R_bi, np.eye(3), atol=1e-12):
             # The IMU reports its own frame's attitude: R_world_base = R_world_imu R_base_imu^T.
+            from scipy.spatial.transform import Rotation  # only for a mounted IMU
+
             q = (Rotation.from_quat(q) * Rotation.from_matrix(R_bi).inv()).as_quat()
         w_base = np.nan_to_num(w_imu) @ R_bi.T
         # DVL: gates, then base_link velocity (mount rotation and lever arm).

@@ -63,7 +63,7 @@ class SensorGeometry:
     def _warn(self, message: str) -> None:
         raise NotImplementedError
 
-    def tf_tree(self) -> TfTree:
+    def tf_tree(self, dynamic: bool = False) -> TfTree:
         raise NotImplementedError
 
     def navigation(self) -> PoseTrack:
@@ -123,6 +123,16 @@ class SensorGeometry:
         tree; a part neither gives is the default, with a warning."""
         base = normalise_frame(self.options.base_frame)
         found = (np.eye(4), [base]) if frame == base else self.tf_tree().lookup(base, frame)
+        if found is None and self.roles.tf is not None:
+            found = self.tf_tree(dynamic=True).lookup(base, frame)
+            moving = self.tf_tree().changing_on(found[1]) if found is not None else []
+            if moving:
+                self._warn(
+                    f"{self.source.path}: {self.roles.tf}: the transform "
+                    f"{' and '.join(f'{a}->{b}' for a, b in moving[:2])} of {name}'s frame "
+                    f"{frame!r} changes during the recording; its first value is used as a "
+                    "fixed mount"
+                )
         info: dict[str, Any] = {"frame": frame}
         if found is not None:
             info["tf_chain"] = found[1]

@@ -118,6 +118,7 @@ class SourceRecording(NavigationSensors):
         self._ping_times: dict[str, np.ndarray] = {}
         self._mounts: dict[str, np.ndarray] | None = None
         self._tf: TfTree | None = None
+        self._tf_dynamic = False
         self._provenance: dict[str, Any] = {}
 
     def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
@@ -310,23 +311,23 @@ class SourceRecording(NavigationSensors):
         n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
         return np.arange(n)[::-1]
 
-    def tf_tree(self) -> TfTree:
-        """The recording's /tf_static tree (and /tf, whose first value of each edge is used)."""
+    def tf_tree(self, dynamic: bool = False) -> TfTree:
+        """The recording's /tf_static tree; with `dynamic`, /tf's edges too (the first
+        value of each: a mount on /tf is expected not to change)."""
         if self._tf is None:
-            tree = TfTree()
-            topics = [t for t in (self.roles.tf_static, self.roles.tf) if t]
-            for topic, _, msg in self.source.messages(topics):
-                for tf in msg.transforms:
-                    T = self._mounting(tf, topic)
-                    tree.add(tf.header.frame_id, tf.child_frame_id, T)
-            if tree.changing:
-                self._warn(
-                    f"{self.source.path}: /tf: {len(tree.changing)} transforms change during "
-                    f"the recording ({', '.join(f'{a}->{b}' for a, b in sorted(tree.changing)[:3])}"
-                    "); their first value is used as a fixed mount"
-                )
-            self._tf = tree
+            self._tf = self._read_tf(TfTree(), self.roles.tf_static)
+        if dynamic and not self._tf_dynamic:
+            self._tf_dynamic = True
+            self._read_tf(self._tf, self.roles.tf)
         return self._tf
+
+    def _read_tf(self, tree: TfTree, topic: str | None) -> TfTree:
+        if topic is None:
+            return tree
+        for _, _, msg in self.source.messages([topic]):
+            for tf in msg.transforms:
+                tree.add(tf.header.frame_id, tf.child_frame_id, self._mounting(tf, topic))
+        return tree
 
     def _mounting(self, tf: Any, topic: str) -> np.ndarray:
         """(4, 4) T_parent_child of a /tf or /tf_static transform; a rotation quaternion of

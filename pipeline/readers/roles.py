@@ -57,9 +57,22 @@ class Roles:
         return out
 
 
+_LISTING_CHARS = 200
+"""A listing of topics in an error line stops here (the line stays within 400 characters)."""
+
+
 def topic_listing(topics: Sequence[TopicInfo]) -> str:
-    """'/a [type], /b [type]' or 'none'."""
-    return ", ".join(f"{t.topic} [{t.msgtype}]" for t in topics) or "none"
+    """'/a [type], /b [type]' or 'none'; when that is long, the names alone, cut after
+    `_LISTING_CHARS` with the count left."""
+    typed = ", ".join(f"{t.topic} [{t.msgtype}]" for t in topics)
+    if len(typed) <= _LISTING_CHARS:
+        return typed or "none"
+    out: list[str] = []
+    for k, t in enumerate(topics):
+        if out and sum(len(x) + 2 for x in out) + len(t.topic) > _LISTING_CHARS:
+            return ", ".join(out) + f", and {len(topics) - k} more"
+        out.append(t.topic)
+    return ", ".join(out)
 
 
 def _fail(path: Path, topics: Sequence[TopicInfo], problem: str, key: str) -> SourceError:
@@ -71,7 +84,7 @@ def _configured(
 ) -> str:
     info = topics.get(name)
     if info is None:
-        raise _fail(path, list(topics.values()), f"configured topic {name} not found", key)
+        raise _missing(path, topics, key, name, lambda _t, m: m in allowed)
     if info.msgtype not in allowed:
         raise _fail(
             path,
@@ -179,11 +192,10 @@ def _missing(
     path: Path, topics: dict[str, TopicInfo], key: str, name: str, fits: Any
 ) -> SourceError:
     """A configured topic that is not in the recording: name it and list the candidates."""
-    candidates = [t for t, i in topics.items() if fits(t, i.msgtype)]
-    listing = ", ".join(f"{t} [{topics[t].msgtype}]" for t in candidates) or "none"
+    listing = topic_listing([i for t, i in topics.items() if fits(t, i.msgtype)])
     return SourceError(
-        f"{path}: keyframes.{key}: topic {name} is not in the recording "
-        f"(candidates: {listing}; all topics: {len(topics)})"
+        f"{path}: configured topic {name} not found (keyframes.{key}; candidates: {listing}; "
+        f"{len(topics)} topics in all)"
     )
 
 

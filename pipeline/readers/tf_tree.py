@@ -4,7 +4,8 @@ Edges are (parent, child, (4, 4) T_parent_child). A frame's mount is the product
 transforms along the unique path from the base frame to it; the path may run against
 an edge's direction (then that edge's inverse is used), so a tree published child-first
 (e.g. sonar_mount -> base_link) composes as well. `/tf` edges are static mounts only when
-they never change, so the first value of each edge is used and a changing one is reported.
+they never change, so the first value of each edge is used and a changing one is marked
+(the reader warns when a mount's chain runs through one).
 """
 
 from __future__ import annotations
@@ -48,6 +49,11 @@ class TfTree:
     def frames(self) -> list[str]:
         """Every frame named by an edge, sorted."""
         return sorted({f for edge in self.edges for f in edge})
+
+    def changing_on(self, chain: list[str]) -> list[tuple[str, str]]:
+        """The edges along `chain` whose value changed (see `add`)."""
+        steps = list(pairwise(chain))
+        return [e for a, b in steps for e in ((a, b), (b, a)) if e in self.changing]
 
     def chain(self, base: str, frame: str) -> list[str] | None:
         """Frames from `base` to `frame` (both included), or None when not connected."""
