@@ -131,3 +131,23 @@ def test_an_unlabelled_recording_reports_no_precision_or_support_at_all() -> Non
     assert classification_scores(objects) == {"objects": 2}
     labelled = pa.table({"class_name": ["seawall", "unknown"], "true_class_name": ["seawall", ""]})
     assert classification_scores(labelled)["per_class"]["seawall"]["support"] == 1
+
+
+def test_evaluate_reports_trust_with_and_without_ground_truth() -> None:
+    from test_evaluate import map_table, square_piling_faces, stage_inputs
+
+    from stages.evaluate.stage import STAGE, EvaluateConfig
+
+    centroid, _ = square_piling_faces()
+    source = np.array(
+        ["fused", "inferred"] * (len(centroid) // 2) + ["fused"] * (len(centroid) % 2)
+    )
+    for truth in (False, True):
+        inputs = stage_inputs(map_table(centroid, source), truth)
+        out = STAGE.run(EvaluateConfig(), {**inputs, "slam.factors": None})
+        trust = out["metrics"]["trust"]
+        assert trust["keyframes"] == 4 and trust["scan_matching"] is None
+        assert trust["inference"]["per_class"]["cylindrical_piling"]["inferred_points"] == int(
+            (source == "inferred").sum()
+        )
+        assert "## Trust (no ground truth needed)" in out["report"].decode()

@@ -16,6 +16,7 @@ import numpy as np
 
 from schemas.classes import CLASS_IDS
 from stages.evaluate.submaps import submaps_markdown
+from stages.evaluate.trust import trust_markdown
 from stages.kernels.ply import Mesh
 
 __all__ = [
@@ -285,6 +286,7 @@ def render_markdown(
         "",
         *_per_class_table(metrics),
         *submaps_markdown(metrics.get("submaps")),
+        *trust_markdown(metrics.get("trust")),
     ]
     errs = metrics.get("errors", {})
     if errs:

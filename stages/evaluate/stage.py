@@ -31,14 +31,15 @@ from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.foxglove_map import evaluate_map_mcap
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth, visibility_poses
 from stages.evaluate.report import (
-    SidePanel,
     error_boxplot_png,
     render_markdown,
     side_view_png,
     topdown_png,
     truth_xy_m,
 )
+from stages.evaluate.side_panels import side_panels
 from stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
+from stages.evaluate.trust import trust_report
 from stages.kernels.mesh_metrics import (
     ate_se2,
     error_stats,
@@ -84,6 +85,10 @@ class EvaluateConfig(StageConfig):
     fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
     aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
     side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
+    trust_cell_m: float = Field(1.0, gt=0.0, le=100.0, description="trust: world column side")
+    trust_height_tolerance_m: float = Field(
+        0.6, gt=0.0, le=100.0, description="trust: a fused point this close in height agrees"
+    )
 
 
 def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any]]:
@@ -224,47 +229,6 @@ def aligned_map_errors(
     }
 
 
-def _side_panels(
-    map_table: pa.Table, mesh: Mesh, samples: np.ndarray, n_panels: int
-) -> list[SidePanel]:
-    """Side views (x - centre vs z) of the pilings with the most map points nearby."""
-    oid = mesh.vertex_properties.get("object_id")
-    cls = mesh.vertex_properties.get("class_id")
-    if oid is None or cls is None:
-        return []
-    piling = np.isin(cls, [CLASS_IDS[c] for c in PILING_CLASSES])
-    pts = map_xyz(map_table, "semantic")
-    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
-    candidates = []
-    for obj in np.unique(oid[piling]):
-        v = mesh.vertices[oid == obj]
-        centre = v[:, :2].mean(axis=0)
-        radius = float(np.max(np.linalg.norm(v[:, :2] - centre, axis=1))) + 0.3
-        near = np.linalg.norm(pts[:, :2] - centre, axis=1) <= radius
-        candidates.append((-int(near.sum()), int(obj), centre, radius, near))
-    candidates.sort(key=lambda c: (c[0], c[1]))
-    panels = []
-    for count, obj, centre, radius, near in candidates[:n_panels]:
-        if count == 0:
-            break
-        truth = samples[np.linalg.norm(samples[:, :2] - centre, axis=1) <= radius]
-        truth = truth[truth[:, 2] <= 0.0]
-
-        def hz(p: np.ndarray, c: np.ndarray = centre) -> np.ndarray:
-            return np.stack([p[:, 0] - c[0], p[:, 2]], axis=1)
-
-        panels.append(
-            SidePanel(
-                f"object {obj} at ({centre[0]:.1f}, {centre[1]:.1f})",
-                "x - centre",
-                hz(pts[near & (source == "fused")]),
-                hz(pts[near & (source == "inferred")]),
-                hz(truth),
-            )
-        )
-    return panels
-
-
 def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     map_table: pa.Table = inputs["voxelize.map"]
     summary: dict[str, Any] = inputs["voxelize.summary"]
@@ -347,7 +311,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
                 "inferred only": err[source == "inferred"],
             }
         )
-        panels = _side_panels(map_table, mesh, samples, config.side_view_pilings)
+        panels = side_panels(map_table, mesh, samples, config.side_view_pilings)
         if panels:
             outputs["plot_side_view"] = side_view_png(panels)
         else:
@@ -363,6 +327,10 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     figures = [FIGURES[k] for k in FIGURES if outputs[k] is not None]
     dataset = str(sensors.source.get("name", "unknown"))
+    metrics["trust"] = trust_report(
+        map_table, keyframes, poses, inputs.get("slam.factors"),
+        config.trust_cell_m, config.trust_height_tolerance_m,
+    )  # fmt: skip
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
@@ -372,7 +340,8 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 STAGE = Stage(
     name="evaluate",
     # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
-    version=8,  # 8: map.mcap for Foxglove (issue 40), its inputs frames and objects
+    # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
+    version=9,
     config=EvaluateConfig,
     inputs=(
         Input("voxelize", "map"),
@@ -381,6 +350,7 @@ STAGE = Stage(
         Input("keyframes", "scene_mesh"),
         Input("keyframes", "sensors"),
         Input("slam", "poses"),
+        Input("slam", "factors"),
         Input("infer", "stats"),
         Input("submaps", "stats"),
         Input("keyframes", "frames"),

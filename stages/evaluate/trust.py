@@ -22,13 +22,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from stages.kernels.voxels import column_ids
+
 __all__ = ["column_agreement", "trust_markdown", "trust_report"]
-
-
-def _column_ids(xy_m: np.ndarray, cell_m: float) -> np.ndarray:
-    ij = np.floor(np.asarray(xy_m, np.float64) / cell_m).astype(np.int64)
-    # Unique for up to 2^31 cells a side (200,000 km at 0.1 m).
-    return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
 
 
 def column_agreement(
@@ -55,8 +51,8 @@ def column_agreement(
     agrees = np.zeros(len(q), bool)
     if len(q) == 0 or len(f) == 0:
         return has, agrees
-    f_col = _column_ids(f[:, :2], cell_m)
-    q_col = _column_ids(q[:, :2], cell_m)
+    f_col = column_ids(f[:, :2], cell_m)
+    q_col = column_ids(q[:, :2], cell_m)
     order = np.lexsort((f[:, 2], f_col))
     f_col, f_z = f_col[order], f[order, 2]
     lo = np.searchsorted(f_col, q_col, side="left")

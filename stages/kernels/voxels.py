@@ -9,7 +9,7 @@ import pyarrow.compute as pc
 
 from schemas.map import MAP_NAMES
 
-__all__ = ["map_xyz", "standard_rows", "voxel_keys"]
+__all__ = ["column_ids", "map_xyz", "standard_rows", "voxel_keys"]
 
 _XYZ = ("x_m", "y_m", "z_m")
 
@@ -38,3 +38,10 @@ def voxel_keys(voxel_ijk: np.ndarray) -> np.ndarray:
     if float(span[0]) * float(span[1]) * float(span[2]) >= 2.0**63:
         return np.unique(ijk, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int64)
     return (ijk[:, 0] * span[1] + ijk[:, 1]) * span[2] + ijk[:, 2]
+
+
+def column_ids(xy_m: np.ndarray, cell_m: float) -> np.ndarray:
+    """(n,) int64 id of the square world column (cell side `cell_m` [m]) of each (x, y)."""
+    ij = np.floor(np.asarray(xy_m, np.float64) / cell_m).astype(np.int64)
+    # Unique for up to 2^31 cells a side (200,000 km at 0.1 m).
+    return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)

@@ -21,13 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from stages.kernels.voxels import column_ids
+
 __all__ = ["contradicted_by_fused"]
-
-
-def _column_ids(xy_m: np.ndarray, cell_m: float) -> np.ndarray:
-    ij = np.floor(np.asarray(xy_m, np.float64) / cell_m).astype(np.int64)
-    # Unique for up to 2^31 cells a side (200,000 km at 0.1 m).
-    return (ij[:, 0] << 32) + (ij[:, 1] & 0xFFFFFFFF)
 
 
 _QUERY_CHUNK = 1 << 19
@@ -66,7 +62,7 @@ def contradicted_by_fused(
     out = np.zeros(len(judged), bool)
     if len(judged) == 0 or len(f) == 0:
         return out
-    columns, f_rank = np.unique(_column_ids(f[:, :2], cell_m), return_inverse=True)
+    columns, f_rank = np.unique(column_ids(f[:, :2], cell_m), return_inverse=True)
     counts = np.bincount(f_rank, minlength=len(columns))
     starts = np.concatenate([[0], np.cumsum(counts)])
     # Fused heights sorted by (column, z); offsetting z by the column rank times more than
@@ -77,7 +73,7 @@ def contradicted_by_fused(
     f_key = f_rank[order] * span + (f_z - z0)
     for a in range(0, len(judged), _QUERY_CHUNK):
         chunk = q[judged[a : a + _QUERY_CHUNK]]
-        q_col = _column_ids(chunk[:, :2], cell_m)
+        q_col = column_ids(chunk[:, :2], cell_m)
         pos = np.minimum(np.searchsorted(columns, q_col), len(columns) - 1)
         enough = (columns[pos] == q_col) & (counts[pos] >= min_fused)
         lo, last = starts[pos], starts[pos + 1] - 1
