@@ -23,10 +23,7 @@ ALLOWED = {
 }
 """Exceptions to FORBIDDEN: the kernel layer sits below the stages and the simulator."""
 
-PENDING: dict[str, tuple[str, ...]] = {
-    # `posed_pairs` and `interpolate_poses` stay in stage keyframes this round.
-    "stages/submaps/stage.py": ("stages.keyframes",),
-}
+PENDING: dict[str, tuple[str, ...]] = {}
 """Imports that break a rule here until the named work lands; each must still exist
 (`test_pending_exceptions_are_still_needed`), so an entry goes when its import does."""
 

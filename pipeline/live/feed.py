@@ -64,8 +64,9 @@ class _Reader:
         return None if spec is None else read_output(self._dirs[stage], spec)
 
     def T_base_sonar(self) -> np.ndarray:
-        sensors = self("keyframes.sensors") or {}
-        return np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64)
+        from schemas.sensors import Sensors
+
+        return Sensors.of(self("keyframes.sensors") or {}).horizontal.T_base_sonar
 
     def t_last(self) -> int:
         keyframes = self("keyframes.keyframes")

@@ -12,6 +12,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.evaluate.foxglove_images import fan_messages
 from stages.evaluate.foxglove_scene import (
@@ -100,7 +101,7 @@ def evaluate_map_mcap(
     inputs: Mapping[str, Any], errors: pa.Table | None, mesh: Mesh | None
 ) -> bytes:
     """`map_mcap` of the evaluate stage's inputs, its errors table and decoded mesh."""
-    sensors = inputs["keyframes.sensors"] or {}
+    sensors = Sensors.of(inputs["keyframes.sensors"] or {})
     return map_mcap(
         inputs["voxelize.map"],
         errors,
@@ -109,5 +110,5 @@ def evaluate_map_mcap(
         inputs.get("classify.objects"),
         inputs.get("keyframes.frames"),
         mesh,
-        np.asarray(sensors["horizontal"]["T_base_sonar"], dtype=np.float64),
+        sensors.horizontal.T_base_sonar,
     )

@@ -58,9 +58,9 @@ from stages.kernels.class_models import (
 )
 from stages.kernels.clustering import clustering_params
 from stages.kernels.fusion import sonar_offset
+from stages.kernels.pairing import interpolate_poses, posed_pairs
 from stages.kernels.poses import pose_matrix
 from stages.kernels.sightings import column, object_feature_rows
-from stages.keyframes import KeyframesConfig, interpolate_poses, posed_pairs
 from stages.submaps.config import SubmapsConfig
 from stages.submaps.frames import submap_frame_rows
 from stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
@@ -104,13 +104,13 @@ def map_submap_frames(
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
     that many processes (`stages.submaps.workers`); the outputs are the same bytes.
     """
-    kcfg: KeyframesConfig = sections["keyframes"]
+    kcfg = sections["keyframes"]
     icfg: ClassModelSettings = sections["infer"]
     stride = kcfg.submap_stride
     empty_stats: dict[str, Any] = {"stride": stride, "frames": 0, "classes": {}}
     if stride == 0:
         return SUBMAP_FRAMES_SCHEMA.empty_table(), SUBMAP_POINTS_SCHEMA.empty_table(), empty_stats
-    posed = posed_pairs(rec, kcfg)
+    posed = posed_pairs(rec, kcfg.pair_tolerance_s)
     pair_rows = posed.posed
     h_idx = posed.pairs.horizontal[pair_rows]
     v_idx = posed.pairs.vertical[pair_rows]
