@@ -123,6 +123,7 @@ def test_the_report_counts_agreement_per_class_fused_keyframes_closures_and_drif
     text = "\n".join(trust_markdown(trust))
     assert "| seawall | 3 | 66.7% | 50.0% |" in text
     assert "3 proposed, 2 accepted, 1 rejected (pcm: not in a consistent set: 1)" in text
+    assert "ICP fit RMSE of the accepted: median 0.300 m, p90 0.380 m" in text
     assert "1.0 m apart at the end" in text
 
 

@@ -183,6 +183,10 @@ def _cell(value: Any) -> str:
     return f"{value:.1%}" if isinstance(value, float) else str(value)
 
 
+def _metres(value: Any) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
 def trust_markdown(trust: dict[str, Any] | None) -> list[str]:
     """The report's "Trust" section: the figures of `trust_report`, no ground truth needed."""
     if not trust:
@@ -216,8 +220,8 @@ def trust_markdown(trust: dict[str, Any] | None) -> list[str]:
             lines.append(
                 f"- {label}: {sm['proposed']} proposed, {sm['accepted']} accepted,"
                 f" {sm['rejected']} rejected{f' ({reasons})' if reasons else ''};"
-                f" ICP fit RMSE of the accepted: median {_cell(fit['median'])} m,"
-                f" p90 {_cell(fit['p90'])} m"
+                f" ICP fit RMSE of the accepted: median {_metres(fit['median'])} m,"
+                f" p90 {_metres(fit['p90'])} m"
             )
     drift = trust.get("dead_reckoning_vs_slam") or {}
     if drift.get("n_keyframes"):
