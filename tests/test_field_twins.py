@@ -2,7 +2,8 @@
 it (rosbag2, renamed topics and frames, a two-link tf chain, DVL + IMU + FluidPressure in
 their own mounted frames, an Odometry-only navigation) maps, with no config at all, to the
 same world as the canonical recording: keyframe depth within 0.10 m, fused-map voxels
-overlapping the canonical ones (IoU >= 0.8)."""
+overlapping the canonical ones (IoU >= 0.8). Polar `sensor_msgs/Image` sonars with an
+uneven beam table map the same world given the table as a file (and their topics)."""
 
 from __future__ import annotations
 
@@ -323,3 +324,82 @@ def test_dvl_imu_pressure_twin_in_mounted_frames_maps_the_same_world(
     assert prov["depth"]["topic"] == "/bar30/pressure"
     assert prov["depth"]["surface_pressure"] == "default"
     assert prov["dvl"]["dropped"] == {}
+
+
+def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
+    """The canonical mission with both sonars as polar `sensor_msgs/Image`s (mono8, as
+    a driver publishes them), keeping the image columns `keep`: the same pings, with an
+    uneven beam table (the angles of the kept columns), and everything else as recorded."""
+    from mcap.reader import make_reader
+
+    from pipeline.readers import open_recording
+
+    store = _types()
+    t = store.types
+    rec = open_recording(canonical.path)
+    sonar_topics = {"/sonar/horizontal": "horizontal", "/sonar/vertical": "vertical"}
+    events: list[tuple[int, str, str, Any]] = []
+    with canonical.path.open("rb") as f:
+        for schema, channel, m in make_reader(f).iter_messages():
+            if channel.topic in sonar_topics or channel.topic.startswith("/sonar/"):
+                continue  # the sonars (and their label / truth images) are re-encoded below
+            events.append(
+                (m.log_time, channel.topic, schema.name, store.deserialize_cdr(m.data, schema.name))
+            )
+    for topic, sonar in sonar_topics.items():
+        times = rec.ping_times_ns(sonar)
+        for t_ns, ping in zip(
+            times, rec.pings(sonar, np.arange(len(times)), labels=False), strict=True
+        ):
+            image = np.ascontiguousarray(ping.image[:, keep])
+            msg = t["sensor_msgs/msg/Image"](
+                header=_header(t, int(t_ns), f"sonar_{sonar}"),
+                height=image.shape[0],
+                width=image.shape[1],
+                encoding="mono8",
+                is_bigendian=0,
+                step=image.shape[1],
+                data=image.reshape(-1),
+            )
+            events.append((int(t_ns), topic, "sensor_msgs/msg/Image", msg))
+    events.sort(key=lambda e: (e[0], e[1]))
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns: dict[str, Any] = {}
+        for t_ns, topic, typ, msg in events:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=store)
+            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
+    return out
+
+
+def test_polar_image_twin_with_an_uneven_beam_table_file_maps_the_same_world(
+    canonical: Canonical, tmp_path: Path
+) -> None:
+    angles = canonical.run.frame(0).horizontal.angles_rad.astype(np.float64)
+    # Uneven like a real sonar's table: every beam within 30 deg of the axis, every
+    # other one beyond (spacing 0.25 deg in the centre, 0.51 deg at the edges).
+    index = np.arange(len(angles))
+    keep = index[(np.abs(np.rad2deg(angles)) <= 30.0) | (index % 2 == 0)]
+    table = tmp_path / "beams.csv"
+    table.write_text("\n".join(f"{np.rad2deg(a):.9f}" for a in angles[keep]) + "\n")
+    twin = write_polar_twin(canonical, tmp_path / "polar_twin", keep)
+    # An Image topic could be a camera: the polar sonar images are named, with their table.
+    overrides = (
+        "keyframes.horizontal_topic=/sonar/horizontal",
+        "keyframes.vertical_topic=/sonar/vertical",
+        f"keyframes.horizontal_sonar={table}",
+        f"keyframes.vertical_sonar={table}",
+    )
+    arts = _engine(twin, tmp_path / "store", overrides)
+    sensors = json.loads((arts["keyframes"] / "sensors.json").read_text())
+    spacing = np.diff(np.rad2deg(angles[keep]))
+    assert spacing.max() > 1.9 * spacing.min()  # the table really is uneven
+    assert sensors["horizontal"]["fov_deg"] == pytest.approx(
+        np.rad2deg(np.ptp(angles[keep])), abs=1.0
+    )
+    dz, iou = _compare(canonical, arts, align=False)
+    assert dz <= 0.10 and iou >= 0.8, (dz, iou)
+    # Read as evenly spaced beams (the table left out), the same images map elsewhere.
+    even = _engine(twin, tmp_path / "even", overrides[:2])
+    even_iou = _compare(canonical, even, align=False)[1]
+    assert even_iou < iou - 0.1
