@@ -13,11 +13,10 @@ import os
 import shutil
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, ROOT, small_recording
+from benchmarks.qa.fixtures import CACHE, cached_run, small_recording
 
 RUN = CACHE / "foxglove-run"
 _HELD: list[socket.socket] = []
@@ -25,20 +24,8 @@ _HELD: list[socket.socket] = []
 
 
 def _cached_run() -> Path:
-    """A work dir after `sonarmap run rec.mcap` on a recording with a map (made once)."""
-    if not (RUN / "data" / "store" / "evaluate").is_dir():
-        shutil.rmtree(RUN, ignore_errors=True)
-        RUN.mkdir(parents=True)
-        small_recording(RUN / "rec.mcap", seed=2, duration_s=45.0)
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        subprocess.run(
-            [sys.executable, "-m", "pipeline", "run", "rec.mcap", "-q"],
-            cwd=RUN,
-            env=env,
-            check=True,
-            capture_output=True,
-        )
-    return RUN
+    """A work dir after `sonarmap run rec.mcap` (made once per code version)."""
+    return cached_run(RUN.name)
 
 
 def _fresh_run(work: Path) -> None:

@@ -17,28 +17,15 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, ROOT, small_recording
+from benchmarks.qa.fixtures import CACHE, ROOT, cached_run
 
 RUN = CACHE / "share-run"
 SECRET = "hunter2QAsecret"
 
 
 def _cached_run() -> Path:
-    """A work dir after `sonarmap run rec.mcap` and `push remote` (made once)."""
-    if not (RUN / "remote" / "evaluate").is_dir():
-        shutil.rmtree(RUN, ignore_errors=True)
-        RUN.mkdir(parents=True)
-        small_recording(RUN / "rec.mcap", seed=2, duration_s=45.0)  # one with a map
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        for args in (["run", "rec.mcap"], ["push", "remote"]):
-            subprocess.run(
-                [sys.executable, "-m", "pipeline", *args],
-                cwd=RUN,
-                env=env,
-                check=True,
-                capture_output=True,
-            )
-    return RUN
+    """A work dir after `sonarmap run rec.mcap` and `push remote` (made once per code version)."""
+    return cached_run(RUN.name, [["push", "remote"]])
 
 
 def _fresh_run(work: Path) -> None:
