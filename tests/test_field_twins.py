@@ -168,6 +168,18 @@ def _nav_samples(run: Any, rate_hz: float = 10.0) -> dict[str, np.ndarray]:
     return {"t": t, "xyz": xyz, "yaw": yaw, "v_b": v_b, "yaw_rate": rate}
 
 
+def _write_bag(out: Path, store: Any, events: list[tuple[int, str, str, Any]]) -> Path:
+    """A rosbag2 (MCAP storage) of (t_ns, topic, type, message) events, in time order."""
+    events.sort(key=lambda e: (e[0], e[1]))
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        conns: dict[str, Any] = {}
+        for t_ns, topic, typ, msg in events:
+            if topic not in conns:
+                conns[topic] = w.add_connection(topic, typ, typestore=store)
+            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
+    return out
+
+
 def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
     """Re-encode the canonical recording as a rosbag2 (MCAP storage) with the drivers'
     names; `navigation` is "odometry" (a renamed Odometry) or "dvl" (DVL + IMU + Bar30)."""
@@ -210,14 +222,7 @@ def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
             t["tf2_msgs/msg/TFMessage"](transforms=transforms),
         )
     )
-    events.sort(key=lambda e: (e[0], e[1]))
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns: dict[str, Any] = {}
-        for t_ns, topic, typ, msg in events:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
-    return out
+    return _write_bag(out, store, events)
 
 
 def _dvl_imu_pressure(
@@ -362,14 +367,7 @@ def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
                 data=image.reshape(-1),
             )
             events.append((int(t_ns), topic, "sensor_msgs/msg/Image", msg))
-    events.sort(key=lambda e: (e[0], e[1]))
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns: dict[str, Any] = {}
-        for t_ns, topic, typ, msg in events:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
-    return out
+    return _write_bag(out, store, events)
 
 
 def test_polar_image_twin_with_an_uneven_beam_table_file_maps_the_same_world(

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, ROOT, cached_run
+from benchmarks.qa.fixtures import CACHE, cached_run, sonarmap
 
 RUN = CACHE / "share-run"
 SECRET = "hunter2QAsecret"
@@ -121,14 +121,7 @@ def _resumed(work: Path, done: Any) -> str | None:
 
 
 def _cli(work: Path, *args: str) -> None:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    subprocess.run(
-        [sys.executable, "-m", "pipeline", *args],
-        cwd=work,
-        env=env,
-        check=True,
-        capture_output=True,
-    )
+    sonarmap(work, *args)
 
 
 def _run_after_pull(work: Path) -> list[str]:

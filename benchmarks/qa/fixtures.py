@@ -40,6 +40,18 @@ def code_stamp() -> str:
     return digest.hexdigest()[:16]
 
 
+def sonarmap(work: Path, *args: str) -> None:
+    """`sonarmap ARGS` in `work` with this checkout's code (raises on a non-zero exit)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run(
+        [sys.executable, "-m", "pipeline", *args],
+        cwd=work,
+        env=env,
+        check=True,
+        capture_output=True,
+    )
+
+
 def cached_run(name: str, extra: Sequence[Sequence[str]] = ()) -> Path:
     """A work dir after `sonarmap run rec.mcap` on a recording with a map, then the
     `extra` commands, made once per version of the code into `data/qa/<name>/`."""
@@ -50,14 +62,7 @@ def cached_run(name: str, extra: Sequence[Sequence[str]] = ()) -> Path:
         shutil.rmtree(run, ignore_errors=True)
         run.mkdir(parents=True)
         small_recording(run / "rec.mcap", seed=2, duration_s=45.0)
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
         for args in (["run", "rec.mcap", "-q"], *extra):
-            subprocess.run(
-                [sys.executable, "-m", "pipeline", *args],
-                cwd=run,
-                env=env,
-                check=True,
-                capture_output=True,
-            )
+            sonarmap(run, *args)
         stamp.write_text(now)
     return run

@@ -81,13 +81,17 @@ def _share(part: int, whole: int) -> float | None:
     return round(part / whole, 4) if whole else None
 
 
+def _strings(table: pa.Table, column: str) -> np.ndarray:
+    """A string column as an object array (one conversion, no Python list between)."""
+    return np.asarray(table.column(column).to_numpy(zero_copy_only=False), dtype=object)
+
+
 def _inference_agreement(
-    map_table: pa.Table, cell_m: float, height_tolerance_m: float
+    map_table: pa.Table, source: np.ndarray, cell_m: float, height_tolerance_m: float
 ) -> dict[str, Any]:
     names = ("x_m", "y_m", "z_m")
     xyz = np.stack([map_table.column(c).to_numpy() for c in names], axis=1).reshape(-1, 3)
-    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
-    classes = np.asarray(map_table.column("class_name").to_pylist(), dtype=object)
+    classes = _strings(map_table, "class_name")
     inferred = source == "inferred"
     has, agrees = column_agreement(
         xyz[inferred], xyz[source == "fused"], cell_m, height_tolerance_m
@@ -107,9 +111,7 @@ def _inference_agreement(
 
 
 def _loop_closures(factors: pa.Table) -> dict[str, Any]:
-    kind = np.asarray(factors.column("type").to_pylist(), dtype=object)
-    status = np.asarray(factors.column("status").to_pylist(), dtype=object)
-    reason = np.asarray(factors.column("reason").to_pylist(), dtype=object)
+    kind, status, reason = (_strings(factors, c) for c in ("type", "status", "reason"))
     rmse = factors.column("rmse_m").to_numpy(zero_copy_only=False).astype(np.float64)
     out: dict[str, Any] = {}
     for name in ("loop", "ssm"):
@@ -166,10 +168,10 @@ def trust_report(
     height_tolerance_m: float,
 ) -> dict[str, Any]:
     """The run's self-consistency figures (see the module docstring), as a JSON dict."""
-    source = np.asarray(map_table.column("source").to_pylist(), dtype=object)
+    source = _strings(map_table, "source")
     fused_kf = map_table.column("keyframe_id").to_numpy()[source == "fused"]
     return {
-        "inference": _inference_agreement(map_table, cell_m, height_tolerance_m),
+        "inference": _inference_agreement(map_table, source, cell_m, height_tolerance_m),
         "keyframes_with_fused_points": len(np.unique(fused_kf)),
         "keyframes": int(keyframes.num_rows),
         "scan_matching": None if factors is None else _loop_closures(factors),
