@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from stages.classify.cnn import PatchCNN, mc_predict, model_from_bytes, model_to_bytes
+from stages.classify.cnn import (
+    PatchCNN,
+    mc_predict,
+    mc_predict_groups,
+    model_from_bytes,
+    model_to_bytes,
+)
 
 
 @pytest.fixture(autouse=True)
@@ -106,3 +112,33 @@ def test_inference_pooling_equals_max_pool2d_bit_for_bit(side: int) -> None:
     x[0, 0] = 0.0  # ties
     with torch.inference_mode():
         assert torch.equal(_max_pool2(F.relu(x)), F.max_pool2d(F.relu(x), 2))
+
+
+def test_grouped_prediction_without_dropout_equals_the_plain_forward() -> None:
+    """p = 0: the shared-mask correction W[:, D] h[D] is empty, so every pass is the
+    deterministic network (up to float32 rounding of W h computed once)."""
+    model, x = _model(0.0), _patches(7)
+    mean, var = mc_predict_groups(model, x, [3, 0, 4], [1, 2, 3], 5)
+    with torch.inference_mode():
+        plain = torch.softmax(model(torch.from_numpy(x)[:, None]), dim=1).double().numpy()
+    np.testing.assert_allclose(mean, plain, atol=1e-6)
+    np.testing.assert_array_equal(var, 0.0)
+
+
+@pytest.mark.parametrize("spatial", [False, True])
+def test_grouped_prediction_matches_per_patch_masks_in_distribution(spatial: bool) -> None:
+    """Masks shared by a group's patches: each patch's MC mean and variance converge to
+    those of per-patch masks (`mc_predict`); seeded, and one group's output does not
+    depend on the others'."""
+    model = PatchCNN(3, channels=(4, 8), hidden=16, dropout_p=0.3, spatial_dropout=spatial)
+    x = _patches(6)
+    mean, var = mc_predict_groups(model, x, [2, 4], [7, 8], 4000)
+    ref_mean, ref_var = mc_predict(model, x, 4000, 0)
+    np.testing.assert_allclose(mean, ref_mean, atol=0.02)
+    np.testing.assert_allclose(var, ref_var, atol=0.02)
+    assert var.max() > 0.001  # the passes do differ
+    again = mc_predict_groups(model, x, [2, 4], [7, 8], 20)
+    np.testing.assert_array_equal(again[0], mc_predict_groups(model, x, [2, 4], [7, 8], 20)[0])
+    alone = mc_predict_groups(model, x[2:], [4], [8], 20)[0]
+    np.testing.assert_allclose(alone, again[0][2:], rtol=1e-6)
+    assert not np.allclose(mc_predict_groups(model, x[2:], [4], [9], 20)[0], alone)

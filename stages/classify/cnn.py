@@ -32,7 +32,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["PatchCNN", "mc_predict", "model_from_bytes", "model_to_bytes"]
+__all__ = ["PatchCNN", "mc_predict", "mc_predict_groups", "model_from_bytes", "model_to_bytes"]
+
+_CONV_CHUNK = 16
+"""Patches per conv call: larger batches fall out of the cache and run slower per patch."""
 
 
 def _dropout(
@@ -116,13 +119,21 @@ class PatchCNN(nn.Module):
         Returns:
             (passes * n, n_classes) logits, pass-major (row p * n + i = pass p, patch i).
         """
-        h = _max_pool2(F.relu(self.conv1(x)))
-        h = _max_pool2(F.relu(self.conv2(h)))
+        h = self.features(x)
         if passes > 1:
             h = h.repeat(passes, 1, 1, 1)
         h = _dropout(h, self.dropout_p, generator, self.spatial_dropout)
         h = _dropout(F.relu(self.fc1(h.flatten(1))), self.dropout_p, generator)
         return self.fc2(h)
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """(n, 1, size, size) patches -> (n, ...) output of the deterministic conv blocks."""
+        if torch.is_inference_mode_enabled():
+            # ReLU after the pool: the same values (both are monotone), on a quarter of them.
+            h = _max_pool2(self.conv1(x)).relu_()
+            return _max_pool2(self.conv2(h)).relu_()
+        h = _max_pool2(F.relu(self.conv1(x)))
+        return _max_pool2(F.relu(self.conv2(h)))
 
 
 @contextlib.contextmanager
@@ -167,6 +178,80 @@ def mc_predict(
         prob = torch.softmax(model(x, passes=passes, generator=gen), dim=1)
     prob = prob.reshape(passes, n, -1).double()
     return prob.mean(0).numpy(), prob.var(0, unbiased=False).numpy()
+
+
+def mc_predict_groups(
+    model: PatchCNN, patches: np.ndarray, group_sizes: Sequence[int], seeds: Sequence[int],
+    passes: int,
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Monte-Carlo dropout over many groups of patches (keyframes) at once.
+
+    The same network and m dropout passes as `mc_predict`, but the masks of a pass are
+    shared by the patches of one group, drawn from the group's own seed (numpy PCG64).
+    Each patch still gets m independent Bernoulli masks with the same p, so its mean and
+    variance follow the same distribution as `mc_predict`'s; only patches of one group
+    (never pooled with one another, `stages.classify.view_pooling`) share them, and a
+    group's output depends only on its patches and its seed (up to float32 rounding of
+    the batched products).
+
+    Shared masks make the first dense layer cheap: with D the units a pass drops,
+    W (h * keep) = W h - W[:, D] h[D], so W h is computed once per patch for all passes
+    and each pass only subtracts its ~p share of the units (one batched product per
+    group), instead of m full products over m masked copies of every patch.
+
+    Args:
+        model: the classifier.
+        patches: (n, size, size) float32 patches in [0, 1], groups in order.
+        group_sizes: patches of each group (sum n).
+        seeds: seed of each group's masks.
+        passes: number of stochastic passes m (>= 1).
+
+    Returns:
+        mean (n, n_classes) float64 and population variance (n, n_classes) float64 of
+        the class probabilities over the passes.
+    """
+    n, c = len(patches), model.fc2.out_features
+    if n == 0:
+        return np.zeros((0, c)), np.zeros((0, c))
+    q = 1.0 - model.dropout_p
+    units, hidden = model.fc1.in_features, model.fc1.out_features
+    # spatial dropout drops whole channels: one draw per channel, spread over its cells
+    drawn = model.conv2.out_channels if model.spatial_dropout else units
+    x = torch.from_numpy(np.ascontiguousarray(patches, dtype=np.float32))[:, None]
+    w_pad = torch.cat([model.fc1.weight.T, torch.zeros(1, hidden)])  # row `units`: padding
+    mean, var = np.empty((n, c)), np.empty((n, c))
+    ends = np.cumsum(np.asarray(group_sizes, np.int64))
+    with torch.inference_mode():
+        h = torch.cat([model.features(x[s : s + _CONV_CHUNK]) for s in range(0, n, _CONV_CHUNK)])
+        h = torch.cat([h.flatten(1), torch.zeros(n, 1)], dim=1)  # column `units`: padding
+        full = h[:, :units] @ model.fc1.weight.T  # W h of every patch, once
+        for seed, end, size in zip(seeds, ends, group_sizes, strict=True):
+            if size == 0:
+                continue
+            rows = slice(int(end - size), int(end))
+            draw = np.random.default_rng(int(seed)).random((passes, drawn + hidden), np.float32)
+            # float32 draws against float32 p: torch.rand's masks drop with the same p
+            keep = draw >= np.float32(model.dropout_p)
+            drop1 = ~np.repeat(keep[:, :drawn], units // drawn, axis=1)
+            dropped = _padded_indices(drop1, units)  # (m, d)
+            corr = torch.bmm(h[rows][:, dropped].transpose(0, 1), w_pad[dropped])  # (m, b, hidden)
+            pre = (full[rows][None] - corr).div_(q) + model.fc1.bias
+            keep2 = torch.from_numpy(keep[:, None, drawn:])
+            a = torch.where(keep2, F.relu(pre), 0.0).div_(q)
+            prob = torch.softmax(model.fc2(a), dim=-1).double()
+            mean[rows] = prob.mean(0).numpy()
+            var[rows] = prob.var(0, unbiased=False).numpy()
+    return mean, var
+
+
+def _padded_indices(mask: np.ndarray, pad: int) -> torch.Tensor:
+    """(m, units) bool -> (m, d) int64 column indices of the True entries of each row, in
+    order, rows padded to the longest with `pad`."""
+    counts = mask.sum(axis=1)
+    out = np.full((len(mask), int(counts.max(initial=0))), pad, np.int64)
+    row, col = np.nonzero(mask)
+    out[row, np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)] = col
+    return torch.from_numpy(out)
 
 
 def model_to_bytes(model: PatchCNN, class_names: Sequence[str], config: dict[str, Any]) -> bytes:

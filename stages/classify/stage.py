@@ -1,14 +1,15 @@
 """The "classify" stage: objects of every keyframe and their classes (paper Sec. IV.C).
 
 Per keyframe: DBSCAN clusters of the horizontal sonar's features (metric fan-plane
-coordinates), clusters of at least n features, 40x40 aspect-preserving patches, and m
-Monte-Carlo dropout passes of the CNN batched into one forward call. Two cluster rules
+coordinates), clusters of at least n features, 40x40 aspect-preserving patches; then
+m Monte-Carlo dropout passes of the CNN over the objects of all keyframes at once
+(`stages.classify.cnn.mc_predict_groups`). Two cluster rules
 of the authors' simulation code, off by default, drop objects before classification: a
 minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
 see `stages.classify.objects`. An object takes the argmax class of the mean softmax when that
 mean probability exceeds the threshold and is "unknown" otherwise; mean and variance
-are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id), so outputs are
-byte-identical run to run.
+are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id) and shared by
+its objects, so outputs are byte-identical run to run.
 
 Beyond the paper (on by default, `pool_views`): the decision is taken on the class
 distribution pooled over the sightings of the same place in nearby keyframes
@@ -272,10 +273,10 @@ def classify_keyframes(
     class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
-    means: list[np.ndarray] = [np.zeros((0, len(class_names)))]
-    variances: list[np.ndarray] = [np.zeros((0, len(class_names)))]
     position: dict[int, int] = {}
     truths: list[np.ndarray] = [np.zeros(0, np.int64)]
+    patches: list[np.ndarray] = []  # every keyframe's, for one batched MC-dropout pass
+    seeds: list[int] = []
     oracle = cfg.labels == "ground_truth"
     next_id = 0
     for i, frame in enumerate(frames):
@@ -299,10 +300,8 @@ def classify_keyframes(
             truths.append(objs.true_class_id.astype(np.int64))
             mean = var = np.zeros((objs.count, len(class_names)))
         else:
-            seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
-            mean, var = cnn.mc_predict(model, objs.patches, cfg.mc_passes, seed)
-        means.append(mean)
-        variances.append(var)
+            patches.append(objs.patches)
+            seeds.append(cfg.seed * _SEED_STRIDE + frame.keyframe_id)
         geo_parts.append(
             pa.Table.from_pydict(_object_rows(frame, objs, next_id), schema=_GEOMETRY_SCHEMA)
         )
@@ -320,10 +319,12 @@ def classify_keyframes(
     if not geo_parts or next_id == 0:
         return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), None
     geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
-    mean, var = np.concatenate(means), np.concatenate(variances)
     if oracle:
         classes = _truth_columns(np.concatenate(truths), class_names)
     else:
+        mean, var = cnn.mc_predict_groups(
+            model, np.concatenate(patches), [len(p) for p in patches], seeds, cfg.mc_passes
+        )
         if cfg.pool_views:
             assert keyframes is not None and T_base_sonar is not None
             pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
@@ -371,7 +372,8 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
 STAGE = Stage(
     name="classify",
     # 5: output `clustering` (what submaps clusters its frames with)
-    version=5,
+    # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
+    version=6,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),

@@ -25,6 +25,7 @@ from stages.slam.pose_graph import (
 )
 from stages.slam.scan_matching import (
     MatchResult,
+    TargetIndex,
     match_scans,
     transform_points,
     voxel_downsample,
@@ -60,6 +61,7 @@ class _FrontEnd(LoopClosures):
         self.est = np.zeros((0, 3))
         self._clouds: dict[tuple[int, int, int], np.ndarray] = {}
         self._clouds_of = self.est  # the estimate the cached clouds were built from
+        self._indexes: dict[int, TargetIndex] = {}  # id of a cached cloud -> its index
         self.edge_covs: list[np.ndarray] = []
         self.rows: list[dict[str, Any]] = []
         self.queue: list[LoopCandidate] = []
@@ -116,7 +118,7 @@ class _FrontEnd(LoopClosures):
         for every loop into one stretch of the track (callers never modify a cloud).
         """
         if self._clouds_of is not self.est:
-            self._clouds, self._clouds_of = {}, self.est
+            self._clouds, self._clouds_of, self._indexes = {}, self.est, {}
         key = (frames.start, frames.stop, anchor)
         if key not in self._clouds:
             parts = [
@@ -130,6 +132,15 @@ class _FrontEnd(LoopClosures):
                 else np.zeros((0, 2))
             )
         return self._clouds[key]
+
+    def _index(self, cloud: np.ndarray) -> np.ndarray | TargetIndex:
+        """A cached cloud's `TargetIndex` (its voxel map and k-d tree built once for all
+        matches against it while the estimate stands); another array as it is."""
+        if not any(c is cloud for c in self._clouds.values()):
+            return cloud
+        if id(cloud) not in self._indexes:
+            self._indexes[id(cloud)] = TargetIndex(cloud)
+        return self._indexes[id(cloud)]
 
     def _floor(self, cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
         """Scale an ICP covariance up to at least the determinant of `floor`.
@@ -153,7 +164,7 @@ class _FrontEnd(LoopClosures):
         c = self.cfg
         return match_scans(
             source,
-            target,
+            self._index(target),
             guess,
             half,
             c.grid_resolution_m,

@@ -81,7 +81,7 @@ class LoopCandidate:
 
 class LoopClosures:
     """The loop-closure half of the front end (mixed into `stages.slam.frontend._FrontEnd`,
-    whose sequential half provides the state below and `_cloud`, `_match`, `_check`,
+    whose sequential half provides the state below and `_cloud`, `_index`, `_match`, `_check`,
     `_floor`, `_row` and `_update`)."""
 
     cfg: SlamConfig
@@ -256,7 +256,7 @@ class LoopClosures:
         c = self.cfg
         return icp_with_covariance(
             source,
-            target,
+            self._index(target),
             se2_between(self.est[a], self.est[k]),
             c.loop_refine_correspondence_m,
             c.icp_max_iterations,

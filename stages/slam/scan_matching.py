@@ -24,11 +24,11 @@ import numpy as np
 
 from stages.kernels.lazy import lazy
 from stages.slam.pose_graph import wrap_angle
+from stages.slam.targets import TargetIndex, pad_z
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
-kiss_mapping = lazy("kiss_icp.mapping")
 kiss_registration = lazy("kiss_icp.registration")
 ndimage = lazy("scipy.ndimage")
 spatial = lazy("scipy.spatial")
@@ -36,6 +36,7 @@ spatial = lazy("scipy.spatial")
 __all__ = [
     "MatchResult",
     "OccupancyScorer",
+    "TargetIndex",
     "global_search",
     "icp_2d",
     "icp_covariance",
@@ -241,10 +242,6 @@ class MatchResult:
     covariance: np.ndarray
 
 
-def _pad(points: np.ndarray) -> np.ndarray:
-    return np.column_stack([points, np.zeros(len(points))])
-
-
 def _to_matrix(pose: np.ndarray) -> np.ndarray:
     c, s = np.cos(pose[2]), np.sin(pose[2])
     m = np.eye(4)
@@ -255,7 +252,7 @@ def _to_matrix(pose: np.ndarray) -> np.ndarray:
 
 def icp_2d(
     source: np.ndarray,
-    target: np.ndarray,
+    target: np.ndarray | TargetIndex,
     initial: np.ndarray,
     max_correspondence_m: float = 1.0,
     max_iterations: int = 40,
@@ -266,13 +263,11 @@ def icp_2d(
     Returns:
         (3,) pose of the source in the target frame (projection of kiss-icp's 4x4 to SE(2)).
     """
-    voxel_map = kiss_mapping.VoxelHashMap(
-        voxel_size=voxel_m, max_distance=1e6, max_points_per_voxel=20
-    )
-    voxel_map.add_points(_pad(target))
+    index = target if isinstance(target, TargetIndex) else TargetIndex(target)
+    voxel_map = index.voxel_map(voxel_m)
     registration = kiss_registration.Registration(max_iterations, 1e-4, max_num_threads=1)
     T = registration.align_points_to_map(
-        points=_pad(source),
+        points=pad_z(source),
         voxel_map=voxel_map,
         initial_guess=_to_matrix(initial),
         max_correspondance_distance=max_correspondence_m,
@@ -322,7 +317,7 @@ def icp_covariance(
 
 def match_scans(
     source: np.ndarray,
-    target: np.ndarray,
+    target: np.ndarray | TargetIndex,
     guess: np.ndarray,
     half_window: np.ndarray,
     grid_resolution_m: float = 0.1,
@@ -349,20 +344,21 @@ def match_scans(
         tie_fraction: see `global_search`.
         effective_samples: see `icp_covariance`.
     """
-    scorer = OccupancyScorer(target, grid_resolution_m, radius_m)
+    index = target if isinstance(target, TargetIndex) else TargetIndex(target)
+    scorer = OccupancyScorer(index.points, grid_resolution_m, radius_m)
     sample = source[:: max(1, -(-len(source) // max_search_points))]
     initial, consensus = global_search(
         sample, scorer, guess, half_window, tie_fraction=tie_fraction
     )
     pose, overlap, rmse, cov = icp_with_covariance(
-        source, target, initial, max_correspondence_m, max_iterations, radius_m, effective_samples
+        source, index, initial, max_correspondence_m, max_iterations, radius_m, effective_samples
     )
     return MatchResult(pose, initial, consensus, overlap, rmse, cov)
 
 
 def icp_with_covariance(
     source: np.ndarray,
-    target: np.ndarray,
+    target: np.ndarray | TargetIndex,
     initial: np.ndarray,
     max_correspondence_m: float,
     max_iterations: int,
@@ -371,8 +367,7 @@ def icp_with_covariance(
 ) -> tuple[np.ndarray, int, float, np.ndarray]:
     """ICP from `initial` (`icp_2d`, voxel radius_m / 2), then its overlap, RMSE and
     covariance (`icp_covariance`): (pose, overlap, rmse_m, (3, 3) covariance)."""
-    pose = icp_2d(source, target, initial, max_correspondence_m, max_iterations, radius_m / 2)
-    overlap, rmse, cov = icp_covariance(
-        source, spatial.cKDTree(target), pose, radius_m, effective_samples
-    )
+    index = target if isinstance(target, TargetIndex) else TargetIndex(target)
+    pose = icp_2d(source, index, initial, max_correspondence_m, max_iterations, radius_m / 2)
+    overlap, rmse, cov = icp_covariance(source, index.tree, pose, radius_m, effective_samples)
     return pose, overlap, rmse, cov
