@@ -22,7 +22,8 @@ __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
 DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall")
 """The classes whose inferred median error stays within 1.5x that of their fused points
-on every scene measured (docs/decisions/002-default-inferred-classes.md)."""
+on every scene measured (docs/decisions/002-default-inferred-classes.md; hulls, trusses
+and unknown objects again on procedural worlds: 015-per-object-height-prior.md)."""
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
 """Object-frame models answer from cells this many times larger where their own cell
 is empty (`CoarseFallbackModel`): 2, the first coarser level, because it adds accurate
@@ -92,7 +93,8 @@ class InferConfig(StageConfig):
         le=100.0,
         description="beam frame: std [m] of the per-object height prior, the kernel density"
         " of the object's own fused heights in the same image that multiplies the class"
-        " posterior of its 2D-only returns (stages.kernels.object_prior); None: off",
+        " posterior of its 2D-only returns (stages.kernels.object_prior); None: off"
+        " (docs/decisions/015-per-object-height-prior.md)",
     )
     beam_object_prior_floor: float = Field(
         0.05,
@@ -129,7 +131,7 @@ class InferConfig(StageConfig):
         description="object frames (with coarse_fallback_factor > 1): a query whose fine and"
         " coarse cells have no data takes the answer of the class's height profile, its"
         " coarse range cells pooled over all cross-range offsets"
-        " (stages.kernels.fallback_model)",
+        " (stages.kernels.fallback_model); off: docs/decisions/015-per-object-height-prior.md",
     )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
