@@ -14,9 +14,10 @@ import pyarrow as pa
 
 __all__ = ["CLASS_CELLS_SCHEMA", "CLASS_REFERENCE_SCHEMA", "MODEL_GRIDS"]
 
-MODEL_GRIDS: tuple[str, ...] = ("fine", "coarse")
-"""Values of the `grid` column: a class's own cells, and the cells of its coarse
-fallback twin (object-frame classes with `infer.coarse_fallback_factor` > 1)."""
+MODEL_GRIDS: tuple[str, ...] = ("fine", "coarse", "profile")
+"""Values of the `grid` column: a class's own cells, the cells of its coarse fallback
+twin (object-frame classes with `infer.coarse_fallback_factor` > 1) and of its profile
+(those with `infer.profile_fallback` too)."""
 
 CLASS_REFERENCE_SCHEMA = pa.schema(
     [

@@ -115,7 +115,7 @@ def test_coarse_fallback_answers_only_where_the_fine_cell_is_empty() -> None:
     """`CoarseFallbackModel`: a fine cell with data answers as the plain model does; an
     empty fine cell inside a coarse cell with data takes the coarse answer; a position
     with no data at either level predicts nothing."""
-    from stages.kernels.height_model import CoarseFallbackModel
+    from stages.kernels.fallback_model import CoarseFallbackModel
 
     z = z_grid(-2.0, 2.0, 0.05)
     plain = HeightModel(z, 0.08, 0.1, 0.1, 0.08)
@@ -138,3 +138,26 @@ def test_coarse_fallback_answers_only_where_the_fine_cell_is_empty() -> None:
     assert model.n_cells == plain.n_cells == 2 and model.updated
     with pytest.raises(ValueError, match="factor"):
         CoarseFallbackModel(HeightModel(z), factor=1)
+
+
+def test_profile_level_answers_any_cross_range_of_a_trained_range() -> None:
+    """With `profile`, a position whose fine and coarse cells are empty takes the height
+    the class's other cells at its range learned (pooled over cross-range), and only
+    there: a range no cell learned still predicts nothing; where the coarse cell has data
+    the profile is not asked."""
+    from stages.kernels.fallback_model import CoarseFallbackModel
+
+    z = z_grid(-2.0, 2.0, 0.05)
+    two = CoarseFallbackModel(HeightModel(z, 0.08, 0.1, 0.1, 0.08), factor=2)
+    three = CoarseFallbackModel(HeightModel(z, 0.08, 0.1, 0.1, 0.08), factor=2, profile=True)
+    # A vertical face seen at one cross-range only: z = -s at s = 1.0 m.
+    for m in (two, three):
+        for _ in range(3):
+            m.update(np.array([[1.0, 0.0], [0.4, 2.0]]), np.array([-1.0, 0.9]))
+    probe = np.array([[1.0, 0.0], [1.0, -1.5], [1.0, 3.0], [2.6, 0.0]])
+    got, ref = three.query(probe, 0.3), two.query(probe, 0.3)
+    np.testing.assert_array_equal(ref.seen, [True, False, False, False])
+    np.testing.assert_array_equal(got.seen, [True, True, True, False])
+    assert got.z_low_m[:3] == pytest.approx([-1.0, -1.0, -1.0], abs=0.05)
+    assert np.isnan(got.z_high_m[:3]).all()  # the 0.4 m range's +0.9 m stays there
+    assert three.profile is not None and three.profile.n_cells == 2

@@ -43,16 +43,23 @@ def _through_parquet(table: pa.Table, path: Path) -> pa.Table:
     return pq.read_table(path)
 
 
-@pytest.mark.parametrize("class_name", ["cylindrical_piling", "seawall"])
-def test_class_models_read_back_answer_exactly_as_learned(tmp_path: Path, class_name: str) -> None:
-    config = InferConfig(classes=(class_name,))
+@pytest.mark.parametrize(
+    ("class_name", "profile"),
+    [("cylindrical_piling", False), ("cylindrical_piling", True), ("seawall", False)],
+)
+def test_class_models_read_back_answer_exactly_as_learned(
+    tmp_path: Path, class_name: str, profile: bool
+) -> None:
+    config = InferConfig(classes=(class_name,), profile_fallback=profile)
     reference, cells, states = _learned(class_name, config)
     assert reference.schema.equals(CLASS_REFERENCE_SCHEMA)
     assert cells.schema.equals(CLASS_CELLS_SCHEMA)
     assert cells.num_rows > 0
-    # object frames have a reference cloud and a coarse twin; beam frames neither
+    # object frames have a reference cloud and a coarse twin (and a profile when asked);
+    # beam frames neither
     grids = set(cells.column("grid").to_pylist())
-    assert grids == ({"fine", "coarse"} if class_name != "seawall" else {"fine"})
+    expected = {"fine", "coarse", *(["profile"] if profile else [])}
+    assert grids == (expected if class_name != "seawall" else {"fine"})
     assert (reference.num_rows > 0) == (class_name != "seawall")
     back = restore_class_states(
         _through_parquet(reference, tmp_path / "r.parquet"),

@@ -22,7 +22,8 @@ __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
 DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall")
 """The classes whose inferred median error stays within 1.5x that of their fused points
-on every scene measured (docs/decisions/002-default-inferred-classes.md)."""
+on every scene measured (docs/decisions/002-default-inferred-classes.md; hulls, trusses
+and unknown objects again on procedural worlds: 015-per-object-height-prior.md)."""
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
 """Object-frame models answer from cells this many times larger where their own cell
 is empty (`CoarseFallbackModel`): 2, the first coarser level, because it adds accurate
@@ -86,6 +87,22 @@ class InferConfig(StageConfig):
         description="beam frame: cell along the leading-edge range R0 as a second model"
         " axis; None: one profile per class",
     )
+    beam_object_prior_m: float | None = Field(
+        None,
+        ge=0.001,
+        le=100.0,
+        description="beam frame: std [m] of the per-object height prior, the kernel density"
+        " of the object's own fused heights in the same image that multiplies the class"
+        " posterior of its 2D-only returns (stages.kernels.object_prior); None: off"
+        " (docs/decisions/015-per-object-height-prior.md)",
+    )
+    beam_object_prior_floor: float = Field(
+        0.05,
+        ge=0.0,
+        le=1000.0,
+        description="beam frame: weight added to the per-object height prior everywhere"
+        " (its peak is 1)",
+    )
     z_min_m: float = Field(
         -4.0, ge=-1000.0, le=0.0, description="lowest height of the z grid (sonar frame)"
     )
@@ -107,7 +124,14 @@ class InferConfig(StageConfig):
         le=64,
         description="object frames: a query whose cell has no data takes the answer of the"
         " cell this many times larger that contains it"
-        " (stages.kernels.height_model.CoarseFallbackModel); 1: none (the paper)",
+        " (stages.kernels.fallback_model.CoarseFallbackModel); 1: none (the paper)",
+    )
+    profile_fallback: bool = Field(
+        False,
+        description="object frames (with coarse_fallback_factor > 1): a query whose fine and"
+        " coarse cells have no data takes the answer of the class's height profile, its"
+        " coarse range cells pooled over all cross-range offsets"
+        " (stages.kernels.fallback_model); off: docs/decisions/015-per-object-height-prior.md",
     )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"

@@ -24,8 +24,10 @@ objects rarely fit in one image, use per-beam leading-edge frames instead of one
 (`stages.kernels.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
 pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
 "mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
-product would collapse to one mode). `infer.classes` set to the two piling classes is
-the paper's behaviour.
+product would collapse to one mode). Optionally (`beam_object_prior_m`) each object's own
+fused heights in the image, as a kernel density, multiply the class posterior of its 2D-only
+returns (`stages.kernels.object_prior`; docs/decisions/015-per-object-height-prior.md).
+`infer.classes` set to the two piling classes is the paper's behaviour.
 
 Output `stats` (`stats.json`): what each class loses at each step (`Funnel`).
 

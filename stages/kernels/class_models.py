@@ -19,7 +19,8 @@ import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.classes import UNKNOWN_CLASS
-from stages.kernels.height_model import CoarseFallbackModel, HeightModel, UpdateRule, z_grid
+from stages.kernels.fallback_model import CoarseFallbackModel
+from stages.kernels.height_model import HeightModel, UpdateRule, z_grid
 from stages.kernels.object_frame import ClassFrame, IcpParams
 
 __all__ = [
@@ -66,6 +67,10 @@ class ClassModelSettings(Protocol):
     @property
     def beam_range_cell_m(self) -> float | None: ...
     @property
+    def beam_object_prior_m(self) -> float | None: ...
+    @property
+    def beam_object_prior_floor(self) -> float: ...
+    @property
     def z_min_m(self) -> float: ...
     @property
     def z_max_m(self) -> float: ...
@@ -81,6 +86,8 @@ class ClassModelSettings(Protocol):
     def cross_range_cell_m(self) -> float: ...
     @property
     def coarse_fallback_factor(self) -> int: ...
+    @property
+    def profile_fallback(self) -> bool: ...
     @property
     def confidence_threshold(self) -> float: ...
     @property
@@ -122,13 +129,14 @@ def _height_model(
         rule = "product"
     model = HeightModel(z, config.sigma_m, *cells, config.confidence_window_m, rule)
     if kind == "object" and config.coarse_fallback_factor > 1:
-        return CoarseFallbackModel(model, config.coarse_fallback_factor)
+        return CoarseFallbackModel(model, config.coarse_fallback_factor, config.profile_fallback)
     return model
 
 
 def _grids(model: HeightModel | CoarseFallbackModel) -> dict[str, HeightModel]:
     if isinstance(model, CoarseFallbackModel):
-        return {"coarse": model.coarse, "fine": model.fine}
+        grids = {"coarse": model.coarse, "fine": model.fine}
+        return grids if model.profile is None else {**grids, "profile": model.profile}
     return {"fine": model}
 
 

@@ -19,9 +19,11 @@ import numpy as np
 from schemas.classes import UNKNOWN_CLASS
 from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
 from stages.kernels.class_models import ClassModelSettings, ClassState
+from stages.kernels.fallback_model import CoarseFallbackModel
 from stages.kernels.geometry import polar_to_xyz, se2_apply
 from stages.kernels.height_model import HeightQuery
 from stages.kernels.object_frame import ObjectOrigin
+from stages.kernels.object_prior import object_height_prior
 from stages.kernels.sightings import Sighting
 
 logger = logging.getLogger(__name__)
@@ -222,7 +224,19 @@ def update_and_query_beam_class(
     if not state.model.updated:
         return None
     funnel.counts["registered_objects"] += len(sightings)
-    q = state.model.query(coords[~fused], config.confidence_threshold)
+    prior = None
+    if config.beam_object_prior_m is not None:
+        prior = object_height_prior(
+            state.model.fine.z_m
+            if isinstance(state.model, CoarseFallbackModel)
+            else state.model.z_m,
+            oid[fused],
+            np.concatenate([s.fused_z_m for s in sightings]),
+            oid[~fused],
+            config.beam_object_prior_m,
+            config.beam_object_prior_floor,
+        )
+    q = state.model.query(coords[~fused], config.confidence_threshold, prior)
     bearing = np.concatenate([s.bearing_rad for s in sightings])[~fused]
     pts, of_return = predicted_points(q, r[~fused], bearing, config)
     funnel.count_query(int((~fused).sum()), q, of_return)

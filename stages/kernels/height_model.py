@@ -41,7 +41,7 @@ from stages.kernels.lazy import lazy
 
 special = lazy("scipy.special")
 
-__all__ = ["CoarseFallbackModel", "HeightModel", "HeightQuery", "UpdateRule", "z_grid"]
+__all__ = ["HeightModel", "HeightQuery", "UpdateRule", "weighted", "z_grid"]
 
 logger = logging.getLogger(__name__)
 
@@ -217,16 +217,20 @@ class HeightModel:
         self.n_updates += 1
         return int(keys.size)
 
-    def query(self, uv_m: np.ndarray, threshold: float) -> HeightQuery:
+    def query(
+        self, uv_m: np.ndarray, threshold: float, prior: np.ndarray | None = None
+    ) -> HeightQuery:
         """MAP heights over z <= 0 (Eq. 8) and z > 0 (Eq. 9) at (n, 2) positions.
 
         Args:
             uv_m: (n, 2) reference-frame positions [m].
             threshold: minimum confidence (posterior probability) of a returned value.
+            prior: optional (n, n_z) non-negative weights that multiply each position's
+                posterior before the MAP (renormalised; `stages.kernels.object_prior`).
         """
         rows = self._find(self.cell_keys(uv_m))
         seen = rows >= 0
-        return self._answer(self._probabilities(rows[seen]), seen, threshold)
+        return self._answer(weighted(self._probabilities(rows[seen]), prior, seen), seen, threshold)
 
     def _answer(self, prob: np.ndarray, seen: np.ndarray, threshold: float) -> HeightQuery:
         """Eq. 8-9 from the (k, n_z) posteriors of the k positions of n that are `seen`."""
@@ -324,61 +328,11 @@ class HeightModel:
             setattr(self, name, grown)
 
 
-class CoarseFallbackModel:
-    """A `HeightModel` that answers from a twin with coarser cells where its own cell
-    never received a measurement: a second grid, `factor` times coarser along both axes
-    and centred on the origin like the first.
-
-    Both models learn every update. A query is answered by the fine cell when it has
-    data, else by the coarse cell that contains the position, else not at all: a
-    position whose coarse cell is empty too still predicts nothing (Eq. 8-9 need data).
-
-    Args:
-        fine: the model whose cells answer first.
-        factor: coarse cell size over the fine one, along both axes (>= 2).
-    """
-
-    def __init__(self, fine: HeightModel, factor: int) -> None:
-        if factor < 2:
-            raise ValueError(f"coarse factor must be >= 2, got {factor}")
-        self.fine = fine
-        self.coarse = HeightModel(
-            fine.z_m,
-            sigma_m=fine.sigma_m,
-            range_cell_m=float(fine.cell_m[0] * factor),
-            cross_range_cell_m=float(fine.cell_m[1] * factor),
-            window_m=fine.window_m,
-            update_rule=fine.update_rule,
-            prior_weight=fine.prior_weight,
-        )
-
-    @property
-    def n_cells(self) -> int:
-        """Fine cells that received at least one measurement."""
-        return self.fine.n_cells
-
-    @property
-    def updated(self) -> bool:
-        return self.fine.updated
-
-    def update(self, uv_m: np.ndarray, z_m: np.ndarray) -> int:
-        """Eq. 7 in both models; returns the number of fine cells updated."""
-        self.coarse.update(uv_m, z_m)
-        return self.fine.update(uv_m, z_m)
-
-    def query(self, uv_m: np.ndarray, threshold: float) -> HeightQuery:
-        """The fine model's answer, the coarse one's where the fine cell is unseen
-        (one MAP pass over the posteriors gathered from both)."""
-        uv = np.asarray(uv_m, dtype=np.float64).reshape(-1, 2)
-        rows = self.fine._find(self.fine.cell_keys(uv))
-        in_fine = rows >= 0
-        fill = np.flatnonzero(~in_fine)
-        coarse_rows = self.coarse._find(self.coarse.cell_keys(uv[fill]))
-        in_coarse = coarse_rows >= 0
-        seen = in_fine.copy()
-        seen[fill[in_coarse]] = True
-        slot = np.cumsum(seen) - 1  # row of each seen position in `prob`
-        prob = np.empty((int(seen.sum()), self.fine.z_m.size))
-        prob[slot[in_fine]] = self.fine._probabilities(rows[in_fine])
-        prob[slot[fill[in_coarse]]] = self.coarse._probabilities(coarse_rows[in_coarse])
-        return self.fine._answer(prob, seen, threshold)
+def weighted(prob: np.ndarray, prior: np.ndarray | None, seen: np.ndarray) -> np.ndarray:
+    """The (k, n_z) posteriors of the k `seen` positions times their rows of the (n, n_z)
+    `prior`, renormalised (unchanged without a prior or where the product is all zero)."""
+    if prior is None:
+        return prob
+    product = prob * np.asarray(prior, dtype=np.float64)[seen]
+    total = product.sum(axis=1, keepdims=True)
+    return np.where(total > 0, product / np.where(total > 0, total, 1.0), prob)
