@@ -1,8 +1,9 @@
 """Dense submaps on the default marina, cold: frame pairs per second and peak memory.
 
-Issue 21's speed target: the whole pipeline on all 1,441 frame pairs of the default
-marina (seed 0, 175 keyframes at 2 m), `keyframes.submap_stride=1` (every pair between
-two keyframes is a submap frame), cold store: >= 100 frame pairs/s through features +
+Issue 41's speed target (issue 21 asked for 100 and stayed out of reach): the whole
+pipeline on all 1,441 frame pairs of the default marina (seed 0, 175 keyframes at 2 m),
+`keyframes.submap_stride=1` (every pair between two keyframes is a submap frame), cold
+store: >= 60 frame pairs/s through features +
 fuse + classify + infer (the keyframe stages) + submaps + voxelize; keyframes, slam and
 training excluded (a fresh store holding only the trained model, copied from the
 machine's model cache, as bench_pipeline does), evaluate not run. Peak RSS <= 1.5 GB.
@@ -35,7 +36,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-GOAL_FRAME_PAIRS_PER_S = 100.0
+GOAL_FRAME_PAIRS_PER_S = 60.0
 GOAL_PEAK_RSS_MIB = 1536.0
 TIMED = ("features", "fuse", "classify", "infer", "submaps", "voxelize")
 """The stages the target times (keyframes and slam are excluded)."""

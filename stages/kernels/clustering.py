@@ -84,6 +84,10 @@ def cluster_features(
     return out
 
 
+_RADIX_POINTS = 1 << 16
+"""Up to this many points, a point index fits 16 bits (numpy radix-sorts those)."""
+
+
 def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.ndarray:
     """DBSCAN for min_samples <= 2, as connected components of the eps-neighbour graph.
 
@@ -98,7 +102,10 @@ def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.n
     # sorted column indices, and sorting them (COO -> CSR) was most of the cost.
     indptr = np.zeros(n + 1, np.int32)
     np.cumsum(np.bincount(pairs[:, 0], minlength=n), out=indptr[1:])
-    neighbours = pairs[np.argsort(pairs[:, 0]), 1].astype(np.int32)
+    # Any order within a row will do: a stable sort of 16-bit keys is a radix sort, 5x
+    # faster than the default quicksort of int64 keys on a frame's ~40k pairs.
+    keys = pairs[:, 0].astype(np.uint16) if n <= _RADIX_POINTS else pairs[:, 0]
+    neighbours = pairs[np.argsort(keys, kind="stable"), 1].astype(np.int32)
     graph = sparse.csr_matrix((np.ones(len(pairs)), neighbours, indptr), (n, n))
     _, comp = csgraph.connected_components(graph, directed=True, connection="weak")
     if min_samples == 2:
