@@ -111,6 +111,12 @@ def test_an_unknown_class_anywhere_in_config_is_refused_naming_the_table(tmp_pat
     ):
         with pytest.raises(ConfigError, match=r"unknown class 'rock'.*classes\.table"):
             _config(tmp_path, "{}\n", (override,))
+    # Borrowing is judged with the classes the table gives infer, when the config loads.
+    with pytest.raises(ConfigError, match=r"infer: borrowed_models .*inferred beam-frame class"):
+        _config(tmp_path, "{}\n", ("infer.borrowed_models={truss: cylindrical_piling}",))
+    quay = "classes:\n  add:\n    - {name: quay_wall, id: 9, frame_kind: beam, inferred: true}\n"
+    lent = _config(tmp_path, quay, ("infer.borrowed_models={truss: quay_wall}",))
+    assert lent.infer.with_table(lent.classes).borrowed_models == {"truss": "quay_wall"}  # type: ignore[attr-defined]
     # Defined in the table, the same class is accepted (and becomes an inferred class).
     cfg = _config(tmp_path, MOORING, ("infer.frame_kinds={mooring_block: beam}",))
     infer = cfg.infer.with_table(cfg.classes)  # type: ignore[attr-defined]

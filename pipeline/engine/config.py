@@ -112,6 +112,14 @@ def check_class_names(config: BaseModel, where: str) -> None:
                 table.check(names, f"{section_name}.{field}")
             except ValueError as err:
                 raise ConfigError(f"{where}: {err}") from err
+        # A section whose defaults come from the table is validated as the stage sees it.
+        resolve = getattr(section, "with_table", None)
+        try:
+            if resolve is not None:
+                resolve(table)
+        except ValidationError as err:
+            message = str(err.errors()[0]["msg"]).removeprefix("Value error, ")
+            raise ConfigError(f"{where}: {section_name}: {one_line(message)}") from err
 
 
 def _closest(name: str, candidates: Iterable[str]) -> str:

@@ -22,8 +22,8 @@ from stages.kernels.object_frame import IcpParams
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
 DEFAULT_CLASSES: tuple[str, ...] = DEFAULT_TABLE.inferred
-"""The default table's inferred classes (pilings and seawall): the classes whose inferred median error stays within 1.5x that of their fused points
-on every scene measured (docs/decisions/002-default-inferred-classes.md)."""
+"""The default table's inferred classes (pilings and seawall): the classes whose inferred
+median error stays within 1.5x that of their fused points on every scene measured (docs/decisions/002-default-inferred-classes.md)."""
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
 """Object-frame models answer from cells this many times larger where their own cell
 is empty (`CoarseFallbackModel`): 2, the first coarser level, because it adds accurate
@@ -179,14 +179,22 @@ class InferConfig(StageConfig):
             }
         )
 
+    def _checked_now(self, *names: str) -> bool:
+        """Whether names can be judged before the table is known: always once `classes` is
+        given; while it is None (the table's), only names of the default table, judged
+        against it (the rest are judged by `with_table`, when the config loads)."""
+        return self.classes is not None or all(n in DEFAULT_TABLE.assignable for n in names)
+
+    def _classes_or_default(self) -> tuple[str, ...]:
+        return DEFAULT_TABLE.inferred if self.classes is None else self.classes
+
     @model_validator(mode="after")
     def _argmax_classes_are_inferred_beam_classes(self) -> InferConfig:
-        if self.classes is None:
-            return self  # checked once resolved (`with_table`)
+        classes = self._classes_or_default()
         bad = [
             c
             for c in self.unknown_argmax_classes
-            if c not in self.classes or self.frame_kind(c) != "beam"
+            if self._checked_now(c) and (c not in classes or self.frame_kind(c) != "beam")
         ]
         if bad:
             raise ValueError(
@@ -196,14 +204,12 @@ class InferConfig(StageConfig):
 
     @model_validator(mode="after")
     def _borrowed_models_are_inferred_beam_classes(self) -> InferConfig:
-        if self.classes is None:
-            return self  # checked once resolved (`with_table`)
+        classes = self._classes_or_default()
         bad = {
             borrower: lender
             for borrower, lender in self.borrowed_models.items()
-            if borrower in self.classes
-            or lender not in self.classes
-            or self.frame_kind(lender) != "beam"
+            if self._checked_now(borrower, lender)
+            and (borrower in classes or lender not in classes or self.frame_kind(lender) != "beam")
         }
         if UNKNOWN_CLASS in self.borrowed_models and self.unknown_argmax_classes:
             raise ValueError(
