@@ -24,6 +24,18 @@
 
 Targets: precision >= 0.9, recall >= 0.7, inferred median <= 1.5x fused median. The script
 prints every figure and exits 1 when a target is missed.
+
+Measured 2026-12-03 (defaults: train seed 11 with 8 goals, test seed 12 with 5 goals; 2
+cores shared with other jobs, load 6-13), `--work /tmp/classes-work/bench`:
+- labelling 3 keyframes: one export command 14.6 s the first time (it runs the keyframes
+  stage), 4.1 s with it cached; one import command 3.5 s (88 shapes). All 70 keyframes:
+  export 29.2 s, import 7.5 s (2227 shapes).
+- training (default sets + the recording) and the test run: 2376 s wall on the loaded box.
+- mooring_block on the test mission: precision 1.000, recall 0.986 (142 sightings);
+  inferred median error 0.103 m vs its fused points' 0.103 m (0.99x); semantic map 4360
+  accurate voxels vs the standard map's 1384, completeness 0.51 vs 0.22. Other classes:
+  cylindrical 1.00 / 1.00, rectangular 0.96 / 0.80, seawall 1.00 / 0.84, hull 1.00 / 0.86
+  (precision / recall).
 """
 
 from __future__ import annotations
