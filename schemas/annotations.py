@@ -27,9 +27,16 @@ from __future__ import annotations
 import math
 from typing import Final, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
-from schemas.classes import CLASS_NAMES
+from schemas.classes import DEFAULT_TABLE, ClassTable
 
 __all__ = [
     "ANNOTATION_FORMAT",
@@ -63,7 +70,8 @@ class Box(_Model):
 
 
 class AnnotatedObject(_Model):
-    """One object: a class from `schemas.classes.CLASS_NAMES` and exactly one shape."""
+    """One object: a class of the class table and exactly one shape (validate with
+    `context={"classes": table}` for a table other than the default)."""
 
     class_name: str
     box_m: Box | None = None
@@ -73,9 +81,10 @@ class AnnotatedObject(_Model):
 
     @field_validator("class_name")
     @classmethod
-    def _known_class(cls, name: str) -> str:
-        if name not in CLASS_NAMES:
-            raise ValueError(f"unknown class {name[:40]!r} (one of: {', '.join(CLASS_NAMES)})")
+    def _known_class(cls, name: str, info: ValidationInfo) -> str:
+        table = (info.context or {}).get("classes", DEFAULT_TABLE)
+        assert isinstance(table, ClassTable)
+        table.check([name], "", unknown_ok=False)
         return name
 
     @field_validator("polygon_m")

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import SonarPing
 from sim.config import SimConfig
 from sim.mission import Trajectory, dead_reckoning, plan_mission
@@ -102,17 +103,20 @@ class SimRun:
         """The two sonar image models (built once)."""
         if not self._models:
             for s in ("horizontal", "vertical"):
-                self._models[s] = SonarModel(self.config.sonar(s), s)
+                self._models[s] = SonarModel(self.config.sonar(s), s, self.world.table)
         return self._models
 
 
-def simulate(scene: Scene, config: SimConfig, seed: int) -> SimRun:
+def simulate(
+    scene: Scene, config: SimConfig, seed: int, table: ClassTable = DEFAULT_TABLE
+) -> SimRun:
     """Plan the mission and navigation for (scene, config, seed); pings render lazily.
+    `table`: the class table (label ids of the scene's classes).
 
     Raises:
         ValueError: no free water for the mission.
     """
-    world = World(scene)
+    world = World(scene, table=table)
     mission_rng = np.random.default_rng([seed, _MISSION_STREAM])
     path = plan_mission(world, config.mission, config.navigation.rate_hz, mission_rng)
     dr_nav = dead_reckoning(path, config.navigation, np.random.default_rng([seed, _NAV_STREAM]))

@@ -46,6 +46,7 @@ __all__ = [
     "Seawall",
     "Truss",
     "load_scene",
+    "meshes_found",
 ]
 
 Vec2 = tuple[float, float]
@@ -283,10 +284,10 @@ def load_scene(path: str | Path) -> Scene:
     except ValidationError as err:
         lines = [f"  {'.'.join(str(x) for x in e['loc'])}: {e['msg']}" for e in err.errors()]
         raise SceneError(f"invalid scene {p}:\n" + "\n".join(lines)) from err
-    return _meshes_found(scene, p)
+    return meshes_found(scene, p)
 
 
-def _meshes_found(scene: Scene, path: Path) -> Scene:
+def meshes_found(scene: Scene, path: Path) -> Scene:
     """The scene with each mesh file's path made absolute (relative to the scene file)."""
     if not scene.meshes:
         return scene

@@ -22,13 +22,16 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import ndtri
 
-from schemas.classes import CLASS_IDS, CLASS_NAMES
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import SonarPing
 from sim.config import SonarConfig
 from sim.world import World
 from stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
 
-__all__ = ["SonarModel"]
+__all__ = ["NEW_CLASS_REFLECTIVITY", "SonarModel"]
+
+NEW_CLASS_REFLECTIVITY = 1.0
+"""Reflectivity of a table class the sonar config does not list (that of a piling)."""
 
 _NOISE_TABLE_SIZE = 65536
 _N_PATTERNS = 16
@@ -39,7 +42,7 @@ _N_PATTERNS = 16
 class SonarModel:
     """Renders `SonarPing`s of one sonar (config + which sonar it is)."""
 
-    def __init__(self, cfg: SonarConfig, sonar: str) -> None:
+    def __init__(self, cfg: SonarConfig, sonar: str, table: ClassTable = DEFAULT_TABLE) -> None:
         self.cfg = cfg
         self.sonar = sonar
         self.ranges_m = cfg.ranges_m()
@@ -50,9 +53,12 @@ class SonarModel:
         self._perm = np.random.default_rng(12345).permutation(self.k)
         roll = np.deg2rad(cfg.mounting.rpy_deg[0])
         self.R_unrolled_sensor = matrix_from_rpy_product([roll, 0.0, 0.0])
-        refl = np.zeros(len(CLASS_NAMES))
-        for name, value in cfg.reflectivity.items():
-            refl[CLASS_IDS[name]] = value
+        table.check(cfg.reflectivity, f"{sonar}.reflectivity", unknown_ok=False)
+        # A class of the table without a reflectivity of its own (one defined in config)
+        # reflects like a piling; class 0 ('none') reflects nothing.
+        refl = np.zeros(max(table.ids.values()) + 1)
+        for name, cid in table.ids.items():
+            refl[cid] = cfg.reflectivity.get(name, 0.0 if cid == 0 else NEW_CLASS_REFLECTIVITY)
         self._refl = refl
         half = self.aperture_rad / 2
         self._bp_k = -np.log(cfg.aperture_edge_gain) / half**2

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from schemas.classes import CLASS_IDS
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from sim.meshes import primitive_mesh, seafloor_mesh
 from sim.scene import Scene, SceneError
 
@@ -31,24 +31,29 @@ class World:
 
     Object ids are the scene's expanded primitives in file order (0..n-1); the seafloor is
     the last object (class "seafloor"). `cast_threads`: open3d threads per ray cast (0: all
-    cores; a worker process among others takes 1); hits do not depend on it.
+    cores; a worker process among others takes 1); hits do not depend on it. `table`: the
+    class table (config section `classes`) giving each object's class its label id.
     """
 
-    def __init__(self, scene: Scene, cast_threads: int = 0) -> None:
+    def __init__(
+        self, scene: Scene, cast_threads: int = 0, table: ClassTable = DEFAULT_TABLE
+    ) -> None:
         self.scene = scene
+        self.table = table
         self.cast_threads = int(cast_threads)
+        ids = table.ids
         meshes = [primitive_mesh(p, scene.seafloor_depth_m) for p in scene.primitives()]
         names = [p.name or f"{p.kind}_{i}" for i, p in enumerate(scene.primitives())]
-        unknown = sorted({p.kind for p in scene.primitives()} - set(CLASS_IDS))
+        unknown = sorted({p.kind for p in scene.primitives()} - set(ids))
         if unknown:
             raise SceneError(
                 f"scene {scene.name}: class {unknown[0]!r:.60} is not in the class table"
-                f" ({', '.join(CLASS_IDS)})"
+                f" (classes.table: {', '.join(ids)})"
             )
-        classes = [CLASS_IDS[p.kind] for p in scene.primitives()]
+        classes = [ids[p.kind] for p in scene.primitives()]
         meshes.append(seafloor_mesh(scene.area_m, scene.seafloor_depth_m, scene.seafloor_margin_m))
         names.append("seafloor")
-        classes.append(CLASS_IDS["seafloor"])
+        classes.append(ids["seafloor"])
         self._meshes = meshes
         self._class_of_object = np.asarray(classes, dtype=np.int64)
         self.objects: list[ObjectInfo] = []
@@ -60,14 +65,14 @@ class World:
             tm.vertex.positions = o3d.core.Tensor(v.astype(np.float32))  # type: ignore[call-overload]
             tm.triangle.indices = o3d.core.Tensor(t.astype(np.int32))  # type: ignore[call-overload]
             gids.append(self._rc.add_triangles(tm))
-            if classes[oid] != CLASS_IDS["seafloor"]:
+            if classes[oid] != ids["seafloor"]:
                 self._rc_obstacles.add_triangles(tm)
             lo, hi = v.min(axis=0), v.max(axis=0)
             self.objects.append(
                 ObjectInfo(
                     oid,
                     classes[oid],
-                    _class_name(classes[oid]),
+                    table.name_of(classes[oid]),
                     names[oid],
                     (float(lo[0]), float(lo[1]), float(lo[2])),
                     (float(hi[0]), float(hi[1]), float(hi[2])),
@@ -174,8 +179,8 @@ class World:
         v, t, _, cls = self.mesh_arrays()
         keep = np.ones(len(t), dtype=bool)
         if classes is not None:
-            ids = {CLASS_IDS[c] if isinstance(c, str) else int(c) for c in classes}
-            keep = np.isin(cls[t[:, 0]], sorted(ids))
+            wanted = {self.table.ids[c] if isinstance(c, str) else int(c) for c in classes}
+            keep = np.isin(cls[t[:, 0]], sorted(wanted))
         tri = v[t[keep]]
         if len(tri) == 0:
             return np.zeros((0, 3))
@@ -189,9 +194,3 @@ class World:
         u[flip], w[flip] = 1 - u[flip], 1 - w[flip]
         a = tri[idx]
         return a[:, 0] + u[:, None] * (a[:, 1] - a[:, 0]) + w[:, None] * (a[:, 2] - a[:, 0])
-
-
-def _class_name(cid: int) -> str:
-    from schemas.classes import CLASS_NAMES
-
-    return CLASS_NAMES[cid]

@@ -12,7 +12,7 @@ import pytest
 from scipy import ndimage
 
 import stages.infer.stage as infer_module
-from schemas.classes import CLASS_NAMES, PILING_CLASSES
+from schemas.classes import CLASS_NAMES, DEFAULT_TABLE, PILING_CLASSES
 from schemas.points import POINTS_SCHEMA
 from sim.config import SimConfig
 from sim.dataset import SimRun, simulate
@@ -489,8 +489,11 @@ def test_coarse_fallback_fills_unseen_cells_on_the_true_surface(pier, pier_real)
 
 
 def test_config_refuses_unknown_classes_and_keys() -> None:
-    with pytest.raises(ValueError):
-        InferConfig(classes=("pilling",))
+    # Class names are checked against the run's class table (`classes`), naming it.
+    with pytest.raises(
+        ValueError, match=r"infer\.classes: unknown class 'pilling'.*classes\.table"
+    ):
+        InferConfig(classes=("pilling",)).with_table(DEFAULT_TABLE)
     with pytest.raises(ValueError):
         InferConfig(sigma=0.1)
     with pytest.raises(ValueError):

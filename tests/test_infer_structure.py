@@ -13,6 +13,7 @@ from test_infer import keyframe_indices, n_voxels, real_stage_tables, to_world
 from sim.config import MissionConfig, SimConfig
 from sim.dataset import simulate
 from sim.scene import load_scene
+from stages.infer.config import DEFAULT_CLASSES
 from stages.infer.stage import InferConfig, infer_mission
 from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
 from stages.kernels.geometry import se3_from_pose as pose_to_matrix
@@ -70,7 +71,7 @@ def test_extended_structure_is_predicted_on_the_true_surface(scene: str, class_n
     """Real CFAR features and fusion on a wall-only and a hull-only scene: the beam-frame
     model multiplies the covered surface at an error close to the fused points'."""
     run, T, (objects, links, features, fused) = _mission(scene, seed=0)
-    config = InferConfig(classes=(*InferConfig().classes, "boat_hull"))  # hulls: opt-in
+    config = InferConfig(classes=(*DEFAULT_CLASSES, "boat_hull"))  # hulls: opt-in
     points, stats = infer_mission(objects, links, features, fused, config)
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     assert set(inferred.column("class_name").to_pylist()) == {class_name}
@@ -208,4 +209,4 @@ def test_a_class_without_a_model_can_borrow_a_beam_class_model_without_teaching_
     with pytest.raises(ValueError, match="beam-frame"):
         InferConfig(borrowed_models={"truss": "cylindrical_piling"})  # object frame
     with pytest.raises(ValueError, match="without a model"):
-        InferConfig(classes=(*InferConfig().classes, "truss"), borrowed_models={"truss": "seawall"})
+        InferConfig(classes=(*DEFAULT_CLASSES, "truss"), borrowed_models={"truss": "seawall"})

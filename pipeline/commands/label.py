@@ -43,7 +43,19 @@ def _chosen_ids(spec: str | None, every: int | None, available: list[int]) -> li
     return available[:: every or 1]
 
 
-def _existing_labels(recording: Path, frames: list[Any]) -> tuple[dict, dict, float, list[int]]:
+def _class_table(ctx: typer.Context, config: Path | None, overrides: list[str] | None) -> Any:
+    """The class table of the config (section `classes`; the default without one)."""
+    from pipeline.engine.config import load_config
+    from schemas.classes import DEFAULT_TABLE
+
+    graph = cli_graph(ctx)
+    loaded = load_config(graph.config_stages, config, overrides or (), graph.extra_sections)
+    return getattr(loaded, "classes", DEFAULT_TABLE)
+
+
+def _existing_labels(
+    recording: Path, frames: list[Any], table: Any
+) -> tuple[dict, dict, float, list[int]]:
     """Times, shapes and tolerance of the recording's annotation file, on its keyframes."""
     import numpy as np
 
@@ -53,7 +65,7 @@ def _existing_labels(recording: Path, frames: list[Any]) -> tuple[dict, dict, fl
     path = annotation_path(recording)
     if path is None:
         raise SourceError(f"{recording}: no annotation file beside it to export")
-    doc = load_annotations(path)
+    doc = load_annotations(path, table)
     t = np.array([f.t_ns for f in frames], np.int64)
     times, shapes, ids = {}, {}, []
     for kf in doc.keyframes:
@@ -108,8 +120,8 @@ def label_export(
     from pipeline.commands._errors import writes_under
     from pipeline.engine.codecs import read_verified
     from pipeline.labels.files import export_labels
-    from schemas.classes import CLASS_IDS
 
+    table = _class_table(ctx, config, set_)
     with writes_under(store):
         until = "classify" if prelabel else "keyframes"
         request = RunRequest(
@@ -129,7 +141,7 @@ def label_export(
         shapes: dict[int, Any] = {}
         tolerance = 1.0
         if existing:
-            times, shapes, tolerance, ids = _existing_labels(recording, all_frames)
+            times, shapes, tolerance, ids = _existing_labels(recording, all_frames, table)
         else:
             ids = _chosen_ids(keyframes, every, [f.keyframe_id for f in all_frames])
         if prelabel:
@@ -139,7 +151,7 @@ def label_export(
             )
             shapes = {**found, **shapes}
         chosen = [f for f in all_frames if f.keyframe_id in set(ids)]
-        done = export_labels(recording, out, chosen, times, shapes, CLASS_IDS, tolerance, pixel_m)
+        done = export_labels(recording, out, chosen, times, shapes, table.ids, tolerance, pixel_m)
     summary = {
         "folder": str(done.folder),
         "coco": str(done.coco),
@@ -155,6 +167,7 @@ def label_export(
 
 
 def label_import(
+    ctx: typer.Context,
     coco: Path = typer.Argument(..., help="The COCO JSON exported by the labelling tool."),
     recording: Path | None = typer.Option(
         None, "--recording", help="The recording (default: the one exported)."
@@ -166,13 +179,18 @@ def label_import(
     include_empty: bool = typer.Option(
         False, "--include-empty", help="Images without shapes hold no object (else: unlabelled)."
     ),
+    config: Path | None = CONFIG_OPT,
+    set_: list[str] | None = SET_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
-    """Turn a COCO file's polygons and boxes into the recording's annotation file."""
+    """Turn a COCO file's polygons and boxes into the recording's annotation file.
+
+    Category names must be classes of the config's class table (section `classes`)."""
     from pipeline.labels.files import import_labels
 
+    table = _class_table(ctx, config, set_)
     path, annotations = import_labels(
-        coco, recording, out, force=force, include_empty=include_empty
+        coco, recording, out, force=force, include_empty=include_empty, table=table
     )
     n_objects = sum(len(k.objects) for k in annotations.keyframes)
     summary = {"annotations": str(path), "keyframes": len(annotations.keyframes)}

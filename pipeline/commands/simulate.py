@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -34,6 +35,13 @@ def simulate_cmd(
         help="Processes rendering pings (same bytes for any number; 1: in this process).",
     ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    config_path: Path | None = typer.Option(
+        None,
+        "--config",
+        "-c",
+        help="Pipeline config YAML whose class table (section `classes`) the scene's classes"
+        " come from (default: the default table).",
+    ),
 ) -> None:
     """Simulate a mission (scene, seed) and write it as a ROS 2 MCAP dataset with ground truth."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
@@ -51,8 +59,9 @@ def simulate_cmd(
     if output.parent.exists() and not output.parent.is_dir():
         raise SourceError(f"output directory {output.parent} is not a directory")
     config = sim_config(goals, duration_s)
+    table = _class_table(config_path)
     try:
-        run = simulate(scene_obj, config, seed)
+        run = simulate(scene_obj, config, seed, table)
     except ValueError as err:
         raise ConfigError(f"scene {scene}: {err}") from err
     console = stderr_console()
@@ -85,6 +94,19 @@ def simulate_cmd(
         f"wrote {info['path']}: {info['n_frames']} frames, {info['bytes'] / 1e6:.1f} MB, "
         f"{info['frames_per_s']:.1f} frames/s"
     )
+
+
+def _class_table(path: Path | None) -> Any:
+    """The class table of the pipeline config at `path` (the default table for None)."""
+    from pipeline.engine.config import load_config
+    from pipeline.engine.registry import default_graph
+    from schemas.classes import DEFAULT_TABLE
+
+    if path is None:
+        return DEFAULT_TABLE
+    graph = default_graph()
+    loaded = load_config(graph.config_stages, path, (), graph.extra_sections)
+    return getattr(loaded, "classes", DEFAULT_TABLE)
 
 
 def register(app: typer.Typer) -> None:

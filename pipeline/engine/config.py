@@ -26,6 +26,7 @@ from stages.base import Stage
 
 __all__ = [
     "apply_overrides",
+    "check_class_names",
     "config_model_for",
     "dump_yaml",
     "load_config",
@@ -79,12 +80,46 @@ def section_dict(
     """
     section = getattr(config, stage)
     data: dict[str, Any] = section.model_dump(mode="json", exclude=set(excludes) or None)
-    reads = list(reads_sections)
+    reads = {
+        name: getattr(config, name).model_dump(mode="json")
+        for name in reads_sections
+        if not _omitted_default(getattr(config, name))
+    }
     if reads:
-        data[READ_SECTIONS_KEY] = {
-            name: getattr(config, name).model_dump(mode="json") for name in reads
-        }
+        data[READ_SECTIONS_KEY] = reads
     return data
+
+
+def _omitted_default(section: BaseModel) -> bool:
+    """Whether a read section is left out of keys: one that says so (`KEY_OMITS_DEFAULT`,
+    the class table) and equals its default, so its default keeps keys as they were."""
+    return bool(getattr(type(section), "KEY_OMITS_DEFAULT", False)) and section == type(section)()
+
+
+def check_class_names(config: BaseModel, where: str) -> None:
+    """Every class name a section holds (`class_names_used()`) is in the config's class
+    table (section `classes`); ConfigError naming the field and the table otherwise."""
+    table = getattr(config, "classes", None)
+    if table is None:
+        return
+    for section_name in type(config).model_fields:
+        section = getattr(config, section_name)
+        used = getattr(section, "class_names_used", None)
+        if used is None:
+            continue
+        for field, names in used().items():
+            try:
+                table.check(names, f"{section_name}.{field}")
+            except ValueError as err:
+                raise ConfigError(f"{where}: {err}") from err
+        # A section whose defaults come from the table is validated as the stage sees it.
+        resolve = getattr(section, "with_table", None)
+        try:
+            if resolve is not None:
+                resolve(table)
+        except ValidationError as err:
+            message = str(err.errors()[0]["msg"]).removeprefix("Value error, ")
+            raise ConfigError(f"{where}: {section_name}: {one_line(message)}") from err
 
 
 def _closest(name: str, candidates: Iterable[str]) -> str:
@@ -209,7 +244,7 @@ def load_config(
     parsed = [parse_override(model, o) for o in overrides]
     apply_overrides(data, parsed)
     try:
-        return model.model_validate(data)
+        config = model.model_validate(data)
     except ValidationError as err:
         loc = list(err.errors()[0]["loc"])
         # A bad value given on the command line is named as such, not as the file's.
@@ -218,6 +253,8 @@ def load_config(
                 where = f"--set {one_line('.'.join(key), MAX_KEY_CHARS)}"
                 break
         raise ConfigError(validation_message(model, err, where)) from err
+    check_class_names(config, where)
+    return config
 
 
 def dump_yaml(config: BaseModel) -> str:

@@ -73,6 +73,7 @@ def default_graph() -> Graph:
     """The real pipeline: keyframes to evaluate, recordings read by `pipeline.readers`."""
     from pipeline.readers import dataset_fingerprint_parts, open_recording
     from pipeline.training.config import TrainingDataConfig
+    from schemas.classes import ClassTable
     from stages.classify.stage import STAGE as classify
     from stages.classify.train import STAGE as train
     from stages.evaluate.stage import STAGE as evaluate
@@ -89,7 +90,7 @@ def default_graph() -> Graph:
         parts=dataset_fingerprint_parts,
         open=open_recording,
         training=train,
-        extra_sections={"training": TrainingDataConfig},
+        extra_sections={"training": TrainingDataConfig, "classes": ClassTable},
     )
 
 

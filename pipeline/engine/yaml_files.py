@@ -285,17 +285,19 @@ def read_model(
     not_a_mapping: str,
     max_bytes: int = CONFIG_MAX_BYTES,
     max_nodes: int = CONFIG_MAX_NODES,
+    context: dict[str, Any] | None = None,
 ) -> ModelT:
     """A YAML mapping validated as `model`; every fault is one `error` line.
 
     Args:
         describe: the one-line message of a validation error.
         not_a_mapping: the message when the document is not a mapping.
+        context: pydantic validation context (e.g. the class table, `schemas.annotations`).
     """
     raw = read_yaml(path, what, error, max_bytes, max_nodes)
     if not isinstance(raw, dict):
         raise error(f"{one_line(str(path))}: {not_a_mapping}, got {type(raw).__name__}")
     try:
-        return model.model_validate(raw)
+        return model.model_validate(raw, context=context)
     except ValidationError as err:
         raise error(one_line(describe(err))) from err

@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from schemas.classes import CLASS_IDS, UNKNOWN_CLASS
+from schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
 from stages.kernels.geometry import quat_from_rpy
 
 __all__ = [
@@ -48,15 +48,16 @@ _POINT_DTYPE = np.dtype(
 never carry uninitialised bytes into the file."""
 
 
-def point_cloud_bytes(map_table: pa.Table) -> np.ndarray:
-    """(n,) structured PointCloud2 records (x, y, z, source, class_id) of the map rows."""
+def point_cloud_bytes(map_table: pa.Table, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
+    """(n,) structured PointCloud2 records (x, y, z, source, class_id) of the map rows;
+    class ids are those of the class table `table`."""
     rec = np.zeros(map_table.num_rows, dtype=_POINT_DTYPE)
     for c in ("x", "y", "z"):
         rec[c] = map_table.column(f"{c}_m").to_numpy()
     source = map_table.column("source").to_pylist()
     classes = map_table.column("class_name").to_pylist()
     rec["source"] = np.array([SOURCE_IDS.get(s, 255) for s in source], dtype=np.uint8)
-    ids = {**CLASS_IDS, UNKNOWN_CLASS: UNKNOWN_CLASS_ID}
+    ids = {**table.ids, UNKNOWN_CLASS: UNKNOWN_CLASS_ID}
     rec["class_id"] = np.array([ids.get(c, UNKNOWN_CLASS_ID) for c in classes], dtype=np.uint8)
     return rec
 

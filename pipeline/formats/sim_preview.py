@@ -33,11 +33,12 @@ def render_preview(run: SimRun, index: int | None = None) -> bytes:
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
 
-    from schemas.classes import CLASS_NAMES
-
     i = _pick_preview_frame(run) if index is None else index
     frame = run.frame(i)
-    colors = ["#000000", "#e41a1c", "#ff7f00", "#4daf4a", "#377eb8", "#984ea3", "#a6a6a6"]
+    table = run.world.table
+    by_id = {e.id: e.colour for e in table.table}
+    # Index = label id: the table's colours (ids without a class stay black).
+    colors = [by_id.get(i, "#000000") for i in range(max(by_id) + 1)]
     cmap_l = ListedColormap(colors)
     fig, axes = plt.subplots(2, 3, figsize=(16, 9.5), dpi=90)
     for row, ping in enumerate((frame.horizontal, frame.vertical)):
@@ -83,7 +84,7 @@ def render_preview(run: SimRun, index: int | None = None) -> bytes:
             ping.labels,
             cmap=cmap_l,
             vmin=-0.5,
-            vmax=6.5,
+            vmax=len(colors) - 0.5,
             shading="flat",
             rasterized=True,
         )
@@ -91,8 +92,9 @@ def render_preview(run: SimRun, index: int | None = None) -> bytes:
         ax.set_facecolor("black")
         ax.set_xlabel(xl)
         ax.set_title(f"{ping.sonar}: labels")
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in colors[1:]]
-    fig.legend(handles, CLASS_NAMES[1:], loc="lower center", ncol=6)
+    shown = [e for e in table.table if e.id != 0]
+    handles = [plt.Rectangle((0, 0), 1, 1, color=e.colour) for e in shown]
+    fig.legend(handles, [e.name for e in shown], loc="lower center", ncol=6)
     g = frame.gt_pose
     fig.suptitle(
         f"{run.world.scene.name} seed {run.seed} frame {i}: x={g[0]:.1f} m y={g[1]:.1f} m "

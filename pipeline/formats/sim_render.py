@@ -31,7 +31,7 @@ _RUN: SimRun | None = None
 
 def _start_worker(state: dict[str, Any], cast_threads: int) -> None:
     global _RUN
-    world = World(state.pop("scene"), cast_threads=cast_threads)
+    world = World(state.pop("scene"), cast_threads=cast_threads, table=state.pop("table"))
     _RUN = SimRun(world=world, **state)
 
 
@@ -89,6 +89,7 @@ def rendered_frames(run: SimRun, workers: int) -> Iterator[SimFrame]:
         return
     state = {
         "scene": run.world.scene,
+        "table": run.world.table,
         "config": run.config,
         "seed": run.seed,
         "trajectory": run.trajectory,

@@ -20,9 +20,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import ValidationError
 
 from pipeline.labels.fan_image import FanGeometry, metres_to_pixels, pixels_to_metres
 from schemas.annotations import AnnotatedObject
+from schemas.classes import DEFAULT_TABLE, ClassTable
 
 __all__ = ["CocoError", "ExportedImage", "coco_document", "objects_from_coco"]
 
@@ -144,9 +146,12 @@ def _shapes(ann: Mapping[str, Any], g: FanGeometry, where: str) -> list[dict[str
 
 
 def objects_from_coco(
-    doc: Mapping[str, Any], geometry_of: Mapping[int, FanGeometry]
+    doc: Mapping[str, Any],
+    geometry_of: Mapping[int, FanGeometry],
+    table: ClassTable = DEFAULT_TABLE,
 ) -> dict[int, list[AnnotatedObject]]:
-    """{COCO image id: its objects, in annotation order} for the images in geometry_of.
+    """{COCO image id: its objects, in annotation order} for the images in geometry_of;
+    each category name must be a class of `table` (the config's class table).
 
     Raises:
         CocoError: an annotation's category, image or shape cannot be read (naming it).
@@ -168,8 +173,11 @@ def objects_from_coco(
             raise CocoError(f"{where}: category_id {ann.get('category_id')!r:.20} is not listed")
         for shape in _shapes(ann, geometry_of[image_id], where):
             try:
-                out[image_id].append(AnnotatedObject(class_name=name, **shape))
-            except ValueError as err:
-                first = str(err).splitlines()[-1].strip() if str(err) else "invalid shape"
-                raise CocoError(f"{where}: {first[:200]}") from None
+                obj = AnnotatedObject.model_validate(
+                    {"class_name": name, **shape}, context={"classes": table}
+                )
+                out[image_id].append(obj)
+            except ValidationError as err:
+                first = str(err.errors()[0]["msg"]).removeprefix("Value error, ")
+                raise CocoError(f"{where}: {first[:300]}") from None
     return out

@@ -31,6 +31,7 @@ from pipeline.formats.atomic import atomic_output
 from pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
 from pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
 from schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages
 
 __all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
@@ -154,8 +155,10 @@ def import_labels(
     *,
     force: bool = False,
     include_empty: bool = False,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> tuple[Path, AnnotationFile]:
     """Write the annotation file a COCO file describes; returns its path and content.
+    Category names must be classes of `table` (the config's class table).
 
     Images without shapes are left out (not yet labelled) unless `include_empty` (labelled
     as holding no object). The annotation file goes beside the recording named in
@@ -185,7 +188,7 @@ def import_labels(
         geometry_of[image.get("id")] = FanGeometry(**fields)
         t_of[image.get("id")] = int(entry["t_ns"])
     try:
-        objects = objects_from_coco(doc, geometry_of)
+        objects = objects_from_coco(doc, geometry_of, table)
     except CocoError as err:
         raise SourceError(f"{coco_path}: {err}") from None
     keyframes = [

@@ -22,6 +22,7 @@ from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import one_line
 from pipeline.engine.yaml_files import read_model
 from schemas.annotations import AnnotationFile
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from stages.base import Output, Stage, StageConfig
 from stages.classify.annotations import RASTER_VERSION
 
@@ -73,8 +74,9 @@ def _message(err: ValidationError, path: Path) -> str:
     return f"{one_line(str(path))}: {one_line(loc, 80) or 'file'}: {msg}{more}"
 
 
-def load_annotations(path: Path) -> AnnotationFile:
-    """Read and validate an annotation file.
+def load_annotations(path: Path, table: ClassTable = DEFAULT_TABLE) -> AnnotationFile:
+    """Read and validate an annotation file (class names against `table`, the config's
+    class table).
 
     Raises:
         SourceError: unreadable, not YAML/JSON, refused by the bounded loader (aliases,
@@ -91,16 +93,19 @@ def load_annotations(path: Path) -> AnnotationFile:
         "expected a mapping with 'format' and 'keyframes'",
         ANNOTATIONS_MAX_BYTES,
         ANNOTATIONS_MAX_NODES,
+        {"classes": table},
     )
 
 
-def commit_annotations(path: Path, store: ArtifactStore) -> ArtifactRef:
+def commit_annotations(
+    path: Path, store: ArtifactStore, table: ClassTable = DEFAULT_TABLE
+) -> ArtifactRef:
     """Validate an annotation file and store its content as an "annotations" artifact.
 
     The key hashes the validated content and the rasterisation version, so the train
     stage reading it retrains exactly when a shape, class or time changes.
     """
-    doc = load_annotations(path).model_dump(mode="json")
+    doc = load_annotations(path, table).model_dump(mode="json")
     recipe = {"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc}
     key = recipe_key(recipe)
     output = ANNOTATIONS_STAGE.outputs[0]

@@ -53,9 +53,9 @@ def read_scene(path: Path) -> Scene:
     """A scene YAML, validated; bad YAML or a bad field is one ConfigError line."""
     from pipeline.engine.config_errors import validation_message
     from pipeline.engine.yaml_files import read_model
-    from sim.scene import Scene
+    from sim.scene import Scene, SceneError, meshes_found
 
-    return read_model(
+    scene = read_model(
         path,
         "scene",
         Scene,
@@ -63,6 +63,11 @@ def read_scene(path: Path) -> Scene:
         lambda err: validation_message(Scene, err, f"scene {path}"),
         "a scene must be a YAML mapping",
     )
+    # Mesh files are named relative to the scene file (`sim.scene.MeshObject`).
+    try:
+        return meshes_found(scene, path)
+    except SceneError as err:
+        raise ConfigError(str(err)) from err
 
 
 def sim_config(goals: int | None, duration_s: float | None) -> SimConfig:

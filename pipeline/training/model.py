@@ -31,6 +31,7 @@ from pipeline.engine.session import dataset_spec
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
 from pipeline.training.datasets import Simulation
+from schemas.classes import DEFAULT_TABLE
 from schemas.sonar import KeyframeImages
 from stages.base import Input, Stage
 
@@ -116,17 +117,25 @@ def training_stage_for(
         kf = bound[f"keyframes_{i}.frames"]
         if i not in annotated:
             return labelled(i, kf)
-        doc = AnnotationFile.model_validate(bound[f"annotations_{i}.annotations"])
+        table = bound.get("config.classes", DEFAULT_TABLE)
+        doc = AnnotationFile.model_validate(
+            bound[f"annotations_{i}.annotations"], context={"classes": table}
+        )
         ann = annotation_path(Path(name(i))) if i < len(names) else None
         source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
         features = bound[f"features_{i}.features"]
-        return _unmatched_is_bad_input(label_keyframes(kf, doc, source=source, features=features))
+        return _unmatched_is_bad_input(
+            label_keyframes(kf, doc, source=source, features=features, table=table)
+        )
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
         pairs = [(frames(i, bound), bound[f"features_{i}.features"]) for i in range(n_datasets)]
-        return train_classifier(pairs, config)
+        return train_classifier(pairs, config, bound.get("config.classes", DEFAULT_TABLE))
 
-    return Stage(base.name, base.version, base.config, inputs, base.outputs, run, base.description)
+    return Stage(
+        base.name, base.version, base.config, inputs, base.outputs, run, base.description,
+        reads_sections=base.reads_sections,
+    )  # fmt: skip
 
 
 def _bind_training(
@@ -155,7 +164,9 @@ def _bind_training(
         ann = annotation_path(path)
         if ann is not None:
             log.info("%s: labels from %s", path, ann)
-            external[f"annotations_{i}"] = (ANNOTATIONS_STAGE, commit_annotations(ann, store))
+            table = getattr(config, "classes", DEFAULT_TABLE)
+            committed = commit_annotations(ann, store, table)
+            external[f"annotations_{i}"] = (ANNOTATIONS_STAGE, committed)
             annotated.append(i)
     first = None
     for i, path in enumerate(datasets):

@@ -17,7 +17,7 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.annotations import AnnotatedObject, AnnotationFile
-from schemas.classes import CLASS_IDS
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages, SonarPing
 from stages.kernels.geometry import fan_to_xy
 from stages.kernels.lazy import lazy
@@ -50,7 +50,9 @@ def _times(times: list[int]) -> str:
     return shown + (f", ... ({len(times) - SHOWN_TIMES} more)" if len(times) > SHOWN_TIMES else "")
 
 
-def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray:
+def rasterise(
+    ping: SonarPing, objects: Iterable[AnnotatedObject], table: ClassTable = DEFAULT_TABLE
+) -> np.ndarray:
     """Label image of one horizontal ping from its annotated shapes.
 
     A cell takes the class of the last shape that contains its centre (range bin
@@ -59,6 +61,7 @@ def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray
     Args:
         ping: the horizontal sonar image (its ranges and beam angles define the grid).
         objects: shapes in the sonar frame (x forward, y left) [m].
+        table: the class table giving each class name its label id.
 
     Returns:
         (n_ranges, n_beams) uint8 class ids.
@@ -75,7 +78,7 @@ def rasterise(ping: SonarPing, objects: Iterable[AnnotatedObject]) -> np.ndarray
         if len(near) == 0:
             continue
         inside = mpath.Path(poly).contains_points(np.stack([x[near], y[near]], axis=1))
-        out[near[inside]] = CLASS_IDS[obj.class_name]
+        out[near[inside]] = table.ids[obj.class_name]
     return out.reshape(len(ping.ranges_m), len(ping.angles_rad))
 
 
@@ -113,6 +116,7 @@ def label_keyframes(
     *,
     source: str = "annotations",
     features: pa.Table | None = None,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> Iterator[KeyframeImages]:
     """The annotated keyframes, their horizontal label images replaced by the annotations.
 
@@ -126,6 +130,7 @@ def label_keyframes(
         source: name used in messages (the file).
         features: the recording's features table; shapes holding none of their
             keyframe's horizontal features are then named in a warning.
+        table: the class table (label ids of the annotated class names).
 
     Yields:
         Annotated keyframes with `horizontal.labels` set (uint8 class ids).
@@ -157,7 +162,7 @@ def label_keyframes(
                 no_features.append(
                     f"t_ns {times[j]} object {k} ({entries[j].objects[k].class_name})"
                 )
-        labels = rasterise(frame.horizontal, entries[j].objects)
+        labels = rasterise(frame.horizontal, entries[j].objects, table)
         yield dataclasses.replace(
             frame, horizontal=dataclasses.replace(frame.horizontal, labels=labels)
         )

@@ -7,7 +7,7 @@ import io
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import CLASS_IDS
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.objects import UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
 
@@ -23,7 +23,9 @@ def busiest_keyframe(objects: pa.Table) -> tuple[int, pa.Table]:
     return int(ids[best]), objects.slice(int(first[best]), int(sizes[best]))
 
 
-def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
+def overlay_png(
+    frame: KeyframeImages, objects: pa.Table, table: ClassTable = DEFAULT_TABLE
+) -> bytes:
     """Class-coloured overlay of one keyframe: the horizontal image in fan-plane Cartesian
     coordinates with each object's bounding box and label (class, probability; truth).
 
@@ -53,7 +55,7 @@ def overlay_png(frame: KeyframeImages, objects: pa.Table) -> bytes:
                   shading="auto", rasterized=True)  # fmt: skip
     cmap = matplotlib.colormaps["tab10"]
     for row in objects.to_pylist():
-        cid = CLASS_IDS.get(row["class_name"], 0)
+        cid = table.ids.get(row["class_name"], 0)
         colour = cmap(cid % 10) if row["class_id"] >= 0 else (1.0, 1.0, 1.0, 1.0)
         x0, x1, y0, y1 = row["x_min_m"], row["x_max_m"], row["y_min_m"], row["y_max_m"]
         ax.add_patch(Rectangle((-y1, x0), y1 - y0, x1 - x0, fill=False, lw=1.2, ec=colour))

@@ -33,12 +33,13 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.model_settings import ModelSettings
-from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
+from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
 from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.base import Input, Output, Stage, StageInputError
+from stages.classify.class_columns import class_columns, truth_columns
 from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
@@ -156,7 +157,9 @@ _CLASS_COLUMNS = (
 _GEOMETRY_SCHEMA = pa.schema([f for f in OBJECTS_SCHEMA if f.name not in _CLASS_COLUMNS])
 
 
-def _object_rows(frame: KeyframeImages, objs: KeyframeObjects, first_id: int) -> dict[str, Any]:
+def _object_rows(
+    frame: KeyframeImages, objs: KeyframeObjects, first_id: int, table: ClassTable
+) -> dict[str, Any]:
     """The class-independent columns of objects.parquet for one keyframe's k objects."""
     k = objs.count
     truth = objs.true_class_id
@@ -168,48 +171,8 @@ def _object_rows(frame: KeyframeImages, objs: KeyframeObjects, first_id: int) ->
         "x_m": cx, "y_m": cy, "range_m": np.hypot(cx, cy), "bearing_rad": np.arctan2(cy, cx),
         "x_min_m": objs.boxes[:, 0], "x_max_m": objs.boxes[:, 1],
         "y_min_m": objs.boxes[:, 2], "y_max_m": objs.boxes[:, 3],
-        "true_class_name": [CLASS_NAMES[c] for c in truth] if truth is not None else [None] * k,
+        "true_class_name": [table.name_of(int(c)) for c in truth] if truth is not None else [None] * k,
     }  # fmt: skip
-
-
-def _class_columns(
-    pooled: np.ndarray, single: np.ndarray, var: np.ndarray, n_views: np.ndarray,
-    class_ids: np.ndarray, names: list[str], threshold: float,
-) -> dict[str, Any]:  # fmt: skip
-    """The class columns: argmax of the (pooled) mean, accepted above the threshold."""
-    k = len(pooled)
-    best = pooled.argmax(axis=1) if k else np.zeros(0, np.int64)
-    rows = np.arange(k)
-    p = pooled[rows, best]
-    accepted = p > threshold
-    argmax_names = [names[i] for i in best]
-    return {
-        "class_id": np.where(accepted, class_ids[best], UNKNOWN_CLASS_ID).astype(np.int64),
-        "class_name": [n if a else UNKNOWN_CLASS for n, a in zip(argmax_names, accepted, strict=True)],
-        "argmax_class_name": argmax_names,
-        "probability": p.astype(np.float64),
-        "probability_var": var[rows, best].astype(np.float64),
-        "single_view_probability": single[rows, best].astype(np.float64),
-        "n_views": n_views.astype(np.int64),
-    }  # fmt: skip
-
-
-def _truth_columns(truth: np.ndarray, structure_classes: list[str]) -> dict[str, Any]:
-    """The class columns of the oracle (`labels="ground_truth"`): each object's majority
-    label-image class, certain; ids outside `structure_classes` become unknown."""
-    names = [CLASS_NAMES[c] for c in truth]
-    known = np.array([n in structure_classes for n in names], bool)
-    k = len(names)
-    labels = [n if a else UNKNOWN_CLASS for n, a in zip(names, known, strict=True)]
-    return {
-        "class_id": np.where(known, truth, UNKNOWN_CLASS_ID).astype(np.int64),
-        "class_name": labels,
-        "argmax_class_name": list(labels),
-        "probability": np.ones(k),
-        "probability_var": np.zeros(k),
-        "single_view_probability": np.ones(k),
-        "n_views": np.ones(k, np.int64),
-    }
 
 
 def _pooled(
@@ -250,6 +213,7 @@ def classify_keyframes(
     cfg: ClassifyConfig,
     keyframes: pa.Table | None = None,
     T_base_sonar: np.ndarray | None = None,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> tuple[pa.Table, pa.Table, tuple[KeyframeImages, pa.Table] | None]:
     """Objects and classes of every keyframe.
 
@@ -261,6 +225,8 @@ def classify_keyframes(
         cfg: clustering, acceptance and pooling config.
         keyframes: keyframes.parquet (dead-reckoning poses) and T_base_sonar: (4, 4)
             mounting of the horizontal sonar; both needed when `cfg.pool_views`.
+        table: the class table (config section `classes`): label ids of the model's
+            classes and names of label-image ids.
 
     Returns:
         (objects table, object_features table, (busiest keyframe, its objects) or None);
@@ -270,7 +236,8 @@ def classify_keyframes(
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
     by_kf = horizontal_features(features)
     eps_m, min_samples, min_features = clustering(cfg, settings).values()
-    class_ids = np.array([CLASS_IDS[n] for n in class_names], np.int64)
+    table.check(class_names, "the classifier's classes", unknown_ok=False)
+    class_ids = np.array([table.ids[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
     position: dict[int, int] = {}
@@ -303,7 +270,7 @@ def classify_keyframes(
             patches.append(objs.patches)
             seeds.append(cfg.seed * _SEED_STRIDE + frame.keyframe_id)
         geo_parts.append(
-            pa.Table.from_pydict(_object_rows(frame, objs, next_id), schema=_GEOMETRY_SCHEMA)
+            pa.Table.from_pydict(_object_rows(frame, objs, next_id, table), schema=_GEOMETRY_SCHEMA)
         )
         link_parts.append(
             pa.Table.from_pydict(
@@ -320,7 +287,7 @@ def classify_keyframes(
         return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), None
     geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
     if oracle:
-        classes = _truth_columns(np.concatenate(truths), class_names)
+        classes = truth_columns(np.concatenate(truths), class_names, table)
     else:
         mean, var = cnn.mc_predict_groups(
             model, np.concatenate(patches), [len(p) for p in patches], seeds, cfg.mc_passes
@@ -330,7 +297,7 @@ def classify_keyframes(
             pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
         else:
             pooled, n_views = mean, np.ones(len(mean), np.int64)
-        classes = _class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
+        classes = class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
     columns = {name: geometry.column(name) for name in geometry.column_names}
     objects = pa.Table.from_pydict(
         {f.name: columns.get(f.name, classes.get(f.name)) for f in OBJECTS_SCHEMA},
@@ -361,11 +328,16 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         raise StageInputError(Input("train", "model"), str(err)) from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
     mount = None if sensors is None else Sensors.of(sensors).horizontal.T_base_sonar
+    table: ClassTable = inputs.get("config.classes", DEFAULT_TABLE)
+    try:
+        table.check(names, "train.model: the classifier's classes", unknown_ok=False)
+    except ValueError as err:
+        raise StageInputError(Input("train", "model"), str(err)) from err
     objects, links, busiest = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
-        keyframes, mount,
+        keyframes, mount, table,
     )  # fmt: skip
-    overlay = overlay_png(*busiest) if busiest is not None else None
+    overlay = overlay_png(*busiest, table) if busiest is not None else None
     return {"objects": objects, "object_features": links, "overlay": overlay, "clustering": params}
 
 
@@ -392,6 +364,7 @@ STAGE = Stage(
     ),
     run=_run,
     key_excludes=MODEL_CHOICE_FIELDS,
+    reads_sections=("classes",),
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
     " pooled over the keyframes that see them",
 )

@@ -24,7 +24,7 @@ import numpy as np
 import pyarrow as pa
 from pydantic import Field
 
-from schemas.classes import CLASS_IDS, CLASS_NAMES
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages
 from stages.base import Input, Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
@@ -273,22 +273,23 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
     return model.eval()
 
 
-def _learned_classes(class_id: np.ndarray, min_samples: int) -> list[int]:
-    counts = np.bincount(class_id, minlength=len(CLASS_NAMES))
+def _learned_classes(class_id: np.ndarray, min_samples: int, n_ids: int) -> list[int]:
+    counts = np.bincount(class_id, minlength=n_ids)
     return [int(c) for c in np.flatnonzero(counts >= min_samples)]
 
 
 def _say_what_is_not_learned(
-    class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int
-) -> None:
+    class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int,
+    table: ClassTable = DEFAULT_TABLE,
+) -> None:  # fmt: skip
     """Warnings for each labelled class left out for too few objects, and for a model with
     nothing to validate on: neither is ever silent."""
-    counts = np.bincount(class_id[train], minlength=len(CLASS_NAMES))
+    counts = np.bincount(class_id[train], minlength=len(table.names_by_id()))
     for c in np.flatnonzero(counts > 0):
         if c != 0 and int(c) not in ids:
             log.warning(
                 "class %s: %d training objects, under train.min_class_samples=%d: not learned",
-                CLASS_NAMES[c], counts[c], min_samples,
+                table.name_of(int(c)), counts[c], min_samples,
             )  # fmt: skip
     if not np.isin(class_id[val], ids).any():
         log.warning(
@@ -300,13 +301,17 @@ def _say_what_is_not_learned(
 
 
 def train_classifier(
-    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
+    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
+    cfg: TrainConfig,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> dict[str, Any]:
     """Samples -> split -> fit -> validation metrics -> model file.
 
     Args:
         datasets: (labelled keyframes, features table or None) per dataset.
         cfg: training config.
+        table: the class table (config section `classes`): names of the label ids; the
+            model's outputs are the table's classes with enough training objects.
 
     Returns:
         {"model": bytes (model.pt), "metrics": dict, "confusion": bytes (PNG)}.
@@ -315,24 +320,30 @@ def train_classifier(
         ValueError: fewer than two classes with `min_class_samples` training samples.
     """
     with cnn.fixed_threads(2):
-        return _train_classifier(datasets, cfg)
+        return _train_classifier(datasets, cfg, table)
 
 
 def _train_classifier(
-    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]], cfg: TrainConfig
+    datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
+    cfg: TrainConfig,
+    table: ClassTable,
 ) -> dict[str, Any]:
     samples = collect_samples(datasets, cfg)
+    n_ids = max(len(table.names_by_id()), int(samples.class_id.max(initial=0)) + 1)
+    outside = sorted(set(np.unique(samples.class_id).tolist()) - set(table.ids.values()))
+    if outside:
+        raise ValueError(f"label id {outside[0]} is not in the class table (classes.table)")
     train, val = split_train_val(samples, cfg)
-    ids = _learned_classes(samples.class_id[train], cfg.min_class_samples)
-    _say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples)
+    ids = _learned_classes(samples.class_id[train], cfg.min_class_samples, n_ids)
+    _say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
     if len(ids) < 2:
         raise ValueError(
             f"need two classes with >= {cfg.min_class_samples} training objects, "
-            f"have {np.bincount(samples.class_id[train], minlength=len(CLASS_NAMES)).tolist()}"
+            f"have {np.bincount(samples.class_id[train], minlength=n_ids).tolist()}"
         )
-    lut = np.full(len(CLASS_NAMES), -1, np.int64)
+    lut = np.full(n_ids, -1, np.int64)
     lut[ids] = np.arange(len(ids))
-    names = [CLASS_NAMES[i] for i in ids]
+    names = [table.name_of(i) for i in ids]
     target = lut[samples.class_id]
     train &= target >= 0
     val &= target >= 0
@@ -347,7 +358,7 @@ def _train_classifier(
         "channels": list(cfg.channels), "hidden": cfg.hidden, "dropout_p": cfg.dropout_p,
         "size_px": PATCH_SIZE_PX, "spatial_dropout": cfg.spatial_dropout, "margin_m": cfg.margin_m, "min_side_m": cfg.min_side_m,
         "eps_m": cfg.eps_m, "min_samples": cfg.min_samples, "min_features": cfg.min_features,
-        "class_ids": [CLASS_IDS[n] for n in names],
+        "class_ids": [table.ids[n] for n in names],
     }  # fmt: skip
     return {
         "model": cnn.model_to_bytes(model, names, model_cfg),
@@ -357,7 +368,8 @@ def _train_classifier(
 
 
 def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    return train_classifier([(inputs["keyframes.frames"], inputs["features.features"])], config)
+    pairs = [(inputs["keyframes.frames"], inputs["features.features"])]
+    return train_classifier(pairs, config, inputs.get("config.classes", DEFAULT_TABLE))
 
 
 STAGE = Stage(
@@ -371,5 +383,6 @@ STAGE = Stage(
         Output("confusion", "bytes", "confusion.png"),
     ),
     run=_run,
+    reads_sections=("classes",),
     description="train the MC-dropout object classifier on labelled keyframes",
 )

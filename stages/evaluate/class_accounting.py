@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import CLASS_IDS, CLASS_NAMES
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from stages.kernels.lazy import lazy
 from stages.kernels.mesh_metrics import nearest_distance, surface_samples
 from stages.kernels.ply import Mesh
@@ -54,7 +54,9 @@ __all__ = [
 ALL_STRUCTURE = "all_structure"
 """Name of the aggregate of every class but the seafloor."""
 
-_SEAFLOOR = CLASS_IDS["seafloor"]
+
+def _seafloor_id(table: ClassTable) -> int:
+    return table.ids.get("seafloor", -1)
 
 
 def face_classes(mesh: Mesh) -> np.ndarray:
@@ -104,6 +106,7 @@ def class_table(
     sample_class_id: np.ndarray,
     sample_distance_m: dict[str, np.ndarray],
     tolerance_m: float,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> dict[str, dict[str, Any]]:
     """Figures of both maps for every class present and for all structure.
 
@@ -116,18 +119,22 @@ def class_table(
         sample_distance_m: {"standard"|"semantic": (s,) distance from each visible
             sample to the nearest point of that map (inf beyond the tolerance)}.
         tolerance_m: accuracy / completeness distance [m].
+        table: the class table naming the ids.
 
     Returns:
         {class name: {"standard": {...}, "semantic": {...}, "inferred": {...},
-        "visible_samples": int}}, classes in `CLASS_NAMES` order, then "all_structure".
+        "visible_samples": int}}, classes in id order, then "all_structure".
     """
     present = set(np.unique(point_class_id).tolist()) | set(np.unique(sample_class_id).tolist())
-    groups = [(CLASS_NAMES[c], point_class_id == c, sample_class_id == c) for c in sorted(present)]
-    groups.append((ALL_STRUCTURE, (point_class_id != _SEAFLOOR), (sample_class_id != _SEAFLOOR)))
+    groups = [
+        (table.name_of(c), point_class_id == c, sample_class_id == c) for c in sorted(present)
+    ]
+    floor = _seafloor_id(table)
+    groups.append((ALL_STRUCTURE, (point_class_id != floor), (sample_class_id != floor)))
     keys = voxel_keys(voxel_ijk)
     out: dict[str, dict[str, Any]] = {}
     for name, of_class, samples in groups:
-        if name == CLASS_NAMES[0] and not of_class.any():
+        if name == table.name_of(0) and not of_class.any():
             continue
         entry: dict[str, Any] = {}
         for map_name, in_map in (("standard", is_fused), ("semantic", np.ones_like(is_fused))):
@@ -192,6 +199,7 @@ def per_class_metrics(
     tolerance_m: float,
     samples_per_m2: float,
     seed: int,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> dict[str, Any]:
     """Coverage and error of both maps class by class (see the module docstring).
 
@@ -200,10 +208,11 @@ def per_class_metrics(
         xyz_m, error_m: (n, 3) positions and (n,) errors at which the map is judged.
         visible: (s, 3) surface samples -> (s,) bool, the visibility rule.
         samples_per_m2, seed: surface sampling of every structure class.
+        table: the class table (ids of the mesh's classes).
     """
     classes = face_classes(mesh)
     point_class = nearest_surface_class(scene, classes, xyz_m)
-    structure = np.array([i for n, i in CLASS_IDS.items() if n not in ("none", "seafloor")])
+    structure = np.array([i for n, i in table.ids.items() if n not in ("none", "seafloor")])
     samples = surface_samples(mesh, structure, samples_per_m2, seed)
     seen = samples[visible(samples)] if len(samples) else samples
     sample_class = nearest_surface_class(scene, classes, seen)
@@ -217,7 +226,7 @@ def per_class_metrics(
         "tolerance_m": tolerance_m,
         "voxel_size_m": voxel_size_m,
         "classes": class_table(
-            point_class, error_m, fused, voxels, sample_class, distance, tolerance_m
+            point_class, error_m, fused, voxels, sample_class, distance, tolerance_m, table
         ),
         "assigned_classes": assigned_class_errors(map_table, error_m),
     }

@@ -12,6 +12,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
 from stages.evaluate.foxglove_images import fan_messages
@@ -74,15 +75,16 @@ def map_mcap(
     frames: Iterable[KeyframeImages] | None,
     mesh: Mesh | None,
     T_base_sonar: np.ndarray,
+    classes: ClassTable = DEFAULT_TABLE,
 ) -> bytes:
     """evaluate's `map.mcap`: every topic above but `/live/fused`, maps stamped at the
-    last keyframe, the mesh at the first."""
+    last keyframe, the mesh at the first; class ids those of the class table `classes`."""
     t = keyframes.column("t_ns")
     t_first, t_last = (int(pc.min(t).as_py() or 0), int(pc.max(t).as_py() or 0))
     messages = [
-        *map_messages(map_table, t_last, errors),
+        *map_messages(map_table, t_last, errors, classes),
         *trajectory_messages(keyframes, poses),
-        *(object_messages(objects, poses, T_base_sonar) if objects is not None else []),
+        *(object_messages(objects, poses, T_base_sonar, classes) if objects is not None else []),
         *(mesh_messages(mesh, t_first) if mesh is not None else []),
     ]
     fused = pc.equal(map_table.column("source"), "fused")
@@ -111,4 +113,5 @@ def evaluate_map_mcap(
         inputs.get("keyframes.frames"),
         mesh,
         sensors.horizontal.T_base_sonar,
+        inputs.get("config.classes", DEFAULT_TABLE),
     )

@@ -32,6 +32,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.map import NO_CLASS
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.kernels.geometry import quat_from_rpy
@@ -111,7 +112,9 @@ def _quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.nda
     return quat_from_rpy(np.stack([roll, pitch, yaw], axis=-1))
 
 
-def cloud_records(table: pa.Table, error_m: np.ndarray | None = None) -> np.ndarray:
+def cloud_records(
+    table: pa.Table, error_m: np.ndarray | None = None, classes: ClassTable = DEFAULT_TABLE
+) -> np.ndarray:
     """Packed point records of map rows (`schemas.map.MAP_SCHEMA`, errors optional)."""
     fields: list[tuple[str, str]] = [
         ("x", "<f4"),
@@ -128,7 +131,7 @@ def cloud_records(table: pa.Table, error_m: np.ndarray | None = None) -> np.ndar
     rec = np.zeros(table.num_rows, dtype=np.dtype(fields))
     for c in ("x", "y", "z"):
         rec[c] = table.column(f"{c}_m").to_numpy()
-    rec["class_id"] = class_ids(table.column("class_name"))
+    rec["class_id"] = class_ids(table.column("class_name"), classes)
     frame = (
         table.column("frame_id").to_numpy()
         if "frame_id" in table.column_names
@@ -168,15 +171,18 @@ def _point_cloud(rec: np.ndarray, t_ns: int) -> Any:
 
 
 def map_messages(
-    map_table: pa.Table, t_ns: int, errors: pa.Table | None = None
+    map_table: pa.Table,
+    t_ns: int,
+    errors: pa.Table | None = None,
+    classes: ClassTable = DEFAULT_TABLE,
 ) -> list[SceneMessage]:
     """The standard (fused rows) and semantic (all rows) maps as point clouds at t_ns.
 
     `errors` (`schemas.map.ERRORS_SCHEMA`, the map's rows in the same order) adds the
-    error field.
+    error field; `classes` is the class table (the points' class ids).
     """
     err = None if errors is None else errors.column("error_m").to_numpy()
-    rec = cloud_records(map_table, err)
+    rec = cloud_records(map_table, err, classes)
     fused = pc.equal(map_table.column("source"), "fused").to_numpy(zero_copy_only=False)
     return [
         SceneMessage("/map/standard", _point_cloud(rec[fused], t_ns), t_ns),
@@ -269,7 +275,10 @@ def _colour(class_id: int) -> Any:
 
 
 def object_messages(
-    objects: pa.Table, poses: pa.Table, T_base_sonar: np.ndarray
+    objects: pa.Table,
+    poses: pa.Table,
+    T_base_sonar: np.ndarray,
+    classes: ClassTable = DEFAULT_TABLE,
 ) -> list[SceneMessage]:
     """Each classified object (classify.objects, horizontal sonar frame) as a 1 m
     cylinder of its footprint's size at its world position, coloured by class and
@@ -288,7 +297,7 @@ def object_messages(
         (rows.column("x_max_m").to_numpy() - rows.column("x_min_m").to_numpy()),
         (rows.column("y_max_m").to_numpy() - rows.column("y_min_m").to_numpy()),
     )
-    cid = class_ids(rows.column("class_name"))
+    cid = class_ids(rows.column("class_name"), classes)
     t_end = int(pc.max(poses.column("t_ns")).as_py() or 0)
     identity = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
     entities = []

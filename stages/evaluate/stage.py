@@ -16,14 +16,14 @@ SE(2) alignment. Without them, the counts and the top-down map are still reporte
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, field_validator
 
-from schemas.classes import CLASS_IDS, PILING_CLASSES
+from schemas.classes import DEFAULT_TABLE, PILING_CLASSES, ClassTable, known_class_names
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from schemas.sensors import Sensors
 from stages.base import Input, Output, Stage, StageConfig
@@ -73,7 +73,9 @@ class EvaluateConfig(StageConfig):
         0.1, gt=0.0, le=1000.0, description="precision/completeness distance"
     )
     completeness_classes: tuple[str, ...] = Field(
-        PILING_CLASSES, description="classes whose surface completeness measures"
+        PILING_CLASSES,
+        description="classes whose surface completeness measures (the default table's"
+        " classes marked `completeness`: the two piling classes)",
     )
     surface_samples_per_m2: float = Field(
         100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
@@ -89,6 +91,15 @@ class EvaluateConfig(StageConfig):
     trust_height_tolerance_m: float = Field(
         0.6, gt=0.0, le=100.0, description="trust: a fused point this close in height agrees"
     )
+
+    @field_validator("completeness_classes")
+    @classmethod
+    def _sane_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        return known_class_names(value)
+
+    def class_names_used(self) -> dict[str, Iterable[str]]:
+        """Class names by field (checked against the class table when the config loads)."""
+        return {"completeness_classes": self.completeness_classes}
 
 
 def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any]]:
@@ -116,6 +127,7 @@ def surface_metrics(
     mesh: Mesh,
     T_world_sonar: np.ndarray,
     config: EvaluateConfig,
+    table: ClassTable = DEFAULT_TABLE,
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
     """Completeness and precision of both maps (definitions: `stages.kernels.mesh_metrics`).
 
@@ -124,7 +136,7 @@ def surface_metrics(
         precision {"standard", "semantic", "fused", "inferred", "tolerance_m"}, and the
         (s, 3) surface samples of the completeness classes before the visibility cut.
     """
-    ids = np.array([CLASS_IDS[c] for c in config.completeness_classes if c in CLASS_IDS])
+    ids = np.array([table.ids[c] for c in config.completeness_classes if c in table.ids])
     samples = surface_samples(mesh, ids, config.surface_samples_per_m2, config.seed)
     seen = samples[
         visible_mask(
@@ -235,6 +247,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     poses: pa.Table = inputs["slam.poses"]
     sensors = Sensors.of(inputs["keyframes.sensors"] or {})
+    table: ClassTable = inputs.get("config.classes", DEFAULT_TABLE)
     mesh_bytes: bytes | None = inputs.get("keyframes.scene_mesh")
     metrics: dict[str, Any] = {
         "voxel_size_m": summary.get("voxel_size_m"),
@@ -287,7 +300,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         def class_figures(rows: pa.Table, xyz: np.ndarray, err: np.ndarray) -> dict[str, Any]:
             return per_class_metrics(
                 rows, mesh, scene, xyz, err, voxel_size, visible,
-                config.tolerance_m, config.surface_samples_per_m2, config.seed,
+                config.tolerance_m, config.surface_samples_per_m2, config.seed, table,
             )  # fmt: skip
 
         metrics["per_class"] = {
@@ -299,7 +312,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics["headline"], metrics["per_class"], class_figures,
         )  # fmt: skip
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
-            map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan})
+            map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan}), table
         )
         outputs["errors"] = errors
         err = errors.column("error_m").to_numpy()
@@ -343,6 +356,7 @@ STAGE = Stage(
     # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
     version=9,
     config=EvaluateConfig,
+    reads_sections=("classes",),
     inputs=(
         Input("voxelize", "map"),
         Input("voxelize", "summary"),

@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Literal
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from schemas.classes import (
-    ASSIGNABLE_CLASSES,
-    PILING_CLASSES,
+    DEFAULT_TABLE,
     UNKNOWN_CLASS,
+    ClassTable,
     known_class_names,
 )
 from stages.base import StageConfig
@@ -20,10 +21,11 @@ from stages.kernels.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
-DEFAULT_CLASSES: tuple[str, ...] = (*PILING_CLASSES, "seawall")
-"""The classes whose inferred median error stays within 1.5x that of their fused points
-on every scene measured (docs/decisions/002-default-inferred-classes.md; hulls, trusses
-and unknown objects again on procedural worlds: 015-per-object-height-prior.md)."""
+DEFAULT_CLASSES: tuple[str, ...] = DEFAULT_TABLE.inferred
+"""The default table's inferred classes (pilings and seawall): the classes whose inferred
+median error stays within 1.5x that of their fused points on every scene measured
+(docs/decisions/002-default-inferred-classes.md; hulls, trusses and unknown objects again
+on procedural worlds: 015-per-object-height-prior.md)."""
 DEFAULT_COARSE_FALLBACK_FACTOR = 2
 """Object-frame models answer from cells this many times larger where their own cell
 is empty (`CoarseFallbackModel`): 2, the first coarser level, because it adds accurate
@@ -38,15 +40,17 @@ from the measurements in docs/decisions/004-borrowed-models-extent.md."""
 class InferConfig(StageConfig):
     """Config section `infer`."""
 
-    classes: tuple[str, ...] = Field(
-        DEFAULT_CLASSES,
-        description="classes with a height model (the paper: the two piling classes)",
+    classes: tuple[str, ...] | None = Field(
+        None,
+        description="classes with a height model (the paper: the two piling classes); None:"
+        " the class table's classes marked `inferred` (cylindrical_piling, rectangular_piling,"
+        " seawall)",
     )
-    frame_kinds: dict[str, FrameKind] = Field(
-        default_factory=lambda: dict(DEFAULT_FRAME_KINDS),
+    frame_kinds: dict[str, FrameKind] | None = Field(
+        None,
         description="reference frame of each class: 'object' (ICP-registered object frame,"
         " paper Sec. IV.D) or 'beam' (per-beam leading-edge frame, stages.kernels.beam_frame);"
-        " classes not listed use 'object'",
+        " listed classes override the class table's `frame_kind`; None: the table's",
     )
     unknown_argmax_classes: tuple[str, ...] = Field(
         (),
@@ -174,15 +178,48 @@ class InferConfig(StageConfig):
 
     @field_validator("classes")
     @classmethod
-    def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        return known_class_names(value)
+    def _known_classes(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        return value if value is None else known_class_names(value)
+
+    def class_names_used(self) -> dict[str, Iterable[str]]:
+        """Every class name this section holds, by field (checked against the class table
+        when the config loads, `pipeline.engine.config.check_class_names`)."""
+        return {
+            "classes": self.classes or (),
+            "frame_kinds": self.frame_kinds or {},
+            "unknown_argmax_classes": self.unknown_argmax_classes,
+            "borrowed_models": [*self.borrowed_models, *self.borrowed_models.values()],
+        }
+
+    def with_table(self, table: ClassTable) -> InferConfig:
+        """This section with `classes` and `frame_kinds` resolved from the class table
+        (config section `classes`) and validated together (what the stages read)."""
+        table.check(self.class_names_used()["classes"], "infer.classes")
+        table.check(self.frame_kinds or {}, "infer.frame_kinds")
+        return InferConfig.model_validate(
+            {
+                **self.model_dump(),
+                "classes": table.inferred if self.classes is None else self.classes,
+                "frame_kinds": {**table.frame_kinds(), **(self.frame_kinds or {})},
+            }
+        )
+
+    def _checked_now(self, *names: str) -> bool:
+        """Whether names can be judged before the table is known: always once `classes` is
+        given; while it is None (the table's), only names of the default table, judged
+        against it (the rest are judged by `with_table`, when the config loads)."""
+        return self.classes is not None or all(n in DEFAULT_TABLE.assignable for n in names)
+
+    def _classes_or_default(self) -> tuple[str, ...]:
+        return DEFAULT_TABLE.inferred if self.classes is None else self.classes
 
     @model_validator(mode="after")
     def _argmax_classes_are_inferred_beam_classes(self) -> InferConfig:
+        classes = self._classes_or_default()
         bad = [
             c
             for c in self.unknown_argmax_classes
-            if c not in self.classes or self.frame_kind(c) != "beam"
+            if self._checked_now(c) and (c not in classes or self.frame_kind(c) != "beam")
         ]
         if bad:
             raise ValueError(
@@ -192,13 +229,12 @@ class InferConfig(StageConfig):
 
     @model_validator(mode="after")
     def _borrowed_models_are_inferred_beam_classes(self) -> InferConfig:
+        classes = self._classes_or_default()
         bad = {
             borrower: lender
             for borrower, lender in self.borrowed_models.items()
-            if borrower not in ASSIGNABLE_CLASSES
-            or borrower in self.classes
-            or lender not in self.classes
-            or self.frame_kind(lender) != "beam"
+            if self._checked_now(borrower, lender)
+            and (borrower in classes or lender not in classes or self.frame_kind(lender) != "beam")
         }
         if UNKNOWN_CLASS in self.borrowed_models and self.unknown_argmax_classes:
             raise ValueError(
@@ -214,15 +250,18 @@ class InferConfig(StageConfig):
 
     @field_validator("frame_kinds")
     @classmethod
-    def _known_frame_classes(cls, value: dict[str, FrameKind]) -> dict[str, FrameKind]:
-        unknown = sorted(set(value) - ASSIGNABLE_CLASSES)
-        if unknown:
-            raise ValueError(f"frame_kinds: unknown classes {unknown}")
+    def _known_frame_classes(
+        cls, value: dict[str, FrameKind] | None
+    ) -> dict[str, FrameKind] | None:
+        if value is not None:
+            known_class_names(tuple(value))
         return value
 
     def frame_kind(self, class_name: str) -> FrameKind:
-        """The reference frame kind of a class ('object' unless listed)."""
-        return self.frame_kinds.get(class_name, "object")
+        """The reference frame kind of a class ('object' unless listed; the default table's
+        kinds while unresolved)."""
+        kinds = DEFAULT_FRAME_KINDS if self.frame_kinds is None else self.frame_kinds
+        return kinds.get(class_name, "object")
 
     def icp_params(self) -> IcpParams:
         """The registration bounds as `IcpParams`."""

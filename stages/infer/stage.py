@@ -63,10 +63,16 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
+from schemas.classes import DEFAULT_TABLE
 from schemas.points import POINTS_SCHEMA
 from stages.base import Input, Output, Stage
 from stages.infer.config import InferConfig
-from stages.kernels.class_models import ClassState, class_model_tables, new_class_states
+from stages.kernels.class_models import (
+    ClassState,
+    class_model_tables,
+    inferred_classes,
+    new_class_states,
+)
 from stages.kernels.class_query import (
     FUNNEL_STEPS,
     Funnel,
@@ -199,7 +205,7 @@ def _process_keyframe(
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
         funnel.counts["fused_returns"] += int(s.is_fused.sum())
-    for c in config.classes:
+    for c in inferred_classes(config):
         state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
         if config.frame_kind(c) == "beam":
@@ -239,6 +245,7 @@ def _query_borrowers(
 
 
 def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    config = config.with_table(inputs.get("config.classes", DEFAULT_TABLE))
     points, stats, states = learn_and_infer(
         inputs["classify.objects"],
         inputs["classify.object_features"],
@@ -256,6 +263,7 @@ STAGE = Stage(
     # 4: the learned class models are outputs (class_reference, class_cells)
     version=4,
     config=InferConfig,
+    reads_sections=("classes",),
     inputs=(
         Input("classify", "objects"),
         Input("classify", "object_features"),

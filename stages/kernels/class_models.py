@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
-from schemas.classes import UNKNOWN_CLASS
+from schemas.classes import DEFAULT_TABLE
 from stages.kernels.fallback_model import CoarseFallbackModel
 from stages.kernels.height_model import HeightModel, UpdateRule, z_grid
 from stages.kernels.object_frame import ClassFrame, IcpParams
@@ -30,6 +30,7 @@ __all__ = [
     "FrameKind",
     "ModelTableError",
     "class_model_tables",
+    "inferred_classes",
     "new_class_states",
     "restore_class_states",
 ]
@@ -37,21 +38,21 @@ __all__ = [
 FrameKind = Literal["object", "beam"]
 
 
-DEFAULT_FRAME_KINDS: dict[str, FrameKind] = {
-    "cylindrical_piling": "object",
-    "rectangular_piling": "object",
-    "seawall": "beam",
-    "boat_hull": "beam",
-    "truss": "beam",
-    UNKNOWN_CLASS: "beam",
-}
+DEFAULT_FRAME_KINDS: dict[str, FrameKind] = DEFAULT_TABLE.frame_kinds()
+"""The default class table's frame kinds ('unknown' takes the beam frame)."""
+
+
+def inferred_classes(config: ClassModelSettings) -> tuple[str, ...]:
+    """`config.classes`, or the default table's inferred classes where unresolved (None:
+    a section not yet resolved with the run's table, `InferConfig.with_table`)."""
+    return DEFAULT_TABLE.inferred if config.classes is None else config.classes
 
 
 class ClassModelSettings(Protocol):
     """What the class models read of config section `infer` (`InferConfig`)."""
 
     @property
-    def classes(self) -> tuple[str, ...]: ...
+    def classes(self) -> tuple[str, ...] | None: ...
     @property
     def unknown_argmax_classes(self) -> tuple[str, ...]: ...
     @property
@@ -113,7 +114,7 @@ def new_class_states(config: ClassModelSettings) -> dict[str, ClassState]:
         c: ClassState(
             ClassFrame(config.icp_params()), _height_model(z, config, config.frame_kind(c))
         )
-        for c in config.classes
+        for c in inferred_classes(config)
     }
 
 

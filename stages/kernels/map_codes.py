@@ -7,7 +7,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import CLASS_IDS, UNKNOWN_CLASS
+from schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
 from schemas.map import NO_CLASS
 from schemas.submaps import KEYFRAME_FRAME_ID
 
@@ -21,9 +21,9 @@ UNKNOWN_CLASS_ID = 255
 """class id of a point the classifier was not confident about, or of an unlisted class."""
 
 
-def class_ids(names: pa.Array | pa.ChunkedArray) -> np.ndarray:
-    """(n,) uint8 `schemas.classes.CLASS_IDS` id of each class name (254 none, 255 unknown)."""
-    ids = {**CLASS_IDS, NO_CLASS: NO_CLASS_ID, UNKNOWN_CLASS: UNKNOWN_CLASS_ID}
+def class_ids(names: pa.Array | pa.ChunkedArray, table: ClassTable = DEFAULT_TABLE) -> np.ndarray:
+    """(n,) uint8 label id in the class table of each class name (254 none, 255 unknown)."""
+    ids = {**table.ids, NO_CLASS: NO_CLASS_ID, UNKNOWN_CLASS: UNKNOWN_CLASS_ID}
     encoded = pc.dictionary_encode(names)
     if isinstance(encoded, pa.ChunkedArray):
         encoded = encoded.combine_chunks()

@@ -19,7 +19,7 @@ from schemas.map import NO_CLASS
 from schemas.recording import Recording
 from schemas.sonar import KeyframeImages
 from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
-from stages.kernels.class_models import ClassModelSettings, ClassState
+from stages.kernels.class_models import ClassModelSettings, ClassState, inferred_classes
 from stages.kernels.class_query import (
     Funnel,
     borrowed_sightings,
@@ -70,7 +70,7 @@ def _query(
 ) -> list[tuple[dict[str, np.ndarray], np.ndarray, str]]:
     """Eq. 8-9 for one frame's sightings, models unchanged: (points, object ids, class)."""
     found = []
-    for c in config.classes:
+    for c in inferred_classes(config):
         state = states[c]
         funnels.setdefault(c, Funnel())
         if not state.model.updated:

@@ -43,6 +43,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from schemas.classes import DEFAULT_TABLE
 from schemas.recording import Recording
 from schemas.sensors import Sensors
 from schemas.submaps import (
@@ -176,10 +177,15 @@ def _pose_matrices(table: pa.Table, what: str) -> np.ndarray:
 _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 
 
+def _infer_section(inputs: Mapping[str, Any]) -> Any:
+    """Section `infer` resolved with the class table (`InferConfig.with_table`)."""
+    return inputs["config.infer"].with_table(inputs.get("config.classes", DEFAULT_TABLE))
+
+
 def _class_states(inputs: Mapping[str, Any]) -> dict[str, ClassState]:
     try:
         return restore_class_states(
-            inputs["infer.class_reference"], inputs["infer.class_cells"], inputs["config.infer"]
+            inputs["infer.class_reference"], inputs["infer.class_cells"], _infer_section(inputs)
         )
     except ModelTableError as err:
         raise StageInputError(Input("infer", err.output), err.reason) from err
@@ -196,7 +202,7 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         inputs["fuse.fused"],
         _class_states(inputs),
         _clustering(inputs["classify.clustering"]),
-        {s: inputs[f"config.{s}"] for s in _SECTIONS},
+        {**{s: inputs[f"config.{s}"] for s in _SECTIONS}, "infer": _infer_section(inputs)},
         config,
     )
     return {"frames": frames, "points": points, "stats": stats}
@@ -229,7 +235,7 @@ STAGE = Stage(
     ),
     run=_run,
     description="dense submaps: the ping pairs between keyframes, anchored to their keyframe",
-    reads_sections=_SECTIONS,
+    reads_sections=(*_SECTIONS, "classes"),
     dataset_section="keyframes",
     key_excludes=("workers",),
 )

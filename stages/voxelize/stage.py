@@ -32,7 +32,7 @@ properties class_id, source and keyframe_id (`stages.kernels.map_codes`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -40,7 +40,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from pydantic import Field, field_validator
 
-from schemas.classes import known_class_names
+from schemas.classes import DEFAULT_TABLE, ClassTable, known_class_names
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
@@ -100,6 +100,10 @@ class VoxelizeConfig(StageConfig):
     @classmethod
     def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
         return known_class_names(value)
+
+    def class_names_used(self) -> dict[str, Iterable[str]]:
+        """Class names by field (checked against the class table when the config loads)."""
+        return {"evidence_classes": self.evidence_classes}
 
 
 def _class_lookup(fused: pa.Table, points: pa.Table) -> pa.Array:
@@ -293,6 +297,7 @@ def height_colours(z_m: np.ndarray, z_range_m: tuple[float, float] | None = None
 
 def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     T_base_sonar = Sensors.of(inputs["keyframes.sensors"]).horizontal.T_base_sonar
+    table: ClassTable = inputs.get("config.classes", DEFAULT_TABLE)
     map_table, dropped = build_map(
         inputs["infer.points"],
         inputs["fuse.fused"],
@@ -317,7 +322,7 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             height_colours(z, z_range),
             f"sonarmap {name} map, world frame, coloured by height",
             {
-                "class_id": class_ids(t.column("class_name")),
+                "class_id": class_ids(t.column("class_name"), table),
                 "source": source_ids(t.column("source"), t.column("frame_id").to_numpy()),
                 "keyframe_id": t.column("keyframe_id").to_numpy().astype(np.int32),
             },
@@ -350,6 +355,7 @@ STAGE = Stage(
     # 3: inferred beam-frame points that the fused points contradict are dropped
     version=4,  # 4: the PLYs gain vertex properties class_id, source, keyframe_id
     config=VoxelizeConfig,
+    reads_sections=("classes",),
     inputs=(
         Input("infer", "points"),
         Input("fuse", "fused"),
