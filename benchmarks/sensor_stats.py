@@ -10,7 +10,9 @@ the simulator's default marina (horizontal sonar, `--frames` pings spread over a
 mission), and the marina under `--draws` sensor draws of the default
 `SensorRandomisation` (the training missions' spread: min / median / max over draws).
 
-Measured 2026-12-03 (see the report of issue 39 in docs/decisions/): printed by this script.
+Measured 2026-12-03 (`--frames 12 --draws 24`): Oculus 43 / 0.642 (one ping), ARIS 89 /
+0.276 (6 frames), simulated marina 4 / 0.453; the 24 randomised draws span medians 2-120
+(median 12) and contrasts 0.226-0.682 (median 0.321), so both real sensors lie inside.
 """
 
 from __future__ import annotations
