@@ -77,7 +77,14 @@ class SonarConfig(_Model):
     )
     speckle: bool = True
     noise_mean_level: float = Field(
-        default=4.0, ge=0.0, description="mean additive Rayleigh noise [levels]"
+        default=4.0, ge=0.0, le=255.0, description="mean additive noise [levels]"
+    )
+    noise_shape: float = Field(
+        default=2.0,
+        ge=0.5,
+        le=10.0,
+        description="Weibull shape of the additive noise amplitude: 2 is Rayleigh; lower is"
+        " spikier (higher speckle contrast), higher flatter (a bright, even background)",
     )
     label_min_level: float = Field(
         default=10.0, ge=0.0, description="noise-free level for a labelled pixel"

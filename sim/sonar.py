@@ -13,14 +13,15 @@ energy is spread over the range interval its aperture stratum covers (halfway to
 ranges of its neighbours across the aperture that hit the same object), then
 accumulated per (range bin, beam) with `np.bincount`. So elevation ambiguity is real:
 a vertical piling at horizontal distance d fills ranges d .. d / cos(aperture / 2).
-The 8-bit level is 255 (I / I_sat)^gamma times Rayleigh speckle plus Rayleigh noise.
+The 8-bit level is 255 (I / I_sat)^gamma times Rayleigh speckle plus additive noise
+(Weibull amplitude; Rayleigh by default).
 Labels and the true unresolved angle come from the strongest contribution per pixel.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtri
+from scipy.special import gamma, ndtri
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import SonarPing
@@ -62,11 +63,7 @@ class SonarModel:
         self._refl = refl
         half = self.aperture_rad / 2
         self._bp_k = -np.log(cfg.aperture_edge_gain) / half**2
-        p = (np.arange(_NOISE_TABLE_SIZE) + 0.5) / _NOISE_TABLE_SIZE
-        sigma = cfg.noise_mean_level * np.sqrt(2.0 / np.pi)
-        self._noise_table = np.minimum(np.rint(sigma * np.sqrt(-2.0 * np.log1p(-p))), 255).astype(
-            np.uint8
-        )
+        self._noise_table = _noise_table(cfg.noise_mean_level, cfg.noise_shape)
         pattern_rng = np.random.default_rng([12345, cfg.n_beams, cfg.aperture_samples])
         self._patterns = [self._jittered_fan(pattern_rng) for _ in range(_N_PATTERNS)]
 
@@ -199,7 +196,7 @@ class SonarModel:
         return 255.0 * (intensity / cfg.saturation_intensity) ** cfg.display_gamma
 
     def _to_uint8(self, intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Speckle (multiplicative Rayleigh, unit mean), additive Rayleigh noise, uint8."""
+        """Speckle (multiplicative Rayleigh, unit mean), additive noise (`_noise_table`), uint8."""
         cfg = self.cfg
         nz = np.flatnonzero(intensity)
         level_nz = self._level(intensity[nz])
@@ -212,6 +209,20 @@ class SonarModel:
             image = np.zeros(len(intensity), dtype=np.uint8)
         image[nz] = np.minimum(image[nz] + level_nz + 0.5, 255.0).astype(np.uint8)
         return image
+
+
+def _noise_table(mean_level: float, shape: float) -> np.ndarray:
+    """(_NOISE_TABLE_SIZE,) uint8 quantiles of the additive noise: Weibull of the given
+    mean and shape (inverse CDF lambda (-ln(1 - p))^(1/shape), lambda = mean / Gamma(1 +
+    1/shape)). Shape 2 is Rayleigh, computed as before so default images keep their bytes."""
+    p = (np.arange(_NOISE_TABLE_SIZE) + 0.5) / _NOISE_TABLE_SIZE
+    if shape == 2.0:
+        sigma = mean_level * np.sqrt(2.0 / np.pi)
+        level = sigma * np.sqrt(-2.0 * np.log1p(-p))
+    else:
+        scale = mean_level / gamma(1.0 + 1.0 / shape)
+        level = scale * (-np.log1p(-p)) ** (1.0 / shape)
+    return np.minimum(np.rint(level), 255).astype(np.uint8)
 
 
 def _strongest(

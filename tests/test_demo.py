@@ -16,6 +16,7 @@ CONFIG = """
 training:
   sets:
     - {scene: pier, seed: 7, goals: 3, duration_s: 70}
+  procedural: null
   directory: {training_dir}
 train:
   epochs: 8

@@ -332,6 +332,7 @@ def test_study_cli_default_and_a_config_side_by_side(tmp_path: Path) -> None:
     protocol.write_text("evaluate:\n  tolerance_m: 0.2\n")
     cheap = [
         "training.sets=[{scene: pier, seed: 7, goals: 3, duration_s: 70}, {scene: tiny, seed: 11, goals: 3, duration_s: 60}]",
+        "training.procedural=null",
         f"training.directory={tmp_path / 'training'}",
         "train.epochs=8",
         "classify.mc_passes=8",

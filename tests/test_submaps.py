@@ -246,6 +246,7 @@ CONFIG = """
 training:
   sets:
     - {{scene: tiny, seed: 11, goals: 3, duration_s: 60}}
+  procedural: null
   directory: {training}
 train:
   epochs: 1

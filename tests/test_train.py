@@ -235,3 +235,22 @@ def test_pooling_views_raises_recall_without_losing_precision(
     print("piling recall at 0.8, single view / pooled:", recall)
     assert np.median(pooled["n_views"].to_numpy()) >= 3
     assert recall["pooled"] >= recall["single"] + 0.05
+
+
+def test_held_out_datasets_validate_and_the_size_rule_curve_is_saved() -> None:
+    from stages.classify.train import collect_samples, train_classifier
+
+    worlds = [_keyframes("tiny", seed, 2, 6, 8) for seed in (21, 22, 23, 24)]
+    pairs = [(frames, _label_features(frames)) for frames in worlds]
+    cfg = TrainConfig(epochs=2, min_class_samples=1, mc_passes=2, grow_step_datasets=1)
+    out = train_classifier(pairs[:3], cfg, heldout=pairs[3:])
+    m = out["metrics"]
+    # Validation is the held-out world's objects (of learned classes), not a keyframe block.
+    n_val = len(collect_samples(pairs[3:], cfg).class_id)
+    assert 0.9 * n_val <= m["n"] <= n_val and m["n"] > 0
+    curve = m["size_rule"]
+    sizes = [p["datasets"] for p in curve["points"]]
+    assert sizes == list(range(1, len(sizes) + 1)) and curve["chosen_datasets"] in sizes
+    assert all(0 <= p["macro_f1"] <= 1 for p in curve["points"])
+    assert out["curve"][:8] == b"\x89PNG\r\n\x1a\n"
+    assert any(o.name == "curve" and o.filename == "size_curve.png" for o in TRAIN.outputs)

@@ -7,6 +7,9 @@ images, CFAR features, with the `training.keyframes`/`training.features` setting
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
 file instead of label images (format: README, `schemas.annotations`).
 
+`sonarmap train` without datasets builds (or finds) the default model of the `training`
+section, procedural worlds included, and copies it to --out.
+
 `sonarmap train --ship` takes no datasets: it resolves the default model of the
 `training` section (simulating and training only what this machine lacks) and writes it,
 with the lock of its training recordings, to `training.shipped_models`
@@ -67,7 +70,8 @@ def train(
         _ship(config, set_ or (), store, json_)
         return
     if not datasets:
-        raise typer.BadParameter("give the labelled datasets to train on (or --ship)")
+        _default(config, set_ or (), store, out, json_)
+        return
 
     from pipeline.api import RunRequest, plan_dataset
     from pipeline.commands._errors import check_writable, writes_under
@@ -127,6 +131,53 @@ def train(
                 f"  {name}: support={c['support']} precision={c['precision']} "
                 f"recall={c['recall']} accepted_precision={c['accepted_precision']}"
             )
+
+
+def _default(
+    config: Path | None, overrides: list[str] | tuple[str, ...], store: Path, out: Path, json_: bool
+) -> None:
+    """`train` without datasets: the default model of the `training` section (procedural
+    worlds, `training.sets`, `training.recorded`), resolved as a run would (the store,
+    the model cache or the shipped model, else simulated and trained), copied to --out."""
+    import shutil
+
+    from pipeline.commands._errors import check_writable, writes_under
+    from pipeline.engine.config import load_config
+    from pipeline.engine.integrity import verify_file
+    from pipeline.engine.registry import all_stages, extra_sections
+    from pipeline.engine.store import ArtifactStore
+    from pipeline.training.model_cache import resolve_default_model
+
+    with writes_under(out, store):
+        t0 = time.perf_counter()
+        check_writable(out)
+        resolved = load_config(all_stages(), config, overrides, extra_sections())
+        chosen = resolve_default_model(ArtifactStore(store), resolved)
+        ref = chosen.ref
+        out.mkdir(parents=True, exist_ok=True)
+        for name in ref.manifest.get("files", {}):
+            shutil.copyfile(verify_file(ref, name), out / name)
+        shutil.copyfile(ref.path / "manifest.json", out / "manifest.json")
+        metrics = json.loads((ref.path / "metrics.json").read_text())
+        doc = {
+            "default": True,
+            "source": chosen.source,
+            "out": str(out),
+            "artifact": str(ref.path),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "metrics": metrics,
+        }
+        if json_:
+            emit_json(doc)
+            return
+        console = stderr_console()
+        curve = metrics.get("size_rule") or {}
+        console.print(f"default model ({chosen.source}) -> {out / 'model.pt'} ({doc['seconds']} s)")
+        console.print(
+            f"validation: n={metrics['n']} accuracy={metrics['accuracy']}; size rule chose"
+            f" {curve.get('chosen_datasets')} datasets: "
+            + ", ".join(f"{p['datasets']}: {p['macro_f1']}" for p in curve.get("points", []))
+        )
 
 
 def register(app: typer.Typer) -> None:

@@ -139,8 +139,17 @@ def _field_annotation(model: type[BaseModel], path: list[str], where: str) -> An
             prefix = ".".join(path[:i])
             names = [f"{prefix}.{f}" if prefix else f for f in fields]
             raise ConfigError(f"{where}: unknown key '{dotted}'{_closest(dotted, names)}")
-        current = fields[part].annotation
+        current = _section_of(fields[part].annotation)
     return current
+
+
+def _section_of(annotation: Any) -> Any:
+    """An optional section (`Model | None`, null switches it off) walks as its model."""
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        models = [a for a in typing.get_args(annotation) if hasattr(a, "model_fields")]
+        if len(models) == 1:
+            return models[0]
+    return annotation
 
 
 def _is_sequence_type(annotation: Any) -> bool:

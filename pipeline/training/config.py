@@ -9,11 +9,13 @@ from pydantic import Field, field_validator
 
 from pipeline.engine.errors import ConfigError
 from pipeline.training.cache_dir import default_training_directory
+from sim.procedural import ProceduralConfig
+from sim.randomise import SensorRandomisation
 from stages.base import ConfigModel
 from stages.features.stage import FeaturesConfig
 from stages.keyframes import KeyframesConfig
 
-__all__ = ["TrainingDataConfig", "TrainingSet"]
+__all__ = ["ProceduralTraining", "TrainingDataConfig", "TrainingSet"]
 
 
 class TrainingSet(ConfigModel):
@@ -37,6 +39,35 @@ class TrainingSet(ConfigModel):
         return value
 
 
+class ProceduralTraining(ConfigModel):
+    """Random harbours (`sim.procedural`) the default classifier learns from, each with the
+    simulator's own mission and a randomised sensor (`sim.randomise`).
+
+    Training worlds have seeds base_seed, base_seed + 1, ...; the held-out validation
+    worlds follow them. The `train` stage adds training worlds in that order until the
+    held-out macro-F1 stops improving (`train.grow_*`), so `worlds` is a ceiling.
+    """
+
+    generator: ProceduralConfig = Field(
+        default_factory=ProceduralConfig, description="the generator's ranges (`sim.procedural`)"
+    )
+    worlds: int = Field(8, ge=1, le=1000, description="training worlds at most")
+    validation_worlds: int = Field(
+        2, ge=1, le=100, description="held-out worlds that validate every size of the set"
+    )
+    base_seed: int = Field(
+        1000, ge=0, le=2**32 - 2000, description="seed of the first world (far from the study's)"
+    )
+    goals: int = Field(3, ge=1, le=10000, description="mission goals per world")
+    duration_s: float | None = Field(
+        None, gt=0, le=7 * 86400, description="cut each mission after this time (null: whole)"
+    )
+    sensor: SensorRandomisation | None = Field(
+        default_factory=SensorRandomisation,
+        description="per-mission sensor draw (`sim.randomise`); null: the default sensor",
+    )
+
+
 class TrainingDataConfig(ConfigModel):
     """Config section `training`: which labelled datasets the default model is trained on.
 
@@ -47,9 +78,18 @@ class TrainingDataConfig(ConfigModel):
     directory (`pipeline.training.cache_dir`), not to the working directory.
     """
 
-    sets: tuple[TrainingSet, ...] = (
-        TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
-        TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
+    sets: tuple[TrainingSet, ...] = Field(
+        default=(
+            TrainingSet(scene="harbour", seed=100, goals=12, duration_s=None),
+            TrainingSet(scene="pier", seed=101, goals=6, duration_s=None),
+        ),
+        description="hand-written scenes to train on, before any procedural worlds",
+    )
+    procedural: ProceduralTraining | None = Field(
+        default=None,
+        description="procedural training worlds (`training: {procedural: {}}` for the"
+        " generator's defaults); null: `sets` and `recorded` only. Off by default until a"
+        " model trained on them is shown not to map the marina worse (issue 39)",
     )
     directory: str = Field(
         default_factory=lambda: str(default_training_directory()),

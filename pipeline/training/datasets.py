@@ -10,8 +10,9 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -70,27 +71,44 @@ def read_scene(path: Path) -> Scene:
         raise ConfigError(str(err)) from err
 
 
-def sim_config(goals: int | None, duration_s: float | None) -> SimConfig:
-    """The simulator's defaults with a mission of `goals` goals, cut after `duration_s`."""
+def sim_config(
+    goals: int | None, duration_s: float | None, sensor: Mapping[str, Any] | None = None
+) -> SimConfig:
+    """The simulator's defaults with a mission of `goals` goals, cut after `duration_s`,
+    and the sensor draw `sensor` (`sim.randomise.draw_sensor`) when given."""
     from sim.config import SimConfig
+    from sim.randomise import randomised_config
 
     base = SimConfig()
     mission = base.mission.model_copy(
         update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
     )
-    return base.model_copy(update={"mission": mission})
+    cfg = base.model_copy(update={"mission": mission})
+    return randomised_config(cfg, sensor) if sensor is not None else cfg
 
 
-def _recipe(scene: Path, seed: int, goals: int | None, duration_s: float | None) -> dict[str, Any]:
+def _recipe(
+    scene: Path | bytes,
+    seed: int,
+    goals: int | None,
+    duration_s: float | None,
+    sensor: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
     from sim.version import SIM_VERSION as sim_version
 
-    return {
-        "scene_sha256": hashlib.sha256(scene.read_bytes()).hexdigest(),
+    recipe = {
+        "scene_sha256": hashlib.sha256(
+            scene if isinstance(scene, bytes) else scene.read_bytes()
+        ).hexdigest(),
         "seed": seed,
         "goals": goals,
         "duration_s": duration_s,
         "simulator": sim_version,
     }
+    # Only when drawn: a default-sensor recipe (and its lock entry) stays as it was.
+    if sensor is not None:
+        recipe["sensor"] = json.loads(json.dumps(sensor, sort_keys=True))
+    return recipe
 
 
 def _is_current(out: Path, recipe: dict[str, Any]) -> bool:
@@ -111,18 +129,29 @@ def ensure_simulation(
     goals: int | None = None,
     duration_s: float | None = None,
     progress: Callable[[int, int], None] | None = None,
+    sensor: Mapping[str, Any] | None = None,
+    scene_text: str | None = None,
 ) -> Path:
-    """Simulate `scene` with `seed` into `out` unless an identical one is already there."""
-    recipe = _recipe(scene, seed, goals, duration_s)
+    """Simulate `scene` with `seed` into `out` unless an identical one is already there
+    (`sensor`: a `sim.randomise.draw_sensor` draw, part of the recipe; `scene_text`: a
+    generated scene, written to `scene` first when the file differs)."""
+    recipe = _recipe(
+        scene_text.encode() if scene_text is not None else scene, seed, goals, duration_s, sensor
+    )
     sidecar = out.with_suffix(".recipe.json")
     if _is_current(out, recipe):
         return out
+    if scene_text is not None and not (scene.is_file() and scene.read_text() == scene_text):
+        scene.parent.mkdir(parents=True, exist_ok=True)
+        tmp = scene.with_name(f"{scene.name}.{os.getpid()}.tmp")
+        tmp.write_text(scene_text)
+        tmp.replace(scene)  # atomic: a concurrent simulation reads the old or the new file
     # Only a miss pays for the simulator's imports (open3d).
     from pipeline.engine.errors import SourceError
     from pipeline.formats.simulation import write_simulation
     from sim.dataset import simulate
 
-    run = simulate(read_scene(scene), sim_config(goals, duration_s), seed)
+    run = simulate(read_scene(scene), sim_config(goals, duration_s, sensor), seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         write_simulation(run, out, scene_yaml=scene.read_text(), progress=progress)
@@ -134,17 +163,24 @@ def ensure_simulation(
 
 @dataclass(frozen=True)
 class Simulation:
-    """One `ensure_simulation` call: scene file, seed, output MCAP, mission options."""
+    """One `ensure_simulation` call: scene file, seed, output MCAP, mission options, and
+    the sensor draw (None: the simulator's default sensor)."""
 
     scene: Path
     seed: int
     out: Path
     goals: int | None = None
     duration_s: float | None = None
+    sensor: Mapping[str, Any] | None = field(default=None, compare=False, hash=False)
+    scene_text: str | None = field(default=None, compare=False, repr=False)
+    """A generated scene's YAML, written to `scene` only when simulating (planning
+    writes nothing)."""
 
     def recipe(self) -> dict[str, Any]:
-        """What the recording's bytes depend on (scene sha256, seed, mission, simulator)."""
-        return _recipe(self.scene, self.seed, self.goals, self.duration_s)
+        """What the recording's bytes depend on (scene sha256, seed, mission, sensor,
+        simulator)."""
+        scene = self.scene_text.encode() if self.scene_text is not None else self.scene
+        return _recipe(scene, self.seed, self.goals, self.duration_s, self.sensor)
 
     def is_current(self) -> bool:
         """The output exists with this recipe (nothing to simulate)."""
@@ -152,7 +188,13 @@ class Simulation:
 
     def ensure(self) -> Path:
         return ensure_simulation(
-            self.scene, self.seed, self.out, goals=self.goals, duration_s=self.duration_s
+            self.scene,
+            self.seed,
+            self.out,
+            goals=self.goals,
+            duration_s=self.duration_s,
+            sensor=self.sensor,
+            scene_text=self.scene_text,
         )
 
 

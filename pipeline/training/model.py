@@ -17,6 +17,7 @@ becomes an "annotations" artifact that `train` also reads, so editing it retrain
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,7 @@ from schemas.sonar import KeyframeImages
 from stages.base import Input, Stage
 
 __all__ = [
+    "ordered_datasets",
     "plan_training",
     "recorded_datasets",
     "train_on",
@@ -71,16 +73,24 @@ def _unmatched_is_bad_input(frames: Iterator[KeyframeImages]) -> Iterator[Keyfra
         raise SourceError(str(err)) from err
 
 
+def _prefix(i: int, n_datasets: int, heldout: int) -> str:
+    """Input-name prefix of dataset i: "val_" for the last `heldout` (so a dataset's role
+    is in the train key), "" otherwise."""
+    return "val_" if i >= n_datasets - heldout else ""
+
+
 def training_stage_for(
-    n_datasets: int, annotated: Sequence[int] = (), names: Sequence[str] = ()
+    n_datasets: int, annotated: Sequence[int] = (), names: Sequence[str] = (), heldout: int = 0
 ) -> Stage:
     """The `train` stage reading `n_datasets` (keyframes, features) pairs.
 
     Inputs are bound as "keyframes_i.frames" / "features_i.features" so one stage run
     sees every dataset; dataset i in `annotated` also reads "annotations_i.annotations"
     and is labelled by it (`stages.classify.annotations.label_keyframes`) instead of label
-    images. `names` (the datasets' paths) only word error messages. Outputs and config
-    are those of `stages.classify.train`.
+    images. The last `heldout` datasets (inputs "val_keyframes_i" ...) only validate:
+    whole worlds held out, and the size rule of `stages.classify.train` grows the
+    training set over the others. `names` (the datasets' paths) only word error
+    messages. Outputs and config are those of `stages.classify.train`.
     """
     from pipeline.engine.registry import training_stage
     from pipeline.engine.text import one_line
@@ -90,13 +100,14 @@ def training_stage_for(
     from stages.classify.train import train_classifier
 
     base = training_stage()
+    pre = [_prefix(i, n_datasets, heldout) for i in range(n_datasets)]
     inputs = tuple(
         item
         for i in range(n_datasets)
         for item in (
-            Input(f"keyframes_{i}", "frames"),
-            Input(f"features_{i}", "features"),
-            *([Input(f"annotations_{i}", "annotations")] if i in annotated else []),
+            Input(f"{pre[i]}keyframes_{i}", "frames"),
+            Input(f"{pre[i]}features_{i}", "features"),
+            *([Input(f"{pre[i]}annotations_{i}", "annotations")] if i in annotated else []),
         )
     )
 
@@ -114,23 +125,27 @@ def training_stage_for(
             yield frame
 
     def frames(i: int, bound: Mapping[str, Any]) -> Iterable[KeyframeImages]:
-        kf = bound[f"keyframes_{i}.frames"]
+        kf = bound[f"{pre[i]}keyframes_{i}.frames"]
         if i not in annotated:
             return labelled(i, kf)
         table = bound.get("config.classes", DEFAULT_TABLE)
         doc = AnnotationFile.model_validate(
-            bound[f"annotations_{i}.annotations"], context={"classes": table}
+            bound[f"{pre[i]}annotations_{i}.annotations"], context={"classes": table}
         )
         ann = annotation_path(Path(name(i))) if i < len(names) else None
         source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
-        features = bound[f"features_{i}.features"]
+        features = bound[f"{pre[i]}features_{i}.features"]
         return _unmatched_is_bad_input(
             label_keyframes(kf, doc, source=source, features=features, table=table)
         )
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
-        pairs = [(frames(i, bound), bound[f"features_{i}.features"]) for i in range(n_datasets)]
-        return train_classifier(pairs, config, bound.get("config.classes", DEFAULT_TABLE))
+        pairs = [
+            (frames(i, bound), bound[f"{pre[i]}features_{i}.features"]) for i in range(n_datasets)
+        ]
+        n_train = n_datasets - heldout
+        table = bound.get("config.classes", DEFAULT_TABLE)
+        return train_classifier(pairs[:n_train], config, table, heldout=pairs[n_train:])
 
     return Stage(
         base.name, base.version, base.config, inputs, base.outputs, run, base.description,
@@ -145,6 +160,7 @@ def _bind_training(
     *,
     compute: bool,
     fingerprints: Mapping[Path, str] | None = None,
+    heldout: int = 0,
 ) -> tuple[Stage, dict[str, tuple[Stage, ArtifactRef]], DatasetSpec]:
     """The train stage and its bound inputs: computed artifacts, or key-only placeholders.
 
@@ -160,13 +176,14 @@ def _bind_training(
     external: dict[str, tuple[Stage, ArtifactRef]] = {}
     annotated = []
     # Validate every annotation file before any dataset is read: a typo fails in a second.
+    pre = [_prefix(i, len(datasets), heldout) for i in range(len(datasets))]
     for i, path in enumerate(datasets):
         ann = annotation_path(path)
         if ann is not None:
             log.info("%s: labels from %s", path, ann)
             table = getattr(config, "classes", DEFAULT_TABLE)
             committed = commit_annotations(ann, store, table)
-            external[f"annotations_{i}"] = (ANNOTATIONS_STAGE, committed)
+            external[f"{pre[i]}annotations_{i}"] = (ANNOTATIONS_STAGE, committed)
             annotated.append(i)
     first = None
     for i, path in enumerate(datasets):
@@ -187,9 +204,9 @@ def _bind_training(
                 for p in planned
             }
         for stage in upstream:
-            external[f"{stage.name}_{i}"] = (stage, refs[stage.name])
+            external[f"{pre[i]}{stage.name}_{i}"] = (stage, refs[stage.name])
     assert first is not None
-    train = training_stage_for(len(datasets), annotated, [str(p) for p in datasets])
+    train = training_stage_for(len(datasets), annotated, [str(p) for p in datasets], heldout)
     return train, external, first
 
 
@@ -206,19 +223,24 @@ def plan_training(
     store: ArtifactStore,
     *,
     fingerprints: Mapping[Path, str] | None = None,
+    heldout: int = 0,
 ) -> str:
     """The `train` key `train_on` would produce, computing nothing (training datasets'
     fingerprints are cached, or given by `fingerprints` for recordings not on disk;
-    their keyframes and features are only planned)."""
+    their keyframes and features are only planned). `heldout`: as `train_on`."""
     config = training_config(config)
     train, external, first = _bind_training(
-        datasets, config, store, compute=False, fingerprints=fingerprints
+        datasets, config, store, compute=False, fingerprints=fingerprints, heldout=heldout
     )
     return plan((train,), config, first, store, external=external)[0].key
 
 
-def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) -> ArtifactRef:
+def train_on(
+    datasets: Sequence[Path], config: BaseModel, store: ArtifactStore, *, heldout: int = 0
+) -> ArtifactRef:
     """Run keyframes + features on each dataset, then the train stage; return the model artifact.
+
+    The last `heldout` datasets only validate (whole worlds held out; `training_stage_for`).
 
     Keyframes and features use the `training` section's settings (`training_config`). A
     dataset with an annotation file beside it (`pipeline.training.annotations.annotation_path`)
@@ -228,15 +250,17 @@ def train_on(datasets: Sequence[Path], config: BaseModel, store: ArtifactStore) 
         SourceError: an annotation file is unreadable or invalid (one line, file and field).
     """
     config = training_config(config)
-    train, external, first = _bind_training(datasets, config, store, compute=True)
+    train, external, first = _bind_training(datasets, config, store, compute=True, heldout=heldout)
     planned = plan((train,), config, first, store, external=external)
     log.info("classifier: %s (%s)", "cached" if planned[0].hit else "training", planned[0].reason)
     return execute(planned, config, first, store, external=external).artifacts["train"]
 
 
 def training_simulations(training: TrainingDataConfig) -> list[Simulation]:
-    """The simulated missions of `training.sets`, with the files they are kept in."""
+    """The simulated missions of `training.sets`, then the procedural worlds of
+    `training.procedural` (training, then held-out), with the files they are kept in."""
     from pipeline.training.datasets import scene_path
+    from pipeline.training.worlds import procedural_simulations
 
     sims = []
     for item in training.sets:
@@ -248,18 +272,38 @@ def training_simulations(training: TrainingDataConfig) -> list[Simulation]:
                 scene, item.seed, Path(training.directory) / name, item.goals, item.duration_s
             )
         )
-    return sims
+    return sims + procedural_simulations(training)
 
 
-def training_datasets(training: TrainingDataConfig) -> list[Path]:
-    """The default model's datasets: `training.sets` (simulated on first use), then
-    `training.recorded`.
+def ordered_datasets(
+    simulated: Sequence[Path], training: TrainingDataConfig
+) -> tuple[list[Path], int]:
+    """The default model's datasets in the train stage's order and how many (the last)
+    are held out: the simulations' training recordings, `training.recorded`, then the
+    held-out worlds.
 
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    paths = [sim.ensure() for sim in training_simulations(training)]
-    return paths + recorded_datasets(training)
+    from pipeline.training.worlds import heldout_count
+
+    k = heldout_count(training)
+    cut = len(simulated) - k
+    return [*simulated[:cut], *recorded_datasets(training), *simulated[cut:]], k
+
+
+def training_datasets(training: TrainingDataConfig) -> list[Path]:
+    """The default model's datasets (simulated on first use) in `ordered_datasets` order;
+    the last `pipeline.training.worlds.heldout_count` of them validate.
+
+    Raises:
+        SourceError: a recorded dataset without its annotation file.
+    """
+    from pipeline.training.datasets import ensure_simulations
+
+    workers = max(1, min(2, os.cpu_count() or 1))
+    paths = ensure_simulations(training_simulations(training), workers)
+    return ordered_datasets(paths, training)[0]
 
 
 def recorded_datasets(training: TrainingDataConfig) -> list[Path]:

@@ -165,7 +165,7 @@ def _planned_from_lock(config: BaseModel, cache: ArtifactStore) -> tuple[str, li
     disk are fingerprinted, the others taken from the shipped lock; None when the lock
     lacks one of them (planning then needs the simulation)."""
     from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model import plan_training, recorded_datasets, training_simulations
+    from pipeline.training.model import ordered_datasets, plan_training, training_simulations
     from pipeline.training.shipped import locked_fingerprints
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
@@ -173,8 +173,8 @@ def _planned_from_lock(config: BaseModel, cache: ArtifactStore) -> tuple[str, li
     locked = locked_fingerprints(sims, training.shipped_models)
     if locked is None:
         return None
-    paths = [s.out for s in sims] + recorded_datasets(training)
-    return plan_training(paths, config, cache, fingerprints=locked), paths
+    paths, heldout = ordered_datasets([s.out for s in sims], training)
+    return plan_training(paths, config, cache, fingerprints=locked, heldout=heldout), paths
 
 
 def located_default_model(
@@ -225,6 +225,7 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
         training_stage_for,
     )
     from pipeline.training.shipped import shipped_store
+    from pipeline.training.worlds import heldout_count
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     cache = model_cache(config)
@@ -236,15 +237,16 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
         found = _find_or_ship(key, store, cache, shipped)
     if found is None:
         paths = training_datasets(training)
-        key = plan_training(paths, config, cache)
+        key = plan_training(paths, config, cache, heldout=heldout_count(training))
         found = _find_or_ship(key, store, cache, shipped)
     source: Source
     if found is None:
-        ref, source = copy_verified(train_on(paths, config, cache), store), "trained"
+        trained = train_on(paths, config, cache, heldout=heldout_count(training))
+        ref, source = copy_verified(trained, store), "trained"
     else:
         ref, source = found
     annotated = [i for i, p in enumerate(paths) if annotation_path(p) is not None]
-    stage = training_stage_for(len(paths), annotated)
+    stage = training_stage_for(len(paths), annotated, heldout=heldout_count(training))
     _record_use(store, ref, source)
     chosen = ResolvedModel(stage, ref, source, cache.root)
     log.info("%s", chosen.describe())

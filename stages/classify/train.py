@@ -10,7 +10,8 @@ rotations; classes balanced by sampling each epoch uniformly over classes; Adam 
 one-cycle learning-rate schedule; fixed seeds.
 Validation holds out whole blocks of consecutive keyframes with a guard gap, so the same
 view of an object never lands on both sides (with several datasets, the last one is
-the validation set when `split` is "dataset", which also keeps objects apart).
+the validation set when `split` is "dataset", which also keeps objects apart); given
+held-out datasets (whole worlds), they validate and `size_rule` picks the set's size.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages
 from stages.base import Input, Output, Stage, StageConfig
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
-from stages.classify.validation import confusion_png, evaluate
+from stages.classify.size_rule import curve_png, grow, one_size
+from stages.classify.validation import confusion_png, evaluate, say_what_is_not_learned
 from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
@@ -94,6 +96,10 @@ class TrainConfig(StageConfig):
     guard_keyframes: int = Field(
         3, ge=0, le=100000, description="training keyframes dropped beside val"
     )
+    # The size rule (`stages.classify.size_rule`), with held-out datasets only.
+    grow_step_datasets: int = Field(2, ge=1, le=1000, description="datasets added per step")
+    grow_min_gain_f1: float = Field(0.01, ge=0, le=1, description="held-out macro-F1 gain")
+    grow_patience: int = Field(2, ge=1, le=100, description="steps without that gain to stop")
     mc_passes: int = Field(20, ge=1, le=1000, description="MC passes for the validation metrics")
     threshold: float = Field(0.99, ge=0, le=1, description="acceptance of the mean probability")
     seed: int = Field(0, ge=0, le=2**32 - 1)
@@ -278,32 +284,11 @@ def _learned_classes(class_id: np.ndarray, min_samples: int, n_ids: int) -> list
     return [int(c) for c in np.flatnonzero(counts >= min_samples)]
 
 
-def _say_what_is_not_learned(
-    class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int,
-    table: ClassTable = DEFAULT_TABLE,
-) -> None:  # fmt: skip
-    """Warnings for each labelled class left out for too few objects, and for a model with
-    nothing to validate on: neither is ever silent."""
-    counts = np.bincount(class_id[train], minlength=len(table.names_by_id()))
-    for c in np.flatnonzero(counts > 0):
-        if c != 0 and int(c) not in ids:
-            log.warning(
-                "class %s: %d training objects, under train.min_class_samples=%d: not learned",
-                table.name_of(int(c)), counts[c], min_samples,
-            )  # fmt: skip
-    if not np.isin(class_id[val], ids).any():
-        log.warning(
-            "no validation object of a learned class (%d held out in all): the model's"
-            " figures are empty and it is unvalidated; label more keyframes across the"
-            " recording (validation holds out blocks of keyframe time)",
-            int(val.sum()),
-        )
-
-
 def train_classifier(
     datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
     cfg: TrainConfig,
     table: ClassTable = DEFAULT_TABLE,
+    heldout: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]] = (),
 ) -> dict[str, Any]:
     """Samples -> split -> fit -> validation metrics -> model file.
 
@@ -312,30 +297,39 @@ def train_classifier(
         cfg: training config.
         table: the class table (config section `classes`): names of the label ids; the
             model's outputs are the table's classes with enough training objects.
+        heldout: datasets that only validate (whole worlds held out); with them, the
+            training set's size is chosen by `stages.classify.size_rule`.
 
     Returns:
-        {"model": bytes (model.pt), "metrics": dict, "confusion": bytes (PNG)}.
+        {"model": bytes (model.pt), "metrics": dict, "confusion": bytes (PNG), "curve":
+        bytes (PNG, held-out macro-F1 against the training-set size; one point without
+        held-out datasets)}.
 
     Raises:
         ValueError: fewer than two classes with `min_class_samples` training samples.
     """
     with cnn.fixed_threads(2):
-        return _train_classifier(datasets, cfg, table)
+        return _train_classifier(datasets, cfg, table, heldout)
 
 
 def _train_classifier(
     datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
     cfg: TrainConfig,
     table: ClassTable,
+    heldout: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
 ) -> dict[str, Any]:
-    samples = collect_samples(datasets, cfg)
+    samples = collect_samples([*datasets, *heldout], cfg)
     n_ids = max(len(table.names_by_id()), int(samples.class_id.max(initial=0)) + 1)
     outside = sorted(set(np.unique(samples.class_id).tolist()) - set(table.ids.values()))
     if outside:
         raise ValueError(f"label id {outside[0]} is not in the class table (classes.table)")
-    train, val = split_train_val(samples, cfg)
+    if heldout:
+        val = samples.dataset >= len(datasets)
+        train = ~val
+    else:
+        train, val = split_train_val(samples, cfg)
     ids = _learned_classes(samples.class_id[train], cfg.min_class_samples, n_ids)
-    _say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
+    say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
     if len(ids) < 2:
         raise ValueError(
             f"need two classes with >= {cfg.min_class_samples} training objects, "
@@ -347,8 +341,22 @@ def _train_classifier(
     target = lut[samples.class_id]
     train &= target >= 0
     val &= target >= 0
-    model = fit(samples.patches[train], target[train], len(ids), cfg)
-    metrics = evaluate(model, samples.patches[val], target[val], names, cfg)
+
+    def fit_on(mask: np.ndarray) -> PatchCNN:
+        return fit(samples.patches[mask], target[mask], len(ids), cfg)
+
+    def score(model: PatchCNN) -> dict[str, Any]:
+        return evaluate(model, samples.patches[val], target[val], names, cfg)
+
+    if heldout:
+        model, curve = grow(samples.dataset, train, len(datasets), fit_on, score, cfg)
+        train &= samples.dataset < curve["chosen_datasets"]
+        metrics = score(model)
+    else:
+        model = fit_on(train)
+        metrics = score(model)
+        curve = one_size(len(datasets), int(train.sum()), metrics["confusion"])
+    metrics["size_rule"] = curve
     metrics["n_train"] = int(train.sum())
     metrics["train_support"] = {
         n: int(c)
@@ -364,6 +372,7 @@ def _train_classifier(
         "model": cnn.model_to_bytes(model, names, model_cfg),
         "metrics": metrics,
         "confusion": confusion_png(metrics["confusion"], names),
+        "curve": curve_png(curve),
     }
 
 
@@ -374,13 +383,14 @@ def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="train",
-    version=2,
+    version=3,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
         Output("model", "bytes", "model.pt"),
         Output("metrics", "json", "metrics.json"),
         Output("confusion", "bytes", "confusion.png"),
+        Output("curve", "bytes", "size_curve.png"),
     ),
     run=_run,
     reads_sections=("classes",),

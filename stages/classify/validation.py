@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import io
+import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
@@ -15,7 +17,9 @@ if TYPE_CHECKING:
 
 cnn = lazy("stages.classify.cnn")
 
-__all__ = ["McSettings", "confusion_png", "evaluate"]
+__all__ = ["McSettings", "confusion_png", "evaluate", "say_what_is_not_learned"]
+
+log = logging.getLogger(__name__)
 
 
 class McSettings(Protocol):
@@ -91,3 +95,25 @@ def confusion_png(confusion: Sequence[Sequence[int]], class_names: Sequence[str]
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     return buf.getvalue()
+
+
+def say_what_is_not_learned(
+    class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int,
+    table: ClassTable = DEFAULT_TABLE,
+) -> None:  # fmt: skip
+    """Warnings for each labelled class left out for too few objects, and for a model with
+    nothing to validate on: neither is ever silent."""
+    counts = np.bincount(class_id[train], minlength=len(table.names_by_id()))
+    for c in np.flatnonzero(counts > 0):
+        if c != 0 and int(c) not in ids:
+            log.warning(
+                "class %s: %d training objects, under train.min_class_samples=%d: not learned",
+                table.name_of(int(c)), counts[c], min_samples,
+            )  # fmt: skip
+    if not np.isin(class_id[val], ids).any():
+        log.warning(
+            "no validation object of a learned class (%d held out in all): the model's"
+            " figures are empty and it is unvalidated; label more keyframes across the"
+            " recording (validation holds out blocks of keyframe time)",
+            int(val.sum()),
+        )

@@ -1,0 +1,106 @@
+"""The classifier on simulated marina missions rendered at the real sensors' statistics
+(issue 39, item 2): old model against new.
+
+    .venv/bin/python benchmarks/bench_sensor_shift.py --model old=configs/model/train/<key>
+        --model new=data/model [--seed 900] [--goals 4] [--data data/bench-sensors]
+
+Three sensors render the same marina mission (a seed never trained on): the simulator's
+default; "oculus", a Weibull noise of mean 56 and shape 1.2 (background median and speckle
+contrast near the real Oculus ping's 43 / 0.64); "aris", mean 93 and shape 3.8 (near the
+real ARIS frames' 89 / 0.28). Gain, reflectivity and mounting stay the defaults. Each
+mission runs through the pipeline up to `classify` (default config, pooled views) with
+each model (`classify.model=DIR`). Reported per sensor: the measured background statistics
+(`sim.randomise.image_statistics`, median over 12 pings) and per model the structure
+objects' argmax accuracy, the accepted share and accepted accuracy, and the pilings'
+precision / recall (`bench_classify.scores`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+SENSORS = {
+    "default": None,
+    "oculus": {"noise_mean_level": 56.0, "noise_shape": 1.2},
+    "aris": {"noise_mean_level": 93.0, "noise_shape": 3.8},
+}
+
+
+def _draw(noise: dict | None) -> dict | None:
+    if noise is None:
+        return None
+    from sim.config import SonarConfig
+
+    sonar = {**noise, "gain_db": 0.0, "tilt_deg": [0.0, 0.0, 0.0]}
+    factors = {name: 1.0 for name in SonarConfig().reflectivity}
+    return {"reflectivity_factor": factors, "horizontal": sonar, "vertical": dict(sonar)}
+
+
+def _accuracy(objects) -> dict[str, object]:  # type: ignore[no-untyped-def]
+    from bench_classify import scores
+
+    truth = np.asarray(objects["true_class_name"].to_pylist())
+    pred = np.asarray(objects["class_name"].to_pylist())
+    argmax = np.asarray(objects["argmax_class_name"].to_pylist())
+    s = scores(objects)
+    acc = pred != "unknown"
+    out = {
+        "objects": len(truth),
+        "argmax_accuracy": round(float((argmax == truth).mean()), 3),
+        "accepted_share": round(float(acc.mean()), 3),
+        "accepted_accuracy": round(float((pred[acc] == truth[acc]).mean()), 3)
+        if acc.any()
+        else None,
+        "piling_recall": s["piling_recall"],
+    }
+    for name in ("cylindrical_piling", "rectangular_piling"):
+        out[f"{name}_precision"] = s[name]["accepted_precision"]  # type: ignore[index]
+    return out
+
+
+def main() -> None:
+    from bench_classify import _classify
+
+    from pipeline.training.datasets import ensure_simulation, read_scene, scene_path, sim_config
+    from sim.dataset import simulate
+    from sim.randomise import image_statistics
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--model", action="append", required=True, help="label=DIR")
+    ap.add_argument("--seed", type=int, default=900)
+    ap.add_argument("--goals", type=int, default=4)
+    ap.add_argument("--data", type=Path, default=ROOT / "data/bench-sensors")
+    ap.add_argument("--store", type=Path, default=ROOT / "data/store-sensors")
+    args = ap.parse_args()
+    models = dict(m.split("=", 1) for m in args.model)
+    scene = scene_path("marina")
+    report: dict[str, object] = {}
+    for name, noise in SENSORS.items():
+        draw = _draw(noise)
+        out = args.data / f"marina-seed{args.seed}-goals{args.goals}-{name}.mcap"
+        dataset = ensure_simulation(scene, args.seed, out, goals=args.goals, sensor=draw)
+        run = simulate(read_scene(scene), sim_config(args.goals, None, draw), args.seed)
+        idx = np.linspace(0, run.n_frames - 1, 12).round().astype(int)
+        stats = np.array([image_statistics(run.frame(int(i)).horizontal.image) for i in idx])
+        row: dict[str, object] = {
+            "background_median": float(np.median(stats[:, 0])),
+            "speckle_contrast": round(float(np.median(stats[:, 1])), 3),
+        }
+        for label, path in models.items():
+            objects, _ = _classify(dataset, args.store, [f"classify.model={path}"], 1)
+            row[label] = _accuracy(objects)
+        report[name] = row
+        print(json.dumps({name: row}), flush=True)
+    print(json.dumps(report, indent=2))
+
+
+if __name__ == "__main__":
+    main()
