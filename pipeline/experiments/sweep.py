@@ -59,6 +59,9 @@ class RunSpec:
     store: str = "data/store"
     protocol: str | None = None
     """A name for the config this run belongs to (`sonarmap study` compares several)."""
+    workers: int = 1
+    """Stages of this run computed side by side: one, since a sweep already runs its
+    points side by side (in a process pool or as Ray tasks of one CPU each)."""
 
     @property
     def override_args(self) -> list[str]:
@@ -140,6 +143,7 @@ def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
                 config_path=Path(spec.config_path) if spec.config_path else None,
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
+                workers=spec.workers,
             ),
             graph,
         )
