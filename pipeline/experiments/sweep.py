@@ -1,10 +1,9 @@
 """Sweeps: the cross product of datasets and override values through the stage graph.
 
-Artifacts shared between runs (same key) are computed once: every run goes through
-the same store, and the per-key lock makes a second worker wait and reuse. A failed
-run is reported and does not stop the others. Executors: a local process pool, or
-Ray tasks (a local instance is started when no address is given); with Ray the store
-must be a path every worker can reach (a shared filesystem).
+Artifacts shared between runs (same key) are computed once: all runs share one store, and
+the per-key lock makes a second worker wait and reuse. A failed run does not stop the others.
+Executors: a local process pool, or Ray tasks (a local instance unless an address is given;
+the store on a shared filesystem). A run's stages go one at a time: the points run in parallel.
 """
 
 from __future__ import annotations
@@ -59,9 +58,6 @@ class RunSpec:
     store: str = "data/store"
     protocol: str | None = None
     """A name for the config this run belongs to (`sonarmap study` compares several)."""
-    workers: int = 1
-    """Stages of this run computed side by side: one, since a sweep already runs its
-    points side by side (in a process pool or as Ray tasks of one CPU each)."""
 
     @property
     def override_args(self) -> list[str]:
@@ -143,7 +139,7 @@ def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
                 config_path=Path(spec.config_path) if spec.config_path else None,
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
-                workers=spec.workers,
+                workers=1,
             ),
             graph,
         )
