@@ -12,6 +12,7 @@ critical path, the demo cold and the demo fully cached, each figure beside its g
 The machine is shared: the 1-minute load average is printed beside the figures.
 
     .venv/bin/python benchmarks/bench_graph_runner.py [--dataset D.mcap] [--skip-demo]
+        [--set classify.model=DIR]
 """
 
 from __future__ import annotations
@@ -44,10 +45,10 @@ def _sonarmap(*args: str) -> tuple[float, str]:
     return time.perf_counter() - t0, proc.stdout
 
 
-def _cold(dataset: Path, workers: int) -> dict:
+def _cold(dataset: Path, workers: int, sets: list[str]) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-graph-") as tmp:
         args = ["run", str(dataset), "--store", f"{tmp}/store", "--json", "--workers", str(workers)]
-        wall, out = _sonarmap(*args)
+        wall, out = _sonarmap(*args, *(a for item in sets for a in ("--set", item)))
     doc = json.loads(out)
     keyframes = doc["summary"]["keyframes"]
     return {
@@ -93,6 +94,13 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dataset", type=Path, default=None, help="default: the demo's marina")
     ap.add_argument("--skip-demo", action="store_true", help="neither demo figure")
+    ap.add_argument(
+        "--set",
+        dest="sets",
+        action="append",
+        default=[],
+        help="config override of the cold runs, e.g. classify.model=DIR (no training)",
+    )
     args = ap.parse_args()
     if args.dataset is None:
         sys.path.insert(0, str(ROOT))
@@ -101,7 +109,7 @@ def main() -> int:
         args.dataset = ensure_simulation(
             scene_path("marina"), 0, ROOT / "data/demo/marina-seed0.mcap"
         )
-    one, two = _cold(args.dataset, 1), _cold(args.dataset, 2)
+    one, two = _cold(args.dataset, 1, args.sets), _cold(args.dataset, 2, args.sets)
     seconds, chain = critical_path(one["stages_s"])
     report = {
         "dataset": str(args.dataset),
