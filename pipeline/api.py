@@ -20,6 +20,7 @@ from pipeline.engine.registry import Graph, default_graph
 from pipeline.engine.runner import RunResult, StageResult, execute
 from pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
 from pipeline.engine.store import ArtifactRef
+from pipeline.engine.workers import default_workers
 from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
 
@@ -44,6 +45,7 @@ class RunRequest:
         store_dir: artifact store directory.
         until: last stage to run (None: all).
         force: stages to recompute even when cached.
+        workers: stages computed side by side (None: the cores; 1: one after another).
     """
 
     dataset: Path
@@ -52,6 +54,7 @@ class RunRequest:
     store_dir: Path = DEFAULT_STORE
     until: str | None = None
     force: Sequence[str] = ()
+    workers: int | None = None
 
 
 def _context(request: RunRequest, graph: Graph) -> RunContext:
@@ -203,6 +206,7 @@ def run_dataset(
         external=external,
         on_start=on_start,
         on_stage=on_stage,
+        workers=default_workers() if request.workers is None else request.workers,
     )
     summary = summarize(ctx.stages, result.artifacts)
     if model is not None:

@@ -283,7 +283,8 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="keyframes",
-    version=2,
+    # 3: keyframes.mcap in LZ4 chunks (was zstd): same images, other bytes
+    version=3,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(

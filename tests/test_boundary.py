@@ -292,13 +292,14 @@ def test_the_dataset_walks_from_the_run_command_to_the_first_stage_through_few_m
 
     sys.setprofile(profile)
     try:
-        res = CliRunner().invoke(app, ["run", str(toy_cli), "--store", str(tmp_path / "s"), "-q"])
+        # One worker: the profile hook sees this thread only.
+        args = ["run", str(toy_cli), "--store", str(tmp_path / "s"), "-q", "--workers", "1"]
+        res = CliRunner().invoke(app, args)
     finally:
         sys.setprofile(None)
     assert res.exit_code == 0, res.output
-    # The runner opens the dataset with the graph's `open` and calls the stage itself
-    # (no store callback, no opener closure in the session).
-    assert stacks == {
-        "opened": ["run", "api", "runner", "toy_stages"],
-        "source": ["run", "api", "runner", "toy_stages"],
-    }
+    # The runner schedules the stage on a slot (`workers`), whose job (`compute`) opens
+    # the dataset with the graph's `open` and calls the stage itself (no store callback,
+    # no opener closure in the session).
+    chain = ["run", "api", "runner", "workers", "runner", "workers", "compute", "toy_stages"]
+    assert stacks == {"opened": chain, "source": chain}

@@ -31,7 +31,7 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
     args = [
         "demo", "--scene", "tiny", "--seed", "2", "--duration-s", "45",
         "--out", str(tmp_path / "demo"), "--store", str(tmp_path / "store"),
-        "--config", str(config), "--json",
+        "--config", str(config), "--json", "--workers", "2",
     ]  # fmt: skip
     runner = CliRunner()
     first = runner.invoke(app, args)
@@ -72,3 +72,25 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
     assert second.exit_code == 0, second.output
     assert {s["status"] for s in json.loads(second.stdout)["stages"]} == {"hit"}
     assert time.perf_counter() - t0 < 30
+    # One stage at a time, every stage recomputed: the same keys and the same bytes as
+    # the run with two workers.
+    files = {s["stage"]: _files(Path(s["path"])) for s in doc["stages"]}
+    forced = [arg for stage in stages for arg in ("--force", stage)]
+    serial = runner.invoke(
+        app,
+        ["run", doc["dataset"], "--store", str(tmp_path / "store"), "--config", str(config),
+         "--json", "--workers", "1", *forced],
+    )  # fmt: skip
+    assert serial.exit_code == 0, serial.output
+    again = json.loads(serial.stdout)["stages"]
+    assert {s["status"] for s in again} == {"computed"}
+    assert [(s["stage"], s["key"]) for s in again] == [
+        (s["stage"], s["key"]) for s in doc["stages"]
+    ]
+    assert {s["stage"]: _files(Path(s["path"])) for s in again} == files
+
+
+def _files(artifact: Path) -> dict[str, str]:
+    """An artifact's files and their sha256s, as its manifest lists them."""
+    manifest = json.loads((artifact / "manifest.json").read_text())
+    return {name: info["sha256"] for name, info in manifest["files"].items()}

@@ -241,7 +241,8 @@ def test_disk_full_mid_commit_exits_2_and_keeps_what_was_committed(
         real_fsync(path)
 
     monkeypatch.setattr(pipeline.engine.store, "_fsync_file", fsync)
-    res = cli("run", toy_cli, "--store", store, "-q")
+    # One worker: count (beside double in the graph) would otherwise commit meanwhile.
+    res = cli("run", toy_cli, "--store", store, "-q", "--workers", "1")
     _one_line_error(res, "No space left on device", "(ENOSPC)", ".tmp/double-")
     live = ArtifactStore(store)
     assert {r.stage for r in live.iter_artifacts()} == {"source"}

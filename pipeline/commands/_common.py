@@ -16,6 +16,7 @@ __all__ = [
     "JSON_OPT",
     "SET_OPT",
     "STORE_OPT",
+    "WORKERS_OPT",
     "GraphChoice",
     "cli_graph",
     "emit_json",
@@ -32,6 +33,14 @@ SET_OPT = typer.Option(
     help="Override a config value: section.field=value (lists as a,b). Repeatable.",
 )
 STORE_OPT = typer.Option(Path("data/store"), "--store", help="Artifact store directory.")
+WORKERS_OPT = typer.Option(
+    None,
+    "--workers",
+    "-j",
+    min=1,
+    help="Stages computed side by side in worker processes (default: the cores; "
+    "1: one after another). The artifacts are the same either way.",
+)
 JSON_OPT = typer.Option(False, "--json", help="Print exactly one JSON document on stdout.")
 
 

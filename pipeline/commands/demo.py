@@ -14,6 +14,7 @@ from pipeline.commands._common import (
     JSON_OPT,
     SET_OPT,
     STORE_OPT,
+    WORKERS_OPT,
     cli_graph,
     emit_json,
 )
@@ -67,6 +68,7 @@ def demo(
     config: Path | None = CONFIG_OPT,
     set_: list[str] | None = SET_OPT,
     store: Path = STORE_OPT,
+    workers: int | None = WORKERS_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
     """The whole pipeline on a simulated marina, ending with the coverage table and report."""
@@ -89,7 +91,13 @@ def demo(
         )
         with StageProgress(enabled=True) as progress:
             result, summary = run_dataset(
-                RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store),
+                RunRequest(
+                    dataset,
+                    config_path=config,
+                    overrides=set_ or (),
+                    store_dir=store,
+                    workers=workers,
+                ),
                 cli_graph(ctx),
                 on_start=progress.on_start,
                 on_stage=progress.on_stage,

@@ -7,7 +7,15 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, cli_graph, emit_json
+from pipeline.commands._common import (
+    CONFIG_OPT,
+    JSON_OPT,
+    SET_OPT,
+    STORE_OPT,
+    WORKERS_OPT,
+    cli_graph,
+    emit_json,
+)
 
 __all__ = ["register", "run"]
 
@@ -20,6 +28,7 @@ def run(
     until: str | None = typer.Option(None, "--until", help="Stop after this stage."),
     force: list[str] | None = typer.Option(None, "--force", help="Recompute this stage."),
     store: Path = STORE_OPT,
+    workers: int | None = WORKERS_OPT,
     json_: bool = JSON_OPT,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
     live: bool = typer.Option(
@@ -42,6 +51,7 @@ def run(
                 store_dir=store,
                 until=until,
                 force=force or (),
+                workers=workers,
             )
             result, summary = run_dataset(
                 request,

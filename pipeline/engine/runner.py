@@ -1,48 +1,44 @@
-"""The runner: compute a plan's misses in order and commit them.
+"""The runner: compute a plan's misses, side by side where the graph allows, and commit them.
 
-Each miss is computed under its key's lock in the store: the runner binds upstream
-artifacts (and, for the stage reading `DATASET`, the dataset the graph opens) to the
-stage's inputs, calls the stage, validates its outputs and commits them atomically.
-The plan comes from `pipeline.engine.planner`.
+The plan (from `pipeline.engine.planner`) is a graph: a stage starts as soon as the
+stages it reads have committed, up to `workers` at a time (`pipeline.engine.workers`:
+one in this process, the others in spawned worker processes). Each miss is computed
+under its key's lock in the store (`pipeline.engine.compute` binds the upstream
+artifacts and the dataset, calls the stage and writes its outputs); the runner commits
+it atomically. Stages are pure functions of their inputs, so the artifacts and their
+bytes do not depend on the number of workers or the order stages finish in.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from concurrent.futures import FIRST_COMPLETED, Future, wait
+from dataclasses import dataclass, field, replace
 from importlib import metadata
-from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
 
 from pipeline.engine import output_checks
-from pipeline.engine.codecs import read_verified, write_output
+from pipeline.engine.compute import ComputeJob, job_sections, not_opened
 from pipeline.engine.disk import disk_error
-from pipeline.engine.errors import (
-    ConfigError,
-    PipelineError,
-    SourceError,
-    StageFailed,
-    StoreError,
-)
+from pipeline.engine.errors import StoreError
 from pipeline.engine.leases import RunLease
 from pipeline.engine.planned import DatasetSpec, PlannedStage
 from pipeline.engine.planner import plan
 from pipeline.engine.run_records import record_run
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import display_path
-from stages.base import Input, Output, Stage, StageInputError
-from stages.kernels.parallel import release_memory
+from pipeline.engine.workers import Slots
+from stages.base import Input, Stage
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
 
 log = logging.getLogger(__name__)
-_REASON_CHARS = 200
-"""Most characters of a stage's refusal quoted in the error line."""
 _VERSIONED = ("sonarmap", "numpy", "pyarrow", "mcap", "rosbags", "torch", "gtsam", "open3d-cpu")
 
 
@@ -85,108 +81,6 @@ def _software_versions() -> dict[str, str]:
     return versions
 
 
-def _output(stage: Stage, producer: Stage, item: Input) -> Output:
-    output = next((o for o in producer.outputs if o.name == item.output), None)
-    if output is None:
-        raise ConfigError(f"stage {stage.name}: {item.stage} has no output '{item.output}'")
-    return output
-
-
-def _bind_inputs(
-    item: PlannedStage,
-    refs: Mapping[str, ArtifactRef],
-    outputs_of: Mapping[str, Stage],
-    dataset: DatasetSpec,
-    config: BaseModel,
-    verified: set[tuple[str, str, str]],
-    opened: dict[str, Any],
-) -> dict[str, Any]:
-    """The stage's `run` mapping: each input's value under its `Input.name`, and the
-    sections it reads under "config.<section>". A json output with a `record` type is
-    handed over as that record; a file it refuses is bad input naming that file.
-
-    The dataset is opened by the graph's `open` once per run and config section
-    (`opened`): the stages reading it (keyframes, submaps) share what it has read."""
-    stage = item.stage
-    inputs: dict[str, Any] = {f"config.{s}": getattr(config, s) for s in stage.reads_sections}
-    columns = dict(stage.input_columns)
-    for name in stage.inputs:
-        if name.is_dataset:
-            section = getattr(config, stage.dataset_section or stage.name)
-            once = section.model_dump_json() if isinstance(section, BaseModel) else repr(section)
-            if once not in opened:
-                opened[once] = dataset.open(dataset.path, section)
-            inputs[name.name] = opened[once]
-            continue
-        output = _output(stage, outputs_of[name.stage], name)
-        value = read_verified(refs[name.stage], output, verified, columns.get(name))
-        if output.record is not None and value is not None:
-            try:
-                value = output.record.from_json(value)
-            except ValueError as err:
-                rejected = StageInputError(name, str(err))
-                raise _rejected_input(rejected, stage, refs, outputs_of, dataset) from err
-        inputs[name.name] = value
-    return inputs
-
-
-def _rejected_input(
-    err: StageInputError,
-    stage: Stage,
-    refs: Mapping[str, ArtifactRef],
-    outputs_of: Mapping[str, Stage],
-    dataset: DatasetSpec,
-) -> SourceError:
-    """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
-    item = err.input
-    where = str(dataset.path) if item.is_dataset else item.name
-    if item.stage in refs and item.stage in outputs_of:
-        output = next((o for o in outputs_of[item.stage].outputs if o.name == item.output), None)
-        ref = refs[item.stage]
-        filename = output.filename if output is not None else item.output
-        where = f"{ref.stage}/{ref.key}/{filename}"
-    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
-    # characters whatever the stage put in it.
-    reason = (err.reason.splitlines() or [""])[0]
-    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
-    return SourceError(f"{where}: {reason} (input of stage {stage.name})")
-
-
-def _compute(
-    item: PlannedStage,
-    section: Any,
-    inputs: Mapping[str, Any],
-    tmp: Path,
-    refs: Mapping[str, ArtifactRef],
-    outputs_of: Mapping[str, Stage],
-    dataset: DatasetSpec,
-) -> dict[str, Any]:
-    """Run the stage and write its outputs into `tmp`; the manifest's extra fields.
-
-    A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
-    any other exception of the stage is a `StageFailed` (exit 1).
-    """
-    stage = item.stage
-    provenance = {"stage": stage.name, "version": str(stage.version), "key": item.key}
-    try:
-        values = stage.run(section, inputs)
-        facts: dict[str, Any] = {}
-        for output in stage.outputs:
-            value = values.get(output.name)
-            if value is None:
-                if not output.optional:
-                    raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
-                continue
-            facts[output.name] = write_output(tmp, stage.name, output, value, provenance)
-    except (PipelineError, OSError):
-        raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
-    except StageInputError as err:
-        raise _rejected_input(err, stage, refs, outputs_of, dataset) from err
-    except Exception as err:
-        raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
-    return {"outputs": facts}
-
-
 def execute(
     planned: Sequence[PlannedStage],
     config: BaseModel,
@@ -196,8 +90,13 @@ def execute(
     external: Mapping[str, tuple[Stage, ArtifactRef]] | None = None,
     on_stage: Callable[[StageResult], None] | None = None,
     on_start: Callable[[PlannedStage], None] | None = None,
+    workers: int = 1,
 ) -> RunResult:
-    """Compute the misses in order and commit them; hits are only looked up.
+    """Compute the misses and commit them; hits are only looked up.
+
+    `workers`: stages computed at the same time (1: one after another, in plan order;
+    `pipeline.api.run_dataset` passes the cores unless told otherwise). On the first error no further stage starts;
+    the running ones finish (their artifacts are committed) and the error is raised.
 
     While it runs, a lease on the store holds every planned and external address, so
     `gc` leaves them alone; the run record is rewritten as each stage commits, so an
@@ -208,7 +107,7 @@ def execute(
         with RunLease(store.root) as lease:
             lease.add(f"{p.stage.name}/{p.key}" for p in planned)
             lease.add(f"{ref.stage}/{ref.key}" for _, ref in (external or {}).values())
-            return _execute(planned, config, dataset, store, external, on_stage, on_start)
+            return _execute(planned, config, dataset, store, external, on_stage, on_start, workers)
     except OSError as err:
         raise disk_error(err, store.root) from err
 
@@ -221,6 +120,7 @@ def _execute(
     external_in: Mapping[str, tuple[Stage, ArtifactRef]] | None,
     on_stage: Callable[[StageResult], None] | None,
     on_start: Callable[[PlannedStage], None] | None,
+    workers: int,
 ) -> RunResult:
     external = dict(external_in or {})
     for name, (_, ext) in external.items():
@@ -232,54 +132,53 @@ def _execute(
                     "started (by `sonarmap gc`?); run again"
                 )
     outputs_of: dict[str, Stage] = {n: s for n, (s, _) in external.items()}
+    outputs_of.update((item.stage.name, item.stage) for item in planned)
     refs: dict[str, ArtifactRef] = {n: r for n, (_, r) in external.items()}
     result = RunResult(dataset=str(dataset.path), store=str(store.root))
     versions = _software_versions()
-    verified: set[tuple[str, str, str]] = set()  # each bound file is hashed once per run
-    opened: dict[str, Any] = {}  # the dataset, opened once per run and config section
     done: dict[str, PlannedStage] = {}
-    for item in planned:
+    finished: dict[str, StageResult] = {}
+    order = {item.stage.name: i for i, item in enumerate(planned)}
+
+    def produce(item: PlannedStage, slots: Slots) -> tuple[ArtifactRef, str]:
+        """The stage's artifact: looked up (a hit), or computed and committed."""
         name = item.stage.name
-        outputs_of[name] = item.stage
-        t0 = time.perf_counter()
-        if on_start is not None:
-            on_start(item)
-        ref = None
         if item.hit:
             # Under the key's lock: a `gc` that chose this artifact before our lease
             # existed removes it under the same lock, so we see it whole or not at all.
             with store.lock(name, item.key):
                 ref = store.get(name, item.key)
-        status = "hit"
-        if ref is None:
-            if item.reason == "forced":
-                _discard(store, name, item.key)
-            section = getattr(config, name)
-            inputs = _bind_inputs(item, refs, outputs_of, dataset, config, verified, opened)
-            manifest_extra = {
-                "version": item.stage.version,
-                "recipe": item.recipe,
-                "config": item.recipe["config"],
-                "inputs": {k: v for k, v in item.recipe["inputs"].items()},
-                "input_artifacts": {
-                    k: f"{outputs_of[Input.parse(k).stage].name}/{v}"
-                    for k, v in item.recipe["inputs"].items()
-                },
-                "dataset_path": str(dataset.path),
-                "software": versions,
-            }
-            log.info("computing %s (%s)", name, item.reason)
-            with store.staging(name, item.key, manifest_extra) as slot:
-                if slot.tmp is not None:  # not committed by another process meanwhile
-                    slot.extra = _compute(
-                        item, section, inputs, slot.tmp, refs, outputs_of, dataset
-                    )
-            ref = slot.committed()
-            status = "computed" if slot.tmp is not None else "reused"
-            del inputs
-            release_memory()
+            if ref is not None:
+                return ref, "hit"
+        if item.reason == "forced":
+            _discard(store, name, item.key)
+        manifest_extra = {
+            "version": item.stage.version,
+            "recipe": item.recipe,
+            "config": item.recipe["config"],
+            "inputs": dict(item.recipe["inputs"].items()),
+            "input_artifacts": {
+                k: f"{outputs_of[Input.parse(k).stage].name}/{v}"
+                for k, v in item.recipe["inputs"].items()
+            },
+            "dataset_path": str(dataset.path),
+            "software": versions,
+        }
+        log.info("computing %s (%s)", name, item.reason)
+        upstream = {n: refs[n] for n in item.stage.upstream}
+        # Only the stage reading the dataset carries the graph's opener, so the others
+        # can travel to a worker process whatever the opener is (a test's lambda).
+        spec = dataset if item.stage.reads_dataset else replace(dataset, open=not_opened)
+        with store.staging(name, item.key, manifest_extra) as slot:
+            if slot.tmp is not None:  # not committed by another process meanwhile
+                sections = job_sections(item.stage, config)
+                job = ComputeJob(item, sections, spec, upstream, outputs_of, slot.tmp)
+                slot.extra = slots.compute(job)
+        return slot.committed(), "computed" if slot.tmp is not None else "reused"
+
+    def commit(item: PlannedStage, ref: ArtifactRef, status: str, seconds: float) -> None:
+        name = item.stage.name
         refs[name] = ref
-        result.artifacts[name] = ref
         done[name] = item
         found = output_checks.check_stage(name, refs)
         fatal = next((message for message, is_fatal in found if is_fatal), None)
@@ -291,18 +190,51 @@ def _execute(
             cause = f"; first sign: {result.warnings[0]}" if result.warnings else ""
             raise output_checks.EmptyMap(f"{display_path(dataset.path.name)}: {fatal}{cause}")
         result.warnings.extend(warnings)
-        stage_result = StageResult(
+        finished[name] = StageResult(
             stage=name,
             key=item.key,
             status=status,
-            seconds=round(time.perf_counter() - t0, 3),
+            seconds=round(seconds, 3),
             path=str(ref.path),
             reason=item.reason,
             warnings=warnings,
         )
-        result.stages.append(stage_result)
         if on_stage is not None:
-            on_stage(stage_result)
+            on_stage(finished[name])
+
+    waiting = list(planned)
+    started: dict[str, float] = {}
+    running: dict[Future[tuple[ArtifactRef, str]], PlannedStage] = {}
+    failure: BaseException | None = None
+    with Slots(workers) as slots:
+        while True:
+            # Start every stage whose inputs are ready, in plan order, while slots are free.
+            for item in list(waiting):
+                if failure is not None or len(running) >= slots.workers:
+                    break
+                if not all(u in refs for u in item.stage.upstream):
+                    continue
+                waiting.remove(item)
+                started[item.stage.name] = time.perf_counter()
+                if on_start is not None:
+                    on_start(item)
+                running[slots.submit(functools.partial(produce, item, slots))] = item
+            if not running:
+                break
+            ready, _ = wait(running, return_when=FIRST_COMPLETED)
+            for future in sorted(ready, key=lambda f: order[running[f].stage.name]):
+                item = running.pop(future)
+                try:
+                    ref, status = future.result()
+                    seconds = time.perf_counter() - started[item.stage.name]
+                    commit(item, ref, status, seconds)
+                except BaseException as err:  # the first error is reported, once all stop
+                    failure = failure or err
+    if failure is not None:
+        raise failure
+    for item in planned:  # plan order, whatever order the stages finished in
+        result.artifacts[item.stage.name] = refs[item.stage.name]
+        result.stages.append(finished[item.stage.name])
     record_run(store, dataset, config, planned, external)
     return result
 

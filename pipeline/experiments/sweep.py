@@ -1,10 +1,9 @@
 """Sweeps: the cross product of datasets and override values through the stage graph.
 
-Artifacts shared between runs (same key) are computed once: every run goes through
-the same store, and the per-key lock makes a second worker wait and reuse. A failed
-run is reported and does not stop the others. Executors: a local process pool, or
-Ray tasks (a local instance is started when no address is given); with Ray the store
-must be a path every worker can reach (a shared filesystem).
+Artifacts shared between runs (same key) are computed once: all runs share one store, and
+the per-key lock makes a second worker wait and reuse. A failed run does not stop the others.
+Executors: a local process pool, or Ray tasks (a local instance unless an address is given;
+the store on a shared filesystem). A run's stages go one at a time: the points run in parallel.
 """
 
 from __future__ import annotations
@@ -140,6 +139,7 @@ def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
                 config_path=Path(spec.config_path) if spec.config_path else None,
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
+                workers=1,
             ),
             graph,
         )

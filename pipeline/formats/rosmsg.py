@@ -95,6 +95,8 @@ class Ros2McapWriter:
     chunks overlap in time, which MCAP allows; readers order by the message indexes).
     With `small_flush_ns`, those chunks are also written once they span that much log
     time, so a copy cut short keeps the small messages written before the cut.
+    `compression`: of the chunks (zstd; the keyframe images are written with LZ4,
+    `pipeline.formats.frames_io`).
     """
 
     def __init__(
@@ -104,8 +106,9 @@ class Ros2McapWriter:
         chunk_size: int = 4 * 1024 * 1024,
         small_message_bytes: int | None = None,
         small_flush_ns: int | None = None,
+        compression: CompressionType = CompressionType.ZSTD,
     ) -> None:
-        self._writer = McapWriter(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD)
+        self._writer = McapWriter(stream, chunk_size=chunk_size, compression=compression)
         self._writer.start(profile="ros2", library="sonarmap")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

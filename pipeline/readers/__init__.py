@@ -10,11 +10,13 @@ Odometry, PoseStamped, PoseWithCovarianceStamped, or DVL + IMU + depth dead reck
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pipeline.readers.recording import ReaderOptions, SourceRecording
 from pipeline.readers.source_types import Source, TopicInfo
 from pipeline.readers.sources import dataset_fingerprint_parts, open_source
+
+if TYPE_CHECKING:
+    from pipeline.readers.recording import ReaderOptions, SourceRecording
 
 __all__ = [
     "ReaderOptions",
@@ -37,5 +39,17 @@ def open_recording(path: Path, config: Any = None) -> SourceRecording:
     Raises:
         SourceError: unreadable file, no/ambiguous sonar or navigation topics.
     """
+    from pipeline.readers.recording import ReaderOptions, SourceRecording
+
     options = ReaderOptions.from_config(config)
     return SourceRecording(open_source(Path(path), options.message_definitions), options)
+
+
+def __getattr__(name: str) -> Any:
+    # The decoders load when a recording is read: fingerprinting a dataset for a cached
+    # run (`dataset_fingerprint_parts`) needs none of them.
+    if name in ("ReaderOptions", "SourceRecording"):
+        from pipeline.readers import recording
+
+        return getattr(recording, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -43,7 +43,6 @@ from stages.classify.class_columns import class_columns, truth_columns
 from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.classify.overlay import busiest_keyframe, overlay_png
-from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
 from stages.kernels.clustering import clustering
 from stages.kernels.lazy import lazy
 
@@ -51,6 +50,7 @@ if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
 
 cnn = lazy("stages.classify.cnn")
+view_pooling = lazy("stages.classify.view_pooling")  # scipy.spatial: only when pooling
 
 __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "clustering"]
 
@@ -192,11 +192,11 @@ def _pooled(
     if len(obj_kf) and (row.max() >= len(kf_ids) or (kf_ids[row] != obj_kf).any()):
         raise ValueError("keyframes: an object's keyframe_id is not in keyframes.parquet")
     xy = np.column_stack([geometry.column("x_m").to_numpy(), geometry.column("y_m").to_numpy()])
-    return pool_views(
+    return view_pooling.pool_views(
         mean,
-        sighting_world_xy(xy, pose[row], T_base_sonar),
+        view_pooling.sighting_world_xy(xy, pose[row], T_base_sonar),
         obj_kf,
-        along_track_m(pose[:, :2])[row],
+        view_pooling.along_track_m(pose[:, :2])[row],
         geometry.column("range_m").to_numpy(),
         radius_m=cfg.pool_radius_m,
         window_m=cfg.pool_window_m,

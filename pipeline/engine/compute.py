@@ -1,0 +1,158 @@
+"""Computing one planned stage: bind its inputs, run it, write its outputs.
+
+The runner (`pipeline.engine.runner`) holds the store's lock and staging directory; what
+happens inside that directory is here, so it can run in the runner's process or in a
+worker process (`compute_in_worker`, spawned by `pipeline.engine.workers`) alike. The
+same job gives the same files wherever it runs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel
+
+from pipeline.engine.codecs import read_verified, write_output
+from pipeline.engine.errors import (
+    ConfigError,
+    InternalError,
+    PipelineError,
+    SourceError,
+    StageFailed,
+)
+from pipeline.engine.planned import DatasetSpec, PlannedStage
+from pipeline.engine.store import ArtifactRef
+from stages.base import Input, Output, Stage, StageInputError
+
+__all__ = ["ComputeJob", "compute_in_worker", "job_sections", "not_opened", "run_job"]
+
+_REASON_CHARS = 200
+"""Most characters of a stage's refusal quoted in the error line."""
+
+
+@dataclass(frozen=True)
+class ComputeJob:
+    """Everything a process needs to compute one miss into `tmp` (picklable when the
+    stage's `run`, config model and the dataset opener are module-level)."""
+
+    item: PlannedStage
+    sections: Mapping[str, Any]
+    """The config sections the stage reads: its own, `reads_sections`, the dataset's."""
+    dataset: DatasetSpec
+    refs: Mapping[str, ArtifactRef]
+    outputs_of: Mapping[str, Stage]
+    tmp: Path
+
+
+def job_sections(stage: Stage, config: BaseModel) -> dict[str, Any]:
+    """The sections of `config` a `ComputeJob` of `stage` carries (the whole config is
+    a model built at run time, which a worker process could not unpickle)."""
+    names = [stage.name, *stage.reads_sections]
+    if stage.reads_dataset and stage.dataset_section:
+        names.append(stage.dataset_section)
+    return {name: getattr(config, name) for name in names}
+
+
+def not_opened(path: Path, _section: Any) -> Any:
+    """The opener of a job whose stage does not read the dataset."""
+    raise InternalError(f"{path}: opened by a stage that does not read the dataset")
+
+
+def _output(stage: Stage, producer: Stage, item: Input) -> Output:
+    output = next((o for o in producer.outputs if o.name == item.output), None)
+    if output is None:
+        raise ConfigError(f"stage {stage.name}: {item.stage} has no output '{item.output}'")
+    return output
+
+
+def _bind_inputs(
+    job: ComputeJob, verified: set[tuple[str, str, str]], opened: dict[str, Any]
+) -> dict[str, Any]:
+    """The stage's `run` mapping: each input's value under its `Input.name`, and the
+    sections it reads under "config.<section>". A json output with a `record` type is
+    handed over as that record; a file it refuses is bad input naming that file.
+
+    The dataset is opened by the graph's `open` once per process and config section
+    (`opened`): the stages reading it there (keyframes, submaps) share what it has read."""
+    stage, sections, dataset = job.item.stage, job.sections, job.dataset
+    inputs: dict[str, Any] = {f"config.{s}": sections[s] for s in stage.reads_sections}
+    columns = dict(stage.input_columns)
+    for name in stage.inputs:
+        if name.is_dataset:
+            section = sections[stage.dataset_section or stage.name]
+            once = section.model_dump_json() if isinstance(section, BaseModel) else repr(section)
+            if once not in opened:
+                opened[once] = dataset.open(dataset.path, section)
+            inputs[name.name] = opened[once]
+            continue
+        output = _output(stage, job.outputs_of[name.stage], name)
+        value = read_verified(job.refs[name.stage], output, verified, columns.get(name))
+        if output.record is not None and value is not None:
+            try:
+                value = output.record.from_json(value)
+            except ValueError as err:
+                raise _rejected_input(StageInputError(name, str(err)), job) from err
+        inputs[name.name] = value
+    return inputs
+
+
+def _rejected_input(err: StageInputError, job: ComputeJob) -> SourceError:
+    """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
+    item = err.input
+    where = str(job.dataset.path) if item.is_dataset else item.name
+    if item.stage in job.refs and item.stage in job.outputs_of:
+        producer = job.outputs_of[item.stage]
+        output = next((o for o in producer.outputs if o.name == item.output), None)
+        ref = job.refs[item.stage]
+        filename = output.filename if output is not None else item.output
+        where = f"{ref.stage}/{ref.key}/{filename}"
+    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
+    # characters whatever the stage put in it.
+    reason = (err.reason.splitlines() or [""])[0]
+    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
+    return SourceError(f"{where}: {reason} (input of stage {job.item.stage.name})")
+
+
+def run_job(
+    job: ComputeJob, verified: set[tuple[str, str, str]], opened: dict[str, Any]
+) -> dict[str, Any]:
+    """Bind, run the stage and write its outputs into `job.tmp`; the manifest's extra
+    fields.
+
+    A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
+    any other exception of the stage is a `StageFailed` (exit 1).
+    """
+    stage = job.item.stage
+    inputs = _bind_inputs(job, verified, opened)
+    provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}
+    try:
+        values = stage.run(job.sections[stage.name], inputs)
+        del inputs
+        facts: dict[str, Any] = {}
+        for output in stage.outputs:
+            value = values.get(output.name)
+            if value is None:
+                if not output.optional:
+                    raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
+                continue
+            facts[output.name] = write_output(job.tmp, stage.name, output, value, provenance)
+    except (PipelineError, OSError):
+        raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
+    except StageInputError as err:
+        raise _rejected_input(err, job) from err
+    except Exception as err:
+        raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
+    return {"outputs": facts}
+
+
+def compute_in_worker(job: ComputeJob) -> dict[str, Any]:
+    """`run_job` in a worker process: its own verified files and opened dataset."""
+    from stages.kernels.parallel import release_memory
+
+    try:
+        return run_job(job, set(), {})
+    finally:
+        release_memory()

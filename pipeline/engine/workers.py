@@ -1,0 +1,111 @@
+"""Where the runner's computations run: this process, or spawned worker processes.
+
+With `workers` = 1 every stage computes here, in order, as the serial runner always
+did. With more, each stage that runs at the same time as another gets a slot: one in
+this process (a thread; the stage's numpy, torch and open3d work releases the GIL, and
+the runner's own thread only waits) and `workers - 1` in worker processes, spawned on
+first use (a cached run starts none). A stage whose job cannot be pickled (a stage
+defined in a closure) waits for the slot here.
+
+Processes are spawned, not forked, for the reason `stages.kernels.parallel` gives.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import pickle
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from types import TracebackType
+from typing import Any, TypeVar
+
+from pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
+from pipeline.engine.errors import StageFailed
+from stages.kernels.parallel import available_cores, release_memory
+
+__all__ = ["Slots", "default_workers"]
+
+T = TypeVar("T")
+
+
+def default_workers() -> int:
+    """The cores this process may run on."""
+    return available_cores()
+
+
+class Slots:
+    """Runs the runner's per-stage tasks, at most `workers` at a time."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = max(1, int(workers))
+        self._threads = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
+        self._pool: ProcessPoolExecutor | None = None
+        self._here = threading.Lock()
+        self._pool_lock = threading.Lock()
+        self.verified: set[tuple[str, str, str]] = set()
+        """Files hashed in this process this run (each bound file costs one hash here)."""
+        self.opened: dict[str, Any] = {}
+        """The dataset as opened in this process, per config section."""
+
+    def submit(self, fn: Callable[[], T]) -> Future[T]:
+        """`fn()` as a future: on a thread when several may run, else right here."""
+        if self._threads is not None:
+            return self._threads.submit(fn)
+        done: Future[T] = Future()
+        try:
+            done.set_result(fn())
+        except BaseException as err:
+            done.set_exception(err)
+        return done
+
+    def compute(self, job: ComputeJob) -> dict[str, Any]:
+        """Compute one miss into `job.tmp`: here when the slot here is free (or the job
+        cannot travel), else in a worker process."""
+        here = self._here.acquire(blocking=False)
+        if not here and not _picklable(job):
+            self._here.acquire()
+            here = True
+        if here:
+            try:
+                return run_job(job, self.verified, self.opened)
+            finally:
+                release_memory()
+                self._here.release()
+        try:
+            return self._processes().submit(compute_in_worker, job).result()
+        except BrokenProcessPool as err:
+            raise StageFailed(
+                f"stage {job.item.stage.name} failed: its worker process died ({err})"
+            ) from err
+
+    def _processes(self) -> ProcessPoolExecutor:
+        with self._pool_lock:
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(
+                    self.workers - 1, multiprocessing.get_context("spawn")
+                )
+            return self._pool
+
+    def __enter__(self) -> Slots:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if self._threads is not None:
+            self._threads.shutdown(wait=True)
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _picklable(job: ComputeJob) -> bool:
+    try:
+        pickle.dumps(job)
+    except (pickle.PicklingError, AttributeError, TypeError):
+        return False
+    return True
