@@ -18,10 +18,12 @@ over views and a transfer costs a fraction of a CNN pass
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from stages.kernels.clustering import cluster_features
 from stages.kernels.geometry import fan_to_xy
+from stages.kernels.lazy import lazy
+
+spatial = lazy("scipy.spatial")
 
 __all__ = ["KeyframeObjectPoints", "transfer_objects"]
 
@@ -31,7 +33,9 @@ class KeyframeObjectPoints:
 
     def __init__(self, xy_m: np.ndarray, object_id: np.ndarray) -> None:
         self.object_id = np.asarray(object_id, np.int64)
-        self.tree = cKDTree(np.asarray(xy_m, np.float64).reshape(-1, 2)) if len(xy_m) else None
+        self.tree = (
+            spatial.cKDTree(np.asarray(xy_m, np.float64).reshape(-1, 2)) if len(xy_m) else None
+        )
 
 
 def transfer_objects(
