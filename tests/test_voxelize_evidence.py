@@ -60,7 +60,7 @@ def test_the_config_names_known_classes_and_the_check_can_be_switched_off() -> N
     assert "cylindrical_piling" not in VoxelizeConfig().evidence_classes
     assert VoxelizeConfig(evidence_classes=()).evidence_classes == ()
     # Names are checked against the class table when the config loads.
-    with pytest.raises(ConfigError, match="voxelize.evidence_classes.*pier.*class table"):
+    with pytest.raises(ConfigError, match=r"voxelize\.evidence_classes.*pier.*class table"):
         load_config(all_stages(), None, ["voxelize.evidence_classes=[pier]"], extra_sections())
 
 
