@@ -205,3 +205,17 @@ def test_ply_round_trips_through_open3d_and_output_is_deterministic(scene, tmp_p
         np.testing.assert_allclose(np.asarray(cloud.points), expected, atol=1e-5)
         colours = np.asarray(cloud.colors)
         assert colours.shape == expected.shape and np.ptp(colours, axis=0).max() > 0.3
+
+
+def test_height_colours_are_matplotlib_s_viridis_without_importing_it() -> None:
+    from matplotlib import colormaps
+
+    from stages.kernels.colormaps import VIRIDIS_RGB8
+    from stages.voxelize.stage import height_colours
+
+    cmap = colormaps["viridis"]
+    rgb8 = np.round(np.asarray(cmap(np.arange(cmap.N)))[:, :3] * 255.0).astype(np.uint8)
+    np.testing.assert_array_equal(VIRIDIS_RGB8, rgb8)
+    z = np.linspace(-3.0, 1.0, 1001)
+    by_matplotlib = np.round(np.asarray(cmap((z + 3.0) / 4.0))[:, :3] * 255.0).astype(np.uint8)
+    np.testing.assert_array_equal(height_colours(z), by_matplotlib)

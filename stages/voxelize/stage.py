@@ -46,6 +46,7 @@ from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
 from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.class_models import DEFAULT_FRAME_KINDS
+from stages.kernels.colormaps import VIRIDIS_RGB8
 from stages.kernels.map_codes import class_ids, source_ids
 from stages.kernels.ply import encode_points_ply
 from stages.kernels.poses import pose_matrices
@@ -283,16 +284,12 @@ def voxel_table(map_table: pa.Table, voxel_size_m: float) -> pa.Table:
 
 def height_colours(z_m: np.ndarray, z_range_m: tuple[float, float] | None = None) -> np.ndarray:
     """(n, 3) uint8 viridis colours of heights z [m] over `z_range_m` (default: data range)."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["viridis"]
+    n = len(VIRIDIS_RGB8)
     z = np.asarray(z_m, dtype=np.float64)
     lo, hi = z_range_m if z_range_m is not None else (z.min(initial=0.0), z.max(initial=0.0))
     t = np.clip((z - lo) / (hi - lo), 0.0, 1.0) if hi > lo else np.zeros_like(z)
-    # the colormap's own lookup (index floor(t N), t = 1 -> N - 1), done on its N colours
-    # instead of as an (n, 4) float array per point
-    table = np.round(np.asarray(cmap(np.arange(cmap.N)))[:, :3] * 255.0).astype(np.uint8)
-    return table[np.minimum((t * cmap.N).astype(np.int64), cmap.N - 1)].reshape(-1, 3)
+    # matplotlib's colormap lookup (index floor(t N), t = 1 -> N - 1) on the fixed table
+    return VIRIDIS_RGB8[np.minimum((t * n).astype(np.int64), n - 1)].reshape(-1, 3)
 
 
 def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
