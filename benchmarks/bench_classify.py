@@ -10,9 +10,9 @@ afterwards; its recorded build time is reported either way). Each test mission
 (`scene:seed[:goals]`, the scene's default goals when omitted) is simulated into `--data`
 and run through the pipeline up to `classify` with the default config (keyframes every
 2 m, CFAR features), once with `classify.pool_views` (default) and once without. The
-classify stage is forced, so its time is measured (torch and matplotlib are imported
-beforehand): it covers reading the keyframes, DBSCAN, patches, the CNN, pooling and the
-overlay PNG. Recall is also reported per centroid-range band: a 1 deg beam is 0.35-0.5 m
+classify stage is forced, so its time is measured (torch is imported beforehand): it
+covers reading the keyframes, DBSCAN, patches, the CNN and pooling (the overlay PNG is the
+`figures` stage's since issue 41; the figures below up to then include it). Recall is also reported per centroid-range band: a 1 deg beam is 0.35-0.5 m
 wide at 20-30 m, as wide as a piling.
 
 Measured 2026-11-30 (defaults, 2 shared cores), piling recall / cylindrical / rectangular
@@ -190,10 +190,7 @@ def main() -> None:
     args = ap.parse_args()
     args.data.mkdir(parents=True, exist_ok=True)
 
-    # One-off imports (torch; matplotlib for the overlay, about 1 s) are a per-process
-    # constant, not classify's cost per keyframe.
-    import matplotlib.pyplot  # noqa: F401
-
+    # A one-off import (torch) is a per-process constant, not classify's cost per keyframe.
     import stages.classify.cnn  # noqa: F401
 
     config = load_config(all_stages(), None, (), extra_sections())

@@ -8,7 +8,8 @@ The mission is simulated (default marina, 20 goals, seed 0; keyframes every 2 m 
 of dead reckoning). Horizontal features are the simulator's labelled cells (seafloor
 excluded), as a perfect detector would report them (`tests/test_slam.py`). A second
 mission uses a low-cost navigation (3 % DVL scale error, 3 deg yaw bias). Timing covers
-`STAGE.run` only (all four outputs, the PNG included): the median of `--repeats` runs
+`STAGE.run` only (all four outputs; trajectory.png is the `figures` stage's since issue 41, the
+PNG is in the figures below up to then): the median of `--repeats` runs
 (3) on the first seed, wall and CPU time (`time.process_time`); the final JSON gives each
 figure beside its goal (`*_goal`: issue 22 asks for >= 100 keyframes/s).
 

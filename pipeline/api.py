@@ -9,14 +9,14 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from pipeline.engine.codecs import read_verified
 from pipeline.engine.planned import PlannedStage
 from pipeline.engine.planner import plan
-from pipeline.engine.registry import Graph, default_graph
+from pipeline.engine.registry import Graph, default_graph, without_figures
 from pipeline.engine.runner import RunResult, StageResult, execute
 from pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
 from pipeline.engine.store import ArtifactRef
@@ -46,6 +46,8 @@ class RunRequest:
         until: last stage to run (None: all).
         force: stages to recompute even when cached.
         workers: stages computed side by side (None: the cores; 1: one after another).
+        figures: plan the figure stages too (False: `--no-figures`, the map without its
+            PNGs; `pipeline.engine.registry.without_figures`).
     """
 
     dataset: Path
@@ -55,16 +57,18 @@ class RunRequest:
     until: str | None = None
     force: Sequence[str] = ()
     workers: int | None = None
+    figures: bool = True
 
 
 def _context(request: RunRequest, graph: Graph) -> RunContext:
-    return open_context(
+    ctx = open_context(
         request.dataset,
         graph,
         config_path=request.config_path,
         overrides=request.overrides,
         store_dir=request.store_dir,
     )
+    return ctx if request.figures else replace(ctx, stages=without_figures(ctx.stages))
 
 
 def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:

@@ -53,3 +53,12 @@ def toy_env(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[list[Pa
         d.write_bytes(bytes((j * (i + 1)) % 256 for j in range(512)))
         datasets.append(d)
     yield datasets
+
+
+@pytest.fixture
+def no_matplotlib(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every import of matplotlib fails during the test (as where it is not installed): the
+    map stages compute without it, only the figure stages draw."""
+    for name in [n for n in sys.modules if n == "matplotlib" or n.startswith("matplotlib.")]:
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)

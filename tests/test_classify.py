@@ -123,6 +123,7 @@ def _run(frames: list[KeyframeImages], features: pa.Table, **cfg: object) -> dic
     return dict(STAGE.run(ClassifyConfig(**{"pool_views": False, **cfg}), inputs))
 
 
+@pytest.mark.usefixtures("no_matplotlib")
 def test_objects_link_to_their_features_and_carry_the_majority_truth(
     keyframes: list[KeyframeImages],
 ) -> None:
@@ -160,7 +161,28 @@ def test_objects_link_to_their_features_and_carry_the_majority_truth(
         "rectangular_piling",
         "seafloor",
     }
-    assert out["overlay"][:8] == b"\x89PNG\r\n\x1a\n"
+    assert "overlay" not in out  # the `figures` stage draws it
+
+
+def test_the_overlay_draws_the_busiest_keyframe_the_same_every_time(
+    keyframes: list[KeyframeImages],
+) -> None:
+    from stages.figures.overlay import busiest_keyframe, overlay_png
+
+    objects = _run(keyframes, _features(keyframes), threshold=0.0)["objects"]
+    chosen, rows = busiest_keyframe(objects)
+    kf = objects["keyframe_id"].to_numpy()
+    assert rows.num_rows == np.bincount(kf).max() and set(rows["keyframe_id"].to_pylist()) == {
+        chosen
+    }
+    frame = next(f for f in keyframes if f.keyframe_id == chosen)
+    png = overlay_png(frame, rows)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and overlay_png(frame, rows) == png
+
+
+def test_classify_overlay_is_refused_with_where_it_moved() -> None:
+    with pytest.raises(ValueError, match=r"figures\.overlay"):
+        ClassifyConfig(overlay=False)
 
 
 def test_uncertain_objects_are_unknown(keyframes: list[KeyframeImages]) -> None:
@@ -179,7 +201,6 @@ def test_same_inputs_same_outputs_and_the_seed_changes_the_masks(
     b = _run(keyframes, features)
     c = _run(keyframes, features, seed=1)
     assert a["objects"].equals(b["objects"]) and a["object_features"].equals(b["object_features"])
-    assert a["overlay"] == b["overlay"]
     assert a["objects"]["probability"] != c["objects"]["probability"]
     assert a["objects"]["probability_var"].to_numpy().min() > 0.0
 
@@ -196,7 +217,6 @@ def test_without_labels_truth_is_null_and_without_features_no_objects(
     assert objects.num_rows > 0 and objects["true_class_name"].null_count == objects.num_rows
     empty = _run(keyframes, features.slice(0, 0))
     assert empty["objects"].num_rows == 0 and empty["object_features"].num_rows == 0
-    assert empty["overlay"] is None
 
 
 def test_bad_model_bytes_are_a_value_error(keyframes: list[KeyframeImages]) -> None:

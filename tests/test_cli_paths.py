@@ -195,7 +195,7 @@ def test_status_plans_every_stage_with_the_model(real_run: dict[str, Path]) -> N
     rows = _strict(res.stdout)["stages"]
     assert [r["stage"] for r in rows] == [
         "train", "keyframes", "features", "fuse", "classify",
-        "slam", "infer", "submaps", "voxelize", "evaluate",
+        "slam", "infer", "submaps", "voxelize", "evaluate", "figures", "map_figures",
     ]  # fmt: skip
     assert {r["status"] for r in rows} == {"hit"}, rows
     # Changing a stage past the model's readers misses from there on, with the model kept.
@@ -268,3 +268,34 @@ def test_status_without_a_plannable_model_lists_every_stage(real_run: dict[str, 
     rows = {r["stage"]: r for r in _strict(res.stdout)["stages"]}
     assert rows["train"]["status"] == "miss" and rows["keyframes"]["status"] == "hit"
     assert rows["evaluate"]["status"] == "miss" and "model" in rows["evaluate"]["reason"]
+
+
+def test_no_figures_leaves_the_figure_stages_out_and_the_map_needs_no_matplotlib(
+    real_run: dict[str, Path],
+) -> None:
+    recording, store = str(real_run["recording"]), str(real_run["store"])
+    res = CliRunner().invoke(app, ["status", recording, "--store", store, "--json", "--no-figures"])
+    assert res.exit_code == 0, res.output
+    planned = [r["stage"] for r in _strict(res.stdout)["stages"]]
+    assert planned[-1] == "evaluate" and not {"figures", "map_figures"} & set(planned)
+    # The stages that drew figures before, recomputed where matplotlib cannot be imported.
+    code = "import sys; sys.modules['matplotlib'] = None; from pipeline.cli import main; main()"
+    recomputed = ("classify", "slam", "voxelize", "evaluate")
+    forced = [arg for stage in recomputed for arg in ("--force", stage)]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    args = [recording, "--store", store, "--json", "--workers", "1", "--no-figures", *forced]
+    done = subprocess.run(
+        [sys.executable, "-c", code, "run", *args],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    status = {s["stage"]: s["status"] for s in _strict(done.stdout)["stages"]}
+    assert list(status)[-1] == "evaluate" and status["evaluate"] == "computed"
+    # With figures (the default), the same map keys: only the figures' artifacts are read.
+    res = CliRunner().invoke(app, ["run", recording, "--store", store, "--json"])
+    assert res.exit_code == 0, res.output
+    stages = {s["stage"]: s for s in _strict(res.stdout)["stages"]}
+    assert {s["status"] for s in stages.values()} == {"hit"}
+    pngs = {p.name for s in ("figures", "map_figures") for p in Path(stages[s]["path"]).iterdir()}
+    assert {"overlay.png", "trajectory.png", "errors.png", "map_topdown.png"} <= pngs
+    assert not any(p.suffix == ".png" for p in Path(stages["evaluate"]["path"]).iterdir())

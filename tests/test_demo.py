@@ -48,6 +48,8 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
         "submaps",
         "voxelize",
         "evaluate",
+        "figures",
+        "map_figures",
     ]
     summary = doc["summary"]
     # The counts in summary.json match an independent count from map.parquet.
@@ -65,7 +67,11 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
     report = Path(summary["report"])
     assert report.is_file() and report.stat().st_size > 200
     assert "## Stages" in report.read_text() and "| evaluate |" in report.read_text()
-    assert any(p.suffix == ".png" and p.stat().st_size > 1000 for p in report.parent.iterdir())
+    pngs = {
+        p.name for p in report.parent.iterdir() if p.suffix == ".png" and p.stat().st_size > 1000
+    }
+    figures = {"overlay.png", "trajectory.png", "errors.png", "map_topdown.png", "side_view.png"}
+    assert pngs == figures and all(f"]({name})" in report.read_text() for name in figures)
     # Everything cached: nothing is computed the second time.
     t0 = time.perf_counter()
     second = runner.invoke(app, args)

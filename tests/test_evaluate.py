@@ -12,6 +12,7 @@ import pyarrow as pa
 import pytest
 
 from schemas.classes import CLASS_IDS
+from schemas.figures import SIDE_VIEW_SCHEMA
 from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
 from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
 from schemas.submaps import KEYFRAME_FRAME_ID
@@ -27,6 +28,7 @@ from stages.kernels.mesh_metrics import (
     visible_mask,
 )
 from stages.kernels.ply import decode_mesh_ply
+from stages.map_figures.plots import side_panels_from_table
 
 SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -214,38 +216,68 @@ def test_ate_is_zero_after_a_rigid_motion_and_the_rms_of_what_is_left() -> None:
     )
 
 
-def test_report_and_figures_are_written_with_ground_truth() -> None:
+def _figures(inputs: dict, out: dict) -> dict:
+    """The `map_figures` stage on evaluate's inputs and outputs."""
+    from stages.map_figures import STAGE as MAP_FIGURES
+    from stages.map_figures.stage import MapFiguresConfig
+
+    ins = {i.name: inputs.get(i.name) for i in MAP_FIGURES.inputs if i.stage != "evaluate"}
+    ins |= {"evaluate.errors": out["errors"], "evaluate.side_view": out["side_view"]}
+    return dict(MAP_FIGURES.run(MapFiguresConfig(), ins))
+
+
+@pytest.mark.usefixtures("no_matplotlib")
+def test_report_and_figure_data_are_written_with_ground_truth_without_matplotlib() -> None:
     centroid, normal = square_piling_faces()
     xyz = np.r_[centroid, centroid + 0.05 * normal]
     source = np.array(["fused"] * len(centroid) + ["inferred"] * len(centroid))
     out = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
-    for name in ("plot_errors", "plot_map_topdown", "plot_side_view"):
-        assert out[name][:8] == PNG_SIGNATURE and len(out[name]) > 5000
+    assert not any(name.endswith("png") for name in out)
+    side = out["side_view"]
+    assert side.schema.equals(SIDE_VIEW_SCHEMA) and side.num_rows > 0
+    assert set(side.column("kind").to_pylist()) == {"fused", "inferred", "truth"}
     report = out["report"].decode()
     assert "tiny-test" in report and "| standard | 10 | 100 |" in report
-    assert "side_view.png" in report and "## Skipped" not in report
+    assert ".png" not in report and "## Skipped" not in report
     traj = out["metrics"]["trajectory"]
     assert traj["slam_ate_m"] == pytest.approx(0.0, abs=1e-9)
     assert out["metrics"]["skipped"] == []
     json.dumps(out["metrics"], allow_nan=False)  # what the engine writes
     again = STAGE.run(EvaluateConfig(), stage_inputs(map_table(xyz, source), True))
-    assert again["report"] == out["report"] and again["plot_errors"] == out["plot_errors"]
+    assert again["report"] == out["report"] and again["side_view"].equals(side)
+
+
+def test_map_figures_draw_evaluate_s_data() -> None:
+    centroid, normal = square_piling_faces()
+    xyz = np.r_[centroid, centroid + 0.05 * normal]
+    source = np.array(["fused"] * len(centroid) + ["inferred"] * len(centroid))
+    inputs = stage_inputs(map_table(xyz, source), True)
+    out = STAGE.run(EvaluateConfig(), inputs)
+    figures = _figures(inputs, out)
+    for name in ("errors", "map_topdown", "side_view"):
+        assert figures[name][:8] == PNG_SIGNATURE and len(figures[name]) > 5000
+    assert _figures(inputs, out) == figures  # the same data, the same bytes
+    # The side view draws every point evaluate chose, by kind (of the piling's 10 + 10
+    # points here, those within its radius + 0.3 m).
+    (panel,) = side_panels_from_table(out["side_view"])
+    assert (len(panel.fused_hz_m), len(panel.inferred_hz_m)) == (8, 8)
+    assert len(panel.truth_hz_m) > 100 and panel.title.startswith("object ")
 
 
 def test_without_ground_truth_counts_and_topdown_remain_and_skips_are_listed() -> None:
     centroid, _ = square_piling_faces()
-    out = STAGE.run(
-        EvaluateConfig(),
-        stage_inputs(map_table(centroid, np.array(["fused"] * len(centroid))), False),
-    )
+    inputs = stage_inputs(map_table(centroid, np.array(["fused"] * len(centroid))), False)
+    out = STAGE.run(EvaluateConfig(), inputs)
     m = out["metrics"]
     assert m["has_ground_truth"] is False and m["voxels"] == {"standard": 100, "semantic": 250}
     assert m["errors"] == {} and m["trajectory"] == {}
     skipped = " ".join(m["skipped"])
     for what in ("map errors", "completeness", "precision", "trajectory"):
         assert what in skipped
-    assert out["errors"] is None and out["plot_errors"] is None and out["plot_side_view"] is None
-    assert out["plot_map_topdown"][:8] == PNG_SIGNATURE
+    assert out["errors"] is None and out["side_view"] is None
+    figures = _figures(inputs, out)
+    assert figures["errors"] is None and figures["side_view"] is None
+    assert figures["map_topdown"][:8] == PNG_SIGNATURE
     assert "## Skipped" in out["report"].decode()
     json.dumps(m, allow_nan=False)
 

@@ -19,6 +19,7 @@ from scipy.stats import spearmanr
 
 from schemas.classes import CLASS_IDS
 from schemas.features import FEATURES_SCHEMA
+from schemas.figures import PLOT_POINTS_SCHEMA
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
 from stages.features.stage import FeaturesConfig
@@ -156,8 +157,9 @@ def test_slam_halves_dead_reckoning_error_on_simulated_pier(fixture, request) ->
     assert again["poses"].equals(out["poses"]) and again["trajectory"] == out["trajectory"]
 
 
+@pytest.mark.usefixtures("no_matplotlib")
 def test_outputs_follow_their_contracts(pier_inputs) -> None:
-    out = STAGE.run(SlamConfig(mode="dead_reckoning"), pier_inputs)
+    out = STAGE.run(SlamConfig(mode="dead_reckoning", plot_max_points=500), pier_inputs)
     kf = pier_inputs["keyframes.keyframes"]
     assert out["poses"].schema.equals(POSES_SCHEMA)
     assert out["factors"].schema.equals(FACTORS_SCHEMA)
@@ -176,25 +178,27 @@ def test_outputs_follow_their_contracts(pier_inputs) -> None:
     assert first.shape == (8,) and abs(np.linalg.norm(first[4:]) - 1.0) < 1e-5
     t0 = kf.column("t_ns")[0].as_py()
     assert lines[0].split()[0] == f"{t0 // 10**9}.{t0 % 10**9:09d}"
-    assert out["plot"][:8] == b"\x89PNG\r\n\x1a\n"
-    from PIL import Image
-
-    assert Image.open(io.BytesIO(out["plot"])).size[0] > 300
+    cloud = out["plot_points"]  # what trajectory.png draws, thinned to about 500
+    assert cloud.schema.equals(PLOT_POINTS_SCHEMA) and 500 <= cloud.num_rows < 1000
 
 
 def test_trajectory_plot_adds_an_error_panel_only_with_ground_truth() -> None:
     from PIL import Image
 
-    from stages.slam.outputs import plot_png
+    from stages.figures.trajectory import trajectory_png
+    from stages.slam.outputs import plot_points
 
     t = np.linspace(0.0, 2 * np.pi, 40)
     truth = np.column_stack([10 * np.cos(t), 10 * np.sin(t), t + np.pi / 2])
     dr = truth + np.array([0.5, -0.3, 0.02])  # an offset start: the plot aligns it away
     points = [np.array([[2.0, 0.0], [2.0, 1.0]])] * len(t)
+    table = plot_points(truth, points, 1000)
+    cloud = np.column_stack([table.column("x_m").to_numpy(), table.column("y_m").to_numpy()])
+    assert len(cloud) == 80
     loops = np.array([[0, 39]])
     sizes = {}
     for name, gt in (("truth", truth), ("none", None)):
-        png = plot_png(truth, dr, gt, points, loops, 1000, "test")
+        png = trajectory_png(truth, dr, gt, cloud, loops, "test")
         sizes[name] = Image.open(io.BytesIO(png)).size
     assert sizes["none"][0] == sizes["none"][1]  # the map alone
     assert sizes["truth"][1] > 1.2 * sizes["truth"][0]  # map over the error panel

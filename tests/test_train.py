@@ -182,7 +182,7 @@ def test_classifier_is_accurate_on_an_unseen_scene_and_seed(
     one, so recall is asserted for its argmax and at a lower acceptance threshold; the
     default model's figures at 0.99 come from benchmarks/bench_classify.py."""
     inputs = {**unseen_pier, "train.model": trained["model"]}
-    objects = CLASSIFY.run(ClassifyConfig(overlay=False, pool_views=False), inputs)["objects"]
+    objects = CLASSIFY.run(ClassifyConfig(pool_views=False), inputs)["objects"]
     pred = np.asarray(objects["class_name"].to_pylist())
     argmax = np.asarray(objects["argmax_class_name"].to_pylist())
     truth = np.asarray(objects["true_class_name"].to_pylist())
@@ -220,7 +220,7 @@ def test_pooling_views_raises_recall_without_losing_precision(
     0.8-0.95 (at 0.99 it accepts 4 %), so it is tested at 0.8; the default model at 0.99 on
     full missions is in benchmarks/bench_classify.py."""
     inputs = {**unseen_pier, "train.model": trained["model"]}
-    cfg = ClassifyConfig(overlay=False, threshold=0.8)
+    cfg = ClassifyConfig(threshold=0.8)
     single = CLASSIFY.run(cfg.model_copy(update={"pool_views": False}), inputs)["objects"]
     pooled = CLASSIFY.run(cfg, inputs)["objects"]
     truth = np.asarray(pooled["true_class_name"].to_pylist())

@@ -14,6 +14,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CONFIG_OPT",
     "JSON_OPT",
+    "NO_FIGURES_OPT",
     "SET_OPT",
     "STORE_OPT",
     "WORKERS_OPT",
@@ -42,6 +43,12 @@ WORKERS_OPT = typer.Option(
     "1: one after another). The artifacts are the same either way.",
 )
 JSON_OPT = typer.Option(False, "--json", help="Print exactly one JSON document on stdout.")
+NO_FIGURES_OPT = typer.Option(
+    False,
+    "--no-figures",
+    help="Skip the figure stages (overlay.png, trajectory.png, errors.png, map_topdown.png,"
+    " side_view.png): the map, metrics and report only.",
+)
 
 
 def emit_json(doc: Any) -> None:

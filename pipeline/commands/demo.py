@@ -12,6 +12,7 @@ import typer
 from pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
+    NO_FIGURES_OPT,
     SET_OPT,
     STORE_OPT,
     WORKERS_OPT,
@@ -39,6 +40,37 @@ def _stage_section(result: Any) -> str:
         built = result.artifacts[r.stage].manifest.get("build_seconds")
         lines.append(f"| {r.stage} | `{r.key[:16]}` | {r.status} | {built} |")
     return "\n".join(lines) + "\n"
+
+
+def _figures_section(names: Sequence[str], skipped: bool) -> str:
+    """Markdown of the figures copied beside the report (the figure stages' PNGs)."""
+    if skipped:
+        return "\n## Figures\n\nNot drawn (`--no-figures`).\n"
+    if not names:
+        return ""
+    links = [f"![{n.rsplit('.', 1)[0]}]({n})" for n in names]
+    return "\n".join(["", "## Figures", "", *links, ""])
+
+
+def _write_report(report_dir: Path, result: Any, no_figures: bool) -> Path:
+    """report/: evaluate's files and the figure stages' PNGs, the report with its figures
+    and the run's stages appended (evaluate's report cannot know either)."""
+    import shutil
+
+    from pipeline.engine.registry import FIGURE_STAGES
+
+    shutil.rmtree(report_dir, ignore_errors=True)
+    report_dir.mkdir(parents=True)
+    figures: list[str] = []
+    for stage in ("evaluate", *FIGURE_STAGES):
+        ref = result.artifacts.get(stage)
+        for name in () if ref is None else ref.manifest.get("files", {}):
+            shutil.copyfile(ref.file(name), report_dir / Path(name).name)
+            figures += [Path(name).name] if stage in FIGURE_STAGES else []
+    with (report_dir / "report.md").open("a") as report:
+        report.write(_figures_section(figures, no_figures))
+        report.write(_stage_section(result))
+    return report_dir / "report.md"
 
 
 def _training_simulations(config: Path | None, overrides: Sequence[str], store: Path) -> list[Any]:
@@ -69,11 +101,10 @@ def demo(
     set_: list[str] | None = SET_OPT,
     store: Path = STORE_OPT,
     workers: int | None = WORKERS_OPT,
+    no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
     """The whole pipeline on a simulated marina, ending with the coverage table and report."""
-    import shutil
-
     from pipeline.api import RunRequest, run_dataset
     from pipeline.commands._common import stderr_console
     from pipeline.commands._errors import writes_under
@@ -97,6 +128,7 @@ def demo(
                     overrides=set_ or (),
                     store_dir=store,
                     workers=workers,
+                    figures=not no_figures,
                 ),
                 cli_graph(ctx),
                 on_start=progress.on_start,
@@ -104,14 +136,7 @@ def demo(
             )
         evaluate = result.artifacts.get("evaluate")
         if evaluate is not None:
-            report_dir = out / "report"
-            shutil.rmtree(report_dir, ignore_errors=True)
-            report_dir.mkdir(parents=True)
-            for name in evaluate.manifest.get("files", {}):
-                shutil.copyfile(evaluate.file(name), report_dir / Path(name).name)
-            with (report_dir / "report.md").open("a") as report:
-                report.write(_stage_section(result))
-            summary["report"] = str(report_dir / "report.md")
+            summary["report"] = str(_write_report(out / "report", result, no_figures))
         if json_:
             emit_json({**result.to_json(), "summary": summary})
             return

@@ -10,6 +10,7 @@ import typer
 from pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
+    NO_FIGURES_OPT,
     SET_OPT,
     STORE_OPT,
     WORKERS_OPT,
@@ -29,6 +30,7 @@ def run(
     force: list[str] | None = typer.Option(None, "--force", help="Recompute this stage."),
     store: Path = STORE_OPT,
     workers: int | None = WORKERS_OPT,
+    no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
     live: bool = typer.Option(
@@ -52,6 +54,7 @@ def run(
                 until=until,
                 force=force or (),
                 workers=workers,
+                figures=not no_figures,
             )
             result, summary = run_dataset(
                 request,

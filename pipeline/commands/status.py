@@ -6,7 +6,15 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, SET_OPT, STORE_OPT, cli_graph, emit_json
+from pipeline.commands._common import (
+    CONFIG_OPT,
+    JSON_OPT,
+    NO_FIGURES_OPT,
+    SET_OPT,
+    STORE_OPT,
+    cli_graph,
+    emit_json,
+)
 
 __all__ = ["register", "status"]
 
@@ -18,13 +26,19 @@ def status(
     set_: list[str] | None = SET_OPT,
     until: str | None = typer.Option(None, "--until", help="Plan up to this stage."),
     store: Path = STORE_OPT,
+    no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
     """Show, without computing anything, which stages hit the cache and why others miss."""
     from pipeline.api import RunRequest, plan_status
 
     request = RunRequest(
-        dataset, config_path=config, overrides=set_ or (), store_dir=store, until=until
+        dataset,
+        config_path=config,
+        overrides=set_ or (),
+        store_dir=store,
+        until=until,
+        figures=not no_figures,
     )
     context, planned, model, unplanned = plan_status(request, cli_graph(ctx))
     rows = []

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, STORE_OPT, cli_graph, emit_json
+from pipeline.commands._common import JSON_OPT, NO_FIGURES_OPT, STORE_OPT, cli_graph, emit_json
 from pipeline.experiments.study import table_i
 from pipeline.experiments.study_tables import PAPER_TABLE_I
 
@@ -68,6 +68,7 @@ def study(
     address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
     out: Path = typer.Option(Path("data/study"), "--out", help="Datasets and results folder."),
     store: Path = STORE_OPT,
+    no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
     """Simulate N trials and map each, with true poses, at every spacing under every
@@ -116,6 +117,7 @@ def study(
                 config_path=Path(p["config"]) if p["config"] else None,
                 store=store,
                 protocol=p["name"],
+                figures=not no_figures,
             )
         ]
         console.print(

@@ -7,7 +7,14 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, JSON_OPT, STORE_OPT, cli_graph, emit_json
+from pipeline.commands._common import (
+    CONFIG_OPT,
+    JSON_OPT,
+    NO_FIGURES_OPT,
+    STORE_OPT,
+    cli_graph,
+    emit_json,
+)
 
 __all__ = ["register", "sweep"]
 
@@ -32,6 +39,7 @@ def sweep(
         None, "--out", help="Results folder (default data/sweeps/<id>)."
     ),
     store: Path = STORE_OPT,
+    no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
     """Run the cross product of DATASETS and --set values; write a mean/std table and plot.
@@ -48,7 +56,12 @@ def sweep(
     from pipeline.experiments.sweep_output import write_sweep
 
     specs = expand(
-        datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
+        datasets,
+        set_ or (),
+        base_overrides=fixed or (),
+        config_path=config,
+        store=store,
+        figures=not no_figures,
     )
     # Every dataset and every point's config before the first run: a missing file or
     # a bad value fails now, not hours in.

@@ -19,6 +19,7 @@ from pipeline.engine.errors import ConfigError
 from stages.base import Stage
 
 __all__ = [
+    "FIGURE_STAGES",
     "GRAPH_ENV",
     "Graph",
     "all_stages",
@@ -28,7 +29,12 @@ __all__ = [
     "pipeline_stages",
     "stage_by_name",
     "training_stage",
+    "without_figures",
 ]
+
+FIGURE_STAGES: tuple[str, ...] = ("figures", "map_figures")
+"""The real pipeline's figure stages (`stages.figures`, `stages.map_figures`): nothing reads their outputs,
+so `run --no-figures` simply plans without them (`without_figures`)."""
 
 GRAPH_ENV = "SONARMAP_GRAPH"
 """`module:attribute` of an alternative graph (a `Graph`, or any object with `.stages`,
@@ -70,7 +76,8 @@ class Graph:
 
 
 def default_graph() -> Graph:
-    """The real pipeline: keyframes to evaluate, recordings read by `pipeline.readers`."""
+    """The real pipeline: keyframes to evaluate, then the figures (`FIGURE_STAGES`);
+    recordings read by `pipeline.readers`."""
     from pipeline.readers import dataset_fingerprint_parts, open_recording
     from pipeline.training.config import TrainingDataConfig
     from schemas.classes import ClassTable
@@ -78,20 +85,36 @@ def default_graph() -> Graph:
     from stages.classify.train import STAGE as train
     from stages.evaluate.stage import STAGE as evaluate
     from stages.features.stage import STAGE as features
+    from stages.figures import STAGE as figures
     from stages.fuse.stage import STAGE as fuse
     from stages.infer.stage import STAGE as infer
     from stages.keyframes import STAGE as keyframes
+    from stages.map_figures import STAGE as map_figures
     from stages.slam.stage import STAGE as slam
     from stages.submaps import STAGE as submaps
     from stages.voxelize import STAGE as voxelize
 
+    mapping = (keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate)
     return Graph(
-        stages=(keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate),
+        stages=(*mapping, figures, map_figures),
         parts=dataset_fingerprint_parts,
         open=open_recording,
         training=train,
         extra_sections={"training": TrainingDataConfig, "classes": ClassTable},
     )
+
+
+def without_figures(stages: Sequence[Stage]) -> tuple[Stage, ...]:
+    """`stages` less the figure stages (`FIGURE_STAGES`; a stage reading one of them stays
+    out too, so the plan never lacks a producer)."""
+    dropped = set(FIGURE_STAGES)
+    kept = []
+    for stage in stages:
+        if stage.name in dropped or dropped & set(stage.upstream):
+            dropped.add(stage.name)
+        else:
+            kept.append(stage)
+    return tuple(kept)
 
 
 def load_graph(spec: str | None) -> Graph:

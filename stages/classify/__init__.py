@@ -2,7 +2,6 @@
 
 Modules:
     stage: the `classify` stage.
-    overlay: the stage's figure, objects over the horizontal image.
     segmentation: DBSCAN clusters of a keyframe's features and the authors' cluster rules.
     objects: the objects of a keyframe and their CNN patches.
     cnn: the object classifier network.
@@ -12,7 +11,6 @@ Modules:
     annotations: labels of simulated keyframes from the true scene.
 """
 
-from stages.classify.overlay import overlay_png
 from stages.classify.stage import STAGE, ClassifyConfig, classify_keyframes
 from stages.classify.train import STAGE as TRAIN_STAGE
 from stages.classify.train import TrainConfig, train_classifier
@@ -23,6 +21,5 @@ __all__ = [
     "ClassifyConfig",
     "TrainConfig",
     "classify_keyframes",
-    "overlay_png",
     "train_classifier",
 ]

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.model_settings import ModelSettings
@@ -42,7 +42,6 @@ from stages.base import Input, Output, Stage, StageInputError
 from stages.classify.class_columns import class_columns, truth_columns
 from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
-from stages.classify.overlay import busiest_keyframe, overlay_png
 from stages.kernels.clustering import clustering
 from stages.kernels.lazy import lazy
 
@@ -142,7 +141,16 @@ class ClassifyConfig(ModelChoice):
         le=10000,
         description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
     )
-    overlay: bool = Field(True, description="render overlay.png of the busiest keyframe")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _overlay_moved(cls, data: Any) -> Any:
+        if isinstance(data, dict) and "overlay" in data:
+            raise ValueError(
+                "classify.overlay moved to figures.overlay (the `figures` stage draws"
+                " overlay.png; `run --no-figures` skips every figure)"
+            )
+        return data
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -214,7 +222,7 @@ def classify_keyframes(
     keyframes: pa.Table | None = None,
     T_base_sonar: np.ndarray | None = None,
     table: ClassTable = DEFAULT_TABLE,
-) -> tuple[pa.Table, pa.Table, tuple[KeyframeImages, pa.Table] | None]:
+) -> tuple[pa.Table, pa.Table]:
     """Objects and classes of every keyframe.
 
     Args:
@@ -229,8 +237,7 @@ def classify_keyframes(
             classes and names of label-image ids.
 
     Returns:
-        (objects table, object_features table, (busiest keyframe, its objects) or None);
-        the busiest keyframe has the most accepted objects.
+        (objects table, object_features table).
     """
     if cfg.pool_views and (keyframes is None or T_base_sonar is None):
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
@@ -240,14 +247,12 @@ def classify_keyframes(
     class_ids = np.array([table.ids[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
-    position: dict[int, int] = {}
     truths: list[np.ndarray] = [np.zeros(0, np.int64)]
     patches: list[np.ndarray] = []  # every keyframe's, for one batched MC-dropout pass
     seeds: list[int] = []
     oracle = cfg.labels == "ground_truth"
     next_id = 0
-    for i, frame in enumerate(frames):
-        position[frame.keyframe_id] = i
+    for frame in frames:
         f = by_kf.get(frame.keyframe_id) or _empty_features()
         objs = extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
@@ -284,7 +289,7 @@ def classify_keyframes(
         )
         next_id += objs.count
     if not geo_parts or next_id == 0:
-        return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), None
+        return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table()
     geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
     if oracle:
         classes = truth_columns(np.concatenate(truths), class_names, table)
@@ -305,10 +310,7 @@ def classify_keyframes(
     )
     links = pa.concat_tables(link_parts)
     log.info("classified %d objects in %d keyframes", objects.num_rows, len(geo_parts))
-    if not cfg.overlay:
-        return objects, links, None
-    chosen, rows = busiest_keyframe(objects)
-    return objects, links, (frames[position[chosen]], rows)
+    return objects, links
 
 
 def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
@@ -333,19 +335,19 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         table.check(names, "train.model: the classifier's classes", unknown_ok=False)
     except ValueError as err:
         raise StageInputError(Input("train", "model"), str(err)) from err
-    objects, links, busiest = classify_keyframes(
+    objects, links = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount, table,
     )  # fmt: skip
-    overlay = overlay_png(*busiest, table) if busiest is not None else None
-    return {"objects": objects, "object_features": links, "overlay": overlay, "clustering": params}
+    return {"objects": objects, "object_features": links, "clustering": params}
 
 
 STAGE = Stage(
     name="classify",
     # 5: output `clustering` (what submaps clusters its frames with)
     # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
-    version=6,
+    # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
+    version=7,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),
@@ -359,7 +361,6 @@ STAGE = Stage(
         Output(
             "object_features", "parquet", "object_features.parquet", schema=OBJECT_FEATURES_SCHEMA
         ),
-        Output("overlay", "bytes", "overlay.png", optional=True),
         Output("clustering", "json", "clustering.json"),
     ),
     run=_run,

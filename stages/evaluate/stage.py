@@ -1,4 +1,4 @@
-"""Stage `evaluate`: map and trajectory quality against ground truth, figures and the
+"""Stage `evaluate`: map and trajectory quality against ground truth and the
 report (paper Sec. V: absolute error per map as in Fig. 4, voxel counts as in Table I).
 
 With a ground-truth mesh (`keyframes.scene_mesh`, the simulator's PLY attachment):
@@ -7,8 +7,9 @@ absolute error of every map point (distance to the mesh), its statistics per map
 within `tolerance_m` (definitions and the visible-surface choice:
 `stages.kernels.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
 poses in `keyframes.keyframes`: ATE of the SLAM and dead-reckoning trajectories after
-SE(2) alignment. Without them, the counts and the top-down map are still reported and
-`metrics["skipped"]` says what was left out and why.
+SE(2) alignment. Without them, the counts are still reported and `metrics["skipped"]`
+says what was left out and why. The figures are the `map_figures` stage's
+(`stages.map_figures`); the side view's data (`side_view.parquet`) is computed here.
 
 `map.mcap`: all of it for Foxglove (`stages.evaluate.foxglove_scene`).
 """
@@ -24,19 +25,14 @@ import pyarrow as pa
 from pydantic import Field, field_validator
 
 from schemas.classes import DEFAULT_TABLE, PILING_CLASSES, ClassTable, known_class_names
+from schemas.figures import SIDE_VIEW_SCHEMA
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from schemas.sensors import Sensors
 from stages.base import Input, Output, Stage, StageConfig
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
 from stages.evaluate.foxglove_map import evaluate_map_mcap
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth, visibility_poses
-from stages.evaluate.report import (
-    error_boxplot_png,
-    render_markdown,
-    side_view_png,
-    topdown_png,
-    truth_xy_m,
-)
+from stages.evaluate.report import render_markdown
 from stages.evaluate.side_panels import side_panels
 from stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
 from stages.evaluate.trust import trust_report
@@ -57,13 +53,6 @@ from stages.kernels.voxels import map_xyz
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 
 logger = logging.getLogger(__name__)
-
-FIGURES: dict[str, str] = {
-    "plot_errors": "errors.png",
-    "plot_map_topdown": "map_topdown.png",
-    "plot_side_view": "side_view.png",
-}
-"""Output name -> file name of each figure."""
 
 
 class EvaluateConfig(StageConfig):
@@ -261,7 +250,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "skipped": [],
         "inference": inputs.get("infer.stats") or {},
     }
-    outputs: dict[str, Any] = {"errors": None, **{k: None for k in FIGURES}}
+    outputs: dict[str, Any] = {"errors": None, "side_view": None}
     mesh = decode_mesh_ply(mesh_bytes) if mesh_bytes is not None else None
     judged: JudgedMap | None = None
     voxel_size = float(summary.get("voxel_size_m") or 0.1)
@@ -315,36 +304,18 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan}), table
         )
         outputs["errors"] = errors
-        err = errors.column("error_m").to_numpy()
-        source = np.asarray(errors.column("source").to_pylist(), dtype=object)
-        outputs["plot_errors"] = error_boxplot_png(
-            {
-                "standard": err[source == "fused"],
-                "semantic": err,
-                "inferred only": err[source == "inferred"],
-            }
-        )
-        panels = side_panels(map_table, mesh, samples, config.side_view_pilings)
-        if panels:
-            outputs["plot_side_view"] = side_view_png(panels)
-        else:
+        outputs["side_view"] = side_panels(map_table, mesh, samples, config.side_view_pilings)
+        if outputs["side_view"] is None:
             metrics["skipped"].append("side view: no map points near a piling of the mesh")
     if has_submap_rows(map_table):
         stats = inputs.get("submaps.stats") or {}
         metrics["submaps"] = submap_comparison(map_table, voxel_size, stats.get("stride"), judged)
-    truth_xy = None if mesh is None else truth_xy_m(mesh)
-    outputs["plot_map_topdown"] = topdown_png(
-        {name: map_xyz(map_table, name) for name in MAP_NAMES},
-        truth_xy,
-        np.stack([poses.column("x_m").to_numpy(), poses.column("y_m").to_numpy()], axis=1),
-    )
-    figures = [FIGURES[k] for k in FIGURES if outputs[k] is not None]
     dataset = str(sensors.source.get("name", "unknown"))
     metrics["trust"] = trust_report(
         map_table, keyframes, poses, inputs.get("slam.factors"),
         config.trust_cell_m, config.trust_height_tolerance_m,
     )  # fmt: skip
-    outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows, figures)
+    outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows)
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
     return outputs
@@ -354,7 +325,9 @@ STAGE = Stage(
     name="evaluate",
     # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
     # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
-    version=9,
+    # 10: the figures move to the `map_figures` stage; side_view.parquet is the side view's
+    # data, the report lists no figures
+    version=10,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(
@@ -374,9 +347,9 @@ STAGE = Stage(
         Output("metrics", "json", "metrics.json"),
         Output("errors", "parquet", "errors.parquet", optional=True, schema=ERRORS_SCHEMA),
         Output("report", "bytes", "report.md"),
-        *(Output(k, "bytes", f, optional=True) for k, f in FIGURES.items()),
+        Output("side_view", "parquet", "side_view.parquet", optional=True, schema=SIDE_VIEW_SCHEMA),
         Output("map_mcap", "bytes", "map.mcap"),
     ),
     run=_run,
-    description="map error to the ground-truth mesh, completeness, ATE, figures and report",
+    description="map error to the ground-truth mesh, completeness, ATE and the report",
 )

@@ -219,7 +219,9 @@ class SlamConfig(StageConfig):
     pcm_queue_keyframes: int = Field(5, ge=0, le=100000)
     pcm_min_clique: int = Field(2, ge=1, le=10000)
     pcm_chi2_threshold: float = Field(CHI2_99_3DOF, gt=0, le=1000000, description="chi2(0.99, 3)")
-    plot_max_points: int = Field(30000, ge=0, le=100000000)
+    plot_max_points: int = Field(
+        30000, ge=0, le=100000000, description="features kept in plot_points.parquet (drawn)"
+    )
 
 
 LEGACY_FAN_DEG = 130.0

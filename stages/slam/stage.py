@@ -25,9 +25,9 @@ a loop's covariance there also grows with its baseline, as its measured error do
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
-Outputs: poses, factors (parquet), trajectory (TUM text), plot (PNG; with ground truth the
-tracks are drawn aligned to it, with their ATE and a panel of the error per keyframe:
-version 9); see `schemas.slam`.
+Outputs: poses, factors (parquet), trajectory (TUM text), plot points (the features
+registered with the estimate, thinned: what `trajectory.png` of the `figures` stage draws;
+version 10); see `schemas.slam` and `schemas.figures`.
 
 The front end is `stages.slam.frontend`, the config `stages.slam.config`, the keyframe
 point clouds `stages.slam.points`, the output files `stages.slam.outputs`.
@@ -42,12 +42,13 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from schemas.figures import PLOT_POINTS_SCHEMA
 from schemas.sensors import Sensors
 from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
 from stages.base import Input, Output, Stage, StageInputError
 from stages.slam.config import SlamConfig, with_sensor_fan
 from stages.slam.frontend import SlamResult, run_slam
-from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
+from stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
 from stages.slam.points import keyframe_points, leading_edges
 from stages.slam.pose_graph import wrap_angle
 
@@ -76,7 +77,7 @@ def _pose_columns(keyframes: pa.Table, prefix: str) -> np.ndarray:
 
 
 def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage entry point: keyframes, sensors, features -> poses, factors, trajectory, plot."""
+    """Stage entry point: keyframes, sensors, features -> poses, factors, trajectory, plot points."""
     config = with_sensor_fan(config, inputs["keyframes.sensors"])  # the fan from one place
     keyframes: pa.Table = inputs["keyframes.keyframes"]
     if keyframes.num_rows == 0:
@@ -121,21 +122,14 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "poses": poses_table(ids, t_ns, pose6, cov),
         "factors": factors_table(rows, ids),
         "trajectory": tum_text(t_ns, pose6),
-        "plot": plot_png(
-            pose6[:, [0, 1, 5]],
-            dr_se2,
-            None if gt is None else gt[:, [0, 1, 5]],
-            points,
-            loops,
-            config.plot_max_points,
-            f"slam ({config.mode}): {len(ids)} keyframes, {n_loops} loop closures",
-        ),
+        "plot_points": plot_points(pose6[:, [0, 1, 5]], points, config.plot_max_points),
     }
 
 
 STAGE = Stage(
     name="slam",
-    version=9,
+    # 10: trajectory.png moves to the `figures` stage; plot_points.parquet is what it draws
+    version=10,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),
@@ -146,7 +140,7 @@ STAGE = Stage(
         Output("poses", "parquet", "poses.parquet", schema=POSES_SCHEMA),
         Output("factors", "parquet", "factors.parquet", schema=FACTORS_SCHEMA),
         Output("trajectory", "bytes", "trajectory.tum"),
-        Output("plot", "bytes", "trajectory.png"),
+        Output("plot_points", "parquet", "plot_points.parquet", schema=PLOT_POINTS_SCHEMA),
     ),
     run=run,
     description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",

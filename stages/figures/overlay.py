@@ -1,4 +1,5 @@
-"""The classify stage's figure: one keyframe's objects drawn over its horizontal image."""
+"""`overlay.png`: one keyframe's objects (classify's `objects.parquet`) drawn over its
+horizontal image."""
 
 from __future__ import annotations
 
