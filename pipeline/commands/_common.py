@@ -83,10 +83,17 @@ class GraphChoice:
         return self._graph
 
 
-def cli_graph(ctx: typer.Context) -> Graph:
+def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
     """The graph this invocation runs (the root command's `GraphChoice`); the real
-    pipeline's when the command was invoked without the root (its own Typer app)."""
+    pipeline's when the command was invoked without the root (its own Typer app).
+    figures=False: without its figure stages (`--no-figures` of sweep and study)."""
     choice = ctx.find_root().obj
     if not isinstance(choice, GraphChoice):
         choice = GraphChoice(None)
-    return choice.graph()
+    if figures:
+        return choice.graph()
+    from dataclasses import replace
+
+    from pipeline.engine.registry import without_figures
+
+    return replace(choice.graph(), stages=without_figures(choice.graph().stages))

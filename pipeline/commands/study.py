@@ -85,7 +85,7 @@ def study(
     from pipeline.training.datasets import ensure_simulation, scene_path
 
     check_writable(out)
-    graph = cli_graph(ctx)
+    graph = cli_graph(ctx, figures=not no_figures)
     with writes_under(out, store):
         console = stderr_console()
         t0 = time.perf_counter()
@@ -117,7 +117,6 @@ def study(
                 config_path=Path(p["config"]) if p["config"] else None,
                 store=store,
                 protocol=p["name"],
-                figures=not no_figures,
             )
         ]
         console.print(

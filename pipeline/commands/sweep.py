@@ -56,16 +56,11 @@ def sweep(
     from pipeline.experiments.sweep_output import write_sweep
 
     specs = expand(
-        datasets,
-        set_ or (),
-        base_overrides=fixed or (),
-        config_path=config,
-        store=store,
-        figures=not no_figures,
+        datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
     )
     # Every dataset and every point's config before the first run: a missing file or
     # a bad value fails now, not hours in.
-    graph = cli_graph(ctx)
+    graph = cli_graph(ctx, figures=not no_figures)
     check_inputs(specs, graph)
     ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
     out_dir = out or Path("data/sweeps") / ident[:12]

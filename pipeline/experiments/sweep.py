@@ -58,8 +58,6 @@ class RunSpec:
     store: str = "data/store"
     protocol: str | None = None
     """A name for the config this run belongs to (`sonarmap study` compares several)."""
-    figures: bool = True
-    """Plan the figure stages too (False: `--no-figures`)."""
 
     @property
     def override_args(self) -> list[str]:
@@ -104,7 +102,6 @@ def expand(
     config_path: Path | None = None,
     store: Path = Path("data/store"),
     protocol: str | None = None,
-    figures: bool = True,
 ) -> list[RunSpec]:
     """Cross product: every dataset x every combination of `key=v1,v2,...` values."""
     axes: list[list[tuple[str, str]]] = []
@@ -122,7 +119,6 @@ def expand(
             config_path=str(config_path) if config_path else None,
             store=str(Path(store).resolve()),
             protocol=protocol,
-            figures=figures,
         )
         for d in datasets
         for combo in combos
@@ -144,7 +140,6 @@ def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
                 workers=1,
-                figures=spec.figures,
             ),
             graph,
         )
