@@ -180,9 +180,18 @@ def test_the_overlay_draws_the_busiest_keyframe_the_same_every_time(
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and overlay_png(frame, rows) == png
 
 
-def test_classify_overlay_is_refused_with_where_it_moved() -> None:
-    with pytest.raises(ValueError, match=r"figures\.overlay"):
-        ClassifyConfig(overlay=False)
+def test_classify_overlay_is_refused_with_where_it_moved(tmp_path: Path) -> None:
+    from pipeline.engine.config import load_config
+    from pipeline.engine.errors import ConfigError
+    from pipeline.engine.registry import all_stages
+
+    config = tmp_path / "old.yaml"
+    config.write_text("classify:\n  overlay: false\n")
+    for path, overrides in ((config, ()), (None, ("classify.overlay=false",))):
+        with pytest.raises(
+            ConfigError, match=r"'classify\.overlay' \(moved to 'figures\.overlay'\)"
+        ):
+            load_config(all_stages(), path, overrides)
 
 
 def test_uncertain_objects_are_unknown(keyframes: list[KeyframeImages]) -> None:

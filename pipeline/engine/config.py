@@ -122,7 +122,13 @@ def check_class_names(config: BaseModel, where: str) -> None:
             raise ConfigError(f"{where}: {section_name}: {one_line(message)}") from err
 
 
+MOVED_KEYS: dict[str, str] = {"classify.overlay": "figures.overlay"}
+"""Config keys that moved to another section: an old key is refused naming the new one."""
+
+
 def _closest(name: str, candidates: Iterable[str]) -> str:
+    if name in MOVED_KEYS:
+        return f" (moved to '{MOVED_KEYS[name]}')"
     match = difflib.get_close_matches(name, list(candidates), n=1, cutoff=0.5)
     return f" (did you mean '{match[0]}'?)" if match else ""
 

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field, model_validator
+from pydantic import Field
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.model_settings import ModelSettings
@@ -141,16 +141,6 @@ class ClassifyConfig(ModelChoice):
         le=10000,
         description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
     )
-
-    @model_validator(mode="before")
-    @classmethod
-    def _overlay_moved(cls, data: Any) -> Any:
-        if isinstance(data, dict) and "overlay" in data:
-            raise ValueError(
-                "classify.overlay moved to figures.overlay (the `figures` stage draws"
-                " overlay.png; `run --no-figures` skips every figure)"
-            )
-        return data
 
 
 def _empty_features() -> dict[str, np.ndarray]:
