@@ -5,7 +5,9 @@ critical path, the demo cold and the demo fully cached, each figure beside its g
   (the model copied in from the model cache), with `--workers 1` and `--workers 2`;
   keyframes/s = keyframes / the process's wall time (imports and model copy included).
 - critical path: the longest chain of stages through the graph, weighted by each stage's
-  seconds in the 1-worker run (where a stage's seconds are its own).
+  seconds in the 1-worker run (where a stage's seconds are its own); the map's critical
+  path leaves out the figure stages (nothing waits for them).
+- no figures: the 2-worker cold run again with `--no-figures`.
 - demo: `sonarmap demo` in a fresh folder (simulation, shipped model, every stage).
 - cached: `sonarmap demo` again on that folder: every stage a hit, the whole process.
 
@@ -45,10 +47,10 @@ def _sonarmap(*args: str) -> tuple[float, str]:
     return time.perf_counter() - t0, proc.stdout
 
 
-def _cold(dataset: Path, workers: int, sets: list[str]) -> dict:
+def _cold(dataset: Path, workers: int, sets: list[str], *extra: str) -> dict:
     with tempfile.TemporaryDirectory(prefix="bench-graph-") as tmp:
         args = ["run", str(dataset), "--store", f"{tmp}/store", "--json", "--workers", str(workers)]
-        wall, out = _sonarmap(*args, *(a for item in sets for a in ("--set", item)))
+        wall, out = _sonarmap(*args, *extra, *(a for item in sets for a in ("--set", item)))
     doc = json.loads(out)
     keyframes = doc["summary"]["keyframes"]
     return {
@@ -60,13 +62,15 @@ def _cold(dataset: Path, workers: int, sets: list[str]) -> dict:
     }
 
 
-def critical_path(stages_s: dict[str, float]) -> tuple[float, list[str]]:
-    """The longest chain of stages (seconds, names) through the real pipeline's graph."""
+def critical_path(stages_s: dict[str, float], figures: bool = True) -> tuple[float, list[str]]:
+    """The longest chain of stages (seconds, names) through the real pipeline's graph
+    (figures=False: without the figure stages)."""
     sys.path.insert(0, str(ROOT))
-    from pipeline.engine.registry import default_graph
+    from pipeline.engine.registry import default_graph, without_figures
 
+    stages = default_graph().stages
     best: dict[str, tuple[float, list[str]]] = {}
-    for stage in default_graph().stages:  # in plan order: upstream first
+    for stage in stages if figures else without_figures(stages):  # plan order: upstream first
         ups = [best[u] for u in stage.upstream if u in best]
         before = max(ups, default=(0.0, []))
         best[stage.name] = (before[0] + stages_s.get(stage.name, 0.0), [*before[1], stage.name])
@@ -110,7 +114,9 @@ def main() -> int:
             scene_path("marina"), 0, ROOT / "data/demo/marina-seed0.mcap"
         )
     one, two = _cold(args.dataset, 1, args.sets), _cold(args.dataset, 2, args.sets)
+    no_figures = _cold(args.dataset, 2, args.sets, "--no-figures")
     seconds, chain = critical_path(one["stages_s"])
+    map_seconds, map_chain = critical_path(one["stages_s"], figures=False)
     report = {
         "dataset": str(args.dataset),
         "keyframes": one["keyframes"],
@@ -121,6 +127,9 @@ def main() -> int:
         "speedup_2_over_1": round(one["wall_s"] / two["wall_s"], 2),
         "critical_path_s": seconds,
         "critical_path": " -> ".join(f"{s} {one['stages_s'][s]:.1f}" for s in chain),
+        "map_critical_path_s": map_seconds,
+        "map_critical_path": " -> ".join(f"{s} {one['stages_s'][s]:.1f}" for s in map_chain),
+        "two_workers_no_figures": no_figures,
         **({} if args.skip_demo else _demo()),
         "load_average_1min": round(os.getloadavg()[0], 2),
     }
