@@ -178,6 +178,10 @@ class Stage:
         dataset_section: the section the "dataset" input is opened with (None: its own).
         input_columns: (input, columns) pairs: read only these columns of a Parquet input
             (a stage that needs a few columns of a large table).
+        off_critical_path: nothing in the graph waits for its outputs (the figures): with
+            several workers the runner gives it a worker process when one is idle, so the
+            slot in the runner's own process, where the dataset is already open, stays
+            free for the stages that read it.
     """
 
     name: str
@@ -191,6 +195,7 @@ class Stage:
     reads_sections: tuple[str, ...] = ()
     dataset_section: str | None = None
     input_columns: tuple[tuple[Input, tuple[str, ...]], ...] = ()
+    off_critical_path: bool = False
 
     def __post_init__(self) -> None:
         def typed(item: Input | str) -> Input:

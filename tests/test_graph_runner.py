@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -11,18 +13,25 @@ from toy_stages import GRAPH, TOY_STAGES
 from pipeline.engine.errors import StageFailed
 from pipeline.engine.runner import RunResult, execute, plan
 from pipeline.engine.session import make_context
+from stages.base import Stage
 
 _VOLATILE = ("build_seconds", "created_at", "dataset_path")
 """Manifest fields that name when and where, not what, a stage computed."""
 
 
-def _run(tmp_path: Path, store: Path, workers: int, overrides: tuple[str, ...] = ()) -> RunResult:
+def _run(
+    tmp_path: Path,
+    store: Path,
+    workers: int,
+    overrides: tuple[str, ...] = (),
+    stages: tuple[Stage, ...] = TOY_STAGES,
+) -> RunResult:
     dataset = tmp_path / "raw.bin"
     if not dataset.exists():
         dataset.write_bytes(bytes(range(256)) * 4)
     ctx = make_context(
         dataset,
-        stages=TOY_STAGES,
+        stages=stages,
         overrides=overrides,
         store_dir=store,
         parts=GRAPH.parts,
@@ -89,3 +98,25 @@ def test_a_cached_run_starts_no_worker_process(tmp_path: Path) -> None:
     again = _run(tmp_path, store, workers=2)
     assert {r.status for r in again.stages} == {"hit"}
     assert len(multiprocessing.active_children()) == before
+
+
+def test_a_stage_off_the_critical_path_takes_a_worker_process(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Like the figures: the slot in the runner's process stays for the other stages."""
+    log = tmp_path / "calls.log"
+    monkeypatch.setenv("TOY_CALL_LOG", str(log))
+    stages = tuple(
+        replace(s, off_critical_path=True) if s.name == "double" else s for s in TOY_STAGES
+    )
+    result = _run(tmp_path, tmp_path / "store", workers=2, stages=stages)
+    assert {r.status for r in result.stages} == {"computed"}
+    pids = dict(line.split() for line in log.read_text().splitlines())
+    assert pids["double"] != str(os.getpid())
+    assert pids["count"] == str(os.getpid())
+    # One worker: everything here, as the serial runner always did.
+    log.unlink()
+    _run(tmp_path, tmp_path / "serial", workers=1, stages=stages)
+    assert {pid for _, pid in (line.split() for line in log.read_text().splitlines())} == {
+        str(os.getpid())
+    }

@@ -119,5 +119,6 @@ STAGE = Stage(
         Output("trajectory", "bytes", "trajectory.png"),
     ),
     run=_run,
+    off_critical_path=True,
     description="overlay.png (classified objects) and trajectory.png (SLAM), nothing waits",
 )

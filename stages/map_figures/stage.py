@@ -79,6 +79,7 @@ STAGE = Stage(
         Output("side_view", "bytes", "side_view.png", optional=True),
     ),
     run=_run,
+    off_critical_path=True,
     input_columns=(
         (Input("voxelize", "map"), ("source", "x_m", "y_m", "z_m")),
         (Input("evaluate", "errors"), ("source", "error_m")),
