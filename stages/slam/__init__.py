@@ -1,7 +1,9 @@
 """The `slam` stage (paper Sec. IV.A): planar pose-graph SLAM over keyframes.
 
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
 Modules:
-    stage: the stage: config in, trajectory and loop closures out.
+    stage: the computation: config in, trajectory and loop closures out.
     config: SlamConfig, every parameter with its unit.
     frontend: the sequential front end: odometry, heading and SSM factors per keyframe.
     loops: loop closure (NSSM), PCM and the final re-registration of every loop.
@@ -12,6 +14,27 @@ Modules:
     outputs: trajectory tables and plots.
 """
 
-from stages.slam.stage import STAGE, SlamConfig, SlamResult, run_slam
+from stages.base import Input, Output, Stage
+from stages.kernels.lazy import deferred
+from stages.slam.config import SlamConfig
 
-__all__ = ["STAGE", "SlamConfig", "SlamResult", "run_slam"]
+__all__ = ["STAGE", "SlamConfig"]
+
+STAGE = Stage(
+    name="slam",
+    version=9,
+    config=SlamConfig,
+    inputs=(
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
+    outputs=(
+        Output("poses", "parquet", "poses.parquet", schema="schemas.slam:POSES_SCHEMA"),
+        Output("factors", "parquet", "factors.parquet", schema="schemas.slam:FACTORS_SCHEMA"),
+        Output("trajectory", "bytes", "trajectory.tum"),
+        Output("plot", "bytes", "trajectory.png"),
+    ),
+    run=deferred("stages.slam.stage:run"),
+    description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",
+)

@@ -43,8 +43,8 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.sensors import Sensors
-from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
-from stages.base import Input, Output, Stage, StageInputError
+from stages.base import Input, StageInputError
+from stages.slam import STAGE
 from stages.slam.config import SlamConfig, with_sensor_fan
 from stages.slam.frontend import SlamResult, run_slam
 from stages.slam.outputs import factors_table, plot_png, poses_table, tum_text
@@ -131,23 +131,3 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             f"slam ({config.mode}): {len(ids)} keyframes, {n_loops} loop closures",
         ),
     }
-
-
-STAGE = Stage(
-    name="slam",
-    version=9,
-    config=SlamConfig,
-    inputs=(
-        Input("keyframes", "keyframes"),
-        Input("keyframes", "sensors"),
-        Input("features", "features"),
-    ),
-    outputs=(
-        Output("poses", "parquet", "poses.parquet", schema=POSES_SCHEMA),
-        Output("factors", "parquet", "factors.parquet", schema=FACTORS_SCHEMA),
-        Output("trajectory", "bytes", "trajectory.tum"),
-        Output("plot", "bytes", "trajectory.png"),
-    ),
-    run=run,
-    description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",
-)
