@@ -109,8 +109,9 @@ class FingerprintCache:
 
     A 10 GB bag is hashed once; `status` and a cached run afterwards only stat it. A
     digest is remembered only when the file's identity is the same after hashing as
-    before (a file written meanwhile is hashed again next time). The cache is a JSON
-    file guarded by a file lock so concurrent runs do not clobber it.
+    before (a file written meanwhile is hashed again next time), and never for a file
+    whose timestamps have no sub-second part (a filesystem with coarse timestamps). The
+    cache is a JSON file guarded by a file lock so concurrent runs do not clobber it.
     """
 
     def __init__(self, cache_file: Path) -> None:
@@ -127,12 +128,17 @@ class FingerprintCache:
     def file_digest(self, path: Path) -> str:
         """sha256 of `path`, from the cache when its stat identity is unchanged."""
         ident = _stat_identity(path)
-        entry = self._load().get(str(path.resolve()))
+        # Whole-second timestamps: a filesystem that keeps no finer time (FAT, some network
+        # mounts), where a same-size rewrite within a second keeps every field. No memo.
+        coarse = ident[1] % 10**9 == 0 and ident[2] % 10**9 == 0
+        entry = None if coarse else self._load().get(str(path.resolve()))
         if entry and entry.get("stat") == ident:
             return str(entry["sha256"])
         digest = sha256_file(path)
-        if _stat_identity(path) != ident:
-            return digest  # written while hashed: which content this is, no stat can say
+        if coarse or _stat_identity(path) != ident:
+            # Not remembered: coarse timestamps, or written while hashed (which content
+            # the digest is of, no stat can say).
+            return digest
         self._file.parent.mkdir(parents=True, exist_ok=True)
         with self._lock:
             data = self._load()
