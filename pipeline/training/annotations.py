@@ -19,7 +19,6 @@ from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import one_line
-from pipeline.engine.yaml_files import read_model
 from schemas.annotations import AnnotationFile
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from stages.base import Output, Stage, StageConfig
@@ -83,6 +82,8 @@ def load_annotations(path: Path, table: ClassTable = DEFAULT_TABLE) -> Annotatio
             ANNOTATIONS_MAX_NODES), or invalid;
             one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
+    from pipeline.engine.yaml_files import read_model  # yaml: only when a file is read
+
     return read_model(
         path,
         "annotations",
