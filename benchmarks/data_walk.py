@@ -47,7 +47,7 @@ def _stack(frame: FrameType | None, command: CodeType) -> list[str]:
 
 def main(argv: list[str]) -> dict[str, Any]:
     import pipeline.readers
-    import stages.keyframes
+    import stages.keyframes.stage
     from pipeline.cli import app
     from pipeline.commands import run as run_command
 
@@ -61,7 +61,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     targets = {
         pipeline.readers.dataset_fingerprint_parts.__code__: "fingerprinted",
         pipeline.readers.open_recording.__code__: "opened",
-        stages.keyframes.run.__code__: "keyframes.run",
+        stages.keyframes.stage.run.__code__: "keyframes.run",
     }
     stacks: dict[str, list[str]] = {}
 

@@ -11,9 +11,8 @@ import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from pipeline.engine.codecs import read_verified
 from pipeline.engine.planned import PlannedStage
 from pipeline.engine.planner import plan
 from pipeline.engine.registry import Graph, default_graph, without_figures
@@ -21,8 +20,10 @@ from pipeline.engine.runner import RunResult, StageResult, execute
 from pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
 from pipeline.engine.store import ArtifactRef
 from pipeline.engine.workers import default_workers
-from pipeline.training.model_cache import ResolvedModel
 from stages.base import Stage
+
+if TYPE_CHECKING:
+    from pipeline.training.model_cache import ResolvedModel
 
 __all__ = ["ModelStatus", "RunRequest", "plan_dataset", "plan_status", "run_dataset", "summarize"]
 
@@ -195,10 +196,12 @@ def run_dataset(
     *,
     on_start: Callable[[PlannedStage], None] | None = None,
     on_stage: Callable[[StageResult], None] | None = None,
+    scores: bool = True,
 ) -> tuple[RunResult, dict[str, Any]]:
     """Plan, execute and summarise one dataset through the mapping graph.
 
-    The summary's "model" names the classifier used and where it came from.
+    The summary's "model" names the classifier used and where it came from; `scores`:
+    whether it holds the classification scores (`summarize`).
     """
     ctx, planned, model = _plan(request, graph or default_graph(), True)
     external = {} if model is None else {"train": (model.stage, model.ref)}
@@ -212,19 +215,28 @@ def run_dataset(
         on_stage=on_stage,
         workers=default_workers() if request.workers is None else request.workers,
     )
-    summary = summarize(ctx.stages, result.artifacts)
+    summary = summarize(ctx.stages, result.artifacts, scores=scores)
     if model is not None:
         summary["model"] = model.to_json()
     return result, summary
 
 
 def _json_output(stage: Stage, ref: ArtifactRef, name: str) -> Any:
+    from pipeline.engine.codecs import read_verified
+
     output = next((o for o in stage.outputs if o.name == name and o.kind == "json"), None)
     return None if output is None else read_verified(ref, output)
 
 
-def summarize(stages: Sequence[Stage], artifacts: Mapping[str, ArtifactRef]) -> dict[str, Any]:
-    """The `summary` of `run --json`: voxel counts, metrics, classification scores."""
+def summarize(
+    stages: Sequence[Stage], artifacts: Mapping[str, ArtifactRef], *, scores: bool = True
+) -> dict[str, Any]:
+    """The `summary` of `run --json`: voxel counts, metrics, classification scores.
+
+    `scores=False` leaves the classification scores out: they are the one part read from
+    a Parquet table (pyarrow), which the terminal's summary never shows, so a fully
+    cached run printing it loads no table at all.
+    """
     by_name = {s.name: s for s in stages}
     summary: dict[str, Any] = {}
     if "keyframes" in artifacts:
@@ -235,7 +247,8 @@ def summarize(stages: Sequence[Stage], artifacts: Mapping[str, ArtifactRef]) -> 
         if name in artifacts:
             outputs = artifacts[name].manifest.get("outputs", {})
             summary[name] = {k: v.get("rows") for k, v in outputs.items()}
-    if "classify" in artifacts:
+    if scores and "classify" in artifacts:
+        from pipeline.engine.codecs import read_verified
         from pipeline.scoring import classification_scores
 
         output = next(o for o in by_name["classify"].outputs if o.name == "objects")

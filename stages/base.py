@@ -15,6 +15,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
+from stages.kernels.lazy import resolve
+
 __all__ = [
     "DATASET",
     "ConfigModel",
@@ -148,11 +150,23 @@ class Output:
     optional: bool = False
     schema: Any = None
     """For parquet outputs: the `pyarrow.Schema` from `schemas/` the table must match
-    (the engine validates column names and types before committing)."""
+    (the engine validates column names and types before committing), or its name as
+    `module:NAME` (e.g. "schemas.map:MAP_SCHEMA"), so declaring the stage imports no
+    pyarrow; `arrow_schema` is the schema either way."""
     record: Any = None
     """For json outputs: a record type from `schemas/` (`from_json(doc)`, `to_json()`)
-    that readers of the output receive instead of the dict (e.g. `schemas.sensors.Sensors`);
-    the file holds the dict as written."""
+    that readers of the output receive instead of the dict (e.g. `schemas.sensors.Sensors`),
+    or its `module:NAME`; the file holds the dict as written."""
+
+    @property
+    def arrow_schema(self) -> Any:
+        """`schema`, imported when given by name (None: not declared)."""
+        return resolve(self.schema)
+
+    @property
+    def record_type(self) -> Any:
+        """`record`, imported when given by name (None: readers get the dict)."""
+        return resolve(self.record)
 
 
 @dataclass(frozen=True)
@@ -167,7 +181,9 @@ class Stage:
             stage only) or `Input(stage, output)` of an upstream stage; `run` finds each
             under its `Input.name`. (Dotted strings are read as `Input.parse` reads them.)
         outputs: what `run` returns, by name.
-        run: `run(config, inputs) -> {output name: value}`.
+        run: `run(config, inputs) -> {output name: value}`; a stage package declares
+            it as `stages.kernels.lazy.deferred("stages.<name>.stage:run")`, so planning
+            imports the declaration (`stages/<name>/__init__.py`) and never the compute.
         key_excludes: fields of the stage's own section that do not enter its key, because
             the stage never reads them (they configure a later stage that lists the
             section in `reads_sections`, e.g. `keyframes.submap_stride`), or because they

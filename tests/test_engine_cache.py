@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pyarrow.parquet as pq
@@ -109,6 +110,24 @@ def test_dataset_content_change_recomputes_everything(tmp_path: Path) -> None:
     data, store = _dataset(tmp_path), tmp_path / "store"
     run_toy(data, store)
     data.write_bytes(bytes(reversed(range(256))) * 4)
+    result = run_toy(data, store)
+    assert did(result) == {"source", "double", "summary", "count"}
+
+
+def test_same_size_rewrite_with_its_old_mtime_restored_recomputes(tmp_path: Path) -> None:
+    """The fingerprint memo is keyed by stat identity: `cp -p` / `rsync -t` style rewrites
+    in place keep size, mtime and inode, and must still not reuse the old digest."""
+    data, store = _dataset(tmp_path), tmp_path / "store"
+    run_toy(data, store)
+    before = data.stat()
+    data.write_bytes(bytes(reversed(range(256))) * 4)  # same size, same inode
+    os.utime(data, ns=(before.st_atime_ns, before.st_mtime_ns))
+    after = data.stat()
+    assert (after.st_size, after.st_mtime_ns, after.st_ino) == (
+        before.st_size,
+        before.st_mtime_ns,
+        before.st_ino,
+    )
     result = run_toy(data, store)
     assert did(result) == {"source", "double", "summary", "count"}
 

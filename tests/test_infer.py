@@ -404,7 +404,7 @@ def test_stage_object_runs_from_bound_inputs(pier) -> None:
     points = out["points"]
     inferred = points.filter(pa.compute.equal(points.column("source"), "inferred"))
     assert set(inferred.column("class_name").to_pylist()) <= {"rectangular_piling"}
-    assert STAGE.outputs[0].schema.equals(points.schema)
+    assert STAGE.outputs[0].arrow_schema.equals(points.schema)
 
 
 def real_stage_tables(run: SimRun, spacing_m: float) -> tuple[pa.Table, ...]:

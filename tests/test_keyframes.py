@@ -14,7 +14,8 @@ from pipeline.readers import open_recording
 from schemas.keyframes import KEYFRAMES_SCHEMA
 from schemas.recording import PoseTrack
 from stages.base import DATASET, StageInputError
-from stages.keyframes import STAGE, KeyframesConfig, interpolate_poses, pair_pings, select_keyframes
+from stages.keyframes import STAGE, KeyframesConfig
+from stages.keyframes.stage import interpolate_poses, pair_pings, select_keyframes
 
 
 def test_pairing_nearest_within_tolerance_each_vertical_used_once() -> None:

@@ -133,6 +133,7 @@ def demo(
                 cli_graph(ctx),
                 on_start=progress.on_start,
                 on_stage=progress.on_stage,
+                scores=json_,
             )
         evaluate = result.artifacts.get("evaluate")
         if evaluate is not None:

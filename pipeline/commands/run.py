@@ -61,6 +61,7 @@ def run(
                 cli_graph(ctx),
                 on_start=progress.on_start,
                 on_stage=view.chain(progress.on_stage),
+                scores=json_,
             )
         sensors = _sensors(result)
         if json_:

@@ -7,10 +7,8 @@ from pathlib import Path
 import typer
 
 from pipeline.commands._common import JSON_OPT, NO_FIGURES_OPT, STORE_OPT, cli_graph, emit_json
-from pipeline.experiments.study import table_i
-from pipeline.experiments.study_tables import PAPER_TABLE_I
 
-__all__ = ["PAPER_TABLE_I", "register", "study", "table_i"]
+__all__ = ["register", "study"]
 
 
 def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | None]]:

@@ -12,13 +12,12 @@ from collections.abc import Mapping, MutableSet, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import pyarrow as pa
-import pyarrow.parquet as pq
-
 from pipeline.engine.errors import ArtifactCorrupt, InternalError, PipelineError, StageFailed
 from stages.base import Output
 
 if TYPE_CHECKING:
+    import pyarrow as pa
+
     from pipeline.engine.store import ArtifactRef
 
 __all__ = ["read_output", "read_verified", "validate_table", "write_output"]
@@ -26,12 +25,14 @@ __all__ = ["read_output", "read_verified", "validate_table", "write_output"]
 
 def validate_table(stage: str, output: Output, table: Any) -> pa.Table:
     """Check a parquet output against its declared schema (names and types)."""
+    import pyarrow as pa  # here: reading a JSON output (a cached run's summary) needs none
+
     if not isinstance(table, pa.Table):
         raise StageFailed(
             f"stage {stage}: output '{output.name}' must be a pyarrow.Table, "
             f"got {type(table).__name__}"
         )
-    expected = output.schema
+    expected = output.arrow_schema
     if expected is None:
         return table
     missing = [f.name for f in expected if f.name not in table.column_names]
@@ -53,6 +54,8 @@ def write_output(
     """Write one output into an artifact directory; returns manifest facts (rows, ...)."""
     path = directory / output.filename
     if output.kind == "parquet":
+        import pyarrow.parquet as pq
+
         table = validate_table(stage, output, value)
         meta = dict(table.schema.metadata or {})
         meta[b"sonarmap"] = json.dumps(dict(provenance), sort_keys=True).encode()
@@ -122,6 +125,8 @@ def read_output(directory: Path, output: Output, columns: Sequence[str] | None =
             return None
         raise InternalError(f"{directory}: output file '{output.filename}' missing")
     if output.kind == "parquet":
+        import pyarrow.parquet as pq
+
         return pq.read_table(path, columns=None if columns is None else list(columns))
     if output.kind == "json":
         return json.loads(path.read_text())

@@ -15,7 +15,6 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.codecs import read_verified, write_output
 from pipeline.engine.errors import (
     ConfigError,
     InternalError,
@@ -78,6 +77,8 @@ def _bind_inputs(
     The dataset is opened by the graph's `open` once per process and config section
     (`opened`): the stages reading it there (keyframes, submaps) share what it has read."""
     stage, sections, dataset = job.item.stage, job.sections, job.dataset
+    from pipeline.engine.codecs import read_verified  # pyarrow: only when a stage computes
+
     inputs: dict[str, Any] = {f"config.{s}": sections[s] for s in stage.reads_sections}
     columns = dict(stage.input_columns)
     for name in stage.inputs:
@@ -90,9 +91,10 @@ def _bind_inputs(
             continue
         output = _output(stage, job.outputs_of[name.stage], name)
         value = read_verified(job.refs[name.stage], output, verified, columns.get(name))
-        if output.record is not None and value is not None:
+        record = output.record_type
+        if record is not None and value is not None:
             try:
-                value = output.record.from_json(value)
+                value = record.from_json(value)
             except ValueError as err:
                 raise _rejected_input(StageInputError(name, str(err)), job) from err
         inputs[name.name] = value
@@ -125,6 +127,8 @@ def run_job(
     A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
     any other exception of the stage is a `StageFailed` (exit 1).
     """
+    from pipeline.engine.codecs import write_output
+
     stage = job.item.stage
     inputs = _bind_inputs(job, verified, opened)
     provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}

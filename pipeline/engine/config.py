@@ -15,13 +15,11 @@ from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, cast
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
 from pipeline.engine.config_errors import short, validation_message
 from pipeline.engine.errors import ConfigError
 from pipeline.engine.text import one_line
-from pipeline.engine.yaml_files import YamlRefused, load_yaml_text, read_yaml
 from stages.base import Stage
 
 __all__ = [
@@ -200,6 +198,8 @@ def _scalar(raw: str, where: str) -> Any:
     """
     if not raw.strip():
         return ""
+    from pipeline.engine.yaml_files import YamlRefused, load_yaml_text
+
     try:
         return load_yaml_text(raw, where, "value", ConfigError)
     except ConfigError as err:
@@ -251,6 +251,8 @@ def load_config(
     where = one_line(str(path)) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:
+        from pipeline.engine.yaml_files import read_yaml  # yaml: only when there is a file
+
         loaded = read_yaml(path, "config", ConfigError)
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{where}: expected a mapping of stage sections")
@@ -274,4 +276,6 @@ def load_config(
 
 def dump_yaml(config: BaseModel) -> str:
     """The effective config as YAML (one section per stage, in stage order)."""
+    import yaml
+
     return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)

@@ -89,11 +89,29 @@ def sha256_file(path: Path) -> str:
     return digest.hexdigest()
 
 
-class FingerprintCache:
-    """Content fingerprints of dataset files, cached by (path, size, mtime_ns, inode).
+def _stat_identity(path: Path) -> list[int]:
+    """What the fingerprint memo compares: size, mtime, ctime, inode and device.
 
-    A 10 GB bag is hashed once; `status` afterwards only stats it. The cache is a
-    JSON file guarded by a file lock so concurrent runs do not clobber it.
+    ctime is the kernel's own clock of the last write or metadata change (no call sets
+    it), so an in-place rewrite that restores the size and the mtime (`cp -p`, `rsync -t`,
+    `touch -d` onto the same inode) still changes the identity
+    (docs/decisions/020-cached-run-imports.md)."""
+    try:
+        st = path.stat()
+    except OSError as err:
+        raise SourceError(f"{path}: cannot read dataset ({err.strerror})") from err
+    return [st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino, st.st_dev]
+
+
+class FingerprintCache:
+    """Content fingerprints of dataset files, memoised by path and stat identity
+    (`_stat_identity`: size, mtime, ctime, inode, device).
+
+    A 10 GB bag is hashed once; `status` and a cached run afterwards only stat it. A
+    digest is remembered only when the file's identity is the same after hashing as
+    before (a file written meanwhile is hashed again next time), and never for a file
+    whose timestamps have no sub-second part (a filesystem with coarse timestamps). The
+    cache is a JSON file guarded by a file lock so concurrent runs do not clobber it.
     """
 
     def __init__(self, cache_file: Path) -> None:
@@ -108,16 +126,19 @@ class FingerprintCache:
             return {}
 
     def file_digest(self, path: Path) -> str:
-        """sha256 of `path`, from the cache when its size, mtime and inode are unchanged."""
-        try:
-            st = path.stat()
-        except OSError as err:
-            raise SourceError(f"{path}: cannot read dataset ({err.strerror})") from err
-        ident = [st.st_size, st.st_mtime_ns, st.st_ino]
-        entry = self._load().get(str(path.resolve()))
+        """sha256 of `path`, from the cache when its stat identity is unchanged."""
+        ident = _stat_identity(path)
+        # Whole-second timestamps: a filesystem that keeps no finer time (FAT, some network
+        # mounts), where a same-size rewrite within a second keeps every field. No memo.
+        coarse = ident[1] % 10**9 == 0 and ident[2] % 10**9 == 0
+        entry = None if coarse else self._load().get(str(path.resolve()))
         if entry and entry.get("stat") == ident:
             return str(entry["sha256"])
         digest = sha256_file(path)
+        if coarse or _stat_identity(path) != ident:
+            # Not remembered: coarse timestamps, or written while hashed (which content
+            # the digest is of, no stat can say).
+            return digest
         self._file.parent.mkdir(parents=True, exist_ok=True)
         with self._lock:
             data = self._load()

@@ -7,6 +7,7 @@ reading `DATASET`) the dataset fingerprint; no artifact's contents are read.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping, Sequence
+from typing import Any
 
 from pydantic import BaseModel
 
@@ -50,7 +51,7 @@ def plan(
         for name in content_keyed
         if name in external
     }
-    previous = previous_recipes(store, dataset.path)
+    previous: dict[str, dict[str, Any]] | None = None  # read on the first miss only
     changed: set[str] = set()
     planned: list[PlannedStage] = []
     for stage in stages:
@@ -83,6 +84,8 @@ def plan(
             hit, reason = True, "cached"
         else:
             hit = False
+            if previous is None:
+                previous = previous_recipes(store, dataset.path)
             reason = miss_reason(stage.name, recipe, previous.get(stage.name), changed)
         if not hit:
             changed.add(stage.name)

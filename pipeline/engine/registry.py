@@ -77,20 +77,24 @@ class Graph:
 
 def default_graph() -> Graph:
     """The real pipeline: keyframes to evaluate, then the figures (`FIGURE_STAGES`);
-    recordings read by `pipeline.readers`."""
+    recordings read by `pipeline.readers`.
+
+    Each stage package declares its stage; the computation (numpy, pyarrow, ...) loads
+    when the stage first runs (docs/decisions/020-cached-run-imports.md).
+    """
     from pipeline.readers import dataset_fingerprint_parts, open_recording
     from pipeline.training.config import TrainingDataConfig
     from schemas.classes import ClassTable
-    from stages.classify.stage import STAGE as classify
+    from stages.classify import STAGE as classify
     from stages.classify.train import STAGE as train
-    from stages.evaluate.stage import STAGE as evaluate
-    from stages.features.stage import STAGE as features
+    from stages.evaluate import STAGE as evaluate
+    from stages.features import STAGE as features
     from stages.figures import STAGE as figures
-    from stages.fuse.stage import STAGE as fuse
-    from stages.infer.stage import STAGE as infer
+    from stages.fuse import STAGE as fuse
+    from stages.infer import STAGE as infer
     from stages.keyframes import STAGE as keyframes
     from stages.map_figures import STAGE as map_figures
-    from stages.slam.stage import STAGE as slam
+    from stages.slam import STAGE as slam
     from stages.submaps import STAGE as submaps
     from stages.voxelize import STAGE as voxelize
 

@@ -71,7 +71,10 @@ class RunResult:
         }
 
 
+@functools.cache
 def _software_versions() -> dict[str, str]:
+    """Versions of the libraries a manifest records (read once, when a stage computes:
+    a fully cached run never scans the installed distributions)."""
     versions = {}
     for name in _VERSIONED:
         try:
@@ -135,7 +138,6 @@ def _execute(
     outputs_of.update((item.stage.name, item.stage) for item in planned)
     refs: dict[str, ArtifactRef] = {n: r for n, (_, r) in external.items()}
     result = RunResult(dataset=str(dataset.path), store=str(store.root))
-    versions = _software_versions()
     done: dict[str, PlannedStage] = {}
     finished: dict[str, StageResult] = {}
     order = {item.stage.name: i for i, item in enumerate(planned)}
@@ -162,7 +164,7 @@ def _execute(
                 for k, v in item.recipe["inputs"].items()
             },
             "dataset_path": str(dataset.path),
-            "software": versions,
+            "software": dict(_software_versions()),
         }
         log.info("computing %s (%s)", name, item.reason)
         upstream = {n: refs[n] for n in item.stage.upstream}
@@ -182,8 +184,10 @@ def _execute(
         done[name] = item
         found = output_checks.check_stage(name, refs)
         fatal = next((message for message, is_fatal in found if is_fatal), None)
-        if len(done) < len(planned) or fatal is not None:
-            # Finished work is referenced now, not only at the end of the run.
+        if (len(done) < len(planned) and status != "hit") or fatal is not None:
+            # Finished work is referenced now, not only at the end of the run. A hit
+            # needs no early record: it was there before the run, and the next computed
+            # stage's record (or the final one) names it with the rest.
             record_run(store, dataset, config, planned, external, done=done)
         warnings = tuple(message for message, is_fatal in found if not is_fatal)
         if fatal is not None:

@@ -15,18 +15,19 @@ Processes are spawned, not forked, for the reason `stages.kernels.parallel` give
 
 from __future__ import annotations
 
-import multiprocessing
 import pickle
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from concurrent.futures import Future, ThreadPoolExecutor
 from types import TracebackType
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
 from pipeline.engine.errors import StageFailed
 from stages.kernels.parallel import available_cores, release_memory
+
+if TYPE_CHECKING:  # multiprocessing loads with the first worker process
+    from concurrent.futures import ProcessPoolExecutor
 
 __all__ = ["Slots", "default_workers"]
 
@@ -94,6 +95,8 @@ class Slots:
 
     def _in_worker(self, job: ComputeJob) -> dict[str, Any]:
         """Computes `job` in a worker process (the caller counted it in `_pool_busy`)."""
+        from concurrent.futures.process import BrokenProcessPool
+
         try:
             return self._processes().submit(compute_in_worker, job).result()
         except BrokenProcessPool as err:
@@ -105,6 +108,9 @@ class Slots:
                 self._pool_busy -= 1
 
     def _processes(self) -> ProcessPoolExecutor:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
         with self._pool_lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(

@@ -9,9 +9,10 @@ import logging
 from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import numpy as np
+if TYPE_CHECKING:  # numpy loads when a recording is read, not when one is fingerprinted
+    import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -120,4 +121,6 @@ class TimeIndexedSource:
         return list(self._topics)
 
     def times(self, topic: str) -> np.ndarray:
+        import numpy as np
+
         return self._times.get(topic, np.zeros(0, np.int64))

@@ -15,16 +15,14 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from pipeline.engine.codecs import write_output
 from pipeline.engine.errors import SourceError
 from pipeline.engine.hashing import recipe_key
 from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.engine.text import one_line
-from pipeline.engine.yaml_files import read_model
 from schemas.annotations import AnnotationFile
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from stages.base import Output, Stage, StageConfig
-from stages.classify.annotations import RASTER_VERSION
+from stages.classify.config import RASTER_VERSION
 
 __all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_annotations"]
 
@@ -84,6 +82,8 @@ def load_annotations(path: Path, table: ClassTable = DEFAULT_TABLE) -> Annotatio
             ANNOTATIONS_MAX_NODES), or invalid;
             one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
+    from pipeline.engine.yaml_files import read_model  # yaml: only when a file is read
+
     return read_model(
         path,
         "annotations",
@@ -105,6 +105,8 @@ def commit_annotations(
     The key hashes the validated content and the rasterisation version, so the train
     stage reading it retrains exactly when a shape, class or time changes.
     """
+    from pipeline.engine.codecs import write_output  # pyarrow: not on a cached run's path
+
     doc = load_annotations(path, table).model_dump(mode="json")
     recipe = {"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc}
     key = recipe_key(recipe)

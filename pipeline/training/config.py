@@ -12,7 +12,7 @@ from pipeline.training.cache_dir import default_training_directory
 from sim.procedural import ProceduralConfig
 from sim.randomise import SensorRandomisation
 from stages.base import ConfigModel
-from stages.features.stage import FeaturesConfig
+from stages.features import FeaturesConfig
 from stages.keyframes import KeyframesConfig
 
 __all__ = ["ProceduralTraining", "TrainingDataConfig", "TrainingSet"]

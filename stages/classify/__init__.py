@@ -1,7 +1,11 @@
 """Object classification (paper Sec. IV.C): the `classify` stage and the `train` stage that fits its CNN.
 
+This module declares the `classify` stage (what planning imports: no numpy, no pyarrow);
+the `train` stage is declared in `train`.
+
 Modules:
-    stage: the `classify` stage.
+    config: the `classify` config section.
+    stage: the `classify` computation.
     segmentation: DBSCAN clusters of a keyframe's features and the authors' cluster rules.
     objects: the objects of a keyframe and their CNN patches.
     cnn: the object classifier network.
@@ -11,15 +15,40 @@ Modules:
     annotations: labels of simulated keyframes from the true scene.
 """
 
-from stages.classify.stage import STAGE, ClassifyConfig, classify_keyframes
-from stages.classify.train import STAGE as TRAIN_STAGE
-from stages.classify.train import TrainConfig, train_classifier
+from stages.base import Input, Output, Stage
+from stages.classify.config import ClassifyConfig
+from stages.classify.model_choice import MODEL_CHOICE_FIELDS
+from stages.kernels.lazy import deferred
 
-__all__ = [
-    "STAGE",
-    "TRAIN_STAGE",
-    "ClassifyConfig",
-    "TrainConfig",
-    "classify_keyframes",
-    "train_classifier",
-]
+__all__ = ["STAGE", "ClassifyConfig"]
+
+STAGE = Stage(
+    name="classify",
+    # 5: output `clustering` (what submaps clusters its frames with)
+    # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
+    # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
+    version=7,
+    config=ClassifyConfig,
+    inputs=(
+        Input("keyframes", "frames"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+        Input("train", "model"),
+    ),
+    outputs=(
+        Output("objects", "parquet", "objects.parquet", schema="schemas.objects:OBJECTS_SCHEMA"),
+        Output(
+            "object_features",
+            "parquet",
+            "object_features.parquet",
+            schema="schemas.objects:OBJECT_FEATURES_SCHEMA",
+        ),
+        Output("clustering", "json", "clustering.json"),
+    ),
+    run=deferred("stages.classify.stage:_run"),
+    key_excludes=MODEL_CHOICE_FIELDS,
+    reads_sections=("classes",),
+    description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
+    " pooled over the keyframes that see them",
+)

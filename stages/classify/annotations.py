@@ -19,6 +19,7 @@ import pyarrow as pa
 from schemas.annotations import AnnotatedObject, AnnotationFile
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages, SonarPing
+from stages.classify.config import RASTER_VERSION
 from stages.kernels.geometry import fan_to_xy
 from stages.kernels.lazy import lazy
 
@@ -33,9 +34,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-RASTER_VERSION = 1
-"""Bumped whenever rasterisation could label a cell differently (it enters the train key)."""
 
 SHOWN_TIMES = 5
 """Unmatched annotation times quoted in a message (the rest are counted)."""

@@ -27,20 +27,20 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.model_settings import ModelSettings
 from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
 from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import Input, Output, Stage, StageInputError
+from stages.base import Input, StageInputError
+from stages.classify import STAGE
 from stages.classify.class_columns import class_columns, truth_columns
-from stages.classify.model_choice import MODEL_CHOICE_FIELDS, ModelChoice
+from stages.classify.config import ClassifyConfig
 from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
 from stages.kernels.clustering import clustering
 from stages.kernels.lazy import lazy
@@ -56,91 +56,6 @@ __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "clustering"]
 log = logging.getLogger(__name__)
 
 _SEED_STRIDE = 1_000_003
-
-
-class ClassifyConfig(ModelChoice):
-    """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
-
-    The clustering defaults live once, in `stages.classify.train.TrainConfig`: a model is trained
-    on the objects its clustering produces, so classify reads them from the model file
-    and these fields only override them (an override outside what the model saw in
-    training changes what it is shown).
-    """
-
-    eps_m: float | None = Field(
-        None, gt=0, le=100, description="DBSCAN radius [m]; None: the model's (train.eps_m)"
-    )
-    min_samples: int | None = Field(
-        None,
-        ge=1,
-        le=100000,
-        description="DBSCAN core neighbourhood; None: the model's (train.min_samples)",
-    )
-    min_features: int | None = Field(
-        None,
-        ge=1,
-        le=100000,
-        description="smallest object kept; None: the model's (train.min_features)",
-    )
-    min_object_area_m2: float | None = Field(
-        None,
-        gt=0,
-        le=10000,
-        description="keep only objects whose feature cells cover more than this fan-plane"
-        " area (stages.classify.segmentation.cell_areas_m2; None: no area rule; original sim code:"
-        " > 150 px of 5 cm = 0.375 m2); not applied in training",
-    )
-    drop_fan_edge_objects: bool = Field(
-        False,
-        description="drop objects whose padded bounding box reaches outside the horizontal"
-        " sonar's fan (stages.classify.segmentation.fan_outside_area_m2; original sim code); dropped"
-        " objects are not in objects.parquet",
-    )
-    fan_edge_margin_m: float = Field(
-        0.25,
-        ge=0,
-        le=100,
-        description="padding of the fan-edge box on each side [m] (original 5 px)",
-    )
-    fan_edge_max_outside_m2: float = Field(
-        0.025,
-        gt=0,
-        le=10000,
-        description="an object is dropped when this much of its padded box lies outside the"
-        " fan [m2] (original: 10 px of 5 cm)",
-    )
-    labels: Literal["cnn", "ground_truth"] = Field(
-        "cnn",
-        description="'cnn': the classifier (paper Sec. IV.C); 'ground_truth': an oracle"
-        " ablation, every object takes the majority class of its returns in the recording's"
-        " label images (simulated data only; a class the model has no output for, such as"
-        " 'none', becomes unknown)",
-    )
-    mc_passes: int = Field(20, ge=1, le=1000, description="Monte-Carlo dropout passes m")
-    threshold: float = Field(0.99, ge=0, le=1, description="accept when mean probability > this")
-    seed: int = Field(
-        0, ge=0, le=2**32 - 1, description="dropout-mask seed (combined with keyframe_id)"
-    )
-    pool_views: bool = Field(
-        True,
-        description="decide on the class distribution log-linearly pooled over sightings of"
-        " the same place in nearby keyframes (stages.classify.view_pooling; not in the paper)",
-    )
-    pool_radius_m: float = Field(
-        0.7, gt=0, le=1000, description="sightings within this in the world are one object"
-    )
-    pool_window_m: float = Field(
-        80.0,
-        ge=0,
-        le=100000,
-        description="... when at most this far apart along the track (DR drift)",
-    )
-    pool_range_scale_m: float | None = Field(
-        15.0,
-        gt=0,
-        le=10000,
-        description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
-    )
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -330,32 +245,3 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         keyframes, mount, table,
     )  # fmt: skip
     return {"objects": objects, "object_features": links, "clustering": params}
-
-
-STAGE = Stage(
-    name="classify",
-    # 5: output `clustering` (what submaps clusters its frames with)
-    # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
-    # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
-    version=7,
-    config=ClassifyConfig,
-    inputs=(
-        Input("keyframes", "frames"),
-        Input("keyframes", "keyframes"),
-        Input("keyframes", "sensors"),
-        Input("features", "features"),
-        Input("train", "model"),
-    ),
-    outputs=(
-        Output("objects", "parquet", "objects.parquet", schema=OBJECTS_SCHEMA),
-        Output(
-            "object_features", "parquet", "object_features.parquet", schema=OBJECT_FEATURES_SCHEMA
-        ),
-        Output("clustering", "json", "clustering.json"),
-    ),
-    run=_run,
-    key_excludes=MODEL_CHOICE_FIELDS,
-    reads_sections=("classes",),
-    description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
-    " pooled over the keyframes that see them",
-)

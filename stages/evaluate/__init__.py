@@ -1,19 +1,59 @@
 """The `evaluate` stage: map and trajectory quality against ground truth and the report.
 
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
 Modules:
-    stage: the stage.
+    config: its config section and its figures' files.
+    stage: the computation.
     class_accounting: coverage and error per true class.
     submaps: the map with and without its dense submap frames, side by side.
     report: report.md (its figures: the `map_figures` stage, `stages.map_figures`).
     side_panels: the data of side_view.png (side_view.parquet).
 """
 
-from stages.evaluate.stage import (
-    STAGE,
-    EvaluateConfig,
-    map_errors,
-    surface_metrics,
-    trajectory_errors,
-)
+from stages.base import Input, Output, Stage
+from stages.evaluate.config import EvaluateConfig
+from stages.kernels.lazy import deferred
 
-__all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
+__all__ = ["STAGE", "EvaluateConfig"]
+
+STAGE = Stage(
+    name="evaluate",
+    # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
+    # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
+    # 10: the figures move to the `map_figures` stage; side_view.parquet is the side view's
+    # data, the report lists no figures
+    version=10,
+    config=EvaluateConfig,
+    reads_sections=("classes",),
+    inputs=(
+        Input("voxelize", "map"),
+        Input("voxelize", "summary"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "scene_mesh"),
+        Input("keyframes", "sensors"),
+        Input("slam", "poses"),
+        Input("slam", "factors"),
+        Input("infer", "stats"),
+        Input("submaps", "stats"),
+        Input("keyframes", "frames"),
+        Input("classify", "objects"),
+    ),
+    outputs=(
+        Output("metrics", "json", "metrics.json"),
+        Output(
+            "errors", "parquet", "errors.parquet", optional=True, schema="schemas.map:ERRORS_SCHEMA"
+        ),
+        Output("report", "bytes", "report.md"),
+        Output(
+            "side_view",
+            "parquet",
+            "side_view.parquet",
+            optional=True,
+            schema="schemas.figures:SIDE_VIEW_SCHEMA",
+        ),
+        Output("map_mcap", "bytes", "map.mcap"),
+    ),
+    run=deferred("stages.evaluate.stage:_run"),
+    description="map error to the ground-truth mesh, completeness, ATE and the report",
+)

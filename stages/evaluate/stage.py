@@ -17,19 +17,18 @@ says what was left out and why. The figures are the `map_figures` stage's
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field, field_validator
 
-from schemas.classes import DEFAULT_TABLE, PILING_CLASSES, ClassTable, known_class_names
-from schemas.figures import SIDE_VIEW_SCHEMA
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from schemas.sensors import Sensors
-from stages.base import Input, Output, Stage, StageConfig
+from stages.evaluate import STAGE
 from stages.evaluate.class_accounting import per_class_metrics, remember_last
+from stages.evaluate.config import EvaluateConfig
 from stages.evaluate.foxglove_map import evaluate_map_mcap
 from stages.evaluate.headline import headline_errors, poses_are_ground_truth, visibility_poses
 from stages.evaluate.report import render_markdown
@@ -53,42 +52,6 @@ from stages.kernels.voxels import map_xyz
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 
 logger = logging.getLogger(__name__)
-
-
-class EvaluateConfig(StageConfig):
-    """Config section `evaluate`."""
-
-    tolerance_m: float = Field(
-        0.1, gt=0.0, le=1000.0, description="precision/completeness distance"
-    )
-    completeness_classes: tuple[str, ...] = Field(
-        PILING_CLASSES,
-        description="classes whose surface completeness measures (the default table's"
-        " classes marked `completeness`: the two piling classes)",
-    )
-    surface_samples_per_m2: float = Field(
-        100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
-    )
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the surface sampling")
-    max_range_m: float = Field(
-        30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
-    )
-    fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
-    aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
-    side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
-    trust_cell_m: float = Field(1.0, gt=0.0, le=100.0, description="trust: world column side")
-    trust_height_tolerance_m: float = Field(
-        0.6, gt=0.0, le=100.0, description="trust: a fused point this close in height agrees"
-    )
-
-    @field_validator("completeness_classes")
-    @classmethod
-    def _sane_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        return known_class_names(value)
-
-    def class_names_used(self) -> dict[str, Iterable[str]]:
-        """Class names by field (checked against the class table when the config loads)."""
-        return {"completeness_classes": self.completeness_classes}
 
 
 def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any]]:
@@ -319,37 +282,3 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
     return outputs
-
-
-STAGE = Stage(
-    name="evaluate",
-    # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
-    # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
-    # 10: the figures move to the `map_figures` stage; side_view.parquet is the side view's
-    # data, the report lists no figures
-    version=10,
-    config=EvaluateConfig,
-    reads_sections=("classes",),
-    inputs=(
-        Input("voxelize", "map"),
-        Input("voxelize", "summary"),
-        Input("keyframes", "keyframes"),
-        Input("keyframes", "scene_mesh"),
-        Input("keyframes", "sensors"),
-        Input("slam", "poses"),
-        Input("slam", "factors"),
-        Input("infer", "stats"),
-        Input("submaps", "stats"),
-        Input("keyframes", "frames"),
-        Input("classify", "objects"),
-    ),
-    outputs=(
-        Output("metrics", "json", "metrics.json"),
-        Output("errors", "parquet", "errors.parquet", optional=True, schema=ERRORS_SCHEMA),
-        Output("report", "bytes", "report.md"),
-        Output("side_view", "parquet", "side_view.parquet", optional=True, schema=SIDE_VIEW_SCHEMA),
-        Output("map_mcap", "bytes", "map.mcap"),
-    ),
-    run=_run,
-    description="map error to the ground-truth mesh, completeness, ATE and the report",
-)

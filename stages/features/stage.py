@@ -17,35 +17,14 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
 from schemas.features import FEATURES_SCHEMA, SONARS
 from schemas.sonar import KeyframeImages
-from stages.base import Input, Output, Stage, StageConfig
-from stages.kernels.cfar import CfarMethod
+from stages.features import STAGE
+from stages.features.config import FeaturesConfig
 from stages.kernels.frame_features import detect_ping, keyframe_features
 
 __all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
-
-
-class FeaturesConfig(StageConfig):
-    """Config section `features`.
-
-    Attributes:
-        method: CFAR variant: "soca" (paper), "ca", "go" or "os".
-        train_cells_per_side: training cells on each side of the cell under test, along range.
-        guard_cells_per_side: guard cells on each side, along range.
-        pfa: desired false-alarm probability (sets the threshold factor, exponential model).
-        os_rank: OS only, 1-based rank of the order statistic (0: train_cells_per_side).
-        intensity_floor: a detection also needs an image level above this [0-255 levels].
-    """
-
-    method: CfarMethod = "soca"
-    train_cells_per_side: int = Field(10, ge=1, le=200)
-    guard_cells_per_side: int = Field(5, ge=0, le=200)
-    pfa: float = Field(0.1, gt=0.0, lt=1.0)
-    os_rank: int = Field(0, ge=0, le=400)
-    intensity_floor: float = Field(20.0, ge=0.0, le=65535.0)
 
 
 def features_table(frames: Iterable[KeyframeImages], config: FeaturesConfig) -> pa.Table:
@@ -75,14 +54,3 @@ def features_table(frames: Iterable[KeyframeImages], config: FeaturesConfig) -> 
 def run(config: FeaturesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages]} -> {"features"}."""
     return {"features": features_table(inputs["keyframes.frames"], config)}
-
-
-STAGE = Stage(
-    name="features",
-    version=1,
-    config=FeaturesConfig,
-    inputs=(Input("keyframes", "frames"),),
-    outputs=(Output("features", "parquet", "features.parquet", schema=FEATURES_SCHEMA),),
-    run=run,
-    description="SOCA-CFAR detections on both polar images of every keyframe",
-)

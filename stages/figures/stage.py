@@ -22,24 +22,15 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
-from stages.base import Input, Output, Stage, StageConfig, StageInputError
+from stages.base import Input, StageInputError
+from stages.figures import STAGE
+from stages.figures.config import FiguresConfig
 from stages.figures.overlay import busiest_keyframe, overlay_png
 from stages.figures.trajectory import trajectory_png
 
 __all__ = ["STAGE", "FiguresConfig"]
-
-
-class FiguresConfig(StageConfig):
-    """Config section `figures` (`overlay.png` and `trajectory.png`)."""
-
-    overlay: bool = Field(
-        True,
-        description="draw overlay.png of the keyframe with the most accepted objects"
-        " (was classify.overlay)",
-    )
 
 
 def _se2(table: pa.Table, prefix: str = "") -> np.ndarray:
@@ -99,26 +90,3 @@ def _run(config: FiguresConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "overlay": _overlay(inputs) if config.overlay else None,
         "trajectory": _trajectory(inputs),
     }
-
-
-STAGE = Stage(
-    name="figures",
-    version=1,
-    config=FiguresConfig,
-    reads_sections=("classes", "slam"),
-    inputs=(
-        Input("keyframes", "frames"),
-        Input("keyframes", "keyframes"),
-        Input("classify", "objects"),
-        Input("slam", "poses"),
-        Input("slam", "factors"),
-        Input("slam", "plot_points"),
-    ),
-    outputs=(
-        Output("overlay", "bytes", "overlay.png", optional=True),
-        Output("trajectory", "bytes", "trajectory.png"),
-    ),
-    run=_run,
-    off_critical_path=True,
-    description="overlay.png (classified objects) and trajectory.png (SLAM), nothing waits",
-)

@@ -1,11 +1,30 @@
 """The `fuse` stage (paper Sec. IV.B): orthogonal stereo association of horizontal and vertical features.
 
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
 Modules:
-    stage: the stage: its config section and the fused table, one keyframe at a time
-        through `stages.kernels.fusion` (overlap, Eq. 3 points) and
-        `stages.kernels.association` (Eq. 5 cost, Eq. 6 confidence).
+    config: its config section.
+    stage: the computation: the fused table, one keyframe at a time through
+        `stages.kernels.fusion` (overlap, Eq. 3 points) and `stages.kernels.association`
+        (Eq. 5 cost, Eq. 6 confidence).
 """
 
-from stages.fuse.stage import STAGE, FuseConfig, fuse_table
+from stages.base import Input, Output, Stage
+from stages.fuse.config import FuseConfig
+from stages.kernels.lazy import deferred
 
-__all__ = ["STAGE", "FuseConfig", "fuse_table"]
+__all__ = ["STAGE", "FuseConfig"]
+
+STAGE = Stage(
+    name="fuse",
+    version=1,
+    config=FuseConfig,
+    inputs=(
+        Input("keyframes", "frames"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
+    outputs=(Output("fused", "parquet", "fused.parquet", schema="schemas.fused:FUSED_SCHEMA"),),
+    run=deferred("stages.fuse.stage:run"),
+    description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",
+)

@@ -1,7 +1,9 @@
 """The `infer` stage (paper Sec. IV.D-E): per-class Bayesian height models and MAP prediction.
 
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
 Modules:
-    stage: the stage: fit each class's model on fused points, predict 2D-only returns,
+    stage: the computation: fit each class's model on fused points, predict 2D-only returns,
         write the models (`class_reference`, `class_cells`).
     config: InferConfig and the default classes.
     prediction: paper Eq. 1 for the predicted points.
@@ -13,6 +15,41 @@ The models themselves are kernels, shared with stage `submaps`: `stages.kernels`
 (the input tables as per-object arrays).
 """
 
-from stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
+from stages.base import Input, Output, Stage
+from stages.infer.config import InferConfig
+from stages.kernels.lazy import deferred
 
-__all__ = ["STAGE", "InferConfig", "infer_mission", "infer_points"]
+__all__ = ["STAGE", "InferConfig"]
+
+STAGE = Stage(
+    name="infer",
+    # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
+    # 4: the learned class models are outputs (class_reference, class_cells)
+    version=4,
+    config=InferConfig,
+    reads_sections=("classes",),
+    inputs=(
+        Input("classify", "objects"),
+        Input("classify", "object_features"),
+        Input("features", "features"),
+        Input("fuse", "fused"),
+    ),
+    outputs=(
+        Output("points", "parquet", "points.parquet", schema="schemas.points:POINTS_SCHEMA"),
+        Output("stats", "json", "stats.json"),
+        Output(
+            "class_reference",
+            "parquet",
+            "class_reference.parquet",
+            schema="schemas.class_models:CLASS_REFERENCE_SCHEMA",
+        ),
+        Output(
+            "class_cells",
+            "parquet",
+            "class_cells.parquet",
+            schema="schemas.class_models:CLASS_CELLS_SCHEMA",
+        ),
+    ),
+    run=deferred("stages.infer.stage:_run"),
+    description="object-class Bayesian height models; MAP heights for 2D-only returns",
+)

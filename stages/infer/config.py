@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from schemas.classes import (
@@ -15,9 +14,10 @@ from schemas.classes import (
     known_class_names,
 )
 from stages.base import StageConfig
-from stages.kernels.class_models import DEFAULT_FRAME_KINDS, FrameKind
-from stages.kernels.height_model import UpdateRule
-from stages.kernels.object_frame import IcpParams
+from stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind, UpdateRule
+
+if TYPE_CHECKING:
+    from stages.kernels.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
@@ -265,6 +265,10 @@ class InferConfig(StageConfig):
 
     def icp_params(self) -> IcpParams:
         """The registration bounds as `IcpParams`."""
+        import numpy as np  # here, not at the top: planning reads this module
+
+        from stages.kernels.object_frame import IcpParams
+
         return IcpParams(
             max_correspondence_m=self.icp_max_correspondence_m,
             max_iterations=self.icp_max_iterations,

@@ -62,10 +62,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.classes import DEFAULT_TABLE
-from schemas.points import POINTS_SCHEMA
-from stages.base import Input, Output, Stage
+from stages.infer import STAGE
 from stages.infer.config import InferConfig
 from stages.kernels.class_models import (
     ClassState,
@@ -255,32 +253,3 @@ def _run(config: InferConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     reference, cells = class_model_tables(states)
     return {"points": points, "stats": stats, "class_reference": reference, "class_cells": cells}
-
-
-STAGE = Stage(
-    name="infer",
-    # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
-    # 4: the learned class models are outputs (class_reference, class_cells)
-    version=4,
-    config=InferConfig,
-    reads_sections=("classes",),
-    inputs=(
-        Input("classify", "objects"),
-        Input("classify", "object_features"),
-        Input("features", "features"),
-        Input("fuse", "fused"),
-    ),
-    outputs=(
-        Output("points", "parquet", "points.parquet", schema=POINTS_SCHEMA),
-        Output("stats", "json", "stats.json"),
-        Output(
-            "class_reference",
-            "parquet",
-            "class_reference.parquet",
-            schema=CLASS_REFERENCE_SCHEMA,
-        ),
-        Output("class_cells", "parquet", "class_cells.parquet", schema=CLASS_CELLS_SCHEMA),
-    ),
-    run=_run,
-    description="object-class Bayesian height models; MAP heights for 2D-only returns",
-)

@@ -42,19 +42,16 @@ Per frame, after the overlap selection of `stages.kernels.fusion`:
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
+from stages.kernels.choices import ConfidenceRule
 from stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 
 __all__ = ["ConfidenceRule", "assign_subproblems", "image_patches"]
-
-
-ConfidenceRule = Literal["paper", "ratio"]
-"""`fuse.confidence_rule`: "paper" = Eq. 6; "ratio" = the original code's cost ratio."""
 
 
 def image_patches(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, size: int) -> np.ndarray:

@@ -29,18 +29,16 @@ the order statistic from a strided window view and `np.partition`.
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Literal
 
 import numpy as np
 
+from stages.kernels.choices import CfarMethod
 from stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 special = lazy("scipy.special")
 
 __all__ = ["CfarMethod", "cfar_detect", "cfar_noise", "threshold_factor"]
-
-CfarMethod = Literal["soca", "ca", "go", "os"]
 
 
 def _soca_core(tau: float, half: int) -> float:

@@ -19,6 +19,7 @@ import pyarrow.compute as pc
 
 from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from schemas.classes import DEFAULT_TABLE
+from stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind
 from stages.kernels.fallback_model import CoarseFallbackModel
 from stages.kernels.height_model import HeightModel, UpdateRule, z_grid
 from stages.kernels.object_frame import ClassFrame, IcpParams
@@ -34,12 +35,6 @@ __all__ = [
     "new_class_states",
     "restore_class_states",
 ]
-
-FrameKind = Literal["object", "beam"]
-
-
-DEFAULT_FRAME_KINDS: dict[str, FrameKind] = DEFAULT_TABLE.frame_kinds()
-"""The default class table's frame kinds ('unknown' takes the beam frame)."""
 
 
 def inferred_classes(config: ClassModelSettings) -> tuple[str, ...]:

@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 
+from stages.kernels.choices import UpdateRule
 from stages.kernels.lazy import lazy
 
 special = lazy("scipy.special")
@@ -45,7 +45,6 @@ __all__ = ["HeightModel", "HeightQuery", "UpdateRule", "weighted", "z_grid"]
 
 logger = logging.getLogger(__name__)
 
-UpdateRule = Literal["product", "mixture"]
 
 _OFFSET = 1 << 30
 _STRIDE = 1 << 31

@@ -12,12 +12,13 @@ stage), so callers keep one worker (in this process, no pool) for small jobs.
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
+
+if TYPE_CHECKING:
+    from concurrent.futures import Future
 
 __all__ = ["available_cores", "ordered_map", "release_memory"]
 
@@ -72,6 +73,9 @@ def ordered_map(
     if workers <= 1:
         yield from map(fn, items)
         return
+    import multiprocessing  # here: the engine imports this module on every run, cached too
+    from concurrent.futures import ProcessPoolExecutor
+
     pool = ProcessPoolExecutor(
         workers, multiprocessing.get_context("spawn"), initializer=initializer, initargs=initargs
     )

@@ -15,9 +15,10 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.map import MAP_NAMES
-from stages.base import Input, Output, Stage, StageConfig
 from stages.kernels.ply import decode_mesh_ply
 from stages.kernels.voxels import map_xyz
+from stages.map_figures import STAGE
+from stages.map_figures.config import MapFiguresConfig
 from stages.map_figures.plots import (
     error_boxplot_png,
     side_panels_from_table,
@@ -27,11 +28,6 @@ from stages.map_figures.plots import (
 )
 
 __all__ = ["STAGE", "MapFiguresConfig"]
-
-
-class MapFiguresConfig(StageConfig):
-    """Config section `map_figures` (`errors.png`, `map_topdown.png`, `side_view.png`;
-    the pilings of the side view are evaluate's `side_view_pilings`)."""
 
 
 def _run(_config: MapFiguresConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
@@ -60,29 +56,3 @@ def _run(_config: MapFiguresConfig, inputs: Mapping[str, Any]) -> dict[str, Any]
         np.stack([poses.column("x_m").to_numpy(), poses.column("y_m").to_numpy()], axis=1),
     )
     return outputs
-
-
-STAGE = Stage(
-    name="map_figures",
-    version=1,
-    config=MapFiguresConfig,
-    inputs=(
-        Input("voxelize", "map"),
-        Input("keyframes", "scene_mesh"),
-        Input("slam", "poses"),
-        Input("evaluate", "errors"),
-        Input("evaluate", "side_view"),
-    ),
-    outputs=(
-        Output("errors", "bytes", "errors.png", optional=True),
-        Output("map_topdown", "bytes", "map_topdown.png"),
-        Output("side_view", "bytes", "side_view.png", optional=True),
-    ),
-    run=_run,
-    off_critical_path=True,
-    input_columns=(
-        (Input("voxelize", "map"), ("source", "x_m", "y_m", "z_m")),
-        (Input("evaluate", "errors"), ("source", "error_m")),
-    ),
-    description="errors.png, map_topdown.png, side_view.png of the evaluated map",
-)

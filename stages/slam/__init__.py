@@ -1,7 +1,9 @@
 """The `slam` stage (paper Sec. IV.A): planar pose-graph SLAM over keyframes.
 
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
 Modules:
-    stage: the stage: config in, trajectory and loop closures out.
+    stage: the computation: config in, trajectory and loop closures out.
     config: SlamConfig, every parameter with its unit.
     frontend: the sequential front end: odometry, heading and SSM factors per keyframe.
     loops: loop closure (NSSM), PCM and the final re-registration of every loop.
@@ -9,9 +11,36 @@ Modules:
     pcm: pairwise consistency maximisation of loop closures.
     pose_graph: the iSAM2 pose graph.
     points: the leading-edge points SLAM registers.
-    outputs: trajectory tables and plots.
+    outputs: trajectory tables and the points trajectory.png draws.
 """
 
-from stages.slam.stage import STAGE, SlamConfig, SlamResult, run_slam
+from stages.base import Input, Output, Stage
+from stages.kernels.lazy import deferred
+from stages.slam.config import SlamConfig
 
-__all__ = ["STAGE", "SlamConfig", "SlamResult", "run_slam"]
+__all__ = ["STAGE", "SlamConfig"]
+
+STAGE = Stage(
+    name="slam",
+    # 10: trajectory.png moves to the `figures` stage; plot_points.parquet is what it draws
+    version=10,
+    config=SlamConfig,
+    inputs=(
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "sensors"),
+        Input("features", "features"),
+    ),
+    outputs=(
+        Output("poses", "parquet", "poses.parquet", schema="schemas.slam:POSES_SCHEMA"),
+        Output("factors", "parquet", "factors.parquet", schema="schemas.slam:FACTORS_SCHEMA"),
+        Output("trajectory", "bytes", "trajectory.tum"),
+        Output(
+            "plot_points",
+            "parquet",
+            "plot_points.parquet",
+            schema="schemas.figures:PLOT_POINTS_SCHEMA",
+        ),
+    ),
+    run=deferred("stages.slam.stage:run"),
+    description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",
+)

@@ -4,15 +4,20 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field
 
-from schemas.sensors import Sensors
 from stages.base import StageConfig
-from stages.slam.pcm import CHI2_99_3DOF
 
-__all__ = ["SlamConfig"]
+if TYPE_CHECKING:
+    from schemas.sensors import Sensors
+
+__all__ = ["CHI2_99_3DOF", "SlamConfig"]
+
+CHI2_99_3DOF = 11.344866730144373
+"""chi2.ppf(0.99, 3) (a test checks it against scipy)."""
+"""11.34: the 99 % chi-square quantile with 3 degrees of freedom (the authors' threshold)."""
 
 
 _WindowM = Annotated[float, Field(gt=0, le=1000)]
@@ -234,5 +239,7 @@ def with_sensor_fan(config: SlamConfig, sensors: Sensors | Mapping[str, Any] | N
     fan from the keyframes sensors, else `LEGACY_FAN_DEG`."""
     if config.nssm_aperture_deg is not None:
         return config
+    from schemas.sensors import Sensors  # numpy: not while planning reads this module
+
     fan = None if sensors is None else Sensors.of(sensors).horizontal.fov_deg
     return config.model_copy(update={"nssm_aperture_deg": float(fan or LEGACY_FAN_DEG)})

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from stages.kernels.lazy import lazy
+from stages.slam.config import CHI2_99_3DOF
 from stages.slam.pose_graph import se2_adjoint, se2_between, se2_compose, se2_inverse, se2_log
 
 __all__ = [
@@ -32,9 +33,6 @@ __all__ = [
 
 stats = lazy("scipy.stats")
 
-CHI2_99_3DOF = 11.344866730144373
-"""chi2.ppf(0.99, 3) (a test checks it against scipy)."""
-"""11.34: the 99 % chi-square quantile with 3 degrees of freedom (the authors' threshold)."""
 
 _EXACT_CLIQUE_LIMIT = 48
 _PAIR_BLOCK = 100_000

@@ -42,10 +42,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.figures import PLOT_POINTS_SCHEMA
 from schemas.sensors import Sensors
-from schemas.slam import FACTORS_SCHEMA, POSES_SCHEMA
-from stages.base import Input, Output, Stage, StageInputError
+from stages.base import Input, StageInputError
+from stages.slam import STAGE
 from stages.slam.config import SlamConfig, with_sensor_fan
 from stages.slam.frontend import SlamResult, run_slam
 from stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
@@ -124,24 +123,3 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "trajectory": tum_text(t_ns, pose6),
         "plot_points": plot_points(pose6[:, [0, 1, 5]], points, config.plot_max_points),
     }
-
-
-STAGE = Stage(
-    name="slam",
-    # 10: trajectory.png moves to the `figures` stage; plot_points.parquet is what it draws
-    version=10,
-    config=SlamConfig,
-    inputs=(
-        Input("keyframes", "keyframes"),
-        Input("keyframes", "sensors"),
-        Input("features", "features"),
-    ),
-    outputs=(
-        Output("poses", "parquet", "poses.parquet", schema=POSES_SCHEMA),
-        Output("factors", "parquet", "factors.parquet", schema=FACTORS_SCHEMA),
-        Output("trajectory", "bytes", "trajectory.tum"),
-        Output("plot_points", "parquet", "plot_points.parquet", schema=PLOT_POINTS_SCHEMA),
-    ),
-    run=run,
-    description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",
-)

@@ -7,7 +7,10 @@ from pydantic import Field
 
 from stages.base import StageConfig
 
-__all__ = ["SubmapsConfig"]
+__all__ = ["READ_SECTIONS", "SubmapsConfig"]
+
+READ_SECTIONS = ("keyframes", "features", "fuse", "infer")
+"""Config sections, besides `classes`, that the stage reads and hashes into its key."""
 
 
 class SubmapsConfig(StageConfig):

@@ -50,7 +50,7 @@ from schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import DATASET, Input, Output, Stage, StageInputError
+from stages.base import Input, StageInputError
 from stages.kernels.class_models import (
     ClassModelSettings,
     ClassState,
@@ -62,14 +62,14 @@ from stages.kernels.fusion import sonar_offset
 from stages.kernels.pairing import interpolate_poses, posed_pairs
 from stages.kernels.poses import pose_matrix
 from stages.kernels.sightings import column, object_feature_rows
+from stages.submaps import STAGE
+from stages.submaps.config import READ_SECTIONS as _SECTIONS
 from stages.submaps.config import SubmapsConfig
 from stages.submaps.frames import submap_frame_rows
 from stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
 from stages.submaps.workers import mapped_chunks
 
 __all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
-
-_SECTIONS = ("keyframes", "features", "fuse", "infer")
 
 
 def _clustering(params: Mapping[str, Any]) -> tuple[float, int, int]:
@@ -206,36 +206,3 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config,
     )
     return {"frames": frames, "points": points, "stats": stats}
-
-
-STAGE = Stage(
-    name="submaps",
-    # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
-    # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
-    # 4: the class models are infer's outputs, read back, and the clustering classify's
-    # (same bytes)
-    version=4,
-    config=SubmapsConfig,
-    inputs=(
-        DATASET,
-        Input("keyframes", "keyframes"),
-        Input("keyframes", "sensors"),
-        Input("classify", "objects"),
-        Input("classify", "object_features"),
-        Input("classify", "clustering"),
-        Input("features", "features"),
-        Input("fuse", "fused"),
-        Input("infer", "class_reference"),
-        Input("infer", "class_cells"),
-    ),
-    outputs=(
-        Output("frames", "parquet", "submap_frames.parquet", schema=SUBMAP_FRAMES_SCHEMA),
-        Output("points", "parquet", "submap_points.parquet", schema=SUBMAP_POINTS_SCHEMA),
-        Output("stats", "json", "stats.json"),
-    ),
-    run=_run,
-    description="dense submaps: the ping pairs between keyframes, anchored to their keyframe",
-    reads_sections=(*_SECTIONS, "classes"),
-    dataset_section="keyframes",
-    key_excludes=("workers",),
-)

@@ -32,26 +32,26 @@ properties class_id, source and keyframe_id (`stages.kernels.map_codes`).
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from pydantic import Field, field_validator
 
-from schemas.classes import DEFAULT_TABLE, ClassTable, known_class_names
+from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
 from schemas.sensors import Sensors
 from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.base import Input, Output, Stage, StageConfig
-from stages.kernels.class_models import DEFAULT_FRAME_KINDS
 from stages.kernels.colormaps import VIRIDIS_RGB8
 from stages.kernels.map_codes import class_ids, source_ids
 from stages.kernels.ply import encode_points_ply
 from stages.kernels.poses import pose_matrices
 from stages.kernels.registration import submap_world_points, world_points, xyz_columns
 from stages.kernels.voxels import map_xyz, standard_rows, voxel_keys
+from stages.voxelize import STAGE
+from stages.voxelize.config import XYZ as _XYZ
+from stages.voxelize.config import VoxelizeConfig
 from stages.voxelize.evidence import contradicted_by_fused
 
 __all__ = [
@@ -63,48 +63,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-_XYZ = ("x_m", "y_m", "z_m")
-
-DEFAULT_EVIDENCE_CLASSES: tuple[str, ...] = tuple(
-    sorted(c for c, kind in DEFAULT_FRAME_KINDS.items() if kind == "beam")
-)
-"""The beam-frame classes: their frames need no registration, so nothing upstream checks
-that an object fits its class's model (a piling's ICP registration does). The check's
-three numbers (1 m cells, 0.6 m, 5 points) come from one rule, measured in
-docs/decisions/008-fused-evidence-check.md."""
-
-
-class VoxelizeConfig(StageConfig):
-    """Config section `voxelize`."""
-
-    voxel_size_m: float = Field(
-        0.1, ge=0.001, le=100.0, description="edge of a map voxel (paper: 10 cm)"
-    )
-    drop_above_surface: bool = Field(True, description="drop world points with z > 0")
-    evidence_classes: tuple[str, ...] = Field(
-        DEFAULT_EVIDENCE_CLASSES,
-        description="classes whose inferred points the fused points of their world column"
-        " may contradict and so drop (empty: keep every inferred point, as the paper)",
-    )
-    evidence_cell_m: float = Field(
-        1.0, gt=0.0, le=100.0, description="side of a world column's square cell"
-    )
-    evidence_height_tolerance_m: float = Field(
-        0.6, ge=0.0, le=100.0, description="a fused point this close in height supports"
-    )
-    evidence_min_fused: int = Field(
-        5, ge=1, le=1_000_000, description="columns with fewer fused points decide nothing"
-    )
-
-    @field_validator("evidence_classes")
-    @classmethod
-    def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        return known_class_names(value)
-
-    def class_names_used(self) -> dict[str, Iterable[str]]:
-        """Class names by field (checked against the class table when the config loads)."""
-        return {"evidence_classes": self.evidence_classes}
 
 
 def _class_lookup(fused: pa.Table, points: pa.Table) -> pa.Array:
@@ -344,35 +302,3 @@ def _run(config: VoxelizeConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "map_standard": plys["standard"],
         "map_semantic": plys["semantic"],
     }
-
-
-STAGE = Stage(
-    name="voxelize",
-    # 2: map.parquet gains frame_id; submap frames join the maps
-    # 3: inferred beam-frame points that the fused points contradict are dropped
-    version=4,  # 4: the PLYs gain vertex properties class_id, source, keyframe_id
-    config=VoxelizeConfig,
-    reads_sections=("classes",),
-    inputs=(
-        Input("infer", "points"),
-        Input("fuse", "fused"),
-        Input("slam", "poses"),
-        Input("keyframes", "sensors"),
-        Input("submaps", "frames"),
-        Input("submaps", "points"),
-    ),
-    input_columns=(
-        (Input("infer", "points"), ("keyframe_id", "source", "class_name", *_XYZ)),
-        (Input("fuse", "fused"), ("keyframe_id", *_XYZ)),
-        (Input("submaps", "points"), ("frame_id", "source", "class_name", *_XYZ)),
-    ),
-    outputs=(
-        Output("map", "parquet", "map.parquet", schema=MAP_SCHEMA),
-        Output("voxels", "parquet", "voxels.parquet", schema=VOXELS_SCHEMA),
-        Output("summary", "json", "summary.json"),
-        Output("map_standard", "bytes", "map_standard.ply"),
-        Output("map_semantic", "bytes", "map_semantic.ply"),
-    ),
-    run=_run,
-    description="register points with SLAM poses (Eq. 4), standard and semantic maps, voxel counts",
-)

@@ -20,17 +20,15 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator, Mapping
-from typing import Annotated, Any
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
 from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from schemas.recording import Recording
-from schemas.sensors import Sensors
 from schemas.sonar import KeyframeImages
-from stages.base import DATASET, Output, Stage, StageConfig, StageInputError
+from stages.base import DATASET, StageInputError
 from stages.kernels.pairing import (
     PingPairs,
     PosedPairs,
@@ -39,6 +37,8 @@ from stages.kernels.pairing import (
     posed_pairs,
 )
 from stages.kernels.sonar_geometry import sonar_geometry
+from stages.keyframes import STAGE
+from stages.keyframes.config import KeyframesConfig
 
 __all__ = [
     "STAGE",
@@ -53,87 +53,6 @@ __all__ = [
 
 
 log = logging.getLogger(__name__)
-
-
-_MountM = Annotated[float, Field(ge=-100.0, le=100.0)]
-_MountDeg = Annotated[float, Field(ge=-360.0, le=360.0)]
-
-
-class KeyframesConfig(StageConfig):
-    """Config section `keyframes`.
-
-    Attributes:
-        spacing_m: new keyframe after this much travel (3D) since the last one [m].
-        rotation_deg: ... or after this much |yaw change| [deg].
-        min_gap_s: never two keyframes closer in time than this [s].
-        pair_tolerance_s: largest |t_h - t_v| of a sonar pair [s].
-        horizontal_topic, vertical_topic: sonar topics (None: found by type/name).
-        navigation_topic: Odometry/PoseStamped/PoseWithCovarianceStamped topic (None: found).
-        ground_truth_topic: true pose topic (None: /ground_truth/odometry if present).
-        dvl_topic, imu_topic: dead-reckoning inputs when no navigation topic.
-        depth_topic: depth source (FluidPressure, a `depth` field, or a pose's z); with a
-            navigation topic it replaces the navigation's z.
-        dvl_max_velocity_mps: DVL samples faster than this are dropped as implausible [m/s]
-            (a limit well above vehicle speed; the drops are counted and reported).
-        water_density_kg_m3, gravity_m_s2: depth from pressure, (p - p_surface) / (rho g).
-        surface_pressure_pa: p_surface [Pa] (None: from `surface_pressure_from_first_s`,
-            else one standard atmosphere).
-        surface_pressure_from_first_s: take p_surface as the median pressure of the
-            recording's first seconds (the vehicle at the surface).
-        image_fov_deg, image_max_range_m: beam table of polar sensor_msgs images (both
-            sonars; evenly spaced beams) where a sonar has no preset or table of its own.
-        horizontal_sonar, vertical_sonar: the sonar's geometry: a preset name
-            (`configs/sonars/`, e.g. "oculus-m750d-750khz", "aris3000-128") or a CSV/YAML
-            file of beam angles [deg] in image-column order, positive to the sonar's left.
-            Gives polar images their (possibly uneven) beam table, and every sonar its
-            fan, range and vertical aperture in `sensors.json` (None: from the messages).
-        horizontal_image_max_range_m, vertical_image_max_range_m: range of that sonar's
-            polar images [m] (None: image_max_range_m).
-        message_definitions: `.msg` / `.idl` files of custom ROS 2 message types the
-            recording uses (a .msg file's type is its path: pkg/msg/Name.msg).
-        base_frame: the vehicle frame mounts are composed from in the recording's tf tree.
-        *_mount_xyz_m, *_mount_rpy_deg: T_base_sensor; None takes it from the recording's
-            /tf_static (/tf) tree by the sensor messages' frame_id, else a default (warned).
-            Set, they override the recording.
-        submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
-            k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
-            only (the paper). Read by `submaps` only, so it is not in this stage's key.
-    """
-
-    spacing_m: float = Field(2.0, gt=0.0, le=1000.0)
-    rotation_deg: float = Field(30.0, gt=0.0, le=360.0)
-    min_gap_s: float = Field(1.0, ge=0.0, le=3600.0)
-    pair_tolerance_s: float = Field(0.1, ge=0.0, le=60.0)
-    horizontal_topic: str | None = Field(None, min_length=1)
-    vertical_topic: str | None = Field(None, min_length=1)
-    navigation_topic: str | None = Field(None, min_length=1)
-    ground_truth_topic: str | None = Field(None, min_length=1)
-    dvl_topic: str | None = Field(None, min_length=1)
-    imu_topic: str | None = Field(None, min_length=1)
-    depth_topic: str | None = Field(None, min_length=1)
-    dvl_max_velocity_mps: float = Field(5.0, gt=0.0, le=50.0)
-    water_density_kg_m3: float = Field(1025.0, ge=900.0, le=1100.0)
-    gravity_m_s2: float = Field(9.80665, ge=9.7, le=9.9)
-    surface_pressure_pa: float | None = Field(None, ge=50_000.0, le=120_000.0)
-    surface_pressure_from_first_s: float | None = Field(None, gt=0.0, le=3600.0)
-    image_fov_deg: float = Field(130.0, gt=0.0, le=360.0)
-    image_max_range_m: float = Field(30.0, gt=0.0, le=1000.0)
-    horizontal_sonar: str | None = Field(None, min_length=1, max_length=4096)
-    vertical_sonar: str | None = Field(None, min_length=1, max_length=4096)
-    horizontal_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
-    vertical_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
-    message_definitions: tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...] = Field(
-        (), max_length=64
-    )
-    base_frame: str = Field("base_link", min_length=1, max_length=200)
-    horizontal_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
-    horizontal_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
-    vertical_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
-    vertical_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
-    dvl_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
-    dvl_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
-    imu_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
-    submap_stride: int = Field(0, ge=0, le=10000)
 
 
 def select_keyframes(
@@ -279,21 +198,3 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         "sensors": sensors,
         "scene_mesh": rec.attachments().get("scene.ply"),
     }
-
-
-STAGE = Stage(
-    name="keyframes",
-    # 3: keyframes.mcap in LZ4 chunks (was zstd): same images, other bytes
-    version=3,
-    config=KeyframesConfig,
-    inputs=(DATASET,),
-    outputs=(
-        Output("keyframes", "parquet", "keyframes.parquet", schema=KEYFRAMES_SCHEMA),
-        Output("frames", "frames", "keyframes.mcap"),
-        Output("sensors", "json", "sensors.json", record=Sensors),
-        Output("scene_mesh", "bytes", "scene.ply", optional=True),
-    ),
-    run=run,
-    description="pair sonar pings, pose them from navigation, select keyframes by spacing",
-    key_excludes=("submap_stride",),
-)

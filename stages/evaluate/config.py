@@ -1,0 +1,48 @@
+"""Config section `evaluate` (imports no numpy or pyarrow: planning reads it)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from pydantic import Field, field_validator
+
+from schemas.classes import PILING_CLASSES, known_class_names
+from stages.base import StageConfig
+
+__all__ = ["EvaluateConfig"]
+
+
+class EvaluateConfig(StageConfig):
+    """Config section `evaluate`."""
+
+    tolerance_m: float = Field(
+        0.1, gt=0.0, le=1000.0, description="precision/completeness distance"
+    )
+    completeness_classes: tuple[str, ...] = Field(
+        PILING_CLASSES,
+        description="classes whose surface completeness measures (the default table's"
+        " classes marked `completeness`: the two piling classes)",
+    )
+    surface_samples_per_m2: float = Field(
+        100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
+    )
+    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the surface sampling")
+    max_range_m: float = Field(
+        30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
+    )
+    fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
+    aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
+    side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
+    trust_cell_m: float = Field(1.0, gt=0.0, le=100.0, description="trust: world column side")
+    trust_height_tolerance_m: float = Field(
+        0.6, gt=0.0, le=100.0, description="trust: a fused point this close in height agrees"
+    )
+
+    @field_validator("completeness_classes")
+    @classmethod
+    def _sane_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        return known_class_names(value)
+
+    def class_names_used(self) -> dict[str, Iterable[str]]:
+        """Class names by field (checked against the class table when the config loads)."""
+        return {"completeness_classes": self.completeness_classes}

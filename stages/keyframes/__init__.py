@@ -1,0 +1,33 @@
+"""The `keyframes` stage: pair the sonars in time, pose each pair, keep pairs by spacing.
+
+This module declares the stage (what planning imports: no numpy, no pyarrow).
+
+Modules:
+    config: its config section.
+    stage: the computation (`stages.kernels.pairing` pairs and poses the pings).
+"""
+
+from stages.base import DATASET, Output, Stage
+from stages.kernels.lazy import deferred
+from stages.keyframes.config import KeyframesConfig
+
+__all__ = ["STAGE", "KeyframesConfig"]
+
+STAGE = Stage(
+    name="keyframes",
+    # 3: keyframes.mcap in LZ4 chunks (was zstd): same images, other bytes
+    version=3,
+    config=KeyframesConfig,
+    inputs=(DATASET,),
+    outputs=(
+        Output(
+            "keyframes", "parquet", "keyframes.parquet", schema="schemas.keyframes:KEYFRAMES_SCHEMA"
+        ),
+        Output("frames", "frames", "keyframes.mcap"),
+        Output("sensors", "json", "sensors.json", record="schemas.sensors:Sensors"),
+        Output("scene_mesh", "bytes", "scene.ply", optional=True),
+    ),
+    run=deferred("stages.keyframes.stage:run"),
+    description="pair sonar pings, pose them from navigation, select keyframes by spacing",
+    key_excludes=("submap_stride",),
+)
