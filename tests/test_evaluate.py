@@ -190,6 +190,37 @@ def test_visibility_respects_range_fan_aperture_and_surface() -> None:
     assert seen.tolist() == [True, False, False, False, False, True]
 
 
+def test_bucketing_points_by_cell_keeps_every_point_a_full_scan_sees() -> None:
+    """`visible_mask` tests each keyframe against the points of nearby cells only; the
+    answer must equal testing every point against every keyframe, points at the range's
+    edge included."""
+    rng = np.random.default_rng(11)
+    poses = np.tile(np.eye(4), (12, 1, 1))
+    poses[:, :3, :3] = [matrix_from_rpy([0.0, 0.0, yaw]) for yaw in rng.uniform(-3, 3, 12)]
+    poses[:, :2, 3] = rng.uniform(-40, 40, (12, 2))
+    poses[:, 2, 3] = -1.0
+    ring = rng.uniform(-np.pi, np.pi, 400)  # points 30 m +- 1 mm from the first keyframe
+    edge = poses[0, :3, 3] + np.stack(
+        [np.cos(ring), np.sin(ring), np.zeros(400)], axis=1
+    ) * rng.uniform(29.999, 30.001, (400, 1))
+    pts = np.concatenate([rng.uniform([-80, -80, -6], [80, 80, 0.5], (20000, 3)), edge])
+    full = np.zeros(len(pts), dtype=bool)
+    for T in poses.astype(np.float32):  # the test of every point, without cells
+        local = (pts.astype(np.float32) - T[:3, 3]) @ T[:3, :3]
+        r2_xy = local[:, 0] ** 2 + local[:, 1] ** 2
+        r2 = r2_xy + local[:, 2] ** 2
+        full |= (
+            (r2 <= 30.0**2)
+            & (r2 > 0)
+            & (local[:, 0] >= np.cos(np.deg2rad(65)) * np.sqrt(r2_xy))
+            & (local[:, 2] ** 2 <= np.sin(np.deg2rad(10)) ** 2 * r2)
+        )
+    full &= pts[:, 2] <= 0
+    seen = visible_mask(pts, poses, 30.0, np.deg2rad(65), np.deg2rad(10))
+    assert 1000 < seen.sum() < len(pts)
+    assert np.array_equal(seen, full)
+
+
 def test_the_far_side_of_a_piling_is_hidden_behind_its_near_side() -> None:
     centre = np.array([6.0, 3.0, -2.0])  # the tiny scene's round piling, radius 0.25 m
     u = centre / np.linalg.norm(centre[:2]) * [1, 1, 0]

@@ -117,6 +117,35 @@ def surface_samples(
     return a[faces] + u[:, None] * (b[faces] - a[faces]) + v[:, None] * (c[faces] - a[faces])
 
 
+class _PlanarCells:
+    """Points bucketed in square xy cells, so that a keyframe tests only the points near
+    it instead of every point (the per-keyframe test is the same; `visible_mask`)."""
+
+    def __init__(self, points_m: np.ndarray, index: np.ndarray, cell_m: float) -> None:
+        self.cell_m = float(cell_m)
+        ij = np.floor(points_m[index, :2] / self.cell_m).astype(np.int64).reshape(-1, 2)
+        self.lo = ij.min(axis=0) if len(ij) else np.zeros(2, np.int64)
+        ij -= self.lo
+        self.shape = (ij.max(axis=0) + 1) if len(ij) else np.ones(2, np.int64)
+        cell = ij[:, 0] * self.shape[1] + ij[:, 1]
+        order = np.argsort(cell, kind="stable")
+        self.index = index[order]
+        self.starts = np.searchsorted(cell[order], np.arange(int(np.prod(self.shape)) + 1))
+
+    def within_box(self, centre_xy_m: np.ndarray, half_side_m: float) -> np.ndarray:
+        """Indices of every point in the cells that meet the square (a superset of it)."""
+        c = np.asarray(centre_xy_m, dtype=np.float64)
+        lo = np.maximum(np.floor((c - half_side_m) / self.cell_m).astype(np.int64) - self.lo, 0)
+        hi = np.minimum(
+            np.floor((c + half_side_m) / self.cell_m).astype(np.int64) - self.lo, self.shape - 1
+        )
+        if (lo > hi).any():
+            return np.zeros(0, np.int64)
+        rows = np.arange(lo[0], hi[0] + 1) * self.shape[1]
+        a, b = self.starts[rows + lo[1]], self.starts[rows + hi[1] + 1]
+        return np.concatenate([self.index[x:y] for x, y in zip(a, b, strict=True)])
+
+
 def visible_mask(
     points_m: np.ndarray,
     T_world_sonar: np.ndarray,
@@ -144,8 +173,12 @@ def visible_mask(
     below = p[:, 2] <= 0.0
     seen = np.zeros(len(p), dtype=bool)
     cos_fan, sin_aperture = np.cos(half_fan_rad), np.sin(half_aperture_rad)
+    cells = _PlanarCells(p, np.flatnonzero(below), max_range_m / 2.0)
+    # A little beyond the range, so float32 rounding never drops a point the exact test keeps.
+    reach = max_range_m * (1.0 + 1e-5) + 1e-3
     for T in np.asarray(T_world_sonar, dtype=np.float32):
-        todo = np.flatnonzero(below & ~seen)
+        todo = cells.within_box(T[:2, 3], reach)
+        todo = todo[~seen[todo]]
         d = p[todo] - T[:3, 3]
         local = d @ T[:3, :3]
         r2_xy = local[:, 0] ** 2 + local[:, 1] ** 2
@@ -171,7 +204,7 @@ def nearest_distance(query_m: np.ndarray, cloud_m: np.ndarray, upper_m: float) -
     if len(cloud_m) == 0 or len(q) == 0:
         return np.full(len(q), np.inf)
     d, _ = spatial.cKDTree(np.asarray(cloud_m, dtype=np.float64)).query(
-        q, distance_upper_bound=upper_m
+        q, distance_upper_bound=upper_m, workers=-1
     )
     return np.asarray(d, dtype=np.float64)
 
