@@ -74,8 +74,19 @@ class TrainConfig(StageConfig):
     hidden: int = Field(128, ge=1, le=65536)
     dropout_p: float = Field(0.05, ge=0, lt=1, description="MC dropout rate (original: 0.1)")
     spatial_dropout: bool = Field(False, description="drop whole conv channels, not units")
-    epochs: int = Field(120, ge=1, le=100000)
+    epochs: int = Field(
+        120, ge=1, le=100000, description="passes over the set, at most (`max_presentations`)"
+    )
     batch_size: int = Field(64, ge=1, le=65536)
+    max_presentations: int = Field(
+        150_000,
+        ge=1,
+        le=10**9,
+        description="sample presentations per fit at most: a larger set gets fewer epochs"
+        " (at least 1). Rule: the budget the hand-written default set converges with"
+        " (1,209 samples x 120 epochs = 145,080, rounded up, so that model is unchanged),"
+        " so every fit, and every size of the size rule, costs at most one default training",
+    )
     learning_rate: float = Field(2e-3, gt=0, le=10, description="peak of the one-cycle schedule")
     noise_std: float = Field(
         0.0, ge=0, le=10, description="Gaussian noise on [0, 1] patches (paper; off: see `augment`)"
@@ -97,7 +108,7 @@ class TrainConfig(StageConfig):
         3, ge=0, le=100000, description="training keyframes dropped beside val"
     )
     # The size rule (`stages.classify.size_rule`), with held-out datasets only.
-    grow_step_datasets: int = Field(2, ge=1, le=1000, description="datasets added per step")
+    grow_step_datasets: int = Field(2, ge=1, le=1000, description="first size; then doubled")
     grow_min_gain_f1: float = Field(0.01, ge=0, le=1, description="held-out macro-F1 gain")
     grow_patience: int = Field(2, ge=1, le=100, description="steps without that gain to stop")
     mc_passes: int = Field(20, ge=1, le=1000, description="MC passes for the validation metrics")
@@ -237,6 +248,11 @@ def augment(x: torch.Tensor, cfg: TrainConfig, gen: torch.Generator) -> torch.Te
     return out.clamp_(0.0, 1.0)
 
 
+def epochs_for(n_samples: int, cfg: TrainConfig) -> int:
+    """`cfg.epochs`, cut so that n_samples x epochs stays within `cfg.max_presentations`."""
+    return max(1, min(cfg.epochs, cfg.max_presentations // max(n_samples, 1)))
+
+
 def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfig) -> PatchCNN:
     """Train a `PatchCNN` with Adam on class-balanced, augmented epochs.
 
@@ -255,7 +271,8 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
         n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX, cfg.spatial_dropout
     )
     opt = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate, eps=1e-7)
-    steps = cfg.epochs * -(-len(target) // cfg.batch_size)
+    epochs = epochs_for(len(target), cfg)
+    steps = epochs * -(-len(target) // cfg.batch_size)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.learning_rate, total_steps=max(steps, 1))
     x_all = torch.from_numpy(np.ascontiguousarray(patches, np.float32))[:, None]
     y_all = torch.from_numpy(target.astype(np.int64))
@@ -263,7 +280,7 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
     weights = (1.0 / counts.clamp(min=1))[y_all]
     n = len(y_all)
     model.train()
-    for epoch in range(cfg.epochs):
+    for epoch in range(epochs):
         idx = torch.multinomial(weights, n, replacement=True, generator=gen)
         total = 0.0
         for start in range(0, n, cfg.batch_size):
@@ -383,7 +400,7 @@ def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="train",
-    version=3,
+    version=4,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
