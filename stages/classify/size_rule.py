@@ -97,9 +97,11 @@ def grow(
     converged = misses >= cfg.grow_patience
     if not converged:
         log.warning(
-            "size rule: held-out macro-F1 still rose at the largest set (%d datasets); more"
-            " worlds may help (training.procedural.worlds)",
+            "size rule: the sizes ran out before %d in a row without a gain (best: %d of %d"
+            " datasets); more worlds may help (training.procedural.worlds)",
+            cfg.grow_patience,
             best[1],
+            n_datasets,
         )
     curve = {
         "rule": f"double the datasets from {cfg.grow_step_datasets}; stop after"
