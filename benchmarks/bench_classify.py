@@ -3,10 +3,12 @@ on simulated missions it never saw, with and without multi-view pooling, and cla
 throughput (keyframes/s with m = 20 MC-dropout passes).
 
     .venv/bin/python benchmarks/bench_classify.py [--store data/store]
-        [--test marina:0,marina:1,pier:2] [--data data/bench]
+        [--test marina:0,marina:1,pier:2] [--data data/bench] [--model DIR|train/<key>]
+        [--views pooled,single_view]
 
 The default model (`training.sets`) is trained in `--store` on first use (a cache hit
-afterwards; its recorded build time is reported either way). Each test mission
+afterwards; its recorded build time is reported either way); `--model` scores another one
+instead (`classify.model`, e.g. a procedural model's train folder). Each test mission
 (`scene:seed[:goals]`, the scene's default goals when omitted) is simulated into `--data`
 and run through the pipeline up to `classify` with the default config (keyframes every
 2 m, CFAR features), once with `classify.pool_views` (default) and once without. The
@@ -187,6 +189,8 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=ROOT / "data/bench")
     ap.add_argument("--test", default="marina:0,marina:1,pier:2", help="scene:seed[:goals],...")
     ap.add_argument("--repeat", type=int, default=3, help="timed classify runs (median)")
+    ap.add_argument("--model", help="classify.model: a train folder or train/<key>")
+    ap.add_argument("--views", default="pooled,single_view", help="pooled and/or single_view")
     args = ap.parse_args()
     args.data.mkdir(parents=True, exist_ok=True)
 
@@ -194,23 +198,25 @@ def main() -> None:
     import stages.classify.cnn  # noqa: F401
 
     config = load_config(all_stages(), None, (), extra_sections())
-    t0 = time.perf_counter()
-    _, model = resolve_model(ArtifactStore(args.store), config)
-    report: dict[str, object] = {
-        "train": {
+    chosen = [f"classify.model={args.model}"] if args.model else []
+    report: dict[str, object] = {"train": {"model": args.model}}
+    if not args.model:
+        t0 = time.perf_counter()
+        _, model = resolve_model(ArtifactStore(args.store), config)
+        report["train"] = {
             "seconds_now": round(time.perf_counter() - t0, 1),
             "build_seconds": model.manifest.get("build_seconds"),
             "key": model.key,
         }
-    }
+    views = {"pooled": [], "single_view": ["classify.pool_views=false"]}
     for scene, seed, goals in _sets(args.test):
         suffix = f"-goals{goals}" if goals else ""
         dataset = ensure_simulation(
             scene_path(scene), seed, args.data / f"{scene}-seed{seed}{suffix}.mcap", goals=goals
         )
         row: dict[str, object] = {}
-        for label, overrides in (("pooled", []), ("single_view", ["classify.pool_views=false"])):
-            objects, timing = _classify(dataset, args.store, overrides, args.repeat)
+        for label in args.views.split(","):
+            objects, timing = _classify(dataset, args.store, chosen + views[label], args.repeat)
             row[label] = {
                 **timing,
                 "median_views": float(np.median(objects["n_views"].to_numpy())),
@@ -220,7 +226,7 @@ def main() -> None:
         report[f"{scene}:{seed}"] = row
     # The headline figure: the first test mission, pooled (the default config).
     scene, seed, _ = _sets(args.test)[0]
-    first = report[f"{scene}:{seed}"]["pooled"]  # type: ignore[index]
+    first = report[f"{scene}:{seed}"][args.views.split(",")[0]]  # type: ignore[index]
     report["keyframes_per_s"] = first["keyframes_per_s"]
     report["keyframes_per_s_goal"] = GOAL_KEYFRAMES_PER_S
     report["keyframes_per_s_now"] = NOW_KEYFRAMES_PER_S

@@ -14,6 +14,10 @@ Per scene and labelling it prints, beside the goals:
 - the CNN's object confusion (true class -> assigned class counts).
 
     .venv/bin/python benchmarks/frozen_scenes.py [SCENE ...] [--store DIR] [--set k=v ...]
+        [--labels cnn,oracle]
+
+(`--labels cnn --set classify.model=DIR` scores another model; the oracle does not depend
+on it.)
 
 Prints one JSON document on stdout and the tables on stderr.
 """
@@ -111,10 +115,12 @@ def main() -> None:
     )
     ap.add_argument("--store", default=str(ROOT / "data" / "store"))
     ap.add_argument("--set", dest="sets", action="append", default=[], help="section.field=value")
+    ap.add_argument("--labels", default="cnn,oracle", help="labellings to run: cnn and/or oracle")
     args = ap.parse_args()
     rows = []
     for dataset in _recordings(args.scenes):
-        for labelling, sets in LABELLINGS.items():
+        for labelling in args.labels.split(","):
+            sets = LABELLINGS[labelling]
             result = _run(dataset, Path(args.store), [*sets, *args.sets])
             rows.append({"dataset": dataset.name, "labels": labelling, **_figures(result)})
     print(json.dumps({"goals": GOALS, "overrides": args.sets, "rows": rows}, indent=2))

@@ -9,7 +9,9 @@ wall, a truss braced on pilings, pilings in clusters). The missions through thes
 are the simulator's own (`sim.mission`).
 
 Every object's footprint lies inside the scene's working area, and every scene holds
-every class, so a training set of a few worlds already covers the table.
+every class, so a training set of a few worlds already covers the table. The free water
+at the mission's depth and clearance is one piece (`sim.open_water`), so the mission
+reaches every goal it draws.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import math
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from sim.open_water import open_pockets
 from sim.scene import (
     BoatHull,
     CylindricalPiling,
@@ -72,6 +75,11 @@ class ProceduralConfig(BaseModel):
     hull_beam_share: Span = (0.25, 0.4)
     hull_draft_m: Span = (0.6, 2.2)
     moored_share: float = Field(0.5, ge=0.0, le=1.0)
+    open_water: bool = Field(
+        True,
+        description="remove the structures that close off free water from the default"
+        " mission (`sim.open_water`), so it reaches every goal; false: the raw draw",
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> ProceduralConfig:
@@ -262,7 +270,8 @@ def _keep_inside(objects: list, half: float) -> list:
 
 
 def generate_scene(config: ProceduralConfig, seed: int) -> Scene:
-    """A random harbour holding every class, deterministic by `seed`."""
+    """A random harbour holding every class, deterministic by `seed`, its free water one
+    piece for the simulator's default mission (`sim.open_water.open_pockets`)."""
     half0 = _Draw(seed, 1.0).span(config.area_half_side_m)
     d = _Draw(seed, half0)
     d.span(config.area_half_side_m)  # keep the stream aligned with the draw above
@@ -310,13 +319,14 @@ def generate_scene(config: ProceduralConfig, seed: int) -> Scene:
         objects += _dolphin(d, config, k)
     objects += [_hull(d, config, k, walls) for k in range(d.count(config.hulls))]
     half = round(half0, 3)
-    return Scene(
+    scene = Scene(
         name=f"procedural-{seed}",
         seafloor_depth_m=round(d.span(config.depth_m), 3),
         area_m=(-half, half, -half, half),
         seafloor_margin_m=35.0,
         objects=_keep_inside(objects, half),
     )
+    return open_pockets(scene) if config.open_water else scene
 
 
 def scene_yaml(scene: Scene) -> str:

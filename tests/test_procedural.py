@@ -33,7 +33,10 @@ def test_every_object_is_inside_the_area_and_every_class_is_there(seed: int) -> 
 
 
 def test_the_ranges_are_honoured_and_layouts_vary() -> None:
-    cfg = ProceduralConfig(round_radius_m=(0.3, 0.3), depth_m=(5.0, 6.0), hulls=(2, 2))
+    # The raw draw: opening the water (tested below) may remove a hull that blocks it.
+    cfg = ProceduralConfig(
+        round_radius_m=(0.3, 0.3), depth_m=(5.0, 6.0), hulls=(2, 2), open_water=False
+    )
     radii, wall_angles = set(), []
     for seed in SEEDS:
         prims = generate_scene(cfg, seed).primitives()
@@ -75,3 +78,37 @@ def test_the_simulator_flies_its_own_mission_through_a_generated_world() -> None
     assert run.n_frames > 10
     seen = [run.frame(i).horizontal.labels for i in range(0, run.n_frames, 2)]
     assert any((labels > 0).any() for labels in seen if labels is not None)
+
+
+@pytest.mark.parametrize("seed", range(1000, 1020))
+def test_the_mission_reaches_every_goal_of_a_training_world(seed: int) -> None:
+    # The default training worlds' seeds: before sim.open_water, 3 of these 20 flew 0 m
+    # (start in a closed-off pocket, or every goal in another basin).
+    from sim.config import MissionConfig
+    from sim.mission import plan_mission
+    from sim.open_water import free_water_pieces
+    from sim.world import World
+
+    scene = generate_scene(ProceduralConfig(), seed)
+    mission = MissionConfig(n_goals=3)
+    assert free_water_pieces(scene, mission).max() == 1
+    traj = plan_mission(World(scene), mission, 10.0, np.random.default_rng([seed, 1]))
+    assert len(traj.goals) == 3
+    assert np.linalg.norm(np.diff(traj.waypoints, axis=0), axis=1).sum() > 25.0
+
+
+def test_a_wall_across_the_area_is_opened_and_keeps_its_class() -> None:
+    from sim.config import MissionConfig
+    from sim.open_water import free_water_pieces, open_pockets
+    from sim.scene import CylindricalPiling, Scene, Seawall
+
+    wall = Seawall(name="w", polyline_m=[(-20.0, 0.0), (0.0, 1.0), (20.0, 0.0)])
+    posts = [CylindricalPiling(name=f"p{i}", position_m=(-15.0 + 10 * i, 10.0)) for i in range(3)]
+    scene = Scene(area_m=(-20.0, 20.0, -20.0, 20.0), objects=[wall, *posts])
+    mission = MissionConfig()
+    assert free_water_pieces(scene, mission).max() == 2
+    opened = open_pockets(scene, mission)
+    assert free_water_pieces(opened, mission).max() == 1
+    walls = [p for p in opened.primitives() if p.kind == "seawall"]
+    assert len(walls) == 1 and len(walls[0].polyline_m) == 2  # one segment gone, not the wall
+    assert len(opened.primitives()) == 4  # the pilings far from the gap stay

@@ -254,3 +254,14 @@ def test_held_out_datasets_validate_and_the_size_rule_curve_is_saved() -> None:
     assert all(0 <= p["macro_f1"] <= 1 for p in curve["points"])
     assert out["curve"][:8] == b"\x89PNG\r\n\x1a\n"
     assert any(o.name == "curve" and o.filename == "size_curve.png" for o in TRAIN.outputs)
+
+
+def test_epochs_are_cut_to_the_presentation_budget() -> None:
+    from stages.classify.train import epochs_for
+
+    cfg = TrainConfig()
+    # The hand-written default set (1,209 samples) keeps its 120 epochs: its model is unchanged.
+    assert epochs_for(1209, cfg) == 120
+    assert epochs_for(5000, cfg) == 30  # 150,000 // 5,000
+    assert epochs_for(10**6, cfg) == 1  # never fewer than one pass
+    assert epochs_for(10, TrainConfig(epochs=3)) == 3

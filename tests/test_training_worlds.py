@@ -120,13 +120,16 @@ def _run_rule(f1_by_size: dict[int, float], n: int) -> tuple[int, dict]:
 
 
 def test_the_size_rule_stops_after_two_steps_without_a_point_and_keeps_the_best() -> None:
-    assert sizes(7, 2) == [2, 4, 6, 7]
-    chosen, curve = _run_rule({2: 0.60, 4: 0.70, 6: 0.705, 8: 0.70, 10: 0.9}, 10)
+    # Doubling: each size trains from scratch, so the tried sizes grow geometrically.
+    assert sizes(7, 2) == [2, 4, 7]
+    assert sizes(8, 2) == [2, 4, 8]
+    assert sizes(20, 1) == [1, 2, 4, 8, 16, 20]
+    chosen, curve = _run_rule({2: 0.60, 4: 0.70, 8: 0.705, 16: 0.70, 20: 0.9}, 20)
     assert chosen == 4 and curve["converged"]
-    assert [p["datasets"] for p in curve["points"]] == [2, 4, 6, 8]  # 10 never trained
+    assert [p["datasets"] for p in curve["points"]] == [2, 4, 8, 16]  # 20 never trained
     # Small gains that add up to a point count against the best, not the last size.
-    chosen, curve = _run_rule({2: 0.60, 4: 0.605, 6: 0.612, 8: 0.615, 10: 0.62}, 10)
-    assert chosen == 6 and curve["converged"]
+    chosen, curve = _run_rule({2: 0.60, 4: 0.605, 8: 0.612, 16: 0.615, 20: 0.62}, 20)
+    assert chosen == 8 and curve["converged"]
     # Still rising at the ceiling: the largest set, flagged as not converged.
     chosen, curve = _run_rule({2: 0.5, 4: 0.6, 6: 0.7}, 6)
     assert chosen == 6 and not curve["converged"]

@@ -1,7 +1,7 @@
 """The training set's size by a stated rule (issue 39, item 4): add worlds until the
 held-out validation stops improving.
 
-Training datasets (worlds) are added in their order, `grow_step_datasets` at a time; each
+Training datasets (worlds) are added in their order, doubling from `grow_step_datasets`; each
 size trains a model from scratch with the same recipe and scores it on the held-out
 datasets (whole worlds never trained on) by macro-F1 (argmax of the MC-dropout mean, over
 the learned classes with validation support). A size counts as an improvement when its
@@ -46,8 +46,15 @@ def macro_f1(confusion: Sequence[Sequence[int]]) -> float:
 
 
 def sizes(n_datasets: int, step: int) -> list[int]:
-    """Training-set sizes tried, in order: step, 2 step, ..., and always n_datasets."""
-    return sorted({*range(step, n_datasets, step), n_datasets})
+    """Training-set sizes tried, in order: step, 2 step, 4 step, ... (doubling: each size
+    costs a training from scratch, and a gain shows on a doubling if anywhere), and always
+    n_datasets."""
+    out = {n_datasets}
+    size = step
+    while size < n_datasets:
+        out.add(size)
+        size *= 2
+    return sorted(out)
 
 
 def grow(
@@ -90,12 +97,14 @@ def grow(
     converged = misses >= cfg.grow_patience
     if not converged:
         log.warning(
-            "size rule: held-out macro-F1 still rose at the largest set (%d datasets); more"
-            " worlds may help (training.procedural.worlds)",
+            "size rule: the sizes ran out before %d in a row without a gain (best: %d of %d"
+            " datasets); more worlds may help (training.procedural.worlds)",
+            cfg.grow_patience,
             best[1],
+            n_datasets,
         )
     curve = {
-        "rule": f"add {cfg.grow_step_datasets} datasets at a time; stop after"
+        "rule": f"double the datasets from {cfg.grow_step_datasets}; stop after"
         f" {cfg.grow_patience} sizes in a row that beat the best held-out macro-F1 by less"
         f" than {cfg.grow_min_gain_f1}; keep the best",
         "points": points,

@@ -19,17 +19,17 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pyarrow as pa
-from pydantic import Field
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages
-from stages.base import Input, Output, Stage, StageConfig
+from stages.base import Input, Output, Stage
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 from stages.classify.size_rule import curve_png, grow, one_size
+from stages.classify.train_config import TrainConfig
 from stages.classify.validation import confusion_png, evaluate, say_what_is_not_learned
 from stages.kernels.lazy import lazy
 
@@ -53,56 +53,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-
-_Filters = Annotated[int, Field(ge=1, le=1024)]
-
-
-class TrainConfig(StageConfig):
-    """Classifier training. Clustering/crop fields must match what classify will see."""
-
-    eps_m: float = Field(0.25, gt=0, le=100, description="DBSCAN radius [m]")
-    min_samples: int = Field(2, ge=1, le=100000, description="DBSCAN core neighbourhood size")
-    min_features: int = Field(10, ge=1, le=100000, description="smallest object (paper's n)")
-    margin_m: float = Field(0.2, ge=0, le=100, description="bounding-box margin on each side [m]")
-    min_side_m: float = Field(
-        1.0, ge=0, le=1000, description="smallest crop side [m] (keeps piling scale)"
-    )
-    channels: tuple[_Filters, _Filters] = Field(
-        (32, 64), description="conv filters; (16, 32) trains 2.5x faster, recall 0.56 vs 0.78"
-    )
-    hidden: int = Field(128, ge=1, le=65536)
-    dropout_p: float = Field(0.05, ge=0, lt=1, description="MC dropout rate (original: 0.1)")
-    spatial_dropout: bool = Field(False, description="drop whole conv channels, not units")
-    epochs: int = Field(120, ge=1, le=100000)
-    batch_size: int = Field(64, ge=1, le=65536)
-    learning_rate: float = Field(2e-3, gt=0, le=10, description="peak of the one-cycle schedule")
-    noise_std: float = Field(
-        0.0, ge=0, le=10, description="Gaussian noise on [0, 1] patches (paper; off: see `augment`)"
-    )
-    max_rotation_deg: float = Field(
-        5.0, ge=0, le=180, description="uniform in +-this (paper; small: see `augment`)"
-    )
-    flips: bool = Field(
-        True, description="random left-right flips (mirror across the line of sight)"
-    )
-    flip_near_far: bool = Field(False, description="also flip near/far (unphysical for sonar)")
-    min_class_samples: int = Field(
-        10, ge=1, le=1000000, description="rarer classes are not learned"
-    )
-    split: Literal["keyframes", "dataset"] = "keyframes"
-    val_block_keyframes: int = Field(10, ge=1, le=100000, description="keyframes per split block")
-    val_every_blocks: int = Field(5, ge=2, le=1000, description="every n-th block validates")
-    guard_keyframes: int = Field(
-        3, ge=0, le=100000, description="training keyframes dropped beside val"
-    )
-    # The size rule (`stages.classify.size_rule`), with held-out datasets only.
-    grow_step_datasets: int = Field(2, ge=1, le=1000, description="datasets added per step")
-    grow_min_gain_f1: float = Field(0.01, ge=0, le=1, description="held-out macro-F1 gain")
-    grow_patience: int = Field(2, ge=1, le=100, description="steps without that gain to stop")
-    mc_passes: int = Field(20, ge=1, le=1000, description="MC passes for the validation metrics")
-    threshold: float = Field(0.99, ge=0, le=1, description="acceptance of the mean probability")
-    seed: int = Field(0, ge=0, le=2**32 - 1)
 
 
 @dataclass(frozen=True)
@@ -237,6 +187,11 @@ def augment(x: torch.Tensor, cfg: TrainConfig, gen: torch.Generator) -> torch.Te
     return out.clamp_(0.0, 1.0)
 
 
+def epochs_for(n_samples: int, cfg: TrainConfig) -> int:
+    """`cfg.epochs`, cut so that n_samples x epochs stays within `cfg.max_presentations`."""
+    return max(1, min(cfg.epochs, cfg.max_presentations // max(n_samples, 1)))
+
+
 def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfig) -> PatchCNN:
     """Train a `PatchCNN` with Adam on class-balanced, augmented epochs.
 
@@ -255,7 +210,8 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
         n_classes, cfg.channels, cfg.hidden, cfg.dropout_p, PATCH_SIZE_PX, cfg.spatial_dropout
     )
     opt = torch.optim.Adam(model.parameters(), lr=cfg.learning_rate, eps=1e-7)
-    steps = cfg.epochs * -(-len(target) // cfg.batch_size)
+    epochs = epochs_for(len(target), cfg)
+    steps = epochs * -(-len(target) // cfg.batch_size)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, cfg.learning_rate, total_steps=max(steps, 1))
     x_all = torch.from_numpy(np.ascontiguousarray(patches, np.float32))[:, None]
     y_all = torch.from_numpy(target.astype(np.int64))
@@ -263,7 +219,7 @@ def fit(patches: np.ndarray, target: np.ndarray, n_classes: int, cfg: TrainConfi
     weights = (1.0 / counts.clamp(min=1))[y_all]
     n = len(y_all)
     model.train()
-    for epoch in range(cfg.epochs):
+    for epoch in range(epochs):
         idx = torch.multinomial(weights, n, replacement=True, generator=gen)
         total = 0.0
         for start in range(0, n, cfg.batch_size):
@@ -383,7 +339,7 @@ def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 
 STAGE = Stage(
     name="train",
-    version=3,
+    version=4,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
