@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from stages.kernels.geometry import matrix_from_rpy_product, se3
+from stages.kernels.lazy import lazy
+
+np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
 __all__ = ["MissionConfig", "Mounting", "NavigationNoise", "SimConfig", "SonarConfig"]
 
@@ -33,6 +34,8 @@ class Mounting(_Model):
 
     def matrix(self) -> np.ndarray:
         """(4, 4) T_base_sonar."""
+        from stages.kernels.geometry import matrix_from_rpy_product, se3
+
         return se3(matrix_from_rpy_product(np.deg2rad(self.rpy_deg)), self.translation_m)
 
 

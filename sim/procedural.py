@@ -18,10 +18,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from sim.open_water import open_pockets
 from sim.scene import (
     BoatHull,
     CylindricalPiling,
@@ -33,6 +31,9 @@ from sim.scene import (
     Seawall,
     Truss,
 )
+from stages.kernels.lazy import lazy
+
+np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
 __all__ = ["ProceduralConfig", "generate_scene", "scene_yaml"]
 
@@ -326,7 +327,11 @@ def generate_scene(config: ProceduralConfig, seed: int) -> Scene:
         seafloor_margin_m=35.0,
         objects=_keep_inside(objects, half),
     )
-    return open_pockets(scene) if config.open_water else scene
+    if not config.open_water:
+        return scene
+    from sim.open_water import open_pockets  # scipy: only when a world is built
+
+    return open_pockets(scene)
 
 
 def scene_yaml(scene: Scene) -> str:

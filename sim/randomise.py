@@ -20,10 +20,12 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from sim.config import Mounting, SimConfig, SonarConfig
+from stages.kernels.lazy import lazy
+
+np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
 __all__ = ["SensorRandomisation", "draw_sensor", "image_statistics", "randomised_config"]
 

@@ -28,9 +28,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
-import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from stages.kernels.lazy import lazy
+
+np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
 __all__ = [
     "BoatHull",
@@ -270,6 +272,8 @@ def load_scene(path: str | Path) -> Scene:
     Raises:
         SceneError: unreadable file, bad YAML, or a validation error (naming the field).
     """
+    import yaml  # here: validating the training section reads no scene
+
     p = Path(path)
     try:
         raw = yaml.safe_load(p.read_text())

@@ -278,6 +278,7 @@ def test_declaring_the_stages_imports_no_heavy_library() -> None:
         "import importlib, json, sys\n"
         f"for name in {STAGE_PACKAGES!r}:\n"
         "    assert importlib.import_module('stages.' + name).STAGE.name == name\n"
+        "assert importlib.import_module('stages.classify.training').STAGE.name == 'train'\n"
         f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({heavy!r}))))\n"
     )
     proc = subprocess.run(

@@ -24,10 +24,7 @@ HEAVY = (
 """Libraries a fully cached run never needs: only a stage that computes, or a reader that
 decodes a recording, loads them (docs/decisions/020-cached-run-imports.md)."""
 
-PENDING = {
-    "numpy": "config section `training` (sim.procedural) and `train`'s declaration",
-    "pyarrow": "`train`'s declaration (stages/classify/train.py)",
-}
+PENDING: dict[str, str] = {}
 """Heavy libraries a cached run still loads until the named module is split like the
 other stages (config and declaration apart from the computation); each entry must still
 be needed, so it goes when its import does."""

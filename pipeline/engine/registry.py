@@ -86,7 +86,7 @@ def default_graph() -> Graph:
     from pipeline.training.config import TrainingDataConfig
     from schemas.classes import ClassTable
     from stages.classify import STAGE as classify
-    from stages.classify.train import STAGE as train
+    from stages.classify.training import STAGE as train
     from stages.evaluate import STAGE as evaluate
     from stages.features import STAGE as features
     from stages.figures import STAGE as figures

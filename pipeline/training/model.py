@@ -20,7 +20,10 @@ import logging
 import os
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from schemas.sonar import KeyframeImages
 
 from pydantic import BaseModel
 
@@ -33,7 +36,6 @@ from pipeline.engine.store import ArtifactRef, ArtifactStore
 from pipeline.training.config import TrainingDataConfig
 from pipeline.training.datasets import Simulation
 from schemas.classes import DEFAULT_TABLE
-from schemas.sonar import KeyframeImages
 from stages.base import Input, Stage
 
 __all__ = [
@@ -96,8 +98,6 @@ def training_stage_for(
     from pipeline.engine.text import one_line
     from pipeline.training.annotations import annotation_path
     from schemas.annotations import AnnotationFile
-    from stages.classify.annotations import label_keyframes
-    from stages.classify.train import train_classifier
 
     base = training_stage()
     pre = [_prefix(i, n_datasets, heldout) for i in range(n_datasets)]
@@ -135,11 +135,15 @@ def training_stage_for(
         ann = annotation_path(Path(name(i))) if i < len(names) else None
         source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
         features = bound[f"{pre[i]}features_{i}.features"]
+        from stages.classify.annotations import label_keyframes
+
         return _unmatched_is_bad_input(
             label_keyframes(kf, doc, source=source, features=features, table=table)
         )
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
+        from stages.classify.train import train_classifier
+
         pairs = [
             (frames(i, bound), bound[f"{pre[i]}features_{i}.features"]) for i in range(n_datasets)
         ]

@@ -26,10 +26,10 @@ import pyarrow as pa
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.sonar import KeyframeImages
-from stages.base import Input, Output, Stage
 from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
 from stages.classify.size_rule import curve_png, grow, one_size
 from stages.classify.train_config import TrainConfig
+from stages.classify.training import STAGE
 from stages.classify.validation import confusion_png, evaluate, say_what_is_not_learned
 from stages.kernels.lazy import lazy
 
@@ -335,20 +335,3 @@ def _train_classifier(
 def _run(config: TrainConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     pairs = [(inputs["keyframes.frames"], inputs["features.features"])]
     return train_classifier(pairs, config, inputs.get("config.classes", DEFAULT_TABLE))
-
-
-STAGE = Stage(
-    name="train",
-    version=4,
-    config=TrainConfig,
-    inputs=(Input("keyframes", "frames"), Input("features", "features")),
-    outputs=(
-        Output("model", "bytes", "model.pt"),
-        Output("metrics", "json", "metrics.json"),
-        Output("confusion", "bytes", "confusion.png"),
-        Output("curve", "bytes", "size_curve.png"),
-    ),
-    run=_run,
-    reads_sections=("classes",),
-    description="train the MC-dropout object classifier on labelled keyframes",
-)

@@ -1,0 +1,24 @@
+"""The `train` stage's declaration (what planning imports: no numpy, no pyarrow); the
+computation is `stages.classify.train`, its config `stages.classify.train_config`."""
+
+from stages.base import Input, Output, Stage
+from stages.classify.train_config import TrainConfig
+from stages.kernels.lazy import deferred
+
+__all__ = ["STAGE", "TrainConfig"]
+
+STAGE = Stage(
+    name="train",
+    version=4,
+    config=TrainConfig,
+    inputs=(Input("keyframes", "frames"), Input("features", "features")),
+    outputs=(
+        Output("model", "bytes", "model.pt"),
+        Output("metrics", "json", "metrics.json"),
+        Output("confusion", "bytes", "confusion.png"),
+        Output("curve", "bytes", "size_curve.png"),
+    ),
+    run=deferred("stages.classify.train:_run"),
+    reads_sections=("classes",),
+    description="train the MC-dropout object classifier on labelled keyframes",
+)
