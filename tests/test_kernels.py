@@ -119,7 +119,7 @@ def test_bumping_infers_version_recomputes_submaps_and_what_follows(tmp_path: Pa
     )
     before, after = _keys(stages, tmp_path), _keys(bumped, tmp_path)
     changed = {name for name in before if before[name] != after[name]}
-    assert changed == {"infer", "submaps", "voxelize", "evaluate"}
+    assert changed == {"infer", "submaps", "voxelize", "evaluate", "map_figures"}
     submaps = next(s for s in stages if s.name == "submaps")
     assert {Input("infer", "class_reference"), Input("infer", "class_cells")} <= set(submaps.inputs)
 
