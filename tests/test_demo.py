@@ -11,9 +11,12 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 from typer.testing import CliRunner
 
 from pipeline.cli import app
+from pipeline.engine import workers
+from pipeline.engine.compute import ComputeJob
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -42,7 +45,20 @@ classify:
 """
 
 
-def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
+def test_demo_on_a_small_scene_then_fully_cached(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Every job the runner weighs sending to a worker process can travel there: one that
+    # could not (a closure anywhere in it) would wait for this process, and two workers
+    # would quietly run one stage at a time.
+    weighed: list[tuple[str, bool]] = []
+    picklable = workers._picklable
+
+    def spy(job: ComputeJob) -> bool:
+        weighed.append((job.item.stage.name, picklable(job)))
+        return weighed[-1][1]
+
+    monkeypatch.setattr(workers, "_picklable", spy)
     config = tmp_path / "demo.yaml"
     config.write_text(CONFIG.replace("{training_dir}", str(tmp_path / "training")))
     args = [
@@ -54,6 +70,7 @@ def test_demo_on_a_small_scene_then_fully_cached(tmp_path: Path) -> None:
     first = runner.invoke(app, args)
     assert first.exit_code == 0, first.output
     doc = json.loads(first.stdout)
+    assert weighed and all(ok for _, ok in weighed), weighed
     stages = [s["stage"] for s in doc["stages"]]
     assert stages == [
         "keyframes",

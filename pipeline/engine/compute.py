@@ -42,7 +42,10 @@ class ComputeJob:
     """The config sections the stage reads: its own, `reads_sections`, the dataset's."""
     dataset: DatasetSpec
     refs: Mapping[str, ArtifactRef]
-    outputs_of: Mapping[str, Stage]
+    outputs_of: Mapping[str, tuple[Output, ...]]
+    """The outputs each upstream stage declares. Declarations only: a producer's `run`
+    may be a closure (the training stage of `pipeline.training.model` is), and a job
+    that carried it could not travel to a worker process."""
     tmp: Path
 
 
@@ -60,8 +63,8 @@ def not_opened(path: Path, _section: Any) -> Any:
     raise InternalError(f"{path}: opened by a stage that does not read the dataset")
 
 
-def _output(stage: Stage, producer: Stage, item: Input) -> Output:
-    output = next((o for o in producer.outputs if o.name == item.output), None)
+def _output(stage: Stage, produced: tuple[Output, ...], item: Input) -> Output:
+    output = next((o for o in produced if o.name == item.output), None)
     if output is None:
         raise ConfigError(f"stage {stage.name}: {item.stage} has no output '{item.output}'")
     return output
@@ -106,8 +109,7 @@ def _rejected_input(err: StageInputError, job: ComputeJob) -> SourceError:
     item = err.input
     where = str(job.dataset.path) if item.is_dataset else item.name
     if item.stage in job.refs and item.stage in job.outputs_of:
-        producer = job.outputs_of[item.stage]
-        output = next((o for o in producer.outputs if o.name == item.output), None)
+        output = next((o for o in job.outputs_of[item.stage] if o.name == item.output), None)
         ref = job.refs[item.stage]
         filename = output.filename if output is not None else item.output
         where = f"{ref.stage}/{ref.key}/{filename}"

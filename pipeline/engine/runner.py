@@ -174,7 +174,8 @@ def _execute(
         with store.staging(name, item.key, manifest_extra) as slot:
             if slot.tmp is not None:  # not committed by another process meanwhile
                 sections = job_sections(item.stage, config)
-                job = ComputeJob(item, sections, spec, upstream, outputs_of, slot.tmp)
+                produced = {n: outputs_of[n].outputs for n in item.stage.upstream}
+                job = ComputeJob(item, sections, spec, upstream, produced, slot.tmp)
                 slot.extra = slots.compute(job)
         return slot.committed(), "computed" if slot.tmp is not None else "reused"
 
