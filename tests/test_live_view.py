@@ -89,9 +89,11 @@ def test_each_topic_arrives_during_the_run_map_on_voxelize(
         assert ch["schemaName"] == f"foxglove.{TOPIC_SCHEMAS[ch['topic']]}"
         assert ch["encoding"] == "protobuf"
     first = {t: min(a for a, _, _ in m) for t, m in got.messages.items()}
-    # published as each stage completes, in the pipeline's order
+    # published as each stage completes, after the stages it reads (classify and slam
+    # read neither each other nor fuse, and run side by side with two workers)
     assert first["/sonar/horizontal/fan"] < first["/live/fused"] < first["/map/semantic"]
-    assert first["/objects"] < first["/trajectory/slam"] < first["/map/semantic"]
+    assert first["/sonar/horizontal/fan"] < first["/objects"] < first["/map/semantic"]
+    assert first["/sonar/horizontal/fan"] < first["/trajectory/slam"] < first["/map/semantic"]
     lag = first["/map/semantic"] - finished["voxelize"]
     assert 0.0 <= lag < 2.0, f"first map {lag:.2f} s after voxelize finished"
     first_map = got.messages["/map/semantic"][0][2]
