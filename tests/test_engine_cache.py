@@ -14,7 +14,7 @@ from pipeline.engine.errors import ConfigError, StageFailed
 from pipeline.engine.runner import RunResult, execute, plan
 from pipeline.engine.session import make_context
 from pipeline.engine.store import ArtifactStore
-from stages.base import Stage
+from stages.base import Input, Output, Stage
 
 
 def _dataset(tmp_path: Path, content: bytes = bytes(range(256)) * 4) -> Path:
@@ -210,3 +210,34 @@ def test_gc_removes_unreferenced_artifacts_only(tmp_path: Path) -> None:
     report = store.gc()
     assert report["removed"] and all(r.startswith("count/") for r in report["removed"])
     assert sum(r.stage == "count" for r in store.iter_artifacts()) == 1
+
+
+def test_a_miss_names_the_upstream_whose_artifact_changed_even_when_it_is_a_hit(
+    tmp_path: Path,
+) -> None:
+    """`both` last ran on double's old artifact; double was recomputed since by a run
+    that stopped before `both` (`--until`), so double is a hit now, and both's reason
+    must still name double, not every stage it reads."""
+    both = Stage(
+        "both",
+        1,
+        toy_stages.SummaryConfig,
+        (Input("double", "table"), Input("count", "hist")),
+        (Output("summary", "json", "s.json"),),
+        lambda _config, inputs: {"summary": {"rows": inputs["double.table"].num_rows}},
+    )
+    stages = (*TOY_STAGES, both)
+    data, store = _dataset(tmp_path), tmp_path / "store"
+    run_toy(data, store, stages=stages)
+    run_toy(data, store, ("double.factor=3",), stages=stages, until="double")
+    ctx = make_context(
+        data,
+        stages=stages,
+        overrides=("double.factor=3",),
+        store_dir=store,
+        parts=lambda p: [p],
+        opener=lambda _section: data.read_bytes(),
+    )
+    planned = {p.stage.name: p for p in plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)}
+    assert planned["double"].hit and planned["count"].hit
+    assert planned["both"].reason == "upstream double recomputed"

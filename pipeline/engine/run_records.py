@@ -109,9 +109,11 @@ def miss_reason(
     if previous.get("dataset") != recipe.get("dataset"):
         return "dataset content changed"
     producers = {name: Input.parse(name).stage for name in recipe["inputs"]}
-    if previous.get("inputs") != recipe["inputs"]:
-        names = sorted({p for p in producers.values() if p in changed}) or sorted(
-            set(producers.values())
-        )
+    used = previous.get("inputs") or {}
+    if used != recipe["inputs"]:
+        # The producers whose artifact differs from the one the last run used (an upstream
+        # recomputed by an earlier run is a hit now, so `changed` alone may not name it).
+        differ = {producers[k] for k, key in recipe["inputs"].items() if used.get(k) != key}
+        names = sorted(differ & changed) or sorted(differ) or sorted(set(producers.values()))
         return "upstream " + ", ".join(names) + " recomputed"
     return "artifact missing (removed or never committed)"
