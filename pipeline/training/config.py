@@ -9,7 +9,7 @@ from pydantic import Field, field_validator
 
 from pipeline.engine.errors import ConfigError
 from pipeline.training.cache_dir import default_training_directory
-from sim.procedural import ProceduralConfig
+from sim.procedural_config import ProceduralConfig
 from sim.randomise import SensorRandomisation
 from stages.base import ConfigModel
 from stages.features import FeaturesConfig
