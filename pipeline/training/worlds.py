@@ -30,12 +30,12 @@ def heldout_count(training: TrainingDataConfig) -> int:
 
 def procedural_simulations(training: TrainingDataConfig) -> list[Simulation]:
     """Training worlds, then the held-out ones; [] when `training.procedural` is null."""
-    from sim.procedural import generate_scene, scene_yaml
-    from sim.randomise import draw_sensor
-
     proc = training.procedural
     if proc is None:
         return []
+    from sim.procedural import generate_scene, scene_yaml  # scene models: only for worlds
+    from sim.randomise import draw_sensor
+
     directory = Path(training.directory)
     train, val = world_seeds(proc)
     sims = []
