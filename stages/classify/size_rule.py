@@ -12,12 +12,13 @@ smallest set after which adding worlds stopped paying.
 
 from __future__ import annotations
 
-import io
 import logging
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+
+from stages.kernels.figure_png import png_bytes
 
 if TYPE_CHECKING:
     from stages.classify.cnn import PatchCNN
@@ -146,6 +147,4 @@ def curve_png(curve: dict[str, Any]) -> bytes:
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
+    return png_bytes(fig)

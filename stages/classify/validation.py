@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, Protocol
@@ -10,6 +9,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
+from stages.kernels.figure_png import png_bytes
 from stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
@@ -92,9 +92,7 @@ def confusion_png(confusion: Sequence[Sequence[int]], class_names: Sequence[str]
     ax.set_xlabel("predicted (argmax of MC mean)")
     ax.set_ylabel("true (label image)")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
+    return png_bytes(fig)
 
 
 def say_what_is_not_learned(

@@ -3,14 +3,13 @@ horizontal image."""
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 import pyarrow as pa
 
 from schemas.classes import DEFAULT_TABLE, ClassTable
 from schemas.objects import UNKNOWN_CLASS_ID
 from schemas.sonar import KeyframeImages
+from stages.kernels.figure_png import png_bytes
 
 __all__ = ["busiest_keyframe", "overlay_png"]
 
@@ -69,6 +68,4 @@ def overlay_png(
     ax.set_ylabel("x (forward) [m]")
     ax.set_title(f"keyframe {frame.keyframe_id}: horizontal sonar objects")
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
+    return png_bytes(fig)

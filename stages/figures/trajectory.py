@@ -3,10 +3,9 @@ features registered with the estimate and the accepted loop closures (stage `sla
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 
+from stages.kernels.figure_png import png_bytes
 from stages.kernels.mesh_metrics import se2_alignment
 
 __all__ = ["trajectory_png"]
@@ -80,6 +79,4 @@ def trajectory_png(
         ax_err.set_ylim(bottom=0)
         ax_err.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
+    return png_bytes(fig)

@@ -7,7 +7,6 @@ stride for drawing only (`max_points`); metrics never use the thinned clouds.
 
 from __future__ import annotations
 
-import io
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -17,6 +16,7 @@ import pyarrow as pa
 
 from schemas.classes import CLASS_IDS
 from schemas.figures import SIDE_VIEW_KINDS
+from stages.kernels.figure_png import png_bytes
 from stages.kernels.ply import Mesh
 
 __all__ = [
@@ -57,15 +57,6 @@ def _figure(width_in: float, height_in: float) -> Any:
     return Figure(figsize=(width_in, height_in), dpi=110, layout="constrained")
 
 
-def _png(fig: Any) -> bytes:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    return buf.getvalue()
-
-
 def error_boxplot_png(errors_m: Mapping[str, np.ndarray]) -> bytes:
     """Box plots of absolute map error per map / source (paper Fig. 4 style).
 
@@ -85,7 +76,7 @@ def error_boxplot_png(errors_m: Mapping[str, np.ndarray]) -> bytes:
     ax.set_ylabel("absolute error to ground truth [m]")
     ax.set_title("Map error (whiskers: 5th-95th percentile)")
     ax.grid(axis="y", alpha=0.3)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def truth_xy_m(mesh: Mesh) -> np.ndarray:
@@ -137,7 +128,7 @@ def topdown_png(
         ax.grid(alpha=0.2)
     if sc is not None:
         fig.colorbar(sc, ax=list(axes), label="z [m] (0 = water surface)", shrink=0.8)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def side_view_png(panels: Sequence[SidePanel]) -> bytes:
@@ -158,7 +149,7 @@ def side_view_png(panels: Sequence[SidePanel]) -> bytes:
     handles, labels = axes[0].get_legend_handles_labels()
     if handles:
         axes[0].legend(handles, labels, loc="lower left", fontsize=8, markerscale=4)
-    return _png(fig)
+    return png_bytes(fig)
 
 
 def side_panels_from_table(table: pa.Table) -> list[SidePanel]:
