@@ -95,3 +95,56 @@ def test_class_frame_updates_grow_reference_queries_do_not() -> None:
     ref = frame.reference.copy()
     assert not frame.add_sighting(_l_shape() + 10.0, origin).ok
     np.testing.assert_array_equal(frame.reference, ref)
+
+
+def _merged(seed: int = 0) -> np.ndarray:
+    """A piling merged in 2D with the catwalk it carries: the L, then a 10 m tail 2 m
+    behind it, which moves the sighting's origin (median bearing) metres from the piling."""
+    rng = np.random.default_rng(seed)
+    tail = np.c_[rng.uniform(1.95, 2.05, 400), rng.uniform(1.0, 11.0, 400)]
+    return np.vstack([_l_shape(seed=seed), tail]) - np.array([0.0, 5.0])
+
+
+def test_a_provisional_reference_gives_way_a_confirmed_one_does_not() -> None:
+    frame = ClassFrame(IcpParams())
+    origin = ObjectOrigin(5.0, 0.0)
+    assert frame.add_sighting(_merged(), origin).ok and not frame.confirmed
+    # The next sighting, a plain piling, cannot register to the odd first one (the
+    # paper's rule would skip it and every later one): it becomes the reference.
+    assert not frame.register(_l_shape(seed=1)).ok
+    second = frame.add_sighting(_l_shape(seed=1), ObjectOrigin(6.0, 0.2))
+    assert second.ok and second.reseeded and not frame.confirmed
+    assert frame.origin == ObjectOrigin(6.0, 0.2)
+    np.testing.assert_array_equal(frame.reference, voxel_downsample_2d(_l_shape(seed=1), 0.05))
+    third = frame.add_sighting(apply_se2(_se2(0.04, -0.02, 3.0), _l_shape(seed=2)), origin)
+    assert third.ok and not third.reseeded and frame.confirmed
+    # Once confirmed, a sighting that does not register is skipped, as in the paper.
+    ref = frame.reference.copy()
+    late = frame.add_sighting(_merged(seed=3), origin)
+    assert not late.ok and not late.reseeded
+    np.testing.assert_array_equal(frame.reference, ref)
+
+
+def test_a_class_model_starts_again_with_its_new_reference() -> None:
+    from stages.infer.config import InferConfig
+    from stages.kernels.class_models import new_class_states
+    from stages.kernels.class_query import update_object_class
+    from stages.kernels.sightings import Sighting
+
+    def sighting(object_id: int, uv: np.ndarray, z_m: float) -> Sighting:
+        n = len(uv)
+        every = np.arange(n)
+        return Sighting(
+            object_id, "cylindrical_piling", ObjectOrigin(5.0, 0.0), uv, np.full(n, 5.0),
+            np.zeros(n), every, np.ones(n, bool), uv, np.full(n, z_m), every,
+        )  # fmt: skip
+
+    state = new_class_states(InferConfig())["cylindrical_piling"]
+    assert update_object_class(state, [sighting(0, _merged(), 3.0)], "offset")
+    first_cells = state.model.n_cells
+    # The plain piling replaces the odd reference, and the heights learned in the old
+    # frame (3 m, on the catwalk's cells) go with it: the model holds the new ones only.
+    assert set(update_object_class(state, [sighting(1, _l_shape(seed=1), -1.0)], "offset")) == {1}
+    assert 0 < state.model.n_cells < first_cells
+    q = state.model.query(_l_shape(seed=1), 0.0)
+    assert np.nanmax(np.abs(np.r_[q.z_low_m, q.z_high_m] + 1.0)) < 0.3

@@ -25,7 +25,8 @@ STAGE = Stage(
     name="infer",
     # 3: the mixture rule keeps linear Dirichlet counts (confidences change by ~1e-13)
     # 4: the learned class models are outputs (class_reference, class_cells)
-    version=4,
+    # 5: a provisional reference frame gives way to the next sighting it cannot register
+    version=5,
     config=InferConfig,
     reads_sections=("classes",),
     inputs=(

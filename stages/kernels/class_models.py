@@ -9,8 +9,9 @@ key follows infer's.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import partial
 from typing import Literal, Protocol
 
 import numpy as np
@@ -96,21 +97,22 @@ class ClassModelSettings(Protocol):
 
 @dataclass
 class ClassState:
-    """Reference frame and height model of one class."""
+    """Reference frame and height model of one class; `empty_model` makes the model anew
+    (a provisional reference frame that gives way takes its model with it)."""
 
     frame: ClassFrame
     model: HeightModel | CoarseFallbackModel
+    empty_model: Callable[[], HeightModel | CoarseFallbackModel]
 
 
 def new_class_states(config: ClassModelSettings) -> dict[str, ClassState]:
     """An empty model (no reference frame, no cells) for every inferred class."""
     z = z_grid(config.z_min_m, config.z_max_m, config.z_step_m)
-    return {
-        c: ClassState(
-            ClassFrame(config.icp_params()), _height_model(z, config, config.frame_kind(c))
-        )
-        for c in inferred_classes(config)
-    }
+    states = {}
+    for c in inferred_classes(config):
+        make = partial(_height_model, z, config, config.frame_kind(c))
+        states[c] = ClassState(ClassFrame(config.icp_params()), make(), make)
+    return states
 
 
 def _height_model(

@@ -103,6 +103,9 @@ def update_object_class(
         if not reg.ok:
             logger.debug("object %d: registration failed, update skipped", s.object_id)
             continue
+        if reg.reseeded:  # a new reference frame: what the old one learned does not apply
+            state.model = state.empty_model()
+            uv, z, transforms = [], [], {}
         transforms[s.object_id] = reg.T_ref_obj
         uv.append(model_coords(se2_apply(reg.T_ref_obj, s.fused_uv_m), s.origin, range_axis))
         z.append(s.fused_z_m)

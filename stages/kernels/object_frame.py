@@ -15,7 +15,12 @@ for the 3D subset). The slant range is used for both, because a 2D-only return k
 only its slant range.
 
 The first sighting of a class fixes the class's *reference frame*: its object frame,
-and its points (voxel-downsampled) become the reference cloud. Later sightings are
+and its points (voxel-downsampled) become the reference cloud. That reference is
+*provisional* until another sighting registers to it: a provisional reference that the
+next update cannot register is replaced by that sighting (`ClassFrame.confirmed`). The
+paper keeps the first sighting for good, so one odd first sighting (a piling merged in
+2D with the catwalk it carries) left every later one unregistered and the class
+unlearned. Later sightings are
 registered to the reference cloud with point-to-point ICP (open3d, 2D points padded
 with z = 0, identity initial guess, metric units); a registration that does not
 reach the fitness / RMSE / motion bounds is reported as failed and the caller skips
@@ -111,12 +116,14 @@ class Registration:
             correspondence distance.
         rmse_m: RMS distance of those inlier correspondences [m].
         ok: whether the bounds of `IcpParams` were met.
+        reseeded: the sighting replaced a provisional reference (`ClassFrame.add_sighting`).
     """
 
     T_ref_obj: np.ndarray
     fitness: float
     rmse_m: float
     ok: bool
+    reseeded: bool = False
 
 
 def _cloud(points_2d: np.ndarray) -> o3d.geometry.PointCloud:
@@ -169,6 +176,7 @@ class ClassFrame:
         self.params = params
         self.reference: np.ndarray | None = None
         self.origin: ObjectOrigin | None = None
+        self.confirmed = False
 
     def register(self, points_obj: np.ndarray) -> Registration:
         """Register (n, 2) object-frame points to the reference cloud (unchanged).
@@ -183,17 +191,29 @@ class ClassFrame:
     def add_sighting(self, points_obj: np.ndarray, origin: ObjectOrigin) -> Registration:
         """Register a sighting for an update and grow the reference cloud with it.
 
-        The first sighting defines the reference frame (identity registration).
-        A failed registration leaves the reference cloud unchanged.
+        The first sighting defines the reference frame (identity registration); the first
+        that registers to it confirms it. A failed registration leaves a confirmed
+        reference unchanged; a provisional one is replaced by the sighting, which is then
+        reported as registered with `reseeded` set (the caller drops what the old frame
+        learned).
         """
         if self.reference is None:
-            self.reference = voxel_downsample_2d(points_obj, self.params.voxel_m)
-            self.origin = origin
+            self._seed(points_obj, origin)
             return Registration(np.eye(3), 1.0, 0.0, True)
         result = self.register(points_obj)
         if result.ok:
+            self.confirmed = True
             merged = np.vstack([self.reference, se2_apply(result.T_ref_obj, points_obj)])
             self.reference = voxel_downsample_2d(merged, self.params.voxel_m)
+        elif not self.confirmed:
+            logger.debug("provisional reference replaced: fitness %.2f", result.fitness)
+            self._seed(points_obj, origin)
+            return Registration(np.eye(3), 1.0, 0.0, True, reseeded=True)
         else:
             logger.debug("object registration failed: fitness %.2f", result.fitness)
         return result
+
+    def _seed(self, points_obj: np.ndarray, origin: ObjectOrigin) -> None:
+        self.reference = voxel_downsample_2d(points_obj, self.params.voxel_m)
+        self.origin = origin
+        self.confirmed = False
