@@ -286,6 +286,39 @@ def test_asymmetric_object_from_other_bearings_gets_the_right_heights() -> None:
     np.testing.assert_allclose(np.abs(z), 0.6, atol=0.1)
 
 
+def test_final_model_predicts_sightings_from_before_the_first_update() -> None:
+    """kf 0 sees the object in 2D only, before anything is learned; kf 1 and 2 fuse it.
+    Online (the paper), kf 0 predicts nothing; with the final model it gets the heights
+    the later keyframes taught, and the keyframes after the first update lose nothing."""
+    pts, _ = _l_object()
+    right, left = pts[:, 1] < 0.15, pts[:, 1] > -0.15
+    inputs = _concat(
+        [
+            _sighting(0, (-0.5, 0.0, np.deg2rad(35.0)), None),
+            _sighting(1, (0.0, 0.0, np.deg2rad(-25.0)), right),
+            _sighting(2, (1.0, 0.3, np.deg2rad(20.0)), left),
+        ]
+    )
+
+    def inferred(query_model: str) -> pa.Table:
+        points = infer_points(
+            inputs["objects"], inputs["object_features"], inputs["features"], inputs["fused"],
+            InferConfig(query_model=query_model),
+        )  # fmt: skip
+        return points.filter(pa.compute.equal(points.column("source"), "inferred"))
+
+    online, final = inferred("online"), inferred("final")
+    eq = pa.compute.equal
+    assert online.filter(eq(online.column("keyframe_id"), 0)).num_rows == 0
+    early = final.filter(eq(final.column("keyframe_id"), 0))
+    assert early.num_rows >= 0.5 * int(
+        np.sum(inputs["features"].column("keyframe_id").to_numpy() == 0)
+    )
+    np.testing.assert_allclose(np.abs(early.column("z_m").to_numpy()), 0.6, atol=0.1)
+    later = [pa.compute.greater(t.column("keyframe_id"), 0) for t in (online, final)]
+    assert final.filter(later[1]).num_rows >= online.filter(later[0]).num_rows
+
+
 def _run_with_bug(monkeypatch: pytest.MonkeyPatch, bug: str) -> pa.Table:
     """Re-introduce one of the original code's frame bugs into the stage's sightings."""
     original = infer_module._sightings

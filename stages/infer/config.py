@@ -137,6 +137,13 @@ class InferConfig(StageConfig):
         " coarse range cells pooled over all cross-range offsets"
         " (stages.kernels.fallback_model); off: docs/decisions/015-per-object-height-prior.md",
     )
+    query_model: Literal["online", "final"] = Field(
+        "online",
+        description="'online': each keyframe is queried right after its update, with the"
+        " model as it stands then (the paper, Sec. IV.E); 'final': every keyframe is"
+        " queried after the last update, with the models stage `submaps` queries its"
+        " frames with, so sightings before a class's first update predict too",
+    )
     confidence_threshold: float = Field(
         0.3, ge=0.0, le=1.0, description="min posterior probability of a MAP height"
     )

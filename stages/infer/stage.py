@@ -155,19 +155,32 @@ def learn_and_infer(
     kf = rows["keyframe_id"]
     starts = np.flatnonzero(np.r_[True, kf[1:] != kf[:-1]]) if kf.size else np.empty(0, int)
     bounds = np.r_[starts, kf.size]
-    parts = [
-        part
-        for i, start in enumerate(starts)
-        for part in _process_keyframe(
-            int(kf[start]),
-            rows,
-            slice(int(start), int(bounds[i + 1])),
-            fused_cols,
-            states,
-            config,
-            funnels,
-        )
+    keyframes = [
+        (int(kf[start]), slice(int(start), int(bounds[i + 1]))) for i, start in enumerate(starts)
     ]
+    if config.query_model == "online":
+        parts = [
+            part
+            for keyframe_id, of_keyframe in keyframes
+            for part in _process_keyframe(
+                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
+            )
+        ]
+    else:
+        parts = [
+            part
+            for keyframe_id, of_keyframe in keyframes
+            for part in _update_keyframe(
+                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
+            )
+        ]
+        parts += [
+            part
+            for keyframe_id, of_keyframe in keyframes
+            for part in _query_keyframe(
+                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
+            )
+        ]
     sonar = features.column("sonar") if "sonar" in features.column_names else None
     stats: dict[str, Any] = {
         "horizontal_returns": int(
@@ -217,6 +230,68 @@ def _process_keyframe(
         if not state.model.updated:
             continue
         found = register_and_query(state, of_class, config, funnel, transforms)
+        if found is not None:
+            parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+    return parts
+
+
+def _update_keyframe(
+    keyframe_id: int,
+    rows: dict[str, np.ndarray],
+    rows_of_keyframe: slice,
+    fused_cols: dict[str, np.ndarray],
+    states: dict[str, ClassState],
+    config: InferConfig,
+    funnels: dict[str, Funnel],
+) -> list[dict[str, Any]]:
+    """`query_model="final"`, first pass: the keyframe's fused points, and Eq. 7 for every
+    inferred class; nothing is queried yet."""
+    sightings = _sightings(rows, rows_of_keyframe, fused_cols)
+    parts = []
+    for s in sightings:
+        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
+        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        funnel = funnels.setdefault(s.class_name, Funnel())
+        funnel.counts["objects"] += 1
+        funnel.counts["returns"] += s.range_m.size
+        funnel.counts["fused_returns"] += int(s.is_fused.sum())
+    for c in inferred_classes(config):
+        state, funnel = states[c], funnels.setdefault(c, Funnel())
+        of_class = [s for s in sightings if s.class_name == c]
+        if config.frame_kind(c) == "beam":
+            update_and_query_beam_class(state, of_class, config, funnel, query=False)
+        else:
+            funnel.counts["updated_objects"] += len(
+                update_object_class(state, of_class, config.range_axis)
+            )
+    return parts
+
+
+def _query_keyframe(
+    keyframe_id: int,
+    rows: dict[str, np.ndarray],
+    rows_of_keyframe: slice,
+    fused_cols: dict[str, np.ndarray],
+    states: dict[str, ClassState],
+    config: InferConfig,
+    funnels: dict[str, Funnel],
+) -> list[dict[str, Any]]:
+    """`query_model="final"`, second pass: Eq. 8-9 with the models after the last update,
+    every sighting registered to its class's final reference (as stage `submaps` does)."""
+    sightings = _sightings(rows, rows_of_keyframe, fused_cols)
+    parts = []
+    for c in inferred_classes(config):
+        state, funnel = states[c], funnels.setdefault(c, Funnel())
+        of_class = [s for s in sightings if s.class_name == c]
+        if config.frame_kind(c) == "beam":
+            found = update_and_query_beam_class(state, of_class, config, funnel, update=False)
+            if found is not None:
+                parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+            parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
+            continue
+        if not state.model.updated:
+            continue
+        found = register_and_query(state, of_class, config, funnel)
         if found is not None:
             parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
     return parts

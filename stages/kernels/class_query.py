@@ -202,13 +202,15 @@ def update_and_query_beam_class(
     config: ClassModelSettings,
     funnel: Funnel,
     update: bool = True,
+    query: bool = True,
 ) -> tuple[dict[str, np.ndarray], np.ndarray] | None:
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
     is put into its beam frame (`stages.kernels.beam_frame`), the fused ones update the class
-    model (unless `update` is False: query only), the 2D-only ones are queried. Returns
-    (points, object id per point), or None before the model has data.
+    model (unless `update` is False: query only), the 2D-only ones are queried (unless
+    `query` is False: update only). Returns (points, object id per point), or None before
+    the model has data or without a query.
     """
     if not sightings:
         return None
@@ -224,7 +226,7 @@ def update_and_query_beam_class(
         funnel.counts["updated_objects"] += len(
             {s.object_id for s in sightings if s.is_fused.any()}
         )
-    if not state.model.updated:
+    if not query or not state.model.updated:
         return None
     funnel.counts["registered_objects"] += len(sightings)
     prior = None
