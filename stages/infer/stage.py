@@ -29,6 +29,12 @@ fused heights in the image, as a kernel density, multiply the class posterior of
 returns (`stages.kernels.object_prior`; docs/decisions/015-per-object-height-prior.md).
 `infer.classes` set to the two piling classes is the paper's behaviour.
 
+With `query_model="final"` (not in the paper) all updates come first, over every
+keyframe, and every keyframe is then queried with the models as the last update left
+them: the models stage `submaps` queries its frames with. A sighting from before its
+class's first update then predicts too, and every sighting is registered to the final
+reference cloud.
+
 Output `stats` (`stats.json`): what each class loses at each step (`Funnel`).
 
 Output `points`: the fused points of every classified object (any class, with its
