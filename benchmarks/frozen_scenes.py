@@ -44,7 +44,11 @@ def _recordings(scenes: list[str]) -> list[Path]:
     sys.path.insert(0, str(ROOT))
     from pipeline.training.datasets import ensure_simulation, scene_path
 
-    paths = [scene_path(s) for s in scenes] if scenes else sorted(FROZEN.glob("*.yaml"))
+    def path(scene: str) -> Path:  # a frozen scene's name first, then configs/scenes/
+        frozen = FROZEN / f"{scene}.yaml"
+        return frozen if frozen.is_file() else scene_path(scene)
+
+    paths = [path(s) for s in scenes] if scenes else sorted(FROZEN.glob("*.yaml"))
     out = ROOT / "data" / "bench" / "frozen"
     return [ensure_simulation(p, 0, out / f"{p.stem}-goals8-seed0.mcap", goals=8) for p in paths]
 
