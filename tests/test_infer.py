@@ -319,6 +319,67 @@ def test_final_model_predicts_sightings_from_before_the_first_update() -> None:
     assert final.filter(later[1]).num_rows >= online.filter(later[0]).num_rows
 
 
+def test_unknown_objects_borrow_a_piling_model_only_when_they_register() -> None:
+    """`unknown_argmax_classes` with a piling class: kf 2's object, left unknown by the
+    classifier with cylindrical_piling as its arg-max, gets that model's heights once it
+    registers to the class's reference; the model learns nothing from it, and an unknown
+    object of another shape (a 6 m straight wall) does not register and gets none."""
+    base = _asymmetric_mission()
+    wall = _sighting(3, (0.0, 0.0, 0.0), None)
+    r = np.linspace(6.0, 6.2, 60)
+    b = np.arctan2(np.linspace(-3.0, 3.0, 60), 6.0)
+    wall["features"] = pa.table(
+        {"keyframe_id": np.full(60, 3), "feature_id": np.arange(60), "sonar": ["horizontal"] * 60,
+         "range_m": r, "angle_rad": b}
+    )  # fmt: skip
+    wall["object_features"] = pa.table(
+        {"keyframe_id": np.full(60, 3), "object_id": np.zeros(60, np.int64), "feature_id": np.arange(60)}
+    )  # fmt: skip
+    inputs = _concat([base, wall])
+    kf = inputs["objects"].column("keyframe_id").to_numpy()
+    objects = (
+        inputs["objects"]
+        .set_column(
+            inputs["objects"].schema.get_field_index("class_name"),
+            "class_name",
+            pa.array(np.where(kf >= 2, "unknown", "cylindrical_piling").tolist()),
+        )
+        .append_column("argmax_class_name", pa.array(["cylindrical_piling"] * len(kf)))
+    )
+
+    def run(config: InferConfig) -> tuple[pa.Table, dict]:
+        return infer_mission(
+            objects, inputs["object_features"], inputs["features"], inputs["fused"], config
+        )
+
+    plain, plain_stats = run(InferConfig())
+    lent, lent_stats = run(InferConfig(unknown_argmax_classes=("cylindrical_piling",)))
+
+    def unknown_inferred(points: pa.Table, keyframe_id: int) -> pa.Table:
+        c = pa.compute
+        return points.filter(
+            c.and_(
+                c.and_(
+                    c.equal(points.column("class_name"), "unknown"),
+                    c.equal(points.column("keyframe_id"), keyframe_id),
+                ),
+                c.equal(points.column("source"), "inferred"),
+            )
+        )
+
+    assert unknown_inferred(plain, 2).num_rows == 0
+    borrowed = unknown_inferred(lent, 2)
+    assert borrowed.num_rows >= 0.5 * int(
+        np.sum(inputs["features"].column("keyframe_id").to_numpy() == 2)
+    )
+    np.testing.assert_allclose(np.abs(borrowed.column("z_m").to_numpy()), 0.6, atol=0.1)
+    assert unknown_inferred(lent, 3).num_rows == 0  # the wall does not register
+    assert (
+        lent_stats["classes"]["cylindrical_piling"] == plain_stats["classes"]["cylindrical_piling"]
+    )
+    assert lent_stats["classes"]["unknown"]["registered_objects"] == 1
+
+
 def _run_with_bug(monkeypatch: pytest.MonkeyPatch, bug: str) -> pa.Table:
     """Re-introduce one of the original code's frame bugs into the stage's sightings."""
     original = infer_module._sightings

@@ -157,8 +157,8 @@ def test_unknown_objects_can_borrow_their_arg_max_class_model_without_teaching_i
     d_borrowed = run.world.distance(to_world(borrowed, T))
     d_fused = run.world.distance(to_world(fused, T))
     assert np.median(d_borrowed) <= 1.5 * np.median(d_fused)
-    with pytest.raises(ValueError, match="beam-frame"):
-        InferConfig(unknown_argmax_classes=("cylindrical_piling",))
+    with pytest.raises(ValueError, match="must be an inferred class"):
+        InferConfig(classes=("seawall",), unknown_argmax_classes=("cylindrical_piling",))
 
 
 def test_a_class_without_a_model_can_borrow_a_beam_class_model_without_teaching_it(quay) -> None:

@@ -54,8 +54,10 @@ class InferConfig(StageConfig):
     )
     unknown_argmax_classes: tuple[str, ...] = Field(
         (),
-        description="beam-frame classes whose model also gives heights to 'unknown' objects"
-        " (classifier not confident) whose arg-max class it is; queried, never updated",
+        description="inferred classes whose model also gives heights to 'unknown' objects"
+        " (classifier not confident) whose arg-max class it is; queried, never updated; a"
+        " beam-frame class's only to objects of `borrow_min_extent_m`, an object-frame"
+        " (piling) class's only to objects that register to its reference (ICP)",
     )
     borrowed_models: dict[str, str] = Field(
         default_factory=dict,
@@ -221,17 +223,11 @@ class InferConfig(StageConfig):
         return DEFAULT_TABLE.inferred if self.classes is None else self.classes
 
     @model_validator(mode="after")
-    def _argmax_classes_are_inferred_beam_classes(self) -> InferConfig:
+    def _argmax_classes_are_inferred(self) -> InferConfig:
         classes = self._classes_or_default()
-        bad = [
-            c
-            for c in self.unknown_argmax_classes
-            if self._checked_now(c) and (c not in classes or self.frame_kind(c) != "beam")
-        ]
+        bad = [c for c in self.unknown_argmax_classes if self._checked_now(c) and c not in classes]
         if bad:
-            raise ValueError(
-                f"unknown_argmax_classes {bad}: each must be an inferred beam-frame class"
-            )
+            raise ValueError(f"unknown_argmax_classes {bad}: each must be an inferred class")
         return self
 
     @model_validator(mode="after")

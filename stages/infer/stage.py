@@ -238,6 +238,7 @@ def _process_keyframe(
         found = register_and_query(state, of_class, config, funnel, transforms)
         if found is not None:
             parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+        parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
     return parts
 
 
@@ -300,6 +301,7 @@ def _query_keyframe(
         found = register_and_query(state, of_class, config, funnel)
         if found is not None:
             parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+        parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
     return parts
 
 
@@ -312,12 +314,16 @@ def _query_borrowers(
     funnels: dict[str, Funnel],
 ) -> list[dict[str, Any]]:
     """Heights from c's model for the objects that borrow it (`borrowed_sightings`);
-    the points keep their own class, the model is not updated."""
+    the points keep their own class, the model is not updated. An object-frame lender's
+    borrowers are registered to its reference first, and only those that register are
+    queried."""
     parts = []
     for borrower, routed in borrowed_sightings(c, sightings, config):
-        found = update_and_query_beam_class(
-            state, routed, config, funnels.setdefault(borrower, Funnel()), update=False
-        )
+        funnel = funnels.setdefault(borrower, Funnel())
+        if config.frame_kind(c) == "beam":
+            found = update_and_query_beam_class(state, routed, config, funnel, update=False)
+        else:
+            found = register_and_query(state, routed, config, funnel)
         if found is not None:
             parts.append(tag_points(found[0], keyframe_id, found[1], borrower, "inferred"))
     return parts

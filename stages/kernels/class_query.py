@@ -253,11 +253,13 @@ def borrowed_sightings(
 ) -> list[tuple[str, list[Sighting]]]:
     """(borrowing class, its sightings) that take heights from `lender`'s model, query
     only: 'unknown' objects whose arg-max class it is (`unknown_argmax_classes`) and
-    the objects of every class that borrows it (`borrowed_models`), each only if its
-    returns span at least `borrow_min_extent_m`."""
+    the objects of every class that borrows it (`borrowed_models`). From a beam-frame
+    lender only objects whose returns span at least `borrow_min_extent_m` borrow
+    (extended structure, the beam frame's premise); an object-frame lender's borrowers
+    must register to its reference instead, which the caller checks."""
 
     def extended(s: Sighting) -> bool:
-        return s.extent_m >= config.borrow_min_extent_m
+        return config.frame_kind(lender) != "beam" or s.extent_m >= config.borrow_min_extent_m
 
     routes = []
     if lender in config.unknown_argmax_classes:

@@ -77,8 +77,7 @@ def _query(
             continue
         beam = config.frame_kind(c) == "beam"
         groups = [(c, [s for s in sights if s.class_name == c])]
-        if beam:
-            groups += borrowed_sightings(c, sights, config)
+        groups += borrowed_sightings(c, sights, config)
         for name, group in groups:
             if not group:
                 continue
