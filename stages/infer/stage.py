@@ -214,31 +214,16 @@ def _process_keyframe(
 ) -> list[dict[str, Any]]:
     """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
     sightings = _sightings(rows, rows_of_keyframe, fused_cols)
-    parts = []
-    for s in sightings:
-        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
-        funnel = funnels.setdefault(s.class_name, Funnel())
-        funnel.counts["objects"] += 1
-        funnel.counts["returns"] += s.range_m.size
-        funnel.counts["fused_returns"] += int(s.is_fused.sum())
+    parts = _fused_points(keyframe_id, sightings, fused_cols, funnels)
     for c in inferred_classes(config):
-        state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
-        if config.frame_kind(c) == "beam":
-            found = update_and_query_beam_class(state, of_class, config, funnel)
-            if found is not None:
-                parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-            parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
-            continue
-        transforms = update_object_class(state, of_class, config.range_axis)
-        funnel.counts["updated_objects"] += len(transforms)
-        if not state.model.updated:
-            continue
-        found = register_and_query(state, of_class, config, funnel, transforms)
-        if found is not None:
-            parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-        parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
+        transforms = None
+        if config.frame_kind(c) != "beam":
+            transforms = update_object_class(states[c], of_class, config.range_axis)
+            funnels.setdefault(c, Funnel()).counts["updated_objects"] += len(transforms)
+        parts += _query_class(
+            c, keyframe_id, sightings, states[c], config, funnels, True, transforms
+        )
     return parts
 
 
@@ -254,14 +239,7 @@ def _update_keyframe(
     """`query_model="final"`, first pass: the keyframe's fused points, and Eq. 7 for every
     inferred class; nothing is queried yet."""
     sightings = _sightings(rows, rows_of_keyframe, fused_cols)
-    parts = []
-    for s in sightings:
-        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
-        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
-        funnel = funnels.setdefault(s.class_name, Funnel())
-        funnel.counts["objects"] += 1
-        funnel.counts["returns"] += s.range_m.size
-        funnel.counts["fused_returns"] += int(s.is_fused.sum())
+    parts = _fused_points(keyframe_id, sightings, fused_cols, funnels)
     for c in inferred_classes(config):
         state, funnel = states[c], funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
@@ -288,20 +266,53 @@ def _query_keyframe(
     sightings = _sightings(rows, rows_of_keyframe, fused_cols)
     parts = []
     for c in inferred_classes(config):
-        state, funnel = states[c], funnels.setdefault(c, Funnel())
-        of_class = [s for s in sightings if s.class_name == c]
-        if config.frame_kind(c) == "beam":
-            found = update_and_query_beam_class(state, of_class, config, funnel, update=False)
-            if found is not None:
-                parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-            parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
-            continue
-        if not state.model.updated:
-            continue
-        found = register_and_query(state, of_class, config, funnel)
-        if found is not None:
-            parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-        parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
+        parts += _query_class(c, keyframe_id, sightings, states[c], config, funnels, False)
+    return parts
+
+
+def _fused_points(
+    keyframe_id: int,
+    sightings: list,
+    fused_cols: dict[str, np.ndarray],
+    funnels: dict[str, Funnel],
+) -> list[dict[str, Any]]:
+    """Every sighting's fused points, tagged with its class; counted in its funnel."""
+    parts = []
+    for s in sightings:
+        pts = {c: v[s.fused_rows] for c, v in fused_cols.items()}
+        parts.append(tag_points(pts, keyframe_id, s.object_id, s.class_name, "fused"))
+        funnel = funnels.setdefault(s.class_name, Funnel())
+        funnel.counts["objects"] += 1
+        funnel.counts["returns"] += s.range_m.size
+        funnel.counts["fused_returns"] += int(s.is_fused.sum())
+    return parts
+
+
+def _query_class(
+    c: str,
+    keyframe_id: int,
+    sightings: list,
+    state: ClassState,
+    config: InferConfig,
+    funnels: dict[str, Funnel],
+    update_beam: bool,
+    transforms: dict[int, np.ndarray] | None = None,
+) -> list[dict[str, Any]]:
+    """Eq. 8-9 for class c's sightings in a keyframe and for the objects borrowing its
+    model; a beam-frame class is also updated here when `update_beam` (one vectorised
+    pass), an object-frame class reuses its update's registrations (`transforms`)."""
+    funnel = funnels.setdefault(c, Funnel())
+    of_class = [s for s in sightings if s.class_name == c]
+    if config.frame_kind(c) == "beam":
+        found = update_and_query_beam_class(state, of_class, config, funnel, update=update_beam)
+    elif not state.model.updated:
+        return []
+    else:
+        found = register_and_query(state, of_class, config, funnel, transforms)
+    parts = []
+    if found is not None:
+        parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+    parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
     return parts
 
 
