@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -164,29 +165,12 @@ def learn_and_infer(
     keyframes = [
         (int(kf[start]), slice(int(start), int(bounds[i + 1]))) for i, start in enumerate(starts)
     ]
+    mission = _Mission(rows, fused_cols, states, config, funnels)
     if config.query_model == "online":
-        parts = [
-            part
-            for keyframe_id, of_keyframe in keyframes
-            for part in _process_keyframe(
-                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
-            )
-        ]
+        parts = [p for kf_id, part in keyframes for p in mission.update_and_query(kf_id, part)]
     else:
-        parts = [
-            part
-            for keyframe_id, of_keyframe in keyframes
-            for part in _update_keyframe(
-                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
-            )
-        ]
-        parts += [
-            part
-            for keyframe_id, of_keyframe in keyframes
-            for part in _query_keyframe(
-                keyframe_id, rows, of_keyframe, fused_cols, states, config, funnels
-            )
-        ]
+        parts = [p for kf_id, part in keyframes for p in mission.update(kf_id, part)]
+        parts += [p for kf_id, part in keyframes for p in mission.query(kf_id, part)]
     sonar = features.column("sonar") if "sonar" in features.column_names else None
     stats: dict[str, Any] = {
         "horizontal_returns": int(
@@ -203,71 +187,91 @@ def learn_and_infer(
     return points_table(parts), stats, states
 
 
-def _process_keyframe(
-    keyframe_id: int,
-    rows: dict[str, np.ndarray],
-    rows_of_keyframe: slice,
-    fused_cols: dict[str, np.ndarray],
-    states: dict[str, ClassState],
-    config: InferConfig,
-    funnels: dict[str, Funnel],
-) -> list[dict[str, Any]]:
-    """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
-    sightings = _sightings(rows, rows_of_keyframe, fused_cols)
-    parts = _fused_points(keyframe_id, sightings, fused_cols, funnels)
-    for c in inferred_classes(config):
-        of_class = [s for s in sightings if s.class_name == c]
-        transforms = None
-        if config.frame_kind(c) != "beam":
-            transforms = update_object_class(states[c], of_class, config.range_axis)
-            funnels.setdefault(c, Funnel()).counts["updated_objects"] += len(transforms)
-        parts += _query_class(
-            c, keyframe_id, sightings, states[c], config, funnels, True, transforms
-        )
-    return parts
+@dataclass(frozen=True)
+class _Mission:
+    """What every keyframe's update and query read: the mission's joined rows (each
+    keyframe a slice of them), the fused columns, and the classes' states and funnels,
+    which they change."""
 
+    rows: dict[str, np.ndarray]
+    fused_cols: dict[str, np.ndarray]
+    states: dict[str, ClassState]
+    config: InferConfig
+    funnels: dict[str, Funnel]
 
-def _update_keyframe(
-    keyframe_id: int,
-    rows: dict[str, np.ndarray],
-    rows_of_keyframe: slice,
-    fused_cols: dict[str, np.ndarray],
-    states: dict[str, ClassState],
-    config: InferConfig,
-    funnels: dict[str, Funnel],
-) -> list[dict[str, Any]]:
-    """`query_model="final"`, first pass: the keyframe's fused points, and Eq. 7 for every
-    inferred class; nothing is queried yet."""
-    sightings = _sightings(rows, rows_of_keyframe, fused_cols)
-    parts = _fused_points(keyframe_id, sightings, fused_cols, funnels)
-    for c in inferred_classes(config):
-        state, funnel = states[c], funnels.setdefault(c, Funnel())
+    def update_and_query(self, keyframe_id: int, of_keyframe: slice) -> list[dict[str, Any]]:
+        """Update (Eq. 7) then query (Eq. 8-9) every inferred class with one keyframe."""
+        sightings = _sightings(self.rows, of_keyframe, self.fused_cols)
+        parts = _fused_points(keyframe_id, sightings, self.fused_cols, self.funnels)
+        for c in inferred_classes(self.config):
+            transforms = None
+            if self.config.frame_kind(c) != "beam":
+                of_class = [s for s in sightings if s.class_name == c]
+                transforms = update_object_class(self.states[c], of_class, self.config.range_axis)
+                self.funnels.setdefault(c, Funnel()).counts["updated_objects"] += len(transforms)
+            parts += self.query_class(c, keyframe_id, sightings, True, transforms)
+        return parts
+
+    def update(self, keyframe_id: int, of_keyframe: slice) -> list[dict[str, Any]]:
+        """`query_model="final"`, first pass: the keyframe's fused points, and Eq. 7 for
+        every inferred class; nothing is queried yet."""
+        sightings = _sightings(self.rows, of_keyframe, self.fused_cols)
+        parts = _fused_points(keyframe_id, sightings, self.fused_cols, self.funnels)
+        for c in inferred_classes(self.config):
+            state, funnel = self.states[c], self.funnels.setdefault(c, Funnel())
+            of_class = [s for s in sightings if s.class_name == c]
+            if self.config.frame_kind(c) == "beam":
+                update_and_query_beam_class(state, of_class, self.config, funnel, query=False)
+            else:
+                funnel.counts["updated_objects"] += len(
+                    update_object_class(state, of_class, self.config.range_axis)
+                )
+        return parts
+
+    def query(self, keyframe_id: int, of_keyframe: slice) -> list[dict[str, Any]]:
+        """`query_model="final"`, second pass: Eq. 8-9 with the models after the last
+        update, every sighting registered to its class's final reference (as stage
+        `submaps` does)."""
+        sightings = _sightings(self.rows, of_keyframe, self.fused_cols)
+        parts = []
+        for c in inferred_classes(self.config):
+            parts += self.query_class(c, keyframe_id, sightings, False)
+        return parts
+
+    def query_class(
+        self,
+        c: str,
+        keyframe_id: int,
+        sightings: list,
+        update_beam: bool,
+        transforms: dict[int, np.ndarray] | None = None,
+    ) -> list[dict[str, Any]]:
+        """Eq. 8-9 for class c's sightings in a keyframe and for the objects borrowing its
+        model; a beam-frame class is also updated here when `update_beam` (one vectorised
+        pass), an object-frame class reuses its update's registrations (`transforms`)."""
+        state, config = self.states[c], self.config
+        funnel = self.funnels.setdefault(c, Funnel())
         of_class = [s for s in sightings if s.class_name == c]
         if config.frame_kind(c) == "beam":
-            update_and_query_beam_class(state, of_class, config, funnel, query=False)
+            found = update_and_query_beam_class(state, of_class, config, funnel, update=update_beam)
+        elif not state.model.updated:
+            return []
         else:
-            funnel.counts["updated_objects"] += len(
-                update_object_class(state, of_class, config.range_axis)
-            )
-    return parts
-
-
-def _query_keyframe(
-    keyframe_id: int,
-    rows: dict[str, np.ndarray],
-    rows_of_keyframe: slice,
-    fused_cols: dict[str, np.ndarray],
-    states: dict[str, ClassState],
-    config: InferConfig,
-    funnels: dict[str, Funnel],
-) -> list[dict[str, Any]]:
-    """`query_model="final"`, second pass: Eq. 8-9 with the models after the last update,
-    every sighting registered to its class's final reference (as stage `submaps` does)."""
-    sightings = _sightings(rows, rows_of_keyframe, fused_cols)
-    parts = []
-    for c in inferred_classes(config):
-        parts += _query_class(c, keyframe_id, sightings, states[c], config, funnels, False)
-    return parts
+            found = register_and_query(state, of_class, config, funnel, transforms)
+        parts = []
+        if found is not None:
+            parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
+        for borrower, routed in borrowed_sightings(c, sightings, config):
+            # The points keep the borrower's class and the model is not updated; an
+            # object-frame lender's borrowers must register to its reference first.
+            lent_funnel = self.funnels.setdefault(borrower, Funnel())
+            if config.frame_kind(c) == "beam":
+                lent = update_and_query_beam_class(state, routed, config, lent_funnel, update=False)
+            else:
+                lent = register_and_query(state, routed, config, lent_funnel)
+            if lent is not None:
+                parts.append(tag_points(lent[0], keyframe_id, lent[1], borrower, "inferred"))
+        return parts
 
 
 def _fused_points(
@@ -285,58 +289,6 @@ def _fused_points(
         funnel.counts["objects"] += 1
         funnel.counts["returns"] += s.range_m.size
         funnel.counts["fused_returns"] += int(s.is_fused.sum())
-    return parts
-
-
-def _query_class(
-    c: str,
-    keyframe_id: int,
-    sightings: list,
-    state: ClassState,
-    config: InferConfig,
-    funnels: dict[str, Funnel],
-    update_beam: bool,
-    transforms: dict[int, np.ndarray] | None = None,
-) -> list[dict[str, Any]]:
-    """Eq. 8-9 for class c's sightings in a keyframe and for the objects borrowing its
-    model; a beam-frame class is also updated here when `update_beam` (one vectorised
-    pass), an object-frame class reuses its update's registrations (`transforms`)."""
-    funnel = funnels.setdefault(c, Funnel())
-    of_class = [s for s in sightings if s.class_name == c]
-    if config.frame_kind(c) == "beam":
-        found = update_and_query_beam_class(state, of_class, config, funnel, update=update_beam)
-    elif not state.model.updated:
-        return []
-    else:
-        found = register_and_query(state, of_class, config, funnel, transforms)
-    parts = []
-    if found is not None:
-        parts.append(tag_points(found[0], keyframe_id, found[1], c, "inferred"))
-    parts.extend(_query_borrowers(c, keyframe_id, sightings, state, config, funnels))
-    return parts
-
-
-def _query_borrowers(
-    c: str,
-    keyframe_id: int,
-    sightings: list,
-    state: ClassState,
-    config: InferConfig,
-    funnels: dict[str, Funnel],
-) -> list[dict[str, Any]]:
-    """Heights from c's model for the objects that borrow it (`borrowed_sightings`);
-    the points keep their own class, the model is not updated. An object-frame lender's
-    borrowers are registered to its reference first, and only those that register are
-    queried."""
-    parts = []
-    for borrower, routed in borrowed_sightings(c, sightings, config):
-        funnel = funnels.setdefault(borrower, Funnel())
-        if config.frame_kind(c) == "beam":
-            found = update_and_query_beam_class(state, routed, config, funnel, update=False)
-        else:
-            found = register_and_query(state, routed, config, funnel)
-        if found is not None:
-            parts.append(tag_points(found[0], keyframe_id, found[1], borrower, "inferred"))
     return parts
 
 
