@@ -206,9 +206,7 @@ class _Mission:
         for c in inferred_classes(self.config):
             transforms = None
             if self.config.frame_kind(c) != "beam":
-                of_class = [s for s in sightings if s.class_name == c]
-                transforms = update_object_class(self.states[c], of_class, self.config.range_axis)
-                self.funnels.setdefault(c, Funnel()).counts["updated_objects"] += len(transforms)
+                transforms = self.update_objects(c, sightings)
             parts += self.query_class(c, keyframe_id, sightings, True, transforms)
         return parts
 
@@ -218,15 +216,22 @@ class _Mission:
         sightings = _sightings(self.rows, of_keyframe, self.fused_cols)
         parts = _fused_points(keyframe_id, sightings, self.fused_cols, self.funnels)
         for c in inferred_classes(self.config):
-            state, funnel = self.states[c], self.funnels.setdefault(c, Funnel())
-            of_class = [s for s in sightings if s.class_name == c]
             if self.config.frame_kind(c) == "beam":
-                update_and_query_beam_class(state, of_class, self.config, funnel, query=False)
-            else:
-                funnel.counts["updated_objects"] += len(
-                    update_object_class(state, of_class, self.config.range_axis)
+                of_class = [s for s in sightings if s.class_name == c]
+                funnel = self.funnels.setdefault(c, Funnel())
+                update_and_query_beam_class(
+                    self.states[c], of_class, self.config, funnel, query=False
                 )
+            else:
+                self.update_objects(c, sightings)
         return parts
+
+    def update_objects(self, c: str, sightings: list) -> dict[int, np.ndarray]:
+        """Eq. 7 for object-frame class c with a keyframe's sightings; its registrations."""
+        of_class = [s for s in sightings if s.class_name == c]
+        transforms = update_object_class(self.states[c], of_class, self.config.range_axis)
+        self.funnels.setdefault(c, Funnel()).counts["updated_objects"] += len(transforms)
+        return transforms
 
     def query(self, keyframe_id: int, of_keyframe: slice) -> list[dict[str, Any]]:
         """`query_model="final"`, second pass: Eq. 8-9 with the models after the last
