@@ -68,31 +68,63 @@ def _inside(xy: np.ndarray, limit: float) -> np.ndarray:
     return np.clip(xy, -limit, limit)
 
 
-def _wall(d: _Draw, cfg: ProceduralConfig, k: int) -> Seawall:
-    """A polyline from near the area's edge, turning at odd angles, some turns as arcs."""
-    limit = d.half - 0.5
-    side = d.rng.integers(4)
-    along = d.span((-0.8, 0.8)) * limit
-    start = np.array([[limit, along], [-limit, along], [along, limit], [along, -limit]][side])
-    heading = [math.pi / 2, -math.pi / 2, 0.0, math.pi][side] + d.span((-0.3, 0.3))
-    points = [start]
+def _to_edge(p: np.ndarray, heading: float, length: float, limit: float) -> tuple[np.ndarray, bool]:
+    """The point `length` from p along heading, or where that line first meets the area's
+    edge (and True): a wall that runs out of the area ends there, as quays run off a chart."""
+    step = np.array([math.cos(heading), math.sin(heading)])
+    room = [
+        ((limit if step[a] > 0 else -limit) - p[a]) / step[a]
+        for a in (0, 1)
+        if abs(step[a]) > 1e-12
+    ]
+    t = min(length, *room)
+    return p + max(t, 0.0) * step, t < length
+
+
+def _wall_steps(
+    d: _Draw, cfg: ProceduralConfig, heading: float, inwards: float
+) -> list[tuple[float, float]]:
+    """(heading [rad], length [m]) of a wall's straight pieces; an arc is 6 of them, and an
+    arc that leaves the edge bends inwards (`inwards`: the sign of that turn), not out of
+    the area at once."""
+    steps: list[tuple[float, float]] = []
     for _ in range(d.count(cfg.wall_segments)):
         length = d.span(cfg.wall_segment_m)
         turn = math.radians(d.span(cfg.wall_turn_deg))
         if d.chance(cfg.wall_curve_share):
-            steps = 6
-            for _ in range(steps):
-                heading += turn / steps
-                points.append(
-                    points[-1] + length / steps * np.array([math.cos(heading), math.sin(heading)])
-                )
+            turn = turn if steps else math.copysign(turn, inwards)
+            for _ in range(6):
+                heading += turn / 6
+                steps.append((heading, length / 6))
         else:
-            points.append(points[-1] + length * np.array([math.cos(heading), math.sin(heading)]))
+            steps.append((heading, length))
             heading += turn
-    xy = _inside(np.array(points), limit)
+    return steps
+
+
+def _wall(d: _Draw, cfg: ProceduralConfig, k: int) -> Seawall:
+    """A polyline from the area's edge, turning at odd angles, some turns as arcs, ending
+    where it meets the edge again.
+
+    It leaves the edge tilted inwards. Clipping its points to the area instead laid 2/3 of
+    the walls' length onto the edge, curves folded flat on it.
+    """
+    limit = d.half - 0.5
+    side = d.rng.integers(4)
+    along = d.span((-0.8, 0.8)) * limit
+    start = np.array([[limit, along], [-limit, along], [along, limit], [along, -limit]][side])
+    inwards = 1.0 if side < 2 else -1.0  # the turn that points the along-edge heading inside
+    heading = [math.pi / 2, -math.pi / 2, 0.0, math.pi][side] + inwards * abs(d.span((-0.3, 0.3)))
+    points = [start]
+    for step_heading, length in _wall_steps(d, cfg, heading, inwards):
+        end, at_edge = _to_edge(points[-1], step_heading, length, limit)
+        points.append(end)
+        if at_edge:
+            break
+    xy = np.array(points)
     keep = np.r_[True, np.linalg.norm(np.diff(xy, axis=0), axis=1) > 0.3]
     xy = xy[keep]
-    if len(xy) < 2:  # clipped onto one point: lay it along the edge instead
+    if len(xy) < 2:  # met the edge at once: lay it along the edge instead
         step = np.array([0.0, 10.0 if start[1] < 0 else -10.0])
         xy = np.array([start, _inside(start + step, limit)])
     return Seawall(

@@ -54,6 +54,19 @@ def test_the_ranges_are_honoured_and_layouts_vary() -> None:
     assert np.mean((np.asarray(wall_angles) > 5) & (np.asarray(wall_angles) < 85)) > 0.3
 
 
+def test_walls_leave_the_edge_and_none_lies_along_it() -> None:
+    # Clipping walls to the area once laid 2/3 of their length onto its edge, curves
+    # folded flat there (seeds 1000-1019): a wall must run inside and end at the edge.
+    for seed in SEEDS:
+        scene = generate_scene(ProceduralConfig(open_water=False), seed)
+        limit = scene.area_m[1] - 0.5
+        for wall in (p for p in scene.primitives() if p.kind == "seawall"):
+            xy = np.asarray(wall.polyline_m)
+            on_edge = np.abs(np.abs(xy) - limit) < 0.01
+            assert not (on_edge[1:] & on_edge[:-1]).any(), (seed, wall.name)
+            assert np.linalg.norm(np.diff(xy, axis=0), axis=1).sum() > 2.0
+
+
 def test_a_scene_written_as_yaml_reads_back_equal(tmp_path: Path) -> None:
     scene = generate_scene(ProceduralConfig(), 3)
     path = tmp_path / "p.yaml"
