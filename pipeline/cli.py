@@ -6,7 +6,9 @@ import importlib
 import importlib.util
 import logging
 import os
+import signal
 import sys
+from types import FrameType
 from typing import NoReturn
 
 import click
@@ -105,5 +107,12 @@ for _name in COMMAND_MODULES:
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point. A SIGTERM (`kill`, a batch scheduler's stop) unwinds as
+    Ctrl-C does: the run's lease is released, its unfinished commits are removed and its
+    worker processes end, where the default action would kill this process alone."""
+    signal.signal(signal.SIGTERM, _terminated)
     app()
+
+
+def _terminated(signum: int, _frame: FrameType | None) -> NoReturn:
+    raise SystemExit(128 + signum)

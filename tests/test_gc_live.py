@@ -9,6 +9,8 @@ import json
 import os
 import pickle
 import signal
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -148,6 +150,61 @@ def test_killed_run_keeps_its_finished_stages_and_its_lease_goes_stale(
     monkeypatch.delenv("TOY_GATE")
     statuses = {r.stage: r.status for r in run_toy(data, store).stages}
     assert statuses["source"] == "hit" and statuses["double"] == "computed"
+
+
+def _gone(pid: int) -> bool:
+    """The process has ended (a zombie no one reaps counts as ended)."""
+    try:
+        state = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return True
+    return "\nState:\tZ" in state
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads /proc")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_a_signalled_run_ends_with_its_worker_and_gc_keeps_its_finished_work(
+    data: Path, tmp_path: Path, sig: signal.Signals
+) -> None:
+    # Both stages after `source` are held: one computes in the run's thread, the other in
+    # its worker process, which outlived a SIGTERM or kill -9 of the run (holding its
+    # memory and stderr) until it ended the stage itself.
+    store, calls = tmp_path / "store", tmp_path / "calls.log"
+    env = {
+        **os.environ,
+        "SONARMAP_GRAPH": "toy_stages:GRAPH",
+        "PYTHONPATH": os.pathsep.join([str(Path(__file__).parent), str(Path(__file__).parents[1])]),
+        "TOY_CALL_LOG": str(calls),
+        "TOY_GATE": str(tmp_path / "gate"),
+        "TOY_GATE_STAGES": "double,count",
+    }
+    args = ["run", str(data), "--store", str(store), "-q", "--workers", "2"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline", *args],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        _wait_for(calls, "double")
+        _wait_for(calls, "count")
+        pids = {int(line.split()[1]) for line in calls.read_text().splitlines()}
+        assert len(pids) == 2  # the run's own process and its worker
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=20)  # end of stderr: no process of the run holds it
+    finally:
+        proc.kill()
+    assert proc.returncode == (128 + sig if sig == signal.SIGTERM else -sig)
+    assert "Traceback" not in err
+    deadline = time.monotonic() + 5
+    while not all(_gone(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert all(_gone(pid) for pid in pids)
+    report = ArtifactStore(store).gc()
+    assert report["live_runs"] == 0 and report["removed"] == []
+    assert {r.stage for r in ArtifactStore(store).iter_artifacts()} == {"source"}
+    assert not list((store / ".leases").glob("*.json")) and not list((store / ".tmp").iterdir())
 
 
 def test_a_dead_processs_lease_protects_nothing(data: Path, tmp_path: Path) -> None:

@@ -55,14 +55,21 @@ def _source(config: SourceConfig, inputs: dict[str, Any]) -> dict[str, Any]:
 def _double(config: DoubleConfig, inputs: dict[str, Any]) -> dict[str, Any]:
     _mark("double")
     time.sleep(config.sleep_s)
-    # Lets a concurrency test hold this stage until a second process waits on its lock.
-    gate = os.environ.get("TOY_GATE")
-    deadline = time.monotonic() + 60
-    while gate and not Path(gate).exists() and time.monotonic() < deadline:
-        time.sleep(0.02)
+    _hold("double")
     t = inputs["source.table"]
     v = t.column("v").to_numpy() * config.factor
     return {"table": pa.table({"i": t.column("i"), "v": v}), "blob": v.tobytes()}
+
+
+def _hold(stage: str) -> None:
+    """Lets a test hold a stage until the file $TOY_GATE exists (at most 60 s), e.g. until a
+    second process waits on its lock; $TOY_GATE_STAGES names the stages held (`double`)."""
+    gate = os.environ.get("TOY_GATE")
+    if not gate or stage not in os.environ.get("TOY_GATE_STAGES", "double").split(","):
+        return
+    deadline = time.monotonic() + 60
+    while not Path(gate).exists() and time.monotonic() < deadline:
+        time.sleep(0.02)
 
 
 def _summary(config: SummaryConfig, inputs: dict[str, Any]) -> dict[str, Any]:
@@ -75,6 +82,7 @@ def _summary(config: SummaryConfig, inputs: dict[str, Any]) -> dict[str, Any]:
 
 def _count(config: CountConfig, inputs: dict[str, Any]) -> dict[str, Any]:
     _mark("count")
+    _hold("count")
     v = inputs["source.table"].column("v").to_numpy()
     hist, _ = np.histogram(v, bins=config.bins)
     return {"hist": pa.table({"count": hist.astype(np.int64)})}

@@ -15,15 +15,17 @@ Processes are spawned, not forked, for the reason `stages.kernels.parallel` give
 
 from __future__ import annotations
 
+import os
 import pickle
 import threading
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
 from pipeline.engine.errors import StageFailed
+from pipeline.engine.worker_life import die_with_parent
 from stages.kernels.parallel import available_cores, release_memory
 
 if TYPE_CHECKING:  # multiprocessing loads with the first worker process
@@ -44,7 +46,7 @@ class Slots:
 
     def __init__(self, workers: int) -> None:
         self.workers = max(1, int(workers))
-        self._threads = ThreadPoolExecutor(self.workers) if self.workers > 1 else None
+        self._threads: list[threading.Thread] = []
         self._pool: ProcessPoolExecutor | None = None
         self._here = threading.Lock()
         self._pool_lock = threading.Lock()
@@ -56,13 +58,22 @@ class Slots:
 
     def submit(self, fn: Callable[[], T]) -> Future[T]:
         """`fn()` as a future: on a thread when several may run, else right here."""
-        if self._threads is not None:
-            return self._threads.submit(fn)
         done: Future[T] = Future()
-        try:
-            done.set_result(fn())
-        except BaseException as err:
-            done.set_exception(err)
+
+        def run() -> None:
+            try:
+                done.set_result(fn())
+            except BaseException as err:
+                done.set_exception(err)
+
+        if self.workers == 1:
+            run()
+            return done
+        # A daemon thread, not a ThreadPoolExecutor's: at an interrupt the interpreter
+        # would wait for the executor's threads, and so for a stage computing here.
+        thread = threading.Thread(target=run, name="sonarmap-stage", daemon=True)
+        self._threads.append(thread)
+        thread.start()
         return done
 
     def compute(self, job: ComputeJob) -> dict[str, Any]:
@@ -114,7 +125,11 @@ class Slots:
         with self._pool_lock:
             if self._pool is None:
                 self._pool = ProcessPoolExecutor(
-                    self.workers - 1, multiprocessing.get_context("spawn")
+                    self.workers - 1,
+                    multiprocessing.get_context("spawn"),
+                    # Started from a stage's thread, which ends before the run does.
+                    initializer=die_with_parent,
+                    initargs=(os.getpid(), False),
                 )
             return self._pool
 
@@ -127,10 +142,31 @@ class Slots:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        if self._threads is not None:
-            self._threads.shutdown(wait=True)
-        if self._pool is not None:
+        interrupted = exc_type is not None and issubclass(exc_type, (KeyboardInterrupt, SystemExit))
+        if interrupted and self._pool is not None:
+            # Ctrl-C or SIGTERM: stop the workers' stages now rather than wait for them (a
+            # failed stage, not an interrupt, lets the others finish: nothing computed lost).
+            _terminate(self._pool)
+        if not interrupted:
+            for thread in self._threads:
+                thread.join()
+        if self._pool is not None and not interrupted:
             self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Ends a pool's worker processes, whatever they are running."""
+    terminate_workers = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate_workers is not None:
+        terminate_workers()
+        return
+    # Before 3.14 the processes have no public handle.
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5.0)
 
 
 def _picklable(job: ComputeJob) -> bool:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from pipeline.engine.errors import ConfigError, PipelineError
+from pipeline.engine.worker_life import die_with_parent
 from pipeline.experiments.headline_columns import (
     frame_of,
     headline_columns,
@@ -26,7 +27,6 @@ from pipeline.experiments.headline_columns import (
     shared_frame,
 )
 from pipeline.experiments.submap_columns import submap_columns
-from pipeline.experiments.worker_life import die_with_parent
 
 __all__ = [
     "ALL_STRUCTURE",
