@@ -143,14 +143,15 @@ class Slots:
         tb: TracebackType | None,
     ) -> None:
         interrupted = exc_type is not None and issubclass(exc_type, (KeyboardInterrupt, SystemExit))
-        if interrupted and self._pool is not None:
+        if interrupted:
             # Ctrl-C or SIGTERM: stop the workers' stages now rather than wait for them (a
             # failed stage, not an interrupt, lets the others finish: nothing computed lost).
-            _terminate(self._pool)
-        if not interrupted:
-            for thread in self._threads:
-                thread.join()
-        if self._pool is not None and not interrupted:
+            if self._pool is not None:
+                _terminate(self._pool)
+            return
+        for thread in self._threads:
+            thread.join()
+        if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
 
 
