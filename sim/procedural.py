@@ -123,10 +123,9 @@ def _wall(d: _Draw, cfg: ProceduralConfig, k: int) -> Seawall:
             break
     xy = np.array(points)
     keep = np.r_[True, np.linalg.norm(np.diff(xy, axis=0), axis=1) > 0.3]
+    if keep.sum() < 2:  # pieces shorter than 0.3 m (a small `wall_segment_m`): its end
+        keep[-1] = True
     xy = xy[keep]
-    if len(xy) < 2:  # met the edge at once: lay it along the edge instead
-        step = np.array([0.0, 10.0 if start[1] < 0 else -10.0])
-        xy = np.array([start, _inside(start + step, limit)])
     return Seawall(
         name=f"wall{k}",
         polyline_m=[(round(float(x), 3), round(float(y), 3)) for x, y in xy],
