@@ -65,7 +65,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
+from sonarmap.schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -146,9 +146,9 @@ def _classify(
     """Run the pipeline up to classify (forced) `repeat` times; objects.parquet and the
     median timing. The CPU time is this process's over the whole forced run (planning and
     input checks included, upstream stages reused), so it bounds the stage's from above."""
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.engine.codecs import read_output
-    from pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.engine.codecs import read_output
+    from sonarmap.pipeline.engine.registry import pipeline_stages
 
     request = RunRequest(
         dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
@@ -178,11 +178,11 @@ def _classify(
 
 
 def main() -> None:
-    from pipeline.engine.config import load_config
-    from pipeline.engine.registry import all_stages, extra_sections
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.training.datasets import ensure_simulation, scene_path
-    from pipeline.training.model_cache import resolve_model
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
+    from sonarmap.pipeline.training.model_cache import resolve_model
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--store", type=Path, default=ROOT / "data/store")
@@ -195,7 +195,7 @@ def main() -> None:
     args.data.mkdir(parents=True, exist_ok=True)
 
     # A one-off import (torch) is a per-process constant, not classify's cost per keyframe.
-    import stages.classify.cnn  # noqa: F401
+    import sonarmap.stages.classify.cnn  # noqa: F401
 
     config = load_config(all_stages(), None, (), extra_sections())
     chosen = [f"classify.model={args.model}"] if args.model else []

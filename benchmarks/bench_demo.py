@@ -39,7 +39,7 @@ def _one_demo(shipped: bool) -> dict[str, float | str]:
         overrides = [f"training.directory={root / 'training'}"]
         if not shipped:
             overrides.append("training.shipped_models=null")
-        cmd = [sys.executable, "-m", "pipeline", "demo", "--out", str(root / "demo")]
+        cmd = [sys.executable, "-m", "sonarmap.pipeline", "demo", "--out", str(root / "demo")]
         cmd += ["--store", str(root / "store"), "--json"]
         for item in overrides:
             cmd += ["--set", item]

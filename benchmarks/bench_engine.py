@@ -16,15 +16,15 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-SONARMAP = [sys.executable, "-m", "pipeline"]
+SONARMAP = [sys.executable, "-m", "sonarmap.pipeline"]
 
 CHAIN = """
 import sys
 from pathlib import Path
 import numpy as np, pyarrow as pa
-from stages.base import Output, Stage, StageConfig
-from pipeline.engine.runner import execute, plan
-from pipeline.engine.session import make_context
+from sonarmap.stages.base import Output, Stage, StageConfig
+from sonarmap.pipeline.engine.runner import execute, plan
+from sonarmap.pipeline.engine.session import make_context
 
 class C(StageConfig):
     k: int = 1

@@ -24,12 +24,12 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from schemas.sonar import KeyframeImages  # noqa: E402
-from sim.config import MissionConfig, SimConfig  # noqa: E402
-from sim.dataset import simulate  # noqa: E402
-from sim.scene import load_scene  # noqa: E402
-from stages.features.stage import FeaturesConfig, features_table  # noqa: E402
-from stages.fuse.stage import FuseConfig, fuse_table  # noqa: E402
+from sonarmap.schemas.sonar import KeyframeImages  # noqa: E402
+from sonarmap.sim.config import MissionConfig, SimConfig  # noqa: E402
+from sonarmap.sim.dataset import simulate  # noqa: E402
+from sonarmap.sim.scene import load_scene  # noqa: E402
+from sonarmap.stages.features.stage import FeaturesConfig, features_table  # noqa: E402
+from sonarmap.stages.fuse.stage import FuseConfig, fuse_table  # noqa: E402
 
 
 def _best(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:

@@ -47,7 +47,7 @@ GOAL_CACHED_S = 0.5
 def _sonarmap(*args: str, env: dict[str, str] | None = None) -> tuple[float, str]:
     t0 = time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -79,7 +79,7 @@ def critical_path(stages_s: dict[str, float], figures: bool = True) -> tuple[flo
     """The longest chain of stages (seconds, names) through the real pipeline's graph
     (figures=False: without the figure stages)."""
     sys.path.insert(0, str(ROOT))
-    from pipeline.engine.registry import default_graph, without_figures
+    from sonarmap.pipeline.engine.registry import default_graph, without_figures
 
     stages = default_graph().stages
     best: dict[str, tuple[float, list[str]]] = {}
@@ -157,7 +157,7 @@ def main() -> int:
         return 0
     if args.dataset is None:
         sys.path.insert(0, str(ROOT))
-        from pipeline.training.datasets import ensure_simulation, scene_path
+        from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
         args.dataset = ensure_simulation(
             scene_path("marina"), 0, ROOT / "data/demo/marina-seed0.mcap"

@@ -54,10 +54,10 @@ BINS_M = ((1, 3), (3, 6), (6, 10), (10, 15), (15, 25), (25, 60))
 
 def along_baseline_errors(inputs: dict, separations: list[int], edge_depth_m: float) -> np.ndarray:
     """(N, 2) baseline length and ICP error along it (m) for keyframe pairs k - s, k."""
-    from stages.slam.frontend import _FrontEnd
-    from stages.slam.pose_graph import se2_between
-    from stages.slam.scan_matching import icp_with_covariance
-    from stages.slam.stage import SlamConfig, keyframe_points
+    from sonarmap.stages.slam.frontend import _FrontEnd
+    from sonarmap.stages.slam.pose_graph import se2_between
+    from sonarmap.stages.slam.scan_matching import icp_with_covariance
+    from sonarmap.stages.slam.stage import SlamConfig, keyframe_points
 
     c = SlamConfig()
     kf, features = inputs["keyframes.keyframes"], inputs["features.features"]

@@ -29,10 +29,10 @@ import pyarrow.compute as pc
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from sim.config import SimConfig  # noqa: E402
-from sim.dataset import simulate  # noqa: E402
-from sim.scene import load_scene  # noqa: E402
-from stages.infer.stage import InferConfig, infer_points  # noqa: E402
+from sonarmap.sim.config import SimConfig  # noqa: E402
+from sonarmap.sim.dataset import simulate  # noqa: E402
+from sonarmap.sim.scene import load_scene  # noqa: E402
+from sonarmap.stages.infer.stage import InferConfig, infer_points  # noqa: E402
 from tests.test_infer import (  # noqa: E402
     TruthTables,
     keyframe_indices,

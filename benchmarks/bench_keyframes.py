@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from schemas.sonar import SonarPing
+    from sonarmap.schemas.sonar import SonarPing
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -53,9 +53,9 @@ LAYOUTS = ("sonarmap", "interleaved")
 
 def _bank(n: int = 8) -> list[tuple[SonarPing, SonarPing]]:
     """Ping pairs rendered by the simulator (tiny scene), reused cyclically."""
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     run = simulate(load_scene(ROOT / "configs" / "scenes" / "tiny.yaml"), SimConfig(), 0)
     picks = np.linspace(0, run.n_frames - 1, n).astype(int)
@@ -69,9 +69,9 @@ def write_recording(path: Path, n_pairs: int, labels: bool, layout: str = "sonar
 
     from test_readers_mcap import odom_msg
 
-    from pipeline.formats.frames_io import image_message, sonar_message
-    from pipeline.formats.rosmsg import Ros2McapWriter, recording_writer
-    from schemas.topics import (
+    from sonarmap.pipeline.formats.frames_io import image_message, sonar_message
+    from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, recording_writer
+    from sonarmap.schemas.topics import (
         IMAGE_TYPE,
         LABEL_TOPIC,
         ODOMETRY_TYPE,
@@ -106,9 +106,9 @@ def write_recording(path: Path, n_pairs: int, labels: bool, layout: str = "sonar
 
 
 def measure_one(path: Path) -> dict[str, float]:
-    from pipeline.formats.frames_io import write_frames
-    from pipeline.readers import open_recording
-    from stages.keyframes import STAGE, KeyframesConfig
+    from sonarmap.pipeline.formats.frames_io import write_frames
+    from sonarmap.pipeline.readers import open_recording
+    from sonarmap.stages.keyframes import STAGE, KeyframesConfig
 
     cfg = KeyframesConfig(spacing_m=2.0)
     t0, c0 = time.perf_counter(), time.process_time()

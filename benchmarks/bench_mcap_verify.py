@@ -25,8 +25,8 @@ REPEATS = 2
 
 
 def _keyframes_s(path: Path, store: Path, verify: bool) -> float:
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.readers import mcap_source
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.readers import mcap_source
 
     original = mcap_source._McapFile.verify
     if not verify:
@@ -42,7 +42,7 @@ def _keyframes_s(path: Path, store: Path, verify: bool) -> float:
 def main() -> None:
     from bench_keyframes import write_recording
 
-    from pipeline.readers.mcap_source import _McapFile
+    from sonarmap.pipeline.readers.mcap_source import _McapFile
 
     n_pairs = int(sys.argv[1]) if len(sys.argv) > 1 else 600
     with tempfile.TemporaryDirectory() as tmp:

@@ -36,7 +36,7 @@ def _children_cpu_s() -> float:
 def _one_run(dataset: Path, store: Path) -> dict:
     cpu0, t0 = _children_cpu_s(), time.perf_counter()
     proc = subprocess.run(
-        [sys.executable, "-m", "pipeline", "run", str(dataset), "--store", str(store), "--json"],
+        [sys.executable, "-m", "sonarmap.pipeline", "run", str(dataset), "--store", str(store), "--json"],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -64,7 +64,7 @@ def main() -> None:
         # The demo's recording as the current simulator writes it: a file left by an older
         # simulator has another layout, and `keyframes` reads that one slower.
         sys.path.insert(0, str(ROOT))
-        from pipeline.training.datasets import ensure_simulation, scene_path
+        from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
         args.dataset = ensure_simulation(
             scene_path("marina"), 0, ROOT / "data/demo/marina-seed0.mcap"

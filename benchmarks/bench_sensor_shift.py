@@ -10,7 +10,7 @@ contrast near the real Oculus ping's 43 / 0.64); "aris", mean 93 and shape 3.8 (
 real ARIS frames' 89 / 0.28). Gain, reflectivity and mounting stay the defaults. Each
 mission runs through the pipeline up to `classify` (default config, pooled views) with
 each model (`classify.model=DIR`). Reported per sensor: the measured background statistics
-(`sim.randomise.image_statistics`, median over 12 pings) and per model the structure
+(`sonarmap.sim.randomise.image_statistics`, median over 12 pings) and per model the structure
 objects' argmax accuracy, the accepted share and accepted accuracy, and the pilings'
 precision / recall (`bench_classify.scores`).
 """
@@ -37,7 +37,7 @@ SENSORS = {
 def _draw(noise: dict | None) -> dict | None:
     if noise is None:
         return None
-    from sim.config import SonarConfig
+    from sonarmap.sim.config import SonarConfig
 
     sonar = {**noise, "gain_db": 0.0, "tilt_deg": [0.0, 0.0, 0.0]}
     factors = {name: 1.0 for name in SonarConfig().reflectivity}
@@ -69,9 +69,14 @@ def _accuracy(objects) -> dict[str, object]:  # type: ignore[no-untyped-def]
 def main() -> None:
     from bench_classify import _classify
 
-    from pipeline.training.datasets import ensure_simulation, read_scene, scene_path, sim_config
-    from sim.dataset import simulate
-    from sim.randomise import image_statistics
+    from sonarmap.pipeline.training.datasets import (
+        ensure_simulation,
+        read_scene,
+        scene_path,
+        sim_config,
+    )
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.randomise import image_statistics
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", action="append", required=True, help="label=DIR")

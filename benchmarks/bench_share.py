@@ -38,9 +38,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.engine.hashing import recipe_key  # noqa: E402
-from pipeline.engine.share import pull, push  # noqa: E402
-from pipeline.engine.store import ArtifactStore  # noqa: E402
+from sonarmap.pipeline.engine.hashing import recipe_key  # noqa: E402
+from sonarmap.pipeline.engine.share import pull, push  # noqa: E402
+from sonarmap.pipeline.engine.store import ArtifactStore  # noqa: E402
 
 
 def make_store(root: Path, total_mb: int, n: int = 8) -> int:

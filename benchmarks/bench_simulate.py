@@ -51,10 +51,10 @@ def _cpu_s(who: int) -> float:
 
 def _once(scene_path: Path, args: argparse.Namespace, workers: int) -> dict[str, float]:
     """One simulation into a temporary file: wall and CPU seconds, file size."""
-    from pipeline.formats.simulation import write_simulation
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.config import MissionConfig, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     config = SimConfig(mission=MissionConfig(duration_s=args.duration_s))
     run = simulate(load_scene(scene_path), config, args.seed)

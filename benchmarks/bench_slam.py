@@ -339,7 +339,7 @@ def similarity_scale(estimate: np.ndarray, truth: np.ndarray) -> float:
 def _mission(
     label: str, navigation: dict[str, float] | None, seed: int = 0, repeats: int = 1
 ) -> dict[str, float]:
-    from stages.slam.stage import STAGE, SlamConfig
+    from sonarmap.stages.slam.stage import STAGE, SlamConfig
     from tests.test_slam import ate_se2, simulated_slam_inputs
 
     inputs = simulated_slam_inputs("marina", n_goals=20, seed=seed, navigation=navigation)

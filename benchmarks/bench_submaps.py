@@ -45,7 +45,7 @@ TIMED = ("features", "fuse", "classify", "infer", "submaps", "voxelize")
 def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> None:
     """One cold run in this process; prints per-stage wall, CPU and peak RSS as JSON."""
     sys.path.insert(0, str(ROOT))
-    from pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.api import RunRequest, run_dataset
 
     marks: dict[str, float] = {}
     stages: dict[str, dict[str, float]] = {}
@@ -128,8 +128,8 @@ class _TreeRss:
 
 def _workers(overrides: list[str], frames: int) -> dict[str, int]:
     """The processes `submaps` mapped in (1: this one, no workers)."""
-    from stages.submaps.config import SubmapsConfig
-    from stages.submaps.workers import worker_count
+    from sonarmap.stages.submaps.config import SubmapsConfig
+    from sonarmap.stages.submaps.workers import worker_count
 
     setting = SubmapsConfig().workers
     for item in overrides:
@@ -156,7 +156,7 @@ def _dataset(path: Path) -> Path:
     simulated = ROOT / "data/bench/marina-seed0.mcap"
     if not simulated.is_file():
         simulated.parent.mkdir(parents=True, exist_ok=True)
-        cmd = [sys.executable, "-m", "pipeline", "simulate", "-o", str(simulated), "--seed", "0"]
+        cmd = [sys.executable, "-m", "sonarmap.pipeline", "simulate", "-o", str(simulated), "--seed", "0"]
         subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True)
     return simulated
 

@@ -7,7 +7,7 @@ A cold `run` (fresh store) of the real pipeline on a short simulated marina miss
 with a small default classifier trained in the same store (one pier mission,
 `--epochs`), so the run includes `train` and binds its training datasets' keyframes
 too. The missions are simulated before the clock starts. Every call of
-`pipeline.engine.integrity.verify_file` (the one hash per bound file per run) is timed; the
+`sonarmap.pipeline.engine.integrity.verify_file` (the one hash per bound file per run) is timed; the
 overhead is their sum over the cold run's wall time. A short run makes the ratio
 pessimistic: hashing grows with the bytes read, stage work grows faster.
 Also reported: re-hashing the whole store (what `show --verify` / `gc --broken` cost).
@@ -48,8 +48,7 @@ def _config(work: Path, train_goals: int, epochs: int) -> Path:
 
 def _timed_verify() -> dict[str, Any]:
     """Wrap `verify_file` so every call's time and bytes are counted."""
-    import pipeline.engine.integrity as integrity
-
+    import sonarmap.pipeline.engine.integrity as integrity
     stats: dict[str, Any] = {"calls": 0, "seconds": 0.0, "bytes": 0}
     original = integrity.verify_file
 
@@ -72,9 +71,9 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=30)
     parser.add_argument("--work", type=Path, default=Path("data/bench/verify"))
     args = parser.parse_args()
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.engine.store import ArtifactStore, verify_artifact_dir
-    from pipeline.training.datasets import ensure_simulation, scene_path
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.engine.store import ArtifactStore, verify_artifact_dir
+    from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     work = args.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
@@ -84,7 +83,7 @@ def main() -> None:
     dataset = ensure_simulation(
         scene_path("marina"), 0, work / f"marina-seed0-goals{args.goals}.mcap", goals=args.goals
     )
-    import stages.classify.cnn  # noqa: F401  (torch's import is not the engine's cost)
+    import sonarmap.stages.classify.cnn  # noqa: F401  (torch's import is not the engine's cost)
 
     stats = _timed_verify()
     store_dir = work / f"store-{uuid.uuid4().hex[:8]}"

@@ -91,7 +91,7 @@ def sonarmap(*args: str, cache: Path) -> tuple[float, str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT), "SONARMAP_CACHE_DIR": str(cache)}
     t0 = time.perf_counter()
     done = subprocess.run(
-        [sys.executable, "-m", "pipeline", *args], env=env, capture_output=True, text=True
+        [sys.executable, "-m", "sonarmap.pipeline", *args], env=env, capture_output=True, text=True
     )
     if done.returncode != 0:
         sys.exit(f"sonarmap {' '.join(args)} failed:\n{done.stdout}\n{done.stderr}")
@@ -124,10 +124,10 @@ def label_coco(coco_path: Path, table: Any, scene: Path, seed: int, goals: int) 
     """Fill an exported COCO file with the simulator's truth, as a labeller would; returns
     the number of shapes written. The label images come from simulating the mission again
     (same scene, seed and goals: same frames)."""
-    from pipeline.labels.fan_image import FanGeometry, metres_to_pixels
-    from pipeline.training.datasets import read_scene, sim_config
-    from sim.dataset import simulate
-    from stages.kernels.geometry import fan_to_xy
+    from sonarmap.pipeline.labels.fan_image import FanGeometry, metres_to_pixels
+    from sonarmap.pipeline.training.datasets import read_scene, sim_config
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.stages.kernels.geometry import fan_to_xy
 
     doc = json.loads(coco_path.read_text())
     geometry = json.loads((coco_path.parent / "geometry.json").read_text())["images"]
@@ -187,8 +187,8 @@ def main() -> None:
     train, test = work / "train.mcap", work / "test.mcap"
     config = work / "config.yaml"
     config.write_text(CONFIG.format(cls=CLASS, recording=train))
-    from pipeline.engine.config import load_config
-    from pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
 
     table = load_config(all_stages(), config, (), extra_sections()).classes  # type: ignore[attr-defined]
 
@@ -225,10 +225,10 @@ def main() -> None:
 
 def _report(store: Path, test: Path, config: Path, cache: Path) -> None:
     os.environ["SONARMAP_CACHE_DIR"] = str(cache)
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.engine.codecs import read_verified
-    from pipeline.engine.registry import stage_by_name
-    from pipeline.scoring import classification_scores
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.engine.codecs import read_verified
+    from sonarmap.pipeline.engine.registry import stage_by_name
+    from sonarmap.pipeline.scoring import classification_scores
 
     result, _ = run_dataset(RunRequest(test, config_path=config, store_dir=store))
     objects_out = next(o for o in stage_by_name("classify").outputs if o.name == "objects")

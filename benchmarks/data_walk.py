@@ -3,7 +3,7 @@ keyframes stage (issue 36's target: <= 6 modules, none entered twice).
 
 Runs `sonarmap run RECORDING --until keyframes` in this process on a fresh store and
 records the call stack whenever the dataset is fingerprinted (its parts listed), opened,
-or handed to `stages.keyframes.run`. Each stack is cut at the `run` command's frame and
+or handed to `sonarmap.stages.keyframes.run`. Each stack is cut at the `run` command's frame and
 read as the ordered project modules it passes through; the walk is their ordered union.
 A module "entered twice" appears in one stack in two places with another module between.
 
@@ -46,10 +46,10 @@ def _stack(frame: FrameType | None, command: CodeType) -> list[str]:
 
 
 def main(argv: list[str]) -> dict[str, Any]:
-    import pipeline.readers
-    import stages.keyframes.stage
-    from pipeline.cli import app
-    from pipeline.commands import run as run_command
+    import sonarmap.pipeline.readers
+    import sonarmap.stages.keyframes.stage
+    from sonarmap.pipeline.cli import app
+    from sonarmap.pipeline.commands import run as run_command
 
     if argv:
         recording = Path(argv[0])
@@ -59,9 +59,9 @@ def main(argv: list[str]) -> dict[str, Any]:
         recording = small_recording(Path(tempfile.mkdtemp()) / "rec.mcap", duration_s=45.0)
     command: CodeType | None = None  # the `run` command's code, found on its first call
     targets = {
-        pipeline.readers.dataset_fingerprint_parts.__code__: "fingerprinted",
-        pipeline.readers.open_recording.__code__: "opened",
-        stages.keyframes.stage.run.__code__: "keyframes.run",
+        sonarmap.pipeline.readers.dataset_fingerprint_parts.__code__: "fingerprinted",
+        sonarmap.pipeline.readers.open_recording.__code__: "opened",
+        sonarmap.stages.keyframes.stage.run.__code__: "keyframes.run",
     }
     stacks: dict[str, list[str]] = {}
 

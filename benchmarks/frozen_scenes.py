@@ -42,7 +42,7 @@ LABELLINGS = {"cnn": [], "oracle": ["classify.labels=ground_truth"]}
 
 def _recordings(scenes: list[str]) -> list[Path]:
     sys.path.insert(0, str(ROOT))
-    from pipeline.training.datasets import ensure_simulation, scene_path
+    from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     def path(scene: str) -> Path:  # a frozen scene's name first, then configs/scenes/
         frozen = FROZEN / f"{scene}.yaml"
@@ -55,7 +55,7 @@ def _recordings(scenes: list[str]) -> list[Path]:
 
 def _run(dataset: Path, store: Path, sets: list[str]) -> dict[str, Any]:
     sets = ["keyframes.spacing_m=4", "slam.mode=ground_truth", *sets]
-    cmd = [sys.executable, "-m", "pipeline", "run", str(dataset), "--store", str(store)]
+    cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", str(dataset), "--store", str(store)]
     cmd += ["--json", "-q", *(a for s in sets for a in ("--set", s))]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     if proc.returncode != 0:

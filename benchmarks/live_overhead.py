@@ -24,8 +24,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline.api import RunRequest, run_dataset
-from pipeline.live.session import live_session
+from sonarmap.pipeline.api import RunRequest, run_dataset
+from sonarmap.pipeline.live.session import live_session
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _recording(path: str | None) -> Path:
     if path:
         return Path(path)
-    from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
     out = ROOT / "data" / "bench" / "tiny-seed2-45s.mcap"
     ensure_simulations([Simulation(scene_path("tiny"), 2, out, duration_s=45.0)], 1)

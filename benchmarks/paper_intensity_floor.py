@@ -60,11 +60,11 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=8)
     args = ap.parse_args()
 
-    from pipeline.training.datasets import scene_path
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
-    from stages.kernels.cfar import cfar_detect
+    from sonarmap.pipeline.training.datasets import scene_path
+    from sonarmap.sim.config import MissionConfig, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
+    from sonarmap.stages.kernels.cfar import cfar_detect
 
     run = simulate(
         load_scene(scene_path(args.scene)),

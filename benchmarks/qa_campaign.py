@@ -3,7 +3,7 @@
     python benchmarks/qa_campaign.py [--only SUBSTRING] [--module NAME] [--json]
 
 Runs every case of `benchmarks/qa/cases_*.py` (see `benchmarks/qa/case.py`) as its own
-`python -m pipeline` process in a fresh directory, and prints, per category, how many
+`python -m sonarmap.pipeline` process in a fresh directory, and prints, per category, how many
 cases were tried and how many held, then the cases that did not hold and why. Exit 0
 when every case held, 1 otherwise. It is a study, not a test: the suite keeps one test
 per fault class; this campaign tries more variants and measures memory and time.
@@ -42,7 +42,7 @@ def _run(case: Case, workdir: Path) -> tuple[subprocess.CompletedProcess[str], f
     env = {**os.environ, "COLUMNS": "80", "PYTHONPATH": str(ROOT), **case.env}
     start = time.monotonic()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         cwd=workdir,
         env=env,
         stdin=subprocess.PIPE if case.stdin is not None else subprocess.DEVNULL,

@@ -2,7 +2,7 @@
 
     .venv/bin/python benchmarks/sensor_stats.py [--frames 12] [--draws 24]
 
-Per image, `sim.randomise.image_statistics`: the background median (8-bit levels) and the
+Per image, `sonarmap.sim.randomise.image_statistics`: the background median (8-bit levels) and the
 speckle contrast (std / mean of the pixels at or below the 80th percentile). Reported as
 the median over images, for the real Oculus ping (`shared/data/oculus`, decoded by the
 project's raw-Oculus reader), the real ARIS frames (`shared/data/aris`, the ARIS reader),
@@ -28,7 +28,7 @@ SHARED = ROOT.parent / "shared" / "data"
 
 
 def _median_stats(images: list[np.ndarray]) -> dict[str, float]:
-    from sim.randomise import image_statistics
+    from sonarmap.sim.randomise import image_statistics
 
     stats = np.array([image_statistics(im) for im in images])
     return {
@@ -39,7 +39,7 @@ def _median_stats(images: list[np.ndarray]) -> dict[str, float]:
 
 
 def oculus_images(path: Path) -> list[np.ndarray]:
-    from pipeline.readers.oculus_raw import parse_ping
+    from sonarmap.pipeline.readers.oculus_raw import parse_ping
 
     buf, pos, out = path.read_bytes(), 0, []
     while pos < len(buf):
@@ -49,16 +49,16 @@ def oculus_images(path: Path) -> list[np.ndarray]:
 
 
 def aris_images(path: Path) -> list[np.ndarray]:
-    from pipeline.readers.aris import ArisSource
+    from sonarmap.pipeline.readers.aris import ArisSource
 
     src = ArisSource(path)
     return [src.frame(int(k)).image for k in src._order]
 
 
 def sim_images(frames: int, draw: dict | None = None, seed: int = 0) -> list[np.ndarray]:
-    from pipeline.training.datasets import read_scene, scene_path, sim_config
-    from sim.dataset import simulate
-    from sim.randomise import randomised_config
+    from sonarmap.pipeline.training.datasets import read_scene, scene_path, sim_config
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.randomise import randomised_config
 
     cfg = sim_config(4, None)
     if draw is not None:
@@ -73,7 +73,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--draws", type=int, default=24)
     args = ap.parse_args()
-    from sim.randomise import SensorRandomisation, draw_sensor
+    from sonarmap.sim.randomise import SensorRandomisation, draw_sensor
 
     doc: dict[str, object] = {
         "oculus": _median_stats(oculus_images(SHARED / "oculus" / "one_ping_8bit.raw")),

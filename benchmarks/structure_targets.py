@@ -36,7 +36,7 @@ def _recordings(args: argparse.Namespace) -> list[Path]:
     if args.datasets:
         return [Path(d) for d in args.datasets]
     sys.path.insert(0, str(ROOT))
-    from pipeline.training.datasets import ensure_simulation, scene_path
+    from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     out = ROOT / "data" / "bench" / "structure"
     return [
@@ -47,7 +47,7 @@ def _recordings(args: argparse.Namespace) -> list[Path]:
 
 def _run(dataset: Path, store: Path, slam: bool, extra: list[str]) -> dict[str, Any]:
     sets = ["keyframes.spacing_m=4", *([] if slam else ["slam.mode=ground_truth"]), *extra]
-    cmd = [sys.executable, "-m", "pipeline", "run", str(dataset), "--store", str(store)]
+    cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", str(dataset), "--store", str(store)]
     cmd += ["--json", "-q", *(a for s in sets for a in ("--set", s))]
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     if proc.returncode != 0:

@@ -1,6 +1,6 @@
-"""`python -m pipeline` is the same as `sonarmap`."""
+"""`python -m sonarmap.pipeline` is the same as `sonarmap`."""
 
-from pipeline.cli import main
+from sonarmap.pipeline.cli import main
 
 if __name__ == "__main__":  # worker processes (spawned) import this module again
     main()

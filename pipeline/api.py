@@ -1,7 +1,7 @@
 """The engine's front door: plan and run a dataset through a graph, summarise it.
 
 `run`, `status`, `demo` and `sweep` all go through here so their behaviour matches.
-Every function takes the graph the CLI built (`pipeline.engine.registry.Graph`);
+Every function takes the graph the CLI built (`sonarmap.pipeline.engine.registry.Graph`);
 None means the real pipeline's.
 """
 
@@ -13,17 +13,17 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.engine.planned import PlannedStage
-from pipeline.engine.planner import plan
-from pipeline.engine.registry import Graph, default_graph, without_figures
-from pipeline.engine.runner import RunResult, StageResult, execute
-from pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
-from pipeline.engine.store import ArtifactRef
-from pipeline.engine.workers import default_workers
-from stages.base import Stage
+from sonarmap.pipeline.engine.planned import PlannedStage
+from sonarmap.pipeline.engine.planner import plan
+from sonarmap.pipeline.engine.registry import Graph, default_graph, without_figures
+from sonarmap.pipeline.engine.runner import RunResult, StageResult, execute
+from sonarmap.pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
+from sonarmap.pipeline.engine.store import ArtifactRef
+from sonarmap.pipeline.engine.workers import default_workers
+from sonarmap.stages.base import Stage
 
 if TYPE_CHECKING:
-    from pipeline.training.model_cache import ResolvedModel
+    from sonarmap.pipeline.training.model_cache import ResolvedModel
 
 __all__ = ["ModelStatus", "RunRequest", "plan_dataset", "plan_status", "run_dataset", "summarize"]
 
@@ -48,7 +48,7 @@ class RunRequest:
         force: stages to recompute even when cached.
         workers: stages computed side by side (None: the cores; 1: one after another).
         figures: plan the figure stages too (False: `--no-figures`, the map without its
-            PNGs; `pipeline.engine.registry.without_figures`).
+            PNGs; `sonarmap.pipeline.engine.registry.without_figures`).
     """
 
     dataset: Path
@@ -82,12 +82,12 @@ def _model(ctx: RunContext, until: str | None) -> ResolvedModel | None:
         return None
     classify = getattr(ctx.config, "classify", None)
     if classify is not None and classify.model is not None:
-        from pipeline.training.model_choice import resolve_given_model
+        from sonarmap.pipeline.training.model_choice import resolve_given_model
 
         return resolve_given_model(
             classify.model, ctx.store, ctx.config, classify.allow_unvalidated_model
         )
-    from pipeline.training.model_cache import resolve_default_model
+    from sonarmap.pipeline.training.model_cache import resolve_default_model
 
     return resolve_default_model(ctx.store, ctx.config)
 
@@ -151,7 +151,7 @@ def plan_status(
     readers = [s.name for s in ctx.stages[: last + 1] if "train" in s.upstream]
     if not readers:
         return ctx, _plan_with(ctx, request, request.until, {}), None, []
-    from pipeline.training.model_cache import located_default_model
+    from sonarmap.pipeline.training.model_cache import located_default_model
 
     key, ref = located_default_model(ctx.store, ctx.config)
     if ref is None:
@@ -222,7 +222,7 @@ def run_dataset(
 
 
 def _json_output(stage: Stage, ref: ArtifactRef, name: str) -> Any:
-    from pipeline.engine.codecs import read_verified
+    from sonarmap.pipeline.engine.codecs import read_verified
 
     output = next((o for o in stage.outputs if o.name == name and o.kind == "json"), None)
     return None if output is None else read_verified(ref, output)
@@ -248,8 +248,8 @@ def summarize(
             outputs = artifacts[name].manifest.get("outputs", {})
             summary[name] = {k: v.get("rows") for k, v in outputs.items()}
     if scores and "classify" in artifacts:
-        from pipeline.engine.codecs import read_verified
-        from pipeline.scoring import classification_scores
+        from sonarmap.pipeline.engine.codecs import read_verified
+        from sonarmap.pipeline.scoring import classification_scores
 
         output = next(o for o in by_name["classify"].outputs if o.name == "objects")
         summary["classification"] = classification_scores(

@@ -15,11 +15,11 @@ import click
 import typer
 from typer.core import TyperGroup
 
-from pipeline import __version__
-from pipeline.commands import COMMAND_MODULES
-from pipeline.commands._common import GraphChoice
-from pipeline.commands._errors import one_line, os_error_line
-from pipeline.engine.errors import PipelineError
+from sonarmap.pipeline import __version__
+from sonarmap.pipeline.commands import COMMAND_MODULES
+from sonarmap.pipeline.commands._common import GraphChoice
+from sonarmap.pipeline.commands._errors import one_line, os_error_line
+from sonarmap.pipeline.engine.errors import PipelineError
 
 __all__ = ["app", "main"]
 
@@ -75,7 +75,7 @@ def _root(
     """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
     # The one place the alternative graph's variable is read (`registry.GRAPH_ENV`): the
     # graph is built from it once and handed to every command through the context.
-    from pipeline.engine.registry import GRAPH_ENV
+    from sonarmap.pipeline.engine.registry import GRAPH_ENV
 
     if not isinstance(ctx.obj, GraphChoice):  # else: given by a program embedding the CLI
         ctx.obj = GraphChoice(os.environ.get(GRAPH_ENV))
@@ -102,8 +102,8 @@ class _UserFormatter(logging.Formatter):
 
 
 for _name in COMMAND_MODULES:
-    if importlib.util.find_spec(f"pipeline.commands.{_name}") is not None:
-        importlib.import_module(f"pipeline.commands.{_name}").register(app)
+    if importlib.util.find_spec(f"sonarmap.pipeline.commands.{_name}") is not None:
+        importlib.import_module(f"sonarmap.pipeline.commands.{_name}").register(app)
 
 
 def main() -> None:

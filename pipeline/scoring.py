@@ -6,7 +6,7 @@ from typing import Any
 
 import pyarrow as pa
 
-from schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
+from sonarmap.schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
 
 __all__ = ["classification_scores"]
 

@@ -36,7 +36,7 @@ from pydantic import (
     model_validator,
 )
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 
 __all__ = [
     "ANNOTATION_FORMAT",

@@ -3,8 +3,8 @@ stage `submaps` queries its frames with (Eq. 8-9): `class_reference.parquet` and
 `class_cells.parquet`.
 
 A class model is a reference frame (object-frame classes: the ICP reference cloud of
-the class, `stages.kernels.object_frame`) and a sparse grid of height posteriors
-(`stages.kernels.height_model`), as they stand after the mission's last keyframe.
+the class, `sonarmap.stages.kernels.object_frame`) and a sparse grid of height posteriors
+(`sonarmap.stages.kernels.height_model`), as they stand after the mission's last keyframe.
 Floats are float64, so a model read back answers exactly as the one that was written.
 """
 

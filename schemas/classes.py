@@ -5,7 +5,7 @@ default is the table below, and the module-level names (`CLASS_NAMES`, `CLASS_ID
 are that default's views, for code that only ever sees the default (tests, fixtures).
 
 Class id 0 means "nothing"; ids are stable because label images store them (uint8), and
-stay below the map's reserved codes (`stages.kernels.map_codes`: 254 none, 255 unknown).
+stay below the map's reserved codes (`sonarmap.stages.kernels.map_codes`: 254 none, 255 unknown).
 """
 
 from __future__ import annotations

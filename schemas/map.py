@@ -50,7 +50,7 @@ MAP_SCHEMA = pa.schema(
 )
 """map.parquet: keyframe the point was observed in (or whose submap it belongs to),
 its submap frame (`submap_frames.parquet` frame_id; -1: the keyframe itself, see
-`schemas.submaps.KEYFRAME_FRAME_ID`), world position [m], source
+`sonarmap.schemas.submaps.KEYFRAME_FRAME_ID`), world position [m], source
 (`fused` | `inferred`), class of its object (`none` when unclassified, `unknown` when
 the classifier was not confident). Sorted by MAP_SORT_KEYS."""
 

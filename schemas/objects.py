@@ -40,11 +40,11 @@ OBJECTS_SCHEMA = pa.schema(
 )
 """objects.parquet, sorted by (keyframe_id, object_id); object_id is unique over the run.
 
-- class_id / class_name: `schemas.classes` id and name of the accepted class, or
+- class_id / class_name: `sonarmap.schemas.classes` id and name of the accepted class, or
   -1 / "unknown" when the (pooled) mean probability is not above the threshold.
 - argmax_class_name: the class of the largest (pooled) mean probability, accepted or not.
 - probability: that class's mean softmax output over the m dropout passes, pooled over
-  the object's n_views sightings in nearby keyframes (`stages.classify.view_pooling`) when
+  the object's n_views sightings in nearby keyframes (`sonarmap.stages.classify.view_pooling`) when
   `classify.pool_views` is on; single_view_probability / probability_var: mean and
   variance over this keyframe's m passes alone, of the same class.
 - n_views: sightings pooled into `probability` (1: this keyframe's alone).

@@ -34,5 +34,5 @@ POINTS_SCHEMA = pa.schema(
     ]
 )
 """`points.parquet`: confidence is the fusion confidence (paper Eq. 6) for fused rows
-and the posterior probability of the predicted height (see `stages.kernels.height_model`)
+and the posterior probability of the predicted height (see `sonarmap.stages.kernels.height_model`)
 for inferred rows."""

@@ -1,7 +1,7 @@
 """The `Recording` protocol: what the keyframes stage reads from a raw dataset.
 
 The engine opens a dataset (MCAP, rosbag2 directory, ROS 1 bag, ...) with
-`pipeline.readers.open_recording` and binds it to the keyframes stage's "dataset"
+`sonarmap.pipeline.readers.open_recording` and binds it to the keyframes stage's "dataset"
 input. Everything here is arrays in memory except the sonar images, which are decoded
 on demand by `pings`, so memory does not grow with the recording.
 """
@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from schemas.sonar import SonarPing
+from sonarmap.schemas.sonar import SonarPing
 
 __all__ = ["PoseTrack", "Recording"]
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import pyarrow as pa
 
-from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
-from schemas.points import POINTS_SCHEMA
+from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
+from sonarmap.schemas.points import POINTS_SCHEMA
 
 __all__ = [
     "KEYFRAME_FRAME_ID",

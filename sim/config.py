@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
@@ -34,7 +34,7 @@ class Mounting(_Model):
 
     def matrix(self) -> np.ndarray:
         """(4, 4) T_base_sonar."""
-        from stages.kernels.geometry import matrix_from_rpy_product, se3
+        from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, se3
 
         return se3(matrix_from_rpy_product(np.deg2rad(self.rpy_deg)), self.translation_m)
 
@@ -160,7 +160,7 @@ class NavigationNoise(_Model):
 
 
 class SimConfig(_Model):
-    """Everything `sim.dataset.simulate` needs besides the scene and the seed."""
+    """Everything `sonarmap.sim.dataset.simulate` needs besides the scene and the seed."""
 
     horizontal: SonarConfig = SonarConfig()
     vertical: SonarConfig = SonarConfig(

@@ -7,15 +7,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import SonarPing
-from sim.config import SimConfig
-from sim.mission import Trajectory, dead_reckoning, plan_mission
-from sim.scene import Scene
-from sim.sonar import SonarModel
-from sim.version import SIM_VERSION
-from sim.world import World
-from stages.kernels.geometry import matrix_from_rpy_product, se3
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.mission import Trajectory, dead_reckoning, plan_mission
+from sonarmap.sim.scene import Scene
+from sonarmap.sim.sonar import SonarModel
+from sonarmap.sim.version import SIM_VERSION
+from sonarmap.sim.world import World
+from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, se3
 
 __all__ = ["SIM_VERSION", "SimFrame", "SimRun", "simulate"]
 

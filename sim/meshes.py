@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.scene import (
+from sonarmap.sim.scene import (
     BoatHull,
     CylindricalPiling,
     MeshObject,
@@ -17,7 +17,7 @@ from sim.scene import (
     Seawall,
     Truss,
 )
-from stages.kernels.geometry import matrix_from_rpy
+from sonarmap.stages.kernels.geometry import matrix_from_rpy
 
 __all__ = ["Mesh", "beam_mesh", "box_mesh", "file_mesh", "primitive_mesh", "seafloor_mesh"]
 

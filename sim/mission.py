@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.config import MissionConfig, NavigationNoise
-from sim.world import World
+from sonarmap.sim.config import MissionConfig, NavigationNoise
+from sonarmap.sim.world import World
 
 __all__ = ["Occupancy", "Trajectory", "dead_reckoning", "plan_mission"]
 

@@ -1,6 +1,6 @@
 """Open up the water a generated harbour closes off, so the mission reaches every goal.
 
-The mission planner (`sim.mission`) draws its start and goals anywhere in free water (at
+The mission planner (`sonarmap.sim.mission`) draws its start and goals anywhere in free water (at
 the vehicle's depth, `clearance_m` from every object, on a `grid_resolution_m` grid) and
 skips goals A* cannot reach. A generated wall, piling row, grid or truss that closes off a
 pocket of that water wastes the mission: with the start in a pocket there is no path at
@@ -23,9 +23,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from sim.config import MissionConfig
-from sim.mission import Occupancy
-from sim.scene import (
+from sonarmap.sim.config import MissionConfig
+from sonarmap.sim.mission import Occupancy
+from sonarmap.sim.scene import (
     BoatHull,
     CylindricalPiling,
     PilingGrid,
@@ -35,7 +35,7 @@ from sim.scene import (
     Seawall,
     Truss,
 )
-from sim.world import World
+from sonarmap.sim.world import World
 
 __all__ = ["free_water_pieces", "open_pockets"]
 

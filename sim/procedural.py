@@ -6,11 +6,11 @@ polylines with odd angles and curves, rows and grids of pilings and lone dolphin
 any yaw, trusses along and between rows, hulls of any size and heading, depths from
 shallow to deep, and objects that touch and hide each other (a hull moored against a
 wall, a truss braced on pilings, pilings in clusters). The missions through these worlds
-are the simulator's own (`sim.mission`).
+are the simulator's own (`sonarmap.sim.mission`).
 
 Every object's footprint lies inside the scene's working area, and every scene holds
 every class, so a training set of a few worlds already covers the table. The free water
-at the mission's depth and clearance is one piece (`sim.open_water`), so the mission
+at the mission's depth and clearance is one piece (`sonarmap.sim.open_water`), so the mission
 reaches every goal it draws.
 """
 
@@ -18,8 +18,8 @@ from __future__ import annotations
 
 import math
 
-from sim.procedural_config import ProceduralConfig
-from sim.scene import (
+from sonarmap.sim.procedural_config import ProceduralConfig
+from sonarmap.sim.scene import (
     BoatHull,
     CylindricalPiling,
     PilingGrid,
@@ -30,7 +30,7 @@ from sim.scene import (
     Seawall,
     Truss,
 )
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 
@@ -253,7 +253,7 @@ def _keep_inside(objects: list, half: float) -> list:
 
 def generate_scene(config: ProceduralConfig, seed: int) -> Scene:
     """A random harbour holding every class, deterministic by `seed`, its free water one
-    piece for the simulator's default mission (`sim.open_water.open_pockets`)."""
+    piece for the simulator's default mission (`sonarmap.sim.open_water.open_pockets`)."""
     half0 = _Draw(seed, 1.0).span(config.area_half_side_m)
     d = _Draw(seed, half0)
     d.span(config.area_half_side_m)  # keep the stream aligned with the draw above
@@ -310,13 +310,13 @@ def generate_scene(config: ProceduralConfig, seed: int) -> Scene:
     )
     if not config.open_water:
         return scene
-    from sim.open_water import open_pockets  # scipy: only when a world is built
+    from sonarmap.sim.open_water import open_pockets  # scipy: only when a world is built
 
     return open_pockets(scene)
 
 
 def scene_yaml(scene: Scene) -> str:
-    """The scene as a YAML file `sim.scene.load_scene` reads back to an equal scene."""
+    """The scene as a YAML file `sonarmap.sim.scene.load_scene` reads back to an equal scene."""
     import yaml
 
     doc = scene.model_dump(mode="json", by_alias=True, exclude_none=True)

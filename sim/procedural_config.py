@@ -1,4 +1,4 @@
-"""The procedural generator's ranges (`sim.procedural`): a config section's type, so it
+"""The procedural generator's ranges (`sonarmap.sim.procedural`): a config section's type, so it
 loads with the config, without the scene models or numpy."""
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class ProceduralConfig(BaseModel):
     open_water: bool = Field(
         True,
         description="remove the structures that close off free water from the default"
-        " mission (`sim.open_water`), so it reaches every goal; false: the raw draw",
+        " mission (`sonarmap.sim.open_water`), so it reaches every goal; false: the raw draw",
     )
 
     @model_validator(mode="after")

@@ -22,8 +22,8 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from sim.config import Mounting, SimConfig, SonarConfig
-from stages.kernels.lazy import lazy
+from sonarmap.sim.config import Mounting, SimConfig, SonarConfig
+from sonarmap.stages.kernels.lazy import lazy
 
 np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 

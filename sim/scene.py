@@ -30,7 +30,7 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 np = lazy("numpy")  # loads when a scene is built or drawn, not when a config is read
 

@@ -23,11 +23,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gamma, ndtri
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import SonarPing
-from sim.config import SonarConfig
-from sim.world import World
-from stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.sim.config import SonarConfig
+from sonarmap.sim.world import World
+from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
 
 __all__ = ["NEW_CLASS_REFLECTIVITY", "SonarModel"]
 

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from sim.meshes import primitive_mesh, seafloor_mesh
-from sim.scene import Scene, SceneError
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.sim.meshes import primitive_mesh, seafloor_mesh
+from sonarmap.sim.scene import Scene, SceneError
 
 __all__ = ["ObjectInfo", "World"]
 

@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
-from stages.kernels.lazy import resolve
+from sonarmap.stages.kernels.lazy import resolve
 
 __all__ = [
     "DATASET",
@@ -34,7 +34,7 @@ OutputKind = Literal["parquet", "json", "bytes", "frames"]
 - parquet: a `pyarrow.Table`, written sorted as given, no timestamps in metadata.
 - json: a JSON-serialisable dict (canonical, sorted keys).
 - bytes: opaque bytes written verbatim (PNG, PLY, TUM text, torch state dict, ...).
-- frames: an iterable of `schemas.sonar.KeyframeImages`, stored as ROS 2 MCAP and
+- frames: an iterable of `sonarmap.schemas.sonar.KeyframeImages`, stored as ROS 2 MCAP and
   read back lazily as a sequence.
 """
 
@@ -151,11 +151,11 @@ class Output:
     schema: Any = None
     """For parquet outputs: the `pyarrow.Schema` from `schemas/` the table must match
     (the engine validates column names and types before committing), or its name as
-    `module:NAME` (e.g. "schemas.map:MAP_SCHEMA"), so declaring the stage imports no
+    `module:NAME` (e.g. "sonarmap.schemas.map:MAP_SCHEMA"), so declaring the stage imports no
     pyarrow; `arrow_schema` is the schema either way."""
     record: Any = None
     """For json outputs: a record type from `schemas/` (`from_json(doc)`, `to_json()`)
-    that readers of the output receive instead of the dict (e.g. `schemas.sensors.Sensors`),
+    that readers of the output receive instead of the dict (e.g. `sonarmap.schemas.sensors.Sensors`),
     or its `module:NAME`; the file holds the dict as written."""
 
     @property
@@ -182,7 +182,7 @@ class Stage:
             under its `Input.name`. (Dotted strings are read as `Input.parse` reads them.)
         outputs: what `run` returns, by name.
         run: `run(config, inputs) -> {output name: value}`; a stage package declares
-            it as `stages.kernels.lazy.deferred("stages.<name>.stage:run")`, so planning
+            it as `sonarmap.stages.kernels.lazy.deferred("stages.<name>.stage:run")`, so planning
             imports the declaration (`stages/<name>/__init__.py`) and never the compute.
         key_excludes: fields of the stage's own section that do not enter its key, because
             the stage never reads them (they configure a later stage that lists the

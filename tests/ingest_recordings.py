@@ -13,10 +13,15 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.formats.rosmsg import Ros2McapWriter, recording_writer, ros2_typestore
-from pipeline.readers.sonar_decode import serialize_projected_cdr
-from schemas.sonar import beam_directions_from_angles
-from schemas.topics import ODOMETRY_TYPE, PROJECTED_SONAR_TYPE, SONAR_TOPIC, TOPIC_DEAD_RECKONING
+from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, recording_writer, ros2_typestore
+from sonarmap.pipeline.readers.sonar_decode import serialize_projected_cdr
+from sonarmap.schemas.sonar import beam_directions_from_angles
+from sonarmap.schemas.topics import (
+    ODOMETRY_TYPE,
+    PROJECTED_SONAR_TYPE,
+    SONAR_TOPIC,
+    TOPIC_DEAD_RECKONING,
+)
 
 T0 = 1_700_000_000_000_000_000
 NavHook = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import SourceError
-from pipeline.training.annotations import ANNOTATIONS_MAX_BYTES, load_annotations
-from schemas.annotations import AnnotationFile
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.classify.annotations import UnmatchedAnnotations, label_keyframes
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.training.annotations import ANNOTATIONS_MAX_BYTES, load_annotations
+from sonarmap.schemas.annotations import AnnotationFile
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.classify.annotations import UnmatchedAnnotations, label_keyframes
 
 ROOT = Path(__file__).resolve().parent.parent
 HEAD = "format: sonarmap-annotations/1\n"
@@ -110,7 +110,7 @@ def test_times_matching_no_keyframe_are_named(caplog: pytest.LogCaptureFixture) 
 def test_sonarmap_train_with_unmatched_annotations_exits_2_naming_the_file(
     tmp_path: Path,
 ) -> None:
-    from pipeline.training.datasets import ensure_simulation
+    from sonarmap.pipeline.training.datasets import ensure_simulation
 
     rec = ensure_simulation(
         ROOT / "configs/scenes/tiny.yaml", 1, tmp_path / "field.mcap", goals=1, duration_s=10.0

@@ -12,15 +12,15 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import SourceError
-from pipeline.training.annotations import annotation_path, load_annotations
-from schemas.annotations import ANNOTATION_FORMAT, AnnotatedObject, AnnotationFile
-from schemas.classes import CLASS_IDS
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.classify.annotations import label_keyframes, rasterise
-from stages.classify.train import TrainConfig, collect_samples
-from stages.features.stage import FeaturesConfig, features_table
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.training.annotations import annotation_path, load_annotations
+from sonarmap.schemas.annotations import ANNOTATION_FORMAT, AnnotatedObject, AnnotationFile
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.classify.annotations import label_keyframes, rasterise
+from sonarmap.stages.classify.train import TrainConfig, collect_samples
+from sonarmap.stages.features.stage import FeaturesConfig, features_table
 
 ROOT = Path(__file__).resolve().parents[1]
 MARGIN_M = 0.3
@@ -29,8 +29,8 @@ MARGIN_M = 0.3
 
 def _truth_boxes(scene_path: Path, gt_pose: np.ndarray, t_base_sonar: np.ndarray) -> list[dict]:
     """Boxes a person would draw: every scene object's footprint, seen from the sonar."""
-    from sim.scene import load_scene
-    from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+    from sonarmap.sim.scene import load_scene
+    from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
     t_world_sonar = pose_to_matrix(gt_pose) @ t_base_sonar
     t_sonar_world = np.linalg.inv(t_world_sonar)
@@ -51,9 +51,9 @@ def _truth_boxes(scene_path: Path, gt_pose: np.ndarray, t_base_sonar: np.ndarray
 def _tiny() -> tuple[tuple[KeyframeImages, ...], dict]:
     """Every 2nd ping pair of a 60 s tiny-scene mission, and an annotation file drawn from
     the true object positions at every ping."""
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import MissionConfig, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     scene = ROOT / "configs/scenes/tiny.yaml"
     run = simulate(
@@ -187,7 +187,7 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
 ) -> None:
     """A simulated recording stands in for a field one: its label images are ignored
     because an annotation file sits beside it; the file's content is in the train key."""
-    from pipeline.training.datasets import ensure_simulation
+    from sonarmap.pipeline.training.datasets import ensure_simulation
 
     _, doc = _tiny()
     rec = ensure_simulation(
@@ -229,9 +229,9 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
 def test_a_recorded_training_set_without_annotations_is_refused(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model_cache import resolve_model
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.model_cache import resolve_model
 
     rec = tmp_path / "harbour-field.mcap"
     rec.write_bytes(b"")

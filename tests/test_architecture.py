@@ -11,15 +11,16 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 
+P, S, SIM = "sonarmap.pipeline", "sonarmap.stages", "sonarmap.sim"
 FORBIDDEN = {
-    "stages": ("pipeline", "mcap", "mcap_ros2", "pyarrow.parquet", "typer", "sim"),
-    "schemas": ("pipeline", "stages", "sim", "mcap", "pyarrow.parquet", "typer"),
-    "sim": ("pipeline", "stages", "mcap", "pyarrow.parquet", "typer"),
-    "stages/kernels": ("pipeline", "stages", "sim", "mcap", "pyarrow.parquet", "typer"),
+    "stages": (P, "mcap", "mcap_ros2", "pyarrow.parquet", "typer", SIM),
+    "schemas": (P, S, SIM, "mcap", "pyarrow.parquet", "typer"),
+    "sim": (P, S, "mcap", "pyarrow.parquet", "typer"),
+    "stages/kernels": (P, S, SIM, "mcap", "pyarrow.parquet", "typer"),
 }
 ALLOWED = {
-    "sim": ("stages.kernels",),
-    "stages/kernels": ("stages.kernels",),
+    "sim": ("sonarmap.stages.kernels",),
+    "stages/kernels": ("sonarmap.stages.kernels",),
 }
 """Exceptions to FORBIDDEN: the kernel layer sits below the stages and the simulator."""
 
@@ -27,7 +28,7 @@ PENDING: dict[str, tuple[str, ...]] = {}
 """Imports that break a rule here until the named work lands; each must still exist
 (`test_pending_exceptions_are_still_needed`), so an entry goes when its import does."""
 
-SHARED = ("stages.base", "stages.kernels")
+SHARED = ("sonarmap.stages.base", "sonarmap.stages.kernels")
 """What every stage may import of `stages`: the stage contract and the kernel layer."""
 
 
@@ -85,10 +86,10 @@ def test_stages_never_print_or_open_files() -> None:
 def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
     sample = tmp_path / "x.py"
     sample.write_text(
-        "import pyarrow.parquet as pq\nfrom pipeline.engine.store import ArtifactStore\n"
+        "import pyarrow.parquet as pq\nfrom sonarmap.pipeline.engine.store import ArtifactStore\n"
     )
     names = _imports(sample)
-    assert "pyarrow.parquet" in names and "pipeline.engine.store" in names
+    assert "pyarrow.parquet" in names and "sonarmap.pipeline.engine.store" in names
 
 
 def _stage_of(path: Path) -> str | None:
@@ -99,13 +100,13 @@ def _stage_of(path: Path) -> str | None:
 
 
 def _sibling_imports(path: Path) -> list[str]:
-    """Imports of one file of stage X that reach into a stage Y != X (`stages.base` and
-    `stages.kernels` are shared, not stages)."""
+    """Imports of one file of stage X that reach into a stage Y != X (`sonarmap.stages.base` and
+    `sonarmap.stages.kernels` are shared, not stages)."""
     own = _stage_of(path)
     bad = []
     for name in _imports(path):
-        parts = name.split(".")
-        if parts[0] != "stages" or len(parts) < 2 or parts[1] == own:
+        parts = name.removeprefix("sonarmap.").split(".")
+        if not name.startswith("sonarmap.stages.") or parts[1] == own:
             continue
         if any(name == s or name.startswith(s + ".") for s in SHARED):
             continue
@@ -132,17 +133,18 @@ def test_the_stage_rule_catches_a_sibling_import(
     stage.mkdir(parents=True)
     sample = stage / "x.py"
     sample.write_text(
-        "from stages.base import Stage\nfrom stages.kernels.poses import pose_matrix\n"
-        "from stages.submaps.config import SubmapsConfig\n"
-        "def f():\n    from stages.infer.stage import learn_and_infer\n"
-        "from stages.keyframes import posed_pairs\n"
+        "from sonarmap.stages.base import Stage\n"
+        "from sonarmap.stages.kernels.poses import pose_matrix\n"
+        "from sonarmap.stages.submaps.config import SubmapsConfig\n"
+        "def f():\n    from sonarmap.stages.infer.stage import learn_and_infer\n"
+        "from sonarmap.stages.keyframes import posed_pairs\n"
     )
     monkeypatch.setattr(f"{__name__}.ROOT", fake_root)
     assert sorted(_sibling_imports(sample)) == [
-        "stages/submaps/x.py imports stages.infer.stage",
-        "stages/submaps/x.py imports stages.infer.stage.learn_and_infer",
-        "stages/submaps/x.py imports stages.keyframes",
-        "stages/submaps/x.py imports stages.keyframes.posed_pairs",
+        "stages/submaps/x.py imports sonarmap.stages.infer.stage",
+        "stages/submaps/x.py imports sonarmap.stages.infer.stage.learn_and_infer",
+        "stages/submaps/x.py imports sonarmap.stages.keyframes",
+        "stages/submaps/x.py imports sonarmap.stages.keyframes.posed_pairs",
     ]
 
 
@@ -176,7 +178,7 @@ def _import_graph(root: Path = ROOT) -> dict[str, set[str]]:
     `if TYPE_CHECKING:` included: a type-only circle is still two modules that cannot
     be read, or moved, one without the other)."""
     paths = {
-        ".".join(p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p
+        "sonarmap." + ".".join(p.relative_to(root).with_suffix("").parts).removesuffix(".__init__"): p
         for pkg in PACKAGES
         for p in (root / pkg).rglob("*.py")
     }
@@ -216,10 +218,14 @@ def test_no_import_cycles() -> None:
 def test_a_circle_through_a_type_only_import_counts(tmp_path: Path) -> None:
     pkg = tmp_path / "pipeline"
     pkg.mkdir()
-    (pkg / "a.py").write_text("from pipeline.b import B\n")
-    typed = "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from pipeline.a import A\n"
+    (pkg / "a.py").write_text("from sonarmap.pipeline.b import B\n")
+    typed = (
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+        "    from sonarmap.pipeline.a import A\n"
+    )
     (pkg / "b.py").write_text(typed)
-    assert _cycles(_import_graph(tmp_path)) == [["pipeline.a", "pipeline.b", "pipeline.a"]]
+    cycle = ["sonarmap.pipeline.a", "sonarmap.pipeline.b", "sonarmap.pipeline.a"]
+    assert _cycles(_import_graph(tmp_path)) == [cycle]
 
 
 def test_the_cycle_finder_finds_a_cycle() -> None:
@@ -244,11 +250,11 @@ def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None
 
     package = ROOT / "stages" / name
     assert (package / "__init__.py").is_file() and not (ROOT / "stages" / f"{name}.py").exists()
-    assert importlib.import_module(f"stages.{name}").STAGE.name == name
+    assert importlib.import_module(f"sonarmap.stages.{name}").STAGE.name == name
 
 
 def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stages() -> None:
-    from pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.engine.registry import pipeline_stages
 
     packages = sorted(
         p.parent.name for p in (ROOT / "stages").glob("*/__init__.py") if p.parent.name != "kernels"
@@ -260,7 +266,7 @@ def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stage
 
 def test_pipeline_groups_engine_formats_training_and_experiments() -> None:
     top = sorted(p.name for p in (ROOT / "pipeline").glob("*.py"))
-    assert top == ["__init__.py", "__main__.py", "api.py", "cli.py", "report_cli.py", "scoring.py"]
+    assert top == ["__init__.py", "__main__.py", "api.py", "cli.py", "package_data.py", "report_cli.py", "scoring.py"]
     for sub in ("engine", "formats", "training", "experiments", "readers", "commands"):
         assert (ROOT / "pipeline" / sub / "__init__.py").is_file()
 
@@ -277,8 +283,8 @@ def test_declaring_the_stages_imports_no_heavy_library() -> None:
     script = (
         "import importlib, json, sys\n"
         f"for name in {STAGE_PACKAGES!r}:\n"
-        "    assert importlib.import_module('stages.' + name).STAGE.name == name\n"
-        "assert importlib.import_module('stages.classify.training').STAGE.name == 'train'\n"
+        "    assert importlib.import_module('sonarmap.stages.' + name).STAGE.name == name\n"
+        "assert importlib.import_module('sonarmap.stages.classify.training').STAGE.name == 'train'\n"
         f"print(json.dumps(sorted({{m.split('.')[0] for m in sys.modules}} & set({heavy!r}))))\n"
     )
     proc = subprocess.run(
@@ -292,8 +298,8 @@ def test_a_deferred_stage_entry_point_resolves_and_pickles() -> None:
     the middle of a run) and travels to a worker process by name."""
     import pickle
 
-    from pipeline.engine.registry import default_graph
-    from stages.kernels.lazy import resolve
+    from sonarmap.pipeline.engine.registry import default_graph
+    from sonarmap.stages.kernels.lazy import resolve
 
     for stage in default_graph().config_stages:
         ref = getattr(stage.run, "ref", None)

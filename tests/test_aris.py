@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import SourceError
-from pipeline.readers import open_source
-from pipeline.readers.aris import ARIS_TOPIC, ARIS_TYPE, ArisSource
-from pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER
-from pipeline.readers.sonar_decode import decode_sonar
-from pipeline.readers.sonar_models import load_sonar
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers import open_source
+from sonarmap.pipeline.readers.aris import ARIS_TOPIC, ARIS_TYPE, ArisSource
+from sonarmap.pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER
+from sonarmap.pipeline.readers.sonar_decode import decode_sonar
+from sonarmap.pipeline.readers.sonar_models import load_sonar
 
 _C_TYPES = {
     "uint16_t": ("u", 2),

@@ -19,19 +19,19 @@ import pytest
 import toy_stages
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.commands._common import GraphChoice
-from pipeline.engine.hashing import recipe_key, stage_recipe
-from pipeline.engine.planner import plan
-from pipeline.engine.registry import Graph, default_graph, load_graph
-from pipeline.engine.session import open_context
-from schemas import SCHEMA_VERSION
-from schemas.model_settings import ModelSettings
-from schemas.recording import PoseTrack
-from schemas.sensors import Sensors
-from stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
-from stages.keyframes import STAGE as KEYFRAMES
-from stages.keyframes import KeyframesConfig
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.commands._common import GraphChoice
+from sonarmap.pipeline.engine.hashing import recipe_key, stage_recipe
+from sonarmap.pipeline.engine.planner import plan
+from sonarmap.pipeline.engine.registry import Graph, default_graph, load_graph
+from sonarmap.pipeline.engine.session import open_context
+from sonarmap.schemas import SCHEMA_VERSION
+from sonarmap.schemas.model_settings import ModelSettings
+from sonarmap.schemas.recording import PoseTrack
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
+from sonarmap.stages.keyframes import STAGE as KEYFRAMES
+from sonarmap.stages.keyframes import KeyframesConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 MOUNT = [[1.0, 0, 0, 0.5], [0, 1.0, 0, 0], [0, 0, 1.0, -0.2], [0, 0, 0, 1.0]]
@@ -248,8 +248,7 @@ def test_the_graph_variable_is_read_only_by_the_cli() -> None:
 def test_the_cli_builds_the_named_graph_once(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import pipeline.engine.registry as registry
-
+    import sonarmap.pipeline.engine.registry as registry
     built: list[str | None] = []
     real = registry.load_graph
     monkeypatch.setattr(registry, "load_graph", lambda spec: built.append(spec) or real(spec))
@@ -260,7 +259,7 @@ def test_the_cli_builds_the_named_graph_once(
 
 
 def test_a_command_is_an_importable_module_level_function() -> None:
-    from pipeline.commands.status import status
+    from sonarmap.pipeline.commands.status import status
 
     callbacks = {c.name: c.callback for c in app.registered_commands}
     assert callbacks["status"] is status

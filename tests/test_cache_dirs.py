@@ -9,12 +9,12 @@ from pathlib import Path
 import platformdirs
 import pytest
 
-from pipeline.engine.config import load_config
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.engine.store import ArtifactStore
-from pipeline.training.cache_dir import CACHE_ENV
-from pipeline.training.model import training_simulations
-from pipeline.training.model_cache import model_cache, planned_default_model
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.training.cache_dir import CACHE_ENV
+from sonarmap.pipeline.training.model import training_simulations
+from sonarmap.pipeline.training.model_cache import model_cache, planned_default_model
 
 ROOT = Path(__file__).resolve().parent.parent
 

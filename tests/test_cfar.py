@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.readers.oculus_raw import parse_ping
-from stages.kernels.cfar import cfar_detect, cfar_noise, threshold_factor
+from sonarmap.pipeline.readers.oculus_raw import parse_ping
+from sonarmap.stages.kernels.cfar import cfar_detect, cfar_noise, threshold_factor
 
 METHODS = ("soca", "ca", "go", "os")
 

@@ -9,18 +9,18 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from pipeline.engine.config import load_config, section_dict
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.registry import all_stages, extra_sections, stage_by_name
-from pipeline.labels.files import export_labels, import_labels
-from schemas.annotations import AnnotationFile
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import KeyframeImages, SonarPing
-from sim.scene import load_scene
-from sim.world import World
-from stages.classify.annotations import rasterise
-from stages.kernels.class_models import DEFAULT_FRAME_KINDS
-from stages.kernels.map_codes import class_ids
+from sonarmap.pipeline.engine.config import load_config, section_dict
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections, stage_by_name
+from sonarmap.pipeline.labels.files import export_labels, import_labels
+from sonarmap.schemas.annotations import AnnotationFile
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.sim.scene import load_scene
+from sonarmap.sim.world import World
+from sonarmap.stages.classify.annotations import rasterise
+from sonarmap.stages.kernels.class_models import DEFAULT_FRAME_KINDS
+from sonarmap.stages.kernels.map_codes import class_ids
 
 MOORING = "classes:\n  add:\n    - {name: mooring_block, id: 7, frame_kind: object, inferred: true, colour: '#8c564b'}\n"  # fmt: skip
 READERS = ("classify", "train", "infer", "submaps", "voxelize", "evaluate")

@@ -11,11 +11,11 @@ import pyarrow as pa
 import pytest
 import torch
 
-from schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
-from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
-from schemas.sonar import KeyframeImages
-from stages.classify.cnn import PatchCNN, model_to_bytes
-from stages.classify.stage import STAGE, ClassifyConfig
+from sonarmap.schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.classify.cnn import PatchCNN, model_to_bytes
+from sonarmap.stages.classify.stage import STAGE, ClassifyConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
@@ -24,9 +24,9 @@ NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
 @pytest.fixture(scope="module")
 def simulated() -> tuple[list[KeyframeImages], pa.Table, dict]:
     """Six keyframes of the tiny scene, their dead-reckoning poses and the sonar mounting."""
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import MissionConfig, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     run = simulate(
         load_scene(ROOT / "configs/scenes/tiny.yaml"),
@@ -167,7 +167,7 @@ def test_objects_link_to_their_features_and_carry_the_majority_truth(
 def test_the_overlay_draws_the_busiest_keyframe_the_same_every_time(
     keyframes: list[KeyframeImages],
 ) -> None:
-    from stages.figures.overlay import busiest_keyframe, overlay_png
+    from sonarmap.stages.figures.overlay import busiest_keyframe, overlay_png
 
     objects = _run(keyframes, _features(keyframes), threshold=0.0)["objects"]
     chosen, rows = busiest_keyframe(objects)
@@ -181,9 +181,9 @@ def test_the_overlay_draws_the_busiest_keyframe_the_same_every_time(
 
 
 def test_classify_overlay_is_refused_with_where_it_moved(tmp_path: Path) -> None:
-    from pipeline.engine.config import load_config
-    from pipeline.engine.errors import ConfigError
-    from pipeline.engine.registry import all_stages
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.engine.registry import all_stages
 
     config = tmp_path / "old.yaml"
     config.write_text("classify:\n  overlay: false\n")
@@ -320,8 +320,8 @@ def test_single_view_rule_accepts_the_mean_of_m_passes_above_0_99(
 ) -> None:
     """The paper's rule (pool_views false): each sighting on its own, accepted when the mean
     of m = 20 MC-dropout softmax outputs exceeds 0.99. Observed: 6 of 12 accepted."""
-    from stages.classify.cnn import mc_predict_groups, model_from_bytes
-    from stages.classify.objects import extract_objects, horizontal_features
+    from sonarmap.stages.classify.cnn import mc_predict_groups, model_from_bytes
+    from sonarmap.stages.classify.objects import extract_objects, horizontal_features
 
     frames, poses, sensors = simulated
     features = _features(frames)
@@ -423,11 +423,11 @@ def test_fan_edge_rule_drops_exactly_the_sightings_of_pilings_cut_by_the_fan() -
     features (defaults). Observed: 14 objects, the 6 sightings of the three edge pilings
     dropped. (A piling across the 30 m arc gives no features at all: SOCA-CFAR cannot test
     the last 15 bins, so it is not in the scene.)"""
-    from sim.config import SimConfig
-    from sim.dataset import SimRun
-    from sim.scene import Scene
-    from sim.world import World
-    from stages.features.stage import FeaturesConfig, features_table
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import SimRun
+    from sonarmap.sim.scene import Scene
+    from sonarmap.sim.world import World
+    from sonarmap.stages.features.stage import FeaturesConfig, features_table
 
     mount = SimConfig().horizontal.mounting.translation_m
     objs = [

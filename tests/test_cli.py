@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from sonarmap.pipeline.cli import app
 
 runner = CliRunner()
 
@@ -98,7 +98,7 @@ def test_every_command_has_help(cmd: list[str]) -> None:
 
 def test_version_and_fast_help_subprocess() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "pipeline", "--version"], capture_output=True, text=True, check=True
+        [sys.executable, "-m", "sonarmap.pipeline", "--version"], capture_output=True, text=True, check=True
     )
     assert out.stdout.startswith("sonarmap ")
     # --help must not import the heavy libraries.

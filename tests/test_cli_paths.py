@@ -14,15 +14,15 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.commands._errors import (
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.commands._errors import (
     MAX_LINE_CHARS,
     display_path,
     one_line,
     os_error_line,
     writes_under,
 )
-from pipeline.engine.errors import OutputError, StageFailed
+from sonarmap.pipeline.engine.errors import OutputError, StageFailed
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -134,12 +134,11 @@ def test_read_only_store_is_exit_2(toy_cli: Path, tmp_path: Path) -> None:
 def test_os_error_without_a_file_stays_a_bug(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import pipeline.api
-
+    import sonarmap.pipeline.api
     def broken(*_a: object, **_k: object) -> None:
         raise OSError(errno.EIO, "Input/output error")
 
-    monkeypatch.setattr(pipeline.api, "run_dataset", broken)
+    monkeypatch.setattr(sonarmap.pipeline.api, "run_dataset", broken)
     res = CliRunner().invoke(app, ["run", str(toy_cli), "--store", str(tmp_path / "s")])
     assert res.exit_code == 1
     assert isinstance(res.exception, OSError)
@@ -152,7 +151,7 @@ def test_os_error_without_a_file_stays_a_bug(
 def real_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """A 15 s tiny-scene mission mapped once by `sonarmap run` with its output in a log
     file (not a terminal), through a symlink from another directory."""
-    from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
     work = tmp_path_factory.mktemp("real")
     recording = work / "recordings" / "tiny.mcap"
@@ -165,7 +164,7 @@ def real_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     env.pop("COLUMNS", None)
     with log.open("w") as out:
         res = subprocess.run(
-            [sys.executable, "-m", "pipeline", "run", str(link), "--store", str(work / "store")],
+            [sys.executable, "-m", "sonarmap.pipeline", "run", str(link), "--store", str(work / "store")],
             stdout=out,
             stderr=subprocess.STDOUT,
             cwd=ROOT,
@@ -234,7 +233,7 @@ def test_every_json_output_is_strict(real_run: dict[str, Path]) -> None:
 
 def test_json_with_non_finite_values_is_strict(tmp_path: Path) -> None:
     """A manifest holding NaN and infinities (as fuse's did) prints them as null."""
-    from pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store import ArtifactStore
 
     store = ArtifactStore(tmp_path / "s")
 

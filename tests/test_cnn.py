@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from stages.classify.cnn import (
+from sonarmap.stages.classify.cnn import (
     PatchCNN,
     mc_predict,
     mc_predict_groups,
@@ -106,7 +106,7 @@ def test_no_patches_give_empty_predictions() -> None:
 def test_inference_pooling_equals_max_pool2d_bit_for_bit(side: int) -> None:
     from torch.nn import functional as F
 
-    from stages.classify.cnn import _max_pool2
+    from sonarmap.stages.classify.cnn import _max_pool2
 
     x = torch.randn(3, 4, side, side, generator=torch.Generator().manual_seed(side))
     x[0, 0] = 0.0  # ties

@@ -14,11 +14,11 @@ import pytest
 from pydantic import BaseModel
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.config import load_config
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.training.config import TrainingSet
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.training.config import TrainingSet
 
 runner = CliRunner()
 ROOT = Path(__file__).resolve().parent.parent

@@ -13,10 +13,10 @@ from rosbags.rosbag2 import Writer
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import ConfigError
-from pipeline.readers import ReaderOptions, open_source
-from stages.keyframes import KeyframesConfig
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.readers import ReaderOptions, open_source
+from sonarmap.stages.keyframes import KeyframesConfig
 
 STAMPED = "oculus_interfaces/msg/OculusStampedPing"
 PING = "oculus_interfaces/msg/Ping"

@@ -14,9 +14,9 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine import workers
-from pipeline.engine.compute import ComputeJob
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine import workers
+from sonarmap.pipeline.engine.compute import ComputeJob
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -10,11 +10,11 @@ import pytest
 import toy_stages
 from toy_stages import TOY_STAGES
 
-from pipeline.engine.errors import ConfigError, StageFailed
-from pipeline.engine.runner import RunResult, execute, plan
-from pipeline.engine.session import make_context
-from pipeline.engine.store import ArtifactStore
-from stages.base import Input, Output, Stage
+from sonarmap.pipeline.engine.errors import ConfigError, StageFailed
+from sonarmap.pipeline.engine.runner import RunResult, execute, plan
+from sonarmap.pipeline.engine.session import make_context
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.stages.base import Input, Output, Stage
 
 
 def _dataset(tmp_path: Path, content: bytes = bytes(range(256)) * 4) -> Path:
@@ -181,7 +181,7 @@ def test_determinism_two_fresh_stores_byte_identical_parquet(tmp_path: Path) -> 
 
 
 def test_verify_detects_tampering(tmp_path: Path) -> None:
-    from pipeline.engine.errors import ArtifactCorrupt
+    from sonarmap.pipeline.engine.errors import ArtifactCorrupt
 
     data, store_dir = _dataset(tmp_path), tmp_path / "store"
     result = run_toy(data, store_dir)

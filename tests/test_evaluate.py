@@ -11,24 +11,24 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from schemas.classes import CLASS_IDS
-from schemas.figures import SIDE_VIEW_SCHEMA
-from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
-from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from schemas.submaps import KEYFRAME_FRAME_ID
-from sim.scene import load_scene
-from sim.world import World
-from stages.evaluate.stage import STAGE, EvaluateConfig, map_errors, surface_metrics
-from stages.kernels.geometry import matrix_from_rpy
-from stages.kernels.mesh_metrics import (
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.figures import SIDE_VIEW_SCHEMA
+from sonarmap.schemas.map import ERRORS_SCHEMA, MAP_SCHEMA, MAP_SORT_KEYS
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.sim.scene import load_scene
+from sonarmap.sim.world import World
+from sonarmap.stages.evaluate.stage import STAGE, EvaluateConfig, map_errors, surface_metrics
+from sonarmap.stages.kernels.geometry import matrix_from_rpy
+from sonarmap.stages.kernels.mesh_metrics import (
     ate_se2,
     mesh_distance,
     raycasting_scene,
     surface_samples,
     visible_mask,
 )
-from stages.kernels.ply import decode_mesh_ply
-from stages.map_figures.plots import side_panels_from_table
+from sonarmap.stages.kernels.ply import decode_mesh_ply
+from sonarmap.stages.map_figures.plots import side_panels_from_table
 
 SCENES = Path(__file__).resolve().parent.parent / "configs" / "scenes"
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -249,8 +249,8 @@ def test_ate_is_zero_after_a_rigid_motion_and_the_rms_of_what_is_left() -> None:
 
 def _figures(inputs: dict, out: dict) -> dict:
     """The `map_figures` stage on evaluate's inputs and outputs."""
-    from stages.map_figures import STAGE as MAP_FIGURES
-    from stages.map_figures.stage import MapFiguresConfig
+    from sonarmap.stages.map_figures import STAGE as MAP_FIGURES
+    from sonarmap.stages.map_figures.stage import MapFiguresConfig
 
     ins = {i.name: inputs.get(i.name) for i in MAP_FIGURES.inputs if i.stage != "evaluate"}
     ins |= {"evaluate.errors": out["errors"], "evaluate.side_view": out["side_view"]}

@@ -17,13 +17,13 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from pipeline.experiments.sweep import RunOutcome, sweep_tables
-from schemas.classes import CLASS_IDS
-from schemas.map import MAP_SCHEMA, MAP_SORT_KEYS
-from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from stages.evaluate.class_accounting import remember_last
-from stages.evaluate.report import render_markdown
-from stages.evaluate.stage import STAGE, EvaluateConfig
+from sonarmap.pipeline.experiments.sweep import RunOutcome, sweep_tables
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.map import MAP_SCHEMA, MAP_SORT_KEYS
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sonarmap.stages.evaluate.class_accounting import remember_last
+from sonarmap.stages.evaluate.report import render_markdown
+from sonarmap.stages.evaluate.stage import STAGE, EvaluateConfig
 
 SECTION = "## Dense submaps: keyframes only vs with submap frames"
 WALL_X_M = 5.0

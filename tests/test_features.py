@@ -12,12 +12,12 @@ import pyarrow.compute as pc
 import pytest
 from scipy.ndimage import binary_dilation
 
-from schemas.features import FEATURES_SCHEMA
-from schemas.sonar import KeyframeImages
-from sim.config import MissionConfig, SimConfig
-from sim.dataset import simulate
-from sim.scene import load_scene
-from stages.features.stage import STAGE, FeaturesConfig, features_table
+from sonarmap.schemas.features import FEATURES_SCHEMA
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.sim.config import MissionConfig, SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.scene import load_scene
+from sonarmap.stages.features.stage import STAGE, FeaturesConfig, features_table
 
 logger = logging.getLogger(__name__)
 

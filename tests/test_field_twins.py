@@ -45,11 +45,11 @@ class Canonical:
 
 def _engine(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> dict[str, Path]:
     """keyframes -> features -> fuse on `dataset`; artifact directory per stage."""
-    from pipeline.engine.runner import execute, plan
-    from pipeline.engine.session import make_context
-    from stages.features.stage import STAGE as FEATURES
-    from stages.fuse.stage import STAGE as FUSE
-    from stages.keyframes import STAGE as KEYFRAMES
+    from sonarmap.pipeline.engine.runner import execute, plan
+    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.stages.features.stage import STAGE as FEATURES
+    from sonarmap.stages.fuse.stage import STAGE as FUSE
+    from sonarmap.stages.keyframes import STAGE as KEYFRAMES
 
     ctx = make_context(
         dataset, stages=[KEYFRAMES, FEATURES, FUSE], overrides=overrides, store_dir=store
@@ -95,10 +95,10 @@ def _iou(a: set[Any], b: set[Any]) -> float:
 
 @pytest.fixture(scope="module")
 def canonical(tmp_path_factory: pytest.TempPathFactory) -> Canonical:
-    from pipeline.formats.simulation import write_simulation
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     scene = ROOT / "configs" / "scenes" / f"{SCENE}.yaml"
     base = SimConfig()
@@ -117,7 +117,7 @@ def canonical(tmp_path_factory: pytest.TempPathFactory) -> Canonical:
 
 
 def _types() -> Any:
-    from pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
 
     return ros2_typestore()
 
@@ -337,7 +337,7 @@ def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
     uneven beam table (the angles of the kept columns), and everything else as recorded."""
     from mcap.reader import make_reader
 
-    from pipeline.readers import open_recording
+    from sonarmap.pipeline.readers import open_recording
 
     store = _types()
     t = store.types

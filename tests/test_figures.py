@@ -13,12 +13,12 @@ import pyarrow as pa
 from PIL import Image
 from test_evaluate import keyframes_table, poses_table
 
-from schemas.figures import PLOT_POINTS_SCHEMA
-from schemas.objects import OBJECTS_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA
-from stages.figures import STAGE, FiguresConfig
-from stages.figures.stage import _loops
-from stages.slam.config import SlamConfig
+from sonarmap.schemas.figures import PLOT_POINTS_SCHEMA
+from sonarmap.schemas.objects import OBJECTS_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA
+from sonarmap.stages.figures import STAGE, FiguresConfig
+from sonarmap.stages.figures.stage import _loops
+from sonarmap.stages.slam.config import SlamConfig
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

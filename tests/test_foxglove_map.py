@@ -13,15 +13,15 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import NonSeekingReader, make_reader
 
-from schemas.classes import CLASS_IDS
-from schemas.keyframes import KEYFRAMES_SCHEMA
-from schemas.map import ERRORS_SCHEMA, MAP_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.evaluate.foxglove_images import fan_image
-from stages.evaluate.foxglove_map import map_mcap
-from stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
-from stages.kernels.ply import Mesh
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.keyframes import KEYFRAMES_SCHEMA
+from sonarmap.schemas.map import ERRORS_SCHEMA, MAP_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.evaluate.foxglove_images import fan_image
+from sonarmap.stages.evaluate.foxglove_map import map_mcap
+from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
+from sonarmap.stages.kernels.ply import Mesh
 
 K = 3
 T0 = 1_700_000_000_000_000_000
@@ -220,10 +220,10 @@ def test_fan_image_puts_a_bright_bin_where_its_range_and_bearing_fall() -> None:
 
 
 def test_shipped_layout_is_the_sdk_layout_and_names_the_map_topics() -> None:
-    from pipeline.formats.foxglove_layout import LAYOUT_PATH, layout_json
+    from sonarmap.pipeline.formats.foxglove_layout import LAYOUT_PATH, layout_json
 
     text = LAYOUT_PATH.read_text()
-    assert text == layout_json()  # regenerate: python -m pipeline.formats.foxglove_layout
+    assert text == layout_json()  # regenerate: python -m sonarmap.pipeline.formats.foxglove_layout
     layout = json.loads(text)
     panels = [item["content"] for item in layout["content"]["items"]]
     assert panels[0]["panelType"] == "ThreeDee"

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
-from pipeline.formats.frames_io import read_frames, write_frames
-from schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.pipeline.formats.frames_io import read_frames, write_frames
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
 
 
 def _ping(rng: np.random.Generator, t: int, sonar: str, with_truth: bool) -> SonarPing:
@@ -97,10 +97,10 @@ def test_empty_frames(tmp_path: Path) -> None:
 
 def test_fast_cdr_codec_is_byte_identical_to_rosbags() -> None:
     """The fast ProjectedSonarImage serialiser/parser agree with rosbags' generic serde."""
-    from pipeline.formats.frames_io import sonar_cdr, sonar_message
-    from pipeline.formats.rosmsg import ros2_typestore
-    from pipeline.readers.sonar_decode import parse_projected_cdr
-    from schemas.sonar import beam_directions_from_angles
+    from sonarmap.pipeline.formats.frames_io import sonar_cdr, sonar_message
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.pipeline.readers.sonar_decode import parse_projected_cdr
+    from sonarmap.schemas.sonar import beam_directions_from_angles
 
     rng = np.random.default_rng(3)
     for n_beams, frame in ((512, "sonar_horizontal"), (7, "abc"), (1, "a"), (0, "")):

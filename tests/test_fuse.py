@@ -12,18 +12,18 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from schemas.fused import FUSED_SCHEMA
-from schemas.sonar import KeyframeImages
-from sim.config import SimConfig
-from sim.dataset import SimFrame, SimRun
-from sim.scene import Scene
-from sim.world import World
-from stages.features.stage import FeaturesConfig, features_table
-from stages.fuse.stage import STAGE, FuseConfig, fuse_table
-from stages.kernels.association import assign_subproblems, image_patches
-from stages.kernels.fusion import fused_points, sonar_offset
-from stages.kernels.geometry import matrix_from_rpy
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.schemas.fused import FUSED_SCHEMA
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.dataset import SimFrame, SimRun
+from sonarmap.sim.scene import Scene
+from sonarmap.sim.world import World
+from sonarmap.stages.features.stage import FeaturesConfig, features_table
+from sonarmap.stages.fuse.stage import STAGE, FuseConfig, fuse_table
+from sonarmap.stages.kernels.association import assign_subproblems, image_patches
+from sonarmap.stages.kernels.fusion import fused_points, sonar_offset
+from sonarmap.stages.kernels.geometry import matrix_from_rpy
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 logger = logging.getLogger(__name__)
 

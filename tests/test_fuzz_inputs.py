@@ -24,7 +24,7 @@ from mcap.reader import make_reader
 from test_readers_mcap import write_synthetic
 from typer.testing import CliRunner, Result
 
-from pipeline.cli import app
+from sonarmap.pipeline.cli import app
 
 runner = CliRunner()
 COMMANDS = ("topics", "convert", "run")

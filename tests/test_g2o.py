@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.engine.errors import SourceError
-from pipeline.formats.g2o import read_pose_graph
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.formats.g2o import read_pose_graph
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "posegraphs"
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from stages.kernels import geometry as g
+from sonarmap.stages.kernels import geometry as g
 
 ROOT = Path(__file__).resolve().parent.parent
 RNG = np.random.default_rng(36)
@@ -302,8 +302,8 @@ def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path
     from ingest_recordings import write_recording
     from mcap.reader import make_reader
 
-    from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-    from schemas.topics import FRAME_BASE, TOPIC_TF_STATIC
+    from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+    from sonarmap.schemas.topics import FRAME_BASE, TOPIC_TF_STATIC
 
     plain, out = tmp_path / "plain.mcap", tmp_path / "rec.mcap"
     write_recording(plain, n_pings=4)
@@ -335,7 +335,7 @@ def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path
 
 
 def _mountings(path: Path) -> dict[str, np.ndarray]:
-    from pipeline.readers import ReaderOptions, SourceRecording, open_source
+    from sonarmap.pipeline.readers import ReaderOptions, SourceRecording, open_source
 
     return SourceRecording(open_source(path), ReaderOptions.from_config(None)).mountings()
 
@@ -360,7 +360,7 @@ def test_a_tf_static_mounting_is_read_through_the_geometry_module(tmp_path: Path
 def test_a_tf_static_mounting_without_a_pose_is_refused(
     tmp_path: Path, quat: list[float], xyz: list[float], reason: str
 ) -> None:
-    from pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.engine.errors import SourceError
 
     path = _with_tf_static(tmp_path, quat, xyz)
     with pytest.raises(SourceError, match=rf"rec\.mcap: /tf_static: .*-> sonar: .*{reason}"):

@@ -10,10 +10,10 @@ from pathlib import Path
 import pytest
 from toy_stages import GRAPH, TOY_STAGES
 
-from pipeline.engine.errors import StageFailed
-from pipeline.engine.runner import RunResult, execute, plan
-from pipeline.engine.session import make_context
-from stages.base import Stage
+from sonarmap.pipeline.engine.errors import StageFailed
+from sonarmap.pipeline.engine.runner import RunResult, execute, plan
+from sonarmap.pipeline.engine.session import make_context
+from sonarmap.stages.base import Stage
 
 _VOLATILE = ("build_seconds", "created_at", "dataset_path")
 """Manifest fields that name when and where, not what, a stage computed."""

@@ -13,11 +13,11 @@ from test_evaluate import (
     stage_inputs,
 )
 
-from pipeline.experiments.headline_columns import headline_header, shared_frame
-from pipeline.experiments.sweep import RunOutcome, sweep_tables
-from stages.evaluate.headline import headline_errors
-from stages.evaluate.stage import STAGE, EvaluateConfig
-from stages.kernels.geometry import matrix_from_rpy
+from sonarmap.pipeline.experiments.headline_columns import headline_header, shared_frame
+from sonarmap.pipeline.experiments.sweep import RunOutcome, sweep_tables
+from sonarmap.stages.evaluate.headline import headline_errors
+from sonarmap.stages.evaluate.stage import STAGE, EvaluateConfig
+from sonarmap.stages.kernels.geometry import matrix_from_rpy
 
 TRUTH_XY = np.array([[-6.0, -4.0], [5.0, -3.0], [6.0, 5.0], [-4.0, 6.0]])
 
@@ -86,7 +86,7 @@ def test_sweep_table_puts_the_headline_before_the_raw_median_and_names_its_frame
 
 
 def test_study_table_i_leads_with_the_aligned_median_and_its_mean_rotation() -> None:
-    from pipeline.experiments.study import table_i
+    from sonarmap.pipeline.experiments.study import table_i
 
     metrics = _rotated_run()["metrics"]
     summary = {"voxels": {"standard": 10, "semantic": 30}, "metrics": metrics}

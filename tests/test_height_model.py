@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.kernels.height_model import HeightModel, z_grid
+from sonarmap.stages.kernels.height_model import HeightModel, z_grid
 
 Z = z_grid(-2.0, 2.0, 0.05)
 
@@ -115,7 +115,7 @@ def test_coarse_fallback_answers_only_where_the_fine_cell_is_empty() -> None:
     """`CoarseFallbackModel`: a fine cell with data answers as the plain model does; an
     empty fine cell inside a coarse cell with data takes the coarse answer; a position
     with no data at either level predicts nothing."""
-    from stages.kernels.fallback_model import CoarseFallbackModel
+    from sonarmap.stages.kernels.fallback_model import CoarseFallbackModel
 
     z = z_grid(-2.0, 2.0, 0.05)
     plain = HeightModel(z, 0.08, 0.1, 0.1, 0.08)
@@ -145,7 +145,7 @@ def test_profile_level_answers_any_cross_range_of_a_trained_range() -> None:
     the class's other cells at its range learned (pooled over cross-range), and only
     there: a range no cell learned still predicts nothing; where the coarse cell has data
     the profile is not asked."""
-    from stages.kernels.fallback_model import CoarseFallbackModel
+    from sonarmap.stages.kernels.fallback_model import CoarseFallbackModel
 
     z = z_grid(-2.0, 2.0, 0.05)
     two = CoarseFallbackModel(HeightModel(z, 0.08, 0.1, 0.1, 0.08), factor=2)

@@ -9,7 +9,7 @@ import click
 import typer
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from sonarmap.pipeline.cli import app
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -11,15 +11,15 @@ import pyarrow.compute
 import pytest
 from scipy import ndimage
 
-import stages.infer.stage as infer_module
-from schemas.classes import CLASS_NAMES, DEFAULT_TABLE, PILING_CLASSES
-from schemas.points import POINTS_SCHEMA
-from sim.config import SimConfig
-from sim.dataset import SimRun, simulate
-from sim.scene import load_scene
-from stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
-from stages.kernels.object_frame import object_origin, to_object_frame
+import sonarmap.stages.infer.stage as infer_module
+from sonarmap.schemas.classes import CLASS_NAMES, DEFAULT_TABLE, PILING_CLASSES
+from sonarmap.schemas.points import POINTS_SCHEMA
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.dataset import SimRun, simulate
+from sonarmap.sim.scene import load_scene
+from sonarmap.stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.stages.kernels.object_frame import object_origin, to_object_frame
 
 REPO = Path(__file__).resolve().parents[1]
 OBJECT_CLASSES = (1, 2, 3, 4, 5)
@@ -504,10 +504,10 @@ def test_stage_object_runs_from_bound_inputs(pier) -> None:
 def real_stage_tables(run: SimRun, spacing_m: float) -> tuple[pa.Table, ...]:
     """(objects, object_features, features, fused) from the real CFAR and fusion stages;
     objects from DBSCAN with their majority true class standing in for the CNN."""
-    from schemas.sonar import KeyframeImages
-    from stages.classify.objects import extract_objects, horizontal_features
-    from stages.features.stage import FeaturesConfig, features_table
-    from stages.fuse.stage import FuseConfig, fuse_table
+    from sonarmap.schemas.sonar import KeyframeImages
+    from sonarmap.stages.classify.objects import extract_objects, horizontal_features
+    from sonarmap.stages.features.stage import FeaturesConfig, features_table
+    from sonarmap.stages.fuse.stage import FuseConfig, fuse_table
 
     frames = [
         KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)

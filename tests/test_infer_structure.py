@@ -1,4 +1,4 @@
-"""Whole-structure inference (`stages.kernels.beam_frame`): walls and hulls against simulator truth."""
+"""Whole-structure inference (`sonarmap.stages.kernels.beam_frame`): walls and hulls against simulator truth."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import pyarrow.compute
 import pytest
 from test_infer import keyframe_indices, n_voxels, real_stage_tables, to_world
 
-from sim.config import MissionConfig, SimConfig
-from sim.dataset import simulate
-from sim.scene import load_scene
-from stages.infer.config import DEFAULT_CLASSES
-from stages.infer.stage import InferConfig, infer_mission
-from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.sim.config import MissionConfig, SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.scene import load_scene
+from sonarmap.stages.infer.config import DEFAULT_CLASSES
+from sonarmap.stages.infer.stage import InferConfig, infer_mission
+from sonarmap.stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 REPO = Path(__file__).resolve().parents[1]
 NO_BORROWING = InferConfig(unknown_argmax_classes=(), borrowed_models={})

@@ -18,11 +18,11 @@ from ingest_recordings import T0, write_recording
 from mcap.records import Chunk
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import ConfigError, SourceError
-from pipeline.readers.limits import CHUNK_LIMIT_ENV
-from pipeline.readers.mcap_scan import ChunkCorrupt, ChunkOverLimit, decompress_chunk
-from pipeline.readers.sonar_decode import decode_image
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
+from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV
+from sonarmap.pipeline.readers.mcap_scan import ChunkCorrupt, ChunkOverLimit, decompress_chunk
+from sonarmap.pipeline.readers.sonar_decode import decode_image
 
 runner = CliRunner()
 BOMB_BYTES = 64 << 20
@@ -134,7 +134,7 @@ def _set_chunk_sizes(data: bytes, size: int) -> bytes:
 def test_bag_chunks_are_bounded_by_their_declared_size(
     tmp_path: Path, compression: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from pipeline.readers.ros1_source import Ros1Source
+    from sonarmap.pipeline.readers.ros1_source import Ros1Source
 
     good = tmp_path / "good.bag"
     _bag(good, compression)
@@ -259,7 +259,7 @@ def test_a_bad_ping_fails_keyframes_before_anything_is_committed(tmp_path: Path)
 def test_bad_navigation_samples_are_dropped_with_a_count(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    from pipeline.readers import open_recording
+    from sonarmap.pipeline.readers import open_recording
 
     def nan_quats(t: np.ndarray, xyz: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         q = q.copy()
@@ -286,10 +286,10 @@ def test_bad_navigation_samples_are_dropped_with_a_count(
 
 
 def test_duplicate_ping_times_are_dropped_with_a_count(tmp_path: Path) -> None:
-    from pipeline.formats.rosmsg import recording_writer
-    from pipeline.readers import open_recording
-    from pipeline.readers.sonar_decode import serialize_projected_cdr
-    from schemas.sonar import beam_directions_from_angles
+    from sonarmap.pipeline.formats.rosmsg import recording_writer
+    from sonarmap.pipeline.readers import open_recording
+    from sonarmap.pipeline.readers.sonar_decode import serialize_projected_cdr
+    from sonarmap.schemas.sonar import beam_directions_from_angles
 
     src = tmp_path / "dups.mcap"
     write_recording(src, n_pings=20)
@@ -316,8 +316,8 @@ def test_duplicate_ping_times_are_dropped_with_a_count(tmp_path: Path) -> None:
 
 
 def _keyframe_times(path: Path) -> list[int]:
-    from pipeline.readers import open_recording
-    from stages.keyframes import STAGE, KeyframesConfig
+    from sonarmap.pipeline.readers import open_recording
+    from sonarmap.stages.keyframes import STAGE, KeyframesConfig
 
     out = STAGE.run(KeyframesConfig(), {"dataset": open_recording(path)})
     return list(out["keyframes"].column("t_ns").to_pylist())
@@ -388,7 +388,7 @@ def test_a_dropped_sample_is_one_warning_line_on_the_command_line(tmp_path: Path
     root = Path(__file__).resolve().parent.parent
     args = ["run", str(src), "--store", str(tmp_path / "s"), "--until", "keyframes", "-q"]
     res = subprocess.run(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         capture_output=True,
         text=True,
         env={**os.environ, "PYTHONPATH": str(root)},

@@ -12,16 +12,25 @@ import pyarrow.parquet as pq
 import pytest
 from test_infer import _asymmetric_mission
 
-from pipeline.engine.artifact import ArtifactRef
-from pipeline.engine.config import load_config
-from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages, training_stage
-from pipeline.engine.runner import DatasetSpec, plan
-from pipeline.engine.store import ArtifactStore
-from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
-from stages.base import Input
-from stages.infer.stage import STAGE as INFER
-from stages.infer.stage import InferConfig, learn_and_infer
-from stages.kernels.class_models import ModelTableError, class_model_tables, restore_class_states
+from sonarmap.pipeline.engine.artifact import ArtifactRef
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.registry import (
+    all_stages,
+    extra_sections,
+    pipeline_stages,
+    training_stage,
+)
+from sonarmap.pipeline.engine.runner import DatasetSpec, plan
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
+from sonarmap.stages.base import Input
+from sonarmap.stages.infer.stage import STAGE as INFER
+from sonarmap.stages.infer.stage import InferConfig, learn_and_infer
+from sonarmap.stages.kernels.class_models import (
+    ModelTableError,
+    class_model_tables,
+    restore_class_states,
+)
 
 
 def _relabelled(inputs: dict[str, pa.Table], class_name: str) -> dict[str, pa.Table]:
@@ -125,11 +134,11 @@ def test_bumping_infers_version_recomputes_submaps_and_what_follows(tmp_path: Pa
 
 
 def test_submaps_clusters_with_the_parameters_classify_used() -> None:
-    from stages.base import Input
-    from stages.base import StageInputError as InputRejected
-    from stages.classify.stage import ClassifyConfig, clustering
-    from stages.submaps.stage import STAGE as SUBMAPS
-    from stages.submaps.stage import _clustering
+    from sonarmap.stages.base import Input
+    from sonarmap.stages.base import StageInputError as InputRejected
+    from sonarmap.stages.classify.stage import ClassifyConfig, clustering
+    from sonarmap.stages.submaps.stage import STAGE as SUBMAPS
+    from sonarmap.stages.submaps.stage import _clustering
 
     model = {"eps_m": 0.3, "min_samples": 2, "min_features": 10}
     used = clustering(ClassifyConfig(), model)

@@ -10,12 +10,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_readers_mcap import T0, trajectory, write_synthetic
 
-from pipeline.readers import open_recording
-from schemas.keyframes import KEYFRAMES_SCHEMA
-from schemas.recording import PoseTrack
-from stages.base import DATASET, StageInputError
-from stages.keyframes import STAGE, KeyframesConfig
-from stages.keyframes.stage import interpolate_poses, pair_pings, select_keyframes
+from sonarmap.pipeline.readers import open_recording
+from sonarmap.schemas.keyframes import KEYFRAMES_SCHEMA
+from sonarmap.schemas.recording import PoseTrack
+from sonarmap.stages.base import DATASET, StageInputError
+from sonarmap.stages.keyframes import STAGE, KeyframesConfig
+from sonarmap.stages.keyframes.stage import interpolate_poses, pair_pings, select_keyframes
 
 
 def test_pairing_nearest_within_tolerance_each_vertical_used_once() -> None:

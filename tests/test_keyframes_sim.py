@@ -11,19 +11,19 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.formats.frames_io import read_frames
-from stages.keyframes import STAGE
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.formats.frames_io import read_frames
+from sonarmap.stages.keyframes import STAGE
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def sim_dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
-    from pipeline.formats.simulation import write_simulation
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     scene = ROOT / "configs" / "scenes" / "tiny.yaml"
     base = SimConfig()
@@ -35,8 +35,8 @@ def sim_dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
 
 
 def _run_keyframes(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> Path:
-    from pipeline.engine.runner import execute, plan
-    from pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.runner import execute, plan
+    from sonarmap.pipeline.engine.session import make_context
 
     ctx = make_context(dataset, stages=[STAGE], overrides=overrides, store_dir=store)
     planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
@@ -130,7 +130,7 @@ def test_cli_topics_and_convert_on_simulator_output(
 
 def test_cli_run_until_keyframes(sim_dataset: tuple[Path, Any], tmp_path: Path) -> None:
     try:
-        from pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.engine.registry import all_stages
 
         all_stages()
     except ImportError as err:

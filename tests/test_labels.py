@@ -10,14 +10,19 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import SourceError
-from pipeline.labels.fan_image import fan_geometry, fan_image, metres_to_pixels, pixels_to_metres
-from pipeline.labels.files import annotation_yaml, export_labels, import_labels
-from pipeline.training.annotations import load_annotations
-from schemas.annotations import AnnotationFile
-from schemas.classes import CLASS_IDS
-from schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.labels.fan_image import (
+    fan_geometry,
+    fan_image,
+    metres_to_pixels,
+    pixels_to_metres,
+)
+from sonarmap.pipeline.labels.files import annotation_yaml, export_labels, import_labels
+from sonarmap.pipeline.training.annotations import load_annotations
+from sonarmap.schemas.annotations import AnnotationFile
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -158,10 +163,10 @@ def test_import_never_overwrites_other_labels_without_force(tmp_path: Path) -> N
 
 
 def test_one_command_each_way_on_a_simulated_recording(tmp_path: Path) -> None:
-    from pipeline.formats.simulation import write_simulation
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     scene = ROOT / "configs" / "scenes" / "tiny.yaml"
     base = SimConfig()

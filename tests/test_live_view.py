@@ -18,13 +18,13 @@ import pytest
 from foxglove_ws_client import Received, collect
 from typer.testing import CliRunner
 
-from pipeline.api import RunRequest, run_dataset
-from pipeline.cli import app
-from pipeline.engine.errors import OutputError
-from pipeline.engine.registry import pipeline_stages
-from pipeline.live.feed import LiveFeed
-from pipeline.live.server import LiveServer
-from stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
+from sonarmap.pipeline.api import RunRequest, run_dataset
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import OutputError
+from sonarmap.pipeline.engine.registry import pipeline_stages
+from sonarmap.pipeline.live.feed import LiveFeed
+from sonarmap.pipeline.live.server import LiveServer
+from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
 
 ROOT = Path(__file__).resolve().parent.parent
 pytest.importorskip("websockets")
@@ -37,7 +37,7 @@ def _has_error_map(got: Received) -> bool:
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
     out = tmp_path_factory.mktemp("live") / "tiny.mcap"
     ensure_simulations([Simulation(scene_path("tiny"), 2, out, duration_s=30.0)], 1)
@@ -105,7 +105,7 @@ def _serve(args: list[str], timeout_s: float = 60.0) -> tuple[Received, str, str
     """Start `sonarmap ARGS`, connect to the address it prints, collect, then Ctrl-C."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         cwd=ROOT,
         env=env,
         stdout=subprocess.PIPE,

@@ -8,11 +8,11 @@ import numpy as np
 import pyarrow as pa
 from mcap.reader import make_reader
 
-from pipeline.formats.map_mcap import MAP_TOPICS, TF_TOPIC, write_map_mcap
-from pipeline.formats.rosmsg import ros2_typestore
-from schemas.map import MAP_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from stages.kernels.geometry import matrix_from_rpy
+from sonarmap.pipeline.formats.map_mcap import MAP_TOPICS, TF_TOPIC, write_map_mcap
+from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+from sonarmap.schemas.map import MAP_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sonarmap.stages.kernels.geometry import matrix_from_rpy
 
 
 def tables() -> tuple[pa.Table, pa.Table]:

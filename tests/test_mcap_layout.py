@@ -18,12 +18,12 @@ from mcap.records import Chunk, Message
 from test_readers_mcap import all_messages, write_synthetic
 from typer.testing import CliRunner
 
-import pipeline.readers.mcap_source as mcap_source
-from pipeline.cli import app
-from pipeline.readers import open_recording
-from pipeline.readers.mcap_scan import _inner_records, decompress_chunk
-from schemas.topics import SONAR_TOPIC, TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
-from stages.keyframes import STAGE, KeyframesConfig
+import sonarmap.pipeline.readers.mcap_source as mcap_source
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.readers import open_recording
+from sonarmap.pipeline.readers.mcap_scan import _inner_records, decompress_chunk
+from sonarmap.schemas.topics import SONAR_TOPIC, TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
+from sonarmap.stages.keyframes import STAGE, KeyframesConfig
 
 # Synthetic odometry is ~0.7 kB and a synthetic sonar ping ~1.7 kB: 1 kB splits them, and
 # 2 kB chunks hold about one image each (the simulator's layout, scaled down).

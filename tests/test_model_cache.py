@@ -15,19 +15,19 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-import stages.classify.train
-from pipeline.api import RunRequest, run_dataset
-from pipeline.cli import app
-from pipeline.engine.config import load_config
-from pipeline.engine.errors import ArtifactCorrupt
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.engine.share import pull, push
-from pipeline.engine.store import ArtifactStore
-from pipeline.engine.trust import TrustPolicy
-from pipeline.training.config import TrainingDataConfig
-from pipeline.training.datasets import ensure_simulation, scene_path
-from pipeline.training.model import plan_training, training_datasets
-from pipeline.training.model_cache import DEFAULT_MODEL_CACHE, resolve_default_model
+import sonarmap.stages.classify.train
+from sonarmap.pipeline.api import RunRequest, run_dataset
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.share import pull, push
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.trust import TrustPolicy
+from sonarmap.pipeline.training.config import TrainingDataConfig
+from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
+from sonarmap.pipeline.training.model import plan_training, training_datasets
+from sonarmap.pipeline.training.model_cache import DEFAULT_MODEL_CACHE, resolve_default_model
 
 CONFIG = """
 training:
@@ -83,7 +83,7 @@ def no_training(monkeypatch: pytest.MonkeyPatch) -> list[int]:
         calls.append(1)
         raise AssertionError("trained although the machine has the model")
 
-    monkeypatch.setattr(stages.classify.train, "train_classifier", refuse)
+    monkeypatch.setattr(sonarmap.stages.classify.train, "train_classifier", refuse)
     return calls
 
 
@@ -212,9 +212,9 @@ def _fresh_machine(machine: Machine, name: str, shipped: Path) -> object:
 
 
 def _ship_tiny(machine: Machine, shipped: Path) -> None:
-    from pipeline.engine.session import dataset_spec
-    from pipeline.training.model import training_simulations
-    from pipeline.training.shipped import ship
+    from sonarmap.pipeline.engine.session import dataset_spec
+    from sonarmap.pipeline.training.model import training_simulations
+    from sonarmap.pipeline.training.shipped import ship
 
     training = _config(machine.config).training  # type: ignore[attr-defined]
     sims = training_simulations(training)
@@ -227,7 +227,7 @@ def _ship_tiny(machine: Machine, shipped: Path) -> None:
 def test_a_fresh_machine_takes_the_shipped_model_without_simulating_or_training(
     machine: Machine, no_training: list[int]
 ) -> None:
-    from pipeline.training.model_cache import planned_default_model
+    from sonarmap.pipeline.training.model_cache import planned_default_model
 
     shipped = machine.root / "shipped"
     _ship_tiny(machine, shipped)
@@ -266,7 +266,7 @@ def test_a_tampered_shipped_model_is_refused(machine: Machine, no_training: list
 def test_train_ship_writes_the_model_and_the_lock_a_fresh_machine_plans_from(
     machine: Machine, no_training: list[int]
 ) -> None:
-    from pipeline.training.model_cache import planned_default_model
+    from sonarmap.pipeline.training.model_cache import planned_default_model
 
     shipped = machine.root / "shipped-cli"
     args = [

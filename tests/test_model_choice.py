@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
+from sonarmap.pipeline.cli import app
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = next((ROOT / "configs" / "model" / "train").iterdir())
@@ -17,10 +17,10 @@ SHIPPED = next((ROOT / "configs" / "model" / "train").iterdir())
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from pipeline.formats.simulation import write_simulation
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     scene = ROOT / "configs" / "scenes" / "tiny.yaml"
     base = SimConfig()

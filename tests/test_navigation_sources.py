@@ -29,20 +29,20 @@ from test_field_twins import (
 )
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.readers import open_recording
-from pipeline.readers.dvl import body_velocity, gate_velocity
-from pipeline.readers.tf_tree import TfTree
-from schemas.sonar import SonarPing
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.readers import open_recording
+from sonarmap.pipeline.readers.dvl import body_velocity, gate_velocity
+from sonarmap.pipeline.readers.tf_tree import TfTree
+from sonarmap.schemas.sonar import SonarPing
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _mission(speed: float, duration: float = 40.0) -> Any:
     """A simulated mission's motion (pings are never rendered)."""
-    from sim.config import SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     base = SimConfig()
     mission = base.mission.model_copy(
@@ -63,7 +63,7 @@ def _write(
     """A rosbag2 with blank pings on the drivers' topics at the ping times, a tf chain
     (when `tf`), and "dvl" (DVL + IMU + Bar30) or "odometry" navigation. `edit` may
     change the DVL/IMU/pressure events before writing."""
-    from pipeline.formats.frames_io import sonar_cdr
+    from sonarmap.pipeline.formats.frames_io import sonar_cdr
 
     store = _types()
     t = store.types

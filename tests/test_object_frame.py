@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.kernels.geometry import se2_apply as apply_se2
-from stages.kernels.object_frame import (
+from sonarmap.stages.kernels.geometry import se2_apply as apply_se2
+from sonarmap.stages.kernels.object_frame import (
     ClassFrame,
     IcpParams,
     ObjectOrigin,
@@ -126,10 +126,10 @@ def test_a_provisional_reference_gives_way_a_confirmed_one_does_not() -> None:
 
 
 def test_a_class_model_starts_again_with_its_new_reference() -> None:
-    from stages.infer.config import InferConfig
-    from stages.kernels.class_models import new_class_states
-    from stages.kernels.class_query import update_object_class
-    from stages.kernels.sightings import Sighting
+    from sonarmap.stages.infer.config import InferConfig
+    from sonarmap.stages.kernels.class_models import new_class_states
+    from sonarmap.stages.kernels.class_query import update_object_class
+    from sonarmap.stages.kernels.sightings import Sighting
 
     def sighting(object_id: int, uv: np.ndarray, z_m: float) -> Sighting:
         n = len(uv)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages.kernels.height_model import HeightModel, z_grid
-from stages.kernels.object_prior import object_height_prior
+from sonarmap.stages.kernels.height_model import HeightModel, z_grid
+from sonarmap.stages.kernels.object_prior import object_height_prior
 
 Z = z_grid(-2.0, 2.0, 0.05)
 

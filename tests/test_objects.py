@@ -8,16 +8,21 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from schemas.sonar import SonarPing
-from stages.classify.objects import crop_patches, extract_objects, horizontal_features, los_rotate
-from stages.classify.segmentation import (
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.stages.classify.objects import (
+    crop_patches,
+    extract_objects,
+    horizontal_features,
+    los_rotate,
+)
+from sonarmap.stages.classify.segmentation import (
     cell_areas_m2,
     cluster_boxes,
     fan_outside_area_m2,
     keep_clusters,
     majority_class,
 )
-from stages.kernels.clustering import cluster_features
+from sonarmap.stages.kernels.clustering import cluster_features
 
 RANGES_M = ((np.arange(400) + 0.5) * 0.05).astype(np.float32)
 

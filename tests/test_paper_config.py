@@ -9,11 +9,11 @@ from typing import Any
 import yaml
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.config import load_config
-from pipeline.engine.registry import all_stages, extra_sections
-from stages.classify.stage import ClassifyConfig
-from stages.fuse.stage import FuseConfig
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.stages.classify.stage import ClassifyConfig
+from sonarmap.stages.fuse.stage import FuseConfig
 
 PAPER = Path(__file__).resolve().parents[1] / "configs" / "paper.yaml"
 SOURCE = re.compile(r"paper (Sec\.|Eq\.|Table)|orig §\d")

@@ -1,4 +1,4 @@
-"""stages.kernels.parallel: results in input order from worker processes, as from this one."""
+"""sonarmap.stages.kernels.parallel: results in input order from worker processes, as from this one."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from stages.kernels.parallel import available_cores, ordered_map
+from sonarmap.stages.kernels.parallel import available_cores, ordered_map
 
 
 @pytest.mark.parametrize("workers", [1, 2])

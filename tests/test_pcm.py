@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stages.slam.pcm import (
+from sonarmap.stages.slam.pcm import (
     chain_covariance,
     invert_loops,
     maximum_clique,
@@ -16,7 +16,7 @@ from stages.slam.pcm import (
     robust_noise_scale,
     windowed_pcm,
 )
-from stages.slam.pose_graph import se2_between, se2_compose
+from sonarmap.stages.slam.pose_graph import se2_between, se2_compose
 
 INTEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "posegraphs" / "intel.g2o"
 
@@ -72,7 +72,7 @@ def test_consistency_flags_the_loop_that_disagrees_with_odometry() -> None:
 def test_pcm_on_intel_rejects_injected_false_loops() -> None:
     if not INTEL.exists():
         pytest.skip(f"real test data absent: {INTEL}")
-    from pipeline.formats.g2o import read_pose_graph
+    from sonarmap.pipeline.formats.g2o import read_pose_graph
 
     graph = read_pose_graph(INTEL)
     a, b = graph.edge_from, graph.edge_to
@@ -118,6 +118,6 @@ def test_pcm_on_intel_rejects_injected_false_loops() -> None:
 def test_chi2_constant_matches_scipy() -> None:
     from scipy.stats import chi2
 
-    from stages.slam.pcm import CHI2_99_3DOF
+    from sonarmap.stages.slam.pcm import CHI2_99_3DOF
 
     assert abs(CHI2_99_3DOF - chi2.ppf(0.99, 3)) < 1e-9

@@ -11,11 +11,11 @@ import pyarrow as pa
 import pytest
 from plyfile import PlyData
 
-from schemas.classes import CLASS_IDS
-from schemas.map import MAP_SCHEMA
-from stages.kernels.map_codes import NO_CLASS_ID, SOURCE_IDS, UNKNOWN_CLASS_ID
-from stages.kernels.ply import encode_points_ply
-from stages.voxelize.stage import STAGE, VoxelizeConfig
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.map import MAP_SCHEMA
+from sonarmap.stages.kernels.map_codes import NO_CLASS_ID, SOURCE_IDS, UNKNOWN_CLASS_ID
+from sonarmap.stages.kernels.ply import encode_points_ply
+from sonarmap.stages.voxelize.stage import STAGE, VoxelizeConfig
 
 
 def _map_table() -> pa.Table:
@@ -37,8 +37,7 @@ def _map_table() -> pa.Table:
 
 def _voxelize_plys(monkeypatch: pytest.MonkeyPatch, table: pa.Table) -> dict[str, bytes]:
     """voxelize's run with its map builder returning `table` (the PLY code path is real)."""
-    import stages.voxelize.stage as voxelize
-
+    import sonarmap.stages.voxelize.stage as voxelize
     monkeypatch.setattr(voxelize, "build_map", lambda *a, **k: (table, {}))
     sensors = {"horizontal": {"T_base_sonar": np.eye(4).tolist()}}
     out = STAGE.run(VoxelizeConfig(), {"keyframes.sensors": sensors, **dict.fromkeys(

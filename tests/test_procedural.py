@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from sim.procedural import ProceduralConfig, _within, generate_scene, scene_yaml
-from sim.scene import load_scene
+from sonarmap.sim.procedural import ProceduralConfig, _within, generate_scene, scene_yaml
+from sonarmap.sim.scene import load_scene
 
 SEEDS = range(20)
 STRUCTURE_CLASSES = {"cylindrical_piling", "rectangular_piling", "seawall", "boat_hull", "truss"}
@@ -80,8 +80,8 @@ def test_a_range_upside_down_is_refused() -> None:
 
 
 def test_the_simulator_flies_its_own_mission_through_a_generated_world() -> None:
-    from sim.config import SimConfig
-    from sim.dataset import simulate
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.dataset import simulate
 
     base = SimConfig()
     mission = base.mission.model_copy(update={"n_goals": 2, "duration_s": 12.0})
@@ -97,10 +97,10 @@ def test_the_simulator_flies_its_own_mission_through_a_generated_world() -> None
 def test_the_mission_reaches_every_goal_of_a_training_world(seed: int) -> None:
     # The default training worlds' seeds: before sim.open_water, 3 of these 20 flew 0 m
     # (start in a closed-off pocket, or every goal in another basin).
-    from sim.config import MissionConfig
-    from sim.mission import plan_mission
-    from sim.open_water import free_water_pieces
-    from sim.world import World
+    from sonarmap.sim.config import MissionConfig
+    from sonarmap.sim.mission import plan_mission
+    from sonarmap.sim.open_water import free_water_pieces
+    from sonarmap.sim.world import World
 
     scene = generate_scene(ProceduralConfig(), seed)
     mission = MissionConfig(n_goals=3)
@@ -111,9 +111,9 @@ def test_the_mission_reaches_every_goal_of_a_training_world(seed: int) -> None:
 
 
 def test_a_wall_across_the_area_is_opened_and_keeps_its_class() -> None:
-    from sim.config import MissionConfig
-    from sim.open_water import free_water_pieces, open_pockets
-    from sim.scene import CylindricalPiling, Scene, Seawall
+    from sonarmap.sim.config import MissionConfig
+    from sonarmap.sim.open_water import free_water_pieces, open_pockets
+    from sonarmap.sim.scene import CylindricalPiling, Scene, Seawall
 
     wall = Seawall(name="w", polyline_m=[(-20.0, 0.0), (0.0, 1.0), (20.0, 0.0)])
     posts = [CylindricalPiling(name=f"p{i}", position_m=(-15.0 + 10 * i, 10.0)) for i in range(3)]

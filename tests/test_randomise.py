@@ -9,12 +9,17 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from pipeline.readers.aris import ArisSource
-from pipeline.readers.oculus_raw import parse_ping
-from pipeline.training.datasets import read_scene, scene_path, sim_config
-from sim.config import SimConfig
-from sim.dataset import simulate
-from sim.randomise import SensorRandomisation, draw_sensor, image_statistics, randomised_config
+from sonarmap.pipeline.readers.aris import ArisSource
+from sonarmap.pipeline.readers.oculus_raw import parse_ping
+from sonarmap.pipeline.training.datasets import read_scene, scene_path, sim_config
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.randomise import (
+    SensorRandomisation,
+    draw_sensor,
+    image_statistics,
+    randomised_config,
+)
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import SourceError
-from pipeline.readers import dataset_fingerprint_parts, open_recording, open_source
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers import dataset_fingerprint_parts, open_recording, open_source
 
 # path -> (total messages, number of topics, {topic: count} spot checks)
 EXPECTED = {
@@ -123,7 +123,7 @@ def test_run_until_keyframes_on_a_bag_without_sonar_exits_2(
     shared_data: Path, name: str, tmp_path: Path
 ) -> None:
     try:
-        from pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.engine.registry import all_stages
 
         all_stages()
     except ImportError as err:

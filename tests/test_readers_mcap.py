@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.engine.errors import SourceError
-from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from pipeline.readers import open_recording, open_source
-from schemas.sonar import beam_directions_from_angles
-from schemas.topics import (
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from sonarmap.pipeline.readers import open_recording, open_source
+from sonarmap.schemas.sonar import beam_directions_from_angles
+from sonarmap.schemas.topics import (
     LABEL_TOPIC,
     ODOMETRY_TYPE,
     PROJECTED_SONAR_TYPE,

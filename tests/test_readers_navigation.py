@@ -12,10 +12,10 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from test_readers_mcap import write_synthetic
 from test_readers_oculus import _oculus_ping, _ros1_header
 
-from pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
-from pipeline.readers import open_recording
-from pipeline.readers.navigation import dead_reckon, pose_track
-from stages.kernels.geometry import rpy_from_quat as quat_to_rpy
+from sonarmap.pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
+from sonarmap.pipeline.readers import open_recording
+from sonarmap.pipeline.readers.navigation import dead_reckon, pose_track
+from sonarmap.stages.kernels.geometry import rpy_from_quat as quat_to_rpy
 
 DVL_MSG = "Header header\ngeometry_msgs/Vector3 velocity\nfloat64 temperature\nfloat64 altitude\nfloat64 time\n"
 DEPTH_MSG = (
@@ -170,7 +170,7 @@ def test_ros1_bag_without_odometry_uses_dvl_imu_depth(tmp_path: Path) -> None:
     np.testing.assert_allclose(nav.xyz_m[:, 0], 0.4 / 0.02 * np.sin(0.02 * s), atol=0.01)
     np.testing.assert_allclose(nav.xyz_m[:, 1], 0.4 / 0.02 * (1 - np.cos(0.02 * s)), atol=0.01)
     np.testing.assert_allclose(nav.xyz_m[:, 2], -4.0)
-    from stages.keyframes import STAGE, KeyframesConfig
+    from sonarmap.stages.keyframes import STAGE, KeyframesConfig
 
     rows = STAGE.run(KeyframesConfig(), {"dataset": rec})["keyframes"].to_pylist()
     assert [r["reason"] for r in rows[:3]] == ["first", "translation", "translation"]

@@ -13,11 +13,11 @@ from PIL import Image
 from rosbags.rosbag1 import Writer as Bag1Writer
 from test_readers_mcap import N_BEAMS, N_RANGES, write_synthetic
 
-from pipeline.engine.errors import SourceError
-from pipeline.formats.rosmsg import ros1_typestore, ros2_typestore
-from pipeline.readers import open_recording, open_source
-from pipeline.readers.oculus_raw import OCULUS_RAW_TOPIC, parse_ping
-from stages.keyframes import STAGE, KeyframesConfig
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.formats.rosmsg import ros1_typestore, ros2_typestore
+from sonarmap.pipeline.readers import open_recording, open_source
+from sonarmap.pipeline.readers.oculus_raw import OCULUS_RAW_TOPIC, parse_ping
+from sonarmap.stages.keyframes import STAGE, KeyframesConfig
 
 H_TOPIC = "/sonar_oculus_node/M750d/ping"
 V_TOPIC = "/sonar_oculus_node/M1200d/ping"
@@ -33,7 +33,7 @@ def test_raw_ping_decodes_to_256_beams_by_703_ranges(shared_data: Path) -> None:
     rec_src = open_source(path)
     [(topic, _, msg)] = list(rec_src.messages([OCULUS_RAW_TOPIC]))
     assert topic == OCULUS_RAW_TOPIC
-    from pipeline.readers.sonar_decode import decode_sonar
+    from sonarmap.pipeline.readers.sonar_decode import decode_sonar
 
     ping = decode_sonar(msg, "oculus/SimplePingResult", 0, "horizontal", None, str(path))
     assert ping.image.shape == (703, 256)
@@ -217,10 +217,10 @@ def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
 
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from sonarmap.pipeline.cli import app
 
     try:
-        from pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.engine.registry import all_stages
 
         all_stages()
     except ImportError as err:
@@ -261,7 +261,7 @@ def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
 def test_convert_ros1_oculus_bag_and_raw_capture_to_projected_sonar_mcap(
     shared_data: Path, tmp_path: Path
 ) -> None:
-    from pipeline.commands.convert import convert_recording
+    from sonarmap.pipeline.commands.convert import convert_recording
 
     mcap_path, bag_path, out = tmp_path / "d.mcap", tmp_path / "d.bag", tmp_path / "conv.mcap"
     write_synthetic(mcap_path, n_pings=30, labels=False)

@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.readers import open_source
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.readers import open_source
 
 # Every recording sonarmap reads among the third-party files, and the exit code of
 # `topics` on it (an empty file is refused, exit 2).

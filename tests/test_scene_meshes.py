@@ -7,9 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from schemas.classes import CLASS_IDS
-from sim.scene import SceneError, load_scene
-from sim.world import World
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.sim.scene import SceneError, load_scene
+from sonarmap.sim.world import World
 
 # A 2 m x 1 m x 3 m block, its own origin at one corner (not its centre, nor its base).
 CUBE_OBJ = """\

@@ -10,9 +10,9 @@ import pytest
 import toy_stages
 from test_engine_cache import did, run_toy
 
-from pipeline.engine.errors import ArtifactCorrupt
-from pipeline.engine.share import pull, push
-from pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.share import pull, push
+from sonarmap.pipeline.engine.store import ArtifactStore
 
 
 @pytest.fixture
@@ -85,7 +85,7 @@ def test_escaping_path_and_forged_key_are_refused(
 def test_cli_push_pull_json(pushed: tuple[Path, Path], tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from sonarmap.pipeline.cli import app
 
     _, remote = pushed
     runner = CliRunner()

@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 from test_engine_cache import run_toy
 
-from pipeline.engine.share import list_remote, pull, push
-from pipeline.engine.store import ArtifactStore
-from pipeline.engine.transfer import TransferStats
+from sonarmap.pipeline.engine.share import list_remote, pull, push
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.transfer import TransferStats
 
 ROOT = Path(__file__).resolve().parents[1]
 SSHD = shutil.which("sshd") or "/usr/sbin/sshd"
@@ -49,7 +49,7 @@ def _wait_port(port: int, proc: subprocess.Popen[bytes] | None = None) -> None:
 def _cli(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
     """The real CLI in a subprocess, so every byte it prints (logs included) is captured."""
     return subprocess.run(
-        [sys.executable, "-m", "pipeline", "-v", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", "-v", *args],
         capture_output=True,
         text=True,
         env={**env, "PYTHONPATH": str(ROOT)},

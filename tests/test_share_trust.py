@@ -17,18 +17,18 @@ import torch
 from test_engine_cache import run_toy
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine import share, transfer
-from pipeline.engine.errors import ArtifactCorrupt, StoreError
-from pipeline.engine.hashing import sha256_file
-from pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
-from pipeline.engine.runner import DatasetSpec, plan
-from pipeline.engine.share import list_remote, pull, push
-from pipeline.engine.store import ArtifactStore
-from pipeline.engine.transfer import TransferStats
-from pipeline.engine.trust import TrustPolicy
-from pipeline.training.model_cache import copy_verified
-from pipeline.training.shipped import shipped_models, shipped_store
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine import share, transfer
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.hashing import sha256_file
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
+from sonarmap.pipeline.engine.runner import DatasetSpec, plan
+from sonarmap.pipeline.engine.share import list_remote, pull, push
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.transfer import TransferStats
+from sonarmap.pipeline.engine.trust import TrustPolicy
+from sonarmap.pipeline.training.model_cache import copy_verified
+from sonarmap.pipeline.training.shipped import shipped_models, shipped_store
 
 SHIPPED = "configs/model"
 
@@ -113,7 +113,7 @@ def test_substituted_model_is_refused_unless_pinned_and_never_gets_the_honest_ke
     res = _cli("pull", str(remote), "--store", str(bob), "--trust-model", sha)
     assert res.exit_code == 0, res.output
     # Trusted or not, the substituted model cannot reproduce the honest run's keys.
-    from pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config import load_config
 
     config = load_config(all_stages(), None, [], extra_sections())
     spec = DatasetSpec(tmp_path / "rec.mcap", "f" * 64, lambda _s: None)
@@ -172,7 +172,7 @@ def _plant(remote: Path, source: Path, stage: str) -> None:
     manifest = json.loads((source / "manifest.json").read_text())
     manifest["stage"] = stage
     manifest["recipe"]["stage"] = stage
-    from pipeline.engine.hashing import recipe_key
+    from sonarmap.pipeline.engine.hashing import recipe_key
 
     manifest["key"] = key = recipe_key(manifest["recipe"])
     dest = remote / stage / key
@@ -267,8 +267,8 @@ def test_interrupted_push_resumes_without_resending_and_shows_nothing_partial(
 _KILLED_PUSH = """
 import os, signal, sys
 from pathlib import Path
-from pipeline.engine import share, transfer
-from pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine import share, transfer
+from sonarmap.pipeline.engine.store import ArtifactStore
 real, sent = share.upload, []
 def upload(*a, **k):
     if len(sent) == 3:

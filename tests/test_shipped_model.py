@@ -11,11 +11,16 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from pipeline.engine.config import load_config
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.training.model import plan_training, training_simulations
-from pipeline.training.model_cache import model_cache
-from pipeline.training.shipped import LOCK_FILE, locked_fingerprints, shipped_root, shipped_store
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.training.model import plan_training, training_simulations
+from sonarmap.pipeline.training.model_cache import model_cache
+from sonarmap.pipeline.training.shipped import (
+    LOCK_FILE,
+    locked_fingerprints,
+    shipped_root,
+    shipped_store,
+)
 
 STALE = "the shipped default model is stale: run `sonarmap train --ship` and commit configs/model"
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from schemas.classes import CLASS_IDS
-from schemas.sonar import SonarPing
-from sim.config import SimConfig
-from sim.scene import Scene
-from sim.sonar import SonarModel
-from sim.world import World
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.scene import Scene
+from sonarmap.sim.sonar import SonarModel
+from sonarmap.sim.world import World
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
 
 CFG = SimConfig()
 PILING = CLASS_IDS["cylindrical_piling"]
@@ -185,7 +185,7 @@ def _strongest_reference(pix: np.ndarray, w: np.ndarray, ray: np.ndarray) -> dic
 
 
 def test_strongest_ray_per_pixel_matches_a_loop_ties_to_the_later_ray() -> None:
-    from sim.sonar import _strongest
+    from sonarmap.sim.sonar import _strongest
 
     rng = np.random.default_rng(0)
     for _ in range(50):

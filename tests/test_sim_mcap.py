@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from schemas.sonar import beam_angles_from_directions
-from schemas.topics import (
+from sonarmap.schemas.sonar import beam_angles_from_directions
+from sonarmap.schemas.topics import (
     FRAME_SONAR,
     LABEL_TOPIC,
     SONAR_TOPIC,
@@ -19,9 +19,9 @@ from schemas.topics import (
     TOPIC_TF_STATIC,
     TRUTH_ANGLE_TOPIC,
 )
-from sim.config import MissionConfig, SimConfig
-from sim.dataset import SimRun, simulate
-from sim.scene import load_scene
+from sonarmap.sim.config import MissionConfig, SimConfig
+from sonarmap.sim.dataset import SimRun, simulate
+from sonarmap.sim.scene import load_scene
 
 SCENES = Path(__file__).resolve().parents[1] / "configs" / "scenes"
 TINY = SCENES / "tiny.yaml"
@@ -33,7 +33,7 @@ def _run(seed: int = 0, duration_s: float = 2.0) -> SimRun:
 
 
 def _write(run: SimRun, path: Path, workers: int = 1) -> dict:
-    from pipeline.formats.simulation import write_simulation
+    from sonarmap.pipeline.formats.simulation import write_simulation
 
     return write_simulation(run, path, scene_yaml=TINY.read_text(), workers=workers)
 
@@ -144,7 +144,7 @@ def test_frames_regenerate_identically() -> None:
 
 
 def test_cli_simulate_writes_mcap_and_preview(tmp_path: Path) -> None:
-    from pipeline.cli import app
+    from sonarmap.pipeline.cli import app
 
     out, png = tmp_path / "new" / "x.mcap", tmp_path / "p.png"
     args = ["simulate", "-o", str(out), "--scene", str(TINY), "--seed", "3", "--goals", "2"]
@@ -155,7 +155,7 @@ def test_cli_simulate_writes_mcap_and_preview(tmp_path: Path) -> None:
 
 
 def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
-    from pipeline.cli import app
+    from sonarmap.pipeline.cli import app
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("area_m: [0, 1]\n")
@@ -172,9 +172,9 @@ def test_cli_simulate_bad_input_exits_2(tmp_path: Path) -> None:
 
 
 def test_template_cdr_equals_rosbags_serialisation() -> None:
-    from pipeline.formats.frames_io import image_message
-    from pipeline.formats.rosmsg import ros2_typestore
-    from pipeline.formats.simulation import _FastEncoder, _Messages
+    from sonarmap.pipeline.formats.frames_io import image_message
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.pipeline.formats.simulation import _FastEncoder, _Messages
 
     run = _run(seed=1, duration_s=1.0)
     frame = run.frame(1)

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from schemas.classes import CLASS_IDS
-from sim.config import MissionConfig, NavigationNoise, SimConfig
-from sim.dataset import simulate
-from sim.scene import Scene, SceneError, load_scene
-from sim.world import World
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.sim.config import MissionConfig, NavigationNoise, SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.scene import Scene, SceneError, load_scene
+from sonarmap.sim.world import World
 
 SCENES = Path(__file__).resolve().parents[1] / "configs" / "scenes"
 

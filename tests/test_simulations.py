@@ -1,4 +1,4 @@
-"""Simulations on demand (`pipeline.training.datasets`): the demo simulates the mapped
+"""Simulations on demand (`sonarmap.pipeline.training.datasets`): the demo simulates the mapped
 scene and the training scenes concurrently (issue 22); the files must be the ones a
 one-after-the-other run writes, and a current file is never simulated again."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
 
 def _sims(folder: Path) -> list[Simulation]:

@@ -17,15 +17,15 @@ import pyarrow as pa
 import pytest
 from scipy.stats import spearmanr
 
-from schemas.classes import CLASS_IDS
-from schemas.features import FEATURES_SCHEMA
-from schemas.figures import PLOT_POINTS_SCHEMA
-from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
-from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from stages.features.stage import FeaturesConfig
-from stages.kernels.frame_features import detect_ping
-from stages.slam.pose_graph import se2_between
-from stages.slam.stage import STAGE, SlamConfig
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.features import FEATURES_SCHEMA
+from sonarmap.schemas.figures import PLOT_POINTS_SCHEMA
+from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from sonarmap.stages.features.stage import FeaturesConfig
+from sonarmap.stages.kernels.frame_features import detect_ping
+from sonarmap.stages.slam.pose_graph import se2_between
+from sonarmap.stages.slam.stage import STAGE, SlamConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 SEAFLOOR = CLASS_IDS["seafloor"]
@@ -55,9 +55,9 @@ def simulated_slam_inputs(
     "labels", the simulator's labelled object cells (a perfect detector, seafloor
     excluded); "cfar", the features stage's default CFAR on the horizontal images.
     """
-    from sim.config import MissionConfig, NavigationNoise, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import MissionConfig, NavigationNoise, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     config = SimConfig(
         mission=MissionConfig(n_goals=n_goals), navigation=NavigationNoise(**(navigation or {}))
@@ -185,8 +185,8 @@ def test_outputs_follow_their_contracts(pier_inputs) -> None:
 def test_trajectory_plot_adds_an_error_panel_only_with_ground_truth() -> None:
     from PIL import Image
 
-    from stages.figures.trajectory import trajectory_png
-    from stages.slam.outputs import plot_points
+    from sonarmap.stages.figures.trajectory import trajectory_png
+    from sonarmap.stages.slam.outputs import plot_points
 
     t = np.linspace(0.0, 2 * np.pi, 40)
     truth = np.column_stack([10 * np.cos(t), 10 * np.sin(t), t + np.pi / 2])
@@ -220,7 +220,7 @@ def test_ground_truth_mode_returns_truth_and_refuses_missing_truth(pier_inputs) 
 
 
 def test_leading_edges_keep_the_first_cell_of_each_run() -> None:
-    from stages.slam.stage import leading_edges
+    from sonarmap.stages.slam.stage import leading_edges
 
     rng = np.random.default_rng(3)
     kf = rng.integers(0, 3, 400)
@@ -354,7 +354,7 @@ def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
 def test_loops_sharing_sonar_data_are_counted_together() -> None:
     """Loops whose ends both lie within the window of another's reuse its clouds; the
     count multiplies each one's covariance in the re-registration."""
-    from stages.slam.loops import _shared_data_counts
+    from sonarmap.stages.slam.loops import _shared_data_counts
 
     src = np.array([10, 11, 12, 40, 10])
     dst = np.array([60, 61, 62, 63, 90])
@@ -366,7 +366,7 @@ def test_loops_sharing_sonar_data_are_counted_together() -> None:
 def test_odometry_noise_grows_with_the_square_root_of_the_step_duration() -> None:
     """A DVL's white velocity noise integrates to a position noise of sigma sqrt(dt): a
     sweep with keyframes twice as far apart gets steps twice as long, not as precise."""
-    from stages.slam.frontend import _FrontEnd
+    from sonarmap.stages.slam.frontend import _FrontEnd
 
     config = SlamConfig()
     front = _FrontEnd(config, [])

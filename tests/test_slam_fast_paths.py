@@ -11,10 +11,10 @@ import pyarrow as pa
 import pytest
 from scipy import ndimage
 
-from stages.slam.config import SlamConfig
-from stages.slam.frontend import _FrontEnd
-from stages.slam.points import keyframe_points
-from stages.slam.scan_matching import (
+from sonarmap.stages.slam.config import SlamConfig
+from sonarmap.stages.slam.frontend import _FrontEnd
+from sonarmap.stages.slam.points import keyframe_points
+from sonarmap.stages.slam.scan_matching import (
     OccupancyScorer,
     _lattice,
     _lattice_axes,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from stages.slam.pose_graph import (
+from sonarmap.stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_adjoint,
     se2_between,

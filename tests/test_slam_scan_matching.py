@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.slam.pose_graph import se2_between, se2_compose, se2_inverse
-from stages.slam.scan_matching import (
+from sonarmap.stages.slam.pose_graph import se2_between, se2_compose, se2_inverse
+from sonarmap.stages.slam.scan_matching import (
     OccupancyScorer,
     icp_2d,
     match_scans,

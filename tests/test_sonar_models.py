@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 from test_readers_mcap import N_BEAMS, N_RANGES, T0, odom_msg
 
-from pipeline.engine.errors import ConfigError, SourceError
-from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from pipeline.readers import open_recording
-from pipeline.readers.sonar_models import fov_of_table, load_sonar, preset_names
-from schemas.topics import ODOMETRY_TYPE, TOPIC_DEAD_RECKONING
-from stages.keyframes import STAGE, KeyframesConfig
-from stages.slam.config import SlamConfig, with_sensor_fan
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
+from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from sonarmap.pipeline.readers import open_recording
+from sonarmap.pipeline.readers.sonar_models import fov_of_table, load_sonar, preset_names
+from sonarmap.schemas.topics import ODOMETRY_TYPE, TOPIC_DEAD_RECKONING
+from sonarmap.stages.keyframes import STAGE, KeyframesConfig
+from sonarmap.stages.slam.config import SlamConfig, with_sensor_fan
 
 REQUIRED = {
     "oculus-m750d-750khz": 130.0,

@@ -18,8 +18,8 @@ import pytest
 from click.testing import Result
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.store import ArtifactStore
 
 runner = CliRunner()
 

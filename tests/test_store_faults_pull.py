@@ -17,10 +17,10 @@ from fsspec.implementations.local import LocalFileSystem
 from test_engine_cache import run_toy
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.errors import ArtifactCorrupt
-from pipeline.engine.share import pull, push
-from pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.share import pull, push
+from sonarmap.pipeline.engine.store import ArtifactStore
 
 
 @pytest.fixture

@@ -15,10 +15,10 @@ import pyarrow as pa
 from test_engine_cache import run_toy
 from toy_stages import SOURCE, CountConfig
 
-from pipeline.engine.runner import execute, plan
-from pipeline.engine.session import make_context
-from pipeline.engine.store import ArtifactStore
-from stages.base import Output, Stage
+from sonarmap.pipeline.engine.runner import execute, plan
+from sonarmap.pipeline.engine.session import make_context
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.stages.base import Output, Stage
 
 TESTS = Path(__file__).resolve().parent
 
@@ -72,7 +72,7 @@ def test_gc_keeps_everything_upstream_of_a_kept_artifact(tmp_path: Path) -> None
 
 
 def _cli(data: Path, store: Path, env: dict[str, str], stderr: Any) -> subprocess.Popen[bytes]:
-    cmd = [sys.executable, "-m", "pipeline", "-v", "run", str(data), "--store", str(store),
+    cmd = [sys.executable, "-m", "sonarmap.pipeline", "-v", "run", str(data), "--store", str(store),
            "--json", "-q"]  # fmt: skip
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=stderr)
 

@@ -12,17 +12,17 @@ import pyarrow.parquet as pq
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.experiments.study import write_study
-from pipeline.experiments.study_fig4 import box_stats, pooled_errors
-from pipeline.experiments.study_tables import (
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.experiments.study import write_study
+from sonarmap.pipeline.experiments.study_fig4 import box_stats, pooled_errors
+from sonarmap.pipeline.experiments.study_tables import (
     PAPER_CROSS_RATIO,
     assigned_class_rows,
     class_rows,
     cross_ratio_rows,
     table_i_rows,
 )
-from pipeline.experiments.sweep import RunOutcome, _flat, sweep_tables
+from sonarmap.pipeline.experiments.sweep import RunOutcome, _flat, sweep_tables
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

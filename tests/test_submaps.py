@@ -16,19 +16,19 @@ from scipy.spatial.transform import Rotation
 from test_voxelize import T_BASE_SONAR, fused_table, points_table, poses_table
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.config import load_config
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.training.model import plan_training, training_datasets
-from pipeline.training.model_cache import model_cache
-from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINTS_SCHEMA
-from stages.kernels.geometry import rpy_from_matrix as rpy_from_rotation
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
-from stages.kernels.poses import pose_matrix
-from stages.submaps.frames import submap_frame_rows
-from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
-from stages.submaps.workers import worker_count
-from stages.voxelize.stage import build_map
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.training.model import plan_training, training_datasets
+from sonarmap.pipeline.training.model_cache import model_cache
+from sonarmap.schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINTS_SCHEMA
+from sonarmap.stages.kernels.geometry import rpy_from_matrix as rpy_from_rotation
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.stages.kernels.poses import pose_matrix
+from sonarmap.stages.submaps.frames import submap_frame_rows
+from sonarmap.stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from sonarmap.stages.submaps.workers import worker_count
+from sonarmap.stages.voxelize.stage import build_map
 
 POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 UPSTREAM = ("keyframes", "features", "fuse", "classify", "slam", "infer")

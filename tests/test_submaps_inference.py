@@ -1,6 +1,6 @@
 """Dense submaps on real simulated images: frames between keyframes take the keyframe
 objects they see again and get heights from the keyframe-learnt class models, on the
-true surface (`stages.submaps.mapping.frame_points`, `stages.submaps.transfer`)."""
+true surface (`sonarmap.stages.submaps.mapping.frame_points`, `sonarmap.stages.submaps.transfer`)."""
 
 from __future__ import annotations
 
@@ -12,21 +12,21 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from test_infer import keyframe_indices, real_stage_tables
 
-from schemas.sonar import KeyframeImages
-from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
-from sim.config import MissionConfig, SimConfig
-from sim.dataset import simulate
-from sim.scene import load_scene
-from stages.features.stage import FeaturesConfig
-from stages.fuse.stage import FuseConfig
-from stages.infer.stage import InferConfig, learn_and_infer
-from stages.kernels.frame_features import keyframe_features
-from stages.kernels.fusion import fuse_keyframe, sonar_offset
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
-from stages.kernels.point_tables import points_table
-from stages.kernels.sightings import object_feature_rows
-from stages.submaps.mapping import frame_points
-from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
+from sonarmap.sim.config import MissionConfig, SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.scene import load_scene
+from sonarmap.stages.features.stage import FeaturesConfig
+from sonarmap.stages.fuse.stage import FuseConfig
+from sonarmap.stages.infer.stage import InferConfig, learn_and_infer
+from sonarmap.stages.kernels.frame_features import keyframe_features
+from sonarmap.stages.kernels.fusion import fuse_keyframe, sonar_offset
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.stages.kernels.point_tables import points_table
+from sonarmap.stages.kernels.sightings import object_feature_rows
+from sonarmap.stages.submaps.mapping import frame_points
+from sonarmap.stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 
 REPO = Path(__file__).resolve().parents[1]
 

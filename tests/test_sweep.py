@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from toy_stages import GRAPH
 
-from pipeline.experiments.sweep import expand, run_sweep
-from pipeline.experiments.sweep_output import write_sweep
+from sonarmap.pipeline.experiments.sweep import expand, run_sweep
+from sonarmap.pipeline.experiments.sweep_output import write_sweep
 
 TESTS = Path(__file__).resolve().parent
 
@@ -46,7 +46,7 @@ def test_local_sweep_shares_artifacts_and_isolates_failures(
 def test_cli_sweep_json(toy_env: list[Path], tmp_path: Path) -> None:
     from typer.testing import CliRunner
 
-    from pipeline.cli import app
+    from sonarmap.pipeline.cli import app
 
     res = CliRunner().invoke(
         app,

@@ -12,15 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.experiments.sweep import RunOutcome
-from pipeline.experiments.sweep_checks import failure_exit_code
+from sonarmap.pipeline.experiments.sweep import RunOutcome
+from sonarmap.pipeline.experiments.sweep_checks import failure_exit_code
 
 TESTS = Path(__file__).resolve().parent
 
 
 def _sweep(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "pipeline", "sweep", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", "sweep", *args],
         capture_output=True,
         text=True,
         timeout=120,
@@ -125,7 +125,7 @@ def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path)
         [
             sys.executable,
             "-m",
-            "pipeline",
+            "sonarmap.pipeline",
             "sweep",
             *map(str, toy_env),
             "--set",

@@ -11,12 +11,12 @@ import pyarrow as pa
 import pytest
 import torch
 
-from schemas.classes import CLASS_IDS, PILING_CLASSES, UNKNOWN_CLASS
-from schemas.sonar import KeyframeImages
-from stages.classify.stage import STAGE as CLASSIFY
-from stages.classify.stage import ClassifyConfig
-from stages.classify.train import STAGE as TRAIN
-from stages.classify.train import (
+from sonarmap.schemas.classes import CLASS_IDS, PILING_CLASSES, UNKNOWN_CLASS
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.classify.stage import STAGE as CLASSIFY
+from sonarmap.stages.classify.stage import ClassifyConfig
+from sonarmap.stages.classify.train import STAGE as TRAIN
+from sonarmap.stages.classify.train import (
     Samples,
     TrainConfig,
     augment,
@@ -37,9 +37,9 @@ def _simulated(
 ) -> tuple[list[KeyframeImages], pa.Table, dict]:
     """Every stride-th ping as a keyframe, with keyframes.parquet's dead-reckoning pose
     columns and sensors.json's mountings (what classify's view pooling reads)."""
-    from sim.config import MissionConfig, SimConfig
-    from sim.dataset import simulate
-    from sim.scene import load_scene
+    from sonarmap.sim.config import MissionConfig, SimConfig
+    from sonarmap.sim.dataset import simulate
+    from sonarmap.sim.scene import load_scene
 
     run = simulate(
         load_scene(ROOT / f"configs/scenes/{scene}.yaml"),
@@ -238,7 +238,7 @@ def test_pooling_views_raises_recall_without_losing_precision(
 
 
 def test_held_out_datasets_validate_and_the_size_rule_curve_is_saved() -> None:
-    from stages.classify.train import collect_samples, train_classifier
+    from sonarmap.stages.classify.train import collect_samples, train_classifier
 
     worlds = [_keyframes("tiny", seed, 2, 6, 8) for seed in (21, 22, 23, 24)]
     pairs = [(frames, _label_features(frames)) for frames in worlds]
@@ -257,7 +257,7 @@ def test_held_out_datasets_validate_and_the_size_rule_curve_is_saved() -> None:
 
 
 def test_epochs_are_cut_to_the_presentation_budget() -> None:
-    from stages.classify.train import epochs_for
+    from sonarmap.stages.classify.train import epochs_for
 
     cfg = TrainConfig()
     # The hand-written default set (1,209 samples) keeps its 120 epochs: its model is unchanged.

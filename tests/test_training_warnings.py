@@ -8,11 +8,11 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from schemas.annotations import AnnotationFile
-from schemas.classes import CLASS_IDS
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.classify.annotations import label_keyframes, objects_without_features
-from stages.classify.validation import say_what_is_not_learned
+from sonarmap.schemas.annotations import AnnotationFile
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.classify.annotations import label_keyframes, objects_without_features
+from sonarmap.stages.classify.validation import say_what_is_not_learned
 
 ANGLES = np.deg2rad(np.linspace(-60, 60, 64)).astype(np.float32)
 RANGES = (np.arange(100) * 0.2 + 0.1).astype(np.float32)

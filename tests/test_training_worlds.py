@@ -12,12 +12,16 @@ from typing import Any
 import numpy as np
 import pytest
 
-from pipeline.engine.config import load_config
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.training.model import ordered_datasets, training_simulations, training_stage_for
-from pipeline.training.worlds import heldout_count, world_seeds
-from stages.classify.size_rule import grow, macro_f1, sizes
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.training.model import (
+    ordered_datasets,
+    training_simulations,
+    training_stage_for,
+)
+from sonarmap.pipeline.training.worlds import heldout_count, world_seeds
+from sonarmap.stages.classify.size_rule import grow, macro_f1, sizes
 
 
 def _training(tmp_path: Path, *overrides: str) -> Any:

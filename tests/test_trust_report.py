@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from pipeline.scoring import classification_scores
-from schemas.map import MAP_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.evaluate.trust import column_agreement, trust_markdown, trust_report
+from sonarmap.pipeline.scoring import classification_scores
+from sonarmap.schemas.map import MAP_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.stages.evaluate.trust import column_agreement, trust_markdown, trust_report
 
 
 def _brute_force(q: np.ndarray, f: np.ndarray, cell: float, tol: float) -> tuple[list, list]:
@@ -137,7 +137,7 @@ def test_an_unlabelled_recording_reports_no_precision_or_support_at_all() -> Non
 def test_evaluate_reports_trust_with_and_without_ground_truth() -> None:
     from test_evaluate import map_table, square_piling_faces, stage_inputs
 
-    from stages.evaluate.stage import STAGE, EvaluateConfig
+    from sonarmap.stages.evaluate.stage import STAGE, EvaluateConfig
 
     centroid, _ = square_piling_faces()
     source = np.array(

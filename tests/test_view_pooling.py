@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
+from sonarmap.stages.classify.view_pooling import along_track_m, pool_views, sighting_world_xy
 
 CYL, RECT = 0, 1
 

@@ -11,12 +11,12 @@ import open3d as o3d
 import pyarrow as pa
 import pytest
 
-from schemas.fused import FUSED_SCHEMA
-from schemas.map import MAP_SCHEMA, VOXELS_SCHEMA
-from schemas.points import POINTS_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
-from stages.kernels.geometry import se3_from_pose as pose_to_matrix
-from stages.voxelize.stage import STAGE, VoxelizeConfig
+from sonarmap.schemas.fused import FUSED_SCHEMA
+from sonarmap.schemas.map import MAP_SCHEMA, VOXELS_SCHEMA
+from sonarmap.schemas.points import POINTS_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, POSES_SCHEMA
+from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from sonarmap.stages.voxelize.stage import STAGE, VoxelizeConfig
 
 T_BASE_SONAR = np.array(
     [[1.0, 0.0, 0.0, 0.5], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
@@ -210,8 +210,8 @@ def test_ply_round_trips_through_open3d_and_output_is_deterministic(scene, tmp_p
 def test_height_colours_are_matplotlib_s_viridis_without_importing_it() -> None:
     from matplotlib import colormaps
 
-    from stages.kernels.colormaps import VIRIDIS_RGB8
-    from stages.voxelize.stage import height_colours
+    from sonarmap.stages.kernels.colormaps import VIRIDIS_RGB8
+    from sonarmap.stages.voxelize.stage import height_colours
 
     cmap = colormaps["viridis"]
     rgb8 = np.round(np.asarray(cmap(np.arange(cmap.N)))[:, :3] * 255.0).astype(np.uint8)

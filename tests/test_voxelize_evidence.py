@@ -1,4 +1,4 @@
-"""The fused points as evidence against inferred heights (`stages.voxelize.evidence`)."""
+"""The fused points as evidence against inferred heights (`sonarmap.stages.voxelize.evidence`)."""
 
 from __future__ import annotations
 
@@ -10,12 +10,12 @@ from test_infer import to_world
 from test_infer_structure import _mission
 from test_voxelize import T_BASE_SONAR, fused_table, points_table, poses_table
 
-from pipeline.engine.config import load_config
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.registry import all_stages, extra_sections
-from stages.infer.stage import InferConfig, infer_mission
-from stages.voxelize.evidence import contradicted_by_fused
-from stages.voxelize.stage import STAGE, VoxelizeConfig
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.stages.infer.stage import InferConfig, infer_mission
+from sonarmap.stages.voxelize.evidence import contradicted_by_fused
+from sonarmap.stages.voxelize.stage import STAGE, VoxelizeConfig
 
 CHECK = {"cell_m": 1.0, "height_tolerance_m": 0.6, "min_fused": 5}
 

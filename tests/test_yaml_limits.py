@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.cli import app
-from pipeline.engine.config import load_config
-from pipeline.engine.config_errors import short
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.registry import all_stages, extra_sections
-from pipeline.engine.yaml_files import CONFIG_MAX_BYTES, MAX_DEPTH, load_yaml_text
+from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.config_errors import short
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.yaml_files import CONFIG_MAX_BYTES, MAX_DEPTH, load_yaml_text
 
 runner = CliRunner()
 

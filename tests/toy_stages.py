@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.engine.registry import Graph
-from stages.base import DATASET, Input, Output, Stage, StageConfig
+from sonarmap.pipeline.engine.registry import Graph
+from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig
 
 CALLS: Counter[str] = Counter()
 

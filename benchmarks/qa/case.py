@@ -1,7 +1,7 @@
 """One hostile-input case of the QA campaign (`benchmarks/qa_campaign.py`).
 
 A case prepares files in an empty work directory and returns the `sonarmap` arguments
-to run there; the campaign runs `python -m pipeline ARGS` in that directory as a new
+to run there; the campaign runs `python -m sonarmap.pipeline ARGS` in that directory as a new
 user would (its own store under `data/store`, `COLUMNS=80`, output captured) and checks
 the README's contract:
 

@@ -3,7 +3,7 @@ short, corrupt or claiming absurd sizes; custom message definitions that are mis
 broken or huge; beam tables that do not fit; sqlite bags on write-protected storage.
 
 ARIS files are synthesised here from the maker's header layout
-(`pipeline.readers.aris_layout`), so the campaign needs no third-party data.
+(`sonarmap.pipeline.readers.aris_layout`), so the campaign needs no third-party data.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.qa.case import Case
-from pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER, SIGNATURE
+from sonarmap.pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER, SIGNATURE
 
 ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"

@@ -24,8 +24,8 @@ import pyarrow as pa
 
 from benchmarks.qa.case import Case
 from benchmarks.qa.fixtures import ROOT, small_recording
-from pipeline.engine.registry import Graph
-from stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
+from sonarmap.pipeline.engine.registry import Graph
+from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
 
 STORE = "data/store"
 ENV = {
@@ -134,7 +134,7 @@ def _features_store() -> Path:
         rec = small_recording(base / "rec.mcap", duration_s=45.0)
         store = base / "store"
         if not list((store / "features").glob("*/manifest.json")):
-            cmd = [sys.executable, "-m", "pipeline", "run", str(rec), "--store", str(store)]
+            cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", str(rec), "--store", str(store)]
             env = {**os.environ, "PYTHONPATH": str(ROOT)}
             subprocess.run([*cmd, "--until", "features", "-q"], env=env, check=True)
         _BASE["store"], _BASE["rec"] = store, rec
@@ -224,7 +224,7 @@ CASES = [
             _graph_env(value),
             env={**ENV, "SONARMAP_GRAPH": value},
         )
-        for value in ("no_such_module:GRAPH", "os:path", "pipeline.engine.registry:GRAPH_ENV", ":")
+        for value in ("no_such_module:GRAPH", "os:path", "sonarmap.pipeline.engine.registry:GRAPH_ENV", ":")
     ),
     *(
         Case(

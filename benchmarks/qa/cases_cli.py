@@ -43,7 +43,7 @@ def _sonarmap(work: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """A preparatory sonarmap call (not the case's own, which the campaign times)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "80"}
     return subprocess.run(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         cwd=work,
         env=env,
         capture_output=True,
@@ -424,7 +424,7 @@ def _orphan_check(work: Path, _done: subprocess.CompletedProcess[str]) -> str | 
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     args = ["sweep", "recs/dive.mcap", "recs/b.mcap", "-j", "2", "--out", "out"]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         cwd=work,
         env=env,
         stdout=subprocess.DEVNULL,

@@ -1,6 +1,6 @@
 """Hostile sonar mountings (issue 36 item 2, the geometry module): a recording whose
 /tf_static gives a sonar a rotation quaternion of zero or non-finite norm, or a
-non-finite translation. `stages.kernels.geometry.matrix_from_quat` refuses such a
+non-finite translation. `sonarmap.stages.kernels.geometry.matrix_from_quat` refuses such a
 quaternion and the reader turns it into one `error:` line naming the file, the topic
 and the transform, exit 2 (it used to become a NaN mounting that placed every point of
 that sonar nowhere).
@@ -28,8 +28,8 @@ def _rewrite_tf(src: Path, dst: Path, edit: Callable[[Any], None]) -> None:
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    from pipeline.formats.rosmsg import ros2_typestore
-    from schemas.topics import TOPIC_TF_STATIC
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.schemas.topics import TOPIC_TF_STATIC
 
     store = ros2_typestore()
     with src.open("rb") as f, dst.open("wb") as out:
@@ -69,8 +69,8 @@ def _mount(
     """A case input: the recording with `sonar`'s /tf_static rotation and/or translation set."""
 
     def edit(msg: Any) -> None:
-        from pipeline.formats.rosmsg import ros2_typestore
-        from schemas.topics import FRAME_SONAR
+        from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+        from sonarmap.schemas.topics import FRAME_SONAR
 
         t = ros2_typestore().types
         for tf in msg.transforms:
@@ -108,7 +108,7 @@ def _names(*parts: str) -> Callable[[Path, subprocess.CompletedProcess[str]], st
 def _refused(
     sonar: str, what: str
 ) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
-    from schemas.topics import FRAME_SONAR
+    from sonarmap.schemas.topics import FRAME_SONAR
 
     return _names("dive.mcap", "/tf_static", f"base_link -> {FRAME_SONAR[sonar]}", what)
 

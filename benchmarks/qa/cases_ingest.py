@@ -341,7 +341,7 @@ def _cut(frac: float, layout: str) -> Callable[[Path], list[str]]:
 def _dups(work: Path) -> list[str]:
     from mcap.reader import make_reader
 
-    from pipeline.formats.rosmsg import recording_writer
+    from sonarmap.pipeline.formats.rosmsg import recording_writer
 
     write_recording(work / "a.mcap", n_pings=40)
     with (

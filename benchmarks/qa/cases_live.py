@@ -49,7 +49,7 @@ def _toy_run(work: Path, *extra: str, gate: bool = True) -> subprocess.Popen[byt
     env = {**os.environ, **TOY_ENV, "TOY_CALL_LOG": str(work / "calls.log")}
     if gate:
         env["TOY_GATE"] = str(work / "gate")
-    cmd = [sys.executable, "-m", "pipeline", "run", "raw.bin", "--store", STORE, "-q", *extra]
+    cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "raw.bin", "--store", STORE, "-q", *extra]
     proc = subprocess.Popen(
         cmd, cwd=work, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
     )
@@ -116,7 +116,7 @@ def _gc_live_twice(work: Path) -> list[str]:
     """Two gcs back to back against the same live run."""
     args = _gc_live()(work)
     first = subprocess.run(
-        [sys.executable, "-m", "pipeline", *args], cwd=work, env={**os.environ, **TOY_ENV}
+        [sys.executable, "-m", "sonarmap.pipeline", *args], cwd=work, env={**os.environ, **TOY_ENV}
     )
     if first.returncode != 0:
         raise RuntimeError("the first gc failed")
@@ -154,7 +154,7 @@ def _finished_work_kept(*stages: str) -> Any:
         if list((work / STORE / ".tmp").iterdir()):
             return "the killed commit's temporary directory is left"
         rerun = subprocess.run(
-            [sys.executable, "-m", "pipeline", "run", "raw.bin", "--store", STORE, "-q", "--json"],
+            [sys.executable, "-m", "sonarmap.pipeline", "run", "raw.bin", "--store", STORE, "-q", "--json"],
             cwd=work,
             env={**os.environ, **TOY_ENV},
             capture_output=True,
@@ -175,7 +175,7 @@ def _finished_work_kept(*stages: str) -> Any:
 def _real_gc_mid_run(work: Path) -> list[str]:
     small_recording(work / "rec.mcap")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    cmd = [sys.executable, "-m", "pipeline", "run", "rec.mcap", "--store", STORE, "-q",
+    cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "rec.mcap", "--store", STORE, "-q",
            "--until", "slam"]  # fmt: skip
     proc = subprocess.Popen(
         cmd, cwd=work, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
@@ -239,7 +239,7 @@ def _disk_full_left_it_clean(work: Path, done: subprocess.CompletedProcess[str])
             digest = hashlib.sha256((manifest.parent / rel).read_bytes()).hexdigest()
             if digest != info["sha256"]:
                 return f"{manifest.parent}: '{rel}' does not match its manifest"
-    gc = subprocess.run([sys.executable, "-m", "pipeline", "gc", "--store", str(store)],
+    gc = subprocess.run([sys.executable, "-m", "sonarmap.pipeline", "gc", "--store", str(store)],
                         cwd=work, capture_output=True, text=True)  # fmt: skip
     after = sorted(store.glob("*/*/manifest.json"))
     if gc.returncode != 0 or after != before:
@@ -307,7 +307,7 @@ def _planted_model(kind: str) -> Any:
     def build(work: Path) -> list[str]:
         small_recording(work / "rec.mcap")
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        cmd = [sys.executable, "-m", "pipeline", "run", "rec.mcap", "--store", STORE, "-q",
+        cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "rec.mcap", "--store", STORE, "-q",
                "--until", "classify"]  # fmt: skip
         subprocess.run(cmd, cwd=work, env=env, check=True, capture_output=True)
         (train,) = (work / STORE / "train").iterdir()
@@ -374,7 +374,7 @@ def _rewrite(src: Path, dst: Path, sonar: Any = None, nav: Any = None) -> None:
 
     from mcap.reader import make_reader
 
-    from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+    from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
 
     store = ros2_typestore()
     with src.open("rb") as f:

@@ -245,7 +245,7 @@ def _other_stage_recipe(work: Path) -> list[str]:
 
 def _plant(stage: str) -> Callable[[Path], list[str]]:
     def build(work: Path) -> list[str]:
-        from pipeline.engine.hashing import recipe_key
+        from sonarmap.pipeline.engine.hashing import recipe_key
 
         remote = _remote(work)
         src = _artifact(remote, "fuse")

@@ -10,7 +10,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "data" / "qa"
@@ -44,7 +44,7 @@ def sonarmap(work: Path, *args: str) -> None:
     """`sonarmap ARGS` in `work` with this checkout's code (raises on a non-zero exit)."""
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     subprocess.run(
-        [sys.executable, "-m", "pipeline", *args],
+        [sys.executable, "-m", "sonarmap.pipeline", *args],
         cwd=work,
         env=env,
         check=True,

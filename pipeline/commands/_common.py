@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 if TYPE_CHECKING:
-    from pipeline.engine.registry import Graph
+    from sonarmap.pipeline.engine.registry import Graph
 
 __all__ = [
     "CONFIG_OPT",
@@ -53,7 +53,7 @@ NO_FIGURES_OPT = typer.Option(
 
 def emit_json(doc: Any) -> None:
     """The one JSON document a `--json` command prints (strict: NaN/inf become null)."""
-    from pipeline.formats.strict_json import dumps_strict
+    from sonarmap.pipeline.formats.strict_json import dumps_strict
 
     sys.stdout.write(dumps_strict(doc) + "\n")
     sys.stdout.flush()
@@ -77,7 +77,7 @@ class GraphChoice:
 
     def graph(self) -> Graph:
         if self._graph is None:
-            from pipeline.engine.registry import load_graph
+            from sonarmap.pipeline.engine.registry import load_graph
 
             self._graph = load_graph(self.spec)
         return self._graph
@@ -94,6 +94,6 @@ def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
         return choice.graph()
     from dataclasses import replace
 
-    from pipeline.engine.registry import without_figures
+    from sonarmap.pipeline.engine.registry import without_figures
 
     return replace(choice.graph(), stages=without_figures(choice.graph().stages))

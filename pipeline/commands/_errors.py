@@ -13,8 +13,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from pipeline.engine.errors import OutputError, PipelineError
-from pipeline.engine.text import MAX_LINE_CHARS, MAX_PATH_CHARS, display_path, one_line
+from sonarmap.pipeline.engine.errors import OutputError, PipelineError
+from sonarmap.pipeline.engine.text import MAX_LINE_CHARS, MAX_PATH_CHARS, display_path, one_line
 
 __all__ = [
     "DISK_ERRNOS",

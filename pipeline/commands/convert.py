@@ -17,7 +17,7 @@ from typing import Any, BinaryIO
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, emit_json
+from sonarmap.pipeline.commands._common import JSON_OPT, emit_json
 
 __all__ = ["convert_recording", "register"]
 
@@ -25,9 +25,9 @@ __all__ = ["convert_recording", "register"]
 def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
     import numpy as np
 
-    from pipeline.formats.rosmsg import ros2_typestore
-    from schemas.topics import FRAME_ODOM
-    from stages.kernels.geometry import quat_from_rpy
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.schemas.topics import FRAME_ODOM
+    from sonarmap.stages.kernels.geometry import quat_from_rpy
 
     t = ros2_typestore().types
     q = quat_from_rpy(np.asarray(rpy, np.float64)).tolist()
@@ -59,8 +59,8 @@ def _odometry(t_ns: int, xyz: Any, rpy: Any, child: str) -> Any:
 def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
     from scipy.spatial.transform import Rotation
 
-    from pipeline.formats.rosmsg import ros2_typestore
-    from schemas.topics import FRAME_BASE, FRAME_SONAR
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+    from sonarmap.schemas.topics import FRAME_BASE, FRAME_SONAR
 
     t = ros2_typestore().types
     stamp = t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
@@ -83,8 +83,8 @@ def _tf_static(t_ns: int, mounts: dict[str, Any]) -> Any:
 def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
     import numpy as np
 
-    from pipeline.formats.frames_io import image_message, sonar_cdr
-    from schemas.topics import (
+    from sonarmap.pipeline.formats.frames_io import image_message, sonar_cdr
+    from sonarmap.schemas.topics import (
         FRAME_SONAR,
         IMAGE_TYPE,
         LABEL_TOPIC,
@@ -111,7 +111,7 @@ def _sonar_events(rec: Any, sonar: str, order: int) -> Iterator[tuple[int, int, 
 
 
 def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int, str, str, Any]]:
-    from schemas.topics import FRAME_BASE, ODOMETRY_TYPE
+    from sonarmap.schemas.topics import FRAME_BASE, ODOMETRY_TYPE
 
     for k in range(len(track)):
         t = int(track.t_ns[k])
@@ -126,17 +126,17 @@ def _track_events(track: Any, topic: str, order: int) -> Iterator[tuple[int, int
 
 def convert_recording(src: Path, dst: Path, options: Any = None) -> dict[str, Any]:
     """Convert any supported recording into a ROS 2 MCAP; returns counts per topic."""
-    from pipeline.engine.errors import SourceError
-    from pipeline.formats.atomic import atomic_output
-    from pipeline.readers import ReaderOptions, SourceRecording, open_source
-    from pipeline.readers.roles import detect_roles
-    from schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.formats.atomic import atomic_output
+    from sonarmap.pipeline.readers import ReaderOptions, SourceRecording, open_source
+    from sonarmap.pipeline.readers.roles import detect_roles
+    from sonarmap.schemas.topics import TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH
 
     opts = ReaderOptions.from_config(options)
     source = open_source(src, opts.message_definitions)
     roles = detect_roles(src, source.topics(), opts, require_pair=False)
     if not roles.sonar:
-        from pipeline.readers.roles import topic_listing
+        from sonarmap.pipeline.readers.roles import topic_listing
 
         raise SourceError(
             f"{src}: no sonar topic found (topics: {topic_listing(source.topics())}); "
@@ -174,8 +174,8 @@ def _write(
     kind: str,
 ) -> None:
     """Stream every event into a new MCAP written to `f`; `counts` filled per topic."""
-    from pipeline.formats.rosmsg import recording_writer
-    from schemas.topics import TOPIC_TF_STATIC
+    from sonarmap.pipeline.formats.rosmsg import recording_writer
+    from sonarmap.schemas.topics import TOPIC_TF_STATIC
 
     first = True
     with recording_writer(f) as w:
@@ -210,7 +210,7 @@ def _recorded_mounts(rec: Any, roles: Any) -> dict[str, Any]:
 
 def _vector(item: str, value: str) -> Any:
     """`[x, y, z]` -> a tuple of floats (a mount); any other text stays a string."""
-    from pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.engine.errors import ConfigError
 
     if not value.strip().startswith("["):
         return value
@@ -221,7 +221,7 @@ def _vector(item: str, value: str) -> Any:
 
 
 def _parse_sets(items: list[str] | None) -> dict[str, Any]:
-    from pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.engine.errors import ConfigError
 
     out: dict[str, Any] = {}
     for item in items or []:
@@ -256,7 +256,7 @@ def register(app: typer.Typer) -> None:
         json_: bool = JSON_OPT,
     ) -> None:
         """Convert a recording into a ROS 2 MCAP with ProjectedSonarImage sonar topics."""
-        from pipeline.engine.errors import SourceError
+        from sonarmap.pipeline.engine.errors import SourceError
 
         if not output.parent.is_dir():
             raise SourceError(f"output directory {output.parent} does not exist")

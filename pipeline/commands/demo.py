@@ -9,7 +9,7 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     NO_FIGURES_OPT,
@@ -57,7 +57,7 @@ def _write_report(report_dir: Path, result: Any, no_figures: bool) -> Path:
     and the run's stages appended (evaluate's report cannot know either)."""
     import shutil
 
-    from pipeline.engine.registry import FIGURE_STAGES
+    from sonarmap.pipeline.engine.registry import FIGURE_STAGES
 
     shutil.rmtree(report_dir, ignore_errors=True)
     report_dir.mkdir(parents=True)
@@ -77,12 +77,12 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     """The default classifier's simulated missions under this config, so the demo can
     simulate them beside the mapped scene instead of after it; none when the model is
     at hand (the run's store, the model cache, or shipped with the project)."""
-    from pipeline.engine.config import load_config
-    from pipeline.engine.registry import all_stages, extra_sections
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model import training_simulations
-    from pipeline.training.model_cache import planned_default_model
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.model import training_simulations
+    from sonarmap.pipeline.training.model_cache import planned_default_model
 
     resolved = load_config(all_stages(), config, overrides, extra_sections())
     if planned_default_model(ArtifactStore(store), resolved)[1]:
@@ -105,11 +105,11 @@ def demo(
     json_: bool = JSON_OPT,
 ) -> None:
     """The whole pipeline on a simulated marina, ending with the coverage table and report."""
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.commands._common import stderr_console
-    from pipeline.commands._errors import writes_under
-    from pipeline.engine.progress import StageProgress
-    from pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.commands._common import stderr_console
+    from sonarmap.pipeline.commands._errors import writes_under
+    from sonarmap.pipeline.engine.progress import StageProgress
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
     with writes_under(out, store):
         console = stderr_console()
@@ -141,7 +141,7 @@ def demo(
         if json_:
             emit_json({**result.to_json(), "summary": summary})
             return
-        from pipeline.report_cli import print_summary
+        from sonarmap.pipeline.report_cli import print_summary
 
         print_summary(result, summary)
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     SET_OPT,
@@ -25,7 +25,7 @@ label_app = typer.Typer(
 
 
 def _chosen_ids(spec: str | None, every: int | None, available: list[int]) -> list[int]:
-    from pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.engine.errors import ConfigError
 
     if spec:
         try:
@@ -45,8 +45,8 @@ def _chosen_ids(spec: str | None, every: int | None, available: list[int]) -> li
 
 def _class_table(ctx: typer.Context, config: Path | None, overrides: list[str] | None) -> Any:
     """The class table of the config (section `classes`; the default without one)."""
-    from pipeline.engine.config import load_config
-    from schemas.classes import DEFAULT_TABLE
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.schemas.classes import DEFAULT_TABLE
 
     graph = cli_graph(ctx)
     loaded = load_config(graph.config_stages, config, overrides or (), graph.extra_sections)
@@ -59,8 +59,8 @@ def _existing_labels(
     """Times, shapes and tolerance of the recording's annotation file, on its keyframes."""
     import numpy as np
 
-    from pipeline.engine.errors import SourceError
-    from pipeline.training.annotations import annotation_path, load_annotations
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.training.annotations import annotation_path, load_annotations
 
     path = annotation_path(recording)
     if path is None:
@@ -80,8 +80,8 @@ def _existing_labels(
 
 def _classifier_shapes(objects: Any, ids: set[int]) -> dict[int, list[Any]]:
     """The classifier's accepted objects on the chosen keyframes, as boxes to correct."""
-    from schemas.annotations import AnnotatedObject, Box
-    from schemas.classes import UNKNOWN_CLASS
+    from sonarmap.schemas.annotations import AnnotatedObject, Box
+    from sonarmap.schemas.classes import UNKNOWN_CLASS
 
     out: dict[int, list[Any]] = {}
     for row in objects.to_pylist():
@@ -116,10 +116,10 @@ def label_export(
     json_: bool = JSON_OPT,
 ) -> None:
     """Write keyframes as fan images plus a COCO file to open in CVAT or Label Studio."""
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.commands._errors import writes_under
-    from pipeline.engine.codecs import read_verified
-    from pipeline.labels.files import export_labels
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.commands._errors import writes_under
+    from sonarmap.pipeline.engine.codecs import read_verified
+    from sonarmap.pipeline.labels.files import export_labels
 
     table = _class_table(ctx, config, set_)
     with writes_under(store):
@@ -134,7 +134,7 @@ def label_export(
         frames_out = next(o for o in kf_stage.outputs if o.name == "frames")
         all_frames = list(read_verified(result.artifacts["keyframes"], frames_out))
         if not all_frames:
-            from pipeline.engine.errors import SourceError
+            from sonarmap.pipeline.engine.errors import SourceError
 
             raise SourceError(f"{recording}: no keyframe to export")
         times: dict[int, int] = {}
@@ -186,7 +186,7 @@ def label_import(
     """Turn a COCO file's polygons and boxes into the recording's annotation file.
 
     Category names must be classes of the config's class table (section `classes`)."""
-    from pipeline.labels.files import import_labels
+    from sonarmap.pipeline.labels.files import import_labels
 
     table = _class_table(ctx, config, set_)
     path, annotations = import_labels(

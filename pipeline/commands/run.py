@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     NO_FIGURES_OPT,
@@ -39,10 +39,10 @@ def run(
     live_port: int = typer.Option(8765, "--live-port", help="Port of --live (0: any free)."),
 ) -> None:
     """Run the mapping pipeline on DATASET, reusing every cached stage."""
-    from pipeline.api import RunRequest, run_dataset
-    from pipeline.commands._errors import writes_under
-    from pipeline.engine.progress import StageProgress
-    from pipeline.live.session import live_session
+    from sonarmap.pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.commands._errors import writes_under
+    from sonarmap.pipeline.engine.progress import StageProgress
+    from sonarmap.pipeline.live.session import live_session
 
     with writes_under(store), live_session(live, port=live_port) as view:
         with StageProgress(enabled=not quiet) as progress:
@@ -67,7 +67,7 @@ def run(
         if json_:
             emit_json({**result.to_json(), "summary": {**summary, **sensors}})
             return
-        from pipeline.report_cli import print_summary
+        from sonarmap.pipeline.report_cli import print_summary
 
         print_summary(result, summary)
         _print_sensors(sensors)

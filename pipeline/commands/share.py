@@ -7,12 +7,12 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
-from pipeline.training.model_cache import DEFAULT_MODEL_CACHE
+from sonarmap.pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from sonarmap.pipeline.training.model_cache import DEFAULT_MODEL_CACHE
 
 if TYPE_CHECKING:
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.engine.trust import TrustPolicy
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.trust import TrustPolicy
 
 __all__ = ["pull", "push", "register"]
 
@@ -24,9 +24,9 @@ _REMOTE = typer.Argument(
 
 def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
     """Shipped models (leaves, pinned), models trained in the model cache, and the user's pins."""
-    from pipeline.engine.trust import TrustPolicy, env_pins
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.shipped import shipped_models
+    from sonarmap.pipeline.engine.trust import TrustPolicy, env_pins
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.shipped import shipped_models
 
     local = []
     if cache is not None and (cache.root / "train").is_dir():
@@ -54,10 +54,10 @@ def push(
     A shipped model is sent without its training data (its lock is its provenance);
     files already at REMOTE with the right sha256 are not sent again.
     """
-    from pipeline.engine.remotes import display
-    from pipeline.engine.share import push as do_push
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.engine.transfer import TransferStats
+    from sonarmap.pipeline.engine.remotes import display
+    from sonarmap.pipeline.engine.share import push as do_push
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.transfer import TransferStats
 
     stats = TransferStats()
     cache = ArtifactStore(model_cache)
@@ -110,10 +110,10 @@ def pull(
     A model is accepted only when its sha256 is pinned: the shipped model's, one
     trained in the model cache, or one given with --trust-model.
     """
-    from pipeline.engine.remotes import display
-    from pipeline.engine.share import pull as do_pull
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.engine.transfer import TransferStats
+    from sonarmap.pipeline.engine.remotes import display
+    from sonarmap.pipeline.engine.share import pull as do_pull
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.transfer import TransferStats
 
     stats = TransferStats()
     refs = do_pull(

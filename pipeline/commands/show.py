@@ -6,8 +6,8 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
-from pipeline.formats.strict_json import dumps_strict
+from sonarmap.pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from sonarmap.pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["register", "show"]
 
@@ -35,7 +35,7 @@ def show(
     json_: bool = JSON_OPT,
 ) -> None:
     """Print an artifact's manifest and a preview of each file."""
-    from pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store import ArtifactStore
 
     st = ArtifactStore(store)
     ref = st.find(target)

@@ -46,13 +46,13 @@ def simulate_cmd(
     """Simulate a mission (scene, seed) and write it as a ROS 2 MCAP dataset with ground truth."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from pipeline.commands._common import stderr_console
-    from pipeline.engine.errors import ConfigError, SourceError
-    from pipeline.formats.atomic import atomic_output
-    from pipeline.formats.sim_preview import render_preview
-    from pipeline.formats.simulation import write_simulation
-    from pipeline.training.datasets import read_scene, scene_path, sim_config
-    from sim.dataset import simulate
+    from sonarmap.pipeline.commands._common import stderr_console
+    from sonarmap.pipeline.engine.errors import ConfigError, SourceError
+    from sonarmap.pipeline.formats.atomic import atomic_output
+    from sonarmap.pipeline.formats.sim_preview import render_preview
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.pipeline.training.datasets import read_scene, scene_path, sim_config
+    from sonarmap.sim.dataset import simulate
 
     scene = scene_path(scene_name)
     scene_obj = read_scene(scene)
@@ -98,9 +98,9 @@ def simulate_cmd(
 
 def _class_table(path: Path | None) -> Any:
     """The class table of the pipeline config at `path` (the default table for None)."""
-    from pipeline.engine.config import load_config
-    from pipeline.engine.registry import default_graph
-    from schemas.classes import DEFAULT_TABLE
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.registry import default_graph
+    from sonarmap.schemas.classes import DEFAULT_TABLE
 
     if path is None:
         return DEFAULT_TABLE

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     NO_FIGURES_OPT,
@@ -30,7 +30,7 @@ def status(
     json_: bool = JSON_OPT,
 ) -> None:
     """Show, without computing anything, which stages hit the cache and why others miss."""
-    from pipeline.api import RunRequest, plan_status
+    from sonarmap.pipeline.api import RunRequest, plan_status
 
     request = RunRequest(
         dataset,
@@ -68,7 +68,7 @@ def status(
         return
     from rich.console import Console
 
-    from pipeline.commands._tables import print_table
+    from sonarmap.pipeline.commands._tables import print_table
 
     print_table(
         Console(),

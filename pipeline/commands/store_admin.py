@@ -7,14 +7,14 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
+from sonarmap.pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
 
 __all__ = ["gc", "ls", "register"]
 
 
 def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     """List the artifacts in the store."""
-    from pipeline.engine.store import ArtifactRef, ArtifactStore
+    from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
 
     items = list(ArtifactStore(store).scan())
     rows: list[dict[str, Any]] = [
@@ -57,8 +57,8 @@ def gc(
     """Remove unreferenced artifacts, directories that are not artifacts, and leftovers
     of killed runs. Artifacts of runs in progress, and the finished stages of
     interrupted runs, are kept."""
-    from pipeline.engine.disk import disk_error
-    from pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.disk import disk_error
+    from sonarmap.pipeline.engine.store import ArtifactStore
 
     try:
         report = ArtifactStore(store).gc(dry_run=dry_run, broken=broken)

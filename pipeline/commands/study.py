@@ -6,15 +6,21 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, NO_FIGURES_OPT, STORE_OPT, cli_graph, emit_json
+from sonarmap.pipeline.commands._common import (
+    JSON_OPT,
+    NO_FIGURES_OPT,
+    STORE_OPT,
+    cli_graph,
+    emit_json,
+)
 
 __all__ = ["register", "study"]
 
 
 def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | None]]:
     """[{"name", "config"}]: the defaults (unless left out), then each file by its stem."""
-    from pipeline.engine.errors import ConfigError
-    from pipeline.experiments.study_tables import DEFAULT_PROTOCOL
+    from sonarmap.pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.experiments.study_tables import DEFAULT_PROTOCOL
 
     protocols: list[dict[str, str | None]] = (
         [{"name": DEFAULT_PROTOCOL, "config": None}] if with_default else []
@@ -75,12 +81,12 @@ def study(
     OUT/results/fig4_errors.png."""
     import time
 
-    from pipeline.commands._common import stderr_console
-    from pipeline.commands._errors import check_writable, writes_under
-    from pipeline.engine.config import load_config
-    from pipeline.experiments.study import write_study
-    from pipeline.experiments.sweep import expand, run_sweep
-    from pipeline.training.datasets import ensure_simulation, scene_path
+    from sonarmap.pipeline.commands._common import stderr_console
+    from sonarmap.pipeline.commands._errors import check_writable, writes_under
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.experiments.study import write_study
+    from sonarmap.pipeline.experiments.sweep import expand, run_sweep
+    from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     check_writable(out)
     graph = cli_graph(ctx, figures=not no_figures)

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     NO_FIGURES_OPT,
@@ -19,7 +19,7 @@ from pipeline.commands._common import (
 __all__ = ["register", "sweep"]
 
 if TYPE_CHECKING:
-    from pipeline.experiments.sweep import RunOutcome
+    from sonarmap.pipeline.experiments.sweep import RunOutcome
 
 
 def sweep(
@@ -50,10 +50,10 @@ def sweep(
     """
     import hashlib
 
-    from pipeline.commands._errors import check_writable, display_path, one_line
-    from pipeline.experiments.sweep import expand, run_sweep
-    from pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
-    from pipeline.experiments.sweep_output import write_sweep
+    from sonarmap.pipeline.commands._errors import check_writable, display_path, one_line
+    from sonarmap.pipeline.experiments.sweep import expand, run_sweep
+    from sonarmap.pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
+    from sonarmap.pipeline.experiments.sweep_output import write_sweep
 
     specs = expand(
         datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
@@ -76,7 +76,7 @@ def sweep(
         tail = f": {o.error}" if o.error else ""
         typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
 
-    from pipeline.commands._errors import writes_under
+    from sonarmap.pipeline.commands._errors import writes_under
 
     with writes_under(store, out_dir):
         outcomes = run_sweep(

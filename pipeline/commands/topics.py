@@ -7,17 +7,17 @@ from typing import Any
 
 import typer
 
-from pipeline.commands._common import JSON_OPT, emit_json
+from sonarmap.pipeline.commands._common import JSON_OPT, emit_json
 
 __all__ = ["register", "topics_report"]
 
 
 def topics_report(path: Path, options: Any = None) -> dict[str, Any]:
     """What `topics --json` prints: every topic with its role, plus warnings."""
-    from pipeline.engine.errors import SourceError
-    from pipeline.readers import ReaderOptions, open_source
-    from pipeline.readers.mcap_source import McapSource
-    from pipeline.readers.roles import detect_roles
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.readers import ReaderOptions, open_source
+    from sonarmap.pipeline.readers.mcap_source import McapSource
+    from sonarmap.pipeline.readers.roles import detect_roles
 
     opts = ReaderOptions.from_config(options)
     source = open_source(path, opts.message_definitions)

@@ -2,10 +2,10 @@
 
 Each dataset runs through the cached graph up to `features` (keyframes with label
 images, CFAR features, with the `training.keyframes`/`training.features` settings unless
-`training.follow_run`), then the cached `train` stage (`pipeline.training.model.train_on`);
+`training.follow_run`), then the cached `train` stage (`sonarmap.pipeline.training.model.train_on`);
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
-file instead of label images (format: README, `schemas.annotations`).
+file instead of label images (format: README, `sonarmap.schemas.annotations`).
 
 `sonarmap train` without datasets builds (or finds) the default model of the `training`
 section, procedural worlds included, and copies it to --out.
@@ -13,7 +13,7 @@ section, procedural worlds included, and copies it to --out.
 `sonarmap train --ship` takes no datasets: it resolves the default model of the
 `training` section (simulating and training only what this machine lacks) and writes it,
 with the lock of its training recordings, to `training.shipped_models`
-(`pipeline.training.shipped`), so that fresh clones use it instead of training.
+(`sonarmap.pipeline.training.shipped`), so that fresh clones use it instead of training.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import (
+from sonarmap.pipeline.commands._common import (
     CONFIG_OPT,
     JSON_OPT,
     SET_OPT,
@@ -73,11 +73,11 @@ def train(
         _default(config, set_ or (), store, out, json_)
         return
 
-    from pipeline.api import RunRequest, plan_dataset
-    from pipeline.commands._errors import check_writable, writes_under
-    from pipeline.engine.errors import SourceError
-    from pipeline.training.annotations import annotation_path
-    from pipeline.training.model import train_on
+    from sonarmap.pipeline.api import RunRequest, plan_dataset
+    from sonarmap.pipeline.commands._errors import check_writable, writes_under
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.training.annotations import annotation_path
+    from sonarmap.pipeline.training.model import train_on
 
     with writes_under(out, store):
         t0 = time.perf_counter()
@@ -98,7 +98,7 @@ def train(
         except ValueError as err:
             raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
         out.mkdir(parents=True, exist_ok=True)
-        from pipeline.engine.integrity import verify_file
+        from sonarmap.pipeline.engine.integrity import verify_file
 
         # Every file and the manifest: the folder is then a model a run can be pointed
         # at (`--set classify.model=DIR`), checked against the manifest's sha256s.
@@ -141,12 +141,12 @@ def _default(
     the model cache or the shipped model, else simulated and trained), copied to --out."""
     import shutil
 
-    from pipeline.commands._errors import check_writable, writes_under
-    from pipeline.engine.config import load_config
-    from pipeline.engine.integrity import verify_file
-    from pipeline.engine.registry import all_stages, extra_sections
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.training.model_cache import resolve_default_model
+    from sonarmap.pipeline.commands._errors import check_writable, writes_under
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.integrity import verify_file
+    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.training.model_cache import resolve_default_model
 
     with writes_under(out, store):
         t0 = time.perf_counter()
@@ -188,15 +188,15 @@ def _ship(
     config: Path | None, overrides: list[str] | tuple[str, ...], store: Path, json_: bool
 ) -> None:
     """`train --ship`: the default model, resolved as a run would, into the shipped folder."""
-    from pipeline.engine.config import load_config
-    from pipeline.engine.errors import ConfigError
-    from pipeline.engine.registry import all_stages, extra_sections
-    from pipeline.engine.session import dataset_spec
-    from pipeline.engine.store import ArtifactStore
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model import training_datasets, training_simulations
-    from pipeline.training.model_cache import resolve_default_model
-    from pipeline.training.shipped import ship, shipped_root
+    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.session import dataset_spec
+    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.model import training_datasets, training_simulations
+    from sonarmap.pipeline.training.model_cache import resolve_default_model
+    from sonarmap.pipeline.training.shipped import ship, shipped_root
 
     resolved = load_config(all_stages(), config, overrides, extra_sections())
     training: TrainingDataConfig = getattr(resolved, "training", TrainingDataConfig())

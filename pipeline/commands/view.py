@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from pipeline.commands._common import CONFIG_OPT, SET_OPT, STORE_OPT, cli_graph
+from sonarmap.pipeline.commands._common import CONFIG_OPT, SET_OPT, STORE_OPT, cli_graph
 
 __all__ = ["register", "view"]
 
@@ -25,10 +25,10 @@ def view(
     The run of this config, found as `status` finds it, on ws://127.0.0.1:PORT;
     computes nothing, and checks every file against its manifest first.
     """
-    from pipeline.api import RunRequest, plan_status
-    from pipeline.engine.errors import SourceError
-    from pipeline.engine.text import display_path
-    from pipeline.live.session import check_port, live_session
+    from sonarmap.pipeline.api import RunRequest, plan_status
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.engine.text import display_path
+    from sonarmap.pipeline.live.session import check_port, live_session
 
     check_port(port, "--port")
     request = RunRequest(dataset, config_path=config, overrides=set_ or (), store_dir=store)
@@ -39,7 +39,7 @@ def view(
             f"{display_path(str(dataset))}: no finished stage for this config in store "
             f"{display_path(str(store))}; run `sonarmap run` on it first"
         )
-    from pipeline.engine.integrity import verify_artifact_dir
+    from sonarmap.pipeline.engine.integrity import verify_artifact_dir
 
     for p in hits:  # a shared store's files are checked before anyone sees them
         ref = run_ctx.store.get(p.stage.name, p.key)

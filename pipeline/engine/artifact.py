@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 
 __all__ = ["PULL_CACHE", "ArtifactRef", "Problem", "safe_relative"]
 

@@ -12,13 +12,18 @@ from collections.abc import Mapping, MutableSet, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.engine.errors import ArtifactCorrupt, InternalError, PipelineError, StageFailed
-from stages.base import Output
+from sonarmap.pipeline.engine.errors import (
+    ArtifactCorrupt,
+    InternalError,
+    PipelineError,
+    StageFailed,
+)
+from sonarmap.stages.base import Output
 
 if TYPE_CHECKING:
     import pyarrow as pa
 
-    from pipeline.engine.store import ArtifactRef
+    from sonarmap.pipeline.engine.store import ArtifactRef
 
 __all__ = ["read_output", "read_verified", "validate_table", "write_output"]
 
@@ -70,7 +75,7 @@ def write_output(
         path.write_bytes(bytes(value))
         return {"bytes": len(value)}
     if output.kind == "frames":
-        from pipeline.formats.frames_io import write_frames
+        from sonarmap.pipeline.formats.frames_io import write_frames
 
         return {"frames": write_frames(value, path)}
     raise InternalError(f"stage {stage}: unknown output kind {output.kind!r}")
@@ -89,7 +94,7 @@ def read_verified(
     never read, even if one lies on disk. `columns`: read only these of a Parquet
     output (the whole file is still verified).
     """
-    from pipeline.engine.integrity import recovery_hint, verify_file
+    from sonarmap.pipeline.engine.integrity import recovery_hint, verify_file
 
     name = output.filename
     if name not in ref.manifest["files"]:
@@ -133,7 +138,7 @@ def read_output(directory: Path, output: Output, columns: Sequence[str] | None =
     if output.kind == "bytes":
         return path.read_bytes()
     if output.kind == "frames":
-        from pipeline.formats.frames_io import read_frames
+        from sonarmap.pipeline.formats.frames_io import read_frames
 
         return read_frames(path)
     raise InternalError(f"unknown output kind {output.kind!r}")

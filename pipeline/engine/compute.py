@@ -1,8 +1,8 @@
 """Computing one planned stage: bind its inputs, run it, write its outputs.
 
-The runner (`pipeline.engine.runner`) holds the store's lock and staging directory; what
+The runner (`sonarmap.pipeline.engine.runner`) holds the store's lock and staging directory; what
 happens inside that directory is here, so it can run in the runner's process or in a
-worker process (`compute_in_worker`, spawned by `pipeline.engine.workers`) alike. The
+worker process (`compute_in_worker`, spawned by `sonarmap.pipeline.engine.workers`) alike. The
 same job gives the same files wherever it runs.
 """
 
@@ -15,16 +15,16 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.errors import (
+from sonarmap.pipeline.engine.errors import (
     ConfigError,
     InternalError,
     PipelineError,
     SourceError,
     StageFailed,
 )
-from pipeline.engine.planned import DatasetSpec, PlannedStage
-from pipeline.engine.store import ArtifactRef
-from stages.base import Input, Output, Stage, StageInputError
+from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
+from sonarmap.pipeline.engine.store import ArtifactRef
+from sonarmap.stages.base import Input, Output, Stage, StageInputError
 
 __all__ = ["ComputeJob", "compute_in_worker", "job_sections", "not_opened", "run_job"]
 
@@ -44,7 +44,7 @@ class ComputeJob:
     refs: Mapping[str, ArtifactRef]
     outputs_of: Mapping[str, tuple[Output, ...]]
     """The outputs each upstream stage declares. Declarations only: a producer's `run`
-    may be a closure (the training stage of `pipeline.training.model` is), and a job
+    may be a closure (the training stage of `sonarmap.pipeline.training.model` is), and a job
     that carried it could not travel to a worker process."""
     tmp: Path
 
@@ -80,7 +80,7 @@ def _bind_inputs(
     The dataset is opened by the graph's `open` once per process and config section
     (`opened`): the stages reading it there (keyframes, submaps) share what it has read."""
     stage, sections, dataset = job.item.stage, job.sections, job.dataset
-    from pipeline.engine.codecs import read_verified  # pyarrow: only when a stage computes
+    from sonarmap.pipeline.engine.codecs import read_verified  # pyarrow: only when a stage computes
 
     inputs: dict[str, Any] = {f"config.{s}": sections[s] for s in stage.reads_sections}
     columns = dict(stage.input_columns)
@@ -129,7 +129,7 @@ def run_job(
     A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
     any other exception of the stage is a `StageFailed` (exit 1).
     """
-    from pipeline.engine.codecs import write_output
+    from sonarmap.pipeline.engine.codecs import write_output
 
     stage = job.item.stage
     inputs = _bind_inputs(job, verified, opened)
@@ -156,7 +156,7 @@ def run_job(
 
 def compute_in_worker(job: ComputeJob) -> dict[str, Any]:
     """`run_job` in a worker process: its own verified files and opened dataset."""
-    from stages.kernels.parallel import release_memory
+    from sonarmap.stages.kernels.parallel import release_memory
 
     try:
         return run_job(job, set(), {})

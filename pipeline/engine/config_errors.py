@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ValidationError
 
-from pipeline.engine.text import one_line
+from sonarmap.pipeline.engine.text import one_line
 
 __all__ = ["MAX_QUOTE_CHARS", "allowed_range", "short", "validation_message"]
 

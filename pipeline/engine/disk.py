@@ -10,8 +10,8 @@ from __future__ import annotations
 import errno
 import os
 
-from pipeline.engine.errors import StoreError
-from pipeline.engine.text import display_path
+from sonarmap.pipeline.engine.errors import StoreError
+from sonarmap.pipeline.engine.text import display_path
 
 __all__ = ["disk_error"]
 

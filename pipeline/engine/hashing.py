@@ -18,7 +18,7 @@ from typing import Any
 
 from filelock import FileLock
 
-from pipeline.engine.errors import ConfigError, SourceError
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 
 __all__ = [
     "STORE_FORMAT_VERSION",

@@ -12,10 +12,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.artifact import ArtifactRef, safe_relative
-from pipeline.engine.errors import ArtifactCorrupt, PipelineError
-from pipeline.engine.hashing import recipe_key, sha256_file
-from pipeline.engine.manifest import parse_manifest
+from sonarmap.pipeline.engine.artifact import ArtifactRef, safe_relative
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError
+from sonarmap.pipeline.engine.hashing import recipe_key, sha256_file
+from sonarmap.pipeline.engine.manifest import parse_manifest
 
 __all__ = [
     "check_parses",

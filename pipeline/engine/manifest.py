@@ -14,7 +14,7 @@ from typing import Annotated, Any
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
 
 __all__ = ["ADDRESS_PATTERN", "FileEntry", "Manifest", "parse_manifest", "read_manifest"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from stages.base import Stage
+from sonarmap.stages.base import Stage
 
 __all__ = ["DatasetSpec", "PlannedStage"]
 

@@ -11,14 +11,14 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.config import section_dict
-from pipeline.engine.errors import ConfigError
-from pipeline.engine.hashing import recipe_key, stage_recipe
-from pipeline.engine.planned import DatasetSpec, PlannedStage
-from pipeline.engine.run_records import miss_reason, previous_recipes
-from pipeline.engine.store import ArtifactRef, ArtifactStore
-from schemas import SCHEMA_VERSION
-from stages.base import Stage
+from sonarmap.pipeline.engine.config import section_dict
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.hashing import recipe_key, stage_recipe
+from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
+from sonarmap.pipeline.engine.run_records import miss_reason, previous_recipes
+from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.schemas import SCHEMA_VERSION
+from sonarmap.stages.base import Stage
 
 __all__ = ["plan"]
 

@@ -15,8 +15,8 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.errors import ConfigError
-from stages.base import Stage
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.stages.base import Stage
 
 __all__ = [
     "FIGURE_STAGES",
@@ -33,7 +33,7 @@ __all__ = [
 ]
 
 FIGURE_STAGES: tuple[str, ...] = ("figures", "map_figures")
-"""The real pipeline's figure stages (`stages.figures`, `stages.map_figures`): nothing reads their outputs,
+"""The real pipeline's figure stages (`sonarmap.stages.figures`, `sonarmap.stages.map_figures`): nothing reads their outputs,
 so `run --no-figures` simply plans without them (`without_figures`)."""
 
 GRAPH_ENV = "SONARMAP_GRAPH"
@@ -50,7 +50,7 @@ class Graph:
         stages: the mapping stages, in order (the first reads `DATASET`).
         parts: path -> the files whose contents fingerprint the dataset.
         open: (path, the reading stage's config section) -> the object bound to its
-            `DATASET` input (a `schemas.recording.Recording` for the real pipeline).
+            `DATASET` input (a `sonarmap.schemas.recording.Recording` for the real pipeline).
         training: the classifier-training stage (None: the graph trains nothing).
         extra_sections: config sections of the engine that are not stages.
         spec: the `module:attribute` it was loaded from (None: the real pipeline).
@@ -77,26 +77,26 @@ class Graph:
 
 def default_graph() -> Graph:
     """The real pipeline: keyframes to evaluate, then the figures (`FIGURE_STAGES`);
-    recordings read by `pipeline.readers`.
+    recordings read by `sonarmap.pipeline.readers`.
 
     Each stage package declares its stage; the computation (numpy, pyarrow, ...) loads
     when the stage first runs (docs/decisions/020-cached-run-imports.md).
     """
-    from pipeline.readers import dataset_fingerprint_parts, open_recording
-    from pipeline.training.config import TrainingDataConfig
-    from schemas.classes import ClassTable
-    from stages.classify import STAGE as classify
-    from stages.classify.training import STAGE as train
-    from stages.evaluate import STAGE as evaluate
-    from stages.features import STAGE as features
-    from stages.figures import STAGE as figures
-    from stages.fuse import STAGE as fuse
-    from stages.infer import STAGE as infer
-    from stages.keyframes import STAGE as keyframes
-    from stages.map_figures import STAGE as map_figures
-    from stages.slam import STAGE as slam
-    from stages.submaps import STAGE as submaps
-    from stages.voxelize import STAGE as voxelize
+    from sonarmap.pipeline.readers import dataset_fingerprint_parts, open_recording
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.schemas.classes import ClassTable
+    from sonarmap.stages.classify import STAGE as classify
+    from sonarmap.stages.classify.training import STAGE as train
+    from sonarmap.stages.evaluate import STAGE as evaluate
+    from sonarmap.stages.features import STAGE as features
+    from sonarmap.stages.figures import STAGE as figures
+    from sonarmap.stages.fuse import STAGE as fuse
+    from sonarmap.stages.infer import STAGE as infer
+    from sonarmap.stages.keyframes import STAGE as keyframes
+    from sonarmap.stages.map_figures import STAGE as map_figures
+    from sonarmap.stages.slam import STAGE as slam
+    from sonarmap.stages.submaps import STAGE as submaps
+    from sonarmap.stages.voxelize import STAGE as voxelize
 
     mapping = (keyframes, features, fuse, classify, slam, infer, submaps, voxelize, evaluate)
     return Graph(

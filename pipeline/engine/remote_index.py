@@ -4,7 +4,7 @@ Everything here runs before a byte of an artifact's files is fetched: listing ke
 artifacts with a manifest (a push in progress is invisible) and skips the store's
 reserved folders; a manifest is read with a size cap and refused unless its stage is
 the path's and the recipe's, its key is its recipe's hash, every declared size is under
-the cap, and a model's sha256 is pinned (`pipeline.engine.trust`).
+the cap, and a model's sha256 is pinned (`sonarmap.pipeline.engine.trust`).
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import json
 import re
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
-from pipeline.engine.hashing import recipe_key
-from pipeline.engine.manifest import parse_manifest
-from pipeline.engine.remotes import open_remote
-from pipeline.engine.transfer import max_file_bytes
-from pipeline.engine.trust import TrustPolicy, check_not_reserved
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
+from sonarmap.pipeline.engine.hashing import recipe_key
+from sonarmap.pipeline.engine.manifest import parse_manifest
+from sonarmap.pipeline.engine.remotes import open_remote
+from sonarmap.pipeline.engine.transfer import max_file_bytes
+from sonarmap.pipeline.engine.trust import TrustPolicy, check_not_reserved
 
 __all__ = [
     "MAX_MANIFEST_BYTES",

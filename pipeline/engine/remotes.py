@@ -12,7 +12,7 @@ import re
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from pipeline.engine.errors import StoreError
+from sonarmap.pipeline.engine.errors import StoreError
 
 __all__ = ["display", "open_remote", "read_only"]
 

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.hashing import canonical_json
-from pipeline.engine.store import ArtifactStore
-from stages.base import Input
+from sonarmap.pipeline.engine.hashing import canonical_json
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.stages.base import Input
 
 if TYPE_CHECKING:
-    from pipeline.engine.planned import DatasetSpec, PlannedStage
+    from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
 
 __all__ = ["miss_reason", "previous_recipes", "record_run", "run_id"]
 

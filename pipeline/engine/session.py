@@ -9,14 +9,14 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from pipeline.engine.config import load_config
-from pipeline.engine.disk import disk_error
-from pipeline.engine.errors import SourceError
-from pipeline.engine.hashing import FingerprintCache
-from pipeline.engine.planned import DatasetSpec
-from pipeline.engine.registry import Graph, default_graph
-from pipeline.engine.store import ArtifactStore
-from stages.base import Stage
+from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.disk import disk_error
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.hashing import FingerprintCache
+from sonarmap.pipeline.engine.planned import DatasetSpec
+from sonarmap.pipeline.engine.registry import Graph, default_graph
+from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.stages.base import Stage
 
 __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_context"]
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 
 __all__ = [
     "CHUNK",

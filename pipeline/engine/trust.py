@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 
 __all__ = [
     "MODEL_FILE",
@@ -107,7 +107,7 @@ class TrustPolicy:
 def check_model_file(path: Path, where: str) -> None:
     """Load a model file the way `classify` will (`model_from_bytes`: `weights_only=True`,
     so no pickle code runs) and refuse it when that fails."""
-    from stages.classify.cnn import model_from_bytes
+    from sonarmap.stages.classify.cnn import model_from_bytes
 
     try:
         model_from_bytes(path.read_bytes())

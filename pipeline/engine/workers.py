@@ -10,7 +10,7 @@ figures) takes an idle worker process before the slot here: this process has the
 dataset open already, and a stage that reads it would otherwise open it again in a
 worker (about 1.4 s on the marina: reader imports and the file's index).
 
-Processes are spawned, not forked, for the reason `stages.kernels.parallel` gives.
+Processes are spawned, not forked, for the reason `sonarmap.stages.kernels.parallel` gives.
 """
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from concurrent.futures import Future
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
-from pipeline.engine.errors import StageFailed
-from pipeline.engine.worker_life import die_with_parent
-from stages.kernels.parallel import available_cores, release_memory
+from sonarmap.pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
+from sonarmap.pipeline.engine.errors import StageFailed
+from sonarmap.pipeline.engine.worker_life import die_with_parent
+from sonarmap.stages.kernels.parallel import available_cores, release_memory
 
 if TYPE_CHECKING:  # multiprocessing loads with the first worker process
     from concurrent.futures import ProcessPoolExecutor

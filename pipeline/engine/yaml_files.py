@@ -32,9 +32,9 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from pipeline.engine.config_errors import short
-from pipeline.engine.errors import PipelineError
-from pipeline.engine.text import one_line
+from sonarmap.pipeline.engine.config_errors import short
+from sonarmap.pipeline.engine.errors import PipelineError
+from sonarmap.pipeline.engine.text import one_line
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 
@@ -292,7 +292,7 @@ def read_model(
     Args:
         describe: the one-line message of a validation error.
         not_a_mapping: the message when the document is not a mapping.
-        context: pydantic validation context (e.g. the class table, `schemas.annotations`).
+        context: pydantic validation context (e.g. the class table, `sonarmap.schemas.annotations`).
     """
     raw = read_yaml(path, what, error, max_bytes, max_nodes)
     if not isinstance(raw, dict):

@@ -1,4 +1,4 @@
-"""The headline map error (`stages.evaluate.headline`) in sweep and study tables.
+"""The headline map error (`sonarmap.stages.evaluate.headline`) in sweep and study tables.
 
 A run's `summary.metrics.headline` says how its leading median error was obtained
 (SE(2)-aligned SLAM map, ground-truth poses, or raw). Sweep rows carry it as columns

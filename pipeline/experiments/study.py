@@ -22,9 +22,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.experiments.headline_columns import FRAME_WORDS, shared_frame
-from pipeline.experiments.study_fig4 import error_rows, plot_fig4, pooled_errors
-from pipeline.experiments.study_tables import (
+from sonarmap.pipeline.experiments.headline_columns import FRAME_WORDS, shared_frame
+from sonarmap.pipeline.experiments.study_fig4 import error_rows, plot_fig4, pooled_errors
+from sonarmap.pipeline.experiments.study_tables import (
     PAPER_CROSS_RATIO,
     PAPER_TABLE_I,
     PILINGS_ROW,
@@ -35,10 +35,10 @@ from pipeline.experiments.study_tables import (
     spacing_of,
     table_i_rows,
 )
-from pipeline.experiments.sweep import (
+from sonarmap.pipeline.experiments.sweep import (
     RunOutcome,
 )
-from pipeline.formats.strict_json import dumps_strict
+from sonarmap.pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["render_markdown", "table_i", "write_study"]
 
@@ -257,7 +257,7 @@ def write_study(
     Returns the `study --json` document: the sweep's, plus `protocols`, `study`
     (the tables' rows), `table_i` (the markdown) and `wall_s`.
     """
-    from pipeline.experiments.sweep_output import write_sweep
+    from sonarmap.pipeline.experiments.sweep_output import write_sweep
 
     doc = write_sweep(outcomes, out_dir)
     names = [str(p["name"]) for p in protocols]

@@ -8,14 +8,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.experiments.study_tables import (
+from sonarmap.pipeline.experiments.study_tables import (
     MAPS,
     protocol_of,
     protocol_order,
     spacing_of,
     spacing_sort,
 )
-from pipeline.experiments.sweep import (
+from sonarmap.pipeline.experiments.sweep import (
     stage_path,
 )
 

@@ -1,5 +1,5 @@
 """The study's tables as rows: Table I beside the paper's, the cross ratio, the per-class
-accounting (from `summary.metrics.per_class`). `pipeline.experiments.study` renders them."""
+accounting (from `summary.metrics.per_class`). `sonarmap.pipeline.experiments.study` renders them."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from pipeline.experiments.sweep import (
+from sonarmap.pipeline.experiments.sweep import (
     ALL_STRUCTURE,
     PILING_CLASSES,
     per_class,

@@ -1,7 +1,7 @@
 """Dense submaps (issue 21) in sweep tables: with-submaps over keyframes-only ratios.
 
 A run mapped with `keyframes.submap_stride` > 0 reports `summary.metrics.submaps`
-(`stages.evaluate.submaps`). Sweep rows carry its frame count and ratios as columns;
+(`sonarmap.stages.evaluate.submaps`). Sweep rows carry its frame count and ratios as columns;
 they are None for a run without submap frames, so a table leaves them out.
 """
 

@@ -18,15 +18,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.engine.errors import ConfigError, PipelineError
-from pipeline.engine.worker_life import die_with_parent
-from pipeline.experiments.headline_columns import (
+from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
+from sonarmap.pipeline.engine.worker_life import die_with_parent
+from sonarmap.pipeline.experiments.headline_columns import (
     frame_of,
     headline_columns,
     headline_header,
     shared_frame,
 )
-from pipeline.experiments.submap_columns import submap_columns
+from sonarmap.pipeline.experiments.submap_columns import submap_columns
 
 __all__ = [
     "ALL_STRUCTURE",
@@ -44,7 +44,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from pipeline.engine.registry import Graph
+    from sonarmap.pipeline.engine.registry import Graph
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +127,7 @@ def expand(
 
 def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
     """Run one point through `graph` (None: the real pipeline); a failure is its outcome."""
-    from pipeline.api import RunRequest, run_dataset
+    from sonarmap.pipeline.api import RunRequest, run_dataset
 
     t0 = time.perf_counter()
     overrides = dict(spec.overrides)

@@ -6,8 +6,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.experiments.sweep import RunOutcome, group_label, sweep_tables
-from pipeline.formats.strict_json import dumps_strict
+from sonarmap.pipeline.experiments.sweep import RunOutcome, group_label, sweep_tables
+from sonarmap.pipeline.formats.strict_json import dumps_strict
 
 __all__ = ["write_sweep"]
 

@@ -1,19 +1,20 @@
 """The Foxglove layout shipped as `configs/foxglove/sonarmap-layout.json`, built with
 foxglove-sdk's layout classes (`foxglove.layouts`) so its format is the SDK's own.
 
-Regenerate the file with `python -m pipeline.formats.foxglove_layout > FILE`; a test
+Regenerate the file with `python -m sonarmap.pipeline.formats.foxglove_layout > FILE`; a test
 checks that the shipped file is this module's output.
 """
 
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
+
+from sonarmap.pipeline.package_data import configs_dir
 
 __all__ = ["LAYOUT_PATH", "layout_json", "sonarmap_layout"]
 
-LAYOUT_PATH = Path(__file__).resolve().parents[2] / "configs" / "foxglove" / "sonarmap-layout.json"
+LAYOUT_PATH = configs_dir() / "foxglove" / "sonarmap-layout.json"
 
 
 def sonarmap_layout() -> Any:

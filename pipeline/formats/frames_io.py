@@ -3,7 +3,7 @@
 Per keyframe, `keyframes.mcap` holds one `marine_acoustic_msgs/msg/ProjectedSonarImage`
 per sonar (/sonar/horizontal, /sonar/vertical; header stamp = that ping's time) and,
 when present, the label (mono8) and truth-angle (32FC1) images on the topics of
-`schemas.topics`. Every message of keyframe k is logged at the keyframe's time t_ns
+`sonarmap.schemas.topics`. Every message of keyframe k is logged at the keyframe's time t_ns
 (unique per keyframe); a metadata record "sonarmap.keyframes" maps keyframe ids to
 times and extras. Opens in Foxglove; reading back is lazy, by index. Its chunks are
 LZ4-compressed: fast to write and read (docs/decisions/ has the measurement).
@@ -20,16 +20,16 @@ import numpy as np
 from mcap.reader import make_reader
 from mcap.writer import CompressionType
 
-from pipeline.engine.errors import ArtifactCorrupt
-from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from pipeline.readers.sonar_decode import ProjectedArrays, serialize_projected_cdr
-from schemas.sonar import (
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from sonarmap.pipeline.readers.sonar_decode import ProjectedArrays, serialize_projected_cdr
+from sonarmap.schemas.sonar import (
     KeyframeImages,
     SonarPing,
     beam_angles_from_directions,
     beam_directions_from_angles,
 )
-from schemas.topics import (
+from sonarmap.schemas.topics import (
     FRAME_SONAR,
     IMAGE_TYPE,
     LABEL_TOPIC,

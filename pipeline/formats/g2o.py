@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.errors import SourceError
 
 __all__ = ["PoseGraph2D", "read_pose_graph"]
 

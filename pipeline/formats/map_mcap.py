@@ -3,7 +3,7 @@
 Topics:
 - `/map/standard`, `/map/semantic`: one `sensor_msgs/msg/PointCloud2` each in frame
   `map`, stamped at the last keyframe, fields x y z (float32, world frame [m]),
-  `source` (uint8: 0 fused, 1 inferred) and `class_id` (uint8: `schemas.classes`
+  `source` (uint8: 0 fused, 1 inferred) and `class_id` (uint8: `sonarmap.schemas.classes`
   ids, 0 for unclassified, 255 for "unknown"); point step 16 bytes, little-endian.
 - `/tf`: one `tf2_msgs/msg/TFMessage` per keyframe, map -> base_link at the SLAM pose.
 
@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
-from stages.kernels.geometry import quat_from_rpy
+from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+from sonarmap.schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
+from sonarmap.stages.kernels.geometry import quat_from_rpy
 
 __all__ = [
     "FRAME_BASE",
@@ -115,8 +115,8 @@ def write_map_mcap(map_table: pa.Table, poses: pa.Table, path: Path) -> int:
     """Write the maps and keyframe poses to a ROS 2 MCAP file.
 
     Args:
-        map_table: map.parquet (`schemas.map.MAP_SCHEMA`), world frame.
-        poses: poses.parquet (`schemas.slam.POSES_SCHEMA`: keyframe_id, t_ns, pose).
+        map_table: map.parquet (`sonarmap.schemas.map.MAP_SCHEMA`), world frame.
+        poses: poses.parquet (`sonarmap.schemas.slam.POSES_SCHEMA`: keyframe_id, t_ns, pose).
         path: output file (overwritten).
 
     Returns:

@@ -44,7 +44,7 @@ SMALL_FLUSH_NS = 5_000_000_000
 
 def custom_msg_texts() -> dict[str, str]:
     """The .msg texts shipped in `schemas/msg`, keyed by type name ("pkg/msg/Type")."""
-    root = resources.files("schemas") / "msg"
+    root = resources.files("sonarmap.schemas") / "msg"
     texts: dict[str, str] = {}
     for pkg in sorted((p for p in root.iterdir() if p.is_dir()), key=lambda p: p.name):
         for msg in sorted((pkg / "msg").iterdir(), key=lambda p: p.name):
@@ -96,7 +96,7 @@ class Ros2McapWriter:
     With `small_flush_ns`, those chunks are also written once they span that much log
     time, so a copy cut short keeps the small messages written before the cut.
     `compression`: of the chunks (zstd; the keyframe images are written with LZ4,
-    `pipeline.formats.frames_io`).
+    `sonarmap.pipeline.formats.frames_io`).
     """
 
     def __init__(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sim.dataset import SimRun
+from sonarmap.sim.dataset import SimRun
 
 __all__ = ["render_preview"]
 

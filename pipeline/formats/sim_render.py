@@ -3,7 +3,7 @@
 Each frame depends only on (scene, config, seed, its index) (`SimRun.frame` seeds its RNG
 per index), so frames rendered in any process, in any order, are the frames a serial run
 renders; they are yielded in index order, so the file's bytes do not depend on the
-number of workers (`stages.kernels.parallel.ordered_map`, spawned processes: image formation is
+number of workers (`sonarmap.stages.kernels.parallel.ordered_map`, spawned processes: image formation is
 numpy code that holds the GIL between its calls). A worker costs
 about a second to start (importing open3d), and on a loaded machine the processes
 compete for the same cores (see benchmarks/bench_simulate.py), so one worker (serial, in
@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from schemas.sonar import SonarPing
-from sim.dataset import SimFrame, SimRun
-from sim.world import World
-from stages.kernels.parallel import ordered_map
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.sim.dataset import SimFrame, SimRun
+from sonarmap.sim.world import World
+from sonarmap.stages.kernels.parallel import ordered_map
 
 __all__ = ["rendered_frames"]
 

@@ -1,4 +1,4 @@
-"""Write a simulated mission (`sim.dataset.SimRun`) as a ROS 2 MCAP dataset.
+"""Write a simulated mission (`sonarmap.sim.dataset.SimRun`) as a ROS 2 MCAP dataset.
 
 Topics (schemas/topics.py): ProjectedSonarImage per sonar, mono8 label images, 32FC1
 truth-angle images, dead-reckoning and ground-truth Odometry, /tf_static with both
@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.formats.atomic import atomic_output
-from pipeline.formats.frames_io import image_message
-from pipeline.formats.rosmsg import recording_writer, ros2_typestore
-from pipeline.formats.sim_render import rendered_frames
-from schemas.sonar import SonarPing, beam_directions_from_angles
-from schemas.topics import (
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.formats.atomic import atomic_output
+from sonarmap.pipeline.formats.frames_io import image_message
+from sonarmap.pipeline.formats.rosmsg import recording_writer, ros2_typestore
+from sonarmap.pipeline.formats.sim_render import rendered_frames
+from sonarmap.schemas.sonar import SonarPing, beam_directions_from_angles
+from sonarmap.schemas.topics import (
     FRAME_BASE,
     FRAME_ODOM,
     FRAME_SONAR,
@@ -42,8 +42,8 @@ from schemas.topics import (
     TOPIC_TF_STATIC,
     TRUTH_ANGLE_TOPIC,
 )
-from sim.dataset import SIM_VERSION, SimRun
-from stages.kernels.geometry import matrix_from_rpy_product, quat_from_matrix
+from sonarmap.sim.dataset import SIM_VERSION, SimRun
+from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, quat_from_matrix
 
 __all__ = ["TF_TYPE", "write_simulation"]
 
@@ -239,7 +239,7 @@ def write_simulation(
         scene_yaml: text of the scene file, stored as the `scene.yaml` attachment.
         progress: optional callback (frames_done, n_frames).
         workers: processes rendering frames ahead of the writer (1 = serial, in this
-            process; `pipeline.formats.sim_render`); the bytes do not depend on it.
+            process; `sonarmap.pipeline.formats.sim_render`); the bytes do not depend on it.
 
     Returns:
         {"path", "n_frames", "bytes", "seconds", "frames_per_s", "messages"}.

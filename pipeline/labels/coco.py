@@ -5,7 +5,7 @@ The fields written are those of the COCO "object detection" data format
 `categories` (id, name, supercategory), `annotations` (id, image_id, category_id,
 segmentation as a list of polygons [x1, y1, x2, y2, ...], bbox [x, y, width, height],
 area, iscrowd), plus `info` and `licenses`. CVAT and Label Studio both import and export
-this format. Coordinates are pixels of the exported fan image (`pipeline.labels.fan_image`).
+this format. Coordinates are pixels of the exported fan image (`sonarmap.pipeline.labels.fan_image`).
 
 A sonarmap box becomes a COCO annotation with a bbox and an empty segmentation (the tools
 show it as a rectangle); a polygon becomes a one-polygon segmentation with its bbox.
@@ -22,9 +22,9 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
-from pipeline.labels.fan_image import FanGeometry, metres_to_pixels, pixels_to_metres
-from schemas.annotations import AnnotatedObject
-from schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.pipeline.labels.fan_image import FanGeometry, metres_to_pixels, pixels_to_metres
+from sonarmap.schemas.annotations import AnnotatedObject
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 
 __all__ = ["CocoError", "ExportedImage", "coco_document", "objects_from_coco"]
 

@@ -9,7 +9,7 @@ and its centre is (i + 0.5, j + 0.5).
     u = (y_left_m - y) / pixel_m        v = (x_top_m - x) / pixel_m
 
 with x forward, y left [m] in the horizontal sonar's fan plane (REP 103; paper Eq. 1
-with phi = 0), the frame of `schemas.annotations`.
+with phi = 0), the frame of `sonarmap.schemas.annotations`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from schemas.sonar import SonarPing
+from sonarmap.schemas.sonar import SonarPing
 
 __all__ = ["FanGeometry", "fan_geometry", "fan_image", "metres_to_pixels", "pixels_to_metres"]
 

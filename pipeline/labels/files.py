@@ -3,15 +3,15 @@
 Export writes, into the folder:
 
 - `images/<stem>_kf<id>_t<t_ns>.png`: each chosen keyframe's horizontal image as a
-  Cartesian fan (`pipeline.labels.fan_image`);
-- `<stem>.coco.json`: the COCO file (`pipeline.labels.coco`) with the images, the class
+  Cartesian fan (`sonarmap.pipeline.labels.fan_image`);
+- `<stem>.coco.json`: the COCO file (`sonarmap.pipeline.labels.coco`) with the images, the class
   table as categories and, optionally, shapes to start from;
 - `geometry.json`: per image, the keyframe's time and the pixel-to-metre map, and the
   recording it came from. Import reads it back, so the COCO file itself carries nothing
   a labelling tool could drop.
 
 Import turns the COCO file's polygons and boxes into the recording's annotation file
-(`<stem>.annotations.yaml`, `schemas.annotations`).
+(`<stem>.annotations.yaml`, `sonarmap.schemas.annotations`).
 """
 
 from __future__ import annotations
@@ -25,14 +25,14 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.engine.text import one_line
-from pipeline.formats.atomic import atomic_output
-from pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
-from pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
-from schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import KeyframeImages
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.text import one_line
+from sonarmap.pipeline.formats.atomic import atomic_output
+from sonarmap.pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
+from sonarmap.pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
+from sonarmap.schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import KeyframeImages
 
 __all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
 

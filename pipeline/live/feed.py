@@ -1,5 +1,5 @@
 """`on_stage` callback of the live view: each finished stage's artifacts become
-Foxglove messages (`stages.evaluate.foxglove_scene`) on the live server.
+Foxglove messages (`sonarmap.stages.evaluate.foxglove_scene`) on the live server.
 
 keyframes: the fan images, the dead-reckoning (and true) trajectory and the scene mesh;
 fuse: the fused points at dead-reckoning poses; classify: the objects; slam: /tf and
@@ -15,9 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.live.server import LiveServer
-from stages.base import Stage
-from stages.evaluate.foxglove_scene import SceneMessage
+from sonarmap.pipeline.live.server import LiveServer
+from sonarmap.stages.base import Stage
+from sonarmap.stages.evaluate.foxglove_scene import SceneMessage
 
 __all__ = ["LiveFeed"]
 
@@ -35,7 +35,7 @@ class LiveFeed:
         self._dirs: dict[str, Path] = {}
 
     def on_stage(self, result: Any) -> None:
-        """Runner callback (`pipeline.engine.runner.StageResult`): publish this stage."""
+        """Runner callback (`sonarmap.pipeline.engine.runner.StageResult`): publish this stage."""
         self.add(result.stage, Path(result.path))
 
     def add(self, stage: str, directory: Path) -> None:
@@ -55,7 +55,7 @@ class _Reader:
         self._stages, self._dirs = stages, dirs
 
     def __call__(self, name: str) -> Any:
-        from pipeline.engine.codecs import read_output
+        from sonarmap.pipeline.engine.codecs import read_output
 
         stage, _, output = name.partition(".")
         if stage not in self._dirs or stage not in self._stages:
@@ -64,7 +64,7 @@ class _Reader:
         return None if spec is None else read_output(self._dirs[stage], spec)
 
     def T_base_sonar(self) -> np.ndarray:
-        from schemas.sensors import Sensors
+        from sonarmap.schemas.sensors import Sensors
 
         return Sensors.of(self("keyframes.sensors") or {}).horizontal.T_base_sonar
 
@@ -74,9 +74,9 @@ class _Reader:
 
 
 def _keyframes(read: _Reader) -> Iterator[SceneMessage]:
-    from stages.evaluate.foxglove_images import fan_messages
-    from stages.evaluate.foxglove_scene import mesh_messages, trajectory_messages
-    from stages.kernels.ply import decode_mesh_ply
+    from sonarmap.stages.evaluate.foxglove_images import fan_messages
+    from sonarmap.stages.evaluate.foxglove_scene import mesh_messages, trajectory_messages
+    from sonarmap.stages.kernels.ply import decode_mesh_ply
 
     keyframes = read("keyframes.keyframes")
     yield from trajectory_messages(keyframes, None)
@@ -87,27 +87,27 @@ def _keyframes(read: _Reader) -> Iterator[SceneMessage]:
 
 
 def _fuse(read: _Reader) -> list[SceneMessage]:
-    from stages.evaluate.foxglove_scene import fused_messages
+    from sonarmap.stages.evaluate.foxglove_scene import fused_messages
 
     return fused_messages(read("fuse.fused"), read("keyframes.keyframes"), read.T_base_sonar())
 
 
 def _objects(read: _Reader) -> list[SceneMessage]:
-    from stages.evaluate.foxglove_scene import object_messages
+    from sonarmap.stages.evaluate.foxglove_scene import object_messages
 
     poses = read("slam.poses") or read("keyframes.keyframes")
     return object_messages(read("classify.objects"), poses, read.T_base_sonar())
 
 
 def _slam(read: _Reader) -> list[SceneMessage]:
-    from stages.evaluate.foxglove_scene import trajectory_messages
+    from sonarmap.stages.evaluate.foxglove_scene import trajectory_messages
 
     out = trajectory_messages(read("keyframes.keyframes"), read("slam.poses"))
     return out + (_objects(read) if read("classify.objects") is not None else [])
 
 
 def _maps(read: _Reader) -> list[SceneMessage]:
-    from stages.evaluate.foxglove_scene import map_messages
+    from sonarmap.stages.evaluate.foxglove_scene import map_messages
 
     return map_messages(read("voxelize.map"), read.t_last(), read("evaluate.errors"))
 

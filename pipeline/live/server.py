@@ -18,8 +18,8 @@ from typing import Any
 
 from foxglove.websocket import ServerListener
 
-from pipeline.engine.errors import OutputError
-from stages.evaluate.foxglove_scene import TOPIC_SCHEMAS, SceneMessage
+from sonarmap.pipeline.engine.errors import OutputError
+from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS, SceneMessage
 
 __all__ = ["Builder", "LiveServer"]
 

@@ -48,7 +48,7 @@ class LiveSession:
 def check_port(port: int, option: str) -> None:
     """ConfigError (exit 2) naming `option` unless 0 <= port <= 65535."""
     if not 0 <= port <= 65535:
-        from pipeline.engine.errors import ConfigError
+        from sonarmap.pipeline.engine.errors import ConfigError
 
         raise ConfigError(f"{option} {port}: a port is 0 (any free one) to 65535")
 
@@ -68,9 +68,9 @@ def live_session(
         yield LiveSession(None)
         return
     check_port(port, option)
-    from pipeline.engine.registry import pipeline_stages
-    from pipeline.live.feed import LiveFeed
-    from pipeline.live.server import LiveServer
+    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.live.feed import LiveFeed
+    from sonarmap.pipeline.live.server import LiveServer
 
     server = LiveServer(host, port)
     try:

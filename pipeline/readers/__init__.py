@@ -1,4 +1,4 @@
-"""Readers: any supported recording -> a `schemas.recording.Recording`.
+"""Readers: any supported recording -> a `sonarmap.schemas.recording.Recording`.
 
 Formats: ROS 2 MCAP files, rosbag2 directories (mcap or sqlite3 storage, split),
 ROS 1 bags (plain, bz2, lz4 chunks) and raw Oculus `SimplePingResult` captures.
@@ -12,11 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.readers.source_types import Source, TopicInfo
-from pipeline.readers.sources import dataset_fingerprint_parts, open_source
+from sonarmap.pipeline.readers.source_types import Source, TopicInfo
+from sonarmap.pipeline.readers.sources import dataset_fingerprint_parts, open_source
 
 if TYPE_CHECKING:
-    from pipeline.readers.recording import ReaderOptions, SourceRecording
+    from sonarmap.pipeline.readers.recording import ReaderOptions, SourceRecording
 
 __all__ = [
     "ReaderOptions",
@@ -39,7 +39,7 @@ def open_recording(path: Path, config: Any = None) -> SourceRecording:
     Raises:
         SourceError: unreadable file, no/ambiguous sonar or navigation topics.
     """
-    from pipeline.readers.recording import ReaderOptions, SourceRecording
+    from sonarmap.pipeline.readers.recording import ReaderOptions, SourceRecording
 
     options = ReaderOptions.from_config(config)
     return SourceRecording(open_source(Path(path), options.message_definitions), options)
@@ -49,7 +49,7 @@ def __getattr__(name: str) -> Any:
     # The decoders load when a recording is read: fingerprinting a dataset for a cached
     # run (`dataset_fingerprint_parts`) needs none of them.
     if name in ("ReaderOptions", "SourceRecording"):
-        from pipeline.readers import recording
+        from sonarmap.pipeline.readers import recording
 
         return getattr(recording, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -25,16 +25,16 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.aris_layout import (
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.aris_layout import (
     FILE_HEADER,
     FRAME_HEADER,
     FRAME_OFFSETS,
     HEADER_BYTES,
     SIGNATURE,
 )
-from pipeline.readers.sonar_models import load_sonar
-from pipeline.readers.source_types import TimeIndexedSource
+from sonarmap.pipeline.readers.sonar_models import load_sonar
+from sonarmap.pipeline.readers.source_types import TimeIndexedSource
 
 __all__ = [
     "ARIS_MAGIC",

@@ -3,7 +3,7 @@ mounts, and depth from pressure, a depth field or a pose (a base of `SourceRecor
 
 IMU attitude is rotated by the IMU's mount; DVL velocity by the DVL's mount, corrected
 for its lever arm with the IMU's angular rate; implausible DVL samples are dropped with
-counts per gate; depth comes from `pipeline.readers.depth`.
+counts per gate; depth comes from `sonarmap.pipeline.readers.depth`.
 """
 
 from __future__ import annotations
@@ -12,20 +12,20 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.depth import (
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.depth import (
     STANDARD_ATMOSPHERE_PA,
     depth_kind,
     depth_value,
     pressure_depth,
     surface_pressure,
 )
-from pipeline.readers.dvl import body_velocity, dvl_velocity, gate_velocity
-from pipeline.readers.geometry_checks import valid_pose_rows
-from pipeline.readers.mounts import SensorGeometry, message_frame
-from pipeline.readers.navigation import dead_reckon
-from pipeline.readers.tf_tree import normalise_frame
-from schemas.recording import PoseTrack
+from sonarmap.pipeline.readers.dvl import body_velocity, dvl_velocity, gate_velocity
+from sonarmap.pipeline.readers.geometry_checks import valid_pose_rows
+from sonarmap.pipeline.readers.mounts import SensorGeometry, message_frame
+from sonarmap.pipeline.readers.navigation import dead_reckon
+from sonarmap.pipeline.readers.tf_tree import normalise_frame
+from sonarmap.schemas.recording import PoseTrack
 
 __all__ = ["NavigationSensors"]
 

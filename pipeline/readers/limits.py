@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 
-from pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.errors import ConfigError
 
 __all__ = [
     "CHUNK_LIMIT_ENV",

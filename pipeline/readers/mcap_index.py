@@ -16,7 +16,7 @@ from typing import BinaryIO
 import numpy as np
 from mcap.records import ChunkIndex
 
-from pipeline.readers.mcap_integrity import IndexCorrupt, message_index_entries
+from sonarmap.pipeline.readers.mcap_integrity import IndexCorrupt, message_index_entries
 
 __all__ = ["Locations", "index_block", "index_locations"]
 

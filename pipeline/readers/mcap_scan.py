@@ -19,8 +19,8 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, Message, Schema
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
 
 __all__ = ["ChunkCorrupt", "ChunkOverLimit", "ScanResult", "decompress_chunk", "scan_records"]
 

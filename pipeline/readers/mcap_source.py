@@ -24,12 +24,17 @@ from mcap.records import Attachment, Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.mcap_index import index_locations
-from pipeline.readers.mcap_integrity import IndexCorrupt, summary_crc_problem
-from pipeline.readers.mcap_scan import ChunkCorrupt, ScanResult, decompress_chunk, scan_records
-from pipeline.readers.source_types import TopicInfo, check_counts
-from pipeline.readers.typestores import Ros2Decoder
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.mcap_index import index_locations
+from sonarmap.pipeline.readers.mcap_integrity import IndexCorrupt, summary_crc_problem
+from sonarmap.pipeline.readers.mcap_scan import (
+    ChunkCorrupt,
+    ScanResult,
+    decompress_chunk,
+    scan_records,
+)
+from sonarmap.pipeline.readers.source_types import TopicInfo, check_counts
+from sonarmap.pipeline.readers.typestores import Ros2Decoder
 
 __all__ = ["McapSource"]
 

@@ -15,12 +15,12 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.readers.roles import Roles
-from pipeline.readers.source_types import Source
-from pipeline.readers.tf_tree import TfTree, normalise_frame
-from schemas.recording import PoseTrack
-from schemas.topics import FRAME_SONAR, SONARS
-from stages.kernels.geometry import matrix_from_rpy, se3
+from sonarmap.pipeline.readers.roles import Roles
+from sonarmap.pipeline.readers.source_types import Source
+from sonarmap.pipeline.readers.tf_tree import TfTree, normalise_frame
+from sonarmap.schemas.recording import PoseTrack
+from sonarmap.schemas.topics import FRAME_SONAR, SONARS
+from sonarmap.stages.kernels.geometry import matrix_from_rpy, se3
 
 __all__ = ["DEFAULT_SONAR_MOUNTS", "SensorGeometry", "message_frame", "mounting_matrix"]
 

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from schemas.recording import PoseTrack
-from stages.kernels.geometry import rpy_from_quat
+from sonarmap.schemas.recording import PoseTrack
+from sonarmap.stages.kernels.geometry import rpy_from_quat
 
 __all__ = [
     "NAV_TYPES",

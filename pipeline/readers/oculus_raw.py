@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.source_types import TopicInfo
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.source_types import TopicInfo
 
 __all__ = ["OCULUS_RAW_TOPIC", "OCULUS_RAW_TYPE", "OculusRawPing", "OculusRawSource", "parse_ping"]
 

@@ -1,4 +1,4 @@
-"""`SourceRecording`: a `schemas.recording.Recording` over any `Source`."""
+"""`SourceRecording`: a `sonarmap.schemas.recording.Recording` over any `Source`."""
 
 from __future__ import annotations
 
@@ -10,19 +10,19 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.dead_reckoning import NavigationSensors
-from pipeline.readers.geometry_checks import (
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.dead_reckoning import NavigationSensors
+from sonarmap.pipeline.readers.geometry_checks import (
     MAX_JUMP_M,
     MAX_SPEED_MPS,
     navigation_glitches,
     navigation_jump,
     valid_pose_rows,
 )
-from pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
-from pipeline.readers.navigation import nav_pose, pose_track_rows
-from pipeline.readers.roles import Roles, detect_roles
-from pipeline.readers.sonar_decode import (
+from sonarmap.pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
+from sonarmap.pipeline.readers.navigation import nav_pose, pose_track_rows
+from sonarmap.pipeline.readers.roles import Roles, detect_roles
+from sonarmap.pipeline.readers.sonar_decode import (
     IMAGE_SONAR_TYPES,
     beam_directions,
     configured_sonar,
@@ -30,12 +30,12 @@ from pipeline.readers.sonar_decode import (
     decode_sonar,
     sonar_descriptions,
 )
-from pipeline.readers.source_types import Source
-from pipeline.readers.tf_tree import TfTree
-from schemas.recording import PoseTrack
-from schemas.sonar import SonarPing, beam_angles_from_directions
-from schemas.topics import FRAME_BASE
-from stages.kernels.geometry import matrix_from_quat, se3
+from sonarmap.pipeline.readers.source_types import Source
+from sonarmap.pipeline.readers.tf_tree import TfTree
+from sonarmap.schemas.recording import PoseTrack
+from sonarmap.schemas.sonar import SonarPing, beam_angles_from_directions
+from sonarmap.schemas.topics import FRAME_BASE
+from sonarmap.stages.kernels.geometry import matrix_from_quat, se3
 
 __all__ = ["DEFAULT_SONAR_MOUNTS", "ReaderOptions", "SourceRecording", "mounting_matrix"]
 
@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 @dataclass(frozen=True)
 class ReaderOptions:
     """What the readers take from the keyframes config (same field names; defaults are
-    `stages.keyframes.KeyframesConfig`'s).
+    `sonarmap.stages.keyframes.KeyframesConfig`'s).
 
     Defaults: topics found by type; polar-image beam table 130 deg over 30 m (the
     paper's Oculus settings); DVL samples above 5 m/s dropped as implausible; mounts
@@ -84,7 +84,7 @@ class ReaderOptions:
     @classmethod
     def from_config(cls, config: Any) -> ReaderOptions:
         """Pick the fields of the same name from a config object or mapping (others ignored)."""
-        from stages.keyframes import KeyframesConfig
+        from sonarmap.stages.keyframes import KeyframesConfig
 
         if isinstance(config, ReaderOptions):
             return config
@@ -105,7 +105,7 @@ def _floats(values: np.ndarray) -> str:
 
 
 class SourceRecording(NavigationSensors):
-    """The keyframes stage's view of a recording (implements `schemas.recording.Recording`)."""
+    """The keyframes stage's view of a recording (implements `sonarmap.schemas.recording.Recording`)."""
 
     def __init__(self, source: Source, options: ReaderOptions, roles: Roles | None = None) -> None:
         self.source = source
@@ -362,6 +362,6 @@ class SourceRecording(NavigationSensors):
 
 
 def _reopened(path: Path, options: ReaderOptions, roles: Roles) -> SourceRecording:
-    from pipeline.readers.sources import open_source
+    from sonarmap.pipeline.readers.sources import open_source
 
     return SourceRecording(open_source(path, options.message_definitions), options, roles)

@@ -12,13 +12,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.depth import FLUID_PRESSURE_TYPE
-from pipeline.readers.dvl import TWIST_TYPES, is_dvl_type
-from pipeline.readers.navigation import NAV_TYPES
-from pipeline.readers.sonar_decode import IMAGE_SONAR_TYPES, SONAR_TYPES
-from pipeline.readers.source_types import TopicInfo
-from schemas.topics import SONARS, TOPIC_DEAD_RECKONING, TOPIC_GROUND_TRUTH, TOPIC_TF_STATIC
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.depth import FLUID_PRESSURE_TYPE
+from sonarmap.pipeline.readers.dvl import TWIST_TYPES, is_dvl_type
+from sonarmap.pipeline.readers.navigation import NAV_TYPES
+from sonarmap.pipeline.readers.sonar_decode import IMAGE_SONAR_TYPES, SONAR_TYPES
+from sonarmap.pipeline.readers.source_types import TopicInfo
+from sonarmap.schemas.topics import (
+    SONARS,
+    TOPIC_DEAD_RECKONING,
+    TOPIC_GROUND_TRUTH,
+    TOPIC_TF_STATIC,
+)
 
 __all__ = ["Roles", "detect_roles", "topic_listing"]
 

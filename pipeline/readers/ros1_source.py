@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.formats.rosmsg import ros1_typestore
-from pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
-from pipeline.readers.source_types import TimeIndexedSource
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.formats.rosmsg import ros1_typestore
+from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
+from sonarmap.pipeline.readers.source_types import TimeIndexedSource
 
 __all__ = ["Ros1Source"]
 

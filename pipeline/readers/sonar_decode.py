@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.geometry_checks import beam_direction_problem, ping_problem
-from pipeline.readers.limits import MAX_IMAGE_PIXELS
-from pipeline.readers.sonar_models import SonarModel, even_beam_angles, load_sonar
-from schemas.sonar import SonarPing, beam_angles_from_directions
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.geometry_checks import beam_direction_problem, ping_problem
+from sonarmap.pipeline.readers.limits import MAX_IMAGE_PIXELS
+from sonarmap.pipeline.readers.sonar_models import SonarModel, even_beam_angles, load_sonar
+from sonarmap.schemas.sonar import SonarPing, beam_angles_from_directions
 
 __all__ = [
     "IMAGE_SONAR_TYPES",

@@ -16,7 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.package_data import configs_dir
 
 __all__ = [
     "MAX_BEAMS",
@@ -28,7 +29,7 @@ __all__ = [
     "preset_names",
 ]
 
-PRESETS_DIR = Path(__file__).resolve().parents[2] / "configs" / "sonars"
+PRESETS_DIR = configs_dir() / "sonars"
 MAX_BEAMS = 4096
 """Largest beam table accepted (imaging sonars have at most a few hundred beams)."""
 _MAX_TABLE_BYTES = 1 << 20
@@ -138,7 +139,7 @@ def _from_mapping(doc: dict[str, Any], name: str, source: str, where: str) -> So
 
 def _text_table(path: Path, where: str) -> np.ndarray:
     """Numbers of a CSV/TXT file (commas, spaces or newlines; `#` comments; one header row)."""
-    from pipeline.engine.yaml_files import _read_capped
+    from sonarmap.pipeline.engine.yaml_files import _read_capped
 
     raw = _read_capped(path, "beam table", ConfigError, _MAX_TABLE_BYTES)
     values: list[str] = []
@@ -165,7 +166,7 @@ def load_sonar(spec: str) -> SonarModel:
     Raises:
         ConfigError: an unknown name, an unreadable file or a bad table; one line naming it.
     """
-    from pipeline.engine.yaml_files import read_yaml
+    from sonarmap.pipeline.engine.yaml_files import read_yaml
 
     preset = PRESETS_DIR / f"{spec}.yaml"
     if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec) and preset.is_file():

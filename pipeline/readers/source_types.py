@@ -1,6 +1,6 @@
 """What every recording backend shares: topic descriptions, the Source protocol, index checks.
 
-A leaf below `pipeline.readers.sources` (which opens a file with the right backend) and
+A leaf below `sonarmap.pipeline.readers.sources` (which opens a file with the right backend) and
 every backend, so neither imports the other's module."""
 
 from __future__ import annotations

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.source_types import Source
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.source_types import Source
 
 __all__ = [
     "dataset_fingerprint_parts",
@@ -64,34 +64,34 @@ def open_source(path: Path, message_definitions: Sequence[str | Path] = ()) -> S
     kind = _sniff(path)
     extra = None
     if message_definitions:
-        from pipeline.readers.typestores import load_message_types
+        from sonarmap.pipeline.readers.typestores import load_message_types
 
         extra = load_message_types(message_definitions)
     if kind == "mcap":
-        from pipeline.readers.mcap_source import McapSource
+        from sonarmap.pipeline.readers.mcap_source import McapSource
 
         return McapSource(path, [path])
     if kind == "rosbag1":
-        from pipeline.readers.ros1_source import Ros1Source
+        from sonarmap.pipeline.readers.ros1_source import Ros1Source
 
         return Ros1Source(path)
     if kind == "oculus-raw":
-        from pipeline.readers.oculus_raw import OculusRawSource
+        from sonarmap.pipeline.readers.oculus_raw import OculusRawSource
 
         return OculusRawSource(path)
     if kind == "sqlite3":
-        from pipeline.readers.sqlite_source import SqliteSource
+        from sonarmap.pipeline.readers.sqlite_source import SqliteSource
 
         return SqliteSource(path, [path], None, extra)
     if kind == "aris":
-        from pipeline.readers.aris import ArisSource
+        from sonarmap.pipeline.readers.aris import ArisSource
 
         return ArisSource(path)
     return _open_rosbag2(path, extra)
 
 
 def _bag_metadata(path: Path) -> dict[str, Any]:
-    from pipeline.engine.yaml_files import read_yaml
+    from sonarmap.pipeline.engine.yaml_files import read_yaml
 
     meta = path / "metadata.yaml"
     doc = read_yaml(meta, "bag metadata", SourceError)
@@ -115,11 +115,11 @@ def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Sour
     }
     storage = meta.get("storage_identifier", "")
     if storage == "mcap":
-        from pipeline.readers.mcap_source import McapSource
+        from sonarmap.pipeline.readers.mcap_source import McapSource
 
         return McapSource(path, files, indexed)
     if storage == "sqlite3":
-        from pipeline.readers.sqlite_source import SqliteSource
+        from sonarmap.pipeline.readers.sqlite_source import SqliteSource
 
         return SqliteSource(path, files, indexed, extra_types)
     raise SourceError(f"{path}: unsupported rosbag2 storage {storage!r} (mcap or sqlite3)")

@@ -19,9 +19,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.engine.errors import SourceError
-from pipeline.readers.source_types import TimeIndexedSource
-from pipeline.readers.typestores import Ros2Decoder
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.source_types import TimeIndexedSource
+from sonarmap.pipeline.readers.typestores import Ros2Decoder
 
 __all__ = ["SqliteSource"]
 

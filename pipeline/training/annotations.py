@@ -1,7 +1,7 @@
 """Annotation files beside field recordings: find, read, validate, and key them.
 
 `<stem>.annotations.yaml` (or `.json`) next to a recording labels its keyframes for
-classifier training (format: `schemas.annotations`). The validated content is
+classifier training (format: `sonarmap.schemas.annotations`). The validated content is
 committed to the store as a small "annotations" artifact keyed by its hash, which
 `train` takes as an input: editing the shapes retrains, reformatting the file or
 editing its comments does not.
@@ -15,14 +15,14 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from pipeline.engine.errors import SourceError
-from pipeline.engine.hashing import recipe_key
-from pipeline.engine.store import ArtifactRef, ArtifactStore
-from pipeline.engine.text import one_line
-from schemas.annotations import AnnotationFile
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from stages.base import Output, Stage, StageConfig
-from stages.classify.config import RASTER_VERSION
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.hashing import recipe_key
+from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.text import one_line
+from sonarmap.schemas.annotations import AnnotationFile
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.stages.base import Output, Stage, StageConfig
+from sonarmap.stages.classify.config import RASTER_VERSION
 
 __all__ = ["ANNOTATIONS_STAGE", "annotation_path", "commit_annotations", "load_annotations"]
 
@@ -82,7 +82,7 @@ def load_annotations(path: Path, table: ClassTable = DEFAULT_TABLE) -> Annotatio
             ANNOTATIONS_MAX_NODES), or invalid;
             one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
-    from pipeline.engine.yaml_files import read_model  # yaml: only when a file is read
+    from sonarmap.pipeline.engine.yaml_files import read_model  # yaml: only when a file is read
 
     return read_model(
         path,
@@ -105,7 +105,7 @@ def commit_annotations(
     The key hashes the validated content and the rasterisation version, so the train
     stage reading it retrains exactly when a shape, class or time changes.
     """
-    from pipeline.engine.codecs import write_output  # pyarrow: not on a cached run's path
+    from sonarmap.pipeline.engine.codecs import write_output  # pyarrow: not on a cached run's path
 
     doc = load_annotations(path, table).model_dump(mode="json")
     recipe = {"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc}

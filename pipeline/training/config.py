@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from pydantic import Field, field_validator
 
-from pipeline.engine.errors import ConfigError
-from pipeline.training.cache_dir import default_training_directory
-from sim.procedural_config import ProceduralConfig
-from sim.randomise import SensorRandomisation
-from stages.base import ConfigModel
-from stages.features import FeaturesConfig
-from stages.keyframes import KeyframesConfig
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.training.cache_dir import default_training_directory
+from sonarmap.sim.procedural_config import ProceduralConfig
+from sonarmap.sim.randomise import SensorRandomisation
+from sonarmap.stages.base import ConfigModel
+from sonarmap.stages.features import FeaturesConfig
+from sonarmap.stages.keyframes import KeyframesConfig
 
 __all__ = ["ProceduralTraining", "TrainingDataConfig", "TrainingSet"]
 
@@ -30,7 +30,7 @@ class TrainingSet(ConfigModel):
     @classmethod
     def _scene_exists(cls, value: str) -> str:
         # Checked with the rest of the config, not when training first needs it.
-        from pipeline.training.datasets import scene_path
+        from sonarmap.pipeline.training.datasets import scene_path
 
         try:
             scene_path(value)
@@ -40,8 +40,8 @@ class TrainingSet(ConfigModel):
 
 
 class ProceduralTraining(ConfigModel):
-    """Random harbours (`sim.procedural`) the default classifier learns from, each with the
-    simulator's own mission and a randomised sensor (`sim.randomise`).
+    """Random harbours (`sonarmap.sim.procedural`) the default classifier learns from, each with the
+    simulator's own mission and a randomised sensor (`sonarmap.sim.randomise`).
 
     Training worlds have seeds base_seed, base_seed + 1, ...; the held-out validation
     worlds follow them. The `train` stage adds training worlds in that order until the
@@ -49,7 +49,7 @@ class ProceduralTraining(ConfigModel):
     """
 
     generator: ProceduralConfig = Field(
-        default_factory=ProceduralConfig, description="the generator's ranges (`sim.procedural`)"
+        default_factory=ProceduralConfig, description="the generator's ranges (`sonarmap.sim.procedural`)"
     )
     worlds: int = Field(
         6,
@@ -71,7 +71,7 @@ class ProceduralTraining(ConfigModel):
     )
     sensor: SensorRandomisation | None = Field(
         default_factory=SensorRandomisation,
-        description="per-mission sensor draw (`sim.randomise`); null: the default sensor",
+        description="per-mission sensor draw (`sonarmap.sim.randomise`); null: the default sensor",
     )
 
 
@@ -80,9 +80,9 @@ class TrainingDataConfig(ConfigModel):
 
     The mapped scene should not be among them (the default marina never is). Seeds are
     far from the study's 0..N-1. Simulated files go to `directory` and are reused; the
-    trained models go to the model cache `<directory>/store` (`pipeline.training.model_cache`),
+    trained models go to the model cache `<directory>/store` (`sonarmap.pipeline.training.model_cache`),
     which every store of the user reuses. `directory` defaults to the user's cache
-    directory (`pipeline.training.cache_dir`), not to the working directory.
+    directory (`sonarmap.pipeline.training.cache_dir`), not to the working directory.
     """
 
     sets: tuple[TrainingSet, ...] = Field(
@@ -119,7 +119,7 @@ class TrainingDataConfig(ConfigModel):
     shipped_models: str | None = Field(
         default="configs/model",
         description="read-only store of pretrained default models with the lock of their"
-        " training recordings (`pipeline.training.shipped`; relative: to the project);"
+        " training recordings (`sonarmap.pipeline.training.shipped`; relative: to the project);"
         " null: always simulate and train here",
     )
     follow_run: bool = Field(

@@ -16,11 +16,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.package_data import configs_dir
 
 if TYPE_CHECKING:
-    from sim.config import SimConfig
-    from sim.scene import Scene
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.scene import Scene
 
 __all__ = [
     "SCENES_DIR",
@@ -34,7 +35,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-SCENES_DIR = Path(__file__).resolve().parents[2] / "configs" / "scenes"
+SCENES_DIR = configs_dir() / "scenes"
 
 
 def scene_path(name_or_path: str | Path) -> Path:
@@ -52,9 +53,9 @@ def scene_path(name_or_path: str | Path) -> Path:
 
 def read_scene(path: Path) -> Scene:
     """A scene YAML, validated; bad YAML or a bad field is one ConfigError line."""
-    from pipeline.engine.config_errors import validation_message
-    from pipeline.engine.yaml_files import read_model
-    from sim.scene import Scene, SceneError, meshes_found
+    from sonarmap.pipeline.engine.config_errors import validation_message
+    from sonarmap.pipeline.engine.yaml_files import read_model
+    from sonarmap.sim.scene import Scene, SceneError, meshes_found
 
     scene = read_model(
         path,
@@ -64,7 +65,7 @@ def read_scene(path: Path) -> Scene:
         lambda err: validation_message(Scene, err, f"scene {path}"),
         "a scene must be a YAML mapping",
     )
-    # Mesh files are named relative to the scene file (`sim.scene.MeshObject`).
+    # Mesh files are named relative to the scene file (`sonarmap.sim.scene.MeshObject`).
     try:
         return meshes_found(scene, path)
     except SceneError as err:
@@ -75,9 +76,9 @@ def sim_config(
     goals: int | None, duration_s: float | None, sensor: Mapping[str, Any] | None = None
 ) -> SimConfig:
     """The simulator's defaults with a mission of `goals` goals, cut after `duration_s`,
-    and the sensor draw `sensor` (`sim.randomise.draw_sensor`) when given."""
-    from sim.config import SimConfig
-    from sim.randomise import randomised_config
+    and the sensor draw `sensor` (`sonarmap.sim.randomise.draw_sensor`) when given."""
+    from sonarmap.sim.config import SimConfig
+    from sonarmap.sim.randomise import randomised_config
 
     base = SimConfig()
     mission = base.mission.model_copy(
@@ -94,7 +95,7 @@ def _recipe(
     duration_s: float | None,
     sensor: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
-    from sim.version import SIM_VERSION as sim_version
+    from sonarmap.sim.version import SIM_VERSION as sim_version
 
     recipe = {
         "scene_sha256": hashlib.sha256(
@@ -133,7 +134,7 @@ def ensure_simulation(
     scene_text: str | None = None,
 ) -> Path:
     """Simulate `scene` with `seed` into `out` unless an identical one is already there
-    (`sensor`: a `sim.randomise.draw_sensor` draw, part of the recipe; `scene_text`: a
+    (`sensor`: a `sonarmap.sim.randomise.draw_sensor` draw, part of the recipe; `scene_text`: a
     generated scene, written to `scene` first when the file differs)."""
     recipe = _recipe(
         scene_text.encode() if scene_text is not None else scene, seed, goals, duration_s, sensor
@@ -147,9 +148,9 @@ def ensure_simulation(
         tmp.write_text(scene_text)
         tmp.replace(scene)  # atomic: a concurrent simulation reads the old or the new file
     # Only a miss pays for the simulator's imports (open3d).
-    from pipeline.engine.errors import SourceError
-    from pipeline.formats.simulation import write_simulation
-    from sim.dataset import simulate
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.formats.simulation import write_simulation
+    from sonarmap.sim.dataset import simulate
 
     run = simulate(read_scene(scene), sim_config(goals, duration_s, sensor), seed)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -7,10 +7,10 @@ the stage version. The training datasets are built with the `training` section's
 `keyframes` and `features` settings, so a run's `--set keyframes.spacing_m=4` maps
 with the same model (`training.follow_run: true` builds them with the run's settings
 instead). `sonarmap run` binds the resulting `model.pt` to `classify`'s "train.model"
-input; trained models live in the machine-wide cache of `pipeline.training.model_cache` (`resolve_model`).
+input; trained models live in the machine-wide cache of `sonarmap.pipeline.training.model_cache` (`resolve_model`).
 
 A recording with an annotation file beside it (`<stem>.annotations.yaml`, format in
-`schemas.annotations`) is labelled by that file instead of label images: its content
+`sonarmap.schemas.annotations`) is labelled by that file instead of label images: its content
 becomes an "annotations" artifact that `train` also reads, so editing it retrains.
 """
 
@@ -23,20 +23,20 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from schemas.sonar import KeyframeImages
+    from sonarmap.schemas.sonar import KeyframeImages
 
 from pydantic import BaseModel
 
-from pipeline.engine.errors import SourceError
-from pipeline.engine.planned import DatasetSpec
-from pipeline.engine.planner import plan
-from pipeline.engine.runner import execute
-from pipeline.engine.session import dataset_spec
-from pipeline.engine.store import ArtifactRef, ArtifactStore
-from pipeline.training.config import TrainingDataConfig
-from pipeline.training.datasets import Simulation
-from schemas.classes import DEFAULT_TABLE
-from stages.base import Input, Stage
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.planned import DatasetSpec
+from sonarmap.pipeline.engine.planner import plan
+from sonarmap.pipeline.engine.runner import execute
+from sonarmap.pipeline.engine.session import dataset_spec
+from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.training.config import TrainingDataConfig
+from sonarmap.pipeline.training.datasets import Simulation
+from sonarmap.schemas.classes import DEFAULT_TABLE
+from sonarmap.stages.base import Input, Stage
 
 __all__ = [
     "ordered_datasets",
@@ -67,7 +67,7 @@ def training_config(config: BaseModel) -> BaseModel:
 
 def _unmatched_is_bad_input(frames: Iterator[KeyframeImages]) -> Iterator[KeyframeImages]:
     """`frames`, with annotations matching no keyframe raised as a SourceError (exit 2)."""
-    from stages.classify.annotations import UnmatchedAnnotations
+    from sonarmap.stages.classify.annotations import UnmatchedAnnotations
 
     try:
         yield from frames
@@ -88,16 +88,16 @@ def training_stage_for(
 
     Inputs are bound as "keyframes_i.frames" / "features_i.features" so one stage run
     sees every dataset; dataset i in `annotated` also reads "annotations_i.annotations"
-    and is labelled by it (`stages.classify.annotations.label_keyframes`) instead of label
+    and is labelled by it (`sonarmap.stages.classify.annotations.label_keyframes`) instead of label
     images. The last `heldout` datasets (inputs "val_keyframes_i" ...) only validate:
-    whole worlds held out, and the size rule of `stages.classify.train` grows the
+    whole worlds held out, and the size rule of `sonarmap.stages.classify.train` grows the
     training set over the others. `names` (the datasets' paths) only word error
-    messages. Outputs and config are those of `stages.classify.train`.
+    messages. Outputs and config are those of `sonarmap.stages.classify.train`.
     """
-    from pipeline.engine.registry import training_stage
-    from pipeline.engine.text import one_line
-    from pipeline.training.annotations import annotation_path
-    from schemas.annotations import AnnotationFile
+    from sonarmap.pipeline.engine.registry import training_stage
+    from sonarmap.pipeline.engine.text import one_line
+    from sonarmap.pipeline.training.annotations import annotation_path
+    from sonarmap.schemas.annotations import AnnotationFile
 
     base = training_stage()
     pre = [_prefix(i, n_datasets, heldout) for i in range(n_datasets)]
@@ -135,14 +135,14 @@ def training_stage_for(
         ann = annotation_path(Path(name(i))) if i < len(names) else None
         source = one_line(str(ann)) if ann is not None else f"annotations of {name(i)}"
         features = bound[f"{pre[i]}features_{i}.features"]
-        from stages.classify.annotations import label_keyframes
+        from sonarmap.stages.classify.annotations import label_keyframes
 
         return _unmatched_is_bad_input(
             label_keyframes(kf, doc, source=source, features=features, table=table)
         )
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
-        from stages.classify.train import train_classifier
+        from sonarmap.stages.classify.train import train_classifier
 
         pairs = [
             (frames(i, bound), bound[f"{pre[i]}features_{i}.features"]) for i in range(n_datasets)
@@ -171,10 +171,14 @@ def _bind_training(
     With `compute=False` nothing is computed (annotation files, whose content is their
     key, are committed): the placeholders carry the keys the train stage's key needs.
     `fingerprints` stand in for recordings not on disk (planning only: the shipped
-    model's lock, `pipeline.training.shipped`).
+    model's lock, `sonarmap.pipeline.training.shipped`).
     """
-    from pipeline.engine.registry import pipeline_stages
-    from pipeline.training.annotations import ANNOTATIONS_STAGE, annotation_path, commit_annotations
+    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.training.annotations import (
+        ANNOTATIONS_STAGE,
+        annotation_path,
+        commit_annotations,
+    )
 
     upstream = pipeline_stages()[:2]
     external: dict[str, tuple[Stage, ArtifactRef]] = {}
@@ -247,7 +251,7 @@ def train_on(
     The last `heldout` datasets only validate (whole worlds held out; `training_stage_for`).
 
     Keyframes and features use the `training` section's settings (`training_config`). A
-    dataset with an annotation file beside it (`pipeline.training.annotations.annotation_path`)
+    dataset with an annotation file beside it (`sonarmap.pipeline.training.annotations.annotation_path`)
     is labelled by that file; the others need label images (simulated recordings).
 
     Raises:
@@ -263,8 +267,8 @@ def train_on(
 def training_simulations(training: TrainingDataConfig) -> list[Simulation]:
     """The simulated missions of `training.sets`, then the procedural worlds of
     `training.procedural` (training, then held-out), with the files they are kept in."""
-    from pipeline.training.datasets import scene_path
-    from pipeline.training.worlds import procedural_simulations
+    from sonarmap.pipeline.training.datasets import scene_path
+    from sonarmap.pipeline.training.worlds import procedural_simulations
 
     sims = []
     for item in training.sets:
@@ -289,7 +293,7 @@ def ordered_datasets(
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    from pipeline.training.worlds import heldout_count
+    from sonarmap.pipeline.training.worlds import heldout_count
 
     k = heldout_count(training)
     cut = len(simulated) - k
@@ -298,12 +302,12 @@ def ordered_datasets(
 
 def training_datasets(training: TrainingDataConfig) -> list[Path]:
     """The default model's datasets (simulated on first use) in `ordered_datasets` order;
-    the last `pipeline.training.worlds.heldout_count` of them validate.
+    the last `sonarmap.pipeline.training.worlds.heldout_count` of them validate.
 
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    from pipeline.training.datasets import ensure_simulations
+    from sonarmap.pipeline.training.datasets import ensure_simulations
 
     workers = max(1, min(2, os.cpu_count() or 1))
     paths = ensure_simulations(training_simulations(training), workers)
@@ -316,7 +320,7 @@ def recorded_datasets(training: TrainingDataConfig) -> list[Path]:
     Raises:
         SourceError: a recorded dataset without its annotation file.
     """
-    from pipeline.training.annotations import annotation_path
+    from sonarmap.pipeline.training.annotations import annotation_path
 
     paths = []
     for recorded in training.recorded:

@@ -2,7 +2,7 @@
 
 The default classifier is trained once into the model cache, an ordinary artifact store
 at `<training.directory>/store`, by default in the user's cache directory
-(`pipeline.training.cache_dir`), with atomic commits, per-key locks, manifests with sha256,
+(`sonarmap.pipeline.training.cache_dir`), with atomic commits, per-key locks, manifests with sha256,
 which also holds the training datasets' keyframes and features. A run's store gets a
 verified copy of the `train` artifact it uses, so `show`, `push` and `pull` see the
 model where they always did. The `train` key is planned without computing anything,
@@ -11,7 +11,7 @@ so a fresh store on a machine that has the model trains nothing and builds nothi
 1. the run's store has the model (e.g. pulled from a colleague): use it, and publish it
    to the cache when the cache lacks it;
 2. the cache has it: check every file's sha256 against its manifest, copy it in;
-3. the project ships it (`configs/model`, `pipeline.training.shipped`): verified into
+3. the project ships it (`configs/model`, `sonarmap.pipeline.training.shipped`): verified into
    the cache, then copied in; planned from the shipped lock, so nothing is simulated;
 4. none: simulate the training sets, train into the cache (once per machine), copy it in.
 """
@@ -28,10 +28,15 @@ from typing import Any, Literal
 
 from pydantic import BaseModel
 
-from pipeline.engine.errors import ArtifactCorrupt
-from pipeline.engine.store import ArtifactRef, ArtifactStore, safe_relative, verify_artifact_dir
-from pipeline.training.cache_dir import default_training_directory
-from stages.base import Stage
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.store import (
+    ArtifactRef,
+    ArtifactStore,
+    safe_relative,
+    verify_artifact_dir,
+)
+from sonarmap.pipeline.training.cache_dir import default_training_directory
+from sonarmap.stages.base import Stage
 
 __all__ = [
     "DEFAULT_MODEL_CACHE",
@@ -96,7 +101,7 @@ def describe(model: Mapping[str, Any]) -> str:
 
 def model_cache(config: BaseModel) -> ArtifactStore:
     """The machine-wide model cache of `config`'s `training` section."""
-    from pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.config import TrainingDataConfig
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     return ArtifactStore(Path(training.directory) / CACHE_DIR)
@@ -164,9 +169,13 @@ def _planned_from_lock(config: BaseModel, cache: ArtifactStore) -> tuple[str, li
     """The default model's key and datasets, planned without simulating: recordings on
     disk are fingerprinted, the others taken from the shipped lock; None when the lock
     lacks one of them (planning then needs the simulation)."""
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model import ordered_datasets, plan_training, training_simulations
-    from pipeline.training.shipped import locked_fingerprints
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.model import (
+        ordered_datasets,
+        plan_training,
+        training_simulations,
+    )
+    from sonarmap.pipeline.training.shipped import locked_fingerprints
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     sims = training_simulations(training)
@@ -182,8 +191,8 @@ def located_default_model(
 ) -> tuple[str, ArtifactRef | None]:
     """The default model's key and where it is at hand (the store, the model cache or the
     shipped models; None when nowhere), found without simulating, training or copying."""
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.shipped import shipped_store
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.shipped import shipped_store
 
     cache = model_cache(config)
     planned = _planned_from_lock(config, cache)
@@ -207,7 +216,7 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
     shipped models, or trained.
 
     The key is planned first from the recordings on disk and, for those not simulated
-    yet, the shipped model's lock (`pipeline.training.shipped`), so a machine with the
+    yet, the shipped model's lock (`sonarmap.pipeline.training.shipped`), so a machine with the
     model simulates nothing. Only a miss simulates the training sets, plans again from
     the real files, and trains.
 
@@ -216,16 +225,16 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
             (the message names the artifact directory to remove or restore).
         SourceError: a training dataset is unusable.
     """
-    from pipeline.training.annotations import annotation_path
-    from pipeline.training.config import TrainingDataConfig
-    from pipeline.training.model import (
+    from sonarmap.pipeline.training.annotations import annotation_path
+    from sonarmap.pipeline.training.config import TrainingDataConfig
+    from sonarmap.pipeline.training.model import (
         plan_training,
         train_on,
         training_datasets,
         training_stage_for,
     )
-    from pipeline.training.shipped import shipped_store
-    from pipeline.training.worlds import heldout_count
+    from sonarmap.pipeline.training.shipped import shipped_store
+    from sonarmap.pipeline.training.worlds import heldout_count
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
     cache = model_cache(config)

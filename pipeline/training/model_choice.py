@@ -4,7 +4,7 @@ PATH is a train artifact's folder: one in any store (`<store>/train/<key>`) or t
 `sonarmap train -o DIR` writes, which holds the artifact's manifest beside its files. The
 files are checked against the manifest's sha256s before the model is copied into the
 run's store, exactly as a pulled or shipped model is, so the run's classify key follows
-the model's bytes, whichever way it was named (`pipeline.api.MODEL_INPUTS`).
+the model's bytes, whichever way it was named (`sonarmap.pipeline.api.MODEL_INPUTS`).
 
 A model trained without a validation split (`metrics.json` "n" = 0) says nothing of how
 well it classifies: it is refused unless `classify.allow_unvalidated_model` is set.
@@ -17,11 +17,16 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from pipeline.engine.artifact import ArtifactRef
-from pipeline.engine.errors import ArtifactCorrupt, SourceError
-from pipeline.engine.manifest import read_manifest
-from pipeline.engine.store import MANIFEST, ArtifactStore
-from pipeline.training.model_cache import ResolvedModel, _record_use, copy_verified, model_cache
+from sonarmap.pipeline.engine.artifact import ArtifactRef
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, SourceError
+from sonarmap.pipeline.engine.manifest import read_manifest
+from sonarmap.pipeline.engine.store import MANIFEST, ArtifactStore
+from sonarmap.pipeline.training.model_cache import (
+    ResolvedModel,
+    _record_use,
+    copy_verified,
+    model_cache,
+)
 
 __all__ = ["resolve_given_model"]
 
@@ -81,7 +86,7 @@ def resolve_given_model(
         SourceError: nothing there, not a train artifact, or unvalidated (one line).
         ArtifactCorrupt: its files do not match its manifest.
     """
-    from pipeline.training.model import training_stage_for
+    from sonarmap.pipeline.training.model import training_stage_for
 
     cache = model_cache(config)
     if spec.startswith("train/"):

@@ -31,9 +31,10 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from pipeline.engine.hashing import canonical_json
-from pipeline.engine.store import ArtifactRef, ArtifactStore, verify_artifact_dir
-from pipeline.training.datasets import Simulation
+from sonarmap.pipeline.engine.hashing import canonical_json
+from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore, verify_artifact_dir
+from sonarmap.pipeline.package_data import package_root
+from sonarmap.pipeline.training.datasets import Simulation
 
 __all__ = [
     "LOCK_FILE",
@@ -46,7 +47,7 @@ __all__ = [
     "shipped_store",
 ]
 
-PROJECT_ROOT = Path(__file__).resolve().parents[2]
+PROJECT_ROOT = package_root()
 LOCK_FILE = "lock.json"
 LOCK_FORMAT = 1
 
@@ -67,7 +68,7 @@ def shipped_store(setting: str | None) -> ArtifactStore | None:
 
 def shipped_models(setting: str | None) -> list[tuple[str, str, str]]:
     """(stage, key, sha256 of model.pt) of every shipped model: the leaves and pins that
-    `push` and `pull` use (`pipeline.engine.trust.TrustPolicy`)."""
+    `push` and `pull` use (`sonarmap.pipeline.engine.trust.TrustPolicy`)."""
     store = shipped_store(setting)
     if store is None:
         return []

@@ -1,8 +1,8 @@
 """The procedural training worlds of `training.procedural` as simulations.
 
-Each world's scene is generated (`sim.procedural.generate_scene`); its YAML's sha256 is
+Each world's scene is generated (`sonarmap.sim.procedural.generate_scene`); its YAML's sha256 is
 in the recording's recipe like a hand-written scene's, and the file is written under
-`<training.directory>/worlds/` only when the world is simulated. Each mission gets its own sensor draw (`sim.randomise.draw_sensor`, seeded by the
+`<training.directory>/worlds/` only when the world is simulated. Each mission gets its own sensor draw (`sonarmap.sim.randomise.draw_sensor`, seeded by the
 world's seed), part of its recipe.
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pipeline.training.config import ProceduralTraining, TrainingDataConfig
-from pipeline.training.datasets import Simulation
+from sonarmap.pipeline.training.config import ProceduralTraining, TrainingDataConfig
+from sonarmap.pipeline.training.datasets import Simulation
 
 __all__ = ["heldout_count", "procedural_simulations", "world_seeds"]
 
@@ -33,8 +33,8 @@ def procedural_simulations(training: TrainingDataConfig) -> list[Simulation]:
     proc = training.procedural
     if proc is None:
         return []
-    from sim.procedural import generate_scene, scene_yaml  # scene models: only for worlds
-    from sim.randomise import draw_sensor
+    from sonarmap.sim.procedural import generate_scene, scene_yaml  # scene models: only for worlds
+    from sonarmap.sim.randomise import draw_sensor
 
     directory = Path(training.directory)
     train, val = world_seeds(proc)

@@ -15,10 +15,10 @@ Modules:
     annotations: labels of simulated keyframes from the true scene.
 """
 
-from stages.base import Input, Output, Stage
-from stages.classify.config import ClassifyConfig
-from stages.classify.model_choice import MODEL_CHOICE_FIELDS
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.classify.config import ClassifyConfig
+from sonarmap.stages.classify.model_choice import MODEL_CHOICE_FIELDS
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "ClassifyConfig"]
 
@@ -37,16 +37,16 @@ STAGE = Stage(
         Input("train", "model"),
     ),
     outputs=(
-        Output("objects", "parquet", "objects.parquet", schema="schemas.objects:OBJECTS_SCHEMA"),
+        Output("objects", "parquet", "objects.parquet", schema="sonarmap.schemas.objects:OBJECTS_SCHEMA"),
         Output(
             "object_features",
             "parquet",
             "object_features.parquet",
-            schema="schemas.objects:OBJECT_FEATURES_SCHEMA",
+            schema="sonarmap.schemas.objects:OBJECT_FEATURES_SCHEMA",
         ),
         Output("clustering", "json", "clustering.json"),
     ),
-    run=deferred("stages.classify.stage:_run"),
+    run=deferred("sonarmap.stages.classify.stage:_run"),
     key_excludes=MODEL_CHOICE_FIELDS,
     reads_sections=("classes",),
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"

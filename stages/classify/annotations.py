@@ -1,7 +1,7 @@
 """Hand-drawn annotations -> label images on the horizontal sonar's polar grid.
 
 Field recordings have no simulator label images. `label_keyframes` rasterises an
-annotation file's boxes and polygons (`schemas.annotations`, drawn in the fan-plane
+annotation file's boxes and polygons (`sonarmap.schemas.annotations`, drawn in the fan-plane
 Cartesian frame x = R cos(theta), y = R sin(theta), paper Eq. 1 with phi = 0) onto
 each annotated keyframe's polar cells, so training takes the majority class of each
 DBSCAN cluster's cells (paper Sec. IV.C) exactly as it does from simulated labels.
@@ -16,12 +16,12 @@ from collections.abc import Iterable, Iterator, Sequence
 import numpy as np
 import pyarrow as pa
 
-from schemas.annotations import AnnotatedObject, AnnotationFile
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.classify.config import RASTER_VERSION
-from stages.kernels.geometry import fan_to_xy
-from stages.kernels.lazy import lazy
+from sonarmap.schemas.annotations import AnnotatedObject, AnnotationFile
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.classify.config import RASTER_VERSION
+from sonarmap.stages.kernels.geometry import fan_to_xy
+from sonarmap.stages.kernels.lazy import lazy
 
 mpath = lazy("matplotlib.path")
 

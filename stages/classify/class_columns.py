@@ -6,8 +6,8 @@ from typing import Any
 
 import numpy as np
 
-from schemas.classes import UNKNOWN_CLASS, ClassTable
-from schemas.objects import UNKNOWN_CLASS_ID
+from sonarmap.schemas.classes import UNKNOWN_CLASS, ClassTable
+from sonarmap.schemas.objects import UNKNOWN_CLASS_ID
 
 __all__ = ["class_columns", "truth_columns"]
 

@@ -190,7 +190,7 @@ def mc_predict_groups(
     shared by the patches of one group, drawn from the group's own seed (numpy PCG64).
     Each patch still gets m independent Bernoulli masks with the same p, so its mean and
     variance follow the same distribution as `mc_predict`'s; only patches of one group
-    (never pooled with one another, `stages.classify.view_pooling`) share them, and a
+    (never pooled with one another, `sonarmap.stages.classify.view_pooling`) share them, and a
     group's output depends only on its patches and its seed (up to float32 rounding of
     the batched products).
 

@@ -6,12 +6,12 @@ from typing import Literal
 
 from pydantic import Field
 
-from stages.classify.model_choice import ModelChoice
+from sonarmap.stages.classify.model_choice import ModelChoice
 
 __all__ = ["RASTER_VERSION", "ClassifyConfig"]
 
 RASTER_VERSION = 1
-"""Version of `stages.classify.annotations`' rasterisation of labelled objects: bumped
+"""Version of `sonarmap.stages.classify.annotations`' rasterisation of labelled objects: bumped
 whenever it could label a cell differently (it enters the train key, which planning
 computes, hence here)."""
 
@@ -19,7 +19,7 @@ computes, hence here)."""
 class ClassifyConfig(ModelChoice):
     """DBSCAN clustering and MC-dropout acceptance (paper Sec. IV.C).
 
-    The clustering defaults live once, in `stages.classify.train.TrainConfig`: a model is trained
+    The clustering defaults live once, in `sonarmap.stages.classify.train.TrainConfig`: a model is trained
     on the objects its clustering produces, so classify reads them from the model file
     and these fields only override them (an override outside what the model saw in
     training changes what it is shown).
@@ -45,13 +45,13 @@ class ClassifyConfig(ModelChoice):
         gt=0,
         le=10000,
         description="keep only objects whose feature cells cover more than this fan-plane"
-        " area (stages.classify.segmentation.cell_areas_m2; None: no area rule; original sim code:"
+        " area (sonarmap.stages.classify.segmentation.cell_areas_m2; None: no area rule; original sim code:"
         " > 150 px of 5 cm = 0.375 m2); not applied in training",
     )
     drop_fan_edge_objects: bool = Field(
         False,
         description="drop objects whose padded bounding box reaches outside the horizontal"
-        " sonar's fan (stages.classify.segmentation.fan_outside_area_m2; original sim code); dropped"
+        " sonar's fan (sonarmap.stages.classify.segmentation.fan_outside_area_m2; original sim code); dropped"
         " objects are not in objects.parquet",
     )
     fan_edge_margin_m: float = Field(
@@ -82,7 +82,7 @@ class ClassifyConfig(ModelChoice):
     pool_views: bool = Field(
         True,
         description="decide on the class distribution log-linearly pooled over sightings of"
-        " the same place in nearby keyframes (stages.classify.view_pooling; not in the paper)",
+        " the same place in nearby keyframes (sonarmap.stages.classify.view_pooling; not in the paper)",
     )
     pool_radius_m: float = Field(
         0.7, gt=0, le=1000, description="sightings within this in the world are one object"

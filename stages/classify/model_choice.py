@@ -1,11 +1,11 @@
 """The classify settings that choose its model (kept out of its key: the key follows the
-chosen model's bytes instead, `pipeline.api.MODEL_INPUTS`)."""
+chosen model's bytes instead, `sonarmap.pipeline.api.MODEL_INPUTS`)."""
 
 from __future__ import annotations
 
 from pydantic import Field
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["MODEL_CHOICE_FIELDS", "ModelChoice"]
 

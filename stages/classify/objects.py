@@ -13,7 +13,7 @@ object's appearance (a piling's arc always opens away from the bottom of the pat
 the paper does not say how its boxes were oriented.
 
 The clusters themselves, and the authors' two optional cluster rules, are
-`stages.classify.segmentation`.
+`sonarmap.stages.classify.segmentation`.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.sonar import SonarPing
-from stages.classify.segmentation import (
+from sonarmap.schemas.sonar import SonarPing
+from sonarmap.stages.classify.segmentation import (
     cell_areas_m2,
     cluster_boxes,
     fan_limits,
@@ -33,9 +33,9 @@ from stages.classify.segmentation import (
     keep_clusters,
     majority_class,
 )
-from stages.kernels.clustering import cluster_features
-from stages.kernels.geometry import fan_to_xy
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.clustering import cluster_features
+from sonarmap.stages.kernels.geometry import fan_to_xy
+from sonarmap.stages.kernels.lazy import lazy
 
 ndimage = lazy("scipy.ndimage")
 

@@ -1,11 +1,11 @@
 """Segmentation of one horizontal image's features into objects (paper Sec. IV.C).
 
-Features are clustered with DBSCAN in the fan plane (`stages.kernels.clustering`: the
+Features are clustered with DBSCAN in the fan plane (`sonarmap.stages.kernels.clustering`: the
 number of objects is not known a priori) and clusters with fewer than n features are
 dropped as noise.
 
 Two cluster rules of the authors' simulation code (reference/original-implementation.md
-Sec. 4.1 step 5), off by default (`stages.classify.objects.extract_objects`):
+Sec. 4.1 step 5), off by default (`sonarmap.stages.classify.objects.extract_objects`):
 - minimum object area: the original kept clusters of more than 150 Cartesian pixels of
   its 5 cm simulated image. Our features are polar cells, whose size grows with range,
   so a cluster is measured by the Cartesian area its cells cover, sum of R dR dtheta

@@ -18,10 +18,10 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from stages.kernels.figure_png import png_bytes
+from sonarmap.stages.kernels.figure_png import png_bytes
 
 if TYPE_CHECKING:
-    from stages.classify.cnn import PatchCNN
+    from sonarmap.stages.classify.cnn import PatchCNN
 
 __all__ = ["GrowSettings", "curve_png", "grow", "macro_f1", "one_size", "sizes"]
 
@@ -73,7 +73,7 @@ def grow(
         train: (n,) samples that may train (held-out worlds and unlearned classes not).
         n_datasets: training datasets (indices 0..n_datasets-1, added in that order).
         fit: trains a model on the samples of a mask.
-        score: validation metrics of a model (`stages.classify.validation.evaluate`).
+        score: validation metrics of a model (`sonarmap.stages.classify.validation.evaluate`).
 
     Returns:
         The model of the chosen size and the curve: {"rule", "points": [{"datasets",

@@ -3,17 +3,17 @@
 Per keyframe: DBSCAN clusters of the horizontal sonar's features (metric fan-plane
 coordinates), clusters of at least n features, 40x40 aspect-preserving patches; then
 m Monte-Carlo dropout passes of the CNN over the objects of all keyframes at once
-(`stages.classify.cnn.mc_predict_groups`). Two cluster rules
+(`sonarmap.stages.classify.cnn.mc_predict_groups`). Two cluster rules
 of the authors' simulation code, off by default, drop objects before classification: a
 minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
-see `stages.classify.objects`. An object takes the argmax class of the mean softmax when that
+see `sonarmap.stages.classify.objects`. An object takes the argmax class of the mean softmax when that
 mean probability exceeds the threshold and is "unknown" otherwise; mean and variance
 are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id) and shared by
 its objects, so outputs are byte-identical run to run.
 
 Beyond the paper (on by default, `pool_views`): the decision is taken on the class
 distribution pooled over the sightings of the same place in nearby keyframes
-(`stages.classify.view_pooling`, mapped with the dead-reckoning poses, since classify runs before
+(`sonarmap.stages.classify.view_pooling`, mapped with the dead-reckoning poses, since classify runs before
 SLAM). A piling seen at 25 m, where its shape is hardly resolved, takes the class it shows
 close up a few keyframes earlier or later. `probability` is then the pooled probability;
 `single_view_probability` keeps this keyframe's own.
@@ -32,24 +32,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.model_settings import ModelSettings
-from schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
-from schemas.sensors import Sensors
-from schemas.sonar import KeyframeImages
-from stages.base import Input, StageInputError
-from stages.classify import STAGE
-from stages.classify.class_columns import class_columns, truth_columns
-from stages.classify.config import ClassifyConfig
-from stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
-from stages.kernels.clustering import clustering
-from stages.kernels.lazy import lazy
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.model_settings import ModelSettings
+from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.classify import STAGE
+from sonarmap.stages.classify.class_columns import class_columns, truth_columns
+from sonarmap.stages.classify.config import ClassifyConfig
+from sonarmap.stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
+from sonarmap.stages.kernels.clustering import clustering
+from sonarmap.stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
-    from stages.classify.cnn import PatchCNN
+    from sonarmap.stages.classify.cnn import PatchCNN
 
-cnn = lazy("stages.classify.cnn")
-view_pooling = lazy("stages.classify.view_pooling")  # scipy.spatial: only when pooling
+cnn = lazy("sonarmap.stages.classify.cnn")
+view_pooling = lazy("sonarmap.stages.classify.view_pooling")  # scipy.spatial: only when pooling
 
 __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "clustering"]
 
@@ -92,7 +92,7 @@ def _pooled(
     mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
     cfg: ClassifyConfig,
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Each object's class distribution pooled over its sightings (`stages.classify.view_pooling`)."""
+    """Each object's class distribution pooled over its sightings (`sonarmap.stages.classify.view_pooling`)."""
     keyframes = keyframes.sort_by("keyframe_id")
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]

@@ -24,21 +24,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sonar import KeyframeImages
-from stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
-from stages.classify.size_rule import curve_png, grow, one_size
-from stages.classify.train_config import TrainConfig
-from stages.classify.training import STAGE
-from stages.classify.validation import confusion_png, evaluate, say_what_is_not_learned
-from stages.kernels.lazy import lazy
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+from sonarmap.stages.classify.size_rule import curve_png, grow, one_size
+from sonarmap.stages.classify.train_config import TrainConfig
+from sonarmap.stages.classify.training import STAGE
+from sonarmap.stages.classify.validation import confusion_png, evaluate, say_what_is_not_learned
+from sonarmap.stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
-    from stages.classify.cnn import PatchCNN
+    from sonarmap.stages.classify.cnn import PatchCNN
 
 torch = lazy("torch")
 F = lazy("torch.nn.functional")
-cnn = lazy("stages.classify.cnn")
+cnn = lazy("sonarmap.stages.classify.cnn")
 
 __all__ = [
     "STAGE",
@@ -254,7 +254,7 @@ def train_classifier(
         table: the class table (config section `classes`): names of the label ids; the
             model's outputs are the table's classes with enough training objects.
         heldout: datasets that only validate (whole worlds held out); with them, the
-            training set's size is chosen by `stages.classify.size_rule`.
+            training set's size is chosen by `sonarmap.stages.classify.size_rule`.
 
     Returns:
         {"model": bytes (model.pt), "metrics": dict, "confusion": bytes (PNG), "curve":

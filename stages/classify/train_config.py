@@ -1,7 +1,7 @@
 """Config section `train` (`TrainConfig`): the classifier's training hyper-parameters.
 
 Its own module so that the train stage's code stays within the file-size rule; the stage
-(`stages.classify.train`) re-exports it.
+(`sonarmap.stages.classify.train`) re-exports it.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["TrainConfig"]
 
@@ -66,7 +66,7 @@ class TrainConfig(StageConfig):
     guard_keyframes: int = Field(
         3, ge=0, le=100000, description="training keyframes dropped beside val"
     )
-    # The size rule (`stages.classify.size_rule`), with held-out datasets only.
+    # The size rule (`sonarmap.stages.classify.size_rule`), with held-out datasets only.
     grow_step_datasets: int = Field(2, ge=1, le=1000, description="first size; then doubled")
     grow_min_gain_f1: float = Field(0.01, ge=0, le=1, description="held-out macro-F1 gain")
     grow_patience: int = Field(2, ge=1, le=100, description="steps without that gain to stop")

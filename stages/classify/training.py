@@ -1,9 +1,9 @@
 """The `train` stage's declaration (what planning imports: no numpy, no pyarrow); the
-computation is `stages.classify.train`, its config `stages.classify.train_config`."""
+computation is `sonarmap.stages.classify.train`, its config `sonarmap.stages.classify.train_config`."""
 
-from stages.base import Input, Output, Stage
-from stages.classify.train_config import TrainConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.classify.train_config import TrainConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "TrainConfig"]
 
@@ -18,7 +18,7 @@ STAGE = Stage(
         Output("confusion", "bytes", "confusion.png"),
         Output("curve", "bytes", "size_curve.png"),
     ),
-    run=deferred("stages.classify.train:_run"),
+    run=deferred("sonarmap.stages.classify.train:_run"),
     reads_sections=("classes",),
     description="train the MC-dropout object classifier on labelled keyframes",
 )

@@ -8,14 +8,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from stages.kernels.figure_png import png_bytes
-from stages.kernels.lazy import lazy
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.stages.kernels.figure_png import png_bytes
+from sonarmap.stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
-    from stages.classify.cnn import PatchCNN
+    from sonarmap.stages.classify.cnn import PatchCNN
 
-cnn = lazy("stages.classify.cnn")
+cnn = lazy("sonarmap.stages.classify.cnn")
 
 __all__ = ["McSettings", "confusion_png", "evaluate", "say_what_is_not_learned"]
 

@@ -3,7 +3,7 @@
 The paper classifies every keyframe's objects on their own. A piling is seen from many
 keyframes, though, close up in some and at 25 m in others, where a 1 deg beam is as wide as
 the piling and a round one looks like a square one. Here each sighting's class
-distribution (the Monte-Carlo mean of `stages.classify.cnn.mc_predict`) is pooled with those of the
+distribution (the Monte-Carlo mean of `sonarmap.stages.classify.cnn.mc_predict`) is pooled with those of the
 sightings of the same place in nearby keyframes, by a weighted log-linear opinion pool
 
     p(c) ∝ exp( sum_j w_j log p_j(c) / sum_j w_j ),

@@ -7,13 +7,13 @@ Modules:
     stage: the computation.
     class_accounting: coverage and error per true class.
     submaps: the map with and without its dense submap frames, side by side.
-    report: report.md (its figures: the `map_figures` stage, `stages.map_figures`).
+    report: report.md (its figures: the `map_figures` stage, `sonarmap.stages.map_figures`).
     side_panels: the data of side_view.png (side_view.parquet).
 """
 
-from stages.base import Input, Output, Stage
-from stages.evaluate.config import EvaluateConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.evaluate.config import EvaluateConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "EvaluateConfig"]
 
@@ -42,7 +42,7 @@ STAGE = Stage(
     outputs=(
         Output("metrics", "json", "metrics.json"),
         Output(
-            "errors", "parquet", "errors.parquet", optional=True, schema="schemas.map:ERRORS_SCHEMA"
+            "errors", "parquet", "errors.parquet", optional=True, schema="sonarmap.schemas.map:ERRORS_SCHEMA"
         ),
         Output("report", "bytes", "report.md"),
         Output(
@@ -50,10 +50,10 @@ STAGE = Stage(
             "parquet",
             "side_view.parquet",
             optional=True,
-            schema="schemas.figures:SIDE_VIEW_SCHEMA",
+            schema="sonarmap.schemas.figures:SIDE_VIEW_SCHEMA",
         ),
         Output("map_mcap", "bytes", "map.mcap"),
     ),
-    run=deferred("stages.evaluate.stage:_run"),
+    run=deferred("sonarmap.stages.evaluate.stage:_run"),
     description="map error to the ground-truth mesh, completeness, ATE and the report",
 )

@@ -18,7 +18,7 @@ class present and for "all structure" (every class but the seafloor) both maps r
 By *assigned* class (the class the classifier gave the point's object, `class_name` of
 the map) it also reports the median error of the fused and of the inferred points and
 their ratio (`assigned_classes`): the per-class error budget that decides which classes
-`infer` models by default (`stages.infer.config.DEFAULT_CLASSES`) is judged on these.
+`infer` models by default (`sonarmap.stages.infer.config.DEFAULT_CLASSES`) is judged on these.
 
 Errors and classes are taken at the positions the evaluation judges (after the SLAM
 trajectory's SE(2) alignment when there is one, `frame`), voxels at the map's own
@@ -33,11 +33,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from stages.kernels.lazy import lazy
-from stages.kernels.mesh_metrics import nearest_distance, surface_samples
-from stages.kernels.ply import Mesh
-from stages.kernels.voxels import map_xyz, voxel_keys
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.mesh_metrics import nearest_distance, surface_samples
+from sonarmap.stages.kernels.ply import Mesh
+from sonarmap.stages.kernels.voxels import map_xyz, voxel_keys
 
 o3d = lazy("open3d")
 

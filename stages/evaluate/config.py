@@ -6,8 +6,8 @@ from collections.abc import Iterable
 
 from pydantic import Field, field_validator
 
-from schemas.classes import PILING_CLASSES, known_class_names
-from stages.base import StageConfig
+from sonarmap.schemas.classes import PILING_CLASSES, known_class_names
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["EvaluateConfig"]
 

@@ -7,8 +7,8 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.evaluate.foxglove_scene import SceneMessage, foxglove_messages, timestamp
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.evaluate.foxglove_scene import SceneMessage, foxglove_messages, timestamp
 
 __all__ = ["FAN_HEIGHT_PX", "fan_image", "fan_lookup", "fan_messages"]
 

@@ -1,4 +1,4 @@
-"""evaluate's `map.mcap`: the `stages.evaluate.foxglove_scene` messages of a run, written
+"""evaluate's `map.mcap`: the `sonarmap.stages.evaluate.foxglove_scene` messages of a run, written
 with foxglove-sdk's MCAP writer into bytes (protobuf Foxglove schemas, zstd chunks)."""
 
 from __future__ import annotations
@@ -12,11 +12,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.sensors import Sensors
-from schemas.sonar import KeyframeImages
-from stages.evaluate.foxglove_images import fan_messages
-from stages.evaluate.foxglove_scene import (
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.evaluate.foxglove_images import fan_messages
+from sonarmap.stages.evaluate.foxglove_scene import (
     FRAME_MAP,
     TOPIC_SCHEMAS,
     SceneMessage,
@@ -25,7 +25,7 @@ from stages.evaluate.foxglove_scene import (
     object_messages,
     trajectory_messages,
 )
-from stages.kernels.ply import Mesh
+from sonarmap.stages.kernels.ply import Mesh
 
 __all__ = ["encode_map_mcap", "evaluate_map_mcap", "map_mcap"]
 

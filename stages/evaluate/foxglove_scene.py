@@ -1,15 +1,15 @@
 """The run's results as Foxglove messages (`foxglove-sdk` schemas) and as a map MCAP.
 
 Pure functions from stage artifacts (Arrow tables, frames, mesh) to a list of
-`SceneMessage` (topic, message, log time [ns]); `stages.evaluate.foxglove_map` writes
+`SceneMessage` (topic, message, log time [ns]); `sonarmap.stages.evaluate.foxglove_map` writes
 them with the SDK's MCAP writer into evaluate's `map.mcap`. The live view
-(`pipeline.live`) publishes the same messages over the Foxglove WebSocket protocol as
+(`sonarmap.pipeline.live`) publishes the same messages over the Foxglove WebSocket protocol as
 each stage completes.
 
-Topics (frame `map` is the world frame of `schemas.map`; log times come from the data):
+Topics (frame `map` is the world frame of `sonarmap.schemas.map`; log times come from the data):
 
 - `/map/standard`, `/map/semantic`: `foxglove.PointCloud`, little-endian packed fields
-  x y z (float32 [m]), class_id and source (uint8, `stages.kernels.map_codes`),
+  x y z (float32 [m]), class_id and source (uint8, `sonarmap.stages.kernels.map_codes`),
   keyframe_id (int32), and error (float32 [m], distance to the ground-truth mesh)
   where there is one.
 - `/tf`: `foxglove.FrameTransforms`, map -> base_link at each keyframe's SLAM pose.
@@ -32,14 +32,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.map import NO_CLASS
-from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.kernels.geometry import quat_from_rpy
-from stages.kernels.map_codes import class_ids, source_ids
-from stages.kernels.ply import Mesh
-from stages.kernels.poses import pose_matrices
-from stages.kernels.registration import world_points
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.map import NO_CLASS
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.stages.kernels.geometry import quat_from_rpy
+from sonarmap.stages.kernels.map_codes import class_ids, source_ids
+from sonarmap.stages.kernels.ply import Mesh
+from sonarmap.stages.kernels.poses import pose_matrices
+from sonarmap.stages.kernels.registration import world_points
 
 __all__ = [
     "FRAME_BASE",
@@ -115,7 +115,7 @@ def _quaternions(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.nda
 def cloud_records(
     table: pa.Table, error_m: np.ndarray | None = None, classes: ClassTable = DEFAULT_TABLE
 ) -> np.ndarray:
-    """Packed point records of map rows (`schemas.map.MAP_SCHEMA`, errors optional)."""
+    """Packed point records of map rows (`sonarmap.schemas.map.MAP_SCHEMA`, errors optional)."""
     fields: list[tuple[str, str]] = [
         ("x", "<f4"),
         ("y", "<f4"),
@@ -178,7 +178,7 @@ def map_messages(
 ) -> list[SceneMessage]:
     """The standard (fused rows) and semantic (all rows) maps as point clouds at t_ns.
 
-    `errors` (`schemas.map.ERRORS_SCHEMA`, the map's rows in the same order) adds the
+    `errors` (`sonarmap.schemas.map.ERRORS_SCHEMA`, the map's rows in the same order) adds the
     error field; `classes` is the class table (the points' class ids).
     """
     err = None if errors is None else errors.column("error_m").to_numpy()

@@ -16,7 +16,7 @@ from typing import Any, Literal
 import numpy as np
 import pyarrow as pa
 
-from stages.kernels.poses import pose_matrices
+from sonarmap.stages.kernels.poses import pose_matrices
 
 __all__ = [
     "Frame",

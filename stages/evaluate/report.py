@@ -1,13 +1,13 @@
 """The evaluation report: markdown text (its figures are the `map_figures` stage's,
-`stages.map_figures`)."""
+`sonarmap.stages.map_figures`)."""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from typing import Any
 
-from stages.evaluate.submaps import submaps_markdown
-from stages.evaluate.trust import trust_markdown
+from sonarmap.stages.evaluate.submaps import submaps_markdown
+from sonarmap.stages.evaluate.trust import trust_markdown
 
 __all__ = ["render_markdown"]
 
@@ -21,7 +21,7 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 
 def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
-    """The first table: the headline median error (`stages.evaluate.headline`) leads, raw beside."""
+    """The first table: the headline median error (`sonarmap.stages.evaluate.headline`) leads, raw beside."""
     vox = metrics.get("voxels", {})
     pts = metrics.get("points", {})
     errs = metrics.get("errors", {})
@@ -54,7 +54,7 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
 
 
 def _per_class_table(metrics: dict[str, Any]) -> list[str]:
-    """Markdown lines of the per-class accounting (`stages.evaluate.class_accounting`), or none."""
+    """Markdown lines of the per-class accounting (`sonarmap.stages.evaluate.class_accounting`), or none."""
     per_class = metrics.get("per_class") or {}
     classes = per_class.get("classes") or {}
     if not classes:

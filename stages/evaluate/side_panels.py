@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import CLASS_IDS, PILING_CLASSES
-from schemas.figures import SIDE_VIEW_KINDS, SIDE_VIEW_SCHEMA
-from stages.kernels.ply import Mesh
-from stages.kernels.voxels import map_xyz
+from sonarmap.schemas.classes import CLASS_IDS, PILING_CLASSES
+from sonarmap.schemas.figures import SIDE_VIEW_KINDS, SIDE_VIEW_SCHEMA
+from sonarmap.stages.kernels.ply import Mesh
+from sonarmap.stages.kernels.voxels import map_xyz
 
 __all__ = ["side_panels"]
 
@@ -18,7 +18,7 @@ def side_panels(
     map_table: pa.Table, mesh: Mesh, samples: np.ndarray, n_panels: int
 ) -> pa.Table | None:
     """Side views (x - centre vs z) of the pilings with the most map points nearby, as
-    `side_view.parquet` rows (`schemas.figures.SIDE_VIEW_SCHEMA`); None: no such piling."""
+    `side_view.parquet` rows (`sonarmap.schemas.figures.SIDE_VIEW_SCHEMA`); None: no such piling."""
     oid = mesh.vertex_properties.get("object_id")
     cls = mesh.vertex_properties.get("class_id")
     if oid is None or cls is None:

@@ -5,13 +5,13 @@ With a ground-truth mesh (`keyframes.scene_mesh`, the simulator's PLY attachment
 absolute error of every map point (distance to the mesh), its statistics per map
 (standard, semantic) and per source (fused, inferred), precision and completeness
 within `tolerance_m` (definitions and the visible-surface choice:
-`stages.kernels.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
+`sonarmap.stages.kernels.mesh_metrics`), and side views of the best-covered pilings. With ground-truth
 poses in `keyframes.keyframes`: ATE of the SLAM and dead-reckoning trajectories after
 SE(2) alignment. Without them, the counts are still reported and `metrics["skipped"]`
 says what was left out and why. The figures are the `map_figures` stage's
-(`stages.map_figures`); the side view's data (`side_view.parquet`) is computed here.
+(`sonarmap.stages.map_figures`); the side view's data (`side_view.parquet`) is computed here.
 
-`map.mcap`: all of it for Foxglove (`stages.evaluate.foxglove_scene`).
+`map.mcap`: all of it for Foxglove (`sonarmap.stages.evaluate.foxglove_scene`).
 """
 
 from __future__ import annotations
@@ -23,19 +23,23 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.map import ERRORS_SCHEMA, MAP_NAMES
-from schemas.sensors import Sensors
-from stages.evaluate import STAGE
-from stages.evaluate.class_accounting import per_class_metrics, remember_last
-from stages.evaluate.config import EvaluateConfig
-from stages.evaluate.foxglove_map import evaluate_map_mcap
-from stages.evaluate.headline import headline_errors, poses_are_ground_truth, visibility_poses
-from stages.evaluate.report import render_markdown
-from stages.evaluate.side_panels import side_panels
-from stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
-from stages.evaluate.trust import trust_report
-from stages.kernels.mesh_metrics import (
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.map import ERRORS_SCHEMA, MAP_NAMES
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.stages.evaluate import STAGE
+from sonarmap.stages.evaluate.class_accounting import per_class_metrics, remember_last
+from sonarmap.stages.evaluate.config import EvaluateConfig
+from sonarmap.stages.evaluate.foxglove_map import evaluate_map_mcap
+from sonarmap.stages.evaluate.headline import (
+    headline_errors,
+    poses_are_ground_truth,
+    visibility_poses,
+)
+from sonarmap.stages.evaluate.report import render_markdown
+from sonarmap.stages.evaluate.side_panels import side_panels
+from sonarmap.stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
+from sonarmap.stages.evaluate.trust import trust_report
+from sonarmap.stages.kernels.mesh_metrics import (
     ate_se2,
     error_stats,
     fraction_within,
@@ -46,8 +50,8 @@ from stages.kernels.mesh_metrics import (
     surface_samples,
     visible_mask,
 )
-from stages.kernels.ply import Mesh, decode_mesh_ply
-from stages.kernels.voxels import map_xyz
+from sonarmap.stages.kernels.ply import Mesh, decode_mesh_ply
+from sonarmap.stages.kernels.voxels import map_xyz
 
 __all__ = ["STAGE", "EvaluateConfig", "map_errors", "surface_metrics", "trajectory_errors"]
 
@@ -81,7 +85,7 @@ def surface_metrics(
     config: EvaluateConfig,
     table: ClassTable = DEFAULT_TABLE,
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
-    """Completeness and precision of both maps (definitions: `stages.kernels.mesh_metrics`).
+    """Completeness and precision of both maps (definitions: `sonarmap.stages.kernels.mesh_metrics`).
 
     Returns:
         completeness {"standard", "semantic", "n_samples", "classes", "tolerance_m"},

@@ -1,18 +1,18 @@
 """Dense submaps (issue 21): the map of the keyframes alone beside the map with the
 submap frames between them (`keyframes.submap_stride`, stage `submaps`).
 
-map.parquet tells the two apart by `frame_id` (`schemas.submaps.KEYFRAME_FRAME_ID` for a
+map.parquet tells the two apart by `frame_id` (`sonarmap.schemas.submaps.KEYFRAME_FRAME_ID` for a
 keyframe's own points, >= 0 for a submap frame's). Both variants are judged with the
 figures evaluate already computes for the whole map, by the same functions:
 
 - voxels: occupied voxels of each map (floor(x / size), as `voxelize` counts them);
 - accurate voxels and completeness: the "all structure" row of the per-class
-  accounting (`stages.evaluate.class_accounting`): voxels holding a structure point
+  accounting (`sonarmap.stages.evaluate.class_accounting`): voxels holding a structure point
   within the tolerance of the true surface, and the fraction of the visible structure
   surface within the tolerance of a map point. The visible surface is the keyframes'
-  in both variants (the rule of `stages.kernels.mesh_metrics`), so completeness compares the
+  in both variants (the rule of `sonarmap.stages.kernels.mesh_metrics`), so completeness compares the
   two maps against the same samples;
-- median error: the headline figure (`stages.evaluate.headline`: SE(2)-aligned when the
+- median error: the headline figure (`sonarmap.stages.evaluate.headline`: SE(2)-aligned when the
   headline is) and the raw one beside it;
 - per class: the per-class accounting of each variant.
 
@@ -28,12 +28,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.map import MAP_NAMES
-from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.evaluate.class_accounting import ALL_STRUCTURE
-from stages.evaluate.headline import headline_errors
-from stages.kernels.mesh_metrics import error_stats
-from stages.kernels.voxels import map_xyz, voxel_keys
+from sonarmap.schemas.map import MAP_NAMES
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.stages.evaluate.class_accounting import ALL_STRUCTURE
+from sonarmap.stages.evaluate.headline import headline_errors
+from sonarmap.stages.kernels.mesh_metrics import error_stats
+from sonarmap.stages.kernels.voxels import map_xyz, voxel_keys
 
 __all__ = ["FIGURES", "JudgedMap", "has_submap_rows", "submap_comparison", "submaps_markdown"]
 
@@ -140,7 +140,7 @@ def submap_comparison(
     """Keyframes-only vs with-submaps figures of both maps (see the module docstring).
 
     Args:
-        map_table: map.parquet (`schemas.map.MAP_SCHEMA`), n rows.
+        map_table: map.parquet (`sonarmap.schemas.map.MAP_SCHEMA`), n rows.
         voxel_size_m: voxel edge [m] (voxelize's).
         stride: `keyframes.submap_stride` of the run (None when unknown).
         judged: evaluate's whole-map figures, or None without a ground-truth mesh (then

@@ -1,7 +1,7 @@
 """What a run can say about its own map without ground truth (issue 37, item 6).
 
 A field recording has no mesh and no true poses, so the error figures of
-`stages.evaluate.stage` are skipped. These figures need neither. They read the map, the
+`sonarmap.stages.evaluate.stage` are skipped. These figures need neither. They read the map, the
 keyframes and the pose graph that the run itself produced:
 
 - per class, how many inferred points stand in a world column that also holds fused
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from stages.kernels.voxels import column_ids
+from sonarmap.stages.kernels.voxels import column_ids
 
 __all__ = ["column_agreement", "trust_markdown", "trust_report"]
 

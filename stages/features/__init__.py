@@ -5,12 +5,12 @@ This module declares the stage (what planning imports: no numpy, no pyarrow).
 Modules:
     config: its config section.
     stage: the computation: the features table, one keyframe at a time through
-        `stages.kernels.frame_features` (and `stages.kernels.cfar`).
+        `sonarmap.stages.kernels.frame_features` (and `sonarmap.stages.kernels.cfar`).
 """
 
-from stages.base import Input, Output, Stage
-from stages.features.config import FeaturesConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.features.config import FeaturesConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "FeaturesConfig"]
 
@@ -21,9 +21,9 @@ STAGE = Stage(
     inputs=(Input("keyframes", "frames"),),
     outputs=(
         Output(
-            "features", "parquet", "features.parquet", schema="schemas.features:FEATURES_SCHEMA"
+            "features", "parquet", "features.parquet", schema="sonarmap.schemas.features:FEATURES_SCHEMA"
         ),
     ),
-    run=deferred("stages.features.stage:run"),
+    run=deferred("sonarmap.stages.features.stage:run"),
     description="SOCA-CFAR detections on both polar images of every keyframe",
 )

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from stages.base import StageConfig
-from stages.kernels.choices import CfarMethod
+from sonarmap.stages.base import StageConfig
+from sonarmap.stages.kernels.choices import CfarMethod
 
 __all__ = ["FeaturesConfig"]
 

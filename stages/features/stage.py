@@ -1,8 +1,8 @@
 """Features: SOCA-CFAR detections on both polar images of every keyframe (paper Sec. IV.C).
 
-Each image is searched along range, per beam, by `stages.kernels.cfar.cfar_detect` (SOCA by
+Each image is searched along range, per beam, by `sonarmap.stages.kernels.cfar.cfar_detect` (SOCA by
 default; CA, GO and OS through config), ANDed with an intensity floor; every detected
-cell is one feature row (schema `schemas.features.FEATURES_SCHEMA`).
+cell is one feature row (schema `sonarmap.schemas.features.FEATURES_SCHEMA`).
 
 Defaults (`FeaturesConfig`): SOCA with 10 training + 5 guard cells per side (the
 authors' Ntc = 20, Ngc = 10), Pfa = 0.1 and an intensity floor of 20 levels, lower than
@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.features import FEATURES_SCHEMA, SONARS
-from schemas.sonar import KeyframeImages
-from stages.features import STAGE
-from stages.features.config import FeaturesConfig
-from stages.kernels.frame_features import detect_ping, keyframe_features
+from sonarmap.schemas.features import FEATURES_SCHEMA, SONARS
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.features import STAGE
+from sonarmap.stages.features.config import FeaturesConfig
+from sonarmap.stages.kernels.frame_features import detect_ping, keyframe_features
 
 __all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
 

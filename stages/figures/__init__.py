@@ -1,4 +1,4 @@
-"""The `figures` stage: overlay.png and trajectory.png (the map's: `stages.map_figures`).
+"""The `figures` stage: overlay.png and trajectory.png (the map's: `sonarmap.stages.map_figures`).
 
 This module declares the stage (what planning imports: no numpy, no pyarrow, no matplotlib).
 
@@ -9,9 +9,9 @@ Modules:
     trajectory: trajectory.png, the SLAM estimate beside dead reckoning and ground truth.
 """
 
-from stages.base import Input, Output, Stage
-from stages.figures.config import FiguresConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.figures.config import FiguresConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "FiguresConfig"]
 
@@ -32,7 +32,7 @@ STAGE = Stage(
         Output("overlay", "bytes", "overlay.png", optional=True),
         Output("trajectory", "bytes", "trajectory.png"),
     ),
-    run=deferred("stages.figures.stage:_run"),
+    run=deferred("sonarmap.stages.figures.stage:_run"),
     off_critical_path=True,
     description="overlay.png (classified objects) and trajectory.png (SLAM), nothing waits",
 )

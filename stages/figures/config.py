@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["FiguresConfig"]
 

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.objects import UNKNOWN_CLASS_ID
-from schemas.sonar import KeyframeImages
-from stages.kernels.figure_png import png_bytes
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.objects import UNKNOWN_CLASS_ID
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.kernels.figure_png import png_bytes
 
 __all__ = ["busiest_keyframe", "overlay_png"]
 

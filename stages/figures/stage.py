@@ -4,15 +4,15 @@ No stage that makes the map waits for a figure, and none imports matplotlib: the
 are stages of their own that nothing reads (`run --no-figures` leaves them out of the
 plan). There are two, so each starts as soon as its data exist: this one after classify
 and slam (it runs beside infer, submaps, voxelize and evaluate), `map_figures` after
-evaluate (`stages.map_figures`).
+evaluate (`sonarmap.stages.map_figures`).
 
 - `overlay.png`: the objects of the keyframe with the most accepted objects over its
-  horizontal image (`stages.figures.overlay`; off with `overlay: false`).
+  horizontal image (`sonarmap.stages.figures.overlay`; off with `overlay: false`).
 - `trajectory.png`: the SLAM estimate with dead reckoning and ground truth, the features
-  registered with it and the loop closures (`stages.figures.trajectory`).
+  registered with it and the loop closures (`sonarmap.stages.figures.trajectory`).
 
 They are what classify and slam drew before (the same functions on the same arrays),
-from the stored artifacts and slam's `plot_points.parquet` (`schemas.figures`).
+from the stored artifacts and slam's `plot_points.parquet` (`sonarmap.schemas.figures`).
 """
 
 from __future__ import annotations
@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from stages.base import Input, StageInputError
-from stages.figures import STAGE
-from stages.figures.config import FiguresConfig
-from stages.figures.overlay import busiest_keyframe, overlay_png
-from stages.figures.trajectory import trajectory_png
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.figures import STAGE
+from sonarmap.stages.figures.config import FiguresConfig
+from sonarmap.stages.figures.overlay import busiest_keyframe, overlay_png
+from sonarmap.stages.figures.trajectory import trajectory_png
 
 __all__ = ["STAGE", "FiguresConfig"]
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.figure_png import png_bytes
-from stages.kernels.mesh_metrics import se2_alignment
+from sonarmap.stages.kernels.figure_png import png_bytes
+from sonarmap.stages.kernels.mesh_metrics import se2_alignment
 
 __all__ = ["trajectory_png"]
 

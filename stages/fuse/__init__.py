@@ -5,13 +5,13 @@ This module declares the stage (what planning imports: no numpy, no pyarrow).
 Modules:
     config: its config section.
     stage: the computation: the fused table, one keyframe at a time through
-        `stages.kernels.fusion` (overlap, Eq. 3 points) and `stages.kernels.association`
+        `sonarmap.stages.kernels.fusion` (overlap, Eq. 3 points) and `sonarmap.stages.kernels.association`
         (Eq. 5 cost, Eq. 6 confidence).
 """
 
-from stages.base import Input, Output, Stage
-from stages.fuse.config import FuseConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.fuse.config import FuseConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "FuseConfig"]
 
@@ -24,7 +24,7 @@ STAGE = Stage(
         Input("keyframes", "sensors"),
         Input("features", "features"),
     ),
-    outputs=(Output("fused", "parquet", "fused.parquet", schema="schemas.fused:FUSED_SCHEMA"),),
-    run=deferred("stages.fuse.stage:run"),
+    outputs=(Output("fused", "parquet", "fused.parquet", schema="sonarmap.schemas.fused:FUSED_SCHEMA"),),
+    run=deferred("sonarmap.stages.fuse.stage:run"),
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",
 )

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pydantic import Field, model_validator
 
-from stages.base import StageConfig
-from stages.kernels.choices import ConfidenceRule
+from sonarmap.stages.base import StageConfig
+from sonarmap.stages.kernels.choices import ConfidenceRule
 
 __all__ = ["FuseConfig"]
 

@@ -1,9 +1,9 @@
 """Fuse: orthogonal stereo association of horizontal and vertical features (paper Sec. IV.B).
 
-Per keyframe, `stages.kernels.fusion.fuse_keyframe` (shared with stage `submaps`):
+Per keyframe, `sonarmap.stages.kernels.fusion.fuse_keyframe` (shared with stage `submaps`):
 overlap, subproblems per range bin with the cost of Eq. 5 and the confidence of Eq. 6,
 and the Eq. 3 point. This module builds the `fused.parquet` table (config section:
-`stages.fuse.config`; declaration: `stages.fuse`).
+`sonarmap.stages.fuse.config`; declaration: `sonarmap.stages.fuse`).
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.fused import FUSED_SCHEMA
-from schemas.sensors import Sensors
-from schemas.sonar import KeyframeImages
-from stages.fuse import STAGE
-from stages.fuse.config import FuseConfig
-from stages.kernels.fusion import fuse_keyframe, sonar_offset
+from sonarmap.schemas.fused import FUSED_SCHEMA
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.fuse import STAGE
+from sonarmap.stages.fuse.config import FuseConfig
+from sonarmap.stages.kernels.fusion import fuse_keyframe, sonar_offset
 
 __all__ = ["STAGE", "FuseConfig", "fuse_table"]
 

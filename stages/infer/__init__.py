@@ -8,16 +8,16 @@ Modules:
     config: InferConfig and the default classes.
     prediction: paper Eq. 1 for the predicted points.
 
-The models themselves are kernels, shared with stage `submaps`: `stages.kernels`
+The models themselves are kernels, shared with stage `submaps`: `sonarmap.stages.kernels`
 `.class_models` (state, tables), `.class_query` (update and query, the loss funnel),
 `.height_model` (Eq. 7-9), `.object_frame` (ICP-registered object frames, pilings),
 `.beam_frame` (per-beam leading-edge frames: walls, trusses, hulls) and `.sightings`
 (the input tables as per-object arrays).
 """
 
-from stages.base import Input, Output, Stage
-from stages.infer.config import InferConfig
-from stages.kernels.lazy import deferred
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.infer.config import InferConfig
+from sonarmap.stages.kernels.lazy import deferred
 
 __all__ = ["STAGE", "InferConfig"]
 
@@ -36,21 +36,21 @@ STAGE = Stage(
         Input("fuse", "fused"),
     ),
     outputs=(
-        Output("points", "parquet", "points.parquet", schema="schemas.points:POINTS_SCHEMA"),
+        Output("points", "parquet", "points.parquet", schema="sonarmap.schemas.points:POINTS_SCHEMA"),
         Output("stats", "json", "stats.json"),
         Output(
             "class_reference",
             "parquet",
             "class_reference.parquet",
-            schema="schemas.class_models:CLASS_REFERENCE_SCHEMA",
+            schema="sonarmap.schemas.class_models:CLASS_REFERENCE_SCHEMA",
         ),
         Output(
             "class_cells",
             "parquet",
             "class_cells.parquet",
-            schema="schemas.class_models:CLASS_CELLS_SCHEMA",
+            schema="sonarmap.schemas.class_models:CLASS_CELLS_SCHEMA",
         ),
     ),
-    run=deferred("stages.infer.stage:_run"),
+    run=deferred("sonarmap.stages.infer.stage:_run"),
     description="object-class Bayesian height models; MAP heights for 2D-only returns",
 )

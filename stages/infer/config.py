@@ -1,4 +1,4 @@
-"""Config section `infer` (stage `stages.infer.stage`): classes, frames, grids and bounds."""
+"""Config section `infer` (stage `sonarmap.stages.infer.stage`): classes, frames, grids and bounds."""
 
 from __future__ import annotations
 
@@ -7,17 +7,17 @@ from typing import TYPE_CHECKING, Literal
 
 from pydantic import Field, field_validator, model_validator
 
-from schemas.classes import (
+from sonarmap.schemas.classes import (
     DEFAULT_TABLE,
     UNKNOWN_CLASS,
     ClassTable,
     known_class_names,
 )
-from stages.base import StageConfig
-from stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind, UpdateRule
+from sonarmap.stages.base import StageConfig
+from sonarmap.stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind, UpdateRule
 
 if TYPE_CHECKING:
-    from stages.kernels.object_frame import IcpParams
+    from sonarmap.stages.kernels.object_frame import IcpParams
 
 __all__ = ["DEFAULT_CLASSES", "DEFAULT_FRAME_KINDS", "FrameKind", "InferConfig"]
 
@@ -99,7 +99,7 @@ class InferConfig(StageConfig):
         le=100.0,
         description="beam frame: std [m] of the per-object height prior, the kernel density"
         " of the object's own fused heights in the same image that multiplies the class"
-        " posterior of its 2D-only returns (stages.kernels.object_prior); None: off"
+        " posterior of its 2D-only returns (sonarmap.stages.kernels.object_prior); None: off"
         " (docs/decisions/015-per-object-height-prior.md)",
     )
     beam_object_prior_floor: float = Field(
@@ -130,14 +130,14 @@ class InferConfig(StageConfig):
         le=64,
         description="object frames: a query whose cell has no data takes the answer of the"
         " cell this many times larger that contains it"
-        " (stages.kernels.fallback_model.CoarseFallbackModel); 1: none (the paper)",
+        " (sonarmap.stages.kernels.fallback_model.CoarseFallbackModel); 1: none (the paper)",
     )
     profile_fallback: bool = Field(
         False,
         description="object frames (with coarse_fallback_factor > 1): a query whose fine and"
         " coarse cells have no data takes the answer of the class's height profile, its"
         " coarse range cells pooled over all cross-range offsets"
-        " (stages.kernels.fallback_model); off: docs/decisions/015-per-object-height-prior.md",
+        " (sonarmap.stages.kernels.fallback_model); off: docs/decisions/015-per-object-height-prior.md",
     )
     query_model: Literal["online", "final"] = Field(
         "online",
@@ -192,7 +192,7 @@ class InferConfig(StageConfig):
 
     def class_names_used(self) -> dict[str, Iterable[str]]:
         """Every class name this section holds, by field (checked against the class table
-        when the config loads, `pipeline.engine.config.check_class_names`)."""
+        when the config loads, `sonarmap.pipeline.engine.config.check_class_names`)."""
         return {
             "classes": self.classes or (),
             "frame_kinds": self.frame_kinds or {},
@@ -270,7 +270,7 @@ class InferConfig(StageConfig):
         """The registration bounds as `IcpParams`."""
         import numpy as np  # here, not at the top: planning reads this module
 
-        from stages.kernels.object_frame import IcpParams
+        from sonarmap.stages.kernels.object_frame import IcpParams
 
         return IcpParams(
             max_correspondence_m=self.icp_max_correspondence_m,

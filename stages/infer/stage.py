@@ -7,7 +7,7 @@ classes):
 
 1. Update (Sec. IV.D, Eq. 7): every object of the class with fused 3D points is put
    into its object frame (origin: minimum range, median bearing of all its 2D
-   returns; `stages.kernels.object_frame`), registered to the class reference frame with ICP
+   returns; `sonarmap.stages.kernels.object_frame`), registered to the class reference frame with ICP
    (the first such object defines it) and, if the registration succeeded, its fused
    points update the class `HeightModel` at their (registered) range/bearing with
    their Cartesian height z. One model update per class and keyframe, so fused points
@@ -21,12 +21,12 @@ classes):
 
 Beyond the paper: seawalls (default on) and trusses and hulls (when listed), whose
 objects rarely fit in one image, use per-beam leading-edge frames instead of one ICP-registered class frame
-(`stages.kernels.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
+(`sonarmap.stages.kernels.beam_frame`, `InferConfig.frame_kinds`), updated and queried in one vectorised
 pass per class and keyframe, with a Dirichlet-count height model (`beam_update_rule
 "mixture"`: a cell of a wall returns from above and below at once, which Eq. 7's
 product would collapse to one mode). Optionally (`beam_object_prior_m`) each object's own
 fused heights in the image, as a kernel density, multiply the class posterior of its 2D-only
-returns (`stages.kernels.object_prior`; docs/decisions/015-per-object-height-prior.md).
+returns (`sonarmap.stages.kernels.object_prior`; docs/decisions/015-per-object-height-prior.md).
 `infer.classes` set to the two piling classes is the paper's behaviour.
 
 With `query_model="final"` (not in the paper) all updates come first, over every
@@ -39,15 +39,15 @@ Output `stats` (`stats.json`): what each class loses at each step (`Funnel`).
 
 Output `points`: the fused points of every classified object (any class, with its
 object id and class name, `source="fused"`) and the inferred points
-(`source="inferred"`), schema `schemas.points.POINTS_SCHEMA`. Fused points that
+(`source="inferred"`), schema `sonarmap.schemas.points.POINTS_SCHEMA`. Fused points that
 belong to no object are not repeated here (they are in `fuse.fused`).
 
-Outputs `class_reference` and `class_cells` (`schemas.class_models`): every class's
+Outputs `class_reference` and `class_cells` (`sonarmap.schemas.class_models`): every class's
 reference cloud and height-model cells after the last keyframe, which stage `submaps`
-queries its frames with (`stages.kernels.class_models`).
+queries its frames with (`sonarmap.stages.kernels.class_models`).
 
 Deviations from the paper / original code (deliberate, see the module docstrings of
-`stages.kernels.height_model` and `.object_frame`): metric object frames shared by 2D and 3D points,
+`sonarmap.stages.kernels.height_model` and `.object_frame`): metric object frames shared by 2D and 3D points,
 a sparse unbounded cell grid, an explicit confidence threshold, failed ICP skipped,
 and predictions whose elevation falls outside the horizontal sonar's vertical
 aperture (`max_elevation_deg`) are dropped, since no return can come from there.
@@ -69,16 +69,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE
-from stages.infer import STAGE
-from stages.infer.config import InferConfig
-from stages.kernels.class_models import (
+from sonarmap.schemas.classes import DEFAULT_TABLE
+from sonarmap.stages.infer import STAGE
+from sonarmap.stages.infer.config import InferConfig
+from sonarmap.stages.kernels.class_models import (
     ClassState,
     class_model_tables,
     inferred_classes,
     new_class_states,
 )
-from stages.kernels.class_query import (
+from sonarmap.stages.kernels.class_query import (
     FUNNEL_STEPS,
     Funnel,
     borrowed_sightings,
@@ -86,9 +86,9 @@ from stages.kernels.class_query import (
     update_and_query_beam_class,
     update_object_class,
 )
-from stages.kernels.point_tables import points_table, tag_points
-from stages.kernels.sightings import column, object_feature_rows
-from stages.kernels.sightings import sightings as _sightings
+from sonarmap.stages.kernels.point_tables import points_table, tag_points
+from sonarmap.stages.kernels.sightings import column, object_feature_rows
+from sonarmap.stages.kernels.sightings import sightings as _sightings
 
 __all__ = [
     "STAGE",

@@ -1,6 +1,6 @@
 """Orthogonal stereo association per range bin (paper Sec. IV.B, Eq. 5 and 6).
 
-Per frame, after the overlap selection of `stages.kernels.fusion`:
+Per frame, after the overlap selection of `sonarmap.stages.kernels.fusion`:
 1. Subproblems: features in the same range bin of both images (paper: "features at the
    same range"; the vertical features' ranges are binned with the horizontal sonar's
    range table, so the two images may differ in resolution); each is solved optimally (minimum total cost) with
@@ -46,8 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from stages.kernels.choices import ConfidenceRule
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.choices import ConfidenceRule
+from sonarmap.stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 

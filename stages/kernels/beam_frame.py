@@ -25,7 +25,7 @@ for shapes whose heights change with the viewing distance.
 
 The frame is invariant along a wall and across both of its sides (each beam anchors at
 the face it sees), and a structure cut by the fan edge or the image border keeps
-valid frames in all the beams it fills. The height model (`stages.kernels.height_model`)
+valid frames in all the beams it fills. The height model (`sonarmap.stages.kernels.height_model`)
 stays sparse, so memory is bounded by the (s, R0) cells seen; cells it never saw
 predict nothing.
 """

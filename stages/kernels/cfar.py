@@ -32,8 +32,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from stages.kernels.choices import CfarMethod
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.choices import CfarMethod
+from sonarmap.stages.kernels.lazy import lazy
 
 optimize = lazy("scipy.optimize")
 special = lazy("scipy.special")

@@ -9,22 +9,22 @@ from __future__ import annotations
 
 from typing import Literal
 
-from schemas.classes import DEFAULT_TABLE
+from sonarmap.schemas.classes import DEFAULT_TABLE
 
 __all__ = ["DEFAULT_FRAME_KINDS", "CfarMethod", "ConfidenceRule", "FrameKind", "UpdateRule"]
 
 CfarMethod = Literal["soca", "ca", "go", "os"]
-"""CFAR variants of `stages.kernels.cfar`."""
+"""CFAR variants of `sonarmap.stages.kernels.cfar`."""
 
 ConfidenceRule = Literal["paper", "ratio"]
 """`fuse.confidence_rule`: "paper" = Eq. 6; "ratio" = the original code's cost ratio
-(`stages.kernels.association`)."""
+(`sonarmap.stages.kernels.association`)."""
 
 FrameKind = Literal["object", "beam"]
-"""The frame a class's height model lives in (`stages.kernels.class_models`)."""
+"""The frame a class's height model lives in (`sonarmap.stages.kernels.class_models`)."""
 
 DEFAULT_FRAME_KINDS: dict[str, FrameKind] = DEFAULT_TABLE.frame_kinds()
 """The default class table's frame kinds ('unknown' takes the beam frame)."""
 
 UpdateRule = Literal["product", "mixture"]
-"""How a height model folds in a new observation (`stages.kernels.height_model`)."""
+"""How a height model folds in a new observation (`sonarmap.stages.kernels.height_model`)."""

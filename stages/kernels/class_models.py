@@ -1,9 +1,9 @@
 """The class models of a mission (paper Sec. IV.D, Eq. 7): their state, the settings
-they are built from, and their tables (`schemas.class_models`).
+they are built from, and their tables (`sonarmap.schemas.class_models`).
 
 Stage `infer` learns one model per inferred class (`ClassState`: reference frame and
 height model) and writes them; stage `submaps` reads them back and queries its frames
-with them (Eq. 8-9, `stages.kernels.class_query`), so it never relearns them and its
+with them (Eq. 8-9, `sonarmap.stages.kernels.class_query`), so it never relearns them and its
 key follows infer's.
 """
 
@@ -18,12 +18,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
-from schemas.classes import DEFAULT_TABLE
-from stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind
-from stages.kernels.fallback_model import CoarseFallbackModel
-from stages.kernels.height_model import HeightModel, UpdateRule, z_grid
-from stages.kernels.object_frame import ClassFrame, IcpParams
+from sonarmap.schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
+from sonarmap.schemas.classes import DEFAULT_TABLE
+from sonarmap.stages.kernels.choices import DEFAULT_FRAME_KINDS, FrameKind
+from sonarmap.stages.kernels.fallback_model import CoarseFallbackModel
+from sonarmap.stages.kernels.height_model import HeightModel, UpdateRule, z_grid
+from sonarmap.stages.kernels.object_frame import ClassFrame, IcpParams
 
 __all__ = [
     "DEFAULT_FRAME_KINDS",
@@ -118,7 +118,7 @@ def new_class_states(config: ClassModelSettings) -> dict[str, ClassState]:
 def _height_model(
     z: np.ndarray, config: ClassModelSettings, kind: FrameKind
 ) -> HeightModel | CoarseFallbackModel:
-    """A class's height model; beam frames have cells (s, R0) (`stages.kernels.beam_frame`)."""
+    """A class's height model; beam frames have cells (s, R0) (`sonarmap.stages.kernels.beam_frame`)."""
     if kind == "beam":
         cells = (config.beam_cell_m, config.beam_range_cell_m or 1.0)
         rule = config.beam_update_rule

@@ -3,9 +3,9 @@ Eq. 7-9), shared by stage `infer` (keyframes: update, then query) and stage `sub
 (its frames: query only, the models as infer left them).
 
 Object-frame classes (pilings) register each sighting into the class's reference frame
-(`stages.kernels.object_frame`), update the model with its fused returns (Eq. 7) and query
+(`sonarmap.stages.kernels.object_frame`), update the model with its fused returns (Eq. 7) and query
 its 2D-only returns (Eq. 8-9); beam-frame classes (walls, trusses, hulls) put every
-return into its per-beam leading-edge frame (`stages.kernels.beam_frame`) instead, in one
+return into its per-beam leading-edge frame (`sonarmap.stages.kernels.beam_frame`) instead, in one
 vectorised pass per keyframe. `Funnel` counts what each step loses (`stats.json`).
 """
 
@@ -16,15 +16,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from schemas.classes import UNKNOWN_CLASS
-from stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
-from stages.kernels.class_models import ClassModelSettings, ClassState
-from stages.kernels.fallback_model import CoarseFallbackModel
-from stages.kernels.geometry import polar_to_xyz, se2_apply
-from stages.kernels.height_model import HeightQuery
-from stages.kernels.object_frame import ObjectOrigin
-from stages.kernels.object_prior import object_height_prior
-from stages.kernels.sightings import Sighting
+from sonarmap.schemas.classes import UNKNOWN_CLASS
+from sonarmap.stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
+from sonarmap.stages.kernels.class_models import ClassModelSettings, ClassState
+from sonarmap.stages.kernels.fallback_model import CoarseFallbackModel
+from sonarmap.stages.kernels.geometry import polar_to_xyz, se2_apply
+from sonarmap.stages.kernels.height_model import HeightQuery
+from sonarmap.stages.kernels.object_frame import ObjectOrigin
+from sonarmap.stages.kernels.object_prior import object_height_prior
+from sonarmap.stages.kernels.sightings import Sighting
 
 logger = logging.getLogger(__name__)
 
@@ -207,7 +207,7 @@ def update_and_query_beam_class(
     """Update (Eq. 7) then query (Eq. 8-9) one beam-frame class with one keyframe.
 
     All sightings of the class in the keyframe share one vectorised pass: every return
-    is put into its beam frame (`stages.kernels.beam_frame`), the fused ones update the class
+    is put into its beam frame (`sonarmap.stages.kernels.beam_frame`), the fused ones update the class
     model (unless `update` is False: query only), the 2D-only ones are queried (unless
     `query` is False: update only). Returns (points, object id per point), or None before
     the model has data or without a query.

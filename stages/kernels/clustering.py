@@ -1,6 +1,6 @@
 """Clustering of one frame's horizontal features into objects (paper Sec. IV.C): DBSCAN
 in the fan plane, shared by stage `classify` (keyframes) and stage `submaps` (the frames
-between them, with the same parameters: `stages.classify.stage.clustering`)."""
+between them, with the same parameters: `sonarmap.stages.classify.stage.clustering`)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 spatial = lazy("scipy.spatial")
 sparse = lazy("scipy.sparse")
@@ -116,7 +116,7 @@ def _linked_components(xy_m: np.ndarray, eps_m: float, min_samples: int) -> np.n
 
 def clustering(overrides: object, settings: object) -> dict[str, Any]:
     """`eps_m`, `min_samples`, `min_features`: each the override's (classify's config)
-    unless None, else the model file's (`schemas.model_settings.ModelSettings` or its
+    unless None, else the model file's (`sonarmap.schemas.model_settings.ModelSettings` or its
     dict), checked by `clustering_params`; stage `classify` writes them as its output
     `clustering`, so stage `submaps` clusters its frames the same way.
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.height_model import HeightModel, HeightQuery, weighted
+from sonarmap.stages.kernels.height_model import HeightModel, HeightQuery, weighted
 
 __all__ = ["PROFILE_CROSS_RANGE_M", "CoarseFallbackModel"]
 

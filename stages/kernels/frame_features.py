@@ -1,7 +1,7 @@
 """Features of one frame: SOCA-CFAR detections on both polar images (paper Sec. IV.C),
 shared by stage `features` (keyframes) and stage `submaps` (the frames between them).
 
-Each image is searched along range, per beam, by `stages.kernels.cfar.cfar_detect`,
+Each image is searched along range, per beam, by `sonarmap.stages.kernels.cfar.cfar_detect`,
 ANDed with an intensity floor; every detected cell is one feature.
 """
 
@@ -11,9 +11,9 @@ from typing import Protocol
 
 import numpy as np
 
-from schemas.features import SONARS
-from schemas.sonar import KeyframeImages, SonarPing
-from stages.kernels.cfar import CfarMethod, cfar_detect
+from sonarmap.schemas.features import SONARS
+from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+from sonarmap.stages.kernels.cfar import CfarMethod, cfar_detect
 
 __all__ = ["CfarSettings", "detect_ping", "keyframe_features"]
 

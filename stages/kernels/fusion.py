@@ -6,7 +6,7 @@ Per frame:
 1. Overlap: only horizontal features with |bearing| <= vertical aperture / 2 and vertical
    features with |fan angle| <= horizontal aperture / 2 take part.
 2.-3. Subproblems per range bin, each solved optimally over the patch cost of Eq. 5, and
-   the confidence of Eq. 6 per association: `stages.kernels.association`.
+   the confidence of Eq. 6 per association: `sonarmap.stages.kernels.association`.
 4. Point, Eq. 3: range R = (R_h + R_v) / 2, bearing theta from the horizontal feature,
    elevation from the vertical feature, as below; then Eq. 1 to Cartesian.
 
@@ -29,9 +29,9 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from schemas.sensors import Sensors
-from schemas.sonar import KeyframeImages
-from stages.kernels.association import ConfidenceRule, assign_subproblems, image_patches
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.kernels.association import ConfidenceRule, assign_subproblems, image_patches
 
 __all__ = ["FusionSettings", "fuse_keyframe", "fused_points", "sonar_offset"]
 

@@ -1,7 +1,7 @@
 """Object-class height model P(z | range, bearing) (paper Sec. IV.D-E, Eq. 7-9).
 
 One `HeightModel` per object class holds, for every cell of a sparse 2D grid over
-the class's reference frame (`stages.kernels.object_frame`), a discrete posterior over the
+the class's reference frame (`sonarmap.stages.kernels.object_frame`), a discrete posterior over the
 height z of the return, stored as log probabilities on a fixed z grid.
 
 - Cells: the reference frame is metric and aligned with the reference line of sight,
@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.kernels.choices import UpdateRule
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.choices import UpdateRule
+from sonarmap.stages.kernels.lazy import lazy
 
 special = lazy("scipy.special")
 
@@ -225,7 +225,7 @@ class HeightModel:
             uv_m: (n, 2) reference-frame positions [m].
             threshold: minimum confidence (posterior probability) of a returned value.
             prior: optional (n, n_z) non-negative weights that multiply each position's
-                posterior before the MAP (renormalised; `stages.kernels.object_prior`).
+                posterior before the MAP (renormalised; `sonarmap.stages.kernels.object_prior`).
         """
         rows = self._find(self.cell_keys(uv_m))
         seen = rows >= 0

@@ -7,16 +7,16 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
-from schemas.map import NO_CLASS
-from schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.schemas.classes import DEFAULT_TABLE, UNKNOWN_CLASS, ClassTable
+from sonarmap.schemas.map import NO_CLASS
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
 
 __all__ = ["NO_CLASS_ID", "SOURCE_IDS", "UNKNOWN_CLASS_ID", "class_ids", "source_ids"]
 
 SOURCE_IDS: dict[str, int] = {"fused": 0, "inferred": 1, "submap": 2}
 """0: fused in a keyframe, 1: inferred in a keyframe, 2: from a dense submap frame."""
 NO_CLASS_ID = 254
-"""class id of a point of no classified object (`schemas.map.NO_CLASS`)."""
+"""class id of a point of no classified object (`sonarmap.schemas.map.NO_CLASS`)."""
 UNKNOWN_CLASS_ID = 255
 """class id of a point the classifier was not confident about, or of an unlisted class."""
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
-from stages.kernels.ply import Mesh
+from sonarmap.stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.ply import Mesh
 
 o3d = lazy("open3d")
 spatial = lazy("scipy.spatial")

@@ -35,8 +35,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stages.kernels.geometry import fan_to_xy, se2, se2_apply
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.geometry import fan_to_xy, se2, se2_apply
+from sonarmap.stages.kernels.lazy import lazy
 
 o3d = lazy("open3d")
 

@@ -1,6 +1,6 @@
 """Per-object height prior for the beam-frame class models (hierarchical pooling).
 
-A beam-frame class model (`stages.kernels.beam_frame`) pools every object of a class:
+A beam-frame class model (`sonarmap.stages.kernels.beam_frame`) pools every object of a class:
 P(z | s) learned from all their fused points. Where the class's objects sit at different
 heights relative to the sonar (a hull floats at the surface whatever the sonar's depth; a
 truss spans its own band of heights), that pooled posterior is wide, and its MAP height

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.recording import PoseTrack, Recording
+from sonarmap.schemas.recording import PoseTrack, Recording
 
 __all__ = ["PingPairs", "PosedPairs", "interpolate_poses", "pair_pings", "posed_pairs"]
 

@@ -2,7 +2,7 @@
 
 Stages never open files, so PLY is built into bytes (by `plyfile`) and parsed from
 bytes here with numpy structured arrays. The reader supports what the simulator writes
-(`sim.world.World.to_ply_bytes`: binary little-endian vertex x y z + per-vertex ids,
+(`sonarmap.sim.world.World.to_ply_bytes`: binary little-endian vertex x y z + per-vertex ids,
 faces as uchar-count int index lists) and ASCII PLY with the same elements; list
 properties are read for triangles (count 3) only.
 """

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.points import POINTS_SCHEMA
+from sonarmap.schemas.points import POINTS_SCHEMA
 
 __all__ = ["points_table", "tag_points"]
 

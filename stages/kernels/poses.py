@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from stages.kernels.geometry import se3_from_pose
+from sonarmap.stages.kernels.geometry import se3_from_pose
 
 __all__ = ["pose_matrices", "pose_matrix"]
 

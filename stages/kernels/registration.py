@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from schemas.submaps import REL_POSE_COLUMNS
-from stages.kernels.poses import pose_matrix
+from sonarmap.schemas.submaps import REL_POSE_COLUMNS
+from sonarmap.stages.kernels.poses import pose_matrix
 
 __all__ = [
     "submap_world_points",

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from stages.kernels.geometry import fan_to_xy
-from stages.kernels.object_frame import ObjectOrigin
+from sonarmap.stages.kernels.geometry import fan_to_xy
+from sonarmap.stages.kernels.object_frame import ObjectOrigin
 
 __all__ = [
     "FUSED_FEATURE_COLUMN",

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from schemas.sonar import SonarPing
+from sonarmap.schemas.sonar import SonarPing
 
 __all__ = ["sonar_geometry"]
 

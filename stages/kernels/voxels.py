@@ -7,7 +7,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.map import MAP_NAMES
+from sonarmap.schemas.map import MAP_NAMES
 
 __all__ = ["column_ids", "map_xyz", "standard_rows", "voxel_keys"]
 

@@ -4,12 +4,12 @@ This module declares the stage (what planning imports: no numpy, no pyarrow).
 
 Modules:
     config: its config section.
-    stage: the computation (`stages.kernels.pairing` pairs and poses the pings).
+    stage: the computation (`sonarmap.stages.kernels.pairing` pairs and poses the pings).
 """
 
-from stages.base import DATASET, Output, Stage
-from stages.kernels.lazy import deferred
-from stages.keyframes.config import KeyframesConfig
+from sonarmap.stages.base import DATASET, Output, Stage
+from sonarmap.stages.kernels.lazy import deferred
+from sonarmap.stages.keyframes.config import KeyframesConfig
 
 __all__ = ["STAGE", "KeyframesConfig"]
 
@@ -21,13 +21,13 @@ STAGE = Stage(
     inputs=(DATASET,),
     outputs=(
         Output(
-            "keyframes", "parquet", "keyframes.parquet", schema="schemas.keyframes:KEYFRAMES_SCHEMA"
+            "keyframes", "parquet", "keyframes.parquet", schema="sonarmap.schemas.keyframes:KEYFRAMES_SCHEMA"
         ),
         Output("frames", "frames", "keyframes.mcap"),
-        Output("sensors", "json", "sensors.json", record="schemas.sensors:Sensors"),
+        Output("sensors", "json", "sensors.json", record="sonarmap.schemas.sensors:Sensors"),
         Output("scene_mesh", "bytes", "scene.ply", optional=True),
     ),
-    run=deferred("stages.keyframes.stage:run"),
+    run=deferred("sonarmap.stages.keyframes.stage:run"),
     description="pair sonar pings, pose them from navigation, select keyframes by spacing",
     key_excludes=("submap_stride",),
 )

@@ -6,7 +6,7 @@ from typing import Annotated
 
 from pydantic import Field
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["KeyframesConfig"]
 

@@ -1,6 +1,6 @@
 """Keyframes: pair the two sonars in time, pose each pair, keep pairs by spacing.
 
-Pure logic over arrays; the recording (a `schemas.recording.Recording`, bound by the
+Pure logic over arrays; the recording (a `sonarmap.schemas.recording.Recording`, bound by the
 engine as the "dataset" input) supplies ping times, the navigation stream and, for the
 selected keyframes only, the decoded images, so memory stays flat in mission length.
 
@@ -25,20 +25,20 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
-from schemas.recording import Recording
-from schemas.sonar import KeyframeImages
-from stages.base import DATASET, StageInputError
-from stages.kernels.pairing import (
+from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
+from sonarmap.schemas.recording import Recording
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.base import DATASET, StageInputError
+from sonarmap.stages.kernels.pairing import (
     PingPairs,
     PosedPairs,
     interpolate_poses,
     pair_pings,
     posed_pairs,
 )
-from stages.kernels.sonar_geometry import sonar_geometry
-from stages.keyframes import STAGE
-from stages.keyframes.config import KeyframesConfig
+from sonarmap.stages.kernels.sonar_geometry import sonar_geometry
+from sonarmap.stages.keyframes import STAGE
+from sonarmap.stages.keyframes.config import KeyframesConfig
 
 __all__ = [
     "STAGE",

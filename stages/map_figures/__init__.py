@@ -8,9 +8,9 @@ Modules:
     plots: the figures, rendered to PNG bytes.
 """
 
-from stages.base import Input, Output, Stage
-from stages.kernels.lazy import deferred
-from stages.map_figures.config import MapFiguresConfig
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.kernels.lazy import deferred
+from sonarmap.stages.map_figures.config import MapFiguresConfig
 
 __all__ = ["STAGE", "MapFiguresConfig"]
 
@@ -30,7 +30,7 @@ STAGE = Stage(
         Output("map_topdown", "bytes", "map_topdown.png"),
         Output("side_view", "bytes", "side_view.png", optional=True),
     ),
-    run=deferred("stages.map_figures.stage:_run"),
+    run=deferred("sonarmap.stages.map_figures.stage:_run"),
     off_critical_path=True,
     input_columns=(
         (Input("voxelize", "map"), ("source", "x_m", "y_m", "z_m")),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 __all__ = ["MapFiguresConfig"]
 

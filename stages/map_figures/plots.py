@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.classes import CLASS_IDS
-from schemas.figures import SIDE_VIEW_KINDS
-from stages.kernels.figure_png import png_bytes
-from stages.kernels.ply import Mesh
+from sonarmap.schemas.classes import CLASS_IDS
+from sonarmap.schemas.figures import SIDE_VIEW_KINDS
+from sonarmap.stages.kernels.figure_png import png_bytes
+from sonarmap.stages.kernels.ply import Mesh
 
 __all__ = [
     "PNG_SIGNATURE",
@@ -153,7 +153,7 @@ def side_view_png(panels: Sequence[SidePanel]) -> bytes:
 
 
 def side_panels_from_table(table: pa.Table) -> list[SidePanel]:
-    """The panels of evaluate's `side_view.parquet` (`schemas.figures.SIDE_VIEW_SCHEMA`)."""
+    """The panels of evaluate's `side_view.parquet` (`sonarmap.schemas.figures.SIDE_VIEW_SCHEMA`)."""
     panel = table.column("panel").to_numpy()
     kind = np.asarray(table.column("kind").to_pylist(), dtype=object)
     hz = np.stack([table.column("h_m").to_numpy(), table.column("z_m").to_numpy()], axis=1)

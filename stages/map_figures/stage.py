@@ -1,9 +1,9 @@
 """Stage `map_figures`: `errors.png`, `map_topdown.png`, `side_view.png`, after evaluate.
 
-Off the critical path like `figures` (`stages.figures.stage`): nothing reads them and
+Off the critical path like `figures` (`sonarmap.stages.figures.stage`): nothing reads them and
 `run --no-figures` leaves them out. They are what evaluate drew before (the same
 functions on the same arrays), from the map, the errors and evaluate's
-`side_view.parquet` (`schemas.figures`).
+`side_view.parquet` (`sonarmap.schemas.figures`).
 """
 
 from __future__ import annotations
@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.map import MAP_NAMES
-from stages.kernels.ply import decode_mesh_ply
-from stages.kernels.voxels import map_xyz
-from stages.map_figures import STAGE
-from stages.map_figures.config import MapFiguresConfig
-from stages.map_figures.plots import (
+from sonarmap.schemas.map import MAP_NAMES
+from sonarmap.stages.kernels.ply import decode_mesh_ply
+from sonarmap.stages.kernels.voxels import map_xyz
+from sonarmap.stages.map_figures import STAGE
+from sonarmap.stages.map_figures.config import MapFiguresConfig
+from sonarmap.stages.map_figures.plots import (
     error_boxplot_png,
     side_panels_from_table,
     side_view_png,

@@ -14,9 +14,9 @@ Modules:
     outputs: trajectory tables and the points trajectory.png draws.
 """
 
-from stages.base import Input, Output, Stage
-from stages.kernels.lazy import deferred
-from stages.slam.config import SlamConfig
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.kernels.lazy import deferred
+from sonarmap.stages.slam.config import SlamConfig
 
 __all__ = ["STAGE", "SlamConfig"]
 
@@ -31,16 +31,16 @@ STAGE = Stage(
         Input("features", "features"),
     ),
     outputs=(
-        Output("poses", "parquet", "poses.parquet", schema="schemas.slam:POSES_SCHEMA"),
-        Output("factors", "parquet", "factors.parquet", schema="schemas.slam:FACTORS_SCHEMA"),
+        Output("poses", "parquet", "poses.parquet", schema="sonarmap.schemas.slam:POSES_SCHEMA"),
+        Output("factors", "parquet", "factors.parquet", schema="sonarmap.schemas.slam:FACTORS_SCHEMA"),
         Output("trajectory", "bytes", "trajectory.tum"),
         Output(
             "plot_points",
             "parquet",
             "plot_points.parquet",
-            schema="schemas.figures:PLOT_POINTS_SCHEMA",
+            schema="sonarmap.schemas.figures:PLOT_POINTS_SCHEMA",
         ),
     ),
-    run=deferred("stages.slam.stage:run"),
+    run=deferred("sonarmap.stages.slam.stage:run"),
     description="planar pose-graph SLAM (iSAM2): scan matching, loop closures with PCM",
 )

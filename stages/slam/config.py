@@ -8,10 +8,10 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import Field
 
-from stages.base import StageConfig
+from sonarmap.stages.base import StageConfig
 
 if TYPE_CHECKING:
-    from schemas.sensors import Sensors
+    from sonarmap.schemas.sensors import Sensors
 
 __all__ = ["CHI2_99_3DOF", "SlamConfig"]
 
@@ -31,7 +31,7 @@ class SlamConfig(StageConfig):
     covariance floor and its mode, and the loops' Cauchy kernel, which the per-factor error
     against simulator ground truth set (`benchmarks/bench_slam.py`); the navigation factors
     (odometry white noise, its scale error, the heading's noise and bias walk) are those of
-    the simulator's default navigation (`sim.config.NavigationNoise`), i.e. of the vehicle's
+    the simulator's default navigation (`sonarmap.sim.config.NavigationNoise`), i.e. of the vehicle's
     sensor specifications: set them from yours.
     """
 
@@ -239,7 +239,7 @@ def with_sensor_fan(config: SlamConfig, sensors: Sensors | Mapping[str, Any] | N
     fan from the keyframes sensors, else `LEGACY_FAN_DEG`."""
     if config.nssm_aperture_deg is not None:
         return config
-    from schemas.sensors import Sensors  # numpy: not while planning reads this module
+    from sonarmap.schemas.sensors import Sensors  # numpy: not while planning reads this module
 
     fan = None if sensors is None else Sensors.of(sensors).horizontal.fov_deg
     return config.model_copy(update={"nssm_aperture_deg": float(fan or LEGACY_FAN_DEG)})

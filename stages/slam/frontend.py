@@ -5,7 +5,7 @@ error, a state: `PlanarPoseGraph.add_scaled_odometry`), an absolute heading fact
 slam; through a random-walk bias state, `PlanarPoseGraph.add_biased_heading`),
 sequential scan matching against the previous few keyframes and, once far enough from
 the start, non-sequential scan matching (loop closure) against older keyframes, with
-PCM and the final re-registration of every loop: `stages.slam.loops`.
+PCM and the final re-registration of every loop: `sonarmap.stages.slam.loops`.
 """
 
 from __future__ import annotations
@@ -15,15 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from stages.slam.config import SlamConfig
-from stages.slam.loops import LoopCandidate, LoopClosures
-from stages.slam.pose_graph import (
+from sonarmap.stages.slam.config import SlamConfig
+from sonarmap.stages.slam.loops import LoopCandidate, LoopClosures
+from sonarmap.stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_between,
     se2_compose,
     wrap_angle,
 )
-from stages.slam.scan_matching import (
+from sonarmap.stages.slam.scan_matching import (
     MatchResult,
     TargetIndex,
     match_scans,

@@ -2,7 +2,7 @@
 
 Once far enough from the start, each keyframe is matched (non-sequential scan matching)
 against the older keyframes whose features it could see (`_footprint_targets`); a loop
-enters the graph only as a member of a pairwise consistent set (PCM, `stages.slam.pcm`),
+enters the graph only as a member of a pairwise consistent set (PCM, `sonarmap.stages.slam.pcm`),
 under a Cauchy kernel. After the last keyframe every accepted loop is registered again
 from the optimised poses and the whole graph re-solved (`loop_refine_passes`), each
 loop's covariance multiplied by the number of loops that share its sonar data
@@ -18,9 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from stages.slam.config import LEGACY_FAN_DEG, SlamConfig
-from stages.slam.pcm import chain_covariance, maximum_clique, pairwise_consistency
-from stages.slam.pose_graph import (
+from sonarmap.stages.slam.config import LEGACY_FAN_DEG, SlamConfig
+from sonarmap.stages.slam.pcm import chain_covariance, maximum_clique, pairwise_consistency
+from sonarmap.stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_adjoint,
     se2_between,
@@ -28,7 +28,7 @@ from stages.slam.pose_graph import (
     se2_log,
     wrap_angle,
 )
-from stages.slam.scan_matching import (
+from sonarmap.stages.slam.scan_matching import (
     MatchResult,
     icp_with_covariance,
     transform_points,
@@ -80,7 +80,7 @@ class LoopCandidate:
 
 
 class LoopClosures:
-    """The loop-closure half of the front end (mixed into `stages.slam.frontend._FrontEnd`,
+    """The loop-closure half of the front end (mixed into `sonarmap.stages.slam.frontend._FrontEnd`,
     whose sequential half provides the state below and `_cloud`, `_index`, `_match`, `_check`,
     `_floor`, `_row` and `_update`)."""
 

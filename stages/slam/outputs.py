@@ -7,10 +7,10 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.figures import PLOT_POINTS_SCHEMA
-from schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from stages.kernels.geometry import quat_from_rpy
-from stages.slam.scan_matching import transform_points
+from sonarmap.schemas.figures import PLOT_POINTS_SCHEMA
+from sonarmap.schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
+from sonarmap.stages.kernels.geometry import quat_from_rpy
+from sonarmap.stages.slam.scan_matching import transform_points
 
 __all__ = ["factors_table", "plot_points", "poses_table", "tum_text"]
 

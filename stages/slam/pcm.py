@@ -17,9 +17,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
-from stages.slam.config import CHI2_99_3DOF
-from stages.slam.pose_graph import se2_adjoint, se2_between, se2_compose, se2_inverse, se2_log
+from sonarmap.stages.kernels.lazy import lazy
+from sonarmap.stages.slam.config import CHI2_99_3DOF
+from sonarmap.stages.slam.pose_graph import (
+    se2_adjoint,
+    se2_between,
+    se2_compose,
+    se2_inverse,
+    se2_log,
+)
 
 __all__ = [
     "CHI2_99_3DOF",

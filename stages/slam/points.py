@@ -6,8 +6,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from stages.kernels.geometry import fan_in_frame
-from stages.slam.scan_matching import voxel_downsample
+from sonarmap.stages.kernels.geometry import fan_in_frame
+from sonarmap.stages.slam.scan_matching import voxel_downsample
 
 __all__ = ["keyframe_points", "leading_edges"]
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 gtsam = lazy("gtsam")
 

@@ -22,9 +22,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
-from stages.slam.pose_graph import wrap_angle
-from stages.slam.targets import TargetIndex, pad_z
+from sonarmap.stages.kernels.lazy import lazy
+from sonarmap.stages.slam.pose_graph import wrap_angle
+from sonarmap.stages.slam.targets import TargetIndex, pad_z
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree

@@ -13,7 +13,7 @@ can be the sensor's real one, and, when it passes its checks, sequential scan ma
 globally initialised by consensus maximisation); and loop closures from non-sequential scan matching (NSSM)
 against the older keyframe whose footprint overlaps most (and, when that match fails its
 checks, the next best from another stretch of the track: `nssm_fallback_targets`, version
-5), admitted only as a pairwise-consistent set (PCM, `stages.slam.pcm`) and then under a Cauchy
+5), admitted only as a pairwise-consistent set (PCM, `sonarmap.stages.slam.pcm`) and then under a Cauchy
 kernel (their error is heavy-tailed: a structure seen from another viewpoint returns from
 other parts of its surface). Once all keyframes are in, every accepted loop is registered
 again from the optimised poses (ICP only, tight gate) and the graph re-solved in batch
@@ -27,10 +27,10 @@ Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated cova
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
 Outputs: poses, factors (parquet), trajectory (TUM text), plot points (the features
 registered with the estimate, thinned: what `trajectory.png` of the `figures` stage draws;
-version 10); see `schemas.slam` and `schemas.figures`.
+version 10); see `sonarmap.schemas.slam` and `sonarmap.schemas.figures`.
 
-The front end is `stages.slam.frontend`, the config `stages.slam.config`, the keyframe
-point clouds `stages.slam.points`, the output files `stages.slam.outputs`.
+The front end is `sonarmap.stages.slam.frontend`, the config `sonarmap.stages.slam.config`, the keyframe
+point clouds `sonarmap.stages.slam.points`, the output files `sonarmap.stages.slam.outputs`.
 """
 
 from __future__ import annotations
@@ -42,14 +42,14 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.sensors import Sensors
-from stages.base import Input, StageInputError
-from stages.slam import STAGE
-from stages.slam.config import SlamConfig, with_sensor_fan
-from stages.slam.frontend import SlamResult, run_slam
-from stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
-from stages.slam.points import keyframe_points, leading_edges
-from stages.slam.pose_graph import wrap_angle
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.slam import STAGE
+from sonarmap.stages.slam.config import SlamConfig, with_sensor_fan
+from sonarmap.stages.slam.frontend import SlamResult, run_slam
+from sonarmap.stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
+from sonarmap.stages.slam.points import keyframe_points, leading_edges
+from sonarmap.stages.slam.pose_graph import wrap_angle
 
 __all__ = [
     "STAGE",

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.lazy import lazy
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree

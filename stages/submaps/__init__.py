@@ -7,9 +7,9 @@ Modules:
     stage: the computation (`frames`, `mapping`, `transfer`, `workers`: its parts).
 """
 
-from stages.base import DATASET, Input, Output, Stage
-from stages.kernels.lazy import deferred
-from stages.submaps.config import READ_SECTIONS, SubmapsConfig
+from sonarmap.stages.base import DATASET, Input, Output, Stage
+from sonarmap.stages.kernels.lazy import deferred
+from sonarmap.stages.submaps.config import READ_SECTIONS, SubmapsConfig
 
 __all__ = ["STAGE", "SubmapsConfig"]
 
@@ -38,17 +38,17 @@ STAGE = Stage(
             "frames",
             "parquet",
             "submap_frames.parquet",
-            schema="schemas.submaps:SUBMAP_FRAMES_SCHEMA",
+            schema="sonarmap.schemas.submaps:SUBMAP_FRAMES_SCHEMA",
         ),
         Output(
             "points",
             "parquet",
             "submap_points.parquet",
-            schema="schemas.submaps:SUBMAP_POINTS_SCHEMA",
+            schema="sonarmap.schemas.submaps:SUBMAP_POINTS_SCHEMA",
         ),
         Output("stats", "json", "stats.json"),
     ),
-    run=deferred("stages.submaps.stage:_run"),
+    run=deferred("sonarmap.stages.submaps.stage:_run"),
     description="dense submaps: the ping pairs between keyframes, anchored to their keyframe",
     reads_sections=(*READ_SECTIONS, "classes"),
     dataset_section="keyframes",

@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
-from schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
-from stages.kernels.geometry import pose_from_se3
-from stages.kernels.poses import pose_matrix
+from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, POSE_COLUMNS
+from sonarmap.schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA
+from sonarmap.stages.kernels.geometry import pose_from_se3
+from sonarmap.stages.kernels.poses import pose_matrix
 
 __all__ = ["relative_poses", "submap_frame_rows"]
 

@@ -1,8 +1,8 @@
 """One submap frame mapped: features, fusion, classes from the keyframe objects it sees
-again, and height queries (`stages.submaps.stage`'s steps 1-4), in chunks of frames.
+again, and height queries (`sonarmap.stages.submaps.stage`'s steps 1-4), in chunks of frames.
 
 `FrameMapper` holds everything a frame's mapping reads besides the frame's own images;
-it pickles, so worker processes (`stages.submaps.workers`) map chunks with the very code
+it pickles, so worker processes (`sonarmap.stages.submaps.workers`) map chunks with the very code
 that maps them in the stage's own process.
 """
 
@@ -15,22 +15,22 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from schemas.map import NO_CLASS
-from schemas.recording import Recording
-from schemas.sonar import KeyframeImages
-from schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
-from stages.kernels.class_models import ClassModelSettings, ClassState, inferred_classes
-from stages.kernels.class_query import (
+from sonarmap.schemas.map import NO_CLASS
+from sonarmap.schemas.recording import Recording
+from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
+from sonarmap.stages.kernels.class_models import ClassModelSettings, ClassState, inferred_classes
+from sonarmap.stages.kernels.class_query import (
     Funnel,
     borrowed_sightings,
     register_and_query,
     update_and_query_beam_class,
 )
-from stages.kernels.frame_features import CfarSettings, keyframe_features
-from stages.kernels.fusion import FusionSettings, fuse_keyframe
-from stages.kernels.point_tables import points_table, tag_points
-from stages.kernels.sightings import sightings
-from stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from sonarmap.stages.kernels.frame_features import CfarSettings, keyframe_features
+from sonarmap.stages.kernels.fusion import FusionSettings, fuse_keyframe
+from sonarmap.stages.kernels.point_tables import points_table, tag_points
+from sonarmap.stages.kernels.sightings import sightings
+from sonarmap.stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
 
 __all__ = ["COUNTS", "FRAMES_PER_CHUNK", "FrameMapper", "MappedChunk", "frame_points"]
 

@@ -9,15 +9,15 @@ keyframes into submaps anchored to them: dead reckoning is accurate over the 1-2
 the keyframe, and a frame moves with its keyframe when SLAM moves it.
 
 Per keyframe, every `keyframes.submap_stride`-th pair recorded before the next one is a
-submap frame (`stages.submaps.frames`, with T_kf_frame from dead reckoning). Each
+submap frame (`sonarmap.stages.submaps.frames`, with T_kf_frame from dead reckoning). Each
 frame, streamed from the recording one at a time, goes through what a keyframe goes
 through, with the keyframe stages' own functions and config sections:
 
-1. features: SOCA-CFAR on both images (`stages.kernels.frame_features`);
-2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`stages.kernels.fusion`);
+1. features: SOCA-CFAR on both images (`sonarmap.stages.kernels.frame_features`);
+2. fuse: orthogonal stereo association, Eq. 3, 5, 6 (`sonarmap.stages.kernels.fusion`);
 3. classify: the clusters of its horizontal returns (classify's own clustering, its
    output `clustering`) take the keyframe objects they see again
-   (`stages.submaps.transfer`), instead of a CNN pass;
+   (`sonarmap.stages.submaps.transfer`), instead of a CNN pass;
 4. infer: its 2D-only returns on inferred classes are queried (Eq. 8-9) in the class
    models as they stand after the mission's last keyframe (infer's outputs
    `class_reference` and `class_cells`, read back, never relearned): the models learn
@@ -26,8 +26,8 @@ through, with the keyframe stages' own functions and config sections:
 SLAM still uses keyframes only. `voxelize` registers a frame's points with
 T_world_kf(SLAM) T_kf_frame T_base_sonar (Eq. 4 extended).
 
-Frames are mapped in chunks of 64 (`stages.submaps.mapping`), here or, with
-`submaps.workers` > 1, in that many processes (`stages.submaps.workers`).
+Frames are mapped in chunks of 64 (`sonarmap.stages.submaps.mapping`), here or, with
+`submaps.workers` > 1, in that many processes (`sonarmap.stages.submaps.workers`).
 
 Keys: the stride is in section `keyframes` but read only here (`Stage.key_excludes`),
 so changing it recomputes `submaps`, `voxelize` and `evaluate`, nothing upstream; the
@@ -43,31 +43,31 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE
-from schemas.recording import Recording
-from schemas.sensors import Sensors
-from schemas.submaps import (
+from sonarmap.schemas.classes import DEFAULT_TABLE
+from sonarmap.schemas.recording import Recording
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.submaps import (
     SUBMAP_FRAMES_SCHEMA,
     SUBMAP_POINTS_SCHEMA,
 )
-from stages.base import Input, StageInputError
-from stages.kernels.class_models import (
+from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.kernels.class_models import (
     ClassModelSettings,
     ClassState,
     ModelTableError,
     restore_class_states,
 )
-from stages.kernels.clustering import clustering_params
-from stages.kernels.fusion import sonar_offset
-from stages.kernels.pairing import interpolate_poses, posed_pairs
-from stages.kernels.poses import pose_matrix
-from stages.kernels.sightings import column, object_feature_rows
-from stages.submaps import STAGE
-from stages.submaps.config import READ_SECTIONS as _SECTIONS
-from stages.submaps.config import SubmapsConfig
-from stages.submaps.frames import submap_frame_rows
-from stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
-from stages.submaps.workers import mapped_chunks
+from sonarmap.stages.kernels.clustering import clustering_params
+from sonarmap.stages.kernels.fusion import sonar_offset
+from sonarmap.stages.kernels.pairing import interpolate_poses, posed_pairs
+from sonarmap.stages.kernels.poses import pose_matrix
+from sonarmap.stages.kernels.sightings import column, object_feature_rows
+from sonarmap.stages.submaps import STAGE
+from sonarmap.stages.submaps.config import READ_SECTIONS as _SECTIONS
+from sonarmap.stages.submaps.config import SubmapsConfig
+from sonarmap.stages.submaps.frames import submap_frame_rows
+from sonarmap.stages.submaps.mapping import COUNTS, FRAMES_PER_CHUNK, FrameMapper
+from sonarmap.stages.submaps.workers import mapped_chunks
 
 __all__ = ["STAGE", "SubmapsConfig", "map_submap_frames"]
 
@@ -103,7 +103,7 @@ def map_submap_frames(
     (eps_m, min_samples, min_features) the one classify used.
 
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
-    that many processes (`stages.submaps.workers`); the outputs are the same bytes.
+    that many processes (`sonarmap.stages.submaps.workers`); the outputs are the same bytes.
     """
     kcfg = sections["keyframes"]
     icfg: ClassModelSettings = sections["infer"]

@@ -2,7 +2,7 @@
 
 A submap frame is 0.1-2 m from its keyframe, so it sees the keyframe's objects again,
 from nearly the same place. Its horizontal returns are clustered as the classifier
-clusters a keyframe's (DBSCAN in the fan plane, `stages.kernels.clustering`), and
+clusters a keyframe's (DBSCAN in the fan plane, `sonarmap.stages.kernels.clustering`), and
 each cluster takes the object, and so the class, of the keyframe object that most of
 its returns lie on: a return lies on an object when, moved into the keyframe's sonar
 frame by the dead-reckoning motion between the two, it is within `match_radius_m` of
@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.clustering import cluster_features
-from stages.kernels.geometry import fan_to_xy
-from stages.kernels.lazy import lazy
+from sonarmap.stages.kernels.clustering import cluster_features
+from sonarmap.stages.kernels.geometry import fan_to_xy
+from sonarmap.stages.kernels.lazy import lazy
 
 spatial = lazy("scipy.spatial")
 

@@ -3,7 +3,7 @@
 The workers get the mapper and the recording pickled once, as their start-up payload
 (a `SourceRecording` pickles as its path, options and topic roles, and reopens), and map
 chunks of `FRAMES_PER_CHUNK` frames; the chunks come back in order
-(`stages.kernels.parallel.ordered_map`), so the stage writes the same bytes for any number of
+(`sonarmap.stages.kernels.parallel.ordered_map`), so the stage writes the same bytes for any number of
 workers. Spawned workers import the caller's main module again: a script that runs the
 pipeline with workers > 1 needs the usual `if __name__ == "__main__":` guard.
 """
@@ -14,9 +14,9 @@ import logging
 import pickle
 from collections.abc import Iterator
 
-from schemas.recording import Recording
-from stages.kernels.parallel import available_cores, ordered_map, release_memory
-from stages.submaps.mapping import FRAMES_PER_CHUNK, FrameMapper, MappedChunk
+from sonarmap.schemas.recording import Recording
+from sonarmap.stages.kernels.parallel import available_cores, ordered_map, release_memory
+from sonarmap.stages.submaps.mapping import FRAMES_PER_CHUNK, FrameMapper, MappedChunk
 
 __all__ = ["mapped_chunks", "worker_count"]
 

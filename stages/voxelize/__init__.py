@@ -7,9 +7,9 @@ Modules:
     stage: the computation (`evidence`: the fused-evidence check of inferred points).
 """
 
-from stages.base import Input, Output, Stage
-from stages.kernels.lazy import deferred
-from stages.voxelize.config import XYZ, VoxelizeConfig
+from sonarmap.stages.base import Input, Output, Stage
+from sonarmap.stages.kernels.lazy import deferred
+from sonarmap.stages.voxelize.config import XYZ, VoxelizeConfig
 
 __all__ = ["STAGE", "VoxelizeConfig"]
 
@@ -34,12 +34,12 @@ STAGE = Stage(
         (Input("submaps", "points"), ("frame_id", "source", "class_name", *XYZ)),
     ),
     outputs=(
-        Output("map", "parquet", "map.parquet", schema="schemas.map:MAP_SCHEMA"),
-        Output("voxels", "parquet", "voxels.parquet", schema="schemas.map:VOXELS_SCHEMA"),
+        Output("map", "parquet", "map.parquet", schema="sonarmap.schemas.map:MAP_SCHEMA"),
+        Output("voxels", "parquet", "voxels.parquet", schema="sonarmap.schemas.map:VOXELS_SCHEMA"),
         Output("summary", "json", "summary.json"),
         Output("map_standard", "bytes", "map_standard.ply"),
         Output("map_semantic", "bytes", "map_semantic.ply"),
     ),
-    run=deferred("stages.voxelize.stage:_run"),
+    run=deferred("sonarmap.stages.voxelize.stage:_run"),
     description="register points with SLAM poses (Eq. 4), standard and semantic maps, voxel counts",
 )

@@ -6,9 +6,9 @@ from collections.abc import Iterable
 
 from pydantic import Field, field_validator
 
-from schemas.classes import known_class_names
-from stages.base import StageConfig
-from stages.kernels.choices import DEFAULT_FRAME_KINDS
+from sonarmap.schemas.classes import known_class_names
+from sonarmap.stages.base import StageConfig
+from sonarmap.stages.kernels.choices import DEFAULT_FRAME_KINDS
 
 __all__ = ["DEFAULT_EVIDENCE_CLASSES", "XYZ", "VoxelizeConfig"]
 

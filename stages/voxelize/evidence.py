@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stages.kernels.voxels import column_ids
+from sonarmap.stages.kernels.voxels import column_ids
 
 __all__ = ["contradicted_by_fused"]
 

@@ -15,7 +15,7 @@ object's class name (matched on keyframe and exact sonar-frame coordinates, whic
 infer stage copies unchanged).
 
 Inferred points of the classes in `evidence_classes` that the fused points of their own
-world column contradict (`stages.voxelize.evidence`: the column holds enough fused
+world column contradict (`sonarmap.stages.voxelize.evidence`: the column holds enough fused
 points and none near the predicted height) are dropped from the semantic map; this
 catches an object given the wrong class (a truss called seawall receives wall heights).
 
@@ -24,9 +24,9 @@ between keyframes join both maps, registered through their keyframe's SLAM pose 
 their dead-reckoning pose relative to it, T_world_kf T_kf_frame T_base_sonar; their
 `frame_id` column tells them from the keyframes' own points (-1).
 
-Outputs: `map` (`schemas.map.MAP_SCHEMA`), `voxels` (`VOXELS_SCHEMA`), `summary`
+Outputs: `map` (`sonarmap.schemas.map.MAP_SCHEMA`), `voxels` (`VOXELS_SCHEMA`), `summary`
 (voxel and point counts), and each map as a binary PLY coloured by height with vertex
-properties class_id, source and keyframe_id (`stages.kernels.map_codes`).
+properties class_id, source and keyframe_id (`sonarmap.stages.kernels.map_codes`).
 """
 
 from __future__ import annotations
@@ -39,20 +39,20 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.classes import DEFAULT_TABLE, ClassTable
-from schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
-from schemas.sensors import Sensors
-from schemas.submaps import KEYFRAME_FRAME_ID
-from stages.kernels.colormaps import VIRIDIS_RGB8
-from stages.kernels.map_codes import class_ids, source_ids
-from stages.kernels.ply import encode_points_ply
-from stages.kernels.poses import pose_matrices
-from stages.kernels.registration import submap_world_points, world_points, xyz_columns
-from stages.kernels.voxels import map_xyz, standard_rows, voxel_keys
-from stages.voxelize import STAGE
-from stages.voxelize.config import XYZ as _XYZ
-from stages.voxelize.config import VoxelizeConfig
-from stages.voxelize.evidence import contradicted_by_fused
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
+from sonarmap.schemas.map import MAP_NAMES, MAP_SCHEMA, NO_CLASS, VOXELS_SCHEMA
+from sonarmap.schemas.sensors import Sensors
+from sonarmap.schemas.submaps import KEYFRAME_FRAME_ID
+from sonarmap.stages.kernels.colormaps import VIRIDIS_RGB8
+from sonarmap.stages.kernels.map_codes import class_ids, source_ids
+from sonarmap.stages.kernels.ply import encode_points_ply
+from sonarmap.stages.kernels.poses import pose_matrices
+from sonarmap.stages.kernels.registration import submap_world_points, world_points, xyz_columns
+from sonarmap.stages.kernels.voxels import map_xyz, standard_rows, voxel_keys
+from sonarmap.stages.voxelize import STAGE
+from sonarmap.stages.voxelize.config import XYZ as _XYZ
+from sonarmap.stages.voxelize.config import VoxelizeConfig
+from sonarmap.stages.voxelize.evidence import contradicted_by_fused
 
 __all__ = [
     "STAGE",
@@ -98,12 +98,12 @@ def build_map(
     """The world-frame map of fused and inferred points (Eq. 4).
 
     Args:
-        points: infer.points (`schemas.points.POINTS_SCHEMA`), sonar frame.
-        fused: fuse.fused (`schemas.fused.FUSED_SCHEMA`), sonar frame.
-        poses: slam.poses (`schemas.slam.POSES_SCHEMA`), base_link in the world frame.
+        points: infer.points (`sonarmap.schemas.points.POINTS_SCHEMA`), sonar frame.
+        fused: fuse.fused (`sonarmap.schemas.fused.FUSED_SCHEMA`), sonar frame.
+        poses: slam.poses (`sonarmap.schemas.slam.POSES_SCHEMA`), base_link in the world frame.
         T_base_sonar: (4, 4) horizontal sonar mounting.
         drop_above_surface: drop world points with z > 0.
-        submap_frames, submap_points: stage `submaps` (`schemas.submaps`): points of the
+        submap_frames, submap_points: stage `submaps` (`sonarmap.schemas.submaps`): points of the
             frames between keyframes, each registered through its keyframe's pose,
             T_world_kf T_kf_frame T_base_sonar (Eq. 4 extended).
         evidence: the `evidence_*` settings of this config (None: no evidence check).
@@ -184,7 +184,7 @@ def _supported(
     class_code: np.ndarray, evidence: VoxelizeConfig | None,
 ) -> np.ndarray:  # fmt: skip
     """False for the inferred points of `evidence.evidence_classes` that the fused
-    points contradict (`stages.voxelize.evidence`); True for every other point."""
+    points contradict (`sonarmap.stages.voxelize.evidence`); True for every other point."""
     out = np.ones(len(world), bool)
     if evidence is None or not evidence.evidence_classes:
         return out
