@@ -1,31 +1,46 @@
 # sonarmap: `make demo` and `make test` are the two commands a new user needs.
-# Every target depends on `setup`, so a fresh clone needs nothing done by hand.
+# Each target installs what it needs and no more, so a fresh clone needs nothing done by
+# hand: `demo` the runtime alone, `test` adds the test tools and the servers its tests start.
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-STAMP := $(VENV)/.sonarmap-setup
-# open3d's libraries; OpenSSH's server and client for the sftp:// sharing tests
-APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0 openssh-server openssh-client
+RUNTIME := $(VENV)/.sonarmap-runtime
+TESTING := $(VENV)/.sonarmap-test
+DOCS := $(VENV)/.sonarmap-docs
+# open3d's libraries
+RUNTIME_APT := libegl1 libgl1 libx11-6 libusb-1.0-0
+# OpenSSH's server and client for the sftp:// sharing tests
+TEST_APT := openssh-server openssh-client
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: setup system-deps test demo bench lint study clean-store
+.PHONY: setup setup-test system-deps test test-wheel test-without-shared qa demo docs bench lint study clean-store
 
-setup: $(STAMP)
+setup: $(RUNTIME)
+setup-test: $(TESTING)
 
-$(STAMP): pyproject.toml Makefile
-	@$(MAKE) --no-print-directory system-deps
+$(RUNTIME): pyproject.toml setup.py Makefile
+	@$(MAKE) --no-print-directory system-deps APT="$(RUNTIME_APT)"
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	@# torch first: a bare `torch` requirement would pull a multi-GB CUDA build.
 	$(BIN)/python -m pip install -q torch==$(TORCH_VERSION)
+	$(BIN)/python -m pip install -q -e .
+	@touch $@
+
+$(TESTING): $(RUNTIME)
+	@$(MAKE) --no-print-directory system-deps APT="$(TEST_APT)"
 	$(BIN)/python -m pip install -q -e '.[dev,ray,remotes]'
-	@touch $(STAMP)
+	@touch $@
+
+$(DOCS): $(RUNTIME)
+	$(BIN)/python -m pip install -q -e '.[docs]'
+	@touch $@
 
 system-deps:
-	@missing=""; for p in $(APT_PACKAGES); do \
+	@missing=""; for p in $(APT); do \
 	  dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q "install ok installed" || missing="$$missing $$p"; \
 	done; \
 	if [ -n "$$missing" ]; then \
@@ -35,23 +50,34 @@ system-deps:
 	  else echo "error: sonarmap needs Debian packages:$$missing; run: sudo apt-get install -y$$missing" >&2; exit 2; fi; \
 	fi
 
-test: setup
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+test: $(TESTING)
+	$(BIN)/python -m pytest -m "not wheel" $(PYTEST_ARGS)
+
+# The wheel built from the sdist, installed into a fresh virtual environment, runs the demo
+# from a directory outside the checkout.
+test-wheel: $(TESTING)
+	$(BIN)/python -m pytest -q -m wheel tests/test_wheel.py
+
+# The tests that read ../shared/data, with it hidden as in a user's clone: each must skip.
+test-without-shared: $(TESTING)
+	SONARMAP_SHARED_DATA=/nonexistent $(BIN)/python -m pytest -q -m shared_data
 
 # `make demo DEMO_ARGS="--set keyframes.submap_stride=1"`: the demo with dense submaps
 DEMO_ARGS ?=
-demo: setup
+demo: $(RUNTIME)
 	$(BIN)/sonarmap demo $(DEMO_ARGS)
 
-bench: setup
+docs: $(DOCS)
+	$(BIN)/mkdocs build --strict
+
+bench: $(TESTING)
 	$(BIN)/python benchmarks/run_all.py
 
-study: setup
+study: $(RUNTIME)
 	$(BIN)/sonarmap study
 
-lint: setup
+lint: $(TESTING)
 	$(BIN)/ruff check .
-	$(BIN)/mypy pipeline schemas
 
 clean-store:
 	rm -rf data/store

@@ -7,24 +7,46 @@ from typing import Any
 from sonarmap.pipeline.commands._tables import print_table
 from sonarmap.pipeline.engine.runner import RunResult
 
-__all__ = ["print_summary"]
+__all__ = ["print_summary", "progress_shares_stdout"]
+
+KEY_CHARS = 12
+"""Characters of an artifact key shown on the terminal (`--json` gives the whole path)."""
 
 
-def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
-    """Stage table, then the coverage table when the map stages ran.
+def progress_shares_stdout() -> bool:
+    """Whether stderr (where the progress lists each stage) is the very file, pipe or
+    terminal stdout is: a log written with `2>&1`, or a terminal."""
+    import os
 
-    Tables print whole or as plain lines (`sonarmap.pipeline.commands._tables.print_table`): no header or
-    value is ever cut, at 80 columns or in a log file.
+    try:
+        out, err = os.fstat(1), os.fstat(2)
+    except OSError:
+        return False
+    return (out.st_dev, out.st_ino) == (err.st_dev, err.st_ino)
+
+
+def print_summary(
+    result: RunResult, summary: dict[str, Any], *, stages_listed: bool = False
+) -> None:
+    """Stage table (unless `stages_listed`: the progress already printed each stage to
+    the same output), then the coverage table when the map stages ran.
+
+    Tables print whole or as plain lines (`sonarmap.pipeline.commands._tables.print_table`):
+    no header or value is ever cut, at 80 columns or in a log file. Artifacts are named by
+    their stage and a short key (`STORE/STAGE/KEY...`; `--json` gives whole paths).
     """
     from rich.console import Console
 
     console = Console()
-    print_table(
-        console,
-        f"sonarmap run: {result.dataset}",
-        ("stage", "status", "seconds", "artifact"),
-        [(r.stage, r.status, f"{r.seconds:.2f}", str(r.path)) for r in result.stages],
-    )
+    _line(console, f"sonarmap run: {result.dataset}")
+    _line(console, f"artifacts: {result.store}/STAGE/KEY")
+    if not stages_listed:
+        print_table(
+            console,
+            "",
+            ("stage", "status", "seconds", "key"),
+            [(r.stage, r.status, f"{r.seconds:.2f}", r.key[:KEY_CHARS]) for r in result.stages],
+        )
     if summary.get("model"):
         from sonarmap.pipeline.training.model_cache import describe
 

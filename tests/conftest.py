@@ -13,7 +13,10 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-SHARED_DATA = ROOT.parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("SONARMAP_SHARED_DATA") or ROOT.parent / "shared" / "data")
+"""The third-party files beside the checkout (`../shared/data`), read only through the
+`shared_data` fixture; $SONARMAP_SHARED_DATA points elsewhere (CI points it nowhere to
+check that every such test skips in a clone that lacks the folder)."""
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
@@ -21,6 +24,14 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 if not os.environ.get("SONARMAP_CACHE_DIR"):
     os.environ["SONARMAP_CACHE_DIR"] = tempfile.mkdtemp(prefix="sonarmap-test-cache-")
     atexit.register(shutil.rmtree, os.environ["SONARMAP_CACHE_DIR"], True)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Tests that read the third-party files carry the `shared_data` marker, so that
+    `pytest -m shared_data` selects exactly them."""
+    for item in items:
+        if "shared_data" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.shared_data)
 
 
 @pytest.fixture

@@ -10,18 +10,14 @@ import pytest
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.formats.g2o import read_pose_graph
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "posegraphs"
+
+@pytest.fixture
+def posegraphs(shared_data: Path) -> Path:
+    return shared_data / "posegraphs"
 
 
-def _need(name: str) -> Path:
-    path = DATA / name
-    if not path.exists():
-        pytest.skip(f"real test data absent: {path}")
-    return path
-
-
-def test_reads_the_intel_dataset() -> None:
-    g = read_pose_graph(_need("intel.g2o"))
+def test_reads_the_intel_dataset(posegraphs: Path) -> None:
+    g = read_pose_graph(posegraphs / "intel.g2o")
     assert len(g.vertex_ids) == 1728 and len(g.edge_from) == 2512
     np.testing.assert_allclose(g.measurements[0], [0.144012, -0.004462, -0.017453])
     np.testing.assert_allclose(
@@ -31,11 +27,11 @@ def test_reads_the_intel_dataset() -> None:
     assert np.all(np.linalg.eigvalsh(g.information) > 0)
 
 
-def test_reads_toro_and_gtsam_example_files() -> None:
-    toro = read_pose_graph(_need("w100.graph"))
+def test_reads_toro_and_gtsam_example_files(posegraphs: Path) -> None:
+    toro = read_pose_graph(posegraphs / "w100.graph")
     assert len(toro.vertex_ids) == 100 and len(toro.edge_from) == 300
     np.testing.assert_allclose(toro.information[0], np.eye(3))
-    example = read_pose_graph(_need("pose2example.txt"))
+    example = read_pose_graph(posegraphs / "pose2example.txt")
     np.testing.assert_allclose(np.diag(example.information[0]), [44.72136, 44.72136, 30.901699])
 
 

@@ -6,7 +6,6 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from sonarmap.stages.slam.pcm import (
     chain_covariance,
@@ -17,8 +16,6 @@ from sonarmap.stages.slam.pcm import (
     windowed_pcm,
 )
 from sonarmap.stages.slam.pose_graph import se2_between, se2_compose
-
-INTEL = Path(__file__).resolve().parents[2] / "shared" / "data" / "posegraphs" / "intel.g2o"
 
 
 def _is_clique(adjacency: np.ndarray, nodes: np.ndarray) -> bool:
@@ -69,12 +66,10 @@ def test_consistency_flags_the_loop_that_disagrees_with_odometry() -> None:
     np.testing.assert_array_equal(maximum_clique(adjacency), [0, 1, 2])
 
 
-def test_pcm_on_intel_rejects_injected_false_loops() -> None:
-    if not INTEL.exists():
-        pytest.skip(f"real test data absent: {INTEL}")
+def test_pcm_on_intel_rejects_injected_false_loops(shared_data: Path) -> None:
     from sonarmap.pipeline.formats.g2o import read_pose_graph
 
-    graph = read_pose_graph(INTEL)
+    graph = read_pose_graph(shared_data / "posegraphs" / "intel.g2o")
     a, b = graph.edge_from, graph.edge_to
     odometry = b == a + 1
     order = np.argsort(a[odometry])

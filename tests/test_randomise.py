@@ -21,8 +21,6 @@ from sonarmap.sim.randomise import (
     randomised_config,
 )
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
-
 
 def test_the_same_seed_draws_the_same_sensor_and_another_seed_another() -> None:
     cfg = SensorRandomisation()
@@ -81,9 +79,9 @@ def test_bad_ranges_are_refused(bad: dict) -> None:
         SensorRandomisation(**bad)
 
 
-def _real_statistics() -> dict[str, tuple[float, float]]:
-    ping, _ = parse_ping((SHARED / "oculus" / "one_ping_8bit.raw").read_bytes())
-    aris = ArisSource(SHARED / "aris" / "sample.aris")
+def _real_statistics(shared: Path) -> dict[str, tuple[float, float]]:
+    ping, _ = parse_ping((shared / "oculus" / "one_ping_8bit.raw").read_bytes())
+    aris = ArisSource(shared / "aris" / "sample.aris")
     stats = np.array([image_statistics(aris.frame(k).image) for k in range(len(aris._order))])
     return {
         "oculus": image_statistics(ping.image),
@@ -101,8 +99,8 @@ def _rendered(level: float, shape: float) -> tuple[float, float]:
     return image_statistics(run.frame(0).horizontal.image)
 
 
-def test_the_configured_extremes_span_the_real_sensors_statistics() -> None:
-    real = _real_statistics()
+def test_the_configured_extremes_span_the_real_sensors_statistics(shared_data: Path) -> None:
+    real = _real_statistics(shared_data)
     # The figures, measured again (benchmarks/sensor_stats.py).
     assert real["oculus"] == pytest.approx((43.0, 0.64), abs=0.01)
     assert real["aris"] == pytest.approx((89.0, 0.28), abs=0.01)

@@ -3,7 +3,11 @@ plain `header=value` lines at 80 columns or when the output is not a terminal.""
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -57,13 +61,16 @@ def _result() -> RunResult:
 
 
 def _printed(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], **env: str
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+    stages_listed: bool = False,
+    **env: str,
 ) -> str:
     for name in ("COLUMNS", "FORCE_COLOR", "TTY_COMPATIBLE", "NO_COLOR"):
         monkeypatch.delenv(name, raising=False)
     for name, value in env.items():
         monkeypatch.setenv(name, value)
-    print_summary(_result(), SUMMARY)
+    print_summary(_result(), SUMMARY, stages_listed=stages_listed)
     return re.sub(r"\x1b\[[0-9;]*m", "", capsys.readouterr().out)
 
 
@@ -83,7 +90,9 @@ def test_summary_is_never_cut(
         assert word in out
     assert LABEL in out
     assert "…" not in out
-    assert f"{STORE}/evaluate/{'a' * 64}" in out  # artifact paths whole
+    assert f"artifacts: {STORE}/STAGE/KEY" in out  # the store whole, once
+    assert "k" * 12 in out and "k" * 13 not in out  # each artifact by a short key
+    assert "a" * 64 not in out
     assert SUMMARY["report"] in out  # on one line, copyable
     assert "standard, with submaps" in out and "semantic, ratio" in out
 
@@ -105,3 +114,28 @@ def test_plain_lines_keep_every_header_and_skip_empty_cells() -> None:
         [("standard", "12", ""), ("semantic", "", "")],
     )
     assert lines == ["Coverage", "standard: voxels=12", "semantic"]
+
+
+def test_stages_listed_by_the_progress_are_not_listed_again(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = _printed(monkeypatch, capsys, stages_listed=True, COLUMNS="80")
+    assert "computed" not in out and "k" * 12 not in out
+    assert f"artifacts: {STORE}/STAGE/KEY" in out and "semantic/standard" in out
+
+
+def test_a_log_file_names_each_stage_once(toy_env: list[Path], tmp_path: Path) -> None:
+    """stdout and stderr into one file (`> log 2>&1`) at 80 columns: the progress lists
+    each stage, the summary does not list them again."""
+    log = tmp_path / "run.log"
+    with log.open("w") as out:
+        subprocess.run(
+            [sys.executable, "-m", "sonarmap.pipeline", "run", str(toy_env[0]),
+             "--store", str(tmp_path / "store")],
+            stdout=out, stderr=subprocess.STDOUT, env={**os.environ, "COLUMNS": "80"},
+            check=True,
+        )
+    lines = log.read_text().splitlines()
+    for stage in ("source", "double", "summary", "count"):
+        assert sum(re.search(rf"\b{stage}\b", line) is not None for line in lines) == 1, lines
+    assert max(map(len, lines[:4])) <= 80, lines  # the stage lines do not wrap

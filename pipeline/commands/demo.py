@@ -141,9 +141,9 @@ def demo(
         if json_:
             emit_json({**result.to_json(), "summary": summary})
             return
-        from sonarmap.pipeline.report_cli import print_summary
+        from sonarmap.pipeline.report_cli import print_summary, progress_shares_stdout
 
-        print_summary(result, summary)
+        print_summary(result, summary, stages_listed=progress_shares_stdout())
 
 
 def register(app: typer.Typer) -> None:

@@ -67,9 +67,9 @@ def run(
         if json_:
             emit_json({**result.to_json(), "summary": {**summary, **sensors}})
             return
-        from sonarmap.pipeline.report_cli import print_summary
+        from sonarmap.pipeline.report_cli import print_summary, progress_shares_stdout
 
-        print_summary(result, summary)
+        print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
         _print_sensors(sensors)
 
 

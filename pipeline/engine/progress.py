@@ -32,7 +32,7 @@ class StageProgress:
     def on_start(self, item: PlannedStage) -> None:
         verb = "cached" if item.hit else f"computing ({item.reason})"
         self._tasks[item.stage.name] = self._progress.add_task(
-            f"{item.stage.name:<10} {verb}", total=1
+            f"{item.stage.name:<11} {verb}", total=1
         )
 
     def on_stage(self, result: StageResult) -> None:
@@ -48,7 +48,7 @@ class StageProgress:
         self._progress.update(
             task,
             completed=1,
-            description=f"{mark} {result.stage:<10} {result.status:<8} {result.seconds:7.2f} s  "
+            description=f"{mark} {result.stage:<11} {result.status:<8} {result.seconds:7.2f} s  "
             f"{result.key[:12]}",
         )
 
