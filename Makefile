@@ -11,7 +11,7 @@ APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0 openssh-server openssh-clie
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: setup system-deps test demo bench lint study clean-store
+.PHONY: setup system-deps test demo bench lint study docs clean-store
 
 setup: $(STAMP)
 
@@ -48,6 +48,16 @@ bench: setup
 
 study: setup
 	$(BIN)/sonarmap study
+
+# The documentation site (mkdocs.yml, docs/) into site/; the CLI, config and column
+# references are generated from the code at build time (docs/hooks.py).
+DOCS_STAMP := $(VENV)/.sonarmap-docs
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install -q -e '.[docs]'
+	@touch $(DOCS_STAMP)
+
+docs: setup $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict --site-dir site
 
 lint: setup
 	$(BIN)/ruff check .
