@@ -48,6 +48,14 @@ def _cell(text: str) -> str:
     return text.replace("|", "\\|").replace("<", "&lt;").replace(">", "&gt;")
 
 
+def _code_cell(text: str) -> str:
+    """A table cell in a code span: one line, backticks doubled around one in the text
+    (Python-Markdown's tables leave a pipe inside a code span alone, and a code span
+    shows `<` as it is)."""
+    text = " ".join(text.split())
+    return f"`` {text} ``" if "`" in text else f"`{text}`"
+
+
 def _command_sections(cmd: Any, ctx: Any, path: str) -> list[str]:
     """One section per command, then its subcommands. Duck-typed: typer ships its own copy
     of click, whose classes are not `click.Group`."""
@@ -200,7 +208,7 @@ def _model_section(title: str, model: type[BaseModel], seen: set[type]) -> list[
         lines += ["| key | type | default | bounds | meaning |", "|---|---|---|---|---|"]
     for name, field in model.model_fields.items():
         lines.append(
-            f"| `{name}` | `{_cell(_type_name(field.annotation))}` | `{_cell(_default(field))}`"
+            f"| `{name}` | {_code_cell(_type_name(field.annotation))} | {_code_cell(_default(field))}"
             f" | {_cell(_bounds(field))} | {_cell(_describe(name, field, attrs))} |"
         )
         nested += [(f"{title}.{name}", sub) for sub in _nested_models(field.annotation)]
@@ -272,7 +280,7 @@ def columns_markdown() -> str:
         for name, schema in found:
             lines += [f"### `{name}`", "", "| column | type | nullable |", "|---|---|---|"]
             lines += [
-                f"| `{f.name}` | `{_cell(str(f.type))}` | {'yes' if f.nullable else 'no'} |"
+                f"| `{f.name}` | {_code_cell(str(f.type))} | {'yes' if f.nullable else 'no'} |"
                 for f in schema
             ]
             lines.append("")
