@@ -14,6 +14,7 @@ import json
 import re
 import types
 import typing
+from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel
@@ -42,10 +43,27 @@ def on_files(files: Any, config: Any) -> Any:
 # --- CLI reference -------------------------------------------------------------------
 
 
+_CODE_SPAN = re.compile(r"(`+)(.+?)\1")
+
+
+def _text(text: str) -> str:
+    """Markdown of plain text: `<` and `>` escaped outside code spans (a code span shows
+    them as typed; elsewhere `<directory>` would be read as an HTML tag)."""
+    out, last = [], 0
+    for match in _CODE_SPAN.finditer(text):
+        out.append(text[last : match.start()].replace("<", "&lt;").replace(">", "&gt;"))
+        out.append(match.group(0))
+        last = match.end()
+    out.append(text[last:].replace("<", "&lt;").replace(">", "&gt;"))
+    return "".join(out)
+
+
 def _cell(text: str) -> str:
-    """Text safe inside a Markdown table cell: no pipes, newlines or raw HTML."""
-    text = " ".join(text.split())
-    return text.replace("|", "\\|").replace("<", "&lt;").replace(">", "&gt;")
+    """Text safe inside a Markdown table cell: one line, pipes escaped outside code spans
+    (Python-Markdown's tables leave a pipe inside a code span alone)."""
+    text = _text(" ".join(text.split()))
+    parts = re.split(r"(`+.+?`+)", text)
+    return "".join(p if p.startswith("`") else p.replace("|", "\\|") for p in parts)
 
 
 def _code_cell(text: str) -> str:
@@ -62,7 +80,7 @@ def _command_sections(cmd: Any, ctx: Any, path: str) -> list[str]:
     lines = [f"## `{path}`", ""]
     help_text = inspect.cleandoc(cmd.help or "")
     if help_text:
-        lines += [help_text.replace("<", "&lt;").replace(">", "&gt;"), ""]
+        lines += [_text(help_text), ""]
     lines += ["```text", cmd.get_usage(ctx), "```", ""]
     rows = []
     for param in cmd.get_params(ctx):
@@ -175,12 +193,12 @@ def _default(field: Any) -> str:
         return "(required)"
     else:
         value = field.default
-    if isinstance(value, BaseModel):
-        return "(section below)"
     try:
         text = json.dumps(value, default=lambda v: v.model_dump(mode="json"))
     except TypeError:
         text = repr(value)
+    # A default taken from the building machine (a cache directory) is shown for anyone.
+    text = text.replace(str(Path.home()), "~")
     return text if len(text) <= 60 else text[:57] + "..."
 
 
@@ -196,22 +214,31 @@ def _nested_models(annotation: Any) -> list[type[BaseModel]]:
     return found
 
 
-def _model_section(title: str, model: type[BaseModel], seen: set[type]) -> list[str]:
-    seen.add(model)
+def _model_section(title: str, model: type[BaseModel], seen: dict[type, str]) -> list[str]:
+    """A section per config model; a model met again (the `training` section's own
+    `keyframes`) points to its first section instead of repeating it."""
+    seen[model] = title
     doc = inspect.cleandoc(model.__doc__ or "").split("Attributes:", 1)[0].strip()
     lines = [f"## `{title}`", "", f"`{model.__module__}.{model.__qualname__}`", ""]
     if doc:
-        lines += [doc.replace("<", "&lt;").replace(">", "&gt;"), ""]
+        lines += [_text(doc), ""]
     attrs = _attribute_docs(model)
     nested: list[tuple[str, type[BaseModel]]] = []
     if model.model_fields:
         lines += ["| key | type | default | bounds | meaning |", "|---|---|---|---|---|"]
     for name, field in model.model_fields.items():
+        subs = _nested_models(field.annotation)
+        if isinstance(field.annotation, type) and field.annotation in seen:
+            default = f"the keys of `{seen[field.annotation]}`"
+        elif isinstance(field.annotation, type) and subs:
+            default = f"the keys of `{title}.{name}` below"
+        else:
+            default = _code_cell(_default(field))
         lines.append(
-            f"| `{name}` | {_code_cell(_type_name(field.annotation))} | {_code_cell(_default(field))}"
+            f"| `{name}` | {_code_cell(_type_name(field.annotation))} | {default}"
             f" | {_cell(_bounds(field))} | {_cell(_describe(name, field, attrs))} |"
         )
-        nested += [(f"{title}.{name}", sub) for sub in _nested_models(field.annotation)]
+        nested += [(f"{title}.{name}", sub) for sub in subs if sub not in seen]
     lines.append("")
     for sub_title, sub in nested:
         if sub not in seen:
@@ -230,7 +257,7 @@ def config_markdown() -> str:
         "Override any key with `--set section.key=value` (lists as `a,b`).",
         "",
     ]
-    seen: set[type] = set()
+    seen: dict[type, str] = {}
     for stage in registry.all_stages():
         lines += _model_section(stage.name, stage.config, seen)
     for name, model in registry.extra_sections().items():
