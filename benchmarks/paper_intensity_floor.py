@@ -4,7 +4,7 @@ over to our images by a stated rule (not a benchmark; run_all skips it).
 The rule. The authors' simulated sonar was uuv_simulator's image sonar
 (`gazebo_ros_image_sonar.cpp`, `ConstructScanImage`): its scan image is
 2 int(rows sin(fov / 2)) + 20 columns wide, which with 600 rows and a 130 deg fan is the
-authors' hard-coded 1106 (reference/original-implementation.md Sec. 1.3). That image draws
+authors' hard-coded 1106 (docs/authors-code.md Sec. 1.3). That image draws
 water at 0.2 of full scale (beyond a third of the range; 0 nearer), normalises the returns
 of every frame to full scale (min-max) and multiplies every non-zero pixel by |N(1, 0.1)|
 speckle; SSLAM `image_compressor.py` scales it by 255 (Sec. 1.3). So 145 lies

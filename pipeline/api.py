@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 MODEL_INPUTS = ("train",)
 """External inputs whose files' sha256s enter their readers' keys (`runner.plan`'s
 `content_keyed`): a substituted model under an honest key never yields the honest
-downstream keys (README, Threat model)."""
+downstream keys (docs/exit-codes.md, Threat model)."""
 
 
 @dataclass(frozen=True)

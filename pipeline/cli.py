@@ -87,7 +87,7 @@ def _root(
 
 
 class _UserFormatter(logging.Formatter):
-    """Warnings as the README's one-line `warning: ...` (user data escaped); with -v, the
+    """Warnings as the one-line `warning: ...` of docs/exit-codes.md (user data escaped); with -v, the
     level and logger name as well, for developers."""
 
     def __init__(self, detailed: bool) -> None:

@@ -1,4 +1,4 @@
-"""Column contract of `keyframes.parquet` (DESIGN.md), one row per keyframe.
+"""Column contract of `keyframes.parquet` (docs/architecture.md#contracts), one row per keyframe.
 
 t_ns is the horizontal ping's time; the dead-reckoning pose is interpolated at t_ns
 (SE(2) + depth, never extrapolated); ground-truth columns are null without truth.

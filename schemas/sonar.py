@@ -1,6 +1,6 @@
 """Value types for sonar pings and keyframes, and the beam-direction convention.
 
-Conventions (DESIGN.md): ROS REP 103 frames (x forward, y left, z up), angles in
+Conventions (docs/architecture.md#conventions): ROS REP 103 frames (x forward, y left, z up), angles in
 radians. A polar image has rows = range bins (near to far) and columns = beams,
 with an explicit per-beam angle table sorted ascending.
 

@@ -10,8 +10,8 @@ a `SimConfig`.
 `image_statistics` is the yardstick the ranges are chosen by: the background median of
 an 8-bit image and its speckle contrast (std / mean of the pixels at or below the 80th
 percentile, i.e. the background, not the objects). The default ranges span the real
-Oculus and ARIS samples in `shared/data` and the simulator's own default
-(`benchmarks/sensor_stats.py` measures all three).
+Oculus and ARIS sample recordings the tests read and the simulator's own default
+(`benchmarks/sensor_stats.py` measures all three; the figures: docs/classifier.md).
 """
 
 from __future__ import annotations

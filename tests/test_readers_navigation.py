@@ -1,5 +1,5 @@
 """Navigation: Odometry/PoseStamped/PoseWithCovarianceStamped and DVL + IMU + depth
-dead reckoning (original-implementation.md section 6.7) from a ROS 1 bag."""
+dead reckoning (docs/authors-code.md section 6.7) from a ROS 1 bag."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ images, CFAR features, with the `training.keyframes`/`training.features` setting
 `training.follow_run`), then the cached `train` stage (`sonarmap.pipeline.training.model.train_on`);
 `model.pt`, `metrics.json` and `confusion.png` are copied from its artifact to --out.
 A recording with `<stem>.annotations.yaml` beside it (field data) is labelled by that
-file instead of label images (format: README, `sonarmap.schemas.annotations`).
+file instead of label images (format: docs/labels-and-classes.md, `sonarmap.schemas.annotations`).
 
 `sonarmap train` without datasets builds (or finds) the default model of the `training`
 section, procedural worlds included, and copies it to --out.

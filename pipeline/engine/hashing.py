@@ -1,6 +1,6 @@
 """Canonical JSON, artifact keys and dataset fingerprints.
 
-Key recipe (DESIGN.md): sha256 of the canonical JSON of stage name, stage version,
+Key recipe (docs/architecture.md#keys): sha256 of the canonical JSON of stage name, stage version,
 the stage's own resolved config section, the keys of its inputs, the schema version
 and the store-format version, plus the dataset's content fingerprint for a stage that
 reads the raw dataset. Never Python's salted `hash()`.

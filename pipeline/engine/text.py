@@ -13,7 +13,7 @@ import unicodedata
 __all__ = ["MAX_LINE_CHARS", "MAX_PATH_CHARS", "display_path", "escape", "one_line", "shorten"]
 
 MAX_LINE_CHARS = 400
-"""The longest message line printed (the README's one-line contract)."""
+"""The longest message line printed (the one-line contract of docs/exit-codes.md)."""
 
 MAX_PATH_CHARS = 160
 """Paths longer than this are shown with their middle elided (both ends name the file)."""

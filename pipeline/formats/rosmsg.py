@@ -1,7 +1,7 @@
 """ROS message types and a fast, deterministic ROS 2 MCAP writer.
 
 Serialisation uses rosbags' CDR serde (numpy arrays in and out) around the raw
-`mcap` writer, the fast path measured in reference/ecosystem.md section 2. Every
+`mcap` writer, the fast path measured in docs/architecture.md (Facts that shape the code). Every
 message gets explicit log/publish times so the same inputs give the same bytes.
 """
 

@@ -1,6 +1,6 @@
 """Sound Metrics ARIS recordings (`.aris`, DDF_05): one sonar topic of frames.
 
-Layout (`docs/understanding-aris-data.md` of the maker's aris-file-sdk): a 1024-byte file
+Layout (the "Understanding ARIS data" page of the maker's aris-file-sdk): a 1024-byte file
 header, then frames of a 1024-byte frame header followed by `BeamCount * SamplesPerBeam`
 unsigned bytes, sample-major (row = one range sample across every beam; beam 0 is the
 right-most). Every frame has the same size; the frame count is computed from the file

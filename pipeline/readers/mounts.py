@@ -38,7 +38,7 @@ DEFAULT_SONAR_MOUNTS: dict[str, tuple[tuple[float, float, float], tuple[float, f
     "vertical": ((0.5, 0.0, 0.1), (90.0, 0.0, 0.0)),
 }
 """(xyz [m], rpy [deg]) of each sonar in base_link when neither config nor the recording
-gives one (the simulator's mounting, DESIGN conventions)."""
+gives one (the simulator's mounting; docs/architecture.md#conventions)."""
 
 _UNIT = {"xyz": "_m", "rpy": "_deg"}
 

@@ -1,6 +1,6 @@
 """Navigation messages -> `PoseTrack`, and DVL + IMU + depth dead reckoning.
 
-Dead reckoning follows the authors' vehicle (original-implementation.md section 6.7):
+Dead reckoning follows the authors' vehicle (docs/authors-code.md section 6.7):
 body-frame DVL velocity, gated at `dvl_max_velocity_mps` (a gated sample reuses the last
 good velocity), integrated with the trapezoid rule in x and y only, rotated by the IMU
 yaw made relative to its first sample; roll and pitch from the IMU; z = -depth (REP 103,
@@ -67,7 +67,7 @@ def dead_reckon(
     depth_m: np.ndarray,
     max_velocity_mps: float,
 ) -> PoseTrack:
-    """Planar DVL/IMU dead reckoning with depth (original-implementation.md section 6.7).
+    """Planar DVL/IMU dead reckoning with depth (docs/authors-code.md section 6.7).
 
     Args:
         dvl_t_ns: (n,) int64 DVL times [ns], ascending.

@@ -49,7 +49,7 @@ class ReaderOptions:
 
     Defaults: topics found by type; polar-image beam table 130 deg over 30 m (the
     paper's Oculus settings); DVL samples above 5 m/s dropped as implausible; mounts
-    from the recording's tf tree, else the project's default sonar mountings (DESIGN
+    from the recording's tf tree, else the project's default sonar mountings (docs/architecture.md
     conventions, `DEFAULT_SONAR_MOUNTS`) with a warning.
     """
 

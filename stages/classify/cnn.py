@@ -5,7 +5,7 @@ with two convolutional layers", with m stochastic predictions per object (MC dro
 Loquercio et al. 2020) so uncertain objects can be labelled "unknown".
 
 Two convolutional layers, as the paper says (the authors' saved Keras models had
-three, 80 filters each; original-implementation.md §4.2). Why two: the patch content
+three, 80 filters each; docs/authors-code.md §4.2). Why two: the patch content
 is a handful of bright strokes (an arc, a corner, a line) whose shape two 3x3 conv +
 2x2 pool stages already see at a 10x10-pixel receptive field, two layers reach the
 accuracy targets on simulated scenes (tests/test_train.py), and a lean network is what

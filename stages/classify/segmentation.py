@@ -4,7 +4,7 @@ Features are clustered with DBSCAN in the fan plane (`sonarmap.stages.kernels.cl
 number of objects is not known a priori) and clusters with fewer than n features are
 dropped as noise.
 
-Two cluster rules of the authors' simulation code (reference/original-implementation.md
+Two cluster rules of the authors' simulation code (docs/authors-code.md
 Sec. 4.1 step 5), off by default (`sonarmap.stages.classify.objects.extract_objects`):
 - minimum object area: the original kept clusters of more than 150 Cartesian pixels of
   its 5 cm simulated image. Our features are polar cells, whose size grows with range,

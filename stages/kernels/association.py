@@ -15,7 +15,7 @@ Per frame, after the overlap selection of `sonarmap.stages.kernels.fusion`:
    alternative. Associations with C < `min_confidence` are culled. The default (-1) culls
    none, because on the simulator C does not predict 3D accuracy
    (docs/decisions/006-fuse-keeps-every-association.md).
-   Options after the authors' code (reference/original-implementation.md Sec. 3.1 steps
+   Options after the authors' code (docs/authors-code.md Sec. 3.1 steps
    8-9), all off by default:
    - `min_subproblem_features`: a range bin is solved only when both its horizontal and
      its vertical set hold at least this many features (the original: more than 2);

@@ -1,7 +1,7 @@
 """Constant false alarm rate (CFAR) detection along range, per beam, on a polar sonar image.
 
 Paper Sec. IV.C: smallest-of cell-averaging CFAR (SOCA-CFAR, Richards 2005), the detector
-of the authors' code (original-implementation.md section 2.1). For the cell under test
+of the authors' code (docs/authors-code.md section 2.1). For the cell under test
 (CUT) at range row i of a beam, with `train_hs` training and `guard_hs` guard cells on
 each side along range,
 

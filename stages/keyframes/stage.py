@@ -13,7 +13,7 @@ Steps:
 3. Keep a pair as keyframe when, since the last keyframe, at least `min_gap_s` has
    passed and the vehicle has moved `spacing_m` (3D distance) or turned `rotation_deg`
    (|delta yaw|); the first posed pair is always kept (the paper keeps keyframes every
-   2 m or 4 m; the authors' rule in original-implementation.md section 6.2).
+   2 m or 4 m; the authors' rule in docs/authors-code.md section 6.2).
 """
 
 from __future__ import annotations
