@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from sonarmap.pipeline.commands._tables import print_table
-from sonarmap.pipeline.engine.runner import RunResult
+from sonarmap.pipeline.engine.run.runner import RunResult
 
 __all__ = ["print_summary"]
 

@@ -86,10 +86,10 @@ def test_stages_never_print_or_open_files() -> None:
 def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
     sample = tmp_path / "x.py"
     sample.write_text(
-        "import pyarrow.parquet as pq\nfrom sonarmap.pipeline.engine.store import ArtifactStore\n"
+        "import pyarrow.parquet as pq\nfrom sonarmap.pipeline.engine.store.artifact_store import ArtifactStore\n"
     )
     names = _imports(sample)
-    assert "pyarrow.parquet" in names and "sonarmap.pipeline.engine.store" in names
+    assert "pyarrow.parquet" in names and "sonarmap.pipeline.engine.store.artifact_store" in names
 
 
 def _stage_of(path: Path) -> str | None:
@@ -254,7 +254,7 @@ def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None
 
 
 def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stages() -> None:
-    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.engine.run.graph import pipeline_stages
 
     packages = sorted(
         p.parent.name for p in (ROOT / "stages").glob("*/__init__.py") if p.parent.name != "kernels"
@@ -298,7 +298,7 @@ def test_a_deferred_stage_entry_point_resolves_and_pickles() -> None:
     the middle of a run) and travels to a worker process by name."""
     import pickle
 
-    from sonarmap.pipeline.engine.registry import default_graph
+    from sonarmap.pipeline.engine.run.graph import default_graph
     from sonarmap.stages.kernels.lazy import resolve
 
     for stage in default_graph().config_stages:

@@ -22,9 +22,9 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.commands._common import GraphChoice
 from sonarmap.pipeline.engine.hashing import recipe_key, stage_recipe
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.registry import Graph, default_graph, load_graph
-from sonarmap.pipeline.engine.session import open_context
+from sonarmap.pipeline.engine.run.graph import Graph, default_graph, load_graph
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.session import open_context
 from sonarmap.schemas import SCHEMA_VERSION
 from sonarmap.schemas.model_settings import ModelSettings
 from sonarmap.schemas.recording import PoseTrack
@@ -248,7 +248,7 @@ def test_the_graph_variable_is_read_only_by_the_cli() -> None:
 def test_the_cli_builds_the_named_graph_once(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sonarmap.pipeline.engine.registry as registry
+    import sonarmap.pipeline.engine.run.graph as registry
     built: list[str | None] = []
     real = registry.load_graph
     monkeypatch.setattr(registry, "load_graph", lambda spec: built.append(spec) or real(spec))

@@ -45,8 +45,8 @@ class Canonical:
 
 def _engine(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> dict[str, Path]:
     """keyframes -> features -> fuse on `dataset`; artifact directory per stage."""
-    from sonarmap.pipeline.engine.runner import execute, plan
-    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.run.runner import execute, plan
+    from sonarmap.pipeline.engine.run.session import make_context
     from sonarmap.stages.features.stage import STAGE as FEATURES
     from sonarmap.stages.fuse.stage import STAGE as FUSE
     from sonarmap.stages.keyframes import STAGE as KEYFRAMES

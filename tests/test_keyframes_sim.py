@@ -35,8 +35,8 @@ def sim_dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
 
 
 def _run_keyframes(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> Path:
-    from sonarmap.pipeline.engine.runner import execute, plan
-    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.run.runner import execute, plan
+    from sonarmap.pipeline.engine.run.session import make_context
 
     ctx = make_context(dataset, stages=[STAGE], overrides=overrides, store_dir=store)
     planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
@@ -130,7 +130,7 @@ def test_cli_topics_and_convert_on_simulator_output(
 
 def test_cli_run_until_keyframes(sim_dataset: tuple[Path, Any], tmp_path: Path) -> None:
     try:
-        from sonarmap.pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.engine.run.graph import all_stages
 
         all_stages()
     except ImportError as err:

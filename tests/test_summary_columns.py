@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from sonarmap.pipeline.commands._tables import plain_lines
-from sonarmap.pipeline.engine.runner import RunResult, StageResult
+from sonarmap.pipeline.engine.run.runner import RunResult, StageResult
 from sonarmap.pipeline.report_cli import print_summary
 
 STORE = "/home/researcher/field-campaigns/2026-harbour/store"

@@ -35,7 +35,7 @@ class LiveFeed:
         self._dirs: dict[str, Path] = {}
 
     def on_stage(self, result: Any) -> None:
-        """Runner callback (`sonarmap.pipeline.engine.runner.StageResult`): publish this stage."""
+        """Runner callback (`sonarmap.pipeline.engine.run.runner.StageResult`): publish this stage."""
         self.add(result.stage, Path(result.path))
 
     def add(self, stage: str, directory: Path) -> None:
@@ -55,7 +55,7 @@ class _Reader:
         self._stages, self._dirs = stages, dirs
 
     def __call__(self, name: str) -> Any:
-        from sonarmap.pipeline.engine.codecs import read_output
+        from sonarmap.pipeline.engine.store.codecs import read_output
 
         stage, _, output = name.partition(".")
         if stage not in self._dirs or stage not in self._stages:

@@ -44,7 +44,7 @@ def load_message_types(paths: Sequence[str | Path]) -> dict[str, Any]:
         ConfigError: a file missing, too large, not UTF-8 or not a valid definition; one
             line naming it.
     """
-    from sonarmap.pipeline.engine.yaml_files import _read_capped
+    from sonarmap.pipeline.engine.config.yaml_files import _read_capped
 
     types: dict[str, Any] = {}
     loaded: list[tuple[Path, dict[str, Any]]] = []

@@ -28,11 +28,11 @@ if TYPE_CHECKING:
 from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.engine.planned import DatasetSpec
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.runner import execute
-from sonarmap.pipeline.engine.session import dataset_spec
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.run.planned import DatasetSpec
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.runner import execute
+from sonarmap.pipeline.engine.run.session import dataset_spec
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 from sonarmap.pipeline.training.config import TrainingDataConfig
 from sonarmap.pipeline.training.datasets import Simulation
 from sonarmap.schemas.classes import DEFAULT_TABLE
@@ -94,7 +94,7 @@ def training_stage_for(
     training set over the others. `names` (the datasets' paths) only word error
     messages. Outputs and config are those of `sonarmap.stages.classify.train`.
     """
-    from sonarmap.pipeline.engine.registry import training_stage
+    from sonarmap.pipeline.engine.run.graph import training_stage
     from sonarmap.pipeline.engine.text import one_line
     from sonarmap.pipeline.training.annotations import annotation_path
     from sonarmap.schemas.annotations import AnnotationFile
@@ -173,7 +173,7 @@ def _bind_training(
     `fingerprints` stand in for recordings not on disk (planning only: the shipped
     model's lock, `sonarmap.pipeline.training.shipped`).
     """
-    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.engine.run.graph import pipeline_stages
     from sonarmap.pipeline.training.annotations import (
         ANNOTATIONS_STAGE,
         annotation_path,

@@ -23,7 +23,7 @@ from sonarmap.stages.base import Output
 if TYPE_CHECKING:
     import pyarrow as pa
 
-    from sonarmap.pipeline.engine.store import ArtifactRef
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
 
 __all__ = ["read_output", "read_verified", "validate_table", "write_output"]
 
@@ -94,7 +94,7 @@ def read_verified(
     never read, even if one lies on disk. `columns`: read only these of a Parquet
     output (the whole file is still verified).
     """
-    from sonarmap.pipeline.engine.integrity import recovery_hint, verify_file
+    from sonarmap.pipeline.engine.store.integrity import recovery_hint, verify_file
 
     name = output.filename
     if name not in ref.manifest["files"]:

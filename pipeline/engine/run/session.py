@@ -9,13 +9,13 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.disk import disk_error
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.hashing import FingerprintCache
-from sonarmap.pipeline.engine.planned import DatasetSpec
-from sonarmap.pipeline.engine.registry import Graph, default_graph
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.run.graph import Graph, default_graph
+from sonarmap.pipeline.engine.run.planned import DatasetSpec
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.engine.store.disk import disk_error
 from sonarmap.stages.base import Stage
 
 __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_context"]
