@@ -13,13 +13,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sonarmap.pipeline.engine.run.graph import Graph, default_graph, without_figures
+from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.pipeline.engine.run.planned import PlannedStage
 from sonarmap.pipeline.engine.run.planner import plan
 from sonarmap.pipeline.engine.run.runner import RunResult, StageResult, execute
 from sonarmap.pipeline.engine.run.session import DEFAULT_STORE, RunContext, open_context
 from sonarmap.pipeline.engine.run.workers import default_workers
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
+from sonarmap.pipeline.graph import default_graph, without_figures
 from sonarmap.stages.base import Stage
 
 if TYPE_CHECKING:

@@ -254,7 +254,7 @@ def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None
 
 
 def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stages() -> None:
-    from sonarmap.pipeline.engine.run.graph import pipeline_stages
+    from sonarmap.pipeline.graph import pipeline_stages
 
     packages = sorted(
         p.parent.name for p in (ROOT / "stages").glob("*/__init__.py") if p.parent.name != "kernels"
@@ -266,7 +266,10 @@ def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stage
 
 def test_pipeline_groups_engine_formats_training_and_experiments() -> None:
     top = sorted(p.name for p in (ROOT / "pipeline").glob("*.py"))
-    assert top == ["__init__.py", "__main__.py", "api.py", "cli.py", "package_data.py", "report_cli.py", "scoring.py"]
+    assert top == [
+        "__init__.py", "__main__.py", "api.py", "cli.py", "graph.py", "package_data.py",
+        "report_cli.py", "scoring.py",
+    ]
     for sub in ("engine", "formats", "training", "experiments", "readers", "commands"):
         assert (ROOT / "pipeline" / sub / "__init__.py").is_file()
 
@@ -298,7 +301,7 @@ def test_a_deferred_stage_entry_point_resolves_and_pickles() -> None:
     the middle of a run) and travels to a worker process by name."""
     import pickle
 
-    from sonarmap.pipeline.engine.run.graph import default_graph
+    from sonarmap.pipeline.graph import default_graph
     from sonarmap.stages.kernels.lazy import resolve
 
     for stage in default_graph().config_stages:

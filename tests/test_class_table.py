@@ -11,7 +11,7 @@ import pytest
 
 from sonarmap.pipeline.engine.config.load import load_config, section_dict
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections, stage_by_name
+from sonarmap.pipeline.graph import all_stages, extra_sections, stage_by_name
 from sonarmap.pipeline.labels.files import export_labels, import_labels
 from sonarmap.schemas.annotations import AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable

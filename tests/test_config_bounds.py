@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.config import TrainingSet
 
 runner = CliRunner()

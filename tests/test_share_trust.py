@@ -20,7 +20,6 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import sha256_file
-from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections, pipeline_stages
 from sonarmap.pipeline.engine.run.runner import DatasetSpec, plan
 from sonarmap.pipeline.engine.share import push_pull as share
 from sonarmap.pipeline.engine.share import transfer
@@ -28,6 +27,7 @@ from sonarmap.pipeline.engine.share.push_pull import list_remote, pull, push
 from sonarmap.pipeline.engine.share.transfer import TransferStats
 from sonarmap.pipeline.engine.share.trust import TrustPolicy
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.graph import all_stages, extra_sections, pipeline_stages
 from sonarmap.pipeline.training.model_cache import copy_verified
 from sonarmap.pipeline.training.shipped import shipped_models, shipped_store
 

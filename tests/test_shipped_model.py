@@ -12,7 +12,7 @@ import json
 from pathlib import Path
 
 from sonarmap.pipeline.engine.config.load import load_config
-from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.model import plan_training, training_simulations
 from sonarmap.pipeline.training.model_cache import model_cache
 from sonarmap.pipeline.training.shipped import (

@@ -14,7 +14,7 @@ import pytest
 
 from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.model import (
     ordered_datasets,
     training_simulations,

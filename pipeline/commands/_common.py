@@ -78,8 +78,9 @@ class GraphChoice:
     def graph(self) -> Graph:
         if self._graph is None:
             from sonarmap.pipeline.engine.run.graph import load_graph
+            from sonarmap.pipeline.graph import default_graph
 
-            self._graph = load_graph(self.spec)
+            self._graph = load_graph(self.spec, default_graph)
         return self._graph
 
 
@@ -94,6 +95,6 @@ def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
         return choice.graph()
     from dataclasses import replace
 
-    from sonarmap.pipeline.engine.run.graph import without_figures
+    from sonarmap.pipeline.graph import without_figures
 
     return replace(choice.graph(), stages=without_figures(choice.graph().stages))

@@ -57,7 +57,7 @@ def _write_report(report_dir: Path, result: Any, no_figures: bool) -> Path:
     and the run's stages appended (evaluate's report cannot know either)."""
     import shutil
 
-    from sonarmap.pipeline.engine.run.graph import FIGURE_STAGES
+    from sonarmap.pipeline.graph import FIGURE_STAGES
 
     shutil.rmtree(report_dir, ignore_errors=True)
     report_dir.mkdir(parents=True)
@@ -78,8 +78,8 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     simulate them beside the mapped scene instead of after it; none when the model is
     at hand (the run's store, the model cache, or shipped with the project)."""
     from sonarmap.pipeline.engine.config.load import load_config
-    from sonarmap.pipeline.engine.run.graph import all_stages, extra_sections
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.graph import all_stages, extra_sections
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_simulations
     from sonarmap.pipeline.training.model_cache import planned_default_model

@@ -132,7 +132,7 @@ def label_export(
         stages = {s.name: s for s in graph.stages}
         kf_stage = stages["keyframes"]
         frames_out = next(o for o in kf_stage.outputs if o.name == "frames")
-        all_frames = list(read_verified(result.artifacts["keyframes"], frames_out))
+        all_frames = list(read_verified(result.artifacts["keyframes"], frames_out, codecs=graph.codecs))
         if not all_frames:
             from sonarmap.pipeline.engine.errors import SourceError
 

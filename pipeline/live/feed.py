@@ -56,12 +56,13 @@ class _Reader:
 
     def __call__(self, name: str) -> Any:
         from sonarmap.pipeline.engine.store.codecs import read_output
+        from sonarmap.pipeline.formats.frames_codec import FRAMES_CODECS
 
         stage, _, output = name.partition(".")
         if stage not in self._dirs or stage not in self._stages:
             return None
         spec = next((o for o in self._stages[stage].outputs if o.name == output), None)
-        return None if spec is None else read_output(self._dirs[stage], spec)
+        return None if spec is None else read_output(self._dirs[stage], spec, codecs=FRAMES_CODECS)
 
     def T_base_sonar(self) -> np.ndarray:
         from sonarmap.schemas.sensors import Sensors

@@ -95,7 +95,9 @@ def _bind_inputs(
             inputs[name.name] = opened[once]
             continue
         output = _output(stage, job.outputs_of[name.stage], name)
-        value = read_verified(job.refs[name.stage], output, verified, columns.get(name))
+        value = read_verified(
+            job.refs[name.stage], output, verified, columns.get(name), dataset.codecs
+        )
         record = output.record_type
         if record is not None and value is not None:
             try:
@@ -146,7 +148,9 @@ def run_job(
                 if not output.optional:
                     raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
                 continue
-            facts[output.name] = write_output(job.tmp, stage.name, output, value, provenance)
+            facts[output.name] = write_output(
+                job.tmp, stage.name, output, value, provenance, job.dataset.codecs
+            )
     except (PipelineError, OSError):
         raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
     except StageInputError as err:
