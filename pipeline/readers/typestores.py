@@ -12,8 +12,8 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.store import Typestore
 
 from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.formats.projected_cdr import ProjectedArrays
 from sonarmap.pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
-from sonarmap.pipeline.readers.sonar_decode import ProjectedArrays
 
 __all__ = ["Ros2Decoder", "load_message_types"]
 
