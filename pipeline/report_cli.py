@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from sonarmap.pipeline.commands._tables import print_table
 from sonarmap.pipeline.engine.run.runner import RunResult
+from sonarmap.pipeline.tables import print_table
 
 __all__ = ["print_summary"]
 
@@ -13,7 +13,7 @@ __all__ = ["print_summary"]
 def print_summary(result: RunResult, summary: dict[str, Any]) -> None:
     """Stage table, then the coverage table when the map stages ran.
 
-    Tables print whole or as plain lines (`sonarmap.pipeline.commands._tables.print_table`): no header or
+    Tables print whole or as plain lines (`sonarmap.pipeline.tables.print_table`): no header or
     value is ever cut, at 80 columns or in a log file.
     """
     from rich.console import Console

@@ -268,7 +268,7 @@ def test_pipeline_groups_engine_formats_training_and_experiments() -> None:
     top = sorted(p.name for p in (ROOT / "pipeline").glob("*.py"))
     assert top == [
         "__init__.py", "__main__.py", "api.py", "cli.py", "graph.py", "package_data.py",
-        "report_cli.py", "scoring.py",
+        "report_cli.py", "scoring.py", "tables.py",
     ]
     for sub in ("engine", "formats", "training", "experiments", "readers", "commands"):
         assert (ROOT / "pipeline" / sub / "__init__.py").is_file()
