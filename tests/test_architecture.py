@@ -1,11 +1,14 @@
 """Imports flow one way: schemas <- stages.kernels <- stages <- pipeline, and
 schemas <- stages.kernels <- sim <- pipeline; a stage never imports another stage
-(stages share through artifacts and the kernel layer)."""
+(stages share through artifacts and the kernel layer). Inside `pipeline/`, the layers
+of pyproject.toml's `[tool.importlinter]` contracts: engine <- formats <- readers <-
+training <- graph <- api <- experiments/labels/live <- report_cli <- commands <- cli."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -209,6 +212,60 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
                 state[child] = 1
                 stack.append((child, iter(sorted(graph[child]))))
     return found
+
+
+def _lint_imports(config: Path) -> bool:
+    """import-linter's contracts of `config` (its report goes to stdout, shown on failure)."""
+    import importlinter.api  # noqa: F401  (configures the library's settings on import)
+    from importlinter.application.use_cases import lint_imports
+
+    return bool(lint_imports(config_filename=str(config), cache_dir=None, no_logo=True))
+
+
+def test_no_import_points_back_up_a_layer_of_the_pipeline() -> None:
+    """Inside `pipeline/`, imports follow the layers of pyproject.toml's
+    `[tool.importlinter]` contracts (the engine under everything, commands and cli on
+    top; run and share over store and config inside the engine)."""
+    assert _lint_imports(ROOT / "pyproject.toml")
+
+
+def _layer_contract() -> dict[str, Any]:
+    from importlinter.api import read_configuration
+
+    contracts = read_configuration(str(ROOT / "pyproject.toml"))["contracts_options"]
+    return next(c for c in contracts if c.get("id") == "pipeline-layers")
+
+
+@pytest.mark.parametrize("upward", [None, "fake.engine", "fake.readers", "fake.training"])
+def test_the_layer_contract_catches_an_import_pointing_up(
+    upward: str | None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The project's layer list on a package of empty modules of the same names: clean it
+    passes; one function-level import from a low layer up to `commands` breaks it."""
+    import re
+
+    layers = _layer_contract()["layers"]
+    names = [n.strip() for layer in layers for n in re.split(r"[|:]", layer)]
+    package = tmp_path / "fake"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in names:
+        (package / name).mkdir()
+        (package / name / "__init__.py").write_text("")
+    (package / "commands" / "__init__.py").write_text("from fake.engine import x\n")
+    (package / "engine" / "x.py").write_text("")
+    if upward is not None:
+        module = package.joinpath(*upward.split(".")[1:], "__init__.py")
+        module.write_text("def f():\n    from fake.commands import run\n")
+    listed = ", ".join(f'"{layer}"' for layer in layers)
+    config = tmp_path / "layers.toml"
+    config.write_text(
+        '[tool.importlinter]\nroot_packages = ["fake"]\n\n'
+        '[[tool.importlinter.contracts]]\nname = "fake layers"\ntype = "layers"\n'
+        f'containers = ["fake"]\nlayers = [{listed}]\n'
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert _lint_imports(config) is (upward is None)
 
 
 def test_no_import_cycles() -> None:
