@@ -49,7 +49,7 @@ class RunRequest:
         force: stages to recompute even when cached.
         workers: stages computed side by side (None: the cores; 1: one after another).
         figures: plan the figure stages too (False: `--no-figures`, the map without its
-            PNGs; `sonarmap.pipeline.engine.run.graph.without_figures`).
+            PNGs; `sonarmap.pipeline.graph.without_figures`).
     """
 
     dataset: Path
