@@ -147,8 +147,8 @@ def _classify(
     median timing. The CPU time is this process's over the whole forced run (planning and
     input checks included, upstream stages reused), so it bounds the stage's from above."""
     from sonarmap.pipeline.api import RunRequest, run_dataset
-    from sonarmap.pipeline.engine.codecs import read_output
-    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.engine.store.codecs import read_output
+    from sonarmap.pipeline.graph import pipeline_stages
 
     request = RunRequest(
         dataset, store_dir=store, until="classify", overrides=overrides, force=["classify"]
@@ -178,9 +178,9 @@ def _classify(
 
 
 def main() -> None:
-    from sonarmap.pipeline.engine.config import load_config
-    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.graph import all_stages, extra_sections
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
     from sonarmap.pipeline.training.model_cache import resolve_model
 

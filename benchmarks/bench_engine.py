@@ -23,8 +23,8 @@ import sys
 from pathlib import Path
 import numpy as np, pyarrow as pa
 from sonarmap.stages.base import Output, Stage, StageConfig
-from sonarmap.pipeline.engine.runner import execute, plan
-from sonarmap.pipeline.engine.session import make_context
+from sonarmap.pipeline.engine.run.runner import execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
 
 class C(StageConfig):
     k: int = 1

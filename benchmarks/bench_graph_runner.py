@@ -79,7 +79,7 @@ def critical_path(stages_s: dict[str, float], figures: bool = True) -> tuple[flo
     """The longest chain of stages (seconds, names) through the real pipeline's graph
     (figures=False: without the figure stages)."""
     sys.path.insert(0, str(ROOT))
-    from sonarmap.pipeline.engine.registry import default_graph, without_figures
+    from sonarmap.pipeline.graph import default_graph, without_figures
 
     stages = default_graph().stages
     best: dict[str, tuple[float, list[str]]] = {}

@@ -39,8 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from sonarmap.pipeline.engine.hashing import recipe_key  # noqa: E402
-from sonarmap.pipeline.engine.share import pull, push  # noqa: E402
-from sonarmap.pipeline.engine.store import ArtifactStore  # noqa: E402
+from sonarmap.pipeline.engine.share.push_pull import pull, push  # noqa: E402
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore  # noqa: E402
 
 
 def make_store(root: Path, total_mb: int, n: int = 8) -> int:

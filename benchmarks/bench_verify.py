@@ -7,7 +7,7 @@ A cold `run` (fresh store) of the real pipeline on a short simulated marina miss
 with a small default classifier trained in the same store (one pier mission,
 `--epochs`), so the run includes `train` and binds its training datasets' keyframes
 too. The missions are simulated before the clock starts. Every call of
-`sonarmap.pipeline.engine.integrity.verify_file` (the one hash per bound file per run) is timed; the
+`sonarmap.pipeline.engine.store.integrity.verify_file` (the one hash per bound file per run) is timed; the
 overhead is their sum over the cold run's wall time. A short run makes the ratio
 pessimistic: hashing grows with the bytes read, stage work grows faster.
 Also reported: re-hashing the whole store (what `show --verify` / `gc --broken` cost).
@@ -48,7 +48,7 @@ def _config(work: Path, train_goals: int, epochs: int) -> Path:
 
 def _timed_verify() -> dict[str, Any]:
     """Wrap `verify_file` so every call's time and bytes are counted."""
-    import sonarmap.pipeline.engine.integrity as integrity
+    import sonarmap.pipeline.engine.store.integrity as integrity
     stats: dict[str, Any] = {"calls": 0, "seconds": 0.0, "bytes": 0}
     original = integrity.verify_file
 
@@ -72,7 +72,7 @@ def main() -> None:
     parser.add_argument("--work", type=Path, default=Path("data/bench/verify"))
     args = parser.parse_args()
     from sonarmap.pipeline.api import RunRequest, run_dataset
-    from sonarmap.pipeline.engine.store import ArtifactStore, verify_artifact_dir
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore, verify_artifact_dir
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     work = args.work.resolve()

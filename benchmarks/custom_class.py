@@ -187,8 +187,8 @@ def main() -> None:
     train, test = work / "train.mcap", work / "test.mcap"
     config = work / "config.yaml"
     config.write_text(CONFIG.format(cls=CLASS, recording=train))
-    from sonarmap.pipeline.engine.config import load_config
-    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.graph import all_stages, extra_sections
 
     table = load_config(all_stages(), config, (), extra_sections()).classes  # type: ignore[attr-defined]
 
@@ -226,8 +226,8 @@ def main() -> None:
 def _report(store: Path, test: Path, config: Path, cache: Path) -> None:
     os.environ["SONARMAP_CACHE_DIR"] = str(cache)
     from sonarmap.pipeline.api import RunRequest, run_dataset
-    from sonarmap.pipeline.engine.codecs import read_verified
-    from sonarmap.pipeline.engine.registry import stage_by_name
+    from sonarmap.pipeline.engine.store.codecs import read_verified
+    from sonarmap.pipeline.graph import stage_by_name
     from sonarmap.pipeline.scoring import classification_scores
 
     result, _ = run_dataset(RunRequest(test, config_path=config, store_dir=store))

@@ -3,7 +3,7 @@ keyframes stage (issue 36's target: <= 6 modules, none entered twice).
 
 Runs `sonarmap run RECORDING --until keyframes` in this process on a fresh store and
 records the call stack whenever the dataset is fingerprinted (its parts listed), opened,
-or handed to `sonarmap.stages.keyframes.run`. Each stack is cut at the `run` command's frame and
+or handed to `sonarmap.stages.keyframes.stage.run`. Each stack is cut at the `run` command's frame and
 read as the ordered project modules it passes through; the walk is their ordered union.
 A module "entered twice" appears in one stack in two places with another module between.
 

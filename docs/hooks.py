@@ -22,9 +22,9 @@ from pydantic import BaseModel
 GENERATED = ("reference/cli.md", "reference/config.md", "reference/columns.md")
 """Pages this hook writes (the docs-links test accepts them in the nav)."""
 
-REGISTRY_MODULE = "sonarmap.pipeline.engine.registry"
-"""Where `all_stages()` and `extra_sections()` live: the one line to change if the engine's
-modules move."""
+REGISTRY_MODULE = "sonarmap.pipeline.graph"
+"""Where `all_stages()` and `extra_sections()` live: the real graph, wired above the
+engine."""
 
 
 def _registry() -> types.ModuleType:

@@ -1,7 +1,7 @@
 """The engine's front door: plan and run a dataset through a graph, summarise it.
 
 `run`, `status`, `demo` and `sweep` all go through here so their behaviour matches.
-Every function takes the graph the CLI built (`sonarmap.pipeline.engine.registry.Graph`);
+Every function takes the graph the CLI built (`sonarmap.pipeline.engine.run.graph.Graph`);
 None means the real pipeline's.
 """
 
@@ -13,13 +13,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sonarmap.pipeline.engine.planned import PlannedStage
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.registry import Graph, default_graph, without_figures
-from sonarmap.pipeline.engine.runner import RunResult, StageResult, execute
-from sonarmap.pipeline.engine.session import DEFAULT_STORE, RunContext, open_context
-from sonarmap.pipeline.engine.store import ArtifactRef
-from sonarmap.pipeline.engine.workers import default_workers
+from sonarmap.pipeline.engine.run.graph import Graph
+from sonarmap.pipeline.engine.run.planned import PlannedStage
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.runner import RunResult, StageResult, execute
+from sonarmap.pipeline.engine.run.session import DEFAULT_STORE, RunContext, open_context
+from sonarmap.pipeline.engine.run.workers import default_workers
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
+from sonarmap.pipeline.graph import default_graph, without_figures
 from sonarmap.stages.base import Stage
 
 if TYPE_CHECKING:
@@ -48,7 +49,7 @@ class RunRequest:
         force: stages to recompute even when cached.
         workers: stages computed side by side (None: the cores; 1: one after another).
         figures: plan the figure stages too (False: `--no-figures`, the map without its
-            PNGs; `sonarmap.pipeline.engine.registry.without_figures`).
+            PNGs; `sonarmap.pipeline.graph.without_figures`).
     """
 
     dataset: Path
@@ -222,7 +223,7 @@ def run_dataset(
 
 
 def _json_output(stage: Stage, ref: ArtifactRef, name: str) -> Any:
-    from sonarmap.pipeline.engine.codecs import read_verified
+    from sonarmap.pipeline.engine.store.codecs import read_verified
 
     output = next((o for o in stage.outputs if o.name == name and o.kind == "json"), None)
     return None if output is None else read_verified(ref, output)
@@ -248,7 +249,7 @@ def summarize(
             outputs = artifacts[name].manifest.get("outputs", {})
             summary[name] = {k: v.get("rows") for k, v in outputs.items()}
     if scores and "classify" in artifacts:
-        from sonarmap.pipeline.engine.codecs import read_verified
+        from sonarmap.pipeline.engine.store.codecs import read_verified
         from sonarmap.pipeline.scoring import classification_scores
 
         output = next(o for o in by_name["classify"].outputs if o.name == "objects")

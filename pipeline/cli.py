@@ -75,7 +75,7 @@ def _root(
     """sonarmap: orthogonal imaging-sonar pair -> 3D maps (McConnell & Englot, ICRA 2021)."""
     # The one place the alternative graph's variable is read (`registry.GRAPH_ENV`): the
     # graph is built from it once and handed to every command through the context.
-    from sonarmap.pipeline.engine.registry import GRAPH_ENV
+    from sonarmap.pipeline.engine.run.graph import GRAPH_ENV
 
     if not isinstance(ctx.obj, GraphChoice):  # else: given by a program embedding the CLI
         ctx.obj = GraphChoice(os.environ.get(GRAPH_ENV))

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from sonarmap.pipeline.commands._tables import print_table
-from sonarmap.pipeline.engine.runner import RunResult
+from sonarmap.pipeline.engine.run.runner import RunResult
+from sonarmap.pipeline.tables import print_table
 
 __all__ = ["print_summary", "progress_shares_stdout"]
 
@@ -31,7 +31,7 @@ def print_summary(
     """Stage table (unless `stages_listed`: the progress already printed each stage to
     the same output), then the coverage table when the map stages ran.
 
-    Tables print whole or as plain lines (`sonarmap.pipeline.commands._tables.print_table`):
+    Tables print whole or as plain lines (`sonarmap.pipeline.tables.print_table`):
     no header or value is ever cut, at 80 columns or in a log file. Artifacts are named by
     their stage and a short key (`STORE/STAGE/KEY...`; `--json` gives whole paths).
     """

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from sonarmap.pipeline.formats.projected_cdr import serialize_projected_cdr
 from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, recording_writer, ros2_typestore
-from sonarmap.pipeline.readers.sonar_decode import serialize_projected_cdr
 from sonarmap.schemas.sonar import beam_directions_from_angles
 from sonarmap.schemas.topics import (
     ODOMETRY_TYPE,

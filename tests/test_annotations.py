@@ -229,7 +229,7 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
 def test_a_recorded_training_set_without_annotations_is_refused(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model_cache import resolve_model
 

@@ -1,11 +1,14 @@
 """Imports flow one way: schemas <- stages.kernels <- stages <- pipeline, and
 schemas <- stages.kernels <- sim <- pipeline; a stage never imports another stage
-(stages share through artifacts and the kernel layer)."""
+(stages share through artifacts and the kernel layer). Inside `pipeline/`, the layers
+of pyproject.toml's `[tool.importlinter]` contracts: engine <- formats <- readers <-
+training <- graph <- api <- experiments/labels/live <- report_cli <- commands <- cli."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -86,10 +89,10 @@ def test_stages_never_print_or_open_files() -> None:
 def test_the_checker_catches_a_violation(tmp_path: Path) -> None:
     sample = tmp_path / "x.py"
     sample.write_text(
-        "import pyarrow.parquet as pq\nfrom sonarmap.pipeline.engine.store import ArtifactStore\n"
+        "import pyarrow.parquet as pq\nfrom sonarmap.pipeline.engine.store.artifact_store import ArtifactStore\n"
     )
     names = _imports(sample)
-    assert "pyarrow.parquet" in names and "sonarmap.pipeline.engine.store" in names
+    assert "pyarrow.parquet" in names and "sonarmap.pipeline.engine.store.artifact_store" in names
 
 
 def _stage_of(path: Path) -> str | None:
@@ -211,6 +214,60 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+def _lint_imports(config: Path) -> bool:
+    """import-linter's contracts of `config` (its report goes to stdout, shown on failure)."""
+    import importlinter.api  # noqa: F401  (configures the library's settings on import)
+    from importlinter.application.use_cases import lint_imports
+
+    return bool(lint_imports(config_filename=str(config), cache_dir=None, no_logo=True))
+
+
+def test_no_import_points_back_up_a_layer_of_the_pipeline() -> None:
+    """Inside `pipeline/`, imports follow the layers of pyproject.toml's
+    `[tool.importlinter]` contracts (the engine under everything, commands and cli on
+    top; run and share over store and config inside the engine)."""
+    assert _lint_imports(ROOT / "pyproject.toml")
+
+
+def _layer_contract() -> dict[str, Any]:
+    from importlinter.api import read_configuration
+
+    contracts = read_configuration(str(ROOT / "pyproject.toml"))["contracts_options"]
+    return next(c for c in contracts if c.get("id") == "pipeline-layers")
+
+
+@pytest.mark.parametrize("upward", [None, "fake.engine", "fake.readers", "fake.training"])
+def test_the_layer_contract_catches_an_import_pointing_up(
+    upward: str | None, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The project's layer list on a package of empty modules of the same names: clean it
+    passes; one function-level import from a low layer up to `commands` breaks it."""
+    import re
+
+    layers = _layer_contract()["layers"]
+    names = [n.strip() for layer in layers for n in re.split(r"[|:]", layer)]
+    package = tmp_path / "fake"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in names:
+        (package / name).mkdir()
+        (package / name / "__init__.py").write_text("")
+    (package / "commands" / "__init__.py").write_text("from fake.engine import x\n")
+    (package / "engine" / "x.py").write_text("")
+    if upward is not None:
+        module = package.joinpath(*upward.split(".")[1:], "__init__.py")
+        module.write_text("def f():\n    from fake.commands import run\n")
+    listed = ", ".join(f'"{layer}"' for layer in layers)
+    config = tmp_path / "layers.toml"
+    config.write_text(
+        '[tool.importlinter]\nroot_packages = ["fake"]\n\n'
+        '[[tool.importlinter.contracts]]\nname = "fake layers"\ntype = "layers"\n'
+        f'containers = ["fake"]\nlayers = [{listed}]\n'
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert _lint_imports(config) is (upward is None)
+
+
 def test_no_import_cycles() -> None:
     assert _cycles(_import_graph()) == []
 
@@ -254,7 +311,7 @@ def test_a_multi_module_stage_is_a_package_exposing_its_stage(name: str) -> None
 
 
 def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stages() -> None:
-    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.graph import pipeline_stages
 
     packages = sorted(
         p.parent.name for p in (ROOT / "stages").glob("*/__init__.py") if p.parent.name != "kernels"
@@ -266,7 +323,10 @@ def test_every_stage_package_is_listed_and_every_registered_stage_lives_in_stage
 
 def test_pipeline_groups_engine_formats_training_and_experiments() -> None:
     top = sorted(p.name for p in (ROOT / "pipeline").glob("*.py"))
-    assert top == ["__init__.py", "__main__.py", "api.py", "cli.py", "package_data.py", "report_cli.py", "scoring.py"]
+    assert top == [
+        "__init__.py", "__main__.py", "api.py", "cli.py", "graph.py", "package_data.py",
+        "report_cli.py", "scoring.py", "tables.py",
+    ]
     for sub in ("engine", "formats", "training", "experiments", "readers", "commands"):
         assert (ROOT / "pipeline" / sub / "__init__.py").is_file()
 
@@ -298,7 +358,7 @@ def test_a_deferred_stage_entry_point_resolves_and_pickles() -> None:
     the middle of a run) and travels to a worker process by name."""
     import pickle
 
-    from sonarmap.pipeline.engine.registry import default_graph
+    from sonarmap.pipeline.graph import default_graph
     from sonarmap.stages.kernels.lazy import resolve
 
     for stage in default_graph().config_stages:

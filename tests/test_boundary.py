@@ -22,9 +22,10 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.commands._common import GraphChoice
 from sonarmap.pipeline.engine.hashing import recipe_key, stage_recipe
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.registry import Graph, default_graph, load_graph
-from sonarmap.pipeline.engine.session import open_context
+from sonarmap.pipeline.engine.run.graph import Graph, load_graph
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.session import open_context
+from sonarmap.pipeline.graph import default_graph
 from sonarmap.schemas import SCHEMA_VERSION
 from sonarmap.schemas.model_settings import ModelSettings
 from sonarmap.schemas.recording import PoseTrack
@@ -241,21 +242,24 @@ def test_the_graph_variable_is_read_only_by_the_cli() -> None:
         )
         if environ and ("GRAPH_ENV" in text or "SONARMAP_GRAPH" in text):
             readers.append(path.relative_to(ROOT).as_posix())
-        assert "functools.cache" not in text or "registry" not in path.name
+        assert "functools.cache" not in text or path.name != "graph.py"
     assert readers == ["pipeline/cli.py"]
 
 
 def test_the_cli_builds_the_named_graph_once(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import sonarmap.pipeline.engine.registry as registry
+    import sonarmap.pipeline.engine.run.graph as engine_graph
+
     built: list[str | None] = []
-    real = registry.load_graph
-    monkeypatch.setattr(registry, "load_graph", lambda spec: built.append(spec) or real(spec))
+    real = engine_graph.load_graph
+    monkeypatch.setattr(
+        engine_graph, "load_graph", lambda spec, default: built.append(spec) or real(spec, default)
+    )
     res = CliRunner().invoke(app, ["run", str(toy_cli), "--store", str(tmp_path / "s"), "-q"])
     assert res.exit_code == 0, res.output
     assert built == ["toy_stages:GRAPH"]
-    assert load_graph("toy_stages:GRAPH").spec == "toy_stages:GRAPH"
+    assert load_graph("toy_stages:GRAPH", default_graph).spec == "toy_stages:GRAPH"
 
 
 def test_a_command_is_an_importable_module_level_function() -> None:

@@ -9,9 +9,9 @@ from pathlib import Path
 import platformdirs
 import pytest
 
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.cache_dir import CACHE_ENV
 from sonarmap.pipeline.training.model import training_simulations
 from sonarmap.pipeline.training.model_cache import model_cache, planned_default_model

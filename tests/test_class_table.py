@@ -9,9 +9,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from sonarmap.pipeline.engine.config import load_config, section_dict
+from sonarmap.pipeline.engine.config.load import load_config, section_dict
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections, stage_by_name
+from sonarmap.pipeline.graph import all_stages, extra_sections, stage_by_name
 from sonarmap.pipeline.labels.files import export_labels, import_labels
 from sonarmap.schemas.annotations import AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable

@@ -181,9 +181,9 @@ def test_the_overlay_draws_the_busiest_keyframe_the_same_every_time(
 
 
 def test_classify_overlay_is_refused_with_where_it_moved(tmp_path: Path) -> None:
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.engine.errors import ConfigError
-    from sonarmap.pipeline.engine.registry import all_stages
+    from sonarmap.pipeline.graph import all_stages
 
     config = tmp_path / "old.yaml"
     config.write_text("classify:\n  overlay: false\n")

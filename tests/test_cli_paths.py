@@ -233,7 +233,7 @@ def test_every_json_output_is_strict(real_run: dict[str, Path]) -> None:
 
 def test_json_with_non_finite_values_is_strict(tmp_path: Path) -> None:
     """A manifest holding NaN and infinities (as fuse's did) prints them as null."""
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
     store = ArtifactStore(tmp_path / "s")
 

@@ -15,9 +15,9 @@ from pydantic import BaseModel
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.config import TrainingSet
 
 runner = CliRunner()

@@ -15,8 +15,8 @@ import pytest
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine import workers
-from sonarmap.pipeline.engine.compute import ComputeJob
+from sonarmap.pipeline.engine.run import workers
+from sonarmap.pipeline.engine.run.compute import ComputeJob
 
 ROOT = Path(__file__).resolve().parent.parent
 

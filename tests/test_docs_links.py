@@ -216,3 +216,33 @@ def test_the_column_reference_covers_every_schema(hooks: ModuleType) -> None:
         for field in schema:
             assert f"| `{field.name}` |" in text, field.name
     assert "### `SUBMAP_FRAMES_SCHEMA`" in text
+
+
+DOTTED = re.compile(r"\bsonarmap\.(?:pipeline|stages|schemas|sim|configs)(?:\.[A-Za-z_]\w*)*")
+
+
+def _resolves(dotted: str) -> bool:
+    """The longest importable module prefix of `dotted`, then attributes for the rest."""
+    import importlib
+
+    parts = dotted.split(".")
+    for cut in range(len(parts), 1, -1):
+        try:
+            found: object = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        for attr in parts[cut:]:
+            if not hasattr(found, attr):
+                return False
+            found = getattr(found, attr)
+        return True
+    return False
+
+
+def test_every_module_path_the_docs_and_docstrings_name_exists() -> None:
+    """A module moved or renamed without its mentions fails here (`docs/decisions/` are
+    dated notes and keep the names of their day)."""
+    pages = [p for p in _user_pages() if "decisions" not in p.parts]
+    code = [p for p in _source_files() if p.suffix == ".py"]
+    named = {(m, p.name) for p in {*pages, *code} for m in DOTTED.findall(p.read_text())}
+    assert sorted((m, f) for m, f in named if not _resolves(m)) == []

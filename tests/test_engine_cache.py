@@ -11,9 +11,9 @@ import toy_stages
 from toy_stages import TOY_STAGES
 
 from sonarmap.pipeline.engine.errors import ConfigError, StageFailed
-from sonarmap.pipeline.engine.runner import RunResult, execute, plan
-from sonarmap.pipeline.engine.session import make_context
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.stages.base import Input, Output, Stage
 
 

@@ -10,7 +10,7 @@ import textwrap
 import time
 from pathlib import Path
 
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 TESTS = Path(__file__).resolve().parent
 
@@ -18,7 +18,7 @@ SLOW_COMMIT = textwrap.dedent(
     """
     import sys, time
     from pathlib import Path
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
     store = ArtifactStore(Path(sys.argv[1]))
 
@@ -39,8 +39,8 @@ RUN_TOY = textwrap.dedent(
     import sys
     from pathlib import Path
     from toy_stages import TOY_STAGES
-    from sonarmap.pipeline.engine.runner import execute, plan
-    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.run.runner import execute, plan
+    from sonarmap.pipeline.engine.run.session import make_context
 
     data, store = Path(sys.argv[1]), Path(sys.argv[2])
     ctx = make_context(data, stages=TOY_STAGES, overrides=["double.sleep_s=1.0"], store_dir=store,

@@ -45,14 +45,19 @@ class Canonical:
 
 def _engine(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> dict[str, Path]:
     """keyframes -> features -> fuse on `dataset`; artifact directory per stage."""
-    from sonarmap.pipeline.engine.runner import execute, plan
-    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.run.runner import execute, plan
+    from sonarmap.pipeline.engine.run.session import make_context
+    from sonarmap.pipeline.graph import default_graph
     from sonarmap.stages.features.stage import STAGE as FEATURES
     from sonarmap.stages.fuse.stage import STAGE as FUSE
     from sonarmap.stages.keyframes import STAGE as KEYFRAMES
 
     ctx = make_context(
-        dataset, stages=[KEYFRAMES, FEATURES, FUSE], overrides=overrides, store_dir=store
+        dataset,
+        stages=[KEYFRAMES, FEATURES, FUSE],
+        graph=default_graph(),
+        overrides=overrides,
+        store_dir=store,
     )
     result = execute(plan(ctx.stages, ctx.config, ctx.dataset, ctx.store), *_rest(ctx))
     return {r.stage: Path(r.path) for r in result.stages}

@@ -98,8 +98,8 @@ def test_empty_frames(tmp_path: Path) -> None:
 def test_fast_cdr_codec_is_byte_identical_to_rosbags() -> None:
     """The fast ProjectedSonarImage serialiser/parser agree with rosbags' generic serde."""
     from sonarmap.pipeline.formats.frames_io import sonar_cdr, sonar_message
+    from sonarmap.pipeline.formats.projected_cdr import parse_projected_cdr
     from sonarmap.pipeline.formats.rosmsg import ros2_typestore
-    from sonarmap.pipeline.readers.sonar_decode import parse_projected_cdr
     from sonarmap.schemas.sonar import beam_directions_from_angles
 
     rng = np.random.default_rng(3)

@@ -23,17 +23,17 @@ from click.testing import Result
 from test_engine_cache import run_toy
 from typer.testing import CliRunner
 
-import sonarmap.pipeline.engine.store
-import sonarmap.pipeline.engine.store_gc
+import sonarmap.pipeline.engine.store.artifact_store
+import sonarmap.pipeline.engine.store.gc
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine import output_checks
-from sonarmap.pipeline.engine.artifact import ArtifactRef
 from sonarmap.pipeline.engine.errors import PipelineError, StageFailed
-from sonarmap.pipeline.engine.leases import RunLease
-from sonarmap.pipeline.engine.output_checks import OutputCheck, check_stage
-from sonarmap.pipeline.engine.runner import execute, plan
-from sonarmap.pipeline.engine.session import make_context
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.run import output_checks
+from sonarmap.pipeline.engine.run.output_checks import OutputCheck, check_stage
+from sonarmap.pipeline.engine.run.runner import execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.stages.base import Output, Stage, StageConfig
 from sonarmap.stages.classify.stage import STAGE as CLASSIFY
 
@@ -254,7 +254,7 @@ def test_a_run_claiming_an_artifact_while_gc_runs_keeps_it(
 
         monkeypatch.setattr(ArtifactStore, "scan", scan)
     else:
-        real_leases = sonarmap.pipeline.engine.store_gc.scan_leases
+        real_leases = sonarmap.pipeline.engine.store.gc.scan_leases
 
         def scan_leases(root: Path, *, prune: bool) -> Any:
             found = real_leases(root, prune=prune)
@@ -262,7 +262,7 @@ def test_a_run_claiming_an_artifact_while_gc_runs_keeps_it(
                 lease.__enter__().add([claimed])
             return found
 
-        monkeypatch.setattr(sonarmap.pipeline.engine.store_gc, "scan_leases", scan_leases)
+        monkeypatch.setattr(sonarmap.pipeline.engine.store.gc, "scan_leases", scan_leases)
     try:
         report = ArtifactStore(store).gc()
     finally:
@@ -290,14 +290,14 @@ def test_disk_full_mid_commit_exits_2_and_keeps_what_was_committed(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     store = tmp_path / "store"
-    real_fsync = sonarmap.pipeline.engine.store._fsync_file
+    real_fsync = sonarmap.pipeline.engine.store.artifact_store._fsync_file
 
     def fsync(path: Path) -> None:
         if path.parent.name.startswith("double-"):  # the second commit, mid-way
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         real_fsync(path)
 
-    monkeypatch.setattr(sonarmap.pipeline.engine.store, "_fsync_file", fsync)
+    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "_fsync_file", fsync)
     # One worker: count (beside double in the graph) would otherwise commit meanwhile.
     res = cli("run", toy_cli, "--store", store, "-q", "--workers", "1")
     _one_line_error(res, "No space left on device", "(ENOSPC)", ".tmp/double-")
@@ -307,7 +307,7 @@ def test_disk_full_mid_commit_exits_2_and_keeps_what_was_committed(
         live.verify(ref)
     assert not list((store / ".tmp").iterdir()) and not (store / "double").exists()
     assert live.gc()["removed"] == []  # the committed stage is recorded
-    monkeypatch.setattr(sonarmap.pipeline.engine.store, "_fsync_file", real_fsync)
+    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "_fsync_file", real_fsync)
     assert cli("run", toy_cli, "--store", store, "-q").exit_code == 0
 
 
@@ -480,8 +480,8 @@ def test_the_pipeline_checks_name_the_collapse_and_stay_silent_on_a_normal_run()
 
 
 def test_gc_removes_an_abandoned_pull_resume_file_once_stale(tmp_path: Path) -> None:
-    from sonarmap.pipeline.engine.artifact import PULL_CACHE
-    from sonarmap.pipeline.engine.store_gc import collect
+    from sonarmap.pipeline.engine.store.artifact import PULL_CACHE
+    from sonarmap.pipeline.engine.store.gc import collect
 
     store = ArtifactStore(tmp_path / "store")
     cache = store.root / PULL_CACHE

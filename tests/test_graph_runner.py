@@ -11,8 +11,8 @@ import pytest
 from toy_stages import GRAPH, TOY_STAGES
 
 from sonarmap.pipeline.engine.errors import StageFailed
-from sonarmap.pipeline.engine.runner import RunResult, execute, plan
-from sonarmap.pipeline.engine.session import make_context
+from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
 from sonarmap.stages.base import Stage
 
 _VOLATILE = ("build_seconds", "created_at", "dataset_path")

@@ -286,9 +286,9 @@ def test_bad_navigation_samples_are_dropped_with_a_count(
 
 
 def test_duplicate_ping_times_are_dropped_with_a_count(tmp_path: Path) -> None:
+    from sonarmap.pipeline.formats.projected_cdr import serialize_projected_cdr
     from sonarmap.pipeline.formats.rosmsg import recording_writer
     from sonarmap.pipeline.readers import open_recording
-    from sonarmap.pipeline.readers.sonar_decode import serialize_projected_cdr
     from sonarmap.schemas.sonar import beam_directions_from_angles
 
     src = tmp_path / "dups.mcap"

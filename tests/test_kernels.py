@@ -12,16 +12,11 @@ import pyarrow.parquet as pq
 import pytest
 from test_infer import _asymmetric_mission
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.registry import (
-    all_stages,
-    extra_sections,
-    pipeline_stages,
-    training_stage,
-)
-from sonarmap.pipeline.engine.runner import DatasetSpec, plan
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.engine.run.runner import DatasetSpec, plan
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.graph import all_stages, extra_sections, pipeline_stages, training_stage
 from sonarmap.schemas.class_models import CLASS_CELLS_SCHEMA, CLASS_REFERENCE_SCHEMA
 from sonarmap.stages.base import Input
 from sonarmap.stages.infer.stage import STAGE as INFER

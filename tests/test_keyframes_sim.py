@@ -35,10 +35,13 @@ def sim_dataset(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
 
 
 def _run_keyframes(dataset: Path, store: Path, overrides: tuple[str, ...] = ()) -> Path:
-    from sonarmap.pipeline.engine.runner import execute, plan
-    from sonarmap.pipeline.engine.session import make_context
+    from sonarmap.pipeline.engine.run.runner import execute, plan
+    from sonarmap.pipeline.engine.run.session import make_context
+    from sonarmap.pipeline.graph import default_graph
 
-    ctx = make_context(dataset, stages=[STAGE], overrides=overrides, store_dir=store)
+    ctx = make_context(
+        dataset, stages=[STAGE], graph=default_graph(), overrides=overrides, store_dir=store
+    )
     planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
     result = execute(planned, ctx.config, ctx.dataset, ctx.store)
     return Path(result.stages[0].path)
@@ -130,7 +133,7 @@ def test_cli_topics_and_convert_on_simulator_output(
 
 def test_cli_run_until_keyframes(sim_dataset: tuple[Path, Any], tmp_path: Path) -> None:
     try:
-        from sonarmap.pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.graph import all_stages
 
         all_stages()
     except ImportError as err:

@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import OutputError
-from sonarmap.pipeline.engine.registry import pipeline_stages
+from sonarmap.pipeline.graph import pipeline_stages
 from sonarmap.pipeline.live.feed import LiveFeed
 from sonarmap.pipeline.live.server import LiveServer
 from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS

@@ -18,12 +18,12 @@ from typer.testing import CliRunner
 import sonarmap.stages.classify.train
 from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-from sonarmap.pipeline.engine.share import pull, push
-from sonarmap.pipeline.engine.store import ArtifactStore
-from sonarmap.pipeline.engine.trust import TrustPolicy
+from sonarmap.pipeline.engine.share.push_pull import pull, push
+from sonarmap.pipeline.engine.share.trust import TrustPolicy
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.config import TrainingDataConfig
 from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 from sonarmap.pipeline.training.model import plan_training, training_datasets
@@ -212,13 +212,14 @@ def _fresh_machine(machine: Machine, name: str, shipped: Path) -> object:
 
 
 def _ship_tiny(machine: Machine, shipped: Path) -> None:
-    from sonarmap.pipeline.engine.session import dataset_spec
+    from sonarmap.pipeline.engine.run.session import dataset_spec
+    from sonarmap.pipeline.graph import default_graph
     from sonarmap.pipeline.training.model import training_simulations
     from sonarmap.pipeline.training.shipped import ship
 
     training = _config(machine.config).training  # type: ignore[attr-defined]
     sims = training_simulations(training)
-    fingerprints = [dataset_spec(s.out, machine.cache).fingerprint for s in sims]
+    fingerprints = [dataset_spec(s.out, machine.cache, default_graph()).fingerprint for s in sims]
     ref = machine.cache.get("train", machine.key)
     assert ref is not None
     ship(ref, sims, fingerprints, shipped)

@@ -10,8 +10,8 @@ import yaml
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.stages.classify.stage import ClassifyConfig
 from sonarmap.stages.fuse.stage import FuseConfig
 

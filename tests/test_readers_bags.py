@@ -123,7 +123,7 @@ def test_run_until_keyframes_on_a_bag_without_sonar_exits_2(
     shared_data: Path, name: str, tmp_path: Path
 ) -> None:
     try:
-        from sonarmap.pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.graph import all_stages
 
         all_stages()
     except ImportError as err:

@@ -220,7 +220,7 @@ def test_cli_run_until_keyframes_on_a_ros1_oculus_bag(tmp_path: Path) -> None:
     from sonarmap.pipeline.cli import app
 
     try:
-        from sonarmap.pipeline.engine.registry import all_stages
+        from sonarmap.pipeline.graph import all_stages
 
         all_stages()
     except ImportError as err:

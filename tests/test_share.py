@@ -11,8 +11,8 @@ import toy_stages
 from test_engine_cache import did, run_toy
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
-from sonarmap.pipeline.engine.share import pull, push
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.share.push_pull import pull, push
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 
 @pytest.fixture

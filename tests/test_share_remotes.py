@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 from test_engine_cache import run_toy
 
-from sonarmap.pipeline.engine.share import list_remote, pull, push
-from sonarmap.pipeline.engine.store import ArtifactStore
-from sonarmap.pipeline.engine.transfer import TransferStats
+from sonarmap.pipeline.engine.share.push_pull import list_remote, pull, push
+from sonarmap.pipeline.engine.share.transfer import TransferStats
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 ROOT = Path(__file__).resolve().parents[1]
 SSHD = shutil.which("sshd") or "/usr/sbin/sshd"

@@ -18,15 +18,16 @@ from test_engine_cache import run_toy
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine import share, transfer
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import sha256_file
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections, pipeline_stages
-from sonarmap.pipeline.engine.runner import DatasetSpec, plan
-from sonarmap.pipeline.engine.share import list_remote, pull, push
-from sonarmap.pipeline.engine.store import ArtifactStore
-from sonarmap.pipeline.engine.transfer import TransferStats
-from sonarmap.pipeline.engine.trust import TrustPolicy
+from sonarmap.pipeline.engine.run.runner import DatasetSpec, plan
+from sonarmap.pipeline.engine.share import push_pull as share
+from sonarmap.pipeline.engine.share import transfer
+from sonarmap.pipeline.engine.share.push_pull import list_remote, pull, push
+from sonarmap.pipeline.engine.share.transfer import TransferStats
+from sonarmap.pipeline.engine.share.trust import TrustPolicy
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.graph import all_stages, extra_sections, pipeline_stages
 from sonarmap.pipeline.training.model_cache import copy_verified
 from sonarmap.pipeline.training.shipped import shipped_models, shipped_store
 
@@ -113,7 +114,7 @@ def test_substituted_model_is_refused_unless_pinned_and_never_gets_the_honest_ke
     res = _cli("pull", str(remote), "--store", str(bob), "--trust-model", sha)
     assert res.exit_code == 0, res.output
     # Trusted or not, the substituted model cannot reproduce the honest run's keys.
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
 
     config = load_config(all_stages(), None, [], extra_sections())
     spec = DatasetSpec(tmp_path / "rec.mcap", "f" * 64, lambda _s: None)
@@ -267,8 +268,8 @@ def test_interrupted_push_resumes_without_resending_and_shows_nothing_partial(
 _KILLED_PUSH = """
 import os, signal, sys
 from pathlib import Path
-from sonarmap.pipeline.engine import share, transfer
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.share import push_pull as share, transfer
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 real, sent = share.upload, []
 def upload(*a, **k):
     if len(sent) == 3:

@@ -11,8 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.model import plan_training, training_simulations
 from sonarmap.pipeline.training.model_cache import model_cache
 from sonarmap.pipeline.training.shipped import (

@@ -19,7 +19,7 @@ from click.testing import Result
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 runner = CliRunner()
 

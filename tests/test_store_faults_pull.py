@@ -19,8 +19,8 @@ from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
-from sonarmap.pipeline.engine.share import pull, push
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.share.push_pull import pull, push
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 
 @pytest.fixture

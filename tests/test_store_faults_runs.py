@@ -15,9 +15,9 @@ import pyarrow as pa
 from test_engine_cache import run_toy
 from toy_stages import SOURCE, CountConfig
 
-from sonarmap.pipeline.engine.runner import execute, plan
-from sonarmap.pipeline.engine.session import make_context
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.run.runner import execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.stages.base import Output, Stage
 
 TESTS = Path(__file__).resolve().parent

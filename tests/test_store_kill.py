@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 from test_engine_cache import run_toy
 
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 
 
 def _digests(store: Path) -> dict[str, str]:

@@ -17,8 +17,8 @@ from test_voxelize import T_BASE_SONAR, fused_table, points_table, poses_table
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.model import plan_training, training_datasets
 from sonarmap.pipeline.training.model_cache import model_cache
 from sonarmap.schemas.submaps import REL_POSE_COLUMNS, SUBMAP_FRAMES_SCHEMA, SUBMAP_POINTS_SCHEMA

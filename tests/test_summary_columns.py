@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 
-from sonarmap.pipeline.commands._tables import plain_lines
-from sonarmap.pipeline.engine.runner import RunResult, StageResult
+from sonarmap.pipeline.engine.run.runner import RunResult, StageResult
 from sonarmap.pipeline.report_cli import print_summary
+from sonarmap.pipeline.tables import plain_lines
 
 STORE = "/home/researcher/field-campaigns/2026-harbour/store"
 LABEL = "median error m, SE(2)-aligned (rotation -0.34°)"

@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.pipeline.training.model import (
     ordered_datasets,
     training_simulations,

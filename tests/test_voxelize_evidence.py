@@ -10,9 +10,9 @@ from test_infer import to_world
 from test_infer_structure import _mission
 from test_voxelize import T_BASE_SONAR, fused_table, points_table, poses_table
 
-from sonarmap.pipeline.engine.config import load_config
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
+from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.stages.infer.stage import InferConfig, infer_mission
 from sonarmap.stages.voxelize.evidence import contradicted_by_fused
 from sonarmap.stages.voxelize.stage import STAGE, VoxelizeConfig

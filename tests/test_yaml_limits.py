@@ -14,11 +14,11 @@ import pytest
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.config_errors import short
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.engine.config.validation import short
+from sonarmap.pipeline.engine.config.yaml_files import CONFIG_MAX_BYTES, MAX_DEPTH, load_yaml_text
 from sonarmap.pipeline.engine.errors import ConfigError
-from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-from sonarmap.pipeline.engine.yaml_files import CONFIG_MAX_BYTES, MAX_DEPTH, load_yaml_text
+from sonarmap.pipeline.graph import all_stages, extra_sections
 
 runner = CliRunner()
 

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from sonarmap.pipeline.engine.registry import Graph
+from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig
 
 CALLS: Counter[str] = Counter()

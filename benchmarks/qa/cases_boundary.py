@@ -24,7 +24,7 @@ import pyarrow as pa
 
 from benchmarks.qa.case import Case
 from benchmarks.qa.fixtures import ROOT, small_recording
-from sonarmap.pipeline.engine.registry import Graph
+from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
 
 STORE = "data/store"
@@ -224,7 +224,7 @@ CASES = [
             _graph_env(value),
             env={**ENV, "SONARMAP_GRAPH": value},
         )
-        for value in ("no_such_module:GRAPH", "os:path", "sonarmap.pipeline.engine.registry:GRAPH_ENV", ":")
+        for value in ("no_such_module:GRAPH", "os:path", "sonarmap.pipeline.engine.run.graph:GRAPH_ENV", ":")
     ),
     *(
         Case(

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import typer
 
 if TYPE_CHECKING:
-    from sonarmap.pipeline.engine.registry import Graph
+    from sonarmap.pipeline.engine.run.graph import Graph
 
 __all__ = [
     "CONFIG_OPT",
@@ -77,9 +77,10 @@ class GraphChoice:
 
     def graph(self) -> Graph:
         if self._graph is None:
-            from sonarmap.pipeline.engine.registry import load_graph
+            from sonarmap.pipeline.engine.run.graph import load_graph
+            from sonarmap.pipeline.graph import default_graph
 
-            self._graph = load_graph(self.spec)
+            self._graph = load_graph(self.spec, default_graph)
         return self._graph
 
 
@@ -94,6 +95,6 @@ def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
         return choice.graph()
     from dataclasses import replace
 
-    from sonarmap.pipeline.engine.registry import without_figures
+    from sonarmap.pipeline.graph import without_figures
 
     return replace(choice.graph(), stages=without_figures(choice.graph().stages))

@@ -18,7 +18,7 @@ def dump(
     json_: bool = JSON_OPT,
 ) -> None:
     """Print the effective config (defaults, then the file, then --set)."""
-    from sonarmap.pipeline.engine.config import dump_yaml, load_config
+    from sonarmap.pipeline.engine.config.load import dump_yaml, load_config
 
     graph = cli_graph(ctx)
     cfg = load_config(graph.config_stages, config, set_ or (), graph.extra_sections)
@@ -32,7 +32,7 @@ def check(
     ctx: typer.Context, file: Path = typer.Argument(..., help="Config YAML to validate.")
 ) -> None:
     """Validate a config file; exit 2 with the offending key on error."""
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
 
     graph = cli_graph(ctx)
     load_config(graph.config_stages, file, (), graph.extra_sections)

@@ -57,7 +57,7 @@ def _write_report(report_dir: Path, result: Any, no_figures: bool) -> Path:
     and the run's stages appended (evaluate's report cannot know either)."""
     import shutil
 
-    from sonarmap.pipeline.engine.registry import FIGURE_STAGES
+    from sonarmap.pipeline.graph import FIGURE_STAGES
 
     shutil.rmtree(report_dir, ignore_errors=True)
     report_dir.mkdir(parents=True)
@@ -77,9 +77,9 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     """The default classifier's simulated missions under this config, so the demo can
     simulate them beside the mapped scene instead of after it; none when the model is
     at hand (the run's store, the model cache, or shipped with the project)."""
-    from sonarmap.pipeline.engine.config import load_config
-    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.graph import all_stages, extra_sections
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_simulations
     from sonarmap.pipeline.training.model_cache import planned_default_model
@@ -108,7 +108,7 @@ def demo(
     from sonarmap.pipeline.api import RunRequest, run_dataset
     from sonarmap.pipeline.commands._common import stderr_console
     from sonarmap.pipeline.commands._errors import writes_under
-    from sonarmap.pipeline.engine.progress import StageProgress
+    from sonarmap.pipeline.engine.run.progress import StageProgress
     from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
 
     with writes_under(out, store):

@@ -45,7 +45,7 @@ def _chosen_ids(spec: str | None, every: int | None, available: list[int]) -> li
 
 def _class_table(ctx: typer.Context, config: Path | None, overrides: list[str] | None) -> Any:
     """The class table of the config (section `classes`; the default without one)."""
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.schemas.classes import DEFAULT_TABLE
 
     graph = cli_graph(ctx)
@@ -118,7 +118,7 @@ def label_export(
     """Write keyframes as fan images plus a COCO file to open in CVAT or Label Studio."""
     from sonarmap.pipeline.api import RunRequest, run_dataset
     from sonarmap.pipeline.commands._errors import writes_under
-    from sonarmap.pipeline.engine.codecs import read_verified
+    from sonarmap.pipeline.engine.store.codecs import read_verified
     from sonarmap.pipeline.labels.files import export_labels
 
     table = _class_table(ctx, config, set_)
@@ -132,7 +132,7 @@ def label_export(
         stages = {s.name: s for s in graph.stages}
         kf_stage = stages["keyframes"]
         frames_out = next(o for o in kf_stage.outputs if o.name == "frames")
-        all_frames = list(read_verified(result.artifacts["keyframes"], frames_out))
+        all_frames = list(read_verified(result.artifacts["keyframes"], frames_out, codecs=graph.codecs))
         if not all_frames:
             from sonarmap.pipeline.engine.errors import SourceError
 

@@ -41,7 +41,7 @@ def run(
     """Run the mapping pipeline on DATASET, reusing every cached stage."""
     from sonarmap.pipeline.api import RunRequest, run_dataset
     from sonarmap.pipeline.commands._errors import writes_under
-    from sonarmap.pipeline.engine.progress import StageProgress
+    from sonarmap.pipeline.engine.run.progress import StageProgress
     from sonarmap.pipeline.live.session import live_session
 
     with writes_under(store), live_session(live, port=live_port) as view:

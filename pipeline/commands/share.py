@@ -11,8 +11,8 @@ from sonarmap.pipeline.commands._common import JSON_OPT, STORE_OPT, emit_json
 from sonarmap.pipeline.training.model_cache import DEFAULT_MODEL_CACHE
 
 if TYPE_CHECKING:
-    from sonarmap.pipeline.engine.store import ArtifactStore
-    from sonarmap.pipeline.engine.trust import TrustPolicy
+    from sonarmap.pipeline.engine.share.trust import TrustPolicy
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 __all__ = ["pull", "push", "register"]
 
@@ -24,7 +24,7 @@ _REMOTE = typer.Argument(
 
 def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
     """Shipped models (leaves, pinned), models trained in the model cache, and the user's pins."""
-    from sonarmap.pipeline.engine.trust import TrustPolicy, env_pins
+    from sonarmap.pipeline.engine.share.trust import TrustPolicy, env_pins
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.shipped import shipped_models
 
@@ -54,10 +54,10 @@ def push(
     A shipped model is sent without its training data (its lock is its provenance);
     files already at REMOTE with the right sha256 are not sent again.
     """
-    from sonarmap.pipeline.engine.remotes import display
-    from sonarmap.pipeline.engine.share import push as do_push
-    from sonarmap.pipeline.engine.store import ArtifactStore
-    from sonarmap.pipeline.engine.transfer import TransferStats
+    from sonarmap.pipeline.engine.share.push_pull import push as do_push
+    from sonarmap.pipeline.engine.share.remotes import display
+    from sonarmap.pipeline.engine.share.transfer import TransferStats
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
     stats = TransferStats()
     cache = ArtifactStore(model_cache)
@@ -110,10 +110,10 @@ def pull(
     A model is accepted only when its sha256 is pinned: the shipped model's, one
     trained in the model cache, or one given with --trust-model.
     """
-    from sonarmap.pipeline.engine.remotes import display
-    from sonarmap.pipeline.engine.share import pull as do_pull
-    from sonarmap.pipeline.engine.store import ArtifactStore
-    from sonarmap.pipeline.engine.transfer import TransferStats
+    from sonarmap.pipeline.engine.share.push_pull import pull as do_pull
+    from sonarmap.pipeline.engine.share.remotes import display
+    from sonarmap.pipeline.engine.share.transfer import TransferStats
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
     stats = TransferStats()
     refs = do_pull(

@@ -35,7 +35,7 @@ def show(
     json_: bool = JSON_OPT,
 ) -> None:
     """Print an artifact's manifest and a preview of each file."""
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
     st = ArtifactStore(store)
     ref = st.find(target)

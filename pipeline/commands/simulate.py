@@ -98,8 +98,8 @@ def simulate_cmd(
 
 def _class_table(path: Path | None) -> Any:
     """The class table of the pipeline config at `path` (the default table for None)."""
-    from sonarmap.pipeline.engine.config import load_config
-    from sonarmap.pipeline.engine.registry import default_graph
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.graph import default_graph
     from sonarmap.schemas.classes import DEFAULT_TABLE
 
     if path is None:

@@ -68,7 +68,7 @@ def status(
         return
     from rich.console import Console
 
-    from sonarmap.pipeline.commands._tables import print_table
+    from sonarmap.pipeline.tables import print_table
 
     print_table(
         Console(),

@@ -14,7 +14,7 @@ __all__ = ["gc", "ls", "register"]
 
 def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     """List the artifacts in the store."""
-    from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 
     items = list(ArtifactStore(store).scan())
     rows: list[dict[str, Any]] = [
@@ -57,8 +57,8 @@ def gc(
     """Remove unreferenced artifacts, directories that are not artifacts, and leftovers
     of killed runs. Artifacts of runs in progress, and the finished stages of
     interrupted runs, are kept."""
-    from sonarmap.pipeline.engine.disk import disk_error
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.engine.store.disk import disk_error
 
     try:
         report = ArtifactStore(store).gc(dry_run=dry_run, broken=broken)

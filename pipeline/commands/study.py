@@ -83,7 +83,7 @@ def study(
 
     from sonarmap.pipeline.commands._common import stderr_console
     from sonarmap.pipeline.commands._errors import check_writable, writes_under
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.experiments.study import write_study
     from sonarmap.pipeline.experiments.sweep import expand, run_sweep
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path

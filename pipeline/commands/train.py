@@ -98,7 +98,7 @@ def train(
         except ValueError as err:
             raise SourceError(f"{', '.join(map(str, datasets))}: {err}") from err
         out.mkdir(parents=True, exist_ok=True)
-        from sonarmap.pipeline.engine.integrity import verify_file
+        from sonarmap.pipeline.engine.store.integrity import verify_file
 
         # Every file and the manifest: the folder is then a model a run can be pointed
         # at (`--set classify.model=DIR`), checked against the manifest's sha256s.
@@ -142,10 +142,10 @@ def _default(
     import shutil
 
     from sonarmap.pipeline.commands._errors import check_writable, writes_under
-    from sonarmap.pipeline.engine.config import load_config
-    from sonarmap.pipeline.engine.integrity import verify_file
-    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.engine.store.integrity import verify_file
+    from sonarmap.pipeline.graph import all_stages, extra_sections
     from sonarmap.pipeline.training.model_cache import resolve_default_model
 
     with writes_under(out, store):
@@ -188,11 +188,11 @@ def _ship(
     config: Path | None, overrides: list[str] | tuple[str, ...], store: Path, json_: bool
 ) -> None:
     """`train --ship`: the default model, resolved as a run would, into the shipped folder."""
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.engine.errors import ConfigError
-    from sonarmap.pipeline.engine.registry import all_stages, extra_sections
-    from sonarmap.pipeline.engine.session import dataset_spec
-    from sonarmap.pipeline.engine.store import ArtifactStore
+    from sonarmap.pipeline.engine.run.session import dataset_spec
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+    from sonarmap.pipeline.graph import all_stages, default_graph, extra_sections
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_datasets, training_simulations
     from sonarmap.pipeline.training.model_cache import resolve_default_model
@@ -209,7 +209,7 @@ def _ship(
     paths = training_datasets(training)
     run_store = ArtifactStore(store)
     chosen = resolve_default_model(run_store, resolved)
-    fingerprints = [dataset_spec(p, run_store).fingerprint for p in paths]
+    fingerprints = [dataset_spec(p, run_store, default_graph()).fingerprint for p in paths]
     ship(chosen.ref, sims, fingerprints, root)
     doc = {"shipped": str(root), "key": chosen.ref.key, "source": chosen.source}
     if json_:

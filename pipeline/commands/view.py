@@ -39,7 +39,7 @@ def view(
             f"{display_path(str(dataset))}: no finished stage for this config in store "
             f"{display_path(str(store))}; run `sonarmap run` on it first"
         )
-    from sonarmap.pipeline.engine.integrity import verify_artifact_dir
+    from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
 
     for p in hits:  # a shared store's files are checked before anyone sees them
         ref = run_ctx.store.get(p.stage.name, p.key)

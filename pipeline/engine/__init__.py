@@ -1,15 +1,13 @@
 """The engine: config, keys, the artifact store, planning and running stages.
 
-Modules:
+Sub-packages, by job:
     config: the pipeline config: one YAML, a section per stage, CLI overrides.
-    hashing: canonical JSON, artifact keys, dataset fingerprints.
-    store: the artifact store, atomic commits and manifests.
-    planner: hit-or-miss planning (`planned`: the records it produces).
-    runner: execution of a plan's misses.
-    registry: the stage graph (`Graph`): the real pipeline's, or one named by the CLI.
-    session: a dataset, config and store resolved into a run.
-    codecs: stage outputs by kind (parquet, json, bytes, frames).
-    errors: typed errors, one line in the CLI.
-    progress: progress on stderr.
+    store: the artifact store, atomic commits, manifests, integrity, gc, codecs.
+    run: the stage graph type, planning and running.
     share: push and pull of artifacts, verified.
+
+Shared by all of them:
+    errors: typed errors, one line in the CLI.
+    hashing: canonical JSON, artifact keys, dataset fingerprints.
+    text: one-line message text.
 """

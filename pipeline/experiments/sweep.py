@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
-from sonarmap.pipeline.engine.worker_life import die_with_parent
+from sonarmap.pipeline.engine.run.worker_life import die_with_parent
 from sonarmap.pipeline.experiments.headline_columns import (
     frame_of,
     headline_columns,
@@ -44,7 +44,7 @@ __all__ = [
 ]
 
 if TYPE_CHECKING:
-    from sonarmap.pipeline.engine.registry import Graph
+    from sonarmap.pipeline.engine.run.graph import Graph
 
 log = logging.getLogger(__name__)
 

@@ -10,7 +10,7 @@ from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.experiments.sweep import RunOutcome, RunSpec
 
 if TYPE_CHECKING:
-    from sonarmap.pipeline.engine.registry import Graph
+    from sonarmap.pipeline.engine.run.graph import Graph
 
 __all__ = ["check_inputs", "failure_exit_code"]
 
@@ -23,7 +23,7 @@ def check_inputs(specs: Sequence[RunSpec], graph: Graph) -> None:
     recognised, its sonar and navigation topics are found under every point's
     `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
     """
-    from sonarmap.pipeline.engine.config import load_config
+    from sonarmap.pipeline.engine.config.load import load_config
 
     # Config first (cheap, and what a typo in --set most likely is), then datasets.
     readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording

@@ -21,8 +21,8 @@ from mcap.reader import make_reader
 from mcap.writer import CompressionType
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.formats.projected_cdr import ProjectedArrays, serialize_projected_cdr
 from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
-from sonarmap.pipeline.readers.sonar_decode import ProjectedArrays, serialize_projected_cdr
 from sonarmap.schemas.sonar import (
     KeyframeImages,
     SonarPing,

@@ -35,7 +35,7 @@ class LiveFeed:
         self._dirs: dict[str, Path] = {}
 
     def on_stage(self, result: Any) -> None:
-        """Runner callback (`sonarmap.pipeline.engine.runner.StageResult`): publish this stage."""
+        """Runner callback (`sonarmap.pipeline.engine.run.runner.StageResult`): publish this stage."""
         self.add(result.stage, Path(result.path))
 
     def add(self, stage: str, directory: Path) -> None:
@@ -55,13 +55,14 @@ class _Reader:
         self._stages, self._dirs = stages, dirs
 
     def __call__(self, name: str) -> Any:
-        from sonarmap.pipeline.engine.codecs import read_output
+        from sonarmap.pipeline.engine.store.codecs import read_output
+        from sonarmap.pipeline.formats.frames_codec import FRAMES_CODECS
 
         stage, _, output = name.partition(".")
         if stage not in self._dirs or stage not in self._stages:
             return None
         spec = next((o for o in self._stages[stage].outputs if o.name == output), None)
-        return None if spec is None else read_output(self._dirs[stage], spec)
+        return None if spec is None else read_output(self._dirs[stage], spec, codecs=FRAMES_CODECS)
 
     def T_base_sonar(self) -> np.ndarray:
         from sonarmap.schemas.sensors import Sensors

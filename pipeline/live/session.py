@@ -68,7 +68,7 @@ def live_session(
         yield LiveSession(None)
         return
     check_port(port, option)
-    from sonarmap.pipeline.engine.registry import pipeline_stages
+    from sonarmap.pipeline.graph import pipeline_stages
     from sonarmap.pipeline.live.feed import LiveFeed
     from sonarmap.pipeline.live.server import LiveServer
 

@@ -139,7 +139,7 @@ def _from_mapping(doc: dict[str, Any], name: str, source: str, where: str) -> So
 
 def _text_table(path: Path, where: str) -> np.ndarray:
     """Numbers of a CSV/TXT file (commas, spaces or newlines; `#` comments; one header row)."""
-    from sonarmap.pipeline.engine.yaml_files import _read_capped
+    from sonarmap.pipeline.engine.config.yaml_files import _read_capped
 
     raw = _read_capped(path, "beam table", ConfigError, _MAX_TABLE_BYTES)
     values: list[str] = []
@@ -166,7 +166,7 @@ def load_sonar(spec: str) -> SonarModel:
     Raises:
         ConfigError: an unknown name, an unreadable file or a bad table; one line naming it.
     """
-    from sonarmap.pipeline.engine.yaml_files import read_yaml
+    from sonarmap.pipeline.engine.config.yaml_files import read_yaml
 
     preset = PRESETS_DIR / f"{spec}.yaml"
     if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec) and preset.is_file():

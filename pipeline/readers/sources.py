@@ -91,7 +91,7 @@ def open_source(path: Path, message_definitions: Sequence[str | Path] = ()) -> S
 
 
 def _bag_metadata(path: Path) -> dict[str, Any]:
-    from sonarmap.pipeline.engine.yaml_files import read_yaml
+    from sonarmap.pipeline.engine.config.yaml_files import read_yaml
 
     meta = path / "metadata.yaml"
     doc = read_yaml(meta, "bag metadata", SourceError)

@@ -12,8 +12,8 @@ from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_
 from rosbags.typesys.store import Typestore
 
 from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.formats.projected_cdr import ProjectedArrays
 from sonarmap.pipeline.formats.rosmsg import custom_msg_texts, ros2_typestore
-from sonarmap.pipeline.readers.sonar_decode import ProjectedArrays
 
 __all__ = ["Ros2Decoder", "load_message_types"]
 
@@ -44,7 +44,7 @@ def load_message_types(paths: Sequence[str | Path]) -> dict[str, Any]:
         ConfigError: a file missing, too large, not UTF-8 or not a valid definition; one
             line naming it.
     """
-    from sonarmap.pipeline.engine.yaml_files import _read_capped
+    from sonarmap.pipeline.engine.config.yaml_files import _read_capped
 
     types: dict[str, Any] = {}
     loaded: list[tuple[Path, dict[str, Any]]] = []

@@ -17,7 +17,7 @@ from pydantic import ValidationError
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.hashing import recipe_key
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 from sonarmap.pipeline.engine.text import one_line
 from sonarmap.schemas.annotations import AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
@@ -82,7 +82,9 @@ def load_annotations(path: Path, table: ClassTable = DEFAULT_TABLE) -> Annotatio
             ANNOTATIONS_MAX_NODES), or invalid;
             one line naming the file and the field (e.g. `keyframes[2].objects[0].class_name`).
     """
-    from sonarmap.pipeline.engine.yaml_files import read_model  # yaml: only when a file is read
+    from sonarmap.pipeline.engine.config.yaml_files import (
+        read_model,  # yaml: only when a file is read
+    )
 
     return read_model(
         path,
@@ -105,7 +107,9 @@ def commit_annotations(
     The key hashes the validated content and the rasterisation version, so the train
     stage reading it retrains exactly when a shape, class or time changes.
     """
-    from sonarmap.pipeline.engine.codecs import write_output  # pyarrow: not on a cached run's path
+    from sonarmap.pipeline.engine.store.codecs import (
+        write_output,  # pyarrow: not on a cached run's path
+    )
 
     doc = load_annotations(path, table).model_dump(mode="json")
     recipe = {"stage": ANNOTATIONS_STAGE.name, "version": RASTER_VERSION, "doc": doc}

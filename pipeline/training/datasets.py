@@ -53,8 +53,8 @@ def scene_path(name_or_path: str | Path) -> Path:
 
 def read_scene(path: Path) -> Scene:
     """A scene YAML, validated; bad YAML or a bad field is one ConfigError line."""
-    from sonarmap.pipeline.engine.config_errors import validation_message
-    from sonarmap.pipeline.engine.yaml_files import read_model
+    from sonarmap.pipeline.engine.config.validation import validation_message
+    from sonarmap.pipeline.engine.config.yaml_files import read_model
     from sonarmap.sim.scene import Scene, SceneError, meshes_found
 
     scene = read_model(

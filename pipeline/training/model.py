@@ -28,11 +28,12 @@ if TYPE_CHECKING:
 from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.engine.planned import DatasetSpec
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.runner import execute
-from sonarmap.pipeline.engine.session import dataset_spec
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.run.graph import Graph
+from sonarmap.pipeline.engine.run.planned import DatasetSpec
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.runner import execute
+from sonarmap.pipeline.engine.run.session import dataset_spec
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 from sonarmap.pipeline.training.config import TrainingDataConfig
 from sonarmap.pipeline.training.datasets import Simulation
 from sonarmap.schemas.classes import DEFAULT_TABLE
@@ -94,12 +95,11 @@ def training_stage_for(
     training set over the others. `names` (the datasets' paths) only word error
     messages. Outputs and config are those of `sonarmap.stages.classify.train`.
     """
-    from sonarmap.pipeline.engine.registry import training_stage
     from sonarmap.pipeline.engine.text import one_line
     from sonarmap.pipeline.training.annotations import annotation_path
     from sonarmap.schemas.annotations import AnnotationFile
+    from sonarmap.stages.classify.training import STAGE as base
 
-    base = training_stage()
     pre = [_prefix(i, n_datasets, heldout) for i in range(n_datasets)]
     inputs = tuple(
         item
@@ -173,14 +173,14 @@ def _bind_training(
     `fingerprints` stand in for recordings not on disk (planning only: the shipped
     model's lock, `sonarmap.pipeline.training.shipped`).
     """
-    from sonarmap.pipeline.engine.registry import pipeline_stages
     from sonarmap.pipeline.training.annotations import (
         ANNOTATIONS_STAGE,
         annotation_path,
         commit_annotations,
     )
 
-    upstream = pipeline_stages()[:2]
+    reading = _reading_graph()
+    upstream = reading.stages
     external: dict[str, tuple[Stage, ArtifactRef]] = {}
     annotated = []
     # Validate every annotation file before any dataset is read: a typo fails in a second.
@@ -197,9 +197,9 @@ def _bind_training(
     for i, path in enumerate(datasets):
         if fingerprints and path in fingerprints:
             assert not compute, "a locked fingerprint cannot be computed on"
-            spec = DatasetSpec(path, fingerprints[path], _not_on_disk(path))
+            spec = DatasetSpec(path, fingerprints[path], _not_on_disk(path), reading.codecs)
         else:
-            spec = dataset_spec(path, store)
+            spec = dataset_spec(path, store, reading)
         first = first or spec
         planned = plan(upstream, config, spec, store)
         if compute:
@@ -216,6 +216,19 @@ def _bind_training(
     assert first is not None
     train = training_stage_for(len(datasets), annotated, [str(p) for p in datasets], heldout)
     return train, external, first
+
+
+def _reading_graph() -> Graph:
+    """What training reads of the real pipeline: each dataset's keyframes and features,
+    the recording found and opened by the readers, `frames` stored by their codec."""
+    from sonarmap.pipeline.formats.frames_codec import FRAMES_CODECS
+    from sonarmap.pipeline.readers import dataset_fingerprint_parts, open_recording
+    from sonarmap.stages.features import STAGE as features
+    from sonarmap.stages.keyframes import STAGE as keyframes
+
+    return Graph(
+        (keyframes, features), dataset_fingerprint_parts, open_recording, codecs=FRAMES_CODECS
+    )
 
 
 def _not_on_disk(path: Path) -> Callable[[Path, Any], Any]:

@@ -29,7 +29,7 @@ from typing import Any, Literal
 from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
-from sonarmap.pipeline.engine.store import (
+from sonarmap.pipeline.engine.store.artifact_store import (
     ArtifactRef,
     ArtifactStore,
     safe_relative,

@@ -17,10 +17,10 @@ from pathlib import Path
 
 from pydantic import BaseModel
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, SourceError
-from sonarmap.pipeline.engine.manifest import read_manifest
-from sonarmap.pipeline.engine.store import MANIFEST, ArtifactStore
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef
+from sonarmap.pipeline.engine.store.artifact_store import MANIFEST, ArtifactStore
+from sonarmap.pipeline.engine.store.manifest import read_manifest
 from sonarmap.pipeline.training.model_cache import (
     ResolvedModel,
     _record_use,

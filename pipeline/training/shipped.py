@@ -32,7 +32,11 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.hashing import canonical_json
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore, verify_artifact_dir
+from sonarmap.pipeline.engine.store.artifact_store import (
+    ArtifactRef,
+    ArtifactStore,
+    verify_artifact_dir,
+)
 from sonarmap.pipeline.package_data import package_root
 from sonarmap.pipeline.training.datasets import Simulation
 
@@ -68,7 +72,7 @@ def shipped_store(setting: str | None) -> ArtifactStore | None:
 
 def shipped_models(setting: str | None) -> list[tuple[str, str, str]]:
     """(stage, key, sha256 of model.pt) of every shipped model: the leaves and pins that
-    `push` and `pull` use (`sonarmap.pipeline.engine.trust.TrustPolicy`)."""
+    `push` and `pull` use (`sonarmap.pipeline.engine.share.trust.TrustPolicy`)."""
     store = shipped_store(setting)
     if store is None:
         return []

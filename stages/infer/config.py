@@ -192,7 +192,7 @@ class InferConfig(StageConfig):
 
     def class_names_used(self) -> dict[str, Iterable[str]]:
         """Every class name this section holds, by field (checked against the class table
-        when the config loads, `sonarmap.pipeline.engine.config.check_class_names`)."""
+        when the config loads, `sonarmap.pipeline.engine.config.load.check_class_names`)."""
         return {
             "classes": self.classes or (),
             "frame_kinds": self.frame_kinds or {},

@@ -7,7 +7,7 @@ a reader never sees a partial artifact and a directory without a manifest is ign
 A file already at the remote with the right size and sha256 is not sent again, which
 makes an interrupted push resumable.
 
-Pull trusts nothing the remote says until it has checked it (`sonarmap.pipeline.engine.trust`):
+Pull trusts nothing the remote says until it has checked it (`sonarmap.pipeline.engine.share.trust`):
 the stage is not a reserved store folder and equals the recipe's and the path's, the key
 is the hash of the recipe, a model's file sha256 is pinned, every file is streamed with
 its declared size as a hard limit and hashed on the way, parses as the kind its name
@@ -27,25 +27,16 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sonarmap.pipeline.engine.artifact import PULL_CACHE
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import sha256_file
-from sonarmap.pipeline.engine.integrity import check_parses
-from sonarmap.pipeline.engine.manifest import ADDRESS_PATTERN
-from sonarmap.pipeline.engine.remote_index import (
+from sonarmap.pipeline.engine.share.remote_index import (
     list_remote,
     remote_manifest,
     remote_stages,
     resolve_remote,
 )
-from sonarmap.pipeline.engine.remotes import display, open_remote, read_only
-from sonarmap.pipeline.engine.store import (
-    MANIFEST,
-    ArtifactRef,
-    ArtifactStore,
-    safe_relative,
-)
-from sonarmap.pipeline.engine.transfer import (
+from sonarmap.pipeline.engine.share.remotes import display, open_remote, read_only
+from sonarmap.pipeline.engine.share.transfer import (
     Job,
     TransferStats,
     download,
@@ -53,7 +44,16 @@ from sonarmap.pipeline.engine.transfer import (
     run_jobs,
     upload,
 )
-from sonarmap.pipeline.engine.trust import MODEL_FILE, TrustPolicy, check_model_file
+from sonarmap.pipeline.engine.share.trust import MODEL_FILE, TrustPolicy, check_model_file
+from sonarmap.pipeline.engine.store.artifact import PULL_CACHE
+from sonarmap.pipeline.engine.store.artifact_store import (
+    MANIFEST,
+    ArtifactRef,
+    ArtifactStore,
+    safe_relative,
+)
+from sonarmap.pipeline.engine.store.integrity import check_parses
+from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
 
 __all__ = ["list_remote", "pull", "push"]
 

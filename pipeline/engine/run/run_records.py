@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.hashing import canonical_json
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.stages.base import Input
 
 if TYPE_CHECKING:
-    from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
+    from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
 
 __all__ = ["miss_reason", "previous_recipes", "record_run", "run_id"]
 

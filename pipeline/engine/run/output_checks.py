@@ -13,8 +13,8 @@ import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef
 from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef
 
 __all__ = ["CHECKS", "EmptyMap", "OutputCheck", "check_stage", "output_rows"]
 

@@ -4,7 +4,7 @@ Everything here runs before a byte of an artifact's files is fetched: listing ke
 artifacts with a manifest (a push in progress is invisible) and skips the store's
 reserved folders; a manifest is read with a size cap and refused unless its stage is
 the path's and the recipe's, its key is its recipe's hash, every declared size is under
-the cap, and a model's sha256 is pinned (`sonarmap.pipeline.engine.trust`).
+the cap, and a model's sha256 is pinned (`sonarmap.pipeline.engine.share.trust`).
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
 from sonarmap.pipeline.engine.hashing import recipe_key
-from sonarmap.pipeline.engine.manifest import parse_manifest
-from sonarmap.pipeline.engine.remotes import open_remote
-from sonarmap.pipeline.engine.transfer import max_file_bytes
-from sonarmap.pipeline.engine.trust import TrustPolicy, check_not_reserved
+from sonarmap.pipeline.engine.share.remotes import open_remote
+from sonarmap.pipeline.engine.share.transfer import max_file_bytes
+from sonarmap.pipeline.engine.share.trust import TrustPolicy, check_not_reserved
+from sonarmap.pipeline.engine.store.manifest import parse_manifest
 
 __all__ = [
     "MAX_MANIFEST_BYTES",

@@ -32,7 +32,7 @@ from yaml.composer import Composer
 from yaml.constructor import SafeConstructor
 from yaml.resolver import Resolver
 
-from sonarmap.pipeline.engine.config_errors import short
+from sonarmap.pipeline.engine.config.validation import short
 from sonarmap.pipeline.engine.errors import PipelineError
 from sonarmap.pipeline.engine.text import one_line
 

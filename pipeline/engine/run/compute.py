@@ -1,8 +1,8 @@
 """Computing one planned stage: bind its inputs, run it, write its outputs.
 
-The runner (`sonarmap.pipeline.engine.runner`) holds the store's lock and staging directory; what
+The runner (`sonarmap.pipeline.engine.run.runner`) holds the store's lock and staging directory; what
 happens inside that directory is here, so it can run in the runner's process or in a
-worker process (`compute_in_worker`, spawned by `sonarmap.pipeline.engine.workers`) alike. The
+worker process (`compute_in_worker`, spawned by `sonarmap.pipeline.engine.run.workers`) alike. The
 same job gives the same files wherever it runs.
 """
 
@@ -22,8 +22,8 @@ from sonarmap.pipeline.engine.errors import (
     SourceError,
     StageFailed,
 )
-from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
-from sonarmap.pipeline.engine.store import ArtifactRef
+from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
 from sonarmap.stages.base import Input, Output, Stage, StageInputError
 
 __all__ = ["ComputeJob", "compute_in_worker", "job_sections", "not_opened", "run_job"]
@@ -80,7 +80,9 @@ def _bind_inputs(
     The dataset is opened by the graph's `open` once per process and config section
     (`opened`): the stages reading it there (keyframes, submaps) share what it has read."""
     stage, sections, dataset = job.item.stage, job.sections, job.dataset
-    from sonarmap.pipeline.engine.codecs import read_verified  # pyarrow: only when a stage computes
+    from sonarmap.pipeline.engine.store.codecs import (
+        read_verified,  # pyarrow: only when a stage computes
+    )
 
     inputs: dict[str, Any] = {f"config.{s}": sections[s] for s in stage.reads_sections}
     columns = dict(stage.input_columns)
@@ -93,7 +95,9 @@ def _bind_inputs(
             inputs[name.name] = opened[once]
             continue
         output = _output(stage, job.outputs_of[name.stage], name)
-        value = read_verified(job.refs[name.stage], output, verified, columns.get(name))
+        value = read_verified(
+            job.refs[name.stage], output, verified, columns.get(name), dataset.codecs
+        )
         record = output.record_type
         if record is not None and value is not None:
             try:
@@ -129,7 +133,7 @@ def run_job(
     A `StageInputError` becomes bad input (exit 2) naming the file behind the input;
     any other exception of the stage is a `StageFailed` (exit 1).
     """
-    from sonarmap.pipeline.engine.codecs import write_output
+    from sonarmap.pipeline.engine.store.codecs import write_output
 
     stage = job.item.stage
     inputs = _bind_inputs(job, verified, opened)
@@ -144,7 +148,9 @@ def run_job(
                 if not output.optional:
                     raise StageFailed(f"stage {stage.name}: output '{output.name}' missing")
                 continue
-            facts[output.name] = write_output(job.tmp, stage.name, output, value, provenance)
+            facts[output.name] = write_output(
+                job.tmp, stage.name, output, value, provenance, job.dataset.codecs
+            )
     except (PipelineError, OSError):
         raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
     except StageInputError as err:

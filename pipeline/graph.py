@@ -1,31 +1,25 @@
-"""The stage graph: the real pipeline's, or an alternative one (the only place that
-imports `stages`' stage modules).
+"""The real pipeline's stage graph, wired from the stages, the readers and training.
 
-The CLI builds the graph once (`load_graph` of `$SONARMAP_GRAPH`, read there and
-nowhere else) and passes it to the session, planner, sweep workers and commands.
+The engine knows a graph only as its `Graph` type (`sonarmap.pipeline.engine.run.graph`);
+what the real one holds (which stages, in which order, how a recording is found and
+opened, the `frames` codec, the training stage) is decided here, above the engine, the way
+a pipeline module wires its steps. The CLI and the API pass `default_graph` to whoever
+needs a graph (`load_graph(spec, default_graph)`).
 """
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
-from pydantic import BaseModel
-
-from sonarmap.pipeline.engine.errors import ConfigError
+from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.stages.base import Stage
 
 __all__ = [
     "FIGURE_STAGES",
-    "GRAPH_ENV",
-    "Graph",
     "all_stages",
     "default_graph",
     "extra_sections",
-    "load_graph",
     "pipeline_stages",
     "stage_by_name",
     "training_stage",
@@ -36,44 +30,6 @@ FIGURE_STAGES: tuple[str, ...] = ("figures", "map_figures")
 """The real pipeline's figure stages (`sonarmap.stages.figures`, `sonarmap.stages.map_figures`): nothing reads their outputs,
 so `run --no-figures` simply plans without them (`without_figures`)."""
 
-GRAPH_ENV = "SONARMAP_GRAPH"
-"""`module:attribute` of an alternative graph (a `Graph`, or any object with `.stages`,
-`.parts(path)` and `.open(path, section)`): lets tests and experiments run other stage
-graphs through the same engine. Read by the CLI only."""
-
-
-@dataclass(frozen=True)
-class Graph:
-    """The stages a run executes and how it finds and opens its dataset.
-
-    Attributes:
-        stages: the mapping stages, in order (the first reads `DATASET`).
-        parts: path -> the files whose contents fingerprint the dataset.
-        open: (path, the reading stage's config section) -> the object bound to its
-            `DATASET` input (a `sonarmap.schemas.recording.Recording` for the real pipeline).
-        training: the classifier-training stage (None: the graph trains nothing).
-        extra_sections: config sections of the engine that are not stages.
-        spec: the `module:attribute` it was loaded from (None: the real pipeline).
-    """
-
-    stages: tuple[Stage, ...]
-    parts: Callable[[Path], Sequence[Path]]
-    open: Callable[[Path, Any], Any]
-    training: Stage | None = None
-    extra_sections: Mapping[str, type[BaseModel]] = field(default_factory=dict)
-    spec: str | None = None
-
-    @property
-    def config_stages(self) -> tuple[Stage, ...]:
-        """Every stage with a config section: the mapping stages, then training."""
-        return self.stages if self.training is None else (*self.stages, self.training)
-
-    def stage(self, name: str) -> Stage:
-        for stage in self.config_stages:
-            if stage.name == name:
-                return stage
-        raise KeyError(name)
-
 
 def default_graph() -> Graph:
     """The real pipeline: keyframes to evaluate, then the figures (`FIGURE_STAGES`);
@@ -82,6 +38,7 @@ def default_graph() -> Graph:
     Each stage package declares its stage; the computation (numpy, pyarrow, ...) loads
     when the stage first runs (docs/decisions/020-cached-run-imports.md).
     """
+    from sonarmap.pipeline.formats.frames_codec import FRAMES_CODECS
     from sonarmap.pipeline.readers import dataset_fingerprint_parts, open_recording
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.schemas.classes import ClassTable
@@ -105,6 +62,7 @@ def default_graph() -> Graph:
         open=open_recording,
         training=train,
         extra_sections={"training": TrainingDataConfig, "classes": ClassTable},
+        codecs=FRAMES_CODECS,
     )
 
 
@@ -119,27 +77,6 @@ def without_figures(stages: Sequence[Stage]) -> tuple[Stage, ...]:
         else:
             kept.append(stage)
     return tuple(kept)
-
-
-def load_graph(spec: str | None) -> Graph:
-    """The graph named by `spec` (`module:attribute`), or the real pipeline's (None, "")."""
-    if not spec:
-        return default_graph()
-    module, _, attr = spec.partition(":")
-    try:
-        found = getattr(importlib.import_module(module), attr)
-    except (ImportError, AttributeError, ValueError) as err:
-        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: cannot load ({err})") from err
-    if isinstance(found, Graph):
-        return found if found.spec == spec else Graph(**{**found.__dict__, "spec": spec})
-    try:
-        stages = tuple(found.stages)
-        graph = Graph(stages=stages, parts=found.parts, open=found.open, spec=spec)
-    except (AttributeError, TypeError) as err:
-        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph ({err})") from err
-    if not stages or not all(isinstance(s, Stage) for s in stages):
-        raise ConfigError(f"${GRAPH_ENV}={spec[:200]}: not a stage graph (no stages)")
-    return graph
 
 
 # Shorthands for the real pipeline (config tools and tests); they read no environment.

@@ -22,12 +22,12 @@ from typing import Any
 
 from filelock import FileLock
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef, Problem, safe_relative
-from sonarmap.pipeline.engine.disk import disk_error
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import STORE_FORMAT_VERSION, sha256_file
-from sonarmap.pipeline.engine.integrity import recovery_hint, verify_artifact_dir, verify_file
-from sonarmap.pipeline.engine.manifest import read_manifest
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef, Problem, safe_relative
+from sonarmap.pipeline.engine.store.disk import disk_error
+from sonarmap.pipeline.engine.store.integrity import recovery_hint, verify_artifact_dir, verify_file
+from sonarmap.pipeline.engine.store.manifest import read_manifest
 
 __all__ = [
     "MANIFEST",
@@ -345,8 +345,8 @@ class ArtifactStore:
 
         Returns:
             {"removed": [stage/key...], "broken": [...], "kept": int, "tmp_removed": int,
-             "bytes_freed": int} (details in `sonarmap.pipeline.engine.store_gc.collect`).
+             "bytes_freed": int} (details in `sonarmap.pipeline.engine.store.gc.collect`).
         """
-        from sonarmap.pipeline.engine.store_gc import collect
+        from sonarmap.pipeline.engine.store.gc import collect
 
         return collect(self, dry_run=dry_run, broken=broken, stale_tmp_s=stale_tmp_s)

@@ -1,9 +1,9 @@
 """The runner: compute a plan's misses, side by side where the graph allows, and commit them.
 
-The plan (from `sonarmap.pipeline.engine.planner`) is a graph: a stage starts as soon as the
-stages it reads have committed, up to `workers` at a time (`sonarmap.pipeline.engine.workers`:
+The plan (from `sonarmap.pipeline.engine.run.planner`) is a graph: a stage starts as soon as the
+stages it reads have committed, up to `workers` at a time (`sonarmap.pipeline.engine.run.workers`:
 one in this process, the others in spawned worker processes). Each miss is computed
-under its key's lock in the store (`sonarmap.pipeline.engine.compute` binds the upstream
+under its key's lock in the store (`sonarmap.pipeline.engine.run.compute` binds the upstream
 artifacts and the dataset, calls the stage and writes its outputs); the runner commits
 it atomically. Stages are pure functions of their inputs, so the artifacts and their
 bytes do not depend on the number of workers or the order stages finish in.
@@ -23,17 +23,17 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from sonarmap.pipeline.engine import output_checks
-from sonarmap.pipeline.engine.compute import ComputeJob, job_sections, not_opened
-from sonarmap.pipeline.engine.disk import disk_error
 from sonarmap.pipeline.engine.errors import StoreError
-from sonarmap.pipeline.engine.leases import RunLease
-from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
-from sonarmap.pipeline.engine.planner import plan
-from sonarmap.pipeline.engine.run_records import record_run
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.run import output_checks
+from sonarmap.pipeline.engine.run.compute import ComputeJob, job_sections, not_opened
+from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
+from sonarmap.pipeline.engine.run.planner import plan
+from sonarmap.pipeline.engine.run.run_records import record_run
+from sonarmap.pipeline.engine.run.workers import Slots
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.store.disk import disk_error
+from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.pipeline.engine.text import display_path
-from sonarmap.pipeline.engine.workers import Slots
 from sonarmap.stages.base import Input, Stage
 
 __all__ = ["DatasetSpec", "PlannedStage", "RunResult", "StageResult", "execute", "plan"]
@@ -60,7 +60,7 @@ class RunResult:
     stages: list[StageResult] = field(default_factory=list)
     artifacts: dict[str, ArtifactRef] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
-    """Empty or collapsed outputs (`sonarmap.pipeline.engine.output_checks`), one line each."""
+    """Empty or collapsed outputs (`sonarmap.pipeline.engine.run.output_checks`), one line each."""
 
     def to_json(self) -> dict[str, Any]:
         return {

@@ -6,8 +6,8 @@ from __future__ import annotations
 from types import TracebackType
 from typing import Any
 
-from sonarmap.pipeline.engine.planned import PlannedStage
-from sonarmap.pipeline.engine.runner import StageResult
+from sonarmap.pipeline.engine.run.planned import PlannedStage
+from sonarmap.pipeline.engine.run.runner import StageResult
 
 __all__ = ["StageProgress"]
 

@@ -1,4 +1,6 @@
-"""Writing and reading stage outputs by kind (parquet, json, bytes, frames).
+"""Writing and reading stage outputs by kind: the engine's own (parquet, json, bytes),
+and any other through the `Codec` the graph supplies (the real pipeline's `frames`,
+`sonarmap.pipeline.formats.frames_io`), so the engine imports no file format above it.
 
 Parquet files are written deterministically: the table as the stage returns it
 (stages sort their rows), zstd, and only key-derived metadata (stage, version, key)
@@ -8,7 +10,8 @@ in the schema, never timestamps, so the same inputs give the same bytes.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, MutableSet, Sequence
+from collections.abc import Callable, Mapping, MutableSet, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,9 +26,31 @@ from sonarmap.stages.base import Output
 if TYPE_CHECKING:
     import pyarrow as pa
 
-    from sonarmap.pipeline.engine.store import ArtifactRef
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
 
-__all__ = ["read_output", "read_verified", "validate_table", "write_output"]
+__all__ = ["Codec", "read_output", "read_verified", "validate_table", "write_output"]
+
+
+@dataclass(frozen=True)
+class Codec:
+    """How outputs of one kind beyond the engine's own are stored (module-level functions,
+    so a job carrying it travels to a worker process).
+
+    Attributes:
+        write: (value, path) -> the number of items written, recorded in the manifest
+            under the kind's name (e.g. `"frames": 12`).
+        read: path -> the value a reading stage binds.
+    """
+
+    write: Callable[[Any, Path], int]
+    read: Callable[[Path], Any]
+
+
+def _codec(kind: str, codecs: Mapping[str, Codec], where: str) -> Codec:
+    codec = codecs.get(kind)
+    if codec is None:
+        raise InternalError(f"{where}: unknown output kind {kind!r} (no codec in the graph)")
+    return codec
 
 
 def validate_table(stage: str, output: Output, table: Any) -> pa.Table:
@@ -54,9 +79,15 @@ def validate_table(stage: str, output: Output, table: Any) -> pa.Table:
 
 
 def write_output(
-    directory: Path, stage: str, output: Output, value: Any, provenance: Mapping[str, str]
+    directory: Path,
+    stage: str,
+    output: Output,
+    value: Any,
+    provenance: Mapping[str, str],
+    codecs: Mapping[str, Codec] | None = None,
 ) -> dict[str, Any]:
-    """Write one output into an artifact directory; returns manifest facts (rows, ...)."""
+    """Write one output into an artifact directory; returns manifest facts (rows, ...).
+    `codecs`: the graph's, for kinds beyond parquet, json and bytes."""
     path = directory / output.filename
     if output.kind == "parquet":
         import pyarrow.parquet as pq
@@ -74,11 +105,8 @@ def write_output(
             raise StageFailed(f"stage {stage}: output '{output.name}' must be bytes")
         path.write_bytes(bytes(value))
         return {"bytes": len(value)}
-    if output.kind == "frames":
-        from sonarmap.pipeline.formats.frames_io import write_frames
-
-        return {"frames": write_frames(value, path)}
-    raise InternalError(f"stage {stage}: unknown output kind {output.kind!r}")
+    codec = _codec(output.kind, codecs or {}, f"stage {stage}")
+    return {output.kind: codec.write(value, path)}
 
 
 def read_verified(
@@ -86,15 +114,16 @@ def read_verified(
     output: Output,
     verified: MutableSet[tuple[str, str, str]] | None = None,
     columns: Sequence[str] | None = None,
+    codecs: Mapping[str, Codec] | None = None,
 ) -> Any:
     """Read one output of a committed artifact after checking it against the manifest.
 
     `verified` remembers (stage, key, file) already hashed in this run, so a file
     bound by several stages costs one hash. A file the manifest does not list is
     never read, even if one lies on disk. `columns`: read only these of a Parquet
-    output (the whole file is still verified).
+    output (the whole file is still verified). `codecs`: as for `read_output`.
     """
-    from sonarmap.pipeline.engine.integrity import recovery_hint, verify_file
+    from sonarmap.pipeline.engine.store.integrity import recovery_hint, verify_file
 
     name = output.filename
     if name not in ref.manifest["files"]:
@@ -110,7 +139,7 @@ def read_verified(
         if verified is not None:
             verified.add(tag)
     try:
-        return read_output(ref.path, output, columns)
+        return read_output(ref.path, output, columns, codecs)
     except PipelineError:
         raise
     except (OSError, ValueError) as err:
@@ -122,8 +151,14 @@ def read_verified(
         ) from err
 
 
-def read_output(directory: Path, output: Output, columns: Sequence[str] | None = None) -> Any:
-    """Read one output back; an optional output that was not written reads as None."""
+def read_output(
+    directory: Path,
+    output: Output,
+    columns: Sequence[str] | None = None,
+    codecs: Mapping[str, Codec] | None = None,
+) -> Any:
+    """Read one output back; an optional output that was not written reads as None.
+    `codecs`: the graph's, for kinds beyond parquet, json and bytes."""
     path = directory / output.filename
     if not path.exists():
         if output.optional:
@@ -137,8 +172,4 @@ def read_output(directory: Path, output: Output, columns: Sequence[str] | None =
         return json.loads(path.read_text())
     if output.kind == "bytes":
         return path.read_bytes()
-    if output.kind == "frames":
-        from sonarmap.pipeline.formats.frames_io import read_frames
-
-        return read_frames(path)
-    raise InternalError(f"unknown output kind {output.kind!r}")
+    return _codec(output.kind, codecs or {}, str(directory)).read(path)

@@ -1,7 +1,7 @@
 """`sonarmap gc`: what the store keeps, and the leftovers it heals.
 
 Kept: every artifact a run record names or a live run's lease holds
-(`sonarmap.pipeline.engine.leases`), and everything reachable from those through their
+(`sonarmap.pipeline.engine.store.leases`), and everything reachable from those through their
 manifests' `input_artifacts` (a `train` model keeps the keyframes and features of
 every dataset it learnt from, so `push train` still finds them). Runs record each
 stage as it commits, so an interrupted run's finished stages are kept too.
@@ -37,15 +37,15 @@ from typing import Any, Protocol
 
 from filelock import BaseFileLock, Timeout
 
-from sonarmap.pipeline.engine.artifact import PULL_CACHE, ArtifactRef, Problem
 from sonarmap.pipeline.engine.errors import StoreError
-from sonarmap.pipeline.engine.integrity import verify_artifact_dir
-from sonarmap.pipeline.engine.leases import LEASES, pid_alive, scan_leases
-from sonarmap.pipeline.engine.manifest import ADDRESS_PATTERN
+from sonarmap.pipeline.engine.store.artifact import PULL_CACHE, ArtifactRef, Problem
+from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
+from sonarmap.pipeline.engine.store.leases import LEASES, pid_alive, scan_leases
+from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
 
 
 class CollectedStore(Protocol):
-    """What `collect` needs of the store (`sonarmap.pipeline.engine.store.ArtifactStore`): named
+    """What `collect` needs of the store (`sonarmap.pipeline.engine.store.artifact_store.ArtifactStore`): named
     here so the collector does not import the store that calls it."""
 
     root: Path

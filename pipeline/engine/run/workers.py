@@ -23,9 +23,9 @@ from concurrent.futures import Future
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from sonarmap.pipeline.engine.compute import ComputeJob, compute_in_worker, run_job
 from sonarmap.pipeline.engine.errors import StageFailed
-from sonarmap.pipeline.engine.worker_life import die_with_parent
+from sonarmap.pipeline.engine.run.compute import ComputeJob, compute_in_worker, run_job
+from sonarmap.pipeline.engine.run.worker_life import die_with_parent
 from sonarmap.stages.kernels.parallel import available_cores, release_memory
 
 if TYPE_CHECKING:  # multiprocessing loads with the first worker process

@@ -9,13 +9,13 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from sonarmap.pipeline.engine.config import load_config
-from sonarmap.pipeline.engine.disk import disk_error
+from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.hashing import FingerprintCache
-from sonarmap.pipeline.engine.planned import DatasetSpec
-from sonarmap.pipeline.engine.registry import Graph, default_graph
-from sonarmap.pipeline.engine.store import ArtifactStore
+from sonarmap.pipeline.engine.run.graph import Graph
+from sonarmap.pipeline.engine.run.planned import DatasetSpec
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.engine.store.disk import disk_error
 from sonarmap.stages.base import Stage
 
 __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_context"]
@@ -23,10 +23,9 @@ __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_
 DEFAULT_STORE = Path("data/store")
 
 
-def dataset_spec(path: Path, store: ArtifactStore, graph: Graph | None = None) -> DatasetSpec:
-    """Fingerprint a dataset as `graph` (default: the real pipeline) finds its files
-    (cached by size/mtime/inode); the spec carries the graph's opener."""
-    graph = graph or default_graph()
+def dataset_spec(path: Path, store: ArtifactStore, graph: Graph) -> DatasetSpec:
+    """Fingerprint a dataset as `graph` finds its files (cached by size/mtime/inode);
+    the spec carries the graph's opener and codecs."""
     if not path.exists():
         raise SourceError(f"{path}: no such file or directory")
     files = list(graph.parts(path))
@@ -38,7 +37,7 @@ def dataset_spec(path: Path, store: ArtifactStore, graph: Graph | None = None) -
         fingerprint = cache.dataset_fingerprint(files, root)
     except OSError as err:  # the store's cache on a full, read-only or odd filesystem
         raise disk_error(err, store.root / ".cache") from err
-    return DatasetSpec(path=path, fingerprint=fingerprint, open=graph.open)
+    return DatasetSpec(path=path, fingerprint=fingerprint, open=graph.open, codecs=graph.codecs)
 
 
 @dataclass(frozen=True)
@@ -72,19 +71,25 @@ def make_context(
     overrides: Sequence[str] = (),
     extra_sections: Mapping[str, type[BaseModel]] | None = None,
     store_dir: Path = DEFAULT_STORE,
+    graph: Graph | None = None,
     parts: Callable[[Path], list[Path]] | None = None,
     opener: Callable[[Any], Any] | None = None,
 ) -> RunContext:
-    """A context for explicit stages (tests, benchmarks): the real pipeline's way of
-    finding and opening a dataset unless `parts` / `opener(section)` replace it."""
+    """A context for explicit stages (tests, benchmarks): `graph`'s way of finding and
+    opening a dataset (and its codecs), where `parts` / `opener(section)` do not replace
+    it; with no `graph`, both must be given."""
+    found: Callable[[Path], Sequence[Path]]
+    if graph is None:
+        if parts is None or opener is None:
+            raise TypeError("make_context needs a graph, or both parts and opener")
+        found, opened, codecs = parts, _by_section(opener), {}
+    else:
+        found = parts or graph.parts
+        opened = graph.open if opener is None else _by_section(opener)
+        codecs = dict(graph.codecs)
     config = load_config(config_stages or stages, config_path, overrides, extra_sections)
     store = ArtifactStore(store_dir)
-    found: Callable[[Path], Sequence[Path]] | None = parts
-    opened = None if opener is None else _by_section(opener)
-    if found is None or opened is None:
-        real = default_graph()
-        found, opened = found or real.parts, opened or real.open
-    graph = Graph(tuple(stages), found, opened)
+    graph = Graph(tuple(stages), found, opened, codecs=codecs)
     return RunContext(tuple(stages), config, store, dataset_spec(dataset, store, graph))
 
 

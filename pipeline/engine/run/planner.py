@@ -11,12 +11,12 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from sonarmap.pipeline.engine.config import section_dict
+from sonarmap.pipeline.engine.config.load import section_dict
 from sonarmap.pipeline.engine.errors import ConfigError
 from sonarmap.pipeline.engine.hashing import recipe_key, stage_recipe
-from sonarmap.pipeline.engine.planned import DatasetSpec, PlannedStage
-from sonarmap.pipeline.engine.run_records import miss_reason, previous_recipes
-from sonarmap.pipeline.engine.store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
+from sonarmap.pipeline.engine.run.run_records import miss_reason, previous_recipes
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 from sonarmap.schemas import SCHEMA_VERSION
 from sonarmap.stages.base import Stage
 

@@ -12,10 +12,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef, safe_relative
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError
 from sonarmap.pipeline.engine.hashing import recipe_key, sha256_file
-from sonarmap.pipeline.engine.manifest import parse_manifest
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef, safe_relative
+from sonarmap.pipeline.engine.store.manifest import parse_manifest
 
 __all__ = [
     "check_parses",

@@ -6,28 +6,35 @@ can name them without importing either.
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from sonarmap.stages.base import Stage
+
+if TYPE_CHECKING:
+    from sonarmap.pipeline.engine.store.codecs import Codec
 
 __all__ = ["DatasetSpec", "PlannedStage"]
 
 
 @dataclass(frozen=True)
 class DatasetSpec:
-    """The raw dataset a run reads: its path, content fingerprint and the graph's opener.
+    """The raw dataset a run reads: its path, content fingerprint, and the graph's opener
+    and codecs.
 
     `open(path, section)` (the graph's `open`) returns what the first stage's `DATASET`
     input binds to (a `Recording` for real runs); the runner calls it only when that
-    stage must run, once per run and config section.
+    stage must run, once per run and config section. `codecs` (the graph's) store the
+    outputs of kinds beyond parquet, json and bytes; they travel with the dataset to
+    every computing process, as the opener does.
     """
 
     path: Path
     fingerprint: str
     open: Callable[[Path, Any], Any]
+    codecs: Mapping[str, Codec] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from typing import Any, cast
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 
-from sonarmap.pipeline.engine.config_errors import short, validation_message
+from sonarmap.pipeline.engine.config.validation import short, validation_message
 from sonarmap.pipeline.engine.errors import ConfigError
 from sonarmap.pipeline.engine.text import one_line
 from sonarmap.stages.base import Stage
@@ -198,7 +198,7 @@ def _scalar(raw: str, where: str) -> Any:
     """
     if not raw.strip():
         return ""
-    from sonarmap.pipeline.engine.yaml_files import YamlRefused, load_yaml_text
+    from sonarmap.pipeline.engine.config.yaml_files import YamlRefused, load_yaml_text
 
     try:
         return load_yaml_text(raw, where, "value", ConfigError)
@@ -251,7 +251,9 @@ def load_config(
     where = one_line(str(path)) if path else "config"
     data: dict[str, Any] = {}
     if path is not None:
-        from sonarmap.pipeline.engine.yaml_files import read_yaml  # yaml: only when there is a file
+        from sonarmap.pipeline.engine.config.yaml_files import (
+            read_yaml,  # yaml: only when there is a file
+        )
 
         loaded = read_yaml(path, "config", ConfigError)
         if loaded is not None and not isinstance(loaded, dict):
