@@ -54,9 +54,9 @@ def gc(
     ),
     json_: bool = JSON_OPT,
 ) -> None:
-    """Remove unreferenced artifacts, directories that are not artifacts, and leftovers
-    of killed runs. Artifacts of runs in progress, and the finished stages of
-    interrupted runs, are kept."""
+    """Remove unreferenced artifacts, stray directories and killed runs' leftovers.
+
+    Artifacts of runs in progress, and the finished stages of interrupted runs, are kept."""
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
     from sonarmap.pipeline.engine.store.disk import disk_error
 

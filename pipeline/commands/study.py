@@ -75,10 +75,11 @@ def study(
     no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
 ) -> None:
-    """Simulate N trials and map each, with true poses, at every spacing under every
-    protocol (the defaults and each --config); print Table I beside the paper's, write
-    it with the per-class accounting to OUT/results/table_i.md and Fig. 4 to
-    OUT/results/fig4_errors.png."""
+    """The paper's simulation study: Table I beside the paper's, and Fig. 4.
+
+    Simulates N trials and maps each, with true poses, at every spacing under every
+    protocol (the defaults and each --config); writes Table I with the per-class accounting
+    to OUT/results/table_i.md and Fig. 4 to OUT/results/fig4_errors.png."""
     import time
 
     from sonarmap.pipeline.commands._common import stderr_console
