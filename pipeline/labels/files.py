@@ -28,7 +28,8 @@ import numpy as np
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.text import one_line
 from sonarmap.pipeline.formats.atomic import atomic_output
-from sonarmap.pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
+from sonarmap.pipeline.labels.coco import ExportedImage, coco_document, objects_from_coco
+from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, GeometryFile, validated
 from sonarmap.pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
 from sonarmap.schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
@@ -131,6 +132,14 @@ def _read_json(path: Path, what: str) -> dict[str, Any]:
     return doc
 
 
+def _valid(path: Path, raw: dict[str, Any], model: type[Any]) -> Any:
+    """`raw` as `model` (`coco_schema`): one line naming the file and the JSON path."""
+    try:
+        return validated(raw, model)
+    except CocoError as err:
+        raise SourceError(f"{path}: {err}") from None
+
+
 def _no_constant(name: str) -> None:
     raise ValueError(f"{name} is not a JSON number")
 
@@ -170,23 +179,26 @@ def import_labels(
     """
     geometry_path = coco_path.parent / GEOMETRY_FILE
     geo = _read_json(geometry_path, "label geometry file (written by `sonarmap label export`)")
-    if geo.get("format") != GEOMETRY_FORMAT or not isinstance(geo.get("images"), dict):
+    if geo.get("format") != GEOMETRY_FORMAT:
         raise SourceError(f"{geometry_path}: not a {GEOMETRY_FORMAT} file")
-    doc = _read_json(coco_path, "COCO JSON file")
+    geometry = _valid(geometry_path, geo, GeometryFile)
+    doc = _valid(coco_path, _read_json(coco_path, "COCO JSON file"), CocoDocument)
     geometry_of: dict[int, FanGeometry] = {}
     t_of: dict[int, int] = {}
-    for n, image in enumerate(doc.get("images") or []):
-        name = image.get("file_name") if isinstance(image, dict) else None
-        key = _match(str(name), geo["images"]) if name is not None else None
+    for n, image in enumerate(doc.images):
+        key = _match(image.file_name, geometry.images)
         if key is None:
             raise SourceError(
-                f"{coco_path}: images[{n}] file_name {one_line(str(name), 80)!r} is not an "
-                f"image exported into {coco_path.parent}"
+                f"{coco_path}: images[{n}].file_name {one_line(image.file_name, 80)!r} is not "
+                f"an image exported into {coco_path.parent}"
             )
-        entry = geo["images"][key]
-        fields = {k: entry[k] for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")}
-        geometry_of[image.get("id")] = FanGeometry(**fields)
-        t_of[image.get("id")] = int(entry["t_ns"])
+        entry = geometry.images[key]
+        fields = {
+            k: getattr(entry, k)
+            for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")
+        }
+        geometry_of[image.id] = FanGeometry(**fields)
+        t_of[image.id] = entry.t_ns
     try:
         objects = objects_from_coco(doc, geometry_of, table)
     except CocoError as err:
@@ -199,10 +211,10 @@ def import_labels(
     if not keyframes:
         raise SourceError(f"{coco_path}: no image holds a polygon or box (nothing to import)")
     annotations = AnnotationFile(
-        time_tolerance_ms=float(geo.get("time_tolerance_ms", 1.0)), keyframes=tuple(keyframes)
+        time_tolerance_ms=geometry.time_tolerance_ms, keyframes=tuple(keyframes)
     )
     if out is None:
-        source = recording or Path(str(geo.get("recording", "")))
+        source = recording or Path(geometry.recording)
         out = source.parent / f"{source.stem}.annotations.yaml"
     text = annotation_yaml(annotations)
     if out.exists() and not force and out.read_text() != text:
