@@ -25,12 +25,18 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 from sonarmap.pipeline.engine.text import one_line
+from sonarmap.pipeline.engine.user_files import read_user_json
 from sonarmap.pipeline.formats.atomic import atomic_output
 from sonarmap.pipeline.labels.coco import ExportedImage, coco_document, objects_from_coco
 from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, GeometryFile, validated
-from sonarmap.pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
+from sonarmap.pipeline.labels.fan_image import (
+    FanGeometry,
+    ImageTooLarge,
+    fan_geometry,
+    fan_image,
+)
 from sonarmap.schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import KeyframeImages
@@ -39,8 +45,10 @@ __all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
 
 GEOMETRY_FILE = "geometry.json"
 GEOMETRY_FORMAT = "sonarmap-label-geometry/1"
-COCO_MAX_BYTES = 64 << 20
-"""Largest COCO file read: some 200,000 polygons, far beyond hand labelling."""
+COCO_MAX_BYTES = 8 << 20
+"""Largest COCO or geometry file read: some 40,000 polygons, far beyond hand labelling
+(the annotation file they become is itself capped at 4 MB); parsed and validated in
+about a second and under 200 MB."""
 
 
 @dataclass(frozen=True)
@@ -88,12 +96,15 @@ def export_labels(
         pixel_m: pixel side [m] (None: each image's range resolution).
     """
     images_dir = folder / "images"
+    try:  # every image's size first: nothing is written for a pixel side refused
+        grids = [fan_geometry(frame.horizontal, pixel_m) for frame in frames]
+    except ImageTooLarge as err:
+        raise ConfigError(f"--pixel-m {pixel_m:g}: {err}") from None
     images_dir.mkdir(parents=True, exist_ok=True)
     exported = []
-    for n, frame in enumerate(frames, start=1):
+    for n, (frame, g) in enumerate(zip(frames, grids, strict=True), start=1):
         t_ns = int(times_ns.get(frame.keyframe_id, frame.t_ns))
         name = f"{recording.stem}_kf{frame.keyframe_id:05d}_t{t_ns}.png"
-        g = fan_geometry(frame.horizontal, pixel_m)
         _write(images_dir / name, _png(fan_image(frame.horizontal, g)))
         shapes = tuple(objects.get(frame.keyframe_id, ()))
         exported.append(ExportedImage(n, f"images/{name}", t_ns, frame.keyframe_id, g, shapes))
@@ -118,15 +129,7 @@ def export_labels(
 
 
 def _read_json(path: Path, what: str) -> dict[str, Any]:
-    try:
-        size = path.stat().st_size
-        if size > COCO_MAX_BYTES:
-            raise SourceError(f"{path}: {what} of {size} bytes, over {COCO_MAX_BYTES}")
-        doc = json.loads(path.read_bytes(), parse_constant=_no_constant)
-    except OSError as err:
-        raise SourceError(f"{path}: cannot read {what} ({err.strerror or err})") from None
-    except (ValueError, RecursionError) as err:
-        raise SourceError(f"{path}: not a {what} ({one_line(str(err), 120)})") from None
+    doc = read_user_json(path, what, SourceError, COCO_MAX_BYTES)
     if not isinstance(doc, dict):
         raise SourceError(f"{path}: not a {what} (expected a JSON object)")
     return doc
@@ -138,10 +141,6 @@ def _valid(path: Path, raw: dict[str, Any], model: type[Any]) -> Any:
         return validated(raw, model)
     except CocoError as err:
         raise SourceError(f"{path}: {err}") from None
-
-
-def _no_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a JSON number")
 
 
 def _match(file_name: str, known: Mapping[str, Any]) -> str | None:
