@@ -82,7 +82,7 @@ class GeometryFile(_Entry):
     recording: str
     time_tolerance_ms: float = Field(default=1.0, gt=0.0, allow_inf_nan=False)
     images: dict[str, GeometryImage]
-    recording_bytes: int | None = None
+    recording_identity: dict[str, Any] | None = None
 
 
 def _path(loc: Sequence[int | str]) -> str:

@@ -27,10 +27,16 @@ import numpy as np
 
 from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 from sonarmap.pipeline.engine.text import one_line
-from sonarmap.pipeline.engine.user_files import read_user_json
+from sonarmap.pipeline.engine.user_files import read_user_file, read_user_json
 from sonarmap.pipeline.formats.atomic import atomic_output
 from sonarmap.pipeline.labels.coco import ExportedImage, coco_document, objects_from_coco
 from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, GeometryFile, validated
+from sonarmap.pipeline.labels.destination import (
+    annotation_destination,
+    check_size,
+    check_values,
+    recording_identity,
+)
 from sonarmap.pipeline.labels.fan_image import (
     FanGeometry,
     ImageTooLarge,
@@ -112,6 +118,7 @@ def export_labels(
     geometry = {
         "format": GEOMETRY_FORMAT,
         "recording": str(recording.resolve()),
+        "recording_identity": recording_identity(recording),
         "time_tolerance_ms": time_tolerance_ms,
         "frame": "horizontal sonar fan plane: x forward, y left [m]; "
         "u = (y_left_m - y) / pixel_m, v = (x_top_m - x) / pixel_m (COCO pixels)",
@@ -169,8 +176,9 @@ def import_labels(
     Category names must be classes of `table` (the config's class table).
 
     Images without shapes are left out (not yet labelled) unless `include_empty` (labelled
-    as holding no object). The annotation file goes beside the recording named in
-    geometry.json (or `recording`), or to `out`.
+    as holding no object). The annotation file goes to `out`, else beside the recording
+    (`recording`, else the one geometry.json names) when it is the one exported
+    (`destination.annotation_destination`).
 
     Raises:
         SourceError: the COCO file, geometry.json or a shape cannot be read (one line
@@ -213,13 +221,30 @@ def import_labels(
         time_tolerance_ms=geometry.time_tolerance_ms, keyframes=tuple(keyframes)
     )
     if out is None:
-        source = recording or Path(geometry.recording)
-        out = source.parent / f"{source.stem}.annotations.yaml"
-    text = annotation_yaml(annotations)
-    if out.exists() and not force and out.read_text() != text:
+        out = annotation_destination(
+            recording, geometry.recording, geometry.recording_identity, geometry_path
+        )
+    check_values(annotations.model_dump(mode="json", exclude_none=True), out)
+    text = annotation_yaml(annotations)  # bounded: the values were counted first
+    check_size(text, out)
+    if not force and not _same_file(out, text.encode()):
         raise SourceError(f"{out}: exists with other labels; pass --force to replace it")
     _write(out, text.encode())
     return out, annotations
+
+
+def _same_file(path: Path, data: bytes) -> bool:
+    """True when `path` does not exist or holds exactly `data` (read guarded: a FIFO or
+    device there is refused, a large file is not read)."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        return not path.is_symlink()  # a dangling link: something is there
+    except OSError as err:
+        raise SourceError(f"{path}: cannot read ({err.strerror})") from None
+    if info.st_size != len(data):
+        return False
+    return read_user_file(path, "annotation file", SourceError, len(data)) == data
 
 
 def annotation_yaml(annotations: AnnotationFile) -> str:
