@@ -230,7 +230,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(
-                f"--set {item!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
+                f"--set {item[:80]!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
             )
         key = key.removeprefix("keyframes.")
         try:
