@@ -41,20 +41,18 @@ class _ErrorMappingGroup(TyperGroup):
             if line is None:
                 _internal(err)
             _fail(line, 2, err)
-        except _CLI_FLOW:
-            raise
         except Exception as err:  # the last resort: one line, credentials scrubbed
+            if _cli_flow(err):
+                raise
             _internal(err)
 
 
-_CLI_FLOW = (
-    typer.Exit,
-    typer.Abort,
-    click.exceptions.Exit,
-    click.ClickException,
-    click.exceptions.Abort,
-)
-"""Exceptions click and typer use to end a command (help, usage errors, exit codes)."""
+def _cli_flow(err: BaseException) -> bool:
+    """Whether `err` is how click or typer end a command (help, usage error, exit code);
+    typer may carry its own copy of click (`typer._click`), so it is told by module."""
+    return any(
+        c.__module__.endswith(("click.exceptions", "typer.exceptions")) for c in type(err).__mro__
+    )
 
 
 def _internal(err: BaseException) -> NoReturn:

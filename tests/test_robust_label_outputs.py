@@ -64,8 +64,24 @@ def test_an_annotation_file_its_reader_would_refuse_is_not_written(tmp_path: Pat
     out = tmp_path / "big.annotations.yaml"
     code, errors = _import(coco, "-o", str(out))
     assert code == 2 and len(errors) == 1, errors
-    assert "not written" in errors[0] and "4194304" in errors[0] and "150000" in errors[0]
+    assert "4194304" in errors[0] and "150000" in errors[0]
     assert not out.exists() and time.monotonic() - t0 < 10
+
+
+def test_an_output_over_the_values_cap_is_refused_after_conversion(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # Shapes whose count alone passes the early check: refused before the YAML is written.
+    from sonarmap.pipeline.labels import destination
+
+    coco, _ = _exported(tmp_path)
+    monkeypatch.setattr(destination, "check_coco_values", lambda doc, where: None)
+    monkeypatch.setattr("sonarmap.pipeline.labels.files.check_coco_values", lambda d, w: None)
+    monkeypatch.setattr("sonarmap.pipeline.training.annotations.ANNOTATIONS_MAX_NODES", 20)
+    out = tmp_path / "small.annotations.yaml"
+    code, errors = _import(coco, "-o", str(out))
+    assert code == 2 and "not written" in errors[0] and "over the 20 its reader" in errors[0]
+    assert not out.exists()
 
 
 def test_an_existing_output_that_is_not_utf8_needs_force(tmp_path: Path) -> None:

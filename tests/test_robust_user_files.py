@@ -78,12 +78,21 @@ def test_a_coco_file_over_the_cap_is_refused_before_it_is_parsed(tmp_path: Path)
 
 
 @pytest.mark.parametrize("kind", ["fifo", "dev-zero"])
-def test_a_beam_table_or_config_that_is_not_a_regular_file(tmp_path: Path, kind: str) -> None:
+def test_a_beam_table_that_is_not_a_regular_file(tmp_path: Path, kind: str) -> None:
+    from sonarmap.pipeline.readers.sonar_models import load_sonar
+
     table = tmp_path / "beams.csv"
     table.write_text("-10\n0\n10\n")
     _swap(table, kind)
-    res = _cli("config", "check", "--set", f"keyframes.horizontal_sonar={table}")
-    assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    with pytest.raises(
+        ConfigError, match=r"beams\.csv.*(not a regular file|nor a beam-table file)"
+    ):
+        load_sonar(str(table))
+
+
+def test_a_usage_error_is_still_a_usage_error() -> None:
+    res = _cli("config", "check", "--no-such-option")
+    assert res.returncode == 2 and "No such option" in res.stderr and "internal" not in res.stderr
 
 
 def test_the_guarded_reader_itself(tmp_path: Path) -> None:

@@ -16,7 +16,13 @@ from typing import Any
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.text import one_line
 
-__all__ = ["annotation_destination", "check_size", "check_values", "recording_identity"]
+__all__ = [
+    "annotation_destination",
+    "check_coco_values",
+    "check_size",
+    "check_values",
+    "recording_identity",
+]
 
 _HEAD_BYTES = 1 << 20
 
@@ -113,4 +119,22 @@ def check_size(text: str, out: Path) -> None:
         raise SourceError(
             f"{one_line(str(out), 200)}: not written: the annotation file would be {size} "
             f"bytes, over the {max_bytes} its reader accepts (fewer or simpler shapes)"
+        )
+
+
+def check_coco_values(doc: Any, where: Path) -> None:
+    """Refuse, before any shape is converted, a COCO file whose shapes alone would make an
+    annotation file of more values than its reader accepts (a lower bound: 5 values per
+    polygon and 3 per vertex, 13 per box)."""
+    max_bytes, max_nodes = _limits()
+    least = 0
+    for ann in doc.annotations:
+        polygons = ann.segmentation if isinstance(ann.segmentation, list) else []
+        least += sum(5 + 3 * (len(p) // 2) for p in polygons) if polygons else 13
+    if least > max_nodes:
+        raise SourceError(
+            f"{one_line(str(where), 200)}: its {len(doc.annotations)} shapes would make an "
+            f"annotation file of at least {least} values, over the {max_nodes} its reader "
+            f"accepts (an annotation file is at most {max_bytes} bytes and {max_nodes} values: "
+            "fewer shapes, or polygons of fewer vertices)"
         )

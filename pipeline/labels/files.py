@@ -33,6 +33,7 @@ from sonarmap.pipeline.labels.coco import ExportedImage, coco_document, objects_
 from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, GeometryFile, validated
 from sonarmap.pipeline.labels.destination import (
     annotation_destination,
+    check_coco_values,
     check_size,
     check_values,
     recording_identity,
@@ -190,6 +191,7 @@ def import_labels(
         raise SourceError(f"{geometry_path}: not a {GEOMETRY_FORMAT} file")
     geometry = _valid(geometry_path, geo, GeometryFile)
     doc = _valid(coco_path, _read_json(coco_path, "COCO JSON file"), CocoDocument)
+    check_coco_values(doc, coco_path)
     geometry_of: dict[int, FanGeometry] = {}
     t_of: dict[int, int] = {}
     for n, image in enumerate(doc.images):
