@@ -107,6 +107,17 @@ def _root(
     for handler in logging.getLogger().handlers:
         if type(handler) is logging.StreamHandler:  # ours, not a test harness's capture
             handler.setFormatter(_UserFormatter(detailed=verbose > 0))
+            if verbose == 0 and not any(isinstance(f, _OrphanTasks) for f in handler.filters):
+                handler.addFilter(_OrphanTasks())
+
+
+class _OrphanTasks(logging.Filter):
+    """Drop asyncio's "Task exception was never retrieved": a remote library's requests
+    still in flight when the first one failed (a connection dropped mid-push); the failure
+    itself is the command's one `error:` line, and `-v` shows them."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.name == "asyncio" and "never retrieved" in str(record.msg))
 
 
 class _UserFormatter(logging.Formatter):

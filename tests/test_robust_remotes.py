@@ -5,6 +5,7 @@ remote, the operation and the cause. Servers are started here on 127.0.0.1."""
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import subprocess
@@ -209,3 +210,11 @@ def test_the_last_resort_handler_prints_one_line_without_credentials(
     assert res.exit_code == 1 and len(lines) == 1, res.output
     assert lines[0].startswith("error: internal error: RuntimeError: could not reach")
     assert "SECRET" not in res.output and "AKID" not in res.output
+
+
+def test_orphan_task_noise_after_a_failed_transfer_is_not_printed() -> None:
+    from sonarmap.pipeline.cli import _OrphanTasks
+
+    noise = logging.LogRecord("asyncio", logging.ERROR, "", 0, "Task exception was never retrieved", (), None)  # fmt: skip
+    real = logging.LogRecord("sonarmap", logging.ERROR, "", 0, "never retrieved", (), None)
+    assert not _OrphanTasks().filter(noise) and _OrphanTasks().filter(real)
