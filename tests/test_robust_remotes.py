@@ -218,3 +218,34 @@ def test_orphan_task_noise_after_a_failed_transfer_is_not_printed() -> None:
     noise = logging.LogRecord("asyncio", logging.ERROR, "", 0, "Task exception was never retrieved", (), None)  # fmt: skip
     real = logging.LogRecord("sonarmap", logging.ERROR, "", 0, "never retrieved", (), None)
     assert not _OrphanTasks().filter(noise) and _OrphanTasks().filter(real)
+
+
+def test_wrong_s3_credentials_say_access_denied(
+    tmp_path: Path,
+    alice: Path,  # noqa: F811
+) -> None:
+    pytest.importorskip("moto.server", reason="moto[server] is not installed")
+    pytest.importorskip("s3fs")
+    from test_share_remotes import _wait_port
+
+    port = _free_port()
+    # moto checks signatures once INITIAL_NO_AUTH_ACTION_COUNT actions are used up: 0.
+    code = "from moto.server import main; main()"
+    server = subprocess.Popen(
+        [sys.executable, "-c", code, "-H", "127.0.0.1", "-p", str(port)],
+        env={**os.environ, "INITIAL_NO_AUTH_ACTION_COUNT": "0"},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        _wait_port(port, server)
+        env = {**_offline_s3(tmp_path), "AWS_ENDPOINT_URL_S3": f"http://127.0.0.1:{port}"}
+        env["AWS_SECRET_ACCESS_KEY"] = "wrongSECRETvalue"
+        for op, store in (("push", alice), ("pull", tmp_path / "bob")):
+            res = _cli(env, op, "s3://lab/x", "--store", str(store))
+            line = _one_error(res)
+            assert f"remote s3://lab/x: {op}: access denied (check the credentials)" in line
+            assert "wrongSECRETvalue" not in res.stderr
+    finally:
+        server.terminate()
+        server.wait(10)
