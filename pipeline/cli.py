@@ -18,8 +18,9 @@ from typer.core import TyperGroup
 from sonarmap.pipeline import __version__
 from sonarmap.pipeline.commands import COMMAND_MODULES
 from sonarmap.pipeline.commands._common import GraphChoice
-from sonarmap.pipeline.commands._errors import one_line, os_error_line
+from sonarmap.pipeline.commands._errors import MAX_LINE_CHARS, one_line, os_error_line
 from sonarmap.pipeline.engine.errors import PipelineError
+from sonarmap.pipeline.engine.text import scrub_userinfo
 
 __all__ = ["app", "main"]
 
@@ -35,16 +36,38 @@ class _ErrorMappingGroup(TyperGroup):
             _fail(str(err), err.exit_code, err)
         except OSError as err:
             # A path the user named (recording, --out, --store) that cannot be read or
-            # written is bad input; an OSError naming no file is left to surface as a bug.
+            # written is bad input; an OSError naming no file is a bug (below).
             line = os_error_line(err)
             if line is None:
-                raise
+                _internal(err)
             _fail(line, 2, err)
+        except Exception as err:  # the last resort: one line, credentials scrubbed
+            if _cli_flow(err):
+                raise
+            _internal(err)
+
+
+def _cli_flow(err: BaseException) -> bool:
+    """Whether `err` is how click or typer end a command (help, usage error, exit code);
+    typer may carry its own copy of click (`typer._click`), so it is told by module."""
+    return any(
+        c.__module__.endswith(("click.exceptions", "typer.exceptions")) for c in type(err).__mro__
+    )
+
+
+def _internal(err: BaseException) -> NoReturn:
+    """A bug or a library's unexpected error: one line (no traceback, which would echo
+    the URLs and secrets in its frames' text) and exit 1; `-v` logs the traceback,
+    scrubbed the same way."""
+    logging.getLogger("sonarmap").info("internal error", exc_info=err)
+    _fail(f"internal error: {type(err).__name__}: {err}", 1, err)
 
 
 def _fail(message: str, code: int, cause: BaseException) -> NoReturn:
-    """Print `error: MESSAGE` as one safe line on stderr and exit with `code`."""
-    typer.echo(f"error: {one_line(message)}", err=True)
+    """Print `error: MESSAGE` as one safe line on stderr and exit with `code` (the whole
+    line within the README's 400 characters, any URL's user-info removed)."""
+    prefix = "error: "
+    typer.echo(prefix + one_line(scrub_userinfo(message), MAX_LINE_CHARS - len(prefix)), err=True)
     raise typer.Exit(code) from cause
 
 
@@ -84,6 +107,17 @@ def _root(
     for handler in logging.getLogger().handlers:
         if type(handler) is logging.StreamHandler:  # ours, not a test harness's capture
             handler.setFormatter(_UserFormatter(detailed=verbose > 0))
+            if verbose == 0 and not any(isinstance(f, _OrphanTasks) for f in handler.filters):
+                handler.addFilter(_OrphanTasks())
+
+
+class _OrphanTasks(logging.Filter):
+    """Drop asyncio's "Task exception was never retrieved": a remote library's requests
+    still in flight when the first one failed (a connection dropped mid-push); the failure
+    itself is the command's one `error:` line, and `-v` shows them."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.name == "asyncio" and "never retrieved" in str(record.msg))
 
 
 class _UserFormatter(logging.Formatter):
@@ -96,9 +130,9 @@ class _UserFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         if self.detailed:
-            return super().format(record)
-        text = one_line(record.getMessage())
-        return f"{record.levelname.lower()}: {text}"
+            return scrub_userinfo(super().format(record))
+        prefix = f"{record.levelname.lower()}: "
+        return prefix + one_line(scrub_userinfo(record.getMessage()), MAX_LINE_CHARS - len(prefix))
 
 
 for _name in COMMAND_MODULES:

@@ -148,6 +148,7 @@ def test_labels_coco_and_maps_use_the_table(tmp_path: Path) -> None:
     # COCO: the table's classes are the categories; import needs the same table.
     frame = KeyframeImages(0, 1_000, _ping(1_000), _ping(1_000))
     shapes = {0: labels.keyframes[0].objects}
+    (tmp_path / "dive.mcap").write_bytes(b"a recording")  # import writes beside it
     done = export_labels(tmp_path / "dive.mcap", tmp_path / "out", [frame], {0: 1_000}, shapes, table.ids, 1.0)  # fmt: skip
     categories = {c["name"]: c["id"] for c in json.loads(done.coco.read_text())["categories"]}
     assert categories["mooring_block"] == 7

@@ -38,6 +38,12 @@ def _ping(t_ns: int, bright: tuple[int, int] = (120, 40)) -> SonarPing:
     return SonarPing(t_ns, "horizontal", image, RANGES, ANGLES)
 
 
+def _rec(path: Path) -> Path:
+    """A recording file to export from (import writes beside it only when it exists)."""
+    path.write_bytes(b"a recording")
+    return path
+
+
 def _frames(times: list[int]) -> list[KeyframeImages]:
     return [KeyframeImages(k, t, _ping(t), _ping(t)) for k, t in enumerate(times)]
 
@@ -87,7 +93,7 @@ def test_the_fan_image_puts_a_bright_cell_where_its_range_and_uneven_beam_say() 
 
 
 def test_export_then_import_gives_the_same_annotation_file(tmp_path: Path) -> None:
-    recording = tmp_path / "dive.mcap"
+    recording = _rec(tmp_path / "dive.mcap")
     frames = _frames([1_000_000_000, 2_000_000_000, 3_000_000_000])
     times = {0: 1_000_000_000, 2: 3_000_000_000}
     shapes = {0: LABELS.keyframes[0].objects, 2: LABELS.keyframes[1].objects}
@@ -109,7 +115,7 @@ def test_export_then_import_gives_the_same_annotation_file(tmp_path: Path) -> No
 
 def test_a_label_studio_export_with_renamed_files_and_unlabelled_images(tmp_path: Path) -> None:
     frames = _frames([1_000_000_000, 2_000_000_000])
-    done = export_labels(tmp_path / "d.mcap", tmp_path / "x", frames, {}, {}, CLASS_IDS, 1.0)
+    done = export_labels(_rec(tmp_path / "d.mcap"), tmp_path / "x", frames, {}, {}, CLASS_IDS, 1.0)
     doc = json.loads(done.coco.read_text())
     for image in doc["images"]:  # Label Studio: its own folder and a hash prefix
         image["file_name"] = "upload/7/1a2b3c4d-" + Path(image["file_name"]).name
@@ -140,7 +146,9 @@ def test_a_coco_file_that_cannot_be_read_is_refused_naming_the_entry(
 ) -> None:
     frames = _frames([1_000_000_000])
     shapes = {0: LABELS.keyframes[0].objects}
-    done = export_labels(tmp_path / "d.mcap", tmp_path / "x", frames, {}, shapes, CLASS_IDS, 1.0)
+    done = export_labels(
+        _rec(tmp_path / "d.mcap"), tmp_path / "x", frames, {}, shapes, CLASS_IDS, 1.0
+    )
     doc = json.loads(done.coco.read_text())
     change(doc)
     done.coco.write_text(json.dumps(doc))
@@ -152,7 +160,9 @@ def test_a_coco_file_that_cannot_be_read_is_refused_naming_the_entry(
 def test_import_never_overwrites_other_labels_without_force(tmp_path: Path) -> None:
     frames = _frames([1_000_000_000])
     shapes = {0: LABELS.keyframes[0].objects}
-    done = export_labels(tmp_path / "d.mcap", tmp_path / "x", frames, {}, shapes, CLASS_IDS, 1.0)
+    done = export_labels(
+        _rec(tmp_path / "d.mcap"), tmp_path / "x", frames, {}, shapes, CLASS_IDS, 1.0
+    )
     existing = tmp_path / "d.annotations.yaml"
     existing.write_text("format: sonarmap-annotations/1\nkeyframes: []\n")
     result = CliRunner().invoke(app, ["label", "import", str(done.coco)])

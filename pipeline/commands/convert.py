@@ -11,7 +11,9 @@ composed; a sonar without one gets none, never a default), attachments copied. S
 from __future__ import annotations
 
 import heapq
+import logging
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -228,7 +230,7 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep:
             raise ConfigError(
-                f"--set {item!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
+                f"--set {item[:80]!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
             )
         key = key.removeprefix("keyframes.")
         try:
@@ -236,6 +238,23 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
         except ValueError:
             out[key] = _vector(item, value)
     return out
+
+
+@contextmanager
+def _logged() -> Iterator[set[str]]:
+    """The warning messages logged meanwhile (so none is printed twice)."""
+    seen: set[str] = set()
+
+    class _Seen(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            seen.add(record.getMessage())
+
+    handler = _Seen(logging.WARNING)
+    logging.getLogger().addHandler(handler)
+    try:
+        yield seen
+    finally:
+        logging.getLogger().removeHandler(handler)
 
 
 def register(app: typer.Typer) -> None:
@@ -260,10 +279,17 @@ def register(app: typer.Typer) -> None:
 
         if not output.parent.is_dir():
             raise SourceError(f"output directory {output.parent} does not exist")
-        report = convert_recording(source, output, _parse_sets(set_))
+        with _logged() as seen:
+            report = convert_recording(source, output, _parse_sets(set_))
         if json_:
             emit_json(report)
             return
+        # The reader's warnings that were collected but not logged (ARIS's), as `topics`.
+        from sonarmap.pipeline.commands._errors import one_line
+
+        for line in report["warnings"]:
+            if line not in seen:
+                typer.echo(f"warning: {one_line(line)}", err=True)
         typer.echo(
             f"wrote {output}: " + ", ".join(f"{k} {v}" for k, v in report["topics"].items()),
             err=True,

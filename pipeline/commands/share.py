@@ -47,6 +47,9 @@ def push(
         "--model-cache",
         help="Model cache (`<training.directory>/store`) holding a model's training data.",
     ),
+    create: bool = typer.Option(
+        False, "--create", help="Create the bucket when it does not exist (s3://, gs://)."
+    ),
     json_: bool = JSON_OPT,
 ) -> None:
     """Copy artifacts (and by default everything upstream of them) to REMOTE.
@@ -69,6 +72,7 @@ def push(
         fallbacks=[cache],
         policy=_policy([], None),
         stats=stats,
+        create=create,
     )
     if json_:
         emit_json(

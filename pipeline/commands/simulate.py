@@ -56,6 +56,11 @@ def simulate_cmd(
 
     scene = scene_path(scene_name)
     scene_obj = read_scene(scene)
+    from sonarmap.pipeline.engine.config.yaml_files import CONFIG_MAX_BYTES
+    from sonarmap.pipeline.engine.user_files import read_user_file
+
+    # The same guarded read as the scene's parse (a regular file, capped): copied as is.
+    scene_text = read_user_file(scene, "scene", ConfigError, CONFIG_MAX_BYTES).decode()
     if output.parent.exists() and not output.parent.is_dir():
         raise SourceError(f"output directory {output.parent} is not a directory")
     config = sim_config(goals, duration_s)
@@ -78,7 +83,7 @@ def simulate_cmd(
         info = write_simulation(
             run,
             output,
-            scene_yaml=scene.read_text(),
+            scene_yaml=scene_text,
             progress=lambda done, _n: bar.update(task, completed=done),
             workers=workers,
         )

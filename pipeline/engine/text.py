@@ -8,9 +8,18 @@ and a megabyte-long value or a 300-character path component must not flood it.
 from __future__ import annotations
 
 import os
+import re
 import unicodedata
 
-__all__ = ["MAX_LINE_CHARS", "MAX_PATH_CHARS", "display_path", "escape", "one_line", "shorten"]
+__all__ = [
+    "MAX_LINE_CHARS",
+    "MAX_PATH_CHARS",
+    "display_path",
+    "escape",
+    "one_line",
+    "scrub_userinfo",
+    "shorten",
+]
 
 MAX_LINE_CHARS = 400
 """The longest message line printed (the one-line contract of docs/exit-codes.md)."""
@@ -75,3 +84,12 @@ def display_path(path: object) -> str:
 def one_line(message: str, limit: int = MAX_LINE_CHARS) -> str:
     """`message` as a single printable line of at most `limit` characters."""
     return shorten(escape(message), limit)
+
+
+_USERINFO = re.compile(r"(?i)\b([a-z][a-z0-9+.-]*://)[^/\s@'\"]*@")
+
+
+def scrub_userinfo(text: str) -> str:
+    """`text` with the user-info of every URL in it (`s3://KEY:SECRET@bucket`) replaced
+    by `***`: libraries echo URLs, credentials included, in their errors."""
+    return _USERINFO.sub(r"\1***@", text)

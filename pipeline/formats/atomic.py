@@ -8,6 +8,7 @@ half-way leaves neither a partial destination nor the temporary file behind.
 
 from __future__ import annotations
 
+import errno
 import os
 import uuid
 from collections.abc import Iterator
@@ -24,17 +25,35 @@ def atomic_output(path: Path | str) -> Iterator[BinaryIO]:
     renamed onto `path`, on an exception removed.
 
     Raises:
-        OSError: the folder cannot be written (callers name the path in their error).
+        OSError: the folder cannot be written, or the disk is full, over quota or read-only
+            (naming `path`, not the temporary file: nothing partial is left behind).
     """
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    except OSError as err:
+        raise _named(err, path, tmp) from err
     try:
         with os.fdopen(fd, "wb") as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as err:
         tmp.unlink(missing_ok=True)
+        if isinstance(err, OSError) and err.errno in _DISK_ERRNOS:
+            raise _named(err, path, tmp) from err
         raise
+
+
+_DISK_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG, errno.EIO})
+"""A full, over-quota, read-only or failing disk: the output's fault, named by its path."""
+
+
+def _named(err: OSError, path: Path, tmp: Path) -> OSError:
+    """The error naming the destination where it names the temporary file or no file (a
+    write to an open file names none), so the CLI prints `error: PATH: reason`, exit 2."""
+    if err.filename is not None and str(err.filename) != str(tmp):
+        return err
+    return OSError(err.errno, err.strerror or os.strerror(err.errno or 0), str(path))

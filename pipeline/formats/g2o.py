@@ -60,6 +60,10 @@ def _floats(values: list[str], count: int, where: str) -> list[float]:
     return out
 
 
+MAX_GRAPH_BYTES = 256 << 20
+"""Largest pose graph read (a million vertices and edges is some 100 MB of text)."""
+
+
 def _vertex_id(token: str, where: str) -> int:
     try:
         return int(token)
@@ -81,9 +85,12 @@ def read_pose_graph(path: str | Path) -> PoseGraph2D:
             an edge names an unknown vertex, a vertex repeats, or the file holds no vertex.
     """
     path = Path(path)
+    from sonarmap.pipeline.engine.user_files import read_user_file
+
+    raw = read_user_file(path, "pose graph", SourceError, MAX_GRAPH_BYTES)
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
         raise SourceError(f"{path}: cannot read pose graph ({err})") from err
     vertices: dict[int, list[float]] = {}
     edges: list[tuple[int, int, list[float], np.ndarray]] = []

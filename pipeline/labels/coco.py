@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, validated
 from sonarmap.pipeline.labels.fan_image import FanGeometry, metres_to_pixels, pixels_to_metres
 from sonarmap.schemas.annotations import AnnotatedObject
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
@@ -31,10 +32,6 @@ __all__ = ["CocoError", "ExportedImage", "coco_document", "objects_from_coco"]
 METRE_DECIMALS = 6
 """Imported metres are rounded to a micrometre: far below any sonar pixel, and enough that
 a shape exported and imported again reads back as the numbers that were typed."""
-
-
-class CocoError(ValueError):
-    """A COCO file sonarmap cannot turn into annotations (the message names the entry)."""
 
 
 @dataclass(frozen=True)
@@ -146,7 +143,7 @@ def _shapes(ann: Mapping[str, Any], g: FanGeometry, where: str) -> list[dict[str
 
 
 def objects_from_coco(
-    doc: Mapping[str, Any],
+    doc: Mapping[str, Any] | CocoDocument,
     geometry_of: Mapping[int, FanGeometry],
     table: ClassTable = DEFAULT_TABLE,
 ) -> dict[int, list[AnnotatedObject]]:
@@ -156,21 +153,18 @@ def objects_from_coco(
     Raises:
         CocoError: an annotation's category, image or shape cannot be read (naming it).
     """
-    names = {}
-    for c in doc.get("categories") or []:
-        if isinstance(c, dict) and isinstance(c.get("id"), int):
-            names[c["id"]] = str(c.get("name"))
+    coco = doc if isinstance(doc, CocoDocument) else validated(doc, CocoDocument)
+    names = {c.id: c.name for c in coco.categories}
     out: dict[int, list[AnnotatedObject]] = {i: [] for i in geometry_of}
-    for n, ann in enumerate(doc.get("annotations") or []):
-        where = f"annotations[{n}] (id {ann.get('id')!r:.20})" if isinstance(ann, dict) else ""
-        if not isinstance(ann, dict):
-            raise CocoError(f"annotations[{n}]: expected an object")
-        image_id = ann.get("image_id")
+    for n, entry in enumerate(coco.annotations):
+        ann = entry.model_dump()
+        where = f"annotations[{n}] (id {ann.get('id')!r:.20})"
+        image_id = ann["image_id"]
         if image_id not in out:
             raise CocoError(f"{where}: image_id {image_id!r:.20} is not an exported image")
-        name = names.get(ann.get("category_id"))
+        name = names.get(ann["category_id"])
         if name is None:
-            raise CocoError(f"{where}: category_id {ann.get('category_id')!r:.20} is not listed")
+            raise CocoError(f"{where}: category_id {ann['category_id']!r:.20} is not listed")
         for shape in _shapes(ann, geometry_of[image_id], where):
             try:
                 obj = AnnotatedObject.model_validate(

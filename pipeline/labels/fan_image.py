@@ -22,10 +22,27 @@ import numpy as np
 
 from sonarmap.schemas.sonar import SonarPing
 
-__all__ = ["FanGeometry", "fan_geometry", "fan_image", "metres_to_pixels", "pixels_to_metres"]
+__all__ = [
+    "MAX_PIXELS",
+    "FanGeometry",
+    "ImageTooLarge",
+    "fan_geometry",
+    "fan_image",
+    "metres_to_pixels",
+    "pixels_to_metres",
+]
 
 MAX_SIDE_PX = 2048
 """Largest image side: the pixel grows for a long-range sonar rather than the image."""
+
+MAX_PIXELS = MAX_SIDE_PX * MAX_SIDE_PX
+"""Most pixels in an image drawn (a given pixel side included): `fan_image` holds about
+90 bytes per pixel while drawing, so some 380 MB at this size."""
+
+
+class ImageTooLarge(ValueError):
+    """A pixel side that would make an image of more than `MAX_PIXELS`."""
+
 
 DISPLAY_PERCENTILE = 99.5
 """Intensities are stretched so this percentile of the fan's cells is white: simulated
@@ -80,6 +97,13 @@ def fan_geometry(ping: SonarPing, pixel_m: float | None = None) -> FanGeometry:
         pixel_m = max(pixel_m, (x_top - x_bottom) / MAX_SIDE_PX, (y_left - y_right) / MAX_SIDE_PX)
     width = max(1, math.ceil((y_left - y_right) / pixel_m))
     height = max(1, math.ceil((x_top - x_bottom) / pixel_m))
+    if width * height > MAX_PIXELS:
+        smallest = math.sqrt((y_left - y_right) * (x_top - x_bottom) / MAX_PIXELS)
+        raise ImageTooLarge(
+            f"a pixel of {pixel_m:g} m makes a {width} x {height} image of this fan "
+            f"({width * height * 90 / 2**30:.3g} GiB while drawn; at most {MAX_PIXELS} pixels): "
+            f"use {math.ceil(smallest * 1e4) / 1e4:g} m or more"
+        )
     return FanGeometry(width, height, float(pixel_m), float(x_top), float(y_left))
 
 

@@ -25,11 +25,25 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 from sonarmap.pipeline.engine.text import one_line
+from sonarmap.pipeline.engine.user_files import read_user_file, read_user_json
 from sonarmap.pipeline.formats.atomic import atomic_output
-from sonarmap.pipeline.labels.coco import CocoError, ExportedImage, coco_document, objects_from_coco
-from sonarmap.pipeline.labels.fan_image import FanGeometry, fan_geometry, fan_image
+from sonarmap.pipeline.labels.coco import ExportedImage, coco_document, objects_from_coco
+from sonarmap.pipeline.labels.coco_schema import CocoDocument, CocoError, GeometryFile, validated
+from sonarmap.pipeline.labels.destination import (
+    annotation_destination,
+    check_coco_values,
+    check_size,
+    check_values,
+    recording_identity,
+)
+from sonarmap.pipeline.labels.fan_image import (
+    FanGeometry,
+    ImageTooLarge,
+    fan_geometry,
+    fan_image,
+)
 from sonarmap.schemas.annotations import AnnotatedKeyframe, AnnotatedObject, AnnotationFile
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import KeyframeImages
@@ -38,8 +52,10 @@ __all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
 
 GEOMETRY_FILE = "geometry.json"
 GEOMETRY_FORMAT = "sonarmap-label-geometry/1"
-COCO_MAX_BYTES = 64 << 20
-"""Largest COCO file read: some 200,000 polygons, far beyond hand labelling."""
+COCO_MAX_BYTES = 8 << 20
+"""Largest COCO or geometry file read: some 40,000 polygons, far beyond hand labelling
+(the annotation file they become is itself capped at 4 MB); parsed and validated in
+about a second and under 200 MB."""
 
 
 @dataclass(frozen=True)
@@ -87,12 +103,15 @@ def export_labels(
         pixel_m: pixel side [m] (None: each image's range resolution).
     """
     images_dir = folder / "images"
+    try:  # every image's size first: nothing is written for a pixel side refused
+        grids = [fan_geometry(frame.horizontal, pixel_m) for frame in frames]
+    except ImageTooLarge as err:
+        raise ConfigError(f"--pixel-m {pixel_m:g}: {err}") from None
     images_dir.mkdir(parents=True, exist_ok=True)
     exported = []
-    for n, frame in enumerate(frames, start=1):
+    for n, (frame, g) in enumerate(zip(frames, grids, strict=True), start=1):
         t_ns = int(times_ns.get(frame.keyframe_id, frame.t_ns))
         name = f"{recording.stem}_kf{frame.keyframe_id:05d}_t{t_ns}.png"
-        g = fan_geometry(frame.horizontal, pixel_m)
         _write(images_dir / name, _png(fan_image(frame.horizontal, g)))
         shapes = tuple(objects.get(frame.keyframe_id, ()))
         exported.append(ExportedImage(n, f"images/{name}", t_ns, frame.keyframe_id, g, shapes))
@@ -100,6 +119,7 @@ def export_labels(
     geometry = {
         "format": GEOMETRY_FORMAT,
         "recording": str(recording.resolve()),
+        "recording_identity": recording_identity(recording),
         "time_tolerance_ms": time_tolerance_ms,
         "frame": "horizontal sonar fan plane: x forward, y left [m]; "
         "u = (y_left_m - y) / pixel_m, v = (x_top_m - x) / pixel_m (COCO pixels)",
@@ -117,22 +137,18 @@ def export_labels(
 
 
 def _read_json(path: Path, what: str) -> dict[str, Any]:
-    try:
-        size = path.stat().st_size
-        if size > COCO_MAX_BYTES:
-            raise SourceError(f"{path}: {what} of {size} bytes, over {COCO_MAX_BYTES}")
-        doc = json.loads(path.read_bytes(), parse_constant=_no_constant)
-    except OSError as err:
-        raise SourceError(f"{path}: cannot read {what} ({err.strerror or err})") from None
-    except (ValueError, RecursionError) as err:
-        raise SourceError(f"{path}: not a {what} ({one_line(str(err), 120)})") from None
+    doc = read_user_json(path, what, SourceError, COCO_MAX_BYTES)
     if not isinstance(doc, dict):
         raise SourceError(f"{path}: not a {what} (expected a JSON object)")
     return doc
 
 
-def _no_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a JSON number")
+def _valid(path: Path, raw: dict[str, Any], model: type[Any]) -> Any:
+    """`raw` as `model` (`coco_schema`): one line naming the file and the JSON path."""
+    try:
+        return validated(raw, model)
+    except CocoError as err:
+        raise SourceError(f"{path}: {err}") from None
 
 
 def _match(file_name: str, known: Mapping[str, Any]) -> str | None:
@@ -161,8 +177,9 @@ def import_labels(
     Category names must be classes of `table` (the config's class table).
 
     Images without shapes are left out (not yet labelled) unless `include_empty` (labelled
-    as holding no object). The annotation file goes beside the recording named in
-    geometry.json (or `recording`), or to `out`.
+    as holding no object). The annotation file goes to `out`, else beside the recording
+    (`recording`, else the one geometry.json names) when it is the one exported
+    (`destination.annotation_destination`).
 
     Raises:
         SourceError: the COCO file, geometry.json or a shape cannot be read (one line
@@ -170,23 +187,27 @@ def import_labels(
     """
     geometry_path = coco_path.parent / GEOMETRY_FILE
     geo = _read_json(geometry_path, "label geometry file (written by `sonarmap label export`)")
-    if geo.get("format") != GEOMETRY_FORMAT or not isinstance(geo.get("images"), dict):
+    if geo.get("format") != GEOMETRY_FORMAT:
         raise SourceError(f"{geometry_path}: not a {GEOMETRY_FORMAT} file")
-    doc = _read_json(coco_path, "COCO JSON file")
+    geometry = _valid(geometry_path, geo, GeometryFile)
+    doc = _valid(coco_path, _read_json(coco_path, "COCO JSON file"), CocoDocument)
+    check_coco_values(doc, coco_path)
     geometry_of: dict[int, FanGeometry] = {}
     t_of: dict[int, int] = {}
-    for n, image in enumerate(doc.get("images") or []):
-        name = image.get("file_name") if isinstance(image, dict) else None
-        key = _match(str(name), geo["images"]) if name is not None else None
+    for n, image in enumerate(doc.images):
+        key = _match(image.file_name, geometry.images)
         if key is None:
             raise SourceError(
-                f"{coco_path}: images[{n}] file_name {one_line(str(name), 80)!r} is not an "
-                f"image exported into {coco_path.parent}"
+                f"{coco_path}: images[{n}].file_name {one_line(image.file_name, 80)!r} is not "
+                f"an image exported into {coco_path.parent}"
             )
-        entry = geo["images"][key]
-        fields = {k: entry[k] for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")}
-        geometry_of[image.get("id")] = FanGeometry(**fields)
-        t_of[image.get("id")] = int(entry["t_ns"])
+        entry = geometry.images[key]
+        fields = {
+            k: getattr(entry, k)
+            for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")
+        }
+        geometry_of[image.id] = FanGeometry(**fields)
+        t_of[image.id] = entry.t_ns
     try:
         objects = objects_from_coco(doc, geometry_of, table)
     except CocoError as err:
@@ -199,16 +220,33 @@ def import_labels(
     if not keyframes:
         raise SourceError(f"{coco_path}: no image holds a polygon or box (nothing to import)")
     annotations = AnnotationFile(
-        time_tolerance_ms=float(geo.get("time_tolerance_ms", 1.0)), keyframes=tuple(keyframes)
+        time_tolerance_ms=geometry.time_tolerance_ms, keyframes=tuple(keyframes)
     )
     if out is None:
-        source = recording or Path(str(geo.get("recording", "")))
-        out = source.parent / f"{source.stem}.annotations.yaml"
-    text = annotation_yaml(annotations)
-    if out.exists() and not force and out.read_text() != text:
+        out = annotation_destination(
+            recording, geometry.recording, geometry.recording_identity, geometry_path
+        )
+    check_values(annotations.model_dump(mode="json", exclude_none=True), out)
+    text = annotation_yaml(annotations)  # bounded: the values were counted first
+    check_size(text, out)
+    if not force and not _same_file(out, text.encode()):
         raise SourceError(f"{out}: exists with other labels; pass --force to replace it")
     _write(out, text.encode())
     return out, annotations
+
+
+def _same_file(path: Path, data: bytes) -> bool:
+    """True when `path` does not exist or holds exactly `data` (read guarded: a FIFO or
+    device there is refused, a large file is not read)."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        return not path.is_symlink()  # a dangling link: something is there
+    except OSError as err:
+        raise SourceError(f"{path}: cannot read ({err.strerror})") from None
+    if info.st_size != len(data):
+        return False
+    return read_user_file(path, "annotation file", SourceError, len(data)) == data
 
 
 def annotation_yaml(annotations: AnnotationFile) -> str:

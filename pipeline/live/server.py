@@ -21,7 +21,7 @@ from foxglove.websocket import ServerListener
 from sonarmap.pipeline.engine.errors import OutputError
 from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS, SceneMessage
 
-__all__ = ["Builder", "LiveServer"]
+__all__ = ["Builder", "ClientTrouble", "LiveServer", "quiet_client_errors"]
 
 log = logging.getLogger(__name__)
 
@@ -32,6 +32,30 @@ REPLAY_MAX = 200
 """Messages per topic kept for a client that subscribes late (the latest)."""
 _SUBSCRIBE_WAIT_S = 2.0
 """How long a replay waits for the server to register a new subscription."""
+
+
+class ClientTrouble(logging.Filter):
+    """The SDK's errors about one client (a viewer closed mid-send: "Error sending message
+    to client ... Broken pipe") become warnings: the run and the other clients go on, and
+    a script watching for `error:` lines must not read a closed browser tab as a failure."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.name.startswith(_SDK_LOGGERS) and record.levelno >= logging.ERROR:
+            record.levelno, record.levelname = logging.WARNING, "WARNING"
+            record.msg = f"live view: {record.msg}"
+        return True
+
+
+_SDK_LOGGERS = ("foxglove.websocket", "foxglove.websocket_server")
+"""Loggers (pyo3-log: the Rust module path, `::` as `.`) of the SDK's client connections."""
+
+
+def quiet_client_errors() -> None:
+    """Install `ClientTrouble` on the root logger's handlers (where the SDK's records
+    end up; a filter on a parent logger would not see its children's records)."""
+    for handler in logging.getLogger().handlers:
+        if not any(isinstance(f, ClientTrouble) for f in handler.filters):
+            handler.addFilter(ClientTrouble())
 
 
 class LiveServer:
@@ -45,6 +69,7 @@ class LiveServer:
         import foxglove
         import foxglove.messages
 
+        quiet_client_errors()
         self._context = foxglove.Context()  # its own: only this server sees these channels
         self._channels = {
             topic: foxglove.Channel(

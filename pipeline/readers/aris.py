@@ -33,6 +33,7 @@ from sonarmap.pipeline.readers.aris_layout import (
     HEADER_BYTES,
     SIGNATURE,
 )
+from sonarmap.pipeline.readers.clock import backwards
 from sonarmap.pipeline.readers.sonar_models import load_sonar
 from sonarmap.pipeline.readers.source_types import TimeIndexedSource
 
@@ -62,6 +63,8 @@ MAX_SAMPLES_PER_BEAM = 16384
 """ARIS sonars sample at most a few thousand times per beam; a header claiming more is
 refused before anything is sized from it."""
 _HEADER_BATCH = 1024
+_MAX_FRAME_TIME_US = (2**63 - 1) // 1000
+"""The latest FrameTime [us] whose time in ns fits the int64 every log time is."""
 _SOUND_SPEED_MPS = (1300.0, 1800.0)
 """Sound speed in water, fresh to salt, cold to warm, with margin."""
 
@@ -154,7 +157,14 @@ class ArisSource(TimeIndexedSource):
         self.table = load_sonar(_PRESET_BY_BEAMS[self.n_beams])
         times, telephoto = self._scan_headers(n, first)
         self._check_lens(telephoto, n, system)
+        found = backwards(times)
+        if found is not None:
+            # A clock set back: the frames behind are dropped (sorted in, they would
+            # interleave two passes over the scene).
+            self._warn(found.warning(f"{path}: {ARIS_TOPIC}").replace("messages", "frames"))
+            times = np.where(found.behind, -1, times)
         self._order = np.argsort(times, kind="stable")
+        self._order = self._order[times[self._order] >= 0]
         self._frame_times = times
         self._set_topics(path, {ARIS_TOPIC: times[self._order]}, {ARIS_TOPIC: ARIS_TYPE}, None)
 
@@ -177,7 +187,16 @@ class ArisSource(TimeIndexedSource):
             raw = b"".join(self._read(HEADER_BYTES + i * self.frame_bytes, HEADER_BYTES) for i in k)
             h = np.frombuffer(raw, FRAME_HEADER)
             self._check_frames(h, start, first)
-            times[start : start + len(h)] = h["FrameTime"].astype(np.int64) * 1000
+            us = h["FrameTime"]
+            over = us > _MAX_FRAME_TIME_US
+            if over.any():
+                k = start + int(np.flatnonzero(over)[0])
+                raise SourceError(
+                    f"{self.path}: frame {k} (byte {_field_at(k, self.frame_bytes, 'FrameTime')}"
+                    f"): FrameTime {int(us[over][0])} us is past the year 2262, the latest "
+                    "time a signed 64-bit count of ns holds (a corrupt or unset clock)"
+                )
+            times[start : start + len(h)] = us.astype(np.int64) * 1000
             telephoto += int(np.count_nonzero(h["LargeLens"]))
         return times, telephoto
 

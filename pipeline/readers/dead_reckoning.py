@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.clock import gap_warning
 from sonarmap.pipeline.readers.depth import (
     STANDARD_ATMOSPHERE_PA,
     depth_kind,
@@ -82,18 +83,24 @@ class NavigationSensors(SensorGeometry):
         T_imu, imu_info = self._mount(
             "imu", frames[self.roles.imu] or base, None, o.imu_mount_rpy_deg, _ALIGNED, ("rpy",)
         )
-        # Bad IMU samples are dropped (DVL samples go through the gates below).
+        # Bad IMU samples are dropped (DVL samples go through the gates below): a NaN
+        # angular rate would move the lever-arm correction as much as a NaN attitude.
         q = np.asarray(imu_q, np.float64).reshape(-1, 4)
-        ok_q = valid_pose_rows(np.zeros((len(q), 3)), q)
+        w_all = np.asarray(imu_w, np.float64).reshape(-1, 3)
+        ok_q = valid_pose_rows(w_all, q)
         self._drop_warning(self.roles.imu, ok_q)
-        q, w_imu, t_imu = q[ok_q], np.asarray(imu_w, np.float64)[ok_q], np.asarray(imu_t)[ok_q]
+        q, w_imu, t_imu = q[ok_q], w_all[ok_q], np.asarray(imu_t, np.int64)[ok_q]
+        for topic, times in ((self.roles.imu, t_imu), (self.roles.dvl, dvl_t)):
+            gap = gap_warning(f"{where}: {topic}", np.sort(np.asarray(times, np.int64)), "motion")
+            if gap:
+                self._warn(gap)
         R_bi = T_imu[:3, :3]
         if not np.allclose(R_bi, np.eye(3), atol=1e-12):
             # The IMU reports its own frame's attitude: R_world_base = R_world_imu R_base_imu^T.
             from scipy.spatial.transform import Rotation  # only for a mounted IMU
 
             q = (Rotation.from_quat(q) * Rotation.from_matrix(R_bi).inv()).as_quat()
-        w_base = np.nan_to_num(w_imu) @ R_bi.T
+        w_base = w_imu @ R_bi.T
         # DVL: gates, then base_link velocity (mount rotation and lever arm).
         t_dvl = np.asarray(dvl_t, np.int64)
         v_dvl = np.asarray(dvl_v, np.float64).reshape(-1, 3)
@@ -111,6 +118,7 @@ class NavigationSensors(SensorGeometry):
                 + f" of {len(t_dvl)} DVL samples (dead reckoning interpolates across them)"
             )
         t_dvl, v_dvl = t_dvl[gated.keep], v_dvl[gated.keep]
+        self._check_span(t_dvl, t_imu)
         omega = np.stack([np.interp(t_dvl, t_imu, w_base[:, i]) for i in range(3)], axis=1)
         v_base = body_velocity(v_dvl, T_dvl[:3, :3], T_dvl[:3, 3], omega)
         dep_t, dep, depth_info = self._depth()
@@ -128,6 +136,24 @@ class NavigationSensors(SensorGeometry):
         }
         self._provenance["depth"] = depth_info
         return dead_reckon(t_dvl, v_base, t_imu, q, dep_t, dep, max(o.dvl_max_velocity_mps, 1e9))
+
+    def _check_span(self, t_dvl: np.ndarray, t_imu: np.ndarray) -> None:
+        """Refuse DVL samples that span no time inside the IMU's: nothing to integrate."""
+        where = f"{self.source.path}: {self.roles.dvl}"
+        inside = np.unique(t_dvl[(t_dvl >= t_imu[0]) & (t_dvl <= t_imu[-1])])
+        if len(inside) >= 2:
+            return
+        if len(np.unique(t_dvl)) < 2:
+            raise SourceError(
+                f"{where}: the DVL has {len(t_dvl)} usable sample(s) at "
+                f"{len(np.unique(t_dvl))} distinct time(s); dead reckoning needs at least two "
+                "times to integrate the velocity over"
+            )
+        raise SourceError(
+            f"{where}: DVL samples t_ns={int(t_dvl[0])}..{int(t_dvl[-1])} have "
+            f"{len(inside)} distinct time(s) inside the IMU {self.roles.imu} span "
+            f"t_ns={int(t_imu[0])}..{int(t_imu[-1])}; dead reckoning needs at least two"
+        )
 
     def _drop_warning(self, name: str | None, ok: np.ndarray) -> None:
         if len(ok) and not ok.any():

@@ -25,7 +25,8 @@ from mcap.stream_reader import StreamReader
 from mcap.summary import Summary
 
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.readers.mcap_index import index_locations
+from sonarmap.pipeline.readers.clock import backwards
+from sonarmap.pipeline.readers.mcap_index import Locations, index_locations
 from sonarmap.pipeline.readers.mcap_integrity import IndexCorrupt, summary_crc_problem
 from sonarmap.pipeline.readers.mcap_scan import (
     ChunkCorrupt,
@@ -75,6 +76,8 @@ class _McapFile:
         self.channels: dict[int, Channel] = {}
         self.schemas: dict[int, Schema] = {}
         self.times: dict[int, np.ndarray] = {}
+        self.behind: dict[int, set[int]] = {}
+        self.clock_warnings: list[str] = []
         if self.summary is not None and self.summary.chunk_indexes:
             self.channels = dict(self.summary.channels)
             self.schemas = dict(self.summary.schemas)
@@ -105,6 +108,22 @@ class _McapFile:
         if self.summary is None or not self.summary.chunk_indexes:
             self.summary = None
             self._scan_index()
+        else:
+            self._drop_backwards_indexed()
+
+    def _drop_backwards_indexed(self) -> None:
+        """Index entries recorded behind an earlier time of their channel are dropped
+        (`clock.backwards`, by the file order of chunk and offset), with a warning."""
+        for cid, loc in list(self.locations.items()):
+            order = np.lexsort((loc.offset, loc.chunk))
+            found = backwards(loc.t[order])
+            if found is None:
+                continue
+            keep = np.ones(len(loc.t), bool)
+            keep[order[found.behind]] = False
+            self.locations[cid] = Locations(loc.t[keep], loc.chunk[keep], loc.offset[keep])
+            self.times[cid] = loc.t[keep]
+            self.clock_warnings.append(found.warning(f"{self.path}: {self.channels[cid].topic}"))
 
     def _scan_index(self) -> None:
         self.channels, self.schemas = {}, {}
@@ -116,7 +135,16 @@ class _McapFile:
                 self.channels[rec.id] = rec
             elif isinstance(rec, Schema):
                 self.schemas[rec.id] = rec
-        self.times = {c: np.sort(np.asarray(t, dtype=np.int64)) for c, t in times.items()}
+        self.times = {}
+        for c, t_list in times.items():
+            t = np.asarray(t_list, dtype=np.int64)
+            found = backwards(t)
+            if found is not None:
+                self.behind[c] = set(np.flatnonzero(found.behind).tolist())
+                name = self.channels[c].topic if c in self.channels else f"channel {c}"
+                self.clock_warnings.append(found.warning(f"{self.path}: {name}"))
+                t = t[~found.behind]
+            self.times[c] = np.sort(t)
 
     def raw(
         self, channel_ids: set[int], times: Collection[int] | None
@@ -127,12 +155,15 @@ class _McapFile:
             yield from self._indexed(channel_ids, times)
             return
         wanted = None if times is None else set(times)
+        seen: dict[int, int] = defaultdict(int)
         for rec in scan_records(self.path, ScanResult()):
-            if (
-                isinstance(rec, Message)
-                and rec.channel_id in channel_ids
-                and (wanted is None or rec.log_time in wanted)
-            ):
+            if not isinstance(rec, Message) or rec.channel_id not in channel_ids:
+                continue
+            k = seen[rec.channel_id]
+            seen[rec.channel_id] = k + 1
+            if k in self.behind.get(rec.channel_id, ()):
+                continue  # recorded behind an earlier time: dropped when opened
+            if wanted is None or rec.log_time in wanted:
                 yield rec.channel_id, rec.log_time, rec.data
 
     def _chunk(self, k: int, ahead: Sequence[int] = ()) -> bytes:
@@ -253,9 +284,9 @@ class McapSource:
         except OSError as err:
             raise SourceError(f"{path}: cannot read ({err})") from err
         for f in self._files:
-            if f.index_problem:
-                self.warnings.append(f.index_problem)
-                log.warning(f.index_problem)
+            for problem in ([f.index_problem] if f.index_problem else []) + f.clock_warnings:
+                self.warnings.append(problem)
+                log.warning(problem)
             if f.summary is None and f.scan.unreadable_bytes:
                 msg = (
                     f"{f.path}: truncated or corrupt MCAP: {f.scan.unreadable_bytes} of "

@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.clock import gap_warning
 from sonarmap.pipeline.readers.dead_reckoning import NavigationSensors
 from sonarmap.pipeline.readers.geometry_checks import (
     MAX_JUMP_M,
@@ -31,7 +32,7 @@ from sonarmap.pipeline.readers.sonar_decode import (
     sonar_descriptions,
 )
 from sonarmap.pipeline.readers.source_types import Source
-from sonarmap.pipeline.readers.tf_tree import TfTree
+from sonarmap.pipeline.readers.tf_tree import TfConflict, TfTree
 from sonarmap.schemas.recording import PoseTrack
 from sonarmap.schemas.sonar import SonarPing, beam_angles_from_directions
 from sonarmap.schemas.topics import FRAME_BASE
@@ -183,6 +184,9 @@ class SourceRecording(NavigationSensors):
             )
         kept = [r for r, good in zip(rows, ok.tolist(), strict=True) if good]
         out = pose_track_rows(kept)
+        gap = gap_warning(where, out.t_ns, "a pose")
+        if gap:
+            self._warn(gap)
         glitch = navigation_glitches(out.t_ns, out.xyz_m)
         if glitch.any():
             self._warn(
@@ -326,7 +330,10 @@ class SourceRecording(NavigationSensors):
             return tree
         for _, _, msg in self.source.messages([topic]):
             for tf in msg.transforms:
-                tree.add(tf.header.frame_id, tf.child_frame_id, self._mounting(tf, topic))
+                try:
+                    tree.add(tf.header.frame_id, tf.child_frame_id, self._mounting(tf, topic))
+                except TfConflict as err:
+                    raise SourceError(f"{self.source.path}: {topic}: {err}") from None
         return tree
 
     def _mounting(self, tf: Any, topic: str) -> np.ndarray:

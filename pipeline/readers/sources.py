@@ -30,6 +30,8 @@ def _sniff(path: Path) -> str:
             return "rosbag2"
         raise SourceError(f"{path}: a directory without metadata.yaml is not a ROS 2 bag")
     if not path.is_file():
+        if path.exists():
+            raise SourceError(f"{path}: not a regular file (a FIFO, device or socket)")
         raise SourceError(f"{path}: no such file")
     size = path.stat().st_size
     if size == 0:
@@ -140,5 +142,7 @@ def dataset_fingerprint_parts(path: Path) -> list[Path]:
         files = [path / "metadata.yaml"] + [path / n for n in meta.get("relative_file_paths", [])]
         return sorted(f.resolve() for f in files)
     if not path.is_file():
+        if path.exists():
+            raise SourceError(f"{path}: not a regular file (a FIFO, device or socket)")
         raise SourceError(f"{path}: no such file")
     return [path.resolve()]

@@ -17,7 +17,11 @@ from itertools import pairwise
 
 import numpy as np
 
-__all__ = ["TfTree", "normalise_frame"]
+__all__ = ["TfConflict", "TfTree", "normalise_frame"]
+
+
+class TfConflict(ValueError):
+    """A transform that contradicts the tree (a second parent for a frame)."""
 
 
 def normalise_frame(frame: str) -> str:
@@ -31,10 +35,42 @@ class TfTree:
 
     edges: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
     changing: set[tuple[str, str]] = field(default_factory=set)
+    parents: dict[str, str] = field(default_factory=dict)
+    _group: dict[str, str] = field(default_factory=dict)
+
+    def _root(self, frame: str) -> str:
+        while self._group.get(frame, frame) != frame:
+            frame = self._group[frame]
+        return frame
+
+    def _check_new_link(self, parent: str, child: str) -> None:
+        """Refuse a link between frames the tree already connects: two ways from one
+        frame to another give two mounts (a child published first, e.g. sonar -> mount,
+        is one way and allowed)."""
+        other = self.parents.get(child)
+        if self._root(parent) == self._root(child):
+            if other is not None and other != parent:
+                raise TfConflict(
+                    f"frame {child!r} has two parents, {other!r} and {parent!r} (a frame "
+                    "has one parent in a tf tree; remove one of the transforms)"
+                )
+            raise TfConflict(
+                f"transform {parent} -> {child} closes a loop: the tree already joins "
+                "them another way (remove one of the transforms)"
+            )
+        self.parents.setdefault(child, parent)
+        self._group[self._root(child)] = self._root(parent)
 
     def add(self, parent: str, child: str, T: np.ndarray) -> None:
-        """Add an edge; a repeated edge with another value is kept first and marked."""
+        """Add an edge; a repeated edge with another value is kept first and marked.
+
+        Raises:
+            TfConflict: `child` already has another parent (tf2 allows one; which mount
+                is meant cannot be known).
+        """
         key = (normalise_frame(parent), normalise_frame(child))
+        if key not in self.edges and key[::-1] not in self.edges:
+            self._check_new_link(*key)
         if key in self.edges:
             if not np.allclose(self.edges[key], T, atol=1e-6):
                 self.changing.add(key)

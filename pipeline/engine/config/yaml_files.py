@@ -10,8 +10,9 @@ make sonarmap build something large or recurse without end:
 - an integer scalar longer than `MAX_INT_CHARS` is refused before `int()` sees it;
 - a document of more than its node cap (`CONFIG_MAX_NODES` by default) is refused while
   composing, so the time spent on a file is bounded whatever its shape;
-- a file must be a regular file no larger than its cap (checked with `os.stat` before
-  opening, and at most cap+1 bytes are read), so `/dev/zero` or a FIFO is refused.
+- a file must be a regular file no larger than its cap (`user_files.read_user_file`:
+  `fstat` after a non-blocking open, at most cap+1 bytes read), so `/dev/zero` or a FIFO
+  is refused.
 
 Each refusal happens before the document is constructed and is one line naming the file
 (or `--set KEY`) and the 1-based line:column. PyYAML's own messages span 4-7 lines with
@@ -20,8 +21,6 @@ an excerpt of the file; they are reduced to the same one-line form.
 
 from __future__ import annotations
 
-import os
-import stat
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -221,28 +220,10 @@ def load_yaml_text(
 
 
 def _read_capped(path: Path, what: str, error: type[PipelineError], max_bytes: int) -> bytes:
-    """The bytes of a regular file of at most `max_bytes` (stat first, read cap+1)."""
-    where = one_line(str(path))
-    try:
-        info = os.stat(path)
-    except OSError as err:
-        raise error(f"{where}: cannot read {what} ({err.strerror})") from err
-    if not stat.S_ISREG(info.st_mode):
-        raise error(f"{where}: {what} is not a regular file")
-    if info.st_size > max_bytes:
-        raise error(f"{where}: {what} is {info.st_size} bytes (at most {max_bytes} are read)")
-    try:
-        # O_NONBLOCK: if the file was swapped for a FIFO after the stat, open cannot hang.
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-        with os.fdopen(fd, "rb") as f:
-            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-                raise error(f"{where}: {what} is not a regular file")
-            data = f.read(max_bytes + 1)
-    except OSError as err:
-        raise error(f"{where}: cannot read {what} ({err.strerror})") from err
-    if len(data) > max_bytes:
-        raise error(f"{where}: {what} is over {max_bytes} bytes (at most {max_bytes} are read)")
-    return data
+    """The bytes of a regular file of at most `max_bytes` (`user_files.read_user_file`)."""
+    from sonarmap.pipeline.engine.user_files import read_user_file
+
+    return read_user_file(path, what, error, max_bytes)
 
 
 def read_yaml(

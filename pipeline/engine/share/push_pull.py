@@ -35,7 +35,13 @@ from sonarmap.pipeline.engine.share.remote_index import (
     remote_stages,
     resolve_remote,
 )
-from sonarmap.pipeline.engine.share.remotes import display, open_remote, read_only
+from sonarmap.pipeline.engine.share.remotes import (
+    check_bucket,
+    display,
+    open_remote,
+    read_only,
+    remote_failure,
+)
 from sonarmap.pipeline.engine.share.transfer import (
     Job,
     TransferStats,
@@ -129,6 +135,7 @@ def push(
     fallbacks: Sequence[ArtifactStore] = (),
     policy: TrustPolicy | None = None,
     stats: TransferStats | None = None,
+    create: bool = False,
 ) -> list[str]:
     """Copy artifacts (by stage name or key prefix; all when none given) to `remote`.
 
@@ -148,6 +155,26 @@ def push(
             f"remote {display(remote)} is read-only (http); push to a path, s3:// or sftp://"
         )
     fs, root = open_remote(remote)
+    try:
+        check_bucket(fs, root, remote, create)
+        return _push(store, fs, root, remote, targets, with_upstream, fallbacks, policy, stats)
+    except (StoreError, ArtifactCorrupt):
+        raise
+    except Exception as err:  # a library's own error types: named with their cause
+        raise remote_failure(err, remote, "push") from err
+
+
+def _push(
+    store: ArtifactStore,
+    fs: Any,
+    root: str,
+    remote: str,
+    targets: Sequence[str],
+    with_upstream: bool,
+    fallbacks: Sequence[ArtifactStore],
+    policy: TrustPolicy,
+    stats: TransferStats,
+) -> list[str]:
     chosen = [store.find(t) for t in targets] if targets else list(store.iter_artifacts())
 
     def holder(stage: str, key: str) -> ArtifactRef:
@@ -234,6 +261,8 @@ def pull(
     fs, root = open_remote(remote)
     try:
         return _pull(store, fs, root, remote, targets, with_upstream, policy, stats)
+    except (StoreError, ArtifactCorrupt):
+        raise
     except OSError as err:
         # A full or read-only disk is the store's; anything else without a local file
         # name (refused connection, timeout, permission at the server) is the remote's.
@@ -241,8 +270,10 @@ def pull(
         if local or err.errno in (errno.ENOSPC, errno.EROFS, errno.EDQUOT):
             where = err.filename if local else str(store.root)
         else:
-            where = f"remote {display(remote)}"
+            raise remote_failure(err, remote, "pull") from err
         raise os_error(err, where) from err
+    except Exception as err:  # a library's own error types: named with their cause
+        raise remote_failure(err, remote, "pull") from err
 
 
 def _pull(

@@ -21,6 +21,7 @@ from sonarmap.pipeline.engine.share.trust import TrustPolicy, check_not_reserved
 from sonarmap.pipeline.engine.store.manifest import parse_manifest
 
 __all__ = [
+    "MAX_LISTING",
     "MAX_MANIFEST_BYTES",
     "list_remote",
     "remote_manifest",
@@ -33,12 +34,23 @@ MAX_MANIFEST_BYTES = 16 << 20
 _HEX = re.compile(r"^[0-9a-f]{1,64}$")
 
 
+MAX_LISTING = 10_000
+"""Most entries one remote folder may list: a store's stage folders and one stage's
+artifacts are far fewer; a listing beyond it (each key then needs a request) is refused
+rather than walked for hours."""
+
+
 def _names(fs: Any, path: str) -> list[str]:
     """Last path components under `path` (directories and files), [] when absent."""
     try:
         entries = fs.ls(path, detail=False)
     except FileNotFoundError:
         return []
+    if len(entries) > MAX_LISTING:
+        raise StoreError(
+            f"remote folder {path.rsplit('/', 2)[-1][:60]!r} lists {len(entries)} entries, over "
+            f"the limit of {MAX_LISTING}; pull by stage and key prefix from a smaller remote"
+        )
     return sorted({str(p).rstrip("/").rsplit("/", 1)[-1] for p in entries})
 
 

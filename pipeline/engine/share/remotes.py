@@ -8,13 +8,21 @@ message names a remote through `display`, which drops the user-info part.
 
 from __future__ import annotations
 
+import os
 import re
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from sonarmap.pipeline.engine.errors import StoreError
 
-__all__ = ["display", "open_remote", "read_only"]
+__all__ = [
+    "check_bucket",
+    "display",
+    "open_remote",
+    "read_only",
+    "remote_failure",
+    "remote_timeout_s",
+]
 
 _EXTRAS = {
     "s3": "s3fs",
@@ -51,6 +59,84 @@ def _scrub(text: str, remote: str) -> str:
     return re.sub(r"\s+", " ", text)[:200]
 
 
+TIMEOUT_ENV = "SONARMAP_REMOTE_TIMEOUT_S"
+DEFAULT_TIMEOUT_S = 15.0
+"""Connect and read timeout of every remote request [s]: a server that accepts and never
+answers fails a command in seconds (aiohttp's default is 5 minutes per request)."""
+
+
+def remote_timeout_s() -> float:
+    raw = os.environ.get(TIMEOUT_ENV, "").strip()
+    try:
+        value = float(raw) if raw else DEFAULT_TIMEOUT_S
+    except ValueError:
+        value = DEFAULT_TIMEOUT_S
+    return value if 0 < value <= 3600 else DEFAULT_TIMEOUT_S
+
+
+def _timeouts(scheme: str) -> dict[str, Any]:
+    """Storage options that bound each library's connect and read waits."""
+    t = remote_timeout_s()
+    if scheme in ("http", "https"):
+        import aiohttp
+
+        timeout = aiohttp.ClientTimeout(total=None, connect=t, sock_connect=t, sock_read=t)
+        return {"client_kwargs": {"timeout": timeout}}
+    if scheme in ("s3", "s3a"):
+        return {"config_kwargs": {"connect_timeout": t, "read_timeout": t,
+                                  "retries": {"max_attempts": 2, "mode": "standard"}}}  # fmt: skip
+    if scheme in ("ssh", "sftp"):
+        return {"connect_timeout": t, "login_timeout": t}
+    return {}
+
+
+def remote_failure(err: BaseException, remote: str, operation: str) -> StoreError:
+    """One line naming the remote, the operation and the cause (denied, not found, timed
+    out, connection dropped, redirect loop) of a library's error, credentials scrubbed."""
+    cause = "failed"
+    seen: set[int] = set()
+    current: BaseException | None = err
+    while current is not None and id(current) not in seen:
+        seen.add(id(current))
+        found = _cause(current)
+        if found:
+            cause = found
+            break
+        current = current.__cause__ or current.__context__
+    detail = _scrub(f"{type(err).__name__}: {err}", remote)
+    return StoreError(f"remote {display(remote)}: {operation}: {cause} ({detail})")
+
+
+_CAUSES: tuple[tuple[tuple[str, ...], str], ...] = (
+    (("TooManyRedirects",), "too many redirects (a redirect loop)"),
+    (("PermissionError", "AccessDenied", "InvalidAccessKeyId", "SignatureDoesNotMatch",
+      "NoCredentialsError", "PermissionDenied"), "access denied (check the credentials)"),
+    (("FileNotFoundError", "NoSuchBucket", "NoSuchKey"), "not found"),
+    (("TimeoutError", "ReadTimeoutError", "ConnectTimeoutError", "ServerTimeoutError",
+      "ConnectionTimeoutError", "SocketTimeoutError"), "timed out"),
+    (("ConnectionError", "EndpointConnectionError", "ClientConnectorError",
+      "ServerDisconnectedError", "ClientOSError", "ConnectionResetError", "BrokenPipeError",
+      "ConnectionRefusedError", "ClientPayloadError", "ConnectionLost"), "connection dropped"),
+    (("ParamValidationError", "InvalidBucketName"), "invalid request"),
+)  # fmt: skip
+
+
+_AWS_CODES = ("AccessDenied", "InvalidAccessKeyId", "SignatureDoesNotMatch", "NoSuchBucket")
+"""S3 error codes, found in the text of the error s3fs or botocore raises."""
+
+
+def _cause(err: BaseException) -> str | None:
+    names = {c.__name__ for c in type(err).__mro__}
+    text = str(err)
+    names |= {code for code in _AWS_CODES if code in text}
+    for keys, cause in _CAUSES:
+        if names & set(keys):
+            if cause == "timed out":
+                return f"timed out (no answer within {remote_timeout_s():g} s)"
+            return cause
+    return None
+
+
 def open_remote(remote: str) -> tuple[Any, str]:
     """The fsspec filesystem and root path of `remote` (no trailing slash).
 
@@ -63,7 +149,7 @@ def open_remote(remote: str) -> tuple[Any, str]:
     # known hosts come from ~/.ssh like the ssh command's.
     scheme = urlsplit(remote).scheme
     try:
-        fs, root = fsspec.core.url_to_fs(remote)
+        fs, root = fsspec.core.url_to_fs(remote, **_timeouts(scheme))
     except ImportError as err:
         package = _EXTRAS.get(scheme, scheme)
         how = "'sonarmap[remotes]'" if scheme in _IN_EXTRA else package
@@ -72,6 +158,33 @@ def open_remote(remote: str) -> tuple[Any, str]:
         ) from err
     except (ValueError, OSError) as err:
         raise StoreError(f"remote {display(remote)}: {_scrub(str(err), remote)}") from err
+    if scheme in ("s3", "s3a"):
+        fs.retries = 2  # s3fs retries a timeout 5 times with back-off: minutes, not seconds
     if scheme in ("http", "https"):
         return fs, remote.rstrip("/")
     return fs, str(root).rstrip("/")
+
+
+def check_bucket(fs: Any, root: str, remote: str, create: bool) -> None:
+    """Refuse a bucket that does not exist (an object store would create one on the first
+    write, under whatever name a typo gave) unless `create`."""
+    protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
+    if protocol not in ("s3", "s3a", "gs", "gcs"):
+        return
+    bucket = root.split("/", 1)[0]
+    if protocol in ("s3", "s3a"):
+        # Not `exists`: s3fs answers False for an endpoint it cannot reach as well.
+        try:
+            fs.call_s3("head_bucket", Bucket=bucket)
+            return
+        except FileNotFoundError:
+            pass
+    elif fs.exists(bucket):
+        return
+    shown = _scrub(bucket, remote)  # a URL's user-info may have been parsed into it
+    if not create:
+        raise StoreError(
+            f"remote {display(remote)}: push: bucket {shown!r} does not exist (pass --create "
+            "to create it)"
+        )
+    fs.mkdir(bucket)

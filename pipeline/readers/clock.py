@@ -1,0 +1,95 @@
+"""Recorder clocks that run backwards or jump: found per topic, in the order recorded.
+
+A topic's messages are stored in the order they arrived; their log times should not
+decrease along it. A clock that is reset (NTP step, a PC clock set back) stores later
+messages with earlier times; sorted by time they interleave with the first run and a
+track zig-zags between two places. Such messages (more than `BACKWARDS_TOLERANCE_NS`
+behind the latest time before them) are dropped, counted and named in a warning; a
+recorder's own jitter (a few ms between threads) is within the tolerance and is sorted.
+
+Forward jumps (a gap far longer than the topic's usual interval) lose nothing, but
+anything interpolated across one is a guess: they are counted and warned.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "BACKWARDS_TOLERANCE_NS",
+    "GAP_FACTOR",
+    "MIN_GAP_NS",
+    "Backwards",
+    "backwards",
+    "gap_warning",
+]
+
+BACKWARDS_TOLERANCE_NS = 100_000_000
+"""A message this far behind an earlier one of its topic [ns] is a clock set back, not
+the jitter of a recorder's threads (milliseconds)."""
+
+GAP_FACTOR = 20.0
+"""A gap longer than this many of the topic's median intervals is a jump ..."""
+
+MIN_GAP_NS = 1_000_000_000
+"""... when it is also at least this long [ns] (a 1 Hz topic missing a sample is not)."""
+
+
+@dataclass(frozen=True)
+class Backwards:
+    """Messages of one topic behind an earlier one (file order).
+
+    Attributes:
+        behind: (n,) bool, True for each message dropped, in the order given.
+        first_t_ns: log time of the first one dropped.
+        back_ns: how far it is behind the latest time before it.
+    """
+
+    behind: np.ndarray
+    first_t_ns: int
+    back_ns: int
+
+    def warning(self, where: str) -> str:
+        n, total = int(self.behind.sum()), len(self.behind)
+        return (
+            f"{where}: the clock runs backwards: dropped {n} of {total} messages recorded "
+            f"after a later time (first at t_ns={self.first_t_ns}, "
+            f"{self.back_ns * 1e-9:.4g} s back)"
+        )
+
+
+def backwards(t_file_order: np.ndarray, tol_ns: int = BACKWARDS_TOLERANCE_NS) -> Backwards | None:
+    """The messages recorded with a time more than `tol_ns` behind an earlier message's,
+    or None when the clock never runs back that far."""
+    t = np.asarray(t_file_order, np.int64)
+    if len(t) < 2:
+        return None
+    latest = np.maximum.accumulate(t)
+    # Compare with the latest time *before* each message (the first has none).
+    before = np.r_[t[0], latest[:-1]]
+    behind = (before - t) > tol_ns
+    if not behind.any():
+        return None
+    k = int(np.flatnonzero(behind)[0])
+    return Backwards(behind, int(t[k]), int(before[k] - t[k]))
+
+
+def gap_warning(where: str, t_sorted: np.ndarray, what: str) -> str | None:
+    """A warning for jumps forward in an ascending time series (None when there are
+    none): count, the largest and where it starts."""
+    t = np.asarray(t_sorted, np.int64)
+    if len(t) < 3:
+        return None
+    dt = np.diff(t)
+    limit = max(float(np.median(dt)) * GAP_FACTOR, MIN_GAP_NS)
+    big = dt > limit
+    if not big.any():
+        return None
+    k = int(np.argmax(dt))
+    return (
+        f"{where}: the clock jumps forward {int(big.sum())} time(s) (largest "
+        f"{dt[k] * 1e-9:.4g} s after t_ns={int(t[k])}, over {limit * 1e-9:.3g} s); "
+        f"{what} across a jump is interpolated"
+    )
