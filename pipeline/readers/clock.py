@@ -76,9 +76,12 @@ def backwards(t_file_order: np.ndarray, tol_ns: int = BACKWARDS_TOLERANCE_NS) ->
     return Backwards(behind, int(t[k]), int(before[k] - t[k]))
 
 
-def gap_warning(where: str, t_sorted: np.ndarray, what: str) -> str | None:
+def gap_warning(
+    where: str, t_sorted: np.ndarray, what: str, consequence: str | None = None
+) -> str | None:
     """A warning for jumps forward in an ascending time series (None when there are
-    none): count, the largest and where it starts."""
+    none): count, the largest and where it starts, then `consequence` (by default that
+    `what` across a jump is interpolated)."""
     t = np.asarray(t_sorted, np.int64)
     if len(t) < 3:
         return None
@@ -91,5 +94,5 @@ def gap_warning(where: str, t_sorted: np.ndarray, what: str) -> str | None:
     return (
         f"{where}: the clock jumps forward {int(big.sum())} time(s) (largest "
         f"{dt[k] * 1e-9:.4g} s after t_ns={int(t[k])}, over {limit * 1e-9:.3g} s); "
-        f"{what} across a jump is interpolated"
+        + (consequence or f"{what} across a jump is interpolated")
     )

@@ -154,6 +154,14 @@ class SourceRecording(NavigationSensors):
                     f"{self.source.path}: {topic}: dropped {len(raw) - len(times)} of "
                     f"{len(raw)} pings (duplicate timestamps; the first of each is used)"
                 )
+            gap = gap_warning(
+                f"{self.source.path}: {topic}",
+                times,
+                "pings",
+                "nothing is mapped across a jump (the sonar stopped, or its clock was set on)",
+            )
+            if gap:
+                self._warn(gap)
             self._ping_times[sonar] = times
         return self._ping_times[sonar]
 

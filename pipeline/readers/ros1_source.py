@@ -2,11 +2,16 @@
 
 Message type names are rosbags' ROS 2 style ("sonar_oculus/msg/OculusPing"); the bag's
 embedded definitions are used to deserialise, so custom types need no registration.
+
+A bag stores messages in the order they arrived (chunks in file order, messages at
+rising offsets within a chunk) while its index is sorted by time, so a recorder clock set
+back shows in the file order: such messages are dropped with a warning (`clock.backwards`).
 """
 
 from __future__ import annotations
 
 import bz2
+import logging
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator, Sequence
 from pathlib import Path
@@ -16,8 +21,11 @@ import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.formats.rosmsg import ros1_typestore
+from sonarmap.pipeline.readers.clock import backwards
 from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
 from sonarmap.pipeline.readers.source_types import TimeIndexedSource
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Ros1Source"]
 
@@ -71,12 +79,42 @@ class Ros1Source(TimeIndexedSource):
         self._conns = defaultdict(list)
         for conn in self._reader.connections:
             self._conns[conn.topic].append(conn)
+        # What the index claims, less what a clock set back drops (warned on its own).
+        counts = {t: sum(c.msgcount for c in conns) for t, conns in self._conns.items()}
+        for topic, conns in self._conns.items():
+            counts[topic] -= self._drop_backwards(topic, conns)
         self._set_topics(
             path,
             {topic: self._index_times(conns) for topic, conns in self._conns.items()},
             {topic: conns[0].msgtype for topic, conns in self._conns.items()},
-            {topic: sum(c.msgcount for c in conns) for topic, conns in self._conns.items()},
+            counts,
         )
+
+    def _drop_backwards(self, topic: str, conns: list[Any]) -> int:
+        """Drop from the index the messages of `topic` recorded behind an earlier time
+        (file order: chunk position, then offset in the chunk); how many were dropped."""
+        bag: Any = self._reader.readers[0]
+        entries = [(k, e) for k, c in enumerate(conns) for e in bag.indexes[c.id]]
+        if len(entries) < 2:
+            return 0
+        table = np.array([(e.time, e.chunk_pos, e.offset) for _, e in entries], np.int64)
+        order = np.lexsort((table[:, 2], table[:, 1]))
+        found = backwards(table[order, 0])
+        if found is None:
+            return 0
+        drop = np.zeros(len(entries), bool)
+        drop[order[found.behind]] = True
+        for k, c in enumerate(conns):
+            # Still sorted by time: rosbags merges the connections' lists by time.
+            bag.indexes[c.id] = [
+                e
+                for (j, e), gone in zip(entries, drop.tolist(), strict=True)
+                if j == k and not gone
+            ]
+        line = found.warning(f"{self.path}: {topic}")
+        self.warnings.append(line)
+        log.warning(line)
+        return int(drop.sum())
 
     def _bound_chunks(self) -> None:
         """Give every chunk a decompressor capped at the size its header declares, and

@@ -8,10 +8,15 @@ Reading never writes beside the recording: each database is opened read-only and
 immutable (`?mode=ro&immutable=1`), so sqlite neither creates the `-shm`/`-wal` files a
 WAL-mode database otherwise gets on open nor needs a writable directory (archive shares,
 mounted disk images).
+
+Messages are stored in the order they arrived (rising row id, split files in order) and
+sorted by time when read, so a recorder clock set back shows in the row order: such
+messages are dropped with a warning (`clock.backwards`).
 """
 
 from __future__ import annotations
 
+import logging
 import sqlite3
 from collections.abc import Collection, Iterator, Sequence
 from pathlib import Path
@@ -20,8 +25,11 @@ from typing import Any
 import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.clock import backwards
 from sonarmap.pipeline.readers.source_types import TimeIndexedSource
 from sonarmap.pipeline.readers.typestores import Ros2Decoder
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SqliteSource"]
 
@@ -44,20 +52,40 @@ class SqliteSource(TimeIndexedSource):
         # sqlite bags carry no message definitions: custom types come from the user's files.
         self._decoder = Ros2Decoder(extra_types=extra_types)
         self._types: dict[str, str] = {}
-        times: dict[str, list[np.ndarray]] = {}
-        for f in self._files:
+        # (file number, row id, time) of each topic's messages, in the order recorded.
+        rows: dict[str, list[np.ndarray]] = {}
+        for k, f in enumerate(self._files):
             self._check_wal(f)
             with self._connect(f) as db:
                 for name, typ in db.execute("SELECT name, type FROM topics"):
                     self._types.setdefault(name, typ)
-                    rows = db.execute(
-                        "SELECT m.timestamp FROM messages m JOIN topics t ON m.topic_id = t.id "
-                        "WHERE t.name = ? ORDER BY m.timestamp",
-                        (name,),
+                    found = db.execute(
+                        "SELECT ?, m.id, m.timestamp FROM messages m JOIN topics t "
+                        "ON m.topic_id = t.id WHERE t.name = ? ORDER BY m.id",
+                        (k, name),
                     ).fetchall()
-                    times.setdefault(name, []).append(np.asarray(rows, np.int64).reshape(-1))
-        sorted_times = {k: np.sort(np.concatenate(v)) for k, v in times.items()}
+                    rows.setdefault(name, []).append(np.asarray(found, np.int64).reshape(-1, 3))
+        self._behind: set[tuple[int, int]] = set()
+        sorted_times = {k: self._drop_backwards(k, np.concatenate(v)) for k, v in rows.items()}
+        if indexed is not None:
+            # What metadata.yaml claims, less what a clock set back drops (warned already).
+            for name, t in sorted_times.items():
+                dropped = sum(len(r) for r in rows[name]) - len(t)
+                if name in indexed:
+                    indexed = {**indexed, name: indexed[name] - dropped}
         self._set_topics(path, sorted_times, self._types, indexed)
+
+    def _drop_backwards(self, topic: str, rows: np.ndarray) -> np.ndarray:
+        """The topic's ascending times, less the messages recorded behind an earlier time
+        (remembered by file and row id, so that `messages` skips them too)."""
+        found = backwards(rows[:, 2])
+        if found is None:
+            return np.sort(rows[:, 2])
+        self._behind.update((int(f), int(i)) for f, i in rows[found.behind, :2])
+        line = found.warning(f"{self.path}: {topic}")
+        self.warnings.append(line)
+        log.warning(line)
+        return np.sort(rows[~found.behind, 2])
 
     def _check_wal(self, f: Path) -> None:
         """An immutable open does not read a write-ahead log: say so when one holds data."""
@@ -85,15 +113,15 @@ class SqliteSource(TimeIndexedSource):
     ) -> Iterator[tuple[str, int, Any]]:
         wanted = None if times is None else set(times)
         marks = ",".join("?" * len(topics))
-        for f in self._files:
+        for k, f in enumerate(self._files):
             with self._connect(f) as db:
                 cur = db.execute(
-                    "SELECT t.name, m.timestamp, m.data FROM messages m JOIN topics t "
+                    "SELECT t.name, m.timestamp, m.data, m.id FROM messages m JOIN topics t "
                     f"ON m.topic_id = t.id WHERE t.name IN ({marks}) ORDER BY m.timestamp",
                     tuple(topics),
                 )
-                for name, t, data in cur:
-                    if wanted is not None and t not in wanted:
+                for name, t, data, row in cur:
+                    if (wanted is not None and t not in wanted) or (k, row) in self._behind:
                         continue
                     msg = self._decoder.decode(data, self._types[name], name)
                     if msg is not None:
