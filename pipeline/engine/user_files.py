@@ -19,12 +19,36 @@ import json
 import os
 import stat
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from sonarmap.pipeline.engine.errors import PipelineError
 from sonarmap.pipeline.engine.text import one_line
 
-__all__ = ["read_user_file", "read_user_json"]
+__all__ = ["open_user_file", "read_user_file", "read_user_json"]
+
+
+def open_user_file(path: Path | str, what: str, error: type[PipelineError]) -> BinaryIO:
+    """A regular file opened for binary reading (checked on the open handle), for a
+    caller that reads it in bounded pieces (a recording of any size).
+
+    Raises:
+        error: missing, unreadable or not a regular file (one line naming the file).
+    """
+    where = one_line(str(path))
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as err:
+        raise error(f"{where}: cannot read {what} ({err.strerror or err})") from err
+    try:
+        info = os.fstat(fd)
+    except OSError as err:
+        os.close(fd)
+        raise error(f"{where}: cannot read {what} ({err.strerror or err})") from err
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        raise error(f"{where}: {what} is not a regular file ({_kind(info.st_mode)})")
+    return os.fdopen(fd, "rb")
 
 
 def read_user_file(
@@ -37,20 +61,12 @@ def read_user_file(
             naming the file and the cap).
     """
     where = one_line(str(path))
-    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0)
+    f = open_user_file(path, what, error)
     try:
-        fd = os.open(path, flags)
-    except OSError as err:
-        raise error(f"{where}: cannot read {what} ({err.strerror or err})") from err
-    try:
-        info = os.fstat(fd)
-        if not stat.S_ISREG(info.st_mode):
-            os.close(fd)
-            raise error(f"{where}: {what} is not a regular file ({_kind(info.st_mode)})")
-        if info.st_size > max_bytes:
-            os.close(fd)
-            raise error(f"{where}: {what} is {info.st_size} bytes, over the limit of {max_bytes}")
-        with os.fdopen(fd, "rb") as f:
+        with f:
+            size = os.fstat(f.fileno()).st_size
+            if size > max_bytes:
+                raise error(f"{where}: {what} is {size} bytes, over the limit of {max_bytes}")
             data = f.read(max_bytes + 1)
     except OSError as err:
         raise error(f"{where}: cannot read {what} ({err.strerror or err})") from err

@@ -9,10 +9,16 @@ speedOfSoundUsed (f64), pingStartTime (u32), dataSize (u8), rangeResolution (f64
 nRanges, nBeams (u16), imageOffset, imageSize, messageSize (u32), then nBeams int16
 bearings [0.01 deg] at byte 122 and the image at `imageOffset`: nRanges rows of nBeams
 samples, each row preceded by a u32 gain when flag bit 2 (send gain) is set.
+
+A capture is read one message at a time (opened through the guarded reader, each message
+capped at `max_chunk_bytes`), never whole: memory stays one ping whatever its size, and a
+header claiming more than the file holds is found from the file's size, not by reading.
 """
 
 from __future__ import annotations
 
+import os
+from array import array
 from collections.abc import Collection, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +27,8 @@ from typing import Any
 import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.user_files import open_user_file
+from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
 from sonarmap.pipeline.readers.source_types import TopicInfo
 
 __all__ = ["OCULUS_RAW_TOPIC", "OCULUS_RAW_TYPE", "OculusRawPing", "OculusRawSource", "parse_ping"]
@@ -142,21 +150,42 @@ class OculusRawSource:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.warnings: list[str] = []
-        self._buf = path.read_bytes()
-        self._offsets: list[int] = []
-        pos = 0
-        while pos < len(self._buf):
-            try:
-                _, nxt = parse_ping(self._buf, pos)
-            except ValueError as err:
-                if not self._offsets:
-                    raise SourceError(f"{path}: not a raw Oculus capture ({err})") from err
-                self.warnings.append(
-                    f"{path}: {len(self._buf) - pos} trailing bytes unreadable ({err})"
-                )
-                break
-            self._offsets.append(pos)
-            pos = nxt
+        # Start and size of each message (8 bytes a ping, not a list of Python ints).
+        self._offsets, self._sizes = array("q"), array("q")
+        with open_user_file(path, "raw Oculus capture", SourceError) as f:
+            size = os.fstat(f.fileno()).st_size
+            pos = 0
+            while pos < size:
+                try:
+                    n = self._message(f, pos, size)
+                except ValueError as err:
+                    if not self._offsets:
+                        raise SourceError(f"{path}: not a raw Oculus capture ({err})") from err
+                    self.warnings.append(f"{path}: {size - pos} trailing bytes unreadable ({err})")
+                    break
+                self._offsets.append(pos)
+                self._sizes.append(n)
+                pos += n
+
+    @staticmethod
+    def _message(f: Any, pos: int, size: int) -> int:
+        """The size of the message at `pos`, checked by decoding it (ValueError if it is
+        not a ping, is cut short, or is over the cap)."""
+        f.seek(pos)
+        head = f.read(_PING.itemsize)
+        if len(head) < _PING.itemsize:
+            raise ValueError(f"{len(head)} bytes left, a ping header needs {_PING.itemsize}")
+        n = 16 + int(np.frombuffer(head, _HEADER, 1)[0]["payload_size"])
+        limit = max_chunk_bytes()
+        if n > limit:
+            raise ValueError(
+                f"ping at byte {pos} declares {n} bytes, over the limit of {limit >> 20} MiB "
+                f"(set {CHUNK_LIMIT_ENV} to raise it)"
+            )
+        # A claim past the end of the file is cut short without reading up to it.
+        n = min(n, size - pos)
+        parse_ping(head + f.read(n - len(head)) if n > len(head) else head)
+        return n
 
     def topics(self) -> list[TopicInfo]:
         n = len(self._offsets)
@@ -173,10 +202,16 @@ class OculusRawSource:
         if OCULUS_RAW_TOPIC not in topics:
             return
         wanted = None if times is None else set(times)
-        for k, off in enumerate(self._offsets):
-            t = k * self.period_ns
-            if wanted is None or t in wanted:
-                yield OCULUS_RAW_TOPIC, t, parse_ping(self._buf, off)[0]
+        with open_user_file(self.path, "raw Oculus capture", SourceError) as f:
+            for k, (off, n) in enumerate(zip(self._offsets, self._sizes, strict=True)):
+                t = k * self.period_ns
+                if wanted is None or t in wanted:
+                    f.seek(off)
+                    try:
+                        ping = parse_ping(f.read(n))[0]
+                    except ValueError as err:  # the file changed since it was opened
+                        raise SourceError(f"{self.path}: ping {k}: {err}") from err
+                    yield OCULUS_RAW_TOPIC, t, ping
 
     def attachments(self) -> dict[str, bytes]:
         return {}
