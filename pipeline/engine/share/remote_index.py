@@ -21,6 +21,7 @@ from sonarmap.pipeline.engine.share.trust import TrustPolicy, check_not_reserved
 from sonarmap.pipeline.engine.store.manifest import parse_manifest
 
 __all__ = [
+    "MAX_LISTED_OBJECTS",
     "MAX_LISTING",
     "MAX_MANIFEST_BYTES",
     "list_remote",
@@ -35,9 +36,16 @@ _HEX = re.compile(r"^[0-9a-f]{1,64}$")
 
 
 MAX_LISTING = 10_000
-"""Most entries one remote folder may list: a store's stage folders and one stage's
-artifacts are far fewer; a listing beyond it (each key then needs a request) is refused
-rather than walked for hours."""
+"""Most entries one remote folder may list where each entry then costs a request of its
+own (sftp and http hold no recursive listing: one request per key to find its manifest,
+so 10,000 keys are minutes, not hours); a longer listing is refused."""
+
+MAX_LISTED_OBJECTS = 1_000_000
+"""Most objects one paged object-store listing may walk (1,000 requests of 1,000; the keys
+kept are ~120 MB at most): past it the listing is refused."""
+
+_PAGE = 1000
+"""Objects per listing request (S3's most)."""
 
 
 def _names(fs: Any, path: str) -> list[str]:
@@ -54,13 +62,51 @@ def _names(fs: Any, path: str) -> list[str]:
     return sorted({str(p).rstrip("/").rsplit("/", 1)[-1] for p in entries})
 
 
+def _protocol(fs: Any) -> str:
+    return str(fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0])
+
+
 def _keys(fs: Any, root: str, stage: str) -> list[str]:
     """Keys of committed artifacts (with a manifest) of `stage` at the remote."""
+    if _protocol(fs) in ("s3", "s3a"):
+        return _s3_keys(fs, f"{root}/{stage}")
     return [
         k
         for k in _names(fs, f"{root}/{stage}")
         if _HEX.match(k) and fs.exists(f"{root}/{stage}/{k}/{MANIFEST}")
     ]
+
+
+def _s3_keys(fs: Any, folder: str) -> list[str]:
+    """Keys under `folder` holding a manifest, from one paged listing of every object
+    below it (a request per 1,000 objects, where asking each key would be one per key)."""
+    bucket, _, prefix = folder.partition("/")
+    prefix = f"{prefix}/" if prefix else ""
+    keys: list[str] = []
+    seen = 0
+    token: dict[str, str] = {}
+    while True:
+        try:
+            page = fs.call_s3(
+                "list_objects_v2", Bucket=bucket, Prefix=prefix, MaxKeys=_PAGE, **token
+            )
+        except FileNotFoundError:
+            return []
+        contents = page.get("Contents", [])
+        seen += len(contents)
+        if seen > MAX_LISTED_OBJECTS:
+            raise StoreError(
+                f"remote folder {folder.rsplit('/', 1)[-1][:60]!r} lists over "
+                f"{MAX_LISTED_OBJECTS} objects; pull by stage and key prefix from a smaller "
+                "remote"
+            )
+        for obj in contents:
+            key, _, name = str(obj.get("Key", ""))[len(prefix) :].partition("/")
+            if name == MANIFEST and _HEX.match(key):
+                keys.append(key)
+        if not page.get("IsTruncated") or not page.get("NextContinuationToken"):
+            return sorted(keys)
+        token = {"ContinuationToken": str(page["NextContinuationToken"])}
 
 
 def remote_stages(fs: Any, root: str) -> list[str]:

@@ -18,10 +18,12 @@ from sonarmap.pipeline.engine.errors import StoreError
 __all__ = [
     "check_bucket",
     "display",
+    "http_timeout",
     "open_remote",
     "read_only",
     "remote_failure",
     "remote_timeout_s",
+    "request_deadline_s",
 ]
 
 _EXTRAS = {
@@ -74,14 +76,37 @@ def remote_timeout_s() -> float:
     return value if 0 < value <= 3600 else DEFAULT_TIMEOUT_S
 
 
+DEADLINE_FACTOR = 4
+"""An http request (listing page, manifest, HEAD) must be done within this many timeouts
+in all: the read timeout restarts with every byte, so a server that trickles bytes would
+otherwise hold a command for good."""
+
+MIN_RATE_BPS = 64 << 10
+"""Slowest download accepted [bytes/s]: a file's request may take the request deadline
+plus its declared size at this rate, and no longer."""
+
+
+def request_deadline_s(nbytes: int = 0) -> float:
+    """How long one http request moving `nbytes` may take in all [s]."""
+    return DEADLINE_FACTOR * remote_timeout_s() + nbytes / MIN_RATE_BPS
+
+
+def http_timeout(nbytes: int = 0) -> Any:
+    """aiohttp's timeouts for a request moving `nbytes`: connect and read waits, and an
+    overall deadline (`request_deadline_s`)."""
+    import aiohttp
+
+    t = remote_timeout_s()
+    return aiohttp.ClientTimeout(
+        total=request_deadline_s(nbytes), connect=t, sock_connect=t, sock_read=t
+    )
+
+
 def _timeouts(scheme: str) -> dict[str, Any]:
     """Storage options that bound each library's connect and read waits."""
     t = remote_timeout_s()
     if scheme in ("http", "https"):
-        import aiohttp
-
-        timeout = aiohttp.ClientTimeout(total=None, connect=t, sock_connect=t, sock_read=t)
-        return {"client_kwargs": {"timeout": timeout}}
+        return {"client_kwargs": {"timeout": http_timeout()}}
     if scheme in ("s3", "s3a"):
         return {"config_kwargs": {"connect_timeout": t, "read_timeout": t,
                                   "retries": {"max_attempts": 2, "mode": "standard"}}}  # fmt: skip
@@ -132,7 +157,10 @@ def _cause(err: BaseException) -> str | None:
     for keys, cause in _CAUSES:
         if names & set(keys):
             if cause == "timed out":
-                return f"timed out (no answer within {remote_timeout_s():g} s)"
+                return (
+                    f"timed out (no answer within {remote_timeout_s():g} s, or a request "
+                    f"not done within {request_deadline_s():g} s)"
+                )
             return cause
     return None
 

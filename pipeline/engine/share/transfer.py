@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.share.remotes import http_timeout
 
 __all__ = [
     "CHUNK",
@@ -125,8 +126,17 @@ def download(
         # A FIFO would block the open forever, a device never ends: neither is an artifact.
         raise ArtifactCorrupt(f"{where} is not a regular file ({str(kind)[:20]})")
     protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
-    # A plain web server may not serve byte ranges: read http(s) as one stream.
-    kwargs = {"block_size": 0} if protocol in ("http", "https") else {}
+    # A plain web server may not serve byte ranges: read http(s) as one stream, within
+    # a deadline that grows with the file's declared size (a trickle fails in bounded time).
+    # (`size` given, fsspec asks no HEAD, and the timeout reaches aiohttp's GET: passed to
+    # a HEAD, fsspec's sync wrapper would take `timeout` for its own.)
+    kwargs: dict[str, Any] = {}
+    if protocol in ("http", "https"):
+        kwargs = (
+            {"block_size": 0, "size": size, "timeout": http_timeout(size)}
+            if size
+            else {"block_size": 0}
+        )
     try:
         fin = fs.open(src, "rb", **kwargs)
     except FileNotFoundError as err:
