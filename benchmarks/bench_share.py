@@ -191,7 +191,7 @@ def main() -> None:
         try:
             with remote_of(work) as remote:
                 if can_push:
-                    row["push_s"] = round(_timed(lambda r=remote: push(source, r)), 2)
+                    row["push_s"] = round(_timed(lambda r=remote: push(source, r, create=True)), 2)
                     row["push_mb_s"] = round(mb / row["push_s"], 1)
                 dest = ArtifactStore(work / f"pulled-{kind}")
                 row["pull_s"] = round(_timed(lambda r=remote, d=dest: pull(d, r)), 2)

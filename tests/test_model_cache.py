@@ -165,7 +165,11 @@ def test_a_pulled_model_is_used_and_published_to_a_machine_without_it(
     pulled into a store on a machine whose cache is empty: used, and then cached."""
     remote = machine.root / "remote"
     pushed = push(
-        ArtifactStore(machine.root / "a"), str(remote), ["train"], fallbacks=[machine.cache]
+        ArtifactStore(machine.root / "a"),
+        str(remote),
+        ["train"],
+        fallbacks=[machine.cache],
+        create=True,
     )
     assert pushed[-1] == f"train/{machine.key}" and len(pushed) == 3  # keyframes, features
     other = machine.root / "other-machine"

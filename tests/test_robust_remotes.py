@@ -249,3 +249,20 @@ def test_wrong_s3_credentials_say_access_denied(
     finally:
         server.terminate()
         server.wait(10)
+
+
+def test_push_to_a_folder_that_does_not_exist_needs_create(
+    tmp_path: Path,
+    alice: Path,  # noqa: F811
+) -> None:
+    remote = tmp_path / "shraed" / "sonar"  # a typo: nothing is grown there
+    res = CliRunner().invoke(app, ["push", str(remote), "--store", str(alice)])
+    [line] = [ln for ln in res.output.splitlines() if ln.startswith("error:")]
+    assert res.exit_code == 2 and not remote.parent.exists(), res.output
+    assert f"push: folder '{remote}' does not exist (pass --create to create it)" in line
+    (tmp_path / "file").write_text("x")
+    res = CliRunner().invoke(app, ["push", str(tmp_path / "file"), "--store", str(alice)])
+    assert res.exit_code == 2 and "is not a folder" in res.output, res.output
+    res = CliRunner().invoke(app, ["push", str(remote), "--create", "--store", str(alice)])
+    assert res.exit_code == 0, res.output
+    assert len(list(remote.glob("*/*/manifest.json"))) == len(list(alice.glob("*/*/manifest.json")))

@@ -21,7 +21,7 @@ def pushed(tmp_path: Path) -> tuple[Path, Path]:
     data.write_bytes(bytes(range(256)) * 4)
     run_toy(data, tmp_path / "alice")
     remote = tmp_path / "remote"
-    addresses = push(ArtifactStore(tmp_path / "alice"), str(remote), ["summary"])
+    addresses = push(ArtifactStore(tmp_path / "alice"), str(remote), ["summary"], create=True)
     assert [a.split("/")[0] for a in addresses] == ["source", "double", "summary"]
     return data, remote
 

@@ -72,7 +72,9 @@ def _assert_round_trip(
 ) -> str:
     """Push by the CLI (its whole output is returned), push again and pull in-process with
     the same environment: nothing is re-sent, everything arrives verified."""
-    res = _cli(env, "push", remote, "--store", str(alice), "--model-cache", str(tmp_path / "c"))
+    res = _cli(
+        env, "push", remote, "--create", "--store", str(alice), "--model-cache", str(tmp_path / "c")
+    )
     assert res.returncode == 0, res.stderr
     for name, value in env.items():
         if os.environ.get(name) != value:
@@ -216,6 +218,10 @@ def test_sftp_push_pull_with_keys_from_ssh_config(
     port, env = sshd
     remote_dir = tmp_path / "nas"
     url = f"sftp://127.0.0.1:{port}{remote_dir}"
+    # A folder that does not exist on the server is refused unless --create.
+    res = _cli(env, "push", url, "--store", str(alice))
+    assert res.returncode == 2 and not remote_dir.exists(), res.stderr
+    assert f"push: folder '{remote_dir}' does not exist (pass --create" in res.stderr
     out = _assert_round_trip(alice, url, tmp_path, env, monkeypatch)
     assert sorted(p.parent.name for p in remote_dir.glob("*/*/manifest.json"))
     private = (tmp_path / "keys" / "client").read_text().splitlines()[1]
@@ -242,7 +248,7 @@ def test_a_password_in_the_url_is_never_printed(tmp_path: Path) -> None:
 def test_http_pull_from_a_static_web_server(alice: Path, tmp_path: Path) -> None:
     pytest.importorskip("aiohttp", reason="aiohttp is not installed")
     served = tmp_path / "www"
-    push(ArtifactStore(alice), str(served))
+    push(ArtifactStore(alice), str(served), create=True)
     port = _free_port()
     proc = subprocess.Popen(
         [sys.executable, "-m", "http.server", str(port), "--bind", "127.0.0.1"],

@@ -55,7 +55,9 @@ def shipped_remote(tmp_path: Path) -> tuple[Path, Path]:
     alice = tmp_path / "alice"
     copy_verified(next(bundled.iter_artifacts()), ArtifactStore(alice))
     remote = tmp_path / "remote"
-    res = _cli("push", str(remote), "--store", str(alice), "--model-cache", str(tmp_path / "c"))
+    res = _cli(
+        "push", str(remote), "--create", "--store", str(alice), "--model-cache", str(tmp_path / "c")
+    )
     assert res.exit_code == 0, res.output
     return alice, remote
 
@@ -64,7 +66,16 @@ def test_shipped_model_pushes_and_pulls_on_a_fresh_machine(
     shipped_remote: tuple[Path, Path], tmp_path: Path
 ) -> None:
     alice, remote = shipped_remote
-    res = _cli("push", str(remote), "train", "--store", str(alice), "--model-cache", str(tmp_path))
+    res = _cli(
+        "push",
+        str(remote),
+        "train",
+        "--create",
+        "--store",
+        str(alice),
+        "--model-cache",
+        str(tmp_path),
+    )
     assert res.exit_code == 0 and "0 files sent" in res.stdout, res.output
     res = _cli("pull", str(remote), "--store", str(tmp_path / "bob"), "--json")
     assert res.exit_code == 0, res.output
@@ -82,7 +93,7 @@ def test_a_really_missing_upstream_is_still_an_error(tmp_path: Path) -> None:
     run_toy(data, tmp_path / "a")
     shutil.rmtree(next((tmp_path / "a" / "double").iterdir()))
     with pytest.raises(StoreError, match=r"double/[0-9a-f]{12}: upstream artifact missing"):
-        push(ArtifactStore(tmp_path / "a"), str(tmp_path / "r"), ["summary"])
+        push(ArtifactStore(tmp_path / "a"), str(tmp_path / "r"), ["summary"], create=True)
 
 
 def _reverse_class_names(model_dir: Path) -> None:
@@ -164,7 +175,7 @@ def _toy_remote(tmp_path: Path) -> tuple[ArtifactStore, Path]:
     data.write_bytes(bytes(range(256)) * 64)
     run_toy(data, tmp_path / "alice")
     remote = tmp_path / "remote"
-    push(ArtifactStore(tmp_path / "alice"), str(remote))
+    push(ArtifactStore(tmp_path / "alice"), str(remote), create=True)
     return ArtifactStore(tmp_path / "alice"), remote
 
 
@@ -255,11 +266,11 @@ def test_interrupted_push_resumes_without_resending_and_shows_nothing_partial(
     remote = tmp_path / "remote2"
     sent = _fail_after(monkeypatch, 2, KeyboardInterrupt())
     with pytest.raises(KeyboardInterrupt):
-        push(alice, str(remote))
+        push(alice, str(remote), create=True)
     assert len(sent) == 2 and list_remote(str(remote)) == []
     monkeypatch.setattr(share, "upload", transfer.upload)
     stats = TransferStats()
-    pushed = push(alice, str(remote), stats=stats)
+    pushed = push(alice, str(remote), stats=stats, create=True)
     total = sum(len(alice.get(*a.split("/")).manifest["files"]) for a in pushed)  # type: ignore[union-attr]
     assert stats.skipped == 2 and stats.sent == total - 2
     assert sorted(list_remote(str(remote))) == sorted(pushed)
@@ -278,7 +289,7 @@ def upload(*a, **k):
     return real(*a, **k)
 share.upload = upload
 transfer.WORKERS = 1  # one file at a time: exactly three are complete
-share.push(ArtifactStore(Path(sys.argv[1])), sys.argv[2])
+share.push(ArtifactStore(Path(sys.argv[1])), sys.argv[2], create=True)
 """
 
 
@@ -299,7 +310,7 @@ def test_push_killed_with_sigkill_resumes_without_resending(tmp_path: Path) -> N
     assert list_remote(str(remote)) == []
     assert len([p for p in remote.rglob("*") if p.is_file()]) == 3
     stats = TransferStats()
-    pushed = push(alice, str(remote), stats=stats)
+    pushed = push(alice, str(remote), stats=stats, create=True)
     total = sum(len(alice.get(*a.split("/")).manifest["files"]) for a in pushed)  # type: ignore[union-attr]
     assert stats.skipped == 3 and stats.sent == total - 3
 
@@ -333,7 +344,7 @@ def test_reader_never_sees_a_partial_artifact_during_a_push(
     thread = threading.Thread(target=reader)
     thread.start()
     try:
-        push(alice, str(remote))
+        push(alice, str(remote), create=True)
     finally:
         done.set()
         thread.join()
@@ -347,7 +358,7 @@ def test_full_disk_on_push_exits_2_naming_the_path_and_leaves_nothing_visible(
     _toy_remote(tmp_path)
     remote = tmp_path / "remote2"
     _fail_after(monkeypatch, 1, OSError(errno.ENOSPC, "No space left on device"))
-    res = _cli("push", str(remote), "--store", str(tmp_path / "alice"))
+    res = _cli("push", str(remote), "--create", "--store", str(tmp_path / "alice"))
     _one_error_line(res, str(remote), "No space left on device")
     assert list_remote(str(remote)) == []
 

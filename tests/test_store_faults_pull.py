@@ -29,7 +29,7 @@ def remote(tmp_path: Path) -> Path:
     data.write_bytes(bytes(range(256)) * 4)
     run_toy(data, tmp_path / "alice")
     remote = tmp_path / "remote"
-    push(ArtifactStore(tmp_path / "alice"), str(remote), ["summary"])
+    push(ArtifactStore(tmp_path / "alice"), str(remote), ["summary"], create=True)
     return remote
 
 

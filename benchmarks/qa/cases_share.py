@@ -25,7 +25,7 @@ SECRET = "hunter2QAsecret"
 
 def _cached_run() -> Path:
     """A work dir after `sonarmap run rec.mcap` and `push remote` (made once per code version)."""
-    return cached_run(RUN.name, [["push", "remote"]])
+    return cached_run(RUN.name, [["push", "--create", "remote"]])
 
 
 def _fresh_run(work: Path) -> None:
@@ -77,7 +77,7 @@ def _no_store_dir(*names: str) -> Callable[[Path, Any], str | None]:
 def _push(*targets: str) -> Callable[[Path], list[str]]:
     def build(work: Path) -> list[str]:
         _fresh_run(work)
-        return ["push", str(work / "out"), *targets]
+        return ["push", "--create", str(work / "out"), *targets]
 
     return build
 
@@ -181,7 +181,7 @@ def _pull_missing_remote(work: Path) -> list[str]:
 def _push_missing_upstream(work: Path) -> list[str]:
     _fresh_run(work)
     shutil.rmtree(_artifact(work / "data" / "store", "fuse"))
-    return ["push", str(work / "out"), "evaluate"]
+    return ["push", "--create", str(work / "out"), "evaluate"]
 
 
 # -- trust -----------------------------------------------------------------------------------

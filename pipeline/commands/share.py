@@ -48,7 +48,9 @@ def push(
         help="Model cache (`<training.directory>/store`) holding a model's training data.",
     ),
     create: bool = typer.Option(
-        False, "--create", help="Create the bucket when it does not exist (s3://, gs://)."
+        False,
+        "--create",
+        help="Create the bucket (s3://, gs://) or folder (a path, sftp://) if it is missing.",
     ),
     json_: bool = JSON_OPT,
 ) -> None:

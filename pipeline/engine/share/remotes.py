@@ -194,10 +194,12 @@ def open_remote(remote: str) -> tuple[Any, str]:
 
 
 def check_bucket(fs: Any, root: str, remote: str, create: bool) -> None:
-    """Refuse a bucket that does not exist (an object store would create one on the first
-    write, under whatever name a typo gave) unless `create`."""
+    """Refuse a destination that does not exist unless `create`: a bucket (an object store
+    would create one on the first write, under whatever name a typo gave), or a folder on
+    a disk or an sftp server (a typo in a path would grow a new tree there)."""
     protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
     if protocol not in ("s3", "s3a", "gs", "gcs"):
+        _check_folder(fs, root, remote, create)
         return
     bucket = root.split("/", 1)[0]
     if protocol in ("s3", "s3a"):
@@ -216,3 +218,17 @@ def check_bucket(fs: Any, root: str, remote: str, create: bool) -> None:
             "to create it)"
         )
     fs.mkdir(bucket)
+
+
+def _check_folder(fs: Any, root: str, remote: str, create: bool) -> None:
+    if fs.isdir(root):
+        return
+    shown = _scrub(root, remote)[:120]
+    if fs.exists(root):
+        raise StoreError(f"remote {display(remote)}: push: {shown!r} is not a folder")
+    if not create:
+        raise StoreError(
+            f"remote {display(remote)}: push: folder {shown!r} does not exist (pass --create "
+            "to create it)"
+        )
+    fs.makedirs(root, exist_ok=True)
