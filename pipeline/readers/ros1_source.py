@@ -94,23 +94,31 @@ class Ros1Source(TimeIndexedSource):
         """Drop from the index the messages of `topic` recorded behind an earlier time
         (file order: chunk position, then offset in the chunk); how many were dropped."""
         bag: Any = self._reader.readers[0]
-        entries = [(k, e) for k, c in enumerate(conns) for e in bag.indexes[c.id]]
-        if len(entries) < 2:
+        lists = [bag.indexes[c.id] for c in conns]
+        if sum(len(x) for x in lists) < 2:
             return 0
-        table = np.array([(e.time, e.chunk_pos, e.offset) for _, e in entries], np.int64)
+        # (time, chunk position, offset) of every message, connection after connection.
+        table = np.concatenate(
+            [
+                np.column_stack(
+                    [np.fromiter((e[j] for e in x), np.int64, len(x)) for j in range(3)]
+                )
+                for x in lists
+                if x
+            ]
+        )
         order = np.lexsort((table[:, 2], table[:, 1]))
         found = backwards(table[order, 0])
         if found is None:
             return 0
-        drop = np.zeros(len(entries), bool)
+        drop = np.zeros(len(table), bool)
         drop[order[found.behind]] = True
-        for k, c in enumerate(conns):
+        start = 0
+        for c, x in zip(conns, lists, strict=True):
+            gone = drop[start : start + len(x)]
+            start += len(x)
             # Still sorted by time: rosbags merges the connections' lists by time.
-            bag.indexes[c.id] = [
-                e
-                for (j, e), gone in zip(entries, drop.tolist(), strict=True)
-                if j == k and not gone
-            ]
+            bag.indexes[c.id] = [e for e, g in zip(x, gone.tolist(), strict=True) if not g]
         line = found.warning(f"{self.path}: {topic}")
         self.warnings.append(line)
         log.warning(line)

@@ -59,12 +59,7 @@ class SqliteSource(TimeIndexedSource):
             with self._connect(f) as db:
                 for name, typ in db.execute("SELECT name, type FROM topics"):
                     self._types.setdefault(name, typ)
-                    found = db.execute(
-                        "SELECT ?, m.id, m.timestamp FROM messages m JOIN topics t "
-                        "ON m.topic_id = t.id WHERE t.name = ? ORDER BY m.id",
-                        (k, name),
-                    ).fetchall()
-                    rows.setdefault(name, []).append(np.asarray(found, np.int64).reshape(-1, 3))
+                    rows.setdefault(name, []).append(self._rows(db, k, name))
         self._behind: set[tuple[int, int]] = set()
         sorted_times = {k: self._drop_backwards(k, np.concatenate(v)) for k, v in rows.items()}
         if indexed is not None:
@@ -74,6 +69,21 @@ class SqliteSource(TimeIndexedSource):
                 if name in indexed:
                     indexed = {**indexed, name: indexed[name] - dropped}
         self._set_topics(path, sorted_times, self._types, indexed)
+
+    @staticmethod
+    def _rows(db: sqlite3.Connection, k: int, name: str) -> np.ndarray:
+        """(n, 3) file number, row id and time of a topic's messages, in row order (read
+        in batches into arrays: a row tuple each would be ~100 bytes a message)."""
+        cur = db.execute(
+            "SELECT m.id, m.timestamp FROM messages m JOIN topics t ON m.topic_id = t.id "
+            "WHERE t.name = ? ORDER BY m.id",
+            (name,),
+        )
+        parts = [np.zeros((0, 2), np.int64)]
+        while batch := cur.fetchmany(100_000):
+            parts.append(np.asarray(batch, np.int64).reshape(-1, 2))
+        both = np.concatenate(parts)
+        return np.column_stack([np.full(len(both), k, np.int64), both])
 
     def _drop_backwards(self, topic: str, rows: np.ndarray) -> np.ndarray:
         """The topic's ascending times, less the messages recorded behind an earlier time
