@@ -8,6 +8,7 @@ Modules:
     frontend: the sequential front end: odometry, heading and SSM factors per keyframe.
     loops: loop closure (NSSM), PCM and the final re-registration of every loop.
     scan_matching: ICP between keyframe clouds.
+    degeneracy: which directions of SE(2) a scan match constrains.
     pcm: pairwise consistency maximisation of loop closures.
     pose_graph: the iSAM2 pose graph.
     points: the leading-edge points SLAM registers.
@@ -23,7 +24,10 @@ __all__ = ["STAGE", "SlamConfig"]
 STAGE = Stage(
     name="slam",
     # 10: trajectory.png moves to the `figures` stage; plot_points.parquet is what it draws
-    version=10,
+    # 11: scan matches free along the directions they leave unconstrained (degeneracy),
+    # sequential ones gated against the step's odometry (Mahalanobis) under a Huber kernel;
+    # factors.parquet gains `degenerate`
+    version=11,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

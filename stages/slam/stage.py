@@ -21,7 +21,11 @@ again from the optimised poses (ICP only, tight gate) and the graph re-solved in
 sonar data counts about once (`loop_shared_window`; version 6), and every SSM factor is
 registered again too, against more keyframes (`ssm_refine_target_frames`; version 7);
 a loop's covariance there also grows with its baseline, as its measured error does
-(`loop_baseline_growth_m`; version 8).
+(`loop_baseline_growth_m`; version 8). Every scan match's factor is made free along the
+directions of SE(2) its scans leave unconstrained (a straight wall's direction: the
+point-to-line information against one step of odometry, `sonarmap.stages.slam.degeneracy`),
+and a sequential match must agree with its step's odometry within a chi-square gate
+(Mahalanobis, under both covariances) and enters under a Huber kernel (version 11).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
