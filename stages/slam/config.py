@@ -103,14 +103,14 @@ class SlamConfig(StageConfig):
         "scale", description="scale keeps the ICP Hessian's x-yaw correlation (lever arm)"
     )
     degeneracy_min_ratio: float | None = Field(
-        1.0,
+        0.05,
         gt=0,
-        le=1000000,
-        description="a scan match constrains a direction of SE(2) only where its"
-        " point-to-line information (every pair independent) is at least this many times"
-        " that of one keyframe step of odometry (odom_chain_sigma_xy_m, odom_sigma_yaw_deg;"
-        " `sonarmap.stages.slam.degeneracy`); along the others its factor's covariance is"
-        " made free and the odometry carries the motion; None: off",
+        lt=1,
+        description="a scan match leaves a direction of translation unconstrained when its"
+        " point-to-line information there (yaw marginalised) is under this fraction of that"
+        " along the best direction (0.05: the normals' RMS component along it under about"
+        " sin 13 deg; `sonarmap.stages.slam.degeneracy`): its factor is made free along it"
+        " and the odometry carries that direction; None: off",
     )
     ssm_gate_probability: float | None = Field(
         0.999,

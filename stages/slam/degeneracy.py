@@ -10,19 +10,18 @@ body-frame perturbation of the source pose is ``n^T R [I | (-p_y, p_x)]``, and
 free (Zhang, Kaess & Singh, ICRA 2016, "On degeneracy of optimization-based state
 estimation problems"; X-ICP, Tuna et al., T-RO 2023).
 
-The yardstick is the odometry: with `reference` the (3, 3) covariance of one keyframe
-step of the navigation (`SlamConfig.odom_chain_sigma_xy_m`, `odom_sigma_yaw_deg`), the
-generalised eigenvalues mu of (H / sigma^2, reference^-1) compare, direction by direction,
-what the scans pin down with what the navigation already knows (unit-free: metres and
-radians are weighed by the navigation's own noise). sigma is the pairs' RMS distance, at
-least the ICP covariance's 5 cm, and every pair counts as independent, so mu is the most
-the geometry could give. A direction with mu < `min_ratio` (1: the scans constrain it
-less than one step of odometry does, even at best) is degenerate: ICP's answer there is
-where it stopped sliding, not a measurement.
+Only translation is tested: the heading factors of the AHRS keep yaw. The yaw is first
+marginalised out (the Schur complement of H), since a rotation about a far point also
+slides a wall; the 2 x 2 translation information left has eigenvalues l_min <= l_max (both
+m^-2: no unit to choose) and the direction of l_min is degenerate when l_min / l_max <
+`min_ratio`: the surface normals' component along it is, in RMS, under sqrt(min_ratio)
+of that along the best one (0.05: about sin 13 deg; a wall's corrugation, or two walls
+at a shallow angle, stay below it). The normals are those of the structure, not of its
+returns' scatter: the minor axis of each paired target point's 40 nearest neighbours
+(about 10 m of wall in the keyframe clouds' 0.25 m voxels).
 
-A degenerate direction's variance is raised by `FREE_M2` (in the navigation-whitened
-coordinates) in the factor's covariance, so the factor says nothing along it and the
-odometry carries that direction alone.
+A degenerate direction's variance is raised by `FREE_M2` in the factor's covariance, so
+the factor says nothing along it and the odometry carries that direction alone.
 """
 
 from __future__ import annotations
@@ -38,48 +37,37 @@ if TYPE_CHECKING:
 __all__ = ["FREE_M2", "Degeneracy", "constrained_covariance", "degeneracy", "surface_normals"]
 
 FREE_M2 = 1e6
-"""Variance, in units of the reference's variance, added along a degenerate direction."""
+"""Variance [m^2] added along a degenerate direction."""
 
-_SIGMA_FLOOR_M = 0.05
-"""Least RMS pair distance assumed (`sonarmap.stages.slam.scan_matching.icp_covariance`'s)."""
-
-_AXES = ("x", "y", "yaw")
-
-_NORMAL_NEIGHBOURS = 6
-"""Target points whose spread gives a surface normal (the point and its 5 nearest)."""
+_NORMAL_NEIGHBOURS = 40
+"""Target points whose spread gives a surface normal (see the module docstring)."""
 
 
 @dataclass(frozen=True)
 class Degeneracy:
-    """Eigen-analysis of a match's point-to-line information against the odometry's.
+    """Eigen-analysis of a match's point-to-line translation information.
 
     Attributes:
-        ratios: (3,) generalised eigenvalues mu, ascending (see the module docstring).
-        directions: (3, 3) columns: each eigenvector as a tangent direction (x, y, yaw),
-            scaled by the reference's standard deviations (navigation-whitened).
-        whitened: (3, 3) columns: the eigenvectors in navigation-whitened coordinates.
-        degenerate: (3,) bool per eigenvector.
+        ratio: l_min / l_max of the translation information, yaw marginalised (0 when
+            there are no pairs).
+        direction: (2,) unit vector of l_min, body frame of the source (x forward, y port).
+        degenerate: whether the match leaves that direction unconstrained.
     """
 
-    ratios: np.ndarray
-    directions: np.ndarray
-    whitened: np.ndarray
-    degenerate: np.ndarray
+    ratio: float
+    direction: np.ndarray
+    degenerate: bool
 
     @property
     def count(self) -> int:
-        return int(self.degenerate.sum())
+        return int(self.degenerate)
 
     @property
     def label(self) -> str:
-        """The degenerate directions by their dominant axis in whitened coordinates (body
-        frame of the source: x forward, y to port, yaw), comma-separated; "" when none."""
-        names = {
-            _AXES[int(np.argmax(np.abs(v)))]
-            for v, d in zip(self.whitened.T, self.degenerate, strict=True)
-            if d
-        }
-        return ",".join(a for a in _AXES if a in names)
+        """"x" or "y", the body axis nearest the degenerate direction; "" when none."""
+        if not self.degenerate:
+            return ""
+        return "x" if abs(self.direction[0]) >= abs(self.direction[1]) else "y"
 
 
 def surface_normals(target: np.ndarray, tree: cKDTree, rows: np.ndarray) -> np.ndarray:
@@ -101,34 +89,32 @@ def degeneracy(
     tree: cKDTree,
     pose: np.ndarray,
     radius_m: float,
-    reference: np.ndarray,
-    min_ratio: float = 1.0,
+    min_ratio: float,
 ) -> Degeneracy:
-    """Point-to-line information of `source` (N, 2) registered at `pose` (3,) on `target`
-    (M, 2) with its k-d tree, over pairs closer than `radius_m`, against the (3, 3)
-    `reference` covariance (diagonal: one odometry step); directions with mu < `min_ratio`
-    are degenerate (all three with under 3 pairs)."""
-    whiten = np.sqrt(np.diag(reference))
+    """Point-to-line translation information of `source` (N, 2) registered at `pose` (3,)
+    on `target` (M, 2) with its k-d tree, over pairs closer than `radius_m`; its weakest
+    direction is degenerate when l_min / l_max < `min_ratio` (and with under 3 pairs)."""
     c, s = np.cos(pose[2]), np.sin(pose[2])
     rot = np.array([[c, -s], [s, c]])
-    moved = source @ rot.T + pose[:2]
-    dist, rows = tree.query(moved, distance_upper_bound=radius_m)
+    dist, rows = tree.query(source @ rot.T + pose[:2], distance_upper_bound=radius_m)
     inlier = np.isfinite(dist)
     if inlier.sum() < 3:
-        eye = np.eye(3)
-        return Degeneracy(np.zeros(3), eye * whiten[:, None], eye, np.ones(3, bool))
+        return Degeneracy(0.0, np.array([1.0, 0.0]), True)
     p = source[inlier]
-    sigma2 = max(float(np.mean(dist[inlier] ** 2)), _SIGMA_FLOOR_M**2)
     nr = surface_normals(target, tree, rows[inlier]) @ rot  # n^T R, per pair
-    jac = np.column_stack([nr, nr[:, 1] * p[:, 0] - nr[:, 0] * p[:, 1]]) * whiten
-    ratios, vectors = np.linalg.eigh(jac.T @ jac / sigma2)
-    return Degeneracy(ratios, vectors * whiten[:, None], vectors, ratios < min_ratio)
+    jac = np.column_stack([nr, nr[:, 1] * p[:, 0] - nr[:, 0] * p[:, 1]])
+    h = jac.T @ jac
+    # Yaw marginalised (Schur complement); a yaw nothing constrains leaves h[:2, :2].
+    cross = h[:2, 2:] @ h[2:, :2] / h[2, 2] if h[2, 2] > 0 else 0.0
+    values, vectors = np.linalg.eigh(h[:2, :2] - cross)
+    ratio = float(values[0] / values[1]) if values[1] > 0 else 0.0
+    return Degeneracy(ratio, vectors[:, 0], ratio < min_ratio)
 
 
 def constrained_covariance(cov: np.ndarray, found: Degeneracy) -> np.ndarray:
-    """(3, 3) `cov` (body frame x, y, yaw) with the variance along each degenerate
-    direction raised by `FREE_M2` times the reference's; unchanged when none is."""
-    if not found.count:
+    """(3, 3) `cov` (body frame x, y, yaw) with the variance along the degenerate
+    translation direction raised by `FREE_M2`; unchanged when there is none."""
+    if not found.degenerate:
         return cov
-    free = found.directions[:, found.degenerate]
-    return cov + FREE_M2 * free @ free.T
+    v = np.array([*found.direction, 0.0])
+    return cov + FREE_M2 * np.outer(v, v)

@@ -195,8 +195,8 @@ class _FrontEnd(LoopClosures):
     def _constrain(
         self, pose: np.ndarray, cov: np.ndarray, source: np.ndarray, target: np.ndarray
     ) -> tuple[np.ndarray, str, int]:
-        """`cov` made free along the directions the match leaves unconstrained
-        (`sonarmap.stages.slam.degeneracy`): (covariance, their labels, their count)."""
+        """`cov` made free along the direction the match leaves unconstrained
+        (`sonarmap.stages.slam.degeneracy`): (covariance, its label, 1 or 0)."""
         c = self.cfg
         if c.degeneracy_min_ratio is None:
             return cov, "", 0
@@ -204,13 +204,7 @@ class _FrontEnd(LoopClosures):
         if not isinstance(index, TargetIndex):
             index = TargetIndex(index)
         found = degeneracy(
-            source,
-            index.points,
-            index.tree,
-            pose,
-            c.point_noise_m,
-            self.chain_odom_cov,
-            c.degeneracy_min_ratio,
+            source, index.points, index.tree, pose, c.point_noise_m, c.degeneracy_min_ratio
         )
         return constrained_covariance(cov, found), found.label, found.count
 
@@ -228,8 +222,6 @@ class _FrontEnd(LoopClosures):
         """Why a sequential match disagrees with the odometry of its step ("" if it does
         not): Mahalanobis distance over the directions it constrains (`ssm_gate_probability`)."""
         p = self.cfg.ssm_gate_probability
-        if free >= 3:
-            return "degenerate"
         if p is None:
             return ""
         dev = se2_log(se2_between(guess, pose))

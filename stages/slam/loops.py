@@ -165,10 +165,8 @@ class LoopClosures:
         match = self._match(source, target, guess, np.array([xy, xy, yaw]))
         reason = self._check(match, guess, c.nssm_max_translation_m, c.nssm_max_rotation_deg)
         cov = self._floor(match.covariance, self.loop_cov)
-        cov, degenerate, free = self._constrain(match.pose, cov, source, target)
+        cov, degenerate, _ = self._constrain(match.pose, cov, source, target)
         dev = se2_log(se2_between(guess, match.pose))
-        if not reason and free >= 3:
-            reason = "degenerate"
         if not reason and dev @ np.linalg.solve(rel + cov, dev) > c.nssm_gate_chi2:
             reason = "inconsistent with odometry"
         row = self._row(
