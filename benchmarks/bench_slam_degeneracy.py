@@ -33,7 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-DEGENERATE = ("long_quay", "canal", "corner_quay", "open_pilings", "fan_edge")
+DEGENERATE = ("long_quay", "canal", "corner_quay", "open_pilings", "fan_edge", "breakwater")
 NAVIGATIONS: dict[str, dict[str, float]] = {
     "default": {},
     "clean": {"dvl_noise_m_s": 0.004, "dvl_scale_error": 0.002, "yaw_bias_deg": 0.2},

@@ -64,7 +64,7 @@ class Degeneracy:
 
     @property
     def label(self) -> str:
-        """"x" or "y", the body axis nearest the degenerate direction; "" when none."""
+        """ "x" or "y", the body axis nearest the degenerate direction; "" when none."""
         if not self.degenerate:
             return ""
         return "x" if abs(self.direction[0]) >= abs(self.direction[1]) else "y"

@@ -48,11 +48,13 @@ def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
 
 @dataclass
 class SlamResult:
-    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts)."""
+    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts), and
+    whether no scan match was accepted, so the poses are dead reckoning's."""
 
     poses: np.ndarray
     covariances: np.ndarray
     factors: list[dict[str, Any]] = field(default_factory=list)
+    fell_back: bool = False
 
 
 class _FrontEnd(LoopClosures):
@@ -336,6 +338,7 @@ def run_slam(
         t_s: (K,) keyframe times [s] (the heading bias walks with time).
     """
     use_sonar = config.mode == "slam"
+    dr_se2 = np.asarray(dr_se2, np.float64)
     front = _FrontEnd(config, points if use_sonar else [np.zeros((0, 2))] * len(points))
     front.start(dr_se2[0])
     for k in range(1, len(dr_se2)):
@@ -343,4 +346,12 @@ def run_slam(
         front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k], dt_s)
     if use_sonar:
         front.refine_loops()
-    return front.result()
+    result = front.result()
+    matched = any(
+        r["type"] in ("ssm", "loop") and r["status"] == "accepted" for r in result.factors
+    )
+    if use_sonar and not matched:
+        # Nothing from the sonar: the graph holds only the navigation's own factors, and
+        # the dead-reckoned poses are what it says (bit for bit, not re-solved).
+        result.poses, result.fell_back = np.array(dr_se2, np.float64), True
+    return result
