@@ -72,15 +72,22 @@ class Degeneracy:
 
 def surface_normals(target: np.ndarray, tree: cKDTree, rows: np.ndarray) -> np.ndarray:
     """(M, 2) unit normals of the target surface at target points `rows`: the minor axis
-    of the scatter of each point and its nearest neighbours (closed-form 2x2 eigenvector)."""
+    of the scatter of each point and its nearest neighbours (closed-form 2x2 eigenvector).
+    Each distinct row is computed once (many source points pair with the same target)."""
+    unique, inverse = np.unique(rows, return_inverse=True)
     k = min(_NORMAL_NEIGHBOURS, len(target))
-    _, nn = tree.query(target[rows], k=k)
-    near = target[np.asarray(nn).reshape(len(rows), k)]
-    d = near - near.mean(axis=1, keepdims=True)
-    cxx, cyy = (d[..., 0] ** 2).sum(axis=1), (d[..., 1] ** 2).sum(axis=1)
-    cxy = (d[..., 0] * d[..., 1]).sum(axis=1)
+    _, nn = tree.query(target[unique], k=k)
+    nn = np.asarray(nn).reshape(len(unique), k)
+    x, y = target[nn, 0], target[nn, 1]
+    mx, my = x.mean(axis=1, keepdims=True), y.mean(axis=1, keepdims=True)
+    x, y = x - mx, y - my
+    cxx, cyy, cxy = (
+        np.einsum("ij,ij->i", x, x),
+        np.einsum("ij,ij->i", y, y),
+        np.einsum("ij,ij->i", x, y),
+    )
     major = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # direction of largest spread
-    return np.stack([-np.sin(major), np.cos(major)], axis=1)
+    return np.stack([-np.sin(major), np.cos(major)], axis=1)[inverse.reshape(-1)]
 
 
 def degeneracy(
