@@ -51,6 +51,7 @@ def simulated_slam_inputs(
 ) -> dict[str, object]:
     """Stage inputs (keyframes table, sensors, features) from a simulated mission.
 
+    `scene`: a name in configs/scenes/ or a scene YAML path.
     `navigation` overrides fields of the simulator's `NavigationNoise`. `detector`:
     "labels", the simulator's labelled object cells (a perfect detector, seafloor
     excluded); "cfar", the features stage's default CFAR on the horizontal images.
@@ -62,7 +63,8 @@ def simulated_slam_inputs(
     config = SimConfig(
         mission=MissionConfig(n_goals=n_goals), navigation=NavigationNoise(**(navigation or {}))
     )
-    run = simulate(load_scene(ROOT / "configs" / "scenes" / f"{scene}.yaml"), config, seed)
+    path = Path(scene) if scene.endswith(".yaml") else ROOT / "configs" / "scenes" / f"{scene}.yaml"
+    run = simulate(load_scene(path), config, seed)
     tr = run.trajectory
     sel = _select(tr["dr_pose"], spacing_m, np.deg2rad(30.0))
     n = len(sel)
