@@ -17,8 +17,8 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
-from sonarmap.pipeline.engine.artifact import ArtifactRef
-from sonarmap.pipeline.engine.output_checks import check_stage
+from sonarmap.pipeline.engine.run.output_checks import check_stage
+from sonarmap.pipeline.engine.store.artifact import ArtifactRef
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.degeneracy import FREE_M2, constrained_covariance, degeneracy
 from sonarmap.stages.slam.frontend import run_slam

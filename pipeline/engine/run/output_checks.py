@@ -95,7 +95,7 @@ def _fill(message: str, rows: Rows) -> str:
 
 def stage_warnings(ref: ArtifactRef | None) -> list[str]:
     """The warnings a stage wrote about its own result (a JSON output's "warnings", kept in
-    the manifest by `sonarmap.pipeline.engine.codecs.write_output`), in output order."""
+    the manifest by `sonarmap.pipeline.engine.store.codecs.write_output`), in output order."""
     outputs = None if ref is None else ref.manifest.get("outputs")
     found: list[str] = []
     for facts in (outputs if isinstance(outputs, Mapping) else {}).values():
