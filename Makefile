@@ -11,7 +11,7 @@ APT_PACKAGES := libegl1 libgl1 libx11-6 libusb-1.0-0 openssh-server openssh-clie
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: setup system-deps test demo bench lint study clean-store
+.PHONY: setup system-deps test qa demo bench lint study clean-store
 
 setup: $(STAMP)
 
@@ -37,6 +37,12 @@ system-deps:
 
 test: setup
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+# The contract suite (tests/contract, left out of `make test`): each case runs `sonarmap` on a
+# hostile input as a user would and checks exit code, one-line error, memory and time; it ends
+# with the table of cases tried and held per area (also: python -m tests.contract.run).
+qa: setup
+	$(BIN)/python -m pytest tests/contract $(PYTEST_ARGS)
 
 # `make demo DEMO_ARGS="--set keyframes.submap_stride=1"`: the demo with dense submaps
 DEMO_ARGS ?=

@@ -54,7 +54,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     if argv:
         recording = Path(argv[0])
     else:
-        from benchmarks.qa.fixtures import small_recording
+        from tests.contract.fixtures import small_recording
 
         recording = small_recording(Path(tempfile.mkdtemp()) / "rec.mcap", duration_s=45.0)
     command: CodeType | None = None  # the `run` command's code, found on its first call

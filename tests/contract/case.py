@@ -1,4 +1,4 @@
-"""One hostile-input case of the QA campaign (`benchmarks/qa_campaign.py`).
+"""One hostile-input case of the contract suite (`tests/contract/`, run by `make qa`).
 
 A case prepares files in an empty work directory and returns the `sonarmap` arguments
 to run there; the campaign runs `python -m sonarmap.pipeline ARGS` in that directory as a new
@@ -11,7 +11,7 @@ the README's contract:
 - peak memory (the child's `ru_maxrss`) under `max_rss_mb`, wall time under `max_seconds`;
 - the case's own `check`, if any (e.g. "the artifacts of the live run still exist").
 
-Cases live in `benchmarks/qa/cases_*.py` modules, each exposing `CASES: list[Case]`.
+Cases live in `tests/contract/cases_*.py` modules, each exposing `CASES: list[Case]`.
 """
 
 from __future__ import annotations

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.qa.case import Case
 from sonarmap.pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER, SIGNATURE
+from tests.contract.case import Case
 
 ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"

@@ -22,14 +22,14 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import ROOT, small_recording
 from sonarmap.pipeline.engine.registry import Graph
 from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
+from tests.contract.case import Case
+from tests.contract.fixtures import ROOT, small_recording
 
 STORE = "data/store"
 ENV = {
-    "SONARMAP_GRAPH": "benchmarks.qa.cases_boundary:GRAPH",
+    "SONARMAP_GRAPH": "tests.contract.cases_boundary:GRAPH",
     "PYTHONPATH": str(ROOT),
 }
 

@@ -25,8 +25,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.qa.case import Case, Check
-from benchmarks.qa.fixtures import small_recording
+from tests.contract.case import Case, Check
+from tests.contract.fixtures import small_recording
 
 ROOT = Path(__file__).resolve().parents[2]
 SHARED = ROOT.parent / "shared" / "data"

@@ -15,8 +15,8 @@ import socket
 import subprocess
 from pathlib import Path
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, cached_run, small_recording
+from tests.contract.case import Case
+from tests.contract.fixtures import CACHE, cached_run, small_recording
 
 RUN = CACHE / "foxglove-run"
 _HELD: list[socket.socket] = []

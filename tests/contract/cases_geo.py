@@ -15,8 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import small_recording
+from tests.contract.case import Case
+from tests.contract.fixtures import small_recording
 
 NAN, INF = float("nan"), float("inf")
 TF_TYPE = "tf2_msgs/msg/TFMessage"

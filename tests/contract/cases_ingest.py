@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.qa.case import Case
+from tests.contract.case import Case
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))

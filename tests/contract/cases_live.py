@@ -3,7 +3,7 @@ files, and runs that would end in an empty map.
 
 Cases on the toy graph (`tests/toy_stages.py`, via $SONARMAP_GRAPH) hold a run inside
 its second stage with a gate file, so `gc` meets it mid-run deterministically; cases on
-the real pipeline use the small simulated recording of `benchmarks.qa.fixtures`. Disk
+the real pipeline use the small simulated recording of `tests.contract.fixtures`. Disk
 -full cases mount a small tmpfs (root only; they fail where mounting is not allowed).
 """
 
@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import ROOT, small_recording
+from tests.contract.case import Case
+from tests.contract.fixtures import ROOT, small_recording
 
 STORE = "data/store"
 TOY_ENV = {

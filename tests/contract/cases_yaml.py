@@ -13,7 +13,7 @@ import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.qa.case import Case
+from tests.contract.case import Case
 
 ENV = {"SONARMAP_CACHE_DIR": "cache"}
 ANN_HEAD = "format: sonarmap-annotations/1\n"
@@ -181,7 +181,7 @@ def unmatched_train(times: list[int]) -> Callable[[Path], list[str]]:
     """`train` on a real small recording whose annotation times match none of its keyframes."""
 
     def build(work: Path) -> list[str]:
-        from benchmarks.qa.fixtures import small_recording
+        from tests.contract.fixtures import small_recording
 
         rec = small_recording(work / "field.mcap", duration_s=10.0)
         (work / "field.annotations.yaml").write_text(annotations("".join(entry(t) for t in times)))
