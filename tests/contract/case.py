@@ -41,3 +41,19 @@ class Case:
     max_seconds: float = 10.0
     env: dict[str, str] = field(default_factory=dict)
     stdin: str | None = None
+
+
+def error_line(done: subprocess.CompletedProcess[str]) -> str:
+    """The first `error:` line on stderr ("" when there is none)."""
+    return next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
+
+
+def names(*words: str) -> Check:
+    """Check: the `error:` line names every word (the file, topic, key, field or reason)."""
+
+    def check(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
+        line = error_line(done)
+        missing = [w for w in words if w not in line]
+        return f"the error line does not name {missing}: {line[:200]!r}" if missing else None
+
+    return check

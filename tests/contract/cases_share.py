@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from tests.contract.case import Case
-from tests.contract.fixtures import CACHE, cached_run, sonarmap
+from tests.fixtures import CACHE, cached_run, sonarmap
 
 RUN = CACHE / "share-run"
 SECRET = "hunter2QAsecret"
