@@ -62,6 +62,12 @@ test-wheel: $(TESTING)
 test-without-shared: $(TESTING)
 	SONARMAP_SHARED_DATA=/nonexistent $(BIN)/python -m pytest -q -m shared_data
 
+# The contract suite (tests/contract, left out of `make test`): each case runs `sonarmap` on a
+# hostile input as a user would and checks exit code, one-line error, memory and time; it ends
+# with the table of cases tried and held per area (also: python -m tests.contract.run).
+qa: $(TESTING)
+	$(BIN)/python -m pytest tests/contract $(PYTEST_ARGS)
+
 # `make demo DEMO_ARGS="--set keyframes.submap_stride=1"`: the demo with dense submaps
 DEMO_ARGS ?=
 demo: $(RUNTIME)

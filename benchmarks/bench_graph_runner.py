@@ -78,7 +78,6 @@ def _cold(dataset: Path, workers: int, sets: list[str], *extra: str) -> dict:
 def critical_path(stages_s: dict[str, float], figures: bool = True) -> tuple[float, list[str]]:
     """The longest chain of stages (seconds, names) through the real pipeline's graph
     (figures=False: without the figure stages)."""
-    sys.path.insert(0, str(ROOT))
     from sonarmap.pipeline.graph import default_graph, without_figures
 
     stages = default_graph().stages
@@ -156,7 +155,6 @@ def main() -> int:
         print(json.dumps(cached_demo(demo), indent=2))
         return 0
     if args.dataset is None:
-        sys.path.insert(0, str(ROOT))
         from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
         args.dataset = ensure_simulation(

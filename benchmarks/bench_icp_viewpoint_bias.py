@@ -8,9 +8,9 @@ and the two before it, at the true poses, as the SLAM front end builds them) is 
 against the cloud around an older keyframe, ICP started *at the true relative pose*, and
 the error along the baseline is binned by baseline length.
 
-    .venv/bin/python benchmarks/bench_icp_viewpoint_bias.py --seed 3 --detector labels
-    .venv/bin/python benchmarks/bench_icp_viewpoint_bias.py --seed 3 --detector cfar
-    .venv/bin/python benchmarks/bench_icp_viewpoint_bias.py --seed 3 --edge-depth-m 0.15
+    .venv/bin/python -m benchmarks.bench_icp_viewpoint_bias --seed 3 --detector labels
+    .venv/bin/python -m benchmarks.bench_icp_viewpoint_bias --seed 3 --detector cfar
+    .venv/bin/python -m benchmarks.bench_icp_viewpoint_bias --seed 3 --edge-depth-m 0.15
 
 `--edge-depth-m` moves every leading edge that far further along its beam (towards a
 piling's centre) before registration.
@@ -40,14 +40,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 BINS_M = ((1, 3), (3, 6), (6, 10), (10, 15), (15, 25), (25, 60))
 
@@ -93,7 +89,7 @@ def along_baseline_errors(inputs: dict, separations: list[int], edge_depth_m: fl
 
 
 def main() -> None:
-    from tests.test_slam import simulated_slam_inputs
+    from tests.fixtures import simulated_slam_inputs
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=3)

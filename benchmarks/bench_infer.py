@@ -1,10 +1,10 @@
 """Benchmark of the `infer` stage: update + query keyframes per second, memory, accuracy.
 
-Inputs are built from simulator truth (tests/test_infer.py: label regions = objects,
+Inputs are built from simulator truth (`tests.fixtures.truth_tables`: label regions = objects,
 a 10 % subset of the +-10 deg overlap cells = fused points with 0.5 deg elevation noise),
 so the figures isolate the inference stage from feature extraction and fusion.
 
-    .venv/bin/python benchmarks/bench_infer.py --scene marina --spacing-m 2 --seed 0
+    .venv/bin/python -m benchmarks.bench_infer --scene marina --spacing-m 2 --seed 0
 
 Prints one JSON document: keyframes/s (best of --repeat, wall and process CPU time,
 with the load average: the 2-core development box is shared), tracemalloc peak of the
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -26,20 +25,19 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from sonarmap.sim.config import SimConfig  # noqa: E402
-from sonarmap.sim.dataset import simulate  # noqa: E402
-from sonarmap.sim.scene import load_scene  # noqa: E402
-from sonarmap.stages.infer.stage import InferConfig, infer_points  # noqa: E402
-from tests.test_infer import (  # noqa: E402
+from sonarmap.sim.config import SimConfig
+from sonarmap.sim.dataset import simulate
+from sonarmap.sim.scene import load_scene
+from sonarmap.stages.infer.stage import InferConfig, infer_points
+from tests.fixtures import (
     TruthTables,
     keyframe_indices,
     n_voxels,
     to_world,
     truth_tables,
 )
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _prefix(tt: TruthTables, n_kf: int) -> list[pa.Table]:

@@ -18,8 +18,8 @@ measurement runs in a fresh subprocess: open the recording, run the keyframes st
 and stream its frames into keyframes.mcap with `write_frames` (what the engine does).
 Peak RSS is that subprocess's ru_maxrss.
 
-    .venv/bin/python benchmarks/bench_keyframes.py            # all figures
-    .venv/bin/python benchmarks/bench_keyframes.py --one PATH # one measurement (internal)
+    .venv/bin/python -m benchmarks.bench_keyframes            # all figures
+    .venv/bin/python -m benchmarks.bench_keyframes --one PATH # one measurement (internal)
 """
 
 from __future__ import annotations
@@ -40,7 +40,6 @@ if TYPE_CHECKING:
     from sonarmap.schemas.sonar import SonarPing
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 RATE_HZ, SPEED = 2.0, 0.5
 REPS = 3
@@ -67,8 +66,6 @@ def write_recording(path: Path, n_pairs: int, labels: bool, layout: str = "sonar
     circle of 50 m radius; with `labels`, also the label and truth-angle images."""
     from dataclasses import replace
 
-    from test_readers_mcap import odom_msg
-
     from sonarmap.pipeline.formats.frames_io import image_message, sonar_message
     from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, recording_writer
     from sonarmap.schemas.topics import (
@@ -80,6 +77,7 @@ def write_recording(path: Path, n_pairs: int, labels: bool, layout: str = "sonar
         TOPIC_DEAD_RECKONING,
         TRUTH_ANGLE_TOPIC,
     )
+    from tests.fixtures import odometry
 
     bank = _bank()
     t0 = 1_700_000_000_000_000_000
@@ -91,7 +89,8 @@ def write_recording(path: Path, n_pairs: int, labels: bool, layout: str = "sonar
         for k in range(n_pairs):
             t = t0 + round(k * 1e9 / RATE_HZ)
             a = SPEED * (k / RATE_HZ) / radius
-            odom = odom_msg(t, radius * np.sin(a), radius * (1 - np.cos(a)), -2.0, a)
+            xyz = np.array([radius * np.sin(a), radius * (1 - np.cos(a)), -2.0])
+            odom = odometry(t, xyz, np.array([0.0, 0.0, np.sin(a / 2), np.cos(a / 2)]))
             w.write(TOPIC_DEAD_RECKONING, ODOMETRY_TYPE, odom, t)
             for ping in bank[k % len(bank)]:
                 s = ping.sonar
@@ -134,13 +133,13 @@ def measure_one(path: Path) -> dict[str, float]:
 
 
 def _run_child(path: Path) -> dict[str, float]:
-    env_path = f"{ROOT}:{ROOT / 'tests'}"
     proc = subprocess.run(
-        [sys.executable, __file__, "--one", str(path)],
+        [sys.executable, "-m", "benchmarks.bench_keyframes", "--one", str(path)],
+        cwd=ROOT,
         capture_output=True,
         text=True,
         check=True,
-        env={"PYTHONPATH": env_path, "OMP_NUM_THREADS": "1"},
+        env={"PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"},
     )
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -158,7 +157,6 @@ def _measure(path: Path, reps: int) -> dict[str, object]:
 
 
 def main() -> None:
-    sys.path.insert(0, str(ROOT / "tests"))
     figures: dict[str, dict[str, object]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         cases = [(3000, False, layout, REPS) for layout in LAYOUTS]

@@ -5,7 +5,7 @@ the keyframes stage then skips. This measures, on a `bench_keyframes` recording 
 sonars with label images, 2 Hz), the check alone and the keyframes stage with the check
 on and off (best of `REPEATS`, each in a fresh store).
 
-    .venv/bin/python benchmarks/bench_mcap_verify.py [N_PAIRS]
+    .venv/bin/python -m benchmarks.bench_mcap_verify [N_PAIRS]
 """
 
 from __future__ import annotations
@@ -17,9 +17,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 REPEATS = 2
 
@@ -40,8 +37,7 @@ def _keyframes_s(path: Path, store: Path, verify: bool) -> float:
 
 
 def main() -> None:
-    from bench_keyframes import write_recording
-
+    from benchmarks.bench_keyframes import write_recording
     from sonarmap.pipeline.readers.mcap_source import _McapFile
 
     n_pairs = int(sys.argv[1]) if len(sys.argv) > 1 else 600

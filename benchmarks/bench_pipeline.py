@@ -63,7 +63,6 @@ def main() -> None:
     if args.dataset is None:
         # The demo's recording as the current simulator writes it: a file left by an older
         # simulator has another layout, and `keyframes` reads that one slower.
-        sys.path.insert(0, str(ROOT))
         from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
         args.dataset = ensure_simulation(

@@ -19,13 +19,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
 
 SENSORS = {
     "default": None,
@@ -45,7 +43,7 @@ def _draw(noise: dict | None) -> dict | None:
 
 
 def _accuracy(objects) -> dict[str, object]:  # type: ignore[no-untyped-def]
-    from bench_classify import scores
+    from benchmarks.bench_classify import scores
 
     truth = np.asarray(objects["true_class_name"].to_pylist())
     pred = np.asarray(objects["class_name"].to_pylist())
@@ -67,8 +65,7 @@ def _accuracy(objects) -> dict[str, object]:  # type: ignore[no-untyped-def]
 
 
 def main() -> None:
-    from bench_classify import _classify
-
+    from benchmarks.bench_classify import _classify
     from sonarmap.pipeline.training.datasets import (
         ensure_simulation,
         read_scene,

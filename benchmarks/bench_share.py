@@ -36,7 +36,6 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from sonarmap.pipeline.engine.hashing import recipe_key  # noqa: E402
 from sonarmap.pipeline.engine.share.push_pull import pull, push  # noqa: E402

@@ -32,12 +32,10 @@ import json
 import os
 import resource
 import statistics
-import sys
 import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 GOAL_FRAME_PAIRS_PER_S = 80.0
 NOW_FRAME_PAIRS_PER_S = 32.0

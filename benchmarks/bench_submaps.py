@@ -44,7 +44,6 @@ TIMED = ("features", "fuse", "classify", "infer", "submaps", "voxelize")
 
 def _child(dataset: Path, store: Path, stride: int, overrides: list[str]) -> None:
     """One cold run in this process; prints per-stage wall, CPU and peak RSS as JSON."""
-    sys.path.insert(0, str(ROOT))
     from sonarmap.pipeline.api import RunRequest, run_dataset
 
     marks: dict[str, float] = {}

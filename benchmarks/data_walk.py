@@ -7,7 +7,7 @@ or handed to `sonarmap.stages.keyframes.stage.run`. Each stack is cut at the `ru
 read as the ordered project modules it passes through; the walk is their ordered union.
 A module "entered twice" appears in one stack in two places with another module between.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/data_walk.py [RECORDING]
+    .venv/bin/python -m benchmarks.data_walk [RECORDING]
 
 Without a recording it uses the QA campaign's small simulated one. Prints one JSON
 document.
@@ -23,7 +23,6 @@ from types import CodeType, FrameType
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 
 def _module(filename: str) -> str | None:
@@ -54,7 +53,7 @@ def main(argv: list[str]) -> dict[str, Any]:
     if argv:
         recording = Path(argv[0])
     else:
-        from benchmarks.qa.fixtures import small_recording
+        from tests.fixtures import small_recording
 
         recording = small_recording(Path(tempfile.mkdtemp()) / "rec.mcap", duration_s=45.0)
     command: CodeType | None = None  # the `run` command's code, found on its first call

@@ -41,7 +41,6 @@ LABELLINGS = {"cnn": [], "oracle": ["classify.labels=ground_truth"]}
 
 
 def _recordings(scenes: list[str]) -> list[Path]:
-    sys.path.insert(0, str(ROOT))
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     def path(scene: str) -> Path:  # a frozen scene's name first, then configs/scenes/

@@ -39,13 +39,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 AUTHORS_THRESHOLD = 145.0
 AUTHORS_WATER = 0.2 * 255.0

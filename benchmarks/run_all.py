@@ -1,7 +1,8 @@
 """Run every benchmark script (`bench_*.py`) and print one table of their JSON figures.
 
 Each benchmark ends its stdout with one JSON object (on one line or indented). Results are also
-written to `data/bench/results.json` so closing notes can cite them.
+written to `data/bench/results.json` so closing notes can cite them. Each runs from the repo root
+as `python -m benchmarks.bench_NAME`, so that it can import `tests.fixtures`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
 
 
 def _last_json(stdout: str) -> dict:
@@ -52,7 +54,12 @@ def main() -> int:
         if only and name not in only:
             continue
         t0 = time.perf_counter()
-        proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True)
+        proc = subprocess.run(
+            [sys.executable, "-m", f"benchmarks.{script.stem}"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
         wall = time.perf_counter() - t0
         if proc.returncode != 0:
             results[name] = {

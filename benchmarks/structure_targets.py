@@ -35,7 +35,6 @@ GOALS = {"accurate": 5.0, "completeness": 3.0, "error_ratio": 1.2, "inferred_m":
 def _recordings(args: argparse.Namespace) -> list[Path]:
     if args.datasets:
         return [Path(d) for d in args.datasets]
-    sys.path.insert(0, str(ROOT))
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     out = ROOT / "data" / "bench" / "structure"

@@ -71,6 +71,7 @@ FACTORS_SCHEMA = pa.schema(
         pa.field("reason", pa.string(), nullable=False),
         pa.field("overlap_points", pa.int64(), nullable=False),
         pa.field("rmse_m", pa.float64(), nullable=True),
+        pa.field("degenerate", pa.string(), nullable=False),
     ]
 )
 """factors.parquet: factor id (creation order), type (FACTOR_TYPES), keyframe ids (the
@@ -78,5 +79,7 @@ measurement is the pose of key_to in the frame of key_from; key_from == key_to f
 prior and heading factors, whose measurement is the world pose), measurement [m, rad],
 its covariance, status (FACTOR_STATUSES), reason (why rejected, or for an odometry factor
 that was not used because scan matching replaced it (status "unused"); empty otherwise),
-ICP overlap (source points with a target neighbour; 0 without scan matching) and ICP
-RMSE [m]."""
+ICP overlap (source points with a target neighbour; 0 without scan matching), ICP
+RMSE [m] and, for scan matches, the directions the match left unconstrained (its factor
+free along them: "x", "y", "yaw" in the body frame, comma-separated; "" when none or not
+a scan match; `sonarmap.stages.slam.degeneracy`)."""

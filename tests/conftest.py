@@ -12,11 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from tests.fixtures.shared_data import SHARED_DATA
+
 ROOT = Path(__file__).resolve().parent.parent
-SHARED_DATA = Path(os.environ.get("SONARMAP_SHARED_DATA") or ROOT.parent / "shared" / "data")
-"""The third-party files beside the checkout (`../shared/data`), read only through the
-`shared_data` fixture; $SONARMAP_SHARED_DATA points elsewhere (CI points it nowhere to
-check that every such test skips in a clone that lacks the folder)."""
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")

@@ -15,15 +15,24 @@ from typing import Any
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from rosbags.rosbag2 import StoragePlugin, Writer
 from scipy.spatial.transform import Rotation
+
+from tests.fixtures import (
+    DVL_RPY,
+    DVL_XYZ,
+    IMU_RPY,
+    dvl_imu_pressure,
+    mount_matrix,
+    nav_samples,
+    ros2_types,
+    ros_header,
+    tf_stamped,
+    write_bag,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXEL_M = 0.1
 SCENE = "moorings"
-P_ATM = 101_325.0
-RHO_G = 1025.0 * 9.80665
-"""The reader's defaults: the twins carry no config."""
 
 H_TOPIC, V_TOPIC = "/oculus_m750d/sonar_image", "/oculus_m1200d/sonar_image"
 H_FRAME, V_FRAME = "m750d_link", "m1200d_link"
@@ -31,8 +40,6 @@ T_BASE_MOUNT = np.eye(4)
 T_BASE_MOUNT[:3, :3] = Rotation.from_euler("xyz", [0.0, 0.1, 0.3]).as_matrix()
 T_BASE_MOUNT[:3, 3] = (0.35, -0.05, 0.12)
 """base_link -> sonar_mount: the bracket both sonars hang from (tilted, offset)."""
-DVL_RPY, DVL_XYZ = (180.0, 0.0, 45.0), (-0.2, 0.1, -0.15)
-IMU_RPY = (180.0, 0.0, -90.0)
 
 
 @dataclass
@@ -121,76 +128,12 @@ def canonical(tmp_path_factory: pytest.TempPathFactory) -> Canonical:
 # --- re-encoding as drivers publish ------------------------------------------------------
 
 
-def _types() -> Any:
-    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
-
-    return ros2_typestore()
-
-
-def _header(t: Any, t_ns: int, frame: str) -> Any:
-    stamp = t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
-    return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
-
-
-def _vec(t: Any, v: Any) -> Any:
-    return t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-
-def _tf(t: Any, t_ns: int, parent: str, child: str, T: np.ndarray) -> Any:
-    q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    return t["geometry_msgs/msg/TransformStamped"](
-        header=_header(t, t_ns, parent),
-        child_frame_id=child,
-        transform=t["geometry_msgs/msg/Transform"](
-            translation=_vec(t, T[:3, 3]),
-            rotation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-        ),
-    )
-
-
-def _mount(rpy_deg: Any, xyz: Any) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", np.deg2rad(rpy_deg)).as_matrix()
-    T[:3, 3] = xyz
-    return T
-
-
-def _nav_samples(run: Any, rate_hz: float = 10.0) -> dict[str, np.ndarray]:
-    """The canonical dead-reckoning motion at `rate_hz`: time, position, yaw, body
-    velocity and yaw rate (the same motion the canonical Odometry carries)."""
-    t_p = run.trajectory["t_ns"]
-    dr = run.trajectory["dr_pose"]
-    t = np.arange(t_p[0], t_p[-1] + 1, round(1e9 / rate_hz), dtype=np.int64)
-    rel, rel_p = (t - t_p[0]) * 1e-9, (t_p - t_p[0]) * 1e-9
-    xyz = np.column_stack([np.interp(rel, rel_p, dr[:, i]) for i in range(3)])
-    yaw = np.interp(rel, rel_p, np.unwrap(dr[:, 5]))
-    v_w = np.zeros_like(xyz)
-    v_w[:-1] = np.diff(xyz, axis=0) * rate_hz
-    v_w[-1] = v_w[-2]
-    c, s = np.cos(yaw), np.sin(yaw)
-    v_b = np.column_stack([c * v_w[:, 0] + s * v_w[:, 1], -s * v_w[:, 0] + c * v_w[:, 1], 0 * c])
-    rate = np.gradient(yaw, rel)
-    return {"t": t, "xyz": xyz, "yaw": yaw, "v_b": v_b, "yaw_rate": rate}
-
-
-def _write_bag(out: Path, store: Any, events: list[tuple[int, str, str, Any]]) -> Path:
-    """A rosbag2 (MCAP storage) of (t_ns, topic, type, message) events, in time order."""
-    events.sort(key=lambda e: (e[0], e[1]))
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns: dict[str, Any] = {}
-        for t_ns, topic, typ, msg in events:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t_ns, store.serialize_cdr(msg, typ))
-    return out
-
-
 def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
     """Re-encode the canonical recording as a rosbag2 (MCAP storage) with the drivers'
     names; `navigation` is "odometry" (a renamed Odometry) or "dvl" (DVL + IMU + Bar30)."""
     from mcap.reader import make_reader
 
-    store = _types()
+    store = ros2_types()
     t = store.types
     rename = {"/sonar/horizontal": (H_TOPIC, H_FRAME), "/sonar/vertical": (V_TOPIC, V_FRAME)}
     mounts = canonical.run.T_base_sonar
@@ -208,17 +151,17 @@ def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
     t0 = int(canonical.run.trajectory["t_ns"][0])
     inv_mount = np.linalg.inv(T_BASE_MOUNT)
     transforms = [
-        _tf(t, t0, "base_link", "sonar_mount", T_BASE_MOUNT),
-        _tf(t, t0, "sonar_mount", H_FRAME, inv_mount @ mounts["horizontal"]),
-        _tf(t, t0, "sonar_mount", V_FRAME, inv_mount @ mounts["vertical"]),
+        tf_stamped(t, t0, "base_link", "sonar_mount", T_BASE_MOUNT),
+        tf_stamped(t, t0, "sonar_mount", H_FRAME, inv_mount @ mounts["horizontal"]),
+        tf_stamped(t, t0, "sonar_mount", V_FRAME, inv_mount @ mounts["vertical"]),
     ]
     if navigation == "dvl":
-        T_dvl, T_imu = _mount(DVL_RPY, DVL_XYZ), _mount(IMU_RPY, (0.0, 0.05, 0.02))
+        T_dvl, T_imu = mount_matrix(DVL_RPY, DVL_XYZ), mount_matrix(IMU_RPY, (0.0, 0.05, 0.02))
         transforms += [
-            _tf(t, t0, "base_link", "dvl_link", T_dvl),
-            _tf(t, t0, "base_link", "imu_link", T_imu),
+            tf_stamped(t, t0, "base_link", "dvl_link", T_dvl),
+            tf_stamped(t, t0, "base_link", "imu_link", T_imu),
         ]
-        events += _dvl_imu_pressure(t, _nav_samples(canonical.run), T_dvl, T_imu)
+        events += dvl_imu_pressure(t, nav_samples(canonical.run), T_dvl, T_imu)
     events.append(
         (
             t0,
@@ -227,52 +170,7 @@ def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
             t["tf2_msgs/msg/TFMessage"](transforms=transforms),
         )
     )
-    return _write_bag(out, store, events)
-
-
-def _dvl_imu_pressure(
-    t: Any, nav: dict[str, np.ndarray], T_dvl: np.ndarray, T_imu: np.ndarray
-) -> list[tuple[int, str, str, Any]]:
-    """DVL in its frame (mount rotation, lever arm), IMU attitude and rate in its frame,
-    absolute pressure of a Bar30 (Pa)."""
-    omega_b = np.column_stack([0 * nav["yaw_rate"], 0 * nav["yaw_rate"], nav["yaw_rate"]])
-    v_point = nav["v_b"] + np.cross(omega_b, T_dvl[:3, 3])
-    v_dvl = v_point @ T_dvl[:3, :3]  # R_base_dvl^T v
-    R_wb = Rotation.from_euler("z", nav["yaw"][:, None])
-    q_imu = (R_wb * Rotation.from_matrix(T_imu[:3, :3])).as_quat()
-    w_imu = omega_b @ T_imu[:3, :3]
-    pressure = P_ATM + RHO_G * -nav["xyz"][:, 2]
-    cov = np.zeros(36)
-    out = []
-    for k, t_ns in enumerate(nav["t"].tolist()):
-        twist = t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=t["geometry_msgs/msg/Twist"](
-                linear=_vec(t, v_dvl[k]), angular=_vec(t, (0.0, 0.0, 0.0))
-            ),
-            covariance=cov,
-        )
-        dvl = t["geometry_msgs/msg/TwistWithCovarianceStamped"](
-            header=_header(t, t_ns, "dvl_link"), twist=twist
-        )
-        q = q_imu[k]
-        imu = t["sensor_msgs/msg/Imu"](
-            header=_header(t, t_ns, "imu_link"),
-            orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-            orientation_covariance=np.zeros(9),
-            angular_velocity=_vec(t, w_imu[k]),
-            angular_velocity_covariance=np.zeros(9),
-            linear_acceleration=_vec(t, (0.0, 0.0, 9.81)),
-            linear_acceleration_covariance=np.zeros(9),
-        )
-        bar30 = t["sensor_msgs/msg/FluidPressure"](
-            header=_header(t, t_ns, "bar30_link"), fluid_pressure=float(pressure[k]), variance=0.0
-        )
-        out += [
-            (t_ns, "/dvl/twist", "geometry_msgs/msg/TwistWithCovarianceStamped", dvl),
-            (t_ns, "/mavros/imu/data", "sensor_msgs/msg/Imu", imu),
-            (t_ns, "/bar30/pressure", "sensor_msgs/msg/FluidPressure", bar30),
-        ]
-    return out
+    return write_bag(out, store, events)
 
 
 def _compare(canonical: Canonical, arts: dict[str, Path], align: bool) -> tuple[float, float]:
@@ -344,7 +242,7 @@ def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
 
     from sonarmap.pipeline.readers import open_recording
 
-    store = _types()
+    store = ros2_types()
     t = store.types
     rec = open_recording(canonical.path)
     sonar_topics = {"/sonar/horizontal": "horizontal", "/sonar/vertical": "vertical"}
@@ -363,7 +261,7 @@ def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
         ):
             image = np.ascontiguousarray(ping.image[:, keep])
             msg = t["sensor_msgs/msg/Image"](
-                header=_header(t, int(t_ns), f"sonar_{sonar}"),
+                header=ros_header(t, int(t_ns), f"sonar_{sonar}"),
                 height=image.shape[0],
                 width=image.shape[1],
                 encoding="mono8",
@@ -372,7 +270,7 @@ def write_polar_twin(canonical: Canonical, out: Path, keep: np.ndarray) -> Path:
                 data=image.reshape(-1),
             )
             events.append((int(t_ns), topic, "sensor_msgs/msg/Image", msg))
-    return _write_bag(out, store, events)
+    return write_bag(out, store, events)
 
 
 def test_polar_image_twin_with_an_uneven_beam_table_file_maps_the_same_world(

@@ -36,6 +36,7 @@ def _factors(rows: list[tuple[str, int, int, str]]) -> pa.Table:
         "reason": [""] * n,
         "overlap_points": np.zeros(n, np.int64),
         "rmse_m": np.zeros(n),
+        "degenerate": [""] * n,
     }
     return pa.table(cols, schema=FACTORS_SCHEMA)
 

@@ -299,11 +299,11 @@ def test_the_one_home_check_catches_copies(tmp_path: Path) -> None:
 
 def _with_tf_static(tmp_path: Path, quat: list[float], xyz: list[float]) -> Path:
     """A small synthetic recording plus a /tf_static giving the horizontal sonar's mount."""
-    from ingest_recordings import write_recording
     from mcap.reader import make_reader
 
     from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
     from sonarmap.schemas.topics import FRAME_BASE, TOPIC_TF_STATIC
+    from tests.fixtures import write_recording
 
     plain, out = tmp_path / "plain.mcap", tmp_path / "rec.mcap"
     write_recording(plain, n_pings=4)

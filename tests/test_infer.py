@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute
 import pytest
-from scipy import ndimage
 
 import sonarmap.stages.infer.stage as infer_module
 from sonarmap.schemas.classes import CLASS_NAMES, DEFAULT_TABLE, PILING_CLASSES
@@ -18,134 +17,10 @@ from sonarmap.sim.config import SimConfig
 from sonarmap.sim.dataset import SimRun, simulate
 from sonarmap.sim.scene import load_scene
 from sonarmap.stages.infer.stage import STAGE, InferConfig, infer_mission, infer_points
-from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
 from sonarmap.stages.kernels.object_frame import object_origin, to_object_frame
+from tests.fixtures import TruthTables, keyframe_indices, n_voxels, to_world, truth_tables
 
 REPO = Path(__file__).resolve().parents[1]
-OBJECT_CLASSES = (1, 2, 3, 4, 5)
-
-
-@dataclass
-class TruthTables:
-    """Inputs of `infer` built from simulator truth, plus each keyframe's T_world_sonar."""
-
-    objects: pa.Table
-    object_features: pa.Table
-    features: pa.Table
-    fused: pa.Table
-    T_world_sonar: dict[int, np.ndarray]
-
-
-def keyframe_indices(run: SimRun, spacing_m: float) -> list[int]:
-    """Frames whose true position moved >= spacing_m since the previous keyframe."""
-    xy = run.trajectory["gt_pose"][:, :2]
-    out = [0]
-    for i in range(1, len(xy)):
-        if np.linalg.norm(xy[i] - xy[out[-1]]) >= spacing_m:
-            out.append(i)
-    return out
-
-
-def truth_tables(
-    run: SimRun,
-    frames: list[int],
-    *,
-    fused_fraction: float = 0.1,
-    overlap_deg: float = 10.0,
-    elevation_noise_deg: float = 0.5,
-    min_cells: int = 10,
-    seed: int = 0,
-) -> TruthTables:
-    """Objects = connected label regions of the horizontal image (one class each);
-    features = their cells; fused = a random fraction of the cells inside the +-overlap
-    wedge, with the true elevation plus Gaussian noise (paper Eq. 1 for x, y, z)."""
-    rng = np.random.default_rng(seed)
-    cols: dict[str, dict[str, list]] = {k: {} for k in ("obj", "of", "feat", "fused")}
-
-    def add(table: str, **values: object) -> None:
-        for k, v in values.items():
-            cols[table].setdefault(k, []).append(np.atleast_1d(v))
-
-    T_world_sonar = {}
-    for kf, index in enumerate(frames):
-        f = run.frame(index)
-        h = f.horizontal
-        T_world_sonar[kf] = pose_to_matrix(f.gt_pose) @ f.T_base_sonar["horizontal"]
-        feature_id = np.full(h.labels.shape, -1, dtype=np.int64)
-        rows, beams = np.nonzero(np.isin(h.labels, OBJECT_CLASSES))
-        feature_id[rows, beams] = np.arange(rows.size)
-        r = h.ranges_m[rows].astype(np.float64)
-        b = h.angles_rad[beams].astype(np.float64)
-        add(
-            "feat",
-            keyframe_id=np.full(rows.size, kf),
-            feature_id=feature_id[rows, beams],
-            sonar=np.full(rows.size, "horizontal"),
-            range_bin=rows,
-            beam=beams,
-            range_m=r,
-            angle_rad=b,
-            intensity=h.image[rows, beams].astype(np.float64),
-        )
-        object_id = 0
-        for cid in OBJECT_CLASSES:
-            regions, n = ndimage.label(h.labels == cid, structure=np.ones((3, 3)))
-            for k in range(1, n + 1):
-                ids = feature_id[regions == k]
-                if ids.size < min_cells:
-                    continue
-                add(
-                    "obj",
-                    keyframe_id=kf,
-                    object_id=object_id,
-                    class_name=CLASS_NAMES[cid],
-                    probability=1.0,
-                    n_features=ids.size,
-                )
-                add(
-                    "of",
-                    keyframe_id=np.full(ids.size, kf),
-                    object_id=np.full(ids.size, object_id),
-                    feature_id=ids,
-                )
-                object_id += 1
-        truth = h.truth_angle_rad[rows, beams].astype(np.float64)
-        pick = (np.abs(b) <= np.deg2rad(overlap_deg)) & np.isfinite(truth)
-        pick &= rng.random(rows.size) < fused_fraction
-        el = truth[pick] + rng.normal(0.0, np.deg2rad(elevation_noise_deg), pick.sum())
-        rr, bb = r[pick], b[pick]
-        add(
-            "fused",
-            keyframe_id=np.full(rr.size, kf),
-            feature_id_horizontal=feature_id[rows, beams][pick],
-            range_m=rr,
-            bearing_rad=bb,
-            elevation_rad=el,
-            x_m=rr * np.cos(el) * np.cos(bb),
-            y_m=rr * np.cos(el) * np.sin(bb),
-            z_m=rr * np.sin(el),
-            confidence=np.ones(rr.size),
-        )
-
-    def table(name: str) -> pa.Table:
-        return pa.table({k: np.concatenate(v) for k, v in cols[name].items()})
-
-    return TruthTables(table("obj"), table("of"), table("feat"), table("fused"), T_world_sonar)
-
-
-def to_world(points: pa.Table, T_world_sonar: dict[int, np.ndarray]) -> np.ndarray:
-    """(n, 3) world coordinates of sonar-frame rows (x_m, y_m, z_m, keyframe_id)."""
-    xyz = np.c_[[points.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")]].T
-    kf = points.column("keyframe_id").to_numpy()
-    out = np.empty_like(xyz)
-    for k in np.unique(kf):
-        T = T_world_sonar[int(k)]
-        out[kf == k] = xyz[kf == k] @ T[:3, :3].T + T[:3, 3]
-    return out
-
-
-def n_voxels(xyz: np.ndarray, size_m: float = 0.1) -> int:
-    return int(np.unique(np.floor(xyz / size_m).astype(np.int64), axis=0).shape[0])
 
 
 # ---------------------------------------------------------------------------------------

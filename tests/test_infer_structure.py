@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute
 import pytest
-from test_infer import keyframe_indices, n_voxels, real_stage_tables, to_world
+from test_infer import real_stage_tables
 
 from sonarmap.sim.config import MissionConfig, SimConfig
 from sonarmap.sim.dataset import simulate
@@ -17,6 +17,7 @@ from sonarmap.stages.infer.config import DEFAULT_CLASSES
 from sonarmap.stages.infer.stage import InferConfig, infer_mission
 from sonarmap.stages.kernels.beam_frame import beam_anchor_range, beam_model_coords
 from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+from tests.fixtures import keyframe_indices, n_voxels, to_world
 
 REPO = Path(__file__).resolve().parents[1]
 NO_BORROWING = InferConfig(unknown_argmax_classes=(), borrowed_models={})

@@ -14,7 +14,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from ingest_recordings import T0, write_recording
 from mcap.records import Chunk
 from typer.testing import CliRunner
 
@@ -23,6 +22,7 @@ from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV
 from sonarmap.pipeline.readers.mcap_scan import ChunkCorrupt, ChunkOverLimit, decompress_chunk
 from sonarmap.pipeline.readers.sonar_decode import decode_image
+from tests.fixtures import T0, write_recording
 
 runner = CliRunner()
 BOMB_BYTES = 64 << 20

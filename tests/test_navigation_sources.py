@@ -13,131 +13,22 @@ from typing import Any
 
 import numpy as np
 import pytest
-from rosbags.rosbag2 import StoragePlugin, Writer
 from scipy.spatial.transform import Rotation
-from test_field_twins import (
-    DVL_RPY,
-    DVL_XYZ,
-    IMU_RPY,
-    P_ATM,
-    RHO_G,
-    _dvl_imu_pressure,
-    _mount,
-    _nav_samples,
-    _tf,
-    _types,
-)
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.readers import open_recording
 from sonarmap.pipeline.readers.dvl import body_velocity, gate_velocity
 from sonarmap.pipeline.readers.tf_tree import TfTree
-from sonarmap.schemas.sonar import SonarPing
+from tests.fixtures import (
+    P_ATM,
+    mount_matrix,
+    nav_samples,
+    navigation_mission,
+    write_navigation_bag,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def _mission(speed: float, duration: float = 40.0) -> Any:
-    """A simulated mission's motion (pings are never rendered)."""
-    from sonarmap.sim.config import SimConfig
-    from sonarmap.sim.dataset import simulate
-    from sonarmap.sim.scene import load_scene
-
-    base = SimConfig()
-    mission = base.mission.model_copy(
-        update={"n_goals": 3, "duration_s": duration, "speed_m_s": speed}
-    )
-    scene = load_scene(ROOT / "configs" / "scenes" / "moorings.yaml")
-    return simulate(scene, base.model_copy(update={"mission": mission}), 5)
-
-
-def _write(
-    out: Path,
-    run: Any,
-    *,
-    navigation: str = "dvl",
-    tf: bool = True,
-    edit: Any = None,
-) -> Path:
-    """A rosbag2 with blank pings on the drivers' topics at the ping times, a tf chain
-    (when `tf`), and "dvl" (DVL + IMU + Bar30) or "odometry" navigation. `edit` may
-    change the DVL/IMU/pressure events before writing."""
-    from sonarmap.pipeline.formats.frames_io import sonar_cdr
-
-    store = _types()
-    t = store.types
-    t_ping = run.trajectory["t_ns"]
-    angles = np.linspace(-1.0, 1.0, 8, dtype=np.float32)
-    ranges = np.linspace(1.0, 10.0, 8, dtype=np.float32)
-    raw: list[tuple[int, str, str, bytes]] = []
-    for k, t_ns in enumerate(t_ping.tolist()):
-        for topic, frame, sonar in (
-            ("/oculus_m750d/sonar_image", "m750d_link", "horizontal"),
-            ("/oculus_m1200d/sonar_image", "m1200d_link", "vertical"),
-        ):
-            img = np.full((8, 8), k % 7, np.uint8)
-            ping = SonarPing(int(t_ns), sonar, img, ranges, angles)
-            raw.append(
-                (
-                    int(t_ns),
-                    topic,
-                    "marine_acoustic_msgs/msg/ProjectedSonarImage",
-                    sonar_cdr(ping, frame),
-                )
-            )
-    events: list[tuple[int, str, str, Any]] = []
-    nav = _nav_samples(run)
-    T_dvl, T_imu = _mount(DVL_RPY, DVL_XYZ), _mount(IMU_RPY, (0.0, 0.05, 0.02))
-    if navigation == "dvl":
-        dvl = _dvl_imu_pressure(t, nav, T_dvl, T_imu)
-        events += edit(dvl) if edit else dvl
-    else:
-        dr = run.trajectory["dr_pose"]
-        for k, t_ns in enumerate(t_ping.tolist()):
-            q = Rotation.from_euler("z", dr[k, 5]).as_quat()
-            pose = t["geometry_msgs/msg/PoseStamped"](
-                header=_header(t, t_ns, "odom"),
-                pose=t["geometry_msgs/msg/Pose"](
-                    position=t["geometry_msgs/msg/Point"](x=dr[k, 0], y=dr[k, 1], z=dr[k, 2]),
-                    orientation=t["geometry_msgs/msg/Quaternion"](x=q[0], y=q[1], z=q[2], w=q[3]),
-                ),
-            )
-            events.append((t_ns, "/bluerov2/pose", "geometry_msgs/msg/PoseStamped", pose))
-        for k, t_ns in enumerate(nav["t"].tolist()):
-            p = P_ATM + RHO_G * (-nav["xyz"][k, 2] + 0.5)  # the pressure sensor says 0.5 m deeper
-            msg = t["sensor_msgs/msg/FluidPressure"](
-                header=_header(t, t_ns, "bar30_link"), fluid_pressure=float(p), variance=0.0
-            )
-            events.append((t_ns, "/bar30/pressure", "sensor_msgs/msg/FluidPressure", msg))
-    if tf:
-        t0 = int(t_ping[0])
-        mounts = run.T_base_sonar
-        T_bm = _mount((0.0, 5.0, 10.0), (0.3, 0.0, 0.1))
-        inv = np.linalg.inv(T_bm)
-        tfs = [
-            _tf(t, t0, "base_link", "sonar_mount", T_bm),
-            _tf(t, t0, "sonar_mount", "m750d_link", inv @ mounts["horizontal"]),
-            _tf(t, t0, "sonar_mount", "m1200d_link", inv @ mounts["vertical"]),
-            _tf(t, t0, "base_link", "dvl_link", T_dvl),
-            _tf(t, t0, "base_link", "imu_link", T_imu),
-        ]
-        msg = t["tf2_msgs/msg/TFMessage"](transforms=tfs)
-        events.append((t0, "/tf_static", "tf2_msgs/msg/TFMessage", msg))
-    allev = [(a, b, c, store.serialize_cdr(d, c)) for a, b, c, d in events] + raw
-    allev.sort(key=lambda e: (e[0], e[1]))
-    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as w:
-        conns: dict[str, Any] = {}
-        for t_ns, topic, typ, data in allev:
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=store)
-            w.write(conns[topic], t_ns, data)
-    return out
-
-
-def _header(t: Any, t_ns: int, frame: str) -> Any:
-    stamp = t["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
-    return t["std_msgs/msg/Header"](stamp=stamp, frame_id=frame)
 
 
 def _aligned_error(run: Any, track: Any) -> tuple[float, float]:
@@ -156,8 +47,8 @@ def _aligned_error(run: Any, track: Any) -> tuple[float, float]:
 
 @pytest.mark.parametrize("speed", [0.3, 1.0])
 def test_a_fast_dvl_dead_reckons_as_well_as_a_slow_one(tmp_path: Path, speed: float) -> None:
-    run = _mission(speed)
-    rec = open_recording(_write(tmp_path / "bag", run))
+    run = navigation_mission(speed)
+    rec = open_recording(write_navigation_bag(tmp_path / "bag", run))
     track = rec.navigation()
     xy_err, z_err = _aligned_error(run, track)
     travelled = np.linalg.norm(np.diff(track.xyz_m[:, :2], axis=0), axis=1).sum()
@@ -172,7 +63,7 @@ def test_a_fast_dvl_dead_reckons_as_well_as_a_slow_one(tmp_path: Path, speed: fl
 def test_dvl_gates_drop_only_the_implausible_and_count_each(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    run = _mission(1.0)
+    run = navigation_mission(1.0)
 
     def spoil(events: list[Any]) -> list[Any]:
         dvl = [e for e in events if e[1] == "/dvl/twist"]
@@ -183,9 +74,9 @@ def test_dvl_gates_drop_only_the_implausible_and_count_each(
         return events
 
     with caplog.at_level(logging.WARNING):
-        rec = open_recording(_write(tmp_path / "bag", run, edit=spoil))
+        rec = open_recording(write_navigation_bag(tmp_path / "bag", run, edit=spoil))
         track = rec.navigation()
-    n = len(_nav_samples(run)["t"])
+    n = len(nav_samples(run)["t"])
     (line,) = [r.getMessage() for r in caplog.records if "DVL samples" in r.getMessage()]
     assert f"dropped 2 non-finite, 5 faster than 5 m/s of {n} DVL samples" in line
     assert rec.provenance()["dvl"]["dropped"] == {"non-finite": 2, "faster than 5 m/s": 5}
@@ -207,7 +98,7 @@ def test_lever_arm_of_a_turning_vehicle_is_removed() -> None:
 
 
 def test_tf_chain_composes_through_links_and_against_their_direction() -> None:
-    A, B = _mount((0, 0, 30), (1, 0, 0)), _mount((90, 0, 0), (0, 2, 0))
+    A, B = mount_matrix((0, 0, 30), (1, 0, 0)), mount_matrix((90, 0, 0), (0, 2, 0))
     tree = TfTree()
     tree.add("/base_link", "mount", A)
     tree.add("sonar", "mount", np.linalg.inv(B))  # published child-first
@@ -218,7 +109,7 @@ def test_tf_chain_composes_through_links_and_against_their_direction() -> None:
 
 
 def test_pressure_depth_takes_the_surface_from_the_first_seconds(tmp_path: Path) -> None:
-    run = _mission(0.5, 30.0)
+    run = navigation_mission(0.5, 30.0)
 
     def at_the_surface_first(events: list[Any]) -> list[Any]:
         # A stormy day (1.5 kPa above a standard atmosphere); the first 3 s at the surface.
@@ -230,7 +121,7 @@ def test_pressure_depth_takes_the_surface_from_the_first_seconds(tmp_path: Path)
                 e[3].fluid_pressure = p
         return events
 
-    bag = _write(tmp_path / "bag", run, edit=at_the_surface_first)
+    bag = write_navigation_bag(tmp_path / "bag", run, edit=at_the_surface_first)
     plain = open_recording(bag).navigation()
     fixed_rec = open_recording(bag, {"surface_pressure_from_first_s": 2.0})
     fixed = fixed_rec.navigation()
@@ -244,8 +135,8 @@ def test_pressure_depth_takes_the_surface_from_the_first_seconds(tmp_path: Path)
 
 
 def test_depth_topic_replaces_a_pose_navigations_z(tmp_path: Path) -> None:
-    run = _mission(0.5, 20.0)
-    bag = _write(tmp_path / "bag", run, navigation="odometry")
+    run = navigation_mission(0.5, 20.0)
+    bag = write_navigation_bag(tmp_path / "bag", run, navigation="odometry")
     nav = open_recording(bag).navigation()
     np.testing.assert_allclose(nav.xyz_m[:, 2], run.trajectory["dr_pose"][:, 2], atol=1e-9)
     rec = open_recording(bag, {"depth_topic": "/bar30/pressure"})
@@ -259,8 +150,8 @@ def _cli(*args: str) -> Any:
 
 @pytest.fixture(scope="module")
 def small_bag(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Any]:
-    run = _mission(0.5, 20.0)
-    return _write(tmp_path_factory.mktemp("nav") / "bag", run), run
+    run = navigation_mission(0.5, 20.0)
+    return write_navigation_bag(tmp_path_factory.mktemp("nav") / "bag", run), run
 
 
 @pytest.mark.parametrize(
@@ -329,7 +220,7 @@ def test_convert_copies_the_recordings_geometry_and_invents_none(
     assert rec.provenance()["vertical_sonar"]["mount_rpy"] == "recording"
     # Without geometry in the input, the output has none: a later mount setting applies
     # as config, and the default is warned, never baked in.
-    bare = _write(tmp_path / "bare", run, tf=False)
+    bare = write_navigation_bag(tmp_path / "bare", run, tf=False)
     out2 = tmp_path / "conv2.mcap"
     res = _cli("convert", str(bare), "-o", str(out2), "--json")
     assert res.exit_code == 0, res.output

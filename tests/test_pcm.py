@@ -9,13 +9,13 @@ import numpy as np
 
 from sonarmap.stages.slam.pcm import (
     chain_covariance,
-    invert_loops,
     maximum_clique,
     pairwise_consistency,
     robust_noise_scale,
     windowed_pcm,
 )
 from sonarmap.stages.slam.pose_graph import se2_between, se2_compose
+from tests.fixtures import intel_loops
 
 
 def _is_clique(adjacency: np.ndarray, nodes: np.ndarray) -> bool:
@@ -67,39 +67,8 @@ def test_consistency_flags_the_loop_that_disagrees_with_odometry() -> None:
 
 
 def test_pcm_on_intel_rejects_injected_false_loops(shared_data: Path) -> None:
-    from sonarmap.pipeline.formats.g2o import read_pose_graph
-
-    graph = read_pose_graph(shared_data / "posegraphs" / "intel.g2o")
-    a, b = graph.edge_from, graph.edge_to
-    odometry = b == a + 1
-    order = np.argsort(a[odometry])
-    steps = graph.measurements[odometry][order]
-    poses = np.zeros((len(graph.vertex_ids), 3))
-    for k, u in enumerate(steps):
-        poses[k + 1] = se2_compose(poses[k], u)
-    odo_cov = np.linalg.inv(graph.information[odometry][order])
-    # true loops, plus 20 % false ones between random poses with random measurements
-    rng = np.random.default_rng(7)
-    n_true = int((~odometry).sum())
-    n_false = round(0.2 * n_true)
-    src = np.concatenate([a[~odometry], rng.integers(0, len(poses), n_false)])
-    dst = np.concatenate([b[~odometry], rng.integers(0, len(poses), n_false)])
-    z = np.concatenate(
-        [
-            graph.measurements[~odometry],
-            rng.uniform([-5, -5, -np.pi], [5, 5, np.pi], (n_false, 3)),
-        ]
-    )
-    cov = np.concatenate(
-        [np.linalg.inv(graph.information[~odometry]), np.repeat(odo_cov[:1], n_false, axis=0)]
-    )
-    truth = np.arange(len(src)) < n_true
-    # orient every loop from its newer pose, as the SLAM front end sees them arrive
-    flip = src < dst
-    z_inv, cov_inv = invert_loops(z, cov)
-    z = np.where(flip[:, None], z_inv, z)
-    cov = np.where(flip[:, None, None], cov_inv, cov)
-    src, dst = np.where(flip, dst, src), np.where(flip, src, dst)
+    s = intel_loops(shared_data / "posegraphs" / "intel.g2o")
+    poses, odo_cov, src, dst, z, cov, truth = s.poses, s.odo_cov, s.src, s.dst, s.z, s.cov, s.truth
     # the file's information matrices are ~1000x too conservative: calibrate their scale
     scale = robust_noise_scale(poses, chain_covariance(poses, odo_cov), src, dst, z, cov, 0.75)
     assert scale < 0.01

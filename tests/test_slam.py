@@ -9,114 +9,18 @@ from __future__ import annotations
 
 import io
 from collections import Counter
-from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import pyarrow as pa
 import pytest
 from scipy.stats import spearmanr
 
-from sonarmap.schemas.classes import CLASS_IDS
-from sonarmap.schemas.features import FEATURES_SCHEMA
 from sonarmap.schemas.figures import PLOT_POINTS_SCHEMA
-from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
+from sonarmap.schemas.keyframes import GT_POSE_COLUMNS
 from sonarmap.schemas.slam import COVARIANCE_COLUMNS, FACTORS_SCHEMA, POSES_SCHEMA
-from sonarmap.stages.features.stage import FeaturesConfig
-from sonarmap.stages.kernels.frame_features import detect_ping
 from sonarmap.stages.slam.pose_graph import se2_between
 from sonarmap.stages.slam.stage import STAGE, SlamConfig
-
-ROOT = Path(__file__).resolve().parents[1]
-SEAFLOOR = CLASS_IDS["seafloor"]
-
-
-def _select(dr: np.ndarray, spacing_m: float, rotation_rad: float) -> list[int]:
-    chosen = [0]
-    for i in range(1, len(dr)):
-        last = dr[chosen[-1]]
-        dyaw = abs(np.angle(np.exp(1j * (dr[i, 5] - last[5]))))
-        if np.hypot(*(dr[i, :2] - last[:2])) >= spacing_m or dyaw >= rotation_rad:
-            chosen.append(i)
-    return chosen
-
-
-def simulated_slam_inputs(
-    scene: str = "pier",
-    n_goals: int = 6,
-    seed: int = 0,
-    spacing_m: float = 2.0,
-    navigation: dict[str, float] | None = None,
-    detector: Literal["labels", "cfar"] = "labels",
-) -> dict[str, object]:
-    """Stage inputs (keyframes table, sensors, features) from a simulated mission.
-
-    `navigation` overrides fields of the simulator's `NavigationNoise`. `detector`:
-    "labels", the simulator's labelled object cells (a perfect detector, seafloor
-    excluded); "cfar", the features stage's default CFAR on the horizontal images.
-    """
-    from sonarmap.sim.config import MissionConfig, NavigationNoise, SimConfig
-    from sonarmap.sim.dataset import simulate
-    from sonarmap.sim.scene import load_scene
-
-    config = SimConfig(
-        mission=MissionConfig(n_goals=n_goals), navigation=NavigationNoise(**(navigation or {}))
-    )
-    run = simulate(load_scene(ROOT / "configs" / "scenes" / f"{scene}.yaml"), config, seed)
-    tr = run.trajectory
-    sel = _select(tr["dr_pose"], spacing_m, np.deg2rad(30.0))
-    n = len(sel)
-    cols: dict[str, object] = {
-        "keyframe_id": np.arange(n, dtype=np.int64),
-        "t_ns": tr["t_ns"][sel],
-        "t_vertical_ns": tr["t_ns"][sel],
-        "ping_index_horizontal": np.array(sel, dtype=np.int64),
-        "ping_index_vertical": np.array(sel, dtype=np.int64),
-    }
-    for c, name in enumerate(POSE_COLUMNS):
-        cols[name] = tr["dr_pose"][sel, c]
-    for c, name in enumerate(GT_POSE_COLUMNS):
-        cols[name] = tr["gt_pose"][sel, c]
-    cols["reason"] = ["first"] + ["translation"] * (n - 1)
-    keyframes = pa.table(cols, schema=KEYFRAMES_SCHEMA)
-    parts = []
-    for k, i in enumerate(sel):
-        ping = run.frame(i).horizontal
-        if detector == "cfar":
-            rows, beams = detect_ping(ping, FeaturesConfig())
-        else:
-            rows, beams = np.nonzero((ping.labels > 0) & (ping.labels != SEAFLOOR))
-        parts.append((k, rows, beams, ping))
-    features = pa.table(
-        {
-            "keyframe_id": np.concatenate([np.full(len(r), k) for k, r, _, _ in parts]),
-            "feature_id": np.concatenate([np.arange(len(r)) for _, r, _, _ in parts]),
-            "sonar": ["horizontal"] * sum(len(r) for _, r, _, _ in parts),
-            "range_bin": np.concatenate([r for _, r, _, _ in parts]).astype(np.int64),
-            "beam": np.concatenate([b for _, _, b, _ in parts]).astype(np.int64),
-            "range_m": np.concatenate([p.ranges_m[r] for _, r, _, p in parts]).astype(float),
-            "angle_rad": np.concatenate([p.angles_rad[b] for _, _, b, p in parts]).astype(float),
-            "intensity": np.concatenate([p.image[r, b] for _, r, b, p in parts]).astype(np.float32),
-        },
-        schema=FEATURES_SCHEMA,
-    )
-    sensors = {s: {"T_base_sonar": m.tolist()} for s, m in run.T_base_sonar.items()}
-    return {
-        "keyframes.keyframes": keyframes,
-        "keyframes.sensors": sensors,
-        "features.features": features,
-    }
-
-
-def ate_se2(estimate: np.ndarray, truth: np.ndarray) -> float:
-    """RMSE of (K, 2) positions after the best rigid SE(2) alignment (Umeyama, no scale)."""
-    mu_e, mu_t = estimate.mean(axis=0), truth.mean(axis=0)
-    u, _, vt = np.linalg.svd((truth - mu_t).T @ (estimate - mu_e))
-    d = np.diag([1.0, np.sign(np.linalg.det(u @ vt))])
-    rot = u @ d @ vt
-    aligned = (estimate - mu_e) @ rot.T + mu_t
-    return float(np.sqrt(np.mean(np.sum((aligned - truth) ** 2, axis=1))))
-
+from tests.fixtures import ate_se2, simulated_slam_inputs
 
 NOISY_NAVIGATION = {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03}
 """A low-cost DVL/IMU that drifts a few percent of distance (3 % scale, 3 deg yaw bias)."""

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from test_infer import keyframe_indices, real_stage_tables
+from test_infer import real_stage_tables
 
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.schemas.submaps import SUBMAP_POINTS_SCHEMA, SUBMAP_POINTS_SORT_KEYS
@@ -27,6 +27,7 @@ from sonarmap.stages.kernels.point_tables import points_table
 from sonarmap.stages.kernels.sightings import object_feature_rows
 from sonarmap.stages.submaps.mapping import frame_points
 from sonarmap.stages.submaps.transfer import KeyframeObjectPoints, transfer_objects
+from tests.fixtures import keyframe_indices
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -82,6 +82,7 @@ def _factors(rows: list[tuple[str, str, str, float | None]]) -> pa.Table:
     cols.update({c: np.zeros(n) for c in COVARIANCE_COLUMNS})
     cols.update(status=status, reason=reason, overlap_points=np.zeros(n, np.int64))
     cols["rmse_m"] = pa.array(rmse, pa.float64())
+    cols["degenerate"] = [""] * n
     return pa.table(cols, schema=FACTORS_SCHEMA)
 
 
@@ -125,6 +126,35 @@ def test_the_report_counts_agreement_per_class_fused_keyframes_closures_and_drif
     assert "3 proposed, 2 accepted, 1 rejected (pcm: not in a consistent set: 1)" in text
     assert "ICP fit RMSE of the accepted: median 0.300 m, p90 0.380 m" in text
     assert "1.0 m apart at the end" in text
+    assert trust["warnings"] == [] and "warning" not in text
+
+    # With the slam stage's summary (sonarmap.stages.slam.health): its degenerate matches,
+    # its drift check and its warning reach the report.
+    summary = {
+        "fell_back_to_dead_reckoning": False,
+        "scan_matching": {
+            "ssm": {"degenerate": 4, "degenerate_by_direction": {"x": 3, "y": 1}},
+            "loop": {"degenerate": 0, "degenerate_by_direction": {}},
+        },
+        "dead_reckoning_vs_slam": {
+            "gap_at_worst_m": 2.9,
+            "predicted_bound_at_worst_m": 1.1,
+            "worst_keyframe_id": 41,
+            "exceeds_prediction": True,
+        },
+        "warnings": ["slam: SLAM and dead reckoning part by 2.90 m"],
+    }
+    trust = trust_report(m, _poses(dead_reckoning), _poses(slam), factors, 1.0, 0.6, summary)
+    assert trust["warnings"] == summary["warnings"]
+    assert trust["slam"]["degenerate_matches"]["ssm"] == {
+        "found": 4,
+        "by_direction": {"x": 3, "y": 1},
+    }
+    text = "\n".join(trust_markdown(trust))
+    assert "sequential scan matches found degenerate" in text and "(x: 3, y: 1)" in text
+    assert "loop closures found degenerate" not in text
+    assert "2.9 m apart at keyframe 41, more than its 99 % bound there (1.1 m)" in text
+    assert "- **warning:** slam: SLAM and dead reckoning part by 2.90 m" in text
 
 
 def test_an_unlabelled_recording_reports_no_precision_or_support_at_all() -> None:

@@ -6,7 +6,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
-from test_infer import to_world
 from test_infer_structure import _mission
 from test_voxelize import T_BASE_SONAR, fused_table, points_table, poses_table
 
@@ -16,6 +15,7 @@ from sonarmap.pipeline.graph import all_stages, extra_sections
 from sonarmap.stages.infer.stage import InferConfig, infer_mission
 from sonarmap.stages.voxelize.evidence import contradicted_by_fused
 from sonarmap.stages.voxelize.stage import STAGE, VoxelizeConfig
+from tests.fixtures import to_world
 
 CHECK = {"cell_m": 1.0, "height_tolerance_m": 0.6, "min_fused": 5}
 

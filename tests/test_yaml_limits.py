@@ -23,7 +23,7 @@ from sonarmap.pipeline.graph import all_stages, extra_sections
 runner = CliRunner()
 
 MAX_LINE = 400
-"""The longest one-line error the contract allows (as `benchmarks/qa/case.py`)."""
+"""The longest one-line error the contract allows (as `tests/contract/case.py`)."""
 
 BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
     f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8)

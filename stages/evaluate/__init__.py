@@ -22,8 +22,9 @@ STAGE = Stage(
     # 6: metrics["submaps"] (issue 21), input submaps.stats; 7: per_class["assigned_classes"]
     # 8: map.mcap for Foxglove (issue 40), inputs frames and objects; 9: metrics["trust"]
     # 10: the figures move to the `map_figures` stage; side_view.parquet is the side view's
-    # data, the report lists no figures
-    version=10,
+    # data, the report lists no figures; 11: the trust report carries slam's summary (matches
+    # found degenerate, SLAM against the navigation's predicted drift, its warnings)
+    version=11,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(
@@ -34,6 +35,7 @@ STAGE = Stage(
         Input("keyframes", "sensors"),
         Input("slam", "poses"),
         Input("slam", "factors"),
+        Input("slam", "summary"),
         Input("infer", "stats"),
         Input("submaps", "stats"),
         Input("keyframes", "frames"),

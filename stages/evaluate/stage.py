@@ -280,7 +280,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     dataset = str(sensors.source.get("name", "unknown"))
     metrics["trust"] = trust_report(
         map_table, keyframes, poses, inputs.get("slam.factors"),
-        config.trust_cell_m, config.trust_height_tolerance_m,
+        config.trust_cell_m, config.trust_height_tolerance_m, inputs.get("slam.summary"),
     )  # fmt: skip
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows)
     outputs["metrics"] = metrics

@@ -11,7 +11,10 @@ keyframes and the pose graph that the run itself produced:
 - keyframes that contributed fused points;
 - loop closures proposed, accepted and rejected (with the reasons), and the residuals of
   the scan matches that were accepted;
-- how far dead reckoning drifted from the SLAM trajectory.
+- how far dead reckoning drifted from the SLAM trajectory, and (from the slam stage's
+  summary, `sonarmap.stages.slam.health`) whether that is more than the navigation's
+  noise model predicts, with the scan matches found degenerate and in which direction,
+  and slam's warnings.
 """
 
 from __future__ import annotations
@@ -166,11 +169,25 @@ def trust_report(
     factors: pa.Table | None,
     cell_m: float,
     height_tolerance_m: float,
+    slam_summary: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The run's self-consistency figures (see the module docstring), as a JSON dict."""
     source = _strings(map_table, "source")
     fused_kf = map_table.column("keyframe_id").to_numpy()[source == "fused"]
+    slam = slam_summary or {}
     return {
+        "slam": {
+            "fell_back_to_dead_reckoning": slam.get("fell_back_to_dead_reckoning"),
+            "degenerate_matches": {
+                name: {
+                    "found": sm.get("degenerate"),
+                    "by_direction": sm.get("degenerate_by_direction"),
+                }
+                for name, sm in (slam.get("scan_matching") or {}).items()
+            },
+            "drift_check": slam.get("dead_reckoning_vs_slam"),
+        },
+        "warnings": list(slam.get("warnings") or []),
         "inference": _inference_agreement(map_table, source, cell_m, height_tolerance_m),
         "keyframes_with_fused_points": len(np.unique(fused_kf)),
         "keyframes": int(keyframes.num_rows),
@@ -231,4 +248,30 @@ def trust_markdown(trust: dict[str, Any] | None) -> list[str]:
             f"- dead reckoning vs SLAM: {drift['final_m']} m apart at the end,"
             f" at most {drift['max_m']} m, over {drift['path_length_m']} m of path"
         )
+    lines += _slam_lines(trust.get("slam") or {})
+    lines += [f"- **warning:** {w}" for w in trust.get("warnings") or []]
     return [*lines, ""]
+
+
+def _slam_lines(slam: dict[str, Any]) -> list[str]:
+    """The slam stage's own checks: degenerate matches, the drift check, the fallback."""
+    lines = []
+    for name, label in (("ssm", "sequential scan matches"), ("loop", "loop closures")):
+        found = (slam.get("degenerate_matches") or {}).get(name) or {}
+        if found.get("found"):
+            by = ", ".join(f"{k}: {v}" for k, v in (found.get("by_direction") or {}).items())
+            lines.append(
+                f"- {label} found degenerate (free along one direction of the body frame,"
+                f" the odometry carries it): {found['found']} ({by})"
+            )
+    check = slam.get("drift_check") or {}
+    if check.get("predicted_bound_at_worst_m") is not None and "gap_at_worst_m" in check:
+        verdict = "more than" if check.get("exceeds_prediction") else "within"
+        lines.append(
+            f"- SLAM vs the navigation's predicted drift: {check['gap_at_worst_m']} m apart at"
+            f" keyframe {check.get('worst_keyframe_id')}, {verdict} its 99 % bound there"
+            f" ({check['predicted_bound_at_worst_m']} m)"
+        )
+    if slam.get("fell_back_to_dead_reckoning"):
+        lines.append("- no scan match was accepted: the trajectory is dead reckoning's")
+    return lines

@@ -8,7 +8,9 @@ Modules:
     frontend: the sequential front end: odometry, heading and SSM factors per keyframe.
     loops: loop closure (NSSM), PCM and the final re-registration of every loop.
     scan_matching: ICP between keyframe clouds.
+    degeneracy: which directions of SE(2) a scan match constrains.
     pcm: pairwise consistency maximisation of loop closures.
+    health: summary.json, what the stage can say about its result without ground truth.
     pose_graph: the iSAM2 pose graph.
     points: the leading-edge points SLAM registers.
     outputs: trajectory tables and the points trajectory.png draws.
@@ -23,7 +25,10 @@ __all__ = ["STAGE", "SlamConfig"]
 STAGE = Stage(
     name="slam",
     # 10: trajectory.png moves to the `figures` stage; plot_points.parquet is what it draws
-    version=10,
+    # 11: scan matches free along the directions they leave unconstrained (degeneracy),
+    # sequential ones gated against the step's odometry (Mahalanobis) under a Huber kernel;
+    # factors.parquet gains `degenerate`; summary.json (health: SLAM vs dead reckoning)
+    version=11,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),
@@ -34,6 +39,7 @@ STAGE = Stage(
         Output("poses", "parquet", "poses.parquet", schema="sonarmap.schemas.slam:POSES_SCHEMA"),
         Output("factors", "parquet", "factors.parquet", schema="sonarmap.schemas.slam:FACTORS_SCHEMA"),
         Output("trajectory", "bytes", "trajectory.tum"),
+        Output("summary", "json", "summary.json"),
         Output(
             "plot_points",
             "parquet",

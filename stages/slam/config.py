@@ -102,6 +102,33 @@ class SlamConfig(StageConfig):
     covariance_floor: Literal["replace", "scale"] = Field(
         "scale", description="scale keeps the ICP Hessian's x-yaw correlation (lever arm)"
     )
+    degeneracy_min_ratio: float | None = Field(
+        0.05,
+        gt=0,
+        lt=1,
+        description="a scan match leaves a direction of translation unconstrained when its"
+        " point-to-line information there (yaw marginalised) is under this fraction of that"
+        " along the best direction (0.05: the normals' RMS component along it under about"
+        " sin 13 deg; `sonarmap.stages.slam.degeneracy`): its factor is made free along it"
+        " and the odometry carries that direction; None: off",
+    )
+    ssm_gate_probability: float | None = Field(
+        0.999,
+        gt=0,
+        lt=1,
+        description="a sequential match must agree with the odometry of its step: the"
+        " Mahalanobis distance of their difference under the sum of the match's and the"
+        " odometry's covariance over the step (white noise for its duration plus the scale"
+        " error's share of its length) within this chi-square quantile, with as many degrees"
+        " of freedom as the match constrains; None: only ssm_max_translation_m/rotation",
+    )
+    ssm_huber_k: float | None = Field(
+        1.345,
+        gt=0,
+        le=1000000,
+        description="Huber kernel scale on sequential scan-matching factors (whitened error;"
+        " 1.345: 95 % efficiency under Gaussian noise); None: Gaussian",
+    )
     loop_sigma_xy_m: float = Field(
         0.1, ge=1e-6, le=1000, description="floor of a loop's covariance"
     )

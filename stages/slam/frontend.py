@@ -15,12 +15,15 @@ from typing import Any
 
 import numpy as np
 
+from sonarmap.stages.kernels.lazy import lazy
 from sonarmap.stages.slam.config import SlamConfig
+from sonarmap.stages.slam.degeneracy import constrained_covariance, degeneracy
 from sonarmap.stages.slam.loops import LoopCandidate, LoopClosures
 from sonarmap.stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_between,
     se2_compose,
+    se2_log,
     wrap_angle,
 )
 from sonarmap.stages.slam.scan_matching import (
@@ -30,6 +33,8 @@ from sonarmap.stages.slam.scan_matching import (
     transform_points,
     voxel_downsample,
 )
+
+stats = lazy("scipy.stats")
 
 __all__ = ["SlamResult", "run_slam"]
 
@@ -43,11 +48,13 @@ def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
 
 @dataclass
 class SlamResult:
-    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts)."""
+    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts), and
+    whether no scan match was accepted, so the poses are dead reckoning's."""
 
     poses: np.ndarray
     covariances: np.ndarray
     factors: list[dict[str, Any]] = field(default_factory=list)
+    fell_back: bool = False
 
 
 class _FrontEnd(LoopClosures):
@@ -103,7 +110,10 @@ class _FrontEnd(LoopClosures):
 
     def _row(self, kind: str, a: int, b: int, z: np.ndarray, cov: np.ndarray, **kw: Any) -> int:
         row = {"type": kind, "key_from": a, "key_to": b, "z": np.asarray(z, float), "cov": cov}
-        row.update({"status": "accepted", "reason": "", "overlap": 0, "rmse": None, **kw})
+        row.update(
+            {"status": "accepted", "reason": "", "overlap": 0, "rmse": None, "degenerate": ""}
+        )
+        row.update(kw)
         self.rows.append(row)
         return len(self.rows) - 1
 
@@ -184,6 +194,43 @@ class _FrontEnd(LoopClosures):
             return "overlap"
         return ""
 
+    def _constrain(
+        self, pose: np.ndarray, cov: np.ndarray, source: np.ndarray, target: np.ndarray
+    ) -> tuple[np.ndarray, str, int]:
+        """`cov` made free along the direction the match leaves unconstrained
+        (`sonarmap.stages.slam.degeneracy`): (covariance, its label, 1 or 0)."""
+        c = self.cfg
+        if c.degeneracy_min_ratio is None:
+            return cov, "", 0
+        index = self._index(target)
+        if not isinstance(index, TargetIndex):
+            index = TargetIndex(index)
+        found = degeneracy(
+            source, index.points, index.tree, pose, c.point_noise_m, c.degeneracy_min_ratio
+        )
+        return constrained_covariance(cov, found), found.label, found.count
+
+    def _step_cov(self, odometry: np.ndarray, dt_s: float) -> np.ndarray:
+        """(3, 3) covariance of the odometry over one step: its white noise for the step's
+        duration plus the scale error's share of the step's length (per axis)."""
+        cov = self._odometry_cov(dt_s)
+        if self.cfg.odom_scale_sigma is not None:
+            cov = cov + np.diag([*(self.cfg.odom_scale_sigma * odometry[:2]) ** 2, 0.0])
+        return cov
+
+    def _gate(
+        self, pose: np.ndarray, guess: np.ndarray, cov: np.ndarray, odo: np.ndarray, free: int
+    ) -> str:
+        """Why a sequential match disagrees with the odometry of its step ("" if it does
+        not): Mahalanobis distance over the directions it constrains (`ssm_gate_probability`)."""
+        p = self.cfg.ssm_gate_probability
+        if p is None:
+            return ""
+        dev = se2_log(se2_between(guess, pose))
+        if dev @ np.linalg.solve(odo + cov, dev) > stats.chi2.ppf(p, 3 - free):
+            return "inconsistent with odometry"
+        return ""
+
     def start(self, pose: np.ndarray) -> None:
         cov = _diag_cov(self.cfg.prior_sigma_xy_m, self.cfg.prior_sigma_yaw_deg)
         self.graph.add_pose(0, pose)
@@ -231,10 +278,23 @@ class _FrontEnd(LoopClosures):
             )
             match = self._match(source, target, odometry, half)
             reason = self._check(match, odometry, c.ssm_max_translation_m, c.ssm_max_rotation_deg)
+        degenerate = ""
         if match is not None and not reason:
             cov = self._floor(match.covariance, self.icp_cov)
-            self.graph.add_between(k - 1, k, match.pose, cov)
-            self._row("ssm", k - 1, k, match.pose, cov, overlap=match.overlap, rmse=match.rmse_m)
+            cov, degenerate, free = self._constrain(match.pose, cov, source, target)
+            reason = self._gate(match.pose, odometry, cov, self._step_cov(odometry, dt_s), free)
+        if match is not None and not reason:
+            self.graph.add_between(k - 1, k, match.pose, cov, huber_k=c.ssm_huber_k)
+            self._row(
+                "ssm",
+                k - 1,
+                k,
+                match.pose,
+                cov,
+                overlap=match.overlap,
+                rmse=match.rmse_m,
+                degenerate=degenerate,
+            )
             if c.ssm_replaces_odometry:
                 self.rows[odo_row]["status"] = "unused"
                 self.edge_covs.append(cov)
@@ -246,7 +306,15 @@ class _FrontEnd(LoopClosures):
             z = odometry if match is None else match.pose
             overlap = 0 if match is None else match.overlap
             self._row(
-                "ssm", k - 1, k, z, self.icp_cov, status="rejected", reason=reason, overlap=overlap
+                "ssm",
+                k - 1,
+                k,
+                z,
+                self.icp_cov,
+                status="rejected",
+                reason=reason,
+                overlap=overlap,
+                degenerate=degenerate,
             )
             self.edge_covs.append(self.chain_odom_cov)
         self._update()
@@ -270,6 +338,7 @@ def run_slam(
         t_s: (K,) keyframe times [s] (the heading bias walks with time).
     """
     use_sonar = config.mode == "slam"
+    dr_se2 = np.asarray(dr_se2, np.float64)
     front = _FrontEnd(config, points if use_sonar else [np.zeros((0, 2))] * len(points))
     front.start(dr_se2[0])
     for k in range(1, len(dr_se2)):
@@ -277,4 +346,12 @@ def run_slam(
         front.step(k, se2_between(dr_se2[k - 1], dr_se2[k]), use_sonar, dr_se2[k], dt_s)
     if use_sonar:
         front.refine_loops()
-    return front.result()
+    result = front.result()
+    matched = any(
+        r["type"] in ("ssm", "loop") and r["status"] == "accepted" for r in result.factors
+    )
+    if use_sonar and not matched:
+        # Nothing from the sonar: the graph holds only the navigation's own factors, and
+        # the dead-reckoned poses are what it says (bit for bit, not re-solved).
+        result.poses, result.fell_back = np.array(dr_se2, np.float64), True
+    return result

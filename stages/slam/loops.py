@@ -82,7 +82,7 @@ class LoopCandidate:
 class LoopClosures:
     """The loop-closure half of the front end (mixed into `sonarmap.stages.slam.frontend._FrontEnd`,
     whose sequential half provides the state below and `_cloud`, `_index`, `_match`, `_check`,
-    `_floor`, `_row` and `_update`)."""
+    `_floor`, `_constrain`, `_row` and `_update`)."""
 
     cfg: SlamConfig
     points: list[np.ndarray]
@@ -165,6 +165,7 @@ class LoopClosures:
         match = self._match(source, target, guess, np.array([xy, xy, yaw]))
         reason = self._check(match, guess, c.nssm_max_translation_m, c.nssm_max_rotation_deg)
         cov = self._floor(match.covariance, self.loop_cov)
+        cov, degenerate, _ = self._constrain(match.pose, cov, source, target)
         dev = se2_log(se2_between(guess, match.pose))
         if not reason and dev @ np.linalg.solve(rel + cov, dev) > c.nssm_gate_chi2:
             reason = "inconsistent with odometry"
@@ -178,6 +179,7 @@ class LoopClosures:
             rmse=match.rmse_m,
             status="rejected",
             reason=reason or "pcm: not in a consistent set",
+            degenerate=degenerate,
         )
         if reason:
             return False
@@ -236,14 +238,16 @@ class LoopClosures:
         for _ in range(c.loop_refine_passes):
             for i, row in enumerate(loops):
                 t, k = row["key_from"], row["key_to"]
-                pose, overlap, rmse, cov = self._reregister(*self._loop_clouds(t, k), t, k)
+                source, target = self._loop_clouds(t, k)
+                pose, overlap, rmse, cov = self._reregister(source, target, t, k)
                 growth = baseline_covariance_factor(
                     float(np.hypot(pose[0], pose[1])),
                     c.loop_baseline_growth_m,
                     c.loop_reference_baseline_m,
                 )
                 cov = self._floor(cov, self.loop_cov) * sharing[i] * growth
-                row.update(z=pose, cov=cov, overlap=overlap, rmse=rmse)
+                cov, degenerate, _ = self._constrain(pose, cov, source, target)
+                row.update(z=pose, cov=cov, overlap=overlap, rmse=rmse, degenerate=degenerate)
             if c.ssm_refine_target_frames:
                 self._refine_ssm(c.ssm_refine_target_frames)
             self._resolve()
@@ -283,7 +287,10 @@ class LoopClosures:
             target = self._cloud(range(max(0, k - frames), k), a)
             pose, overlap, rmse, cov = self._reregister(self.points[k], target, a, k)
             if overlap >= c.min_overlap_points:
-                row.update(z=pose, cov=self._floor(cov, self.icp_cov), overlap=overlap, rmse=rmse)
+                cov, degenerate, _ = self._constrain(
+                    pose, self._floor(cov, self.icp_cov), self.points[k], target
+                )
+                row.update(z=pose, cov=cov, overlap=overlap, rmse=rmse, degenerate=degenerate)
 
     def _resolve(self) -> None:
         """Rebuild the graph from the accepted factor rows and solve it from the estimate."""
@@ -303,8 +310,15 @@ class LoopClosures:
             elif row["type"] == "odometry":
                 self._odometry(row, graph)
             else:
-                kernel = self.cfg.loop_cauchy_k if row["type"] == "loop" else None
-                graph.add_between(row["key_from"], row["key_to"], row["z"], row["cov"], kernel)
+                loop = row["type"] == "loop"
+                graph.add_between(
+                    row["key_from"],
+                    row["key_to"],
+                    row["z"],
+                    row["cov"],
+                    self.cfg.loop_cauchy_k if loop else None,
+                    None if loop else self.cfg.ssm_huber_k,
+                )
         graph.update(extra_iterations=_RESOLVE_ITERATIONS)
         self.graph = graph
         self.est = graph.poses()

@@ -46,6 +46,7 @@ def factors_table(rows: list[dict[str, Any]], ids: np.ndarray) -> pa.Table:
     cols["reason"] = pa.array([r["reason"] for r in rows], pa.string())
     cols["overlap_points"] = np.array([r["overlap"] for r in rows], dtype=np.int64)
     cols["rmse_m"] = pa.array([r["rmse"] for r in rows], pa.float64())
+    cols["degenerate"] = pa.array([r.get("degenerate", "") for r in rows], pa.string())
     return pa.table(cols, schema=FACTORS_SCHEMA)
 
 

@@ -125,17 +125,29 @@ class PlanarPoseGraph:
         self._graph.add(gtsam.PriorFactorPose2(gtsam.symbol("x", index), _pose2(pose), noise))
 
     def add_between(
-        self, i: int, j: int, z: np.ndarray, cov: np.ndarray, cauchy_k: float | None = None
+        self,
+        i: int,
+        j: int,
+        z: np.ndarray,
+        cov: np.ndarray,
+        cauchy_k: float | None = None,
+        huber_k: float | None = None,
     ) -> None:
         """Between factor: pose j measured in the frame of pose i, (3, 3) covariance.
 
         `cauchy_k` wraps the Gaussian in a Cauchy M-estimator with that scale (in units of
         the whitened error): a residual of k sigma weighs half as much as under the Gaussian.
+        `huber_k` (when `cauchy_k` is None): a Huber M-estimator, quadratic within k sigma,
+        linear beyond.
         """
         noise = gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=np.float64))
         if cauchy_k is not None:
             noise = gtsam.noiseModel.Robust.Create(
                 gtsam.noiseModel.mEstimator.Cauchy.Create(cauchy_k), noise
+            )
+        elif huber_k is not None:
+            noise = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(huber_k), noise
             )
         self._graph.add(
             gtsam.BetweenFactorPose2(gtsam.symbol("x", i), gtsam.symbol("x", j), _pose2(z), noise)

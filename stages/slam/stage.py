@@ -21,13 +21,20 @@ again from the optimised poses (ICP only, tight gate) and the graph re-solved in
 sonar data counts about once (`loop_shared_window`; version 6), and every SSM factor is
 registered again too, against more keyframes (`ssm_refine_target_frames`; version 7);
 a loop's covariance there also grows with its baseline, as its measured error does
-(`loop_baseline_growth_m`; version 8).
+(`loop_baseline_growth_m`; version 8). Every scan match's factor is made free along the
+directions of SE(2) its scans leave unconstrained (a straight wall's direction: the
+point-to-line information against one step of odometry, `sonarmap.stages.slam.degeneracy`),
+and a sequential match must agree with its step's odometry within a chi-square gate
+(Mahalanobis, under both covariances) and enters under a Huber kernel (version 11).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
 Outputs: poses, factors (parquet), trajectory (TUM text), plot points (the features
 registered with the estimate, thinned: what `trajectory.png` of the `figures` stage draws;
-version 10); see `sonarmap.schemas.slam` and `sonarmap.schemas.figures`.
+version 10), summary (JSON: matches found degenerate, SLAM against the drift the
+navigation's noise model predicts, warnings; `sonarmap.stages.slam.health`, version 11);
+see `sonarmap.schemas.slam` and `sonarmap.schemas.figures`. When no scan match is
+accepted, the poses are dead reckoning's.
 
 The front end is `sonarmap.stages.slam.frontend`, the config `sonarmap.stages.slam.config`, the keyframe
 point clouds `sonarmap.stages.slam.points`, the output files `sonarmap.stages.slam.outputs`.
@@ -47,6 +54,7 @@ from sonarmap.stages.base import Input, StageInputError
 from sonarmap.stages.slam import STAGE
 from sonarmap.stages.slam.config import SlamConfig, with_sensor_fan
 from sonarmap.stages.slam.frontend import SlamResult, run_slam
+from sonarmap.stages.slam.health import slam_summary
 from sonarmap.stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
 from sonarmap.stages.slam.points import keyframe_points, leading_edges
 from sonarmap.stages.slam.pose_graph import wrap_angle
@@ -94,19 +102,20 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config.leading_edge_only,
     )
     dr_se2 = dr[:, [0, 1, 5]]
+    t_s = (t_ns - t_ns[0]) * 1e-9
     if config.mode == "ground_truth":
         if gt is None:
             raise StageInputError(
                 Input("keyframes", "keyframes"),
                 "slam.mode is ground_truth, but the recording carries no ground truth",
             )
-        pose6, cov, rows = gt, np.zeros((len(ids), 3, 3)), []
+        pose6, cov, rows, fell_back = gt, np.zeros((len(ids), 3, 3)), [], False
     else:
-        result = run_slam(config, dr_se2, points, (t_ns - t_ns[0]) * 1e-9)
+        result = run_slam(config, dr_se2, points, t_s)
         pose6 = dr.copy()
         pose6[:, [0, 1, 5]] = result.poses
         pose6[:, 5] = wrap_angle(pose6[:, 5])
-        cov, rows = result.covariances, result.factors
+        cov, rows, fell_back = result.covariances, result.factors, result.fell_back
     loops = np.array(
         [
             (r["key_from"], r["key_to"])
@@ -117,7 +126,11 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     ).reshape(-1, 2)
     n_loops = len(loops)
     log.info("slam (%s): %d keyframes, %d loop closures", config.mode, len(ids), n_loops)
+    summary = slam_summary(config, rows, ids, dr_se2, pose6[:, [0, 1, 5]], t_s, fell_back)
+    # summary["warnings"] are printed by the engine (a JSON output's warnings reach the
+    # run's `warning:` lines), also when the artifact is found cached.
     return {
+        "summary": summary,
         "poses": poses_table(ids, t_ns, pose6, cov),
         "factors": factors_table(rows, ids),
         "trajectory": tum_text(t_ns, pose6),

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
 
-__all__ = ["CHECKS", "EmptyMap", "OutputCheck", "check_stage", "output_rows"]
+__all__ = ["CHECKS", "EmptyMap", "OutputCheck", "check_stage", "output_rows", "stage_warnings"]
 
 Rows = Mapping[str, int]
 """Row counts by "stage.output" of the artifacts this run has so far."""
@@ -93,13 +93,25 @@ def _fill(message: str, rows: Rows) -> str:
     return _FIELD.sub(lambda m: str(rows.get(m.group(1), "?")), message)
 
 
+def stage_warnings(ref: ArtifactRef | None) -> list[str]:
+    """The warnings a stage wrote about its own result (a JSON output's "warnings", kept in
+    the manifest by `sonarmap.pipeline.engine.store.codecs.write_output`), in output order."""
+    outputs = None if ref is None else ref.manifest.get("outputs")
+    found: list[str] = []
+    for facts in (outputs if isinstance(outputs, Mapping) else {}).values():
+        lines = facts.get("warnings") if isinstance(facts, Mapping) else None
+        if isinstance(lines, list):
+            found.extend(w for w in lines if isinstance(w, str))
+    return found
+
+
 def check_stage(
     stage: str, refs: Mapping[str, ArtifactRef], checks: tuple[OutputCheck, ...] | None = None
 ) -> list[tuple[str, bool]]:
     """(message, fatal) for every check (default: `CHECKS`) of `stage` that applies to
-    the counts so far."""
+    the counts so far, then the stage's own warnings (`stage_warnings`, never fatal)."""
     rows = output_rows(refs)
-    found = []
+    found = [(w, False) for w in stage_warnings(refs.get(stage))] if checks is None else []
     for check in CHECKS if checks is None else checks:
         if check.stage == stage and check.applies(rows):
             found.append((_fill(check.message, rows), check.fatal))

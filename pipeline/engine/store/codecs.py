@@ -99,7 +99,10 @@ def write_output(
         return {"rows": table.num_rows}
     if output.kind == "json":
         path.write_text(json.dumps(value, indent=2, sort_keys=True, allow_nan=False) + "\n")
-        return {}
+        # A JSON output's "warnings" (lines a stage found about its own result) go into the
+        # manifest, where the run's output checks print them (`output_checks.stage_warnings`).
+        found = value.get("warnings") if isinstance(value, dict) else None
+        return {"warnings": [str(w) for w in found]} if isinstance(found, list) and found else {}
     if output.kind == "bytes":
         if not isinstance(value, (bytes, bytearray, memoryview)):
             raise StageFailed(f"stage {stage}: output '{output.name}' must be bytes")

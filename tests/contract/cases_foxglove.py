@@ -15,8 +15,8 @@ import socket
 import subprocess
 from pathlib import Path
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, cached_run, small_recording
+from tests.contract.case import Case, names
+from tests.fixtures import CACHE, cached_run, small_recording
 
 RUN = CACHE / "foxglove-run"
 _HELD: list[socket.socket] = []
@@ -51,17 +51,6 @@ def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def _names(*words: str):  # type: ignore[no-untyped-def]
-    """Check: the error line names each word."""
-
-    def check(work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
-        missing = [w for w in words if w not in line]
-        return f"error line lacks {missing}: {line[:160]}" if missing else None
-
-    return check
 
 
 def _port_released(work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
@@ -203,17 +192,17 @@ def _show(stage: str):  # type: ignore[no-untyped-def]
 
 
 CASES: list[Case] = [
-    Case("exit codes", "view: recording missing", _view_missing, check=_names("nope.mcap")),
-    Case("exit codes", "view: empty recording", _view_empty, check=_names("empty.mcap")),
-    Case("exit codes", "view: random bytes", _view_garbage, check=_names("junk.mcap")),
-    Case("exit codes", "view: no finished run", _view_no_run, check=_names("rec.mcap")),
-    Case("exit codes", "view: other config", _view_other_config, check=_names("rec.mcap")),
-    Case("exit codes", "view: --port 70000", _view_port_range, check=_names("port")),
-    Case("exit codes", "view: port busy", _view_port_busy, check=_names("cannot listen")),
-    Case("exit codes", "view: --set out of bounds", _view_bad_set, check=_names("spacing_m")),
-    Case("exit codes", "view: --store is a file", _view_store_is_file, check=_names("store.txt")),
-    Case("exit codes", "run --live-port -1", _run_live_port_range, check=_names("live-port")),
-    Case("exit codes", "run --live: port busy", _run_live_port_busy, check=_names("cannot listen")),
+    Case("exit codes", "view: recording missing", _view_missing, check=names("nope.mcap")),
+    Case("exit codes", "view: empty recording", _view_empty, check=names("empty.mcap")),
+    Case("exit codes", "view: random bytes", _view_garbage, check=names("junk.mcap")),
+    Case("exit codes", "view: no finished run", _view_no_run, check=names("rec.mcap")),
+    Case("exit codes", "view: other config", _view_other_config, check=names("rec.mcap")),
+    Case("exit codes", "view: --port 70000", _view_port_range, check=names("port")),
+    Case("exit codes", "view: port busy", _view_port_busy, check=names("cannot listen")),
+    Case("exit codes", "view: --set out of bounds", _view_bad_set, check=names("spacing_m")),
+    Case("exit codes", "view: --store is a file", _view_store_is_file, check=names("store.txt")),
+    Case("exit codes", "run --live-port -1", _run_live_port_range, check=names("live-port")),
+    Case("exit codes", "run --live: port busy", _run_live_port_busy, check=names("cannot listen")),
     Case(
         "exit codes",
         "run --live: bad recording frees its port",
@@ -236,21 +225,21 @@ CASES: list[Case] = [
         "trust",
         "view: flipped byte in map.parquet",
         lambda w: _view_corrupt(w, "voxelize", "map.parquet"),
-        check=_names("voxelize"),
+        check=names("voxelize"),
     ),
     Case(
         "trust",
         "view: flipped byte in map.mcap",
         lambda w: _view_corrupt(w, "evaluate", "map.mcap"),
-        check=_names("evaluate"),
+        check=names("evaluate"),
     ),
     Case(
         "trust",
         "view: flipped byte in keyframes.mcap",
         lambda w: _view_corrupt(w, "keyframes", "keyframes.mcap"),
-        check=_names("keyframes"),
+        check=names("keyframes"),
     ),
-    Case("trust", "view: artifact file deleted", _view_missing_file, check=_names("keyframes")),
+    Case("trust", "view: artifact file deleted", _view_missing_file, check=names("keyframes")),
     Case(
         "sharing", "map.mcap: CRCs, summary, Foxglove schemas", _show("evaluate"), (0,), _mcap_valid
     ),

@@ -3,7 +3,7 @@ files, and runs that would end in an empty map.
 
 Cases on the toy graph (`tests/toy_stages.py`, via $SONARMAP_GRAPH) hold a run inside
 its second stage with a gate file, so `gc` meets it mid-run deterministically; cases on
-the real pipeline use the small simulated recording of `benchmarks.qa.fixtures`. Disk
+the real pipeline use the small simulated recording of `tests.contract.fixtures`. Disk
 -full cases mount a small tmpfs (root only; they fail where mounting is not allowed).
 """
 
@@ -22,14 +22,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import ROOT, small_recording
+from tests.contract.case import Case, names
+from tests.fixtures import ROOT, small_recording
 
 STORE = "data/store"
-TOY_ENV = {
-    "SONARMAP_GRAPH": "toy_stages:GRAPH",
-    "PYTHONPATH": os.pathsep.join([str(ROOT / "tests"), str(ROOT)]),
-}
+TOY_ENV = {"SONARMAP_GRAPH": "tests.toy_stages:GRAPH", "PYTHONPATH": str(ROOT)}
 _BACKGROUND: dict[str, subprocess.Popen[bytes]] = {}
 
 
@@ -261,15 +258,6 @@ def _read_only_tmpfs(work: Path) -> list[str]:
     subprocess.run(["mount", "-o", "remount,ro", str(mount)], check=True)
     (work / "raw.bin").write_bytes(bytes(range(256)) * 4)
     return ["run", "raw.bin", "--store", str(mount / "store"), "-q"]
-
-
-def _names_path(*needles: str) -> Any:
-    def check(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
-        missing = [n for n in needles if n not in line]
-        return f"the error does not name {missing}: {line[:160]}" if missing else None
-
-    return check
 
 
 # -- trust: a model.pt that is not a weights-only state dict -----------------------------------
@@ -607,35 +595,35 @@ CASES = [
         "exit codes",
         "store name over 255 characters",
         _store_under("WORK/" + "s" * 300),
-        check=_names_path("File name too long", "s…s"),
+        check=names("File name too long", "s…s"),
         env=_TOY,
     ),
     Case(
         "exit codes",
         "store under a regular file",
         _store_under("WORK/a-file/store"),
-        check=_names_path("a-file", "Not a directory"),
+        check=names("a-file", "Not a directory"),
         env=_TOY,
     ),
     Case(
         "exit codes",
         "store on a read-only filesystem",
         _read_only_tmpfs,
-        check=_names_path("Read-only file system"),
+        check=names("Read-only file system"),
         env=_TOY,
     ),
     Case(
         "exit codes",
         "store in /proc",
         _store_under("/proc/sonarmap-store"),
-        check=_names_path("/proc/sonarmap-store"),
+        check=names("/proc/sonarmap-store"),
         env=_TOY,
     ),
     Case(
         "exit codes",
         "store path with a newline",
         _store_under("WORK/new\nline/" + "x" * 300),
-        check=_names_path("new\\nline"),
+        check=names("new\\nline"),
         env=_TOY,
     ),
     # trust: model.pt is not a weights-only state dict

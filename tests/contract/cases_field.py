@@ -3,22 +3,18 @@ mapped right, refused with one line naming what is missing (and the candidates),
 mapped with a warning saying what was substituted or dropped and how much.
 
 Each case writes a small rosbag2 (blank pings on the drivers' topics, DVL + IMU + Bar30
-or a pose navigation, a tf chain) with `tests/test_navigation_sources.py`'s writer and
+or a pose navigation, a tf chain) with `tests.fixtures.write_navigation_bag` and
 runs `sonarmap run BAG --until keyframes`.
 """
 
 from __future__ import annotations
 
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tests"))
+from tests.contract.case import Case, names
 
 Edit = Callable[[list[Any]], list[Any]]
 
@@ -31,9 +27,11 @@ def _bag(
     navigation: str = "dvl",
     speed: float = 0.5,
 ) -> list[str]:
-    from test_navigation_sources import _mission, _write
+    from tests.fixtures import navigation_mission, write_navigation_bag  # rosbags, scipy: lazily
 
-    bag = _write(workdir / "dive", _mission(speed, 20.0), navigation=navigation, tf=tf, edit=edit)
+    bag = write_navigation_bag(
+        workdir / "dive", navigation_mission(speed, 20.0), navigation=navigation, tf=tf, edit=edit
+    )
     args = ["run", str(bag), "--until", "keyframes", "--store", "data/store", "-q"]
     for s in sets:
         args += ["--set", s]
@@ -74,16 +72,17 @@ def _twice_pressure(events: list[Any]) -> list[Any]:
 
 
 def _changing_tf(events: list[Any]) -> list[Any]:
-    from test_field_twins import _mount, _tf, _types
+    from tests.fixtures import mount_matrix, ros2_types, tf_stamped
 
     # The DVL's frame is on /tf only (not /tf_static), and its transform turns.
-    t = _types().types
+    t = ros2_types().types
     out = list(events)
     for e in _topic(events, "/dvl/twist"):
         e[3].header.frame_id = "dvl_head"
     for k, e in enumerate(_topic(events, "/mavros/imu/data")[:20]):
-        T = _mount((180.0, 0.0, 45.0 + 2.0 * k), (-0.2, 0.1, -0.15))
-        msg = t["tf2_msgs/msg/TFMessage"](transforms=[_tf(t, e[0], "base_link", "dvl_head", T)])
+        T = mount_matrix((180.0, 0.0, 45.0 + 2.0 * k), (-0.2, 0.1, -0.15))
+        tf = tf_stamped(t, e[0], "base_link", "dvl_head", T)
+        msg = t["tf2_msgs/msg/TFMessage"](transforms=[tf])
         out.append((e[0], "/tf", "tf2_msgs/msg/TFMessage", msg))
     return out
 
@@ -109,17 +108,6 @@ def _warns(*words: str) -> Callable[[Path, subprocess.CompletedProcess[str]], st
         if any(all(w in ln for w in words) for ln in lines):
             return None
         return f"no warning line with {words} (stderr: {done.stderr.strip()[-300:]!r})"
-
-    return check
-
-
-def _names(*words: str) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
-    """The one error line names every word (the key, the topic, the candidates)."""
-
-    def check(_: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
-        missing = [w for w in words if w not in line]
-        return None if not missing else f"error line lacks {missing}: {line[:300]!r}"
 
     return check
 
@@ -160,7 +148,7 @@ def _cases() -> list[Case]:
             "exit codes",
             name,
             lambda w, s=sets, k=kw: _bag(w, *s, **k),
-            check=_names(*words),
+            check=names(*words),
         )
         for name, sets, kw, words in refused
     ]

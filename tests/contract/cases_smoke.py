@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmarks.qa.case import Case
+from tests.contract.case import Case
 
 
 def _missing(work: Path) -> list[str]:

@@ -13,7 +13,7 @@ import subprocess
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.qa.case import Case
+from tests.contract.case import Case, names
 
 ENV = {"SONARMAP_CACHE_DIR": "cache"}
 ANN_HEAD = "format: sonarmap-annotations/1\n"
@@ -181,7 +181,7 @@ def unmatched_train(times: list[int]) -> Callable[[Path], list[str]]:
     """`train` on a real small recording whose annotation times match none of its keyframes."""
 
     def build(work: Path) -> list[str]:
-        from benchmarks.qa.fixtures import small_recording
+        from tests.fixtures import small_recording
 
         rec = small_recording(work / "field.mcap", duration_s=10.0)
         (work / "field.annotations.yaml").write_text(annotations("".join(entry(t) for t in times)))
@@ -211,16 +211,6 @@ def bag_metadata(text: str) -> Callable[[Path], list[str]]:
 
 
 # -- checks --------------------------------------------------------------------------------
-
-
-def names(*words: str) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
-    """The error line contains every word (the file, the key, the line:column)."""
-
-    def check(work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        missing = [w for w in words if w not in done.stderr]
-        return f"error does not name {missing}: {done.stderr.strip()[:160]}" if missing else None
-
-    return check
 
 
 def no_artifact(work: Path, done: subprocess.CompletedProcess[str]) -> str | None:

@@ -16,8 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import CACHE, cached_run, sonarmap
+from tests.contract.case import Case
+from tests.fixtures import CACHE, cached_run, sonarmap
 
 RUN = CACHE / "share-run"
 SECRET = "hunter2QAsecret"

@@ -1,4 +1,4 @@
-"""One hostile-input case of the QA campaign (`benchmarks/qa_campaign.py`).
+"""One hostile-input case of the contract suite (`tests/contract/`, run by `make qa`).
 
 A case prepares files in an empty work directory and returns the `sonarmap` arguments
 to run there; the campaign runs `python -m sonarmap.pipeline ARGS` in that directory as a new
@@ -11,7 +11,7 @@ the README's contract:
 - peak memory (the child's `ru_maxrss`) under `max_rss_mb`, wall time under `max_seconds`;
 - the case's own `check`, if any (e.g. "the artifacts of the live run still exist").
 
-Cases live in `benchmarks/qa/cases_*.py` modules, each exposing `CASES: list[Case]`.
+Cases live in `tests/contract/cases_*.py` modules, each exposing `CASES: list[Case]`.
 """
 
 from __future__ import annotations
@@ -41,3 +41,19 @@ class Case:
     max_seconds: float = 10.0
     env: dict[str, str] = field(default_factory=dict)
     stdin: str | None = None
+
+
+def error_line(done: subprocess.CompletedProcess[str]) -> str:
+    """The first `error:` line on stderr ("" when there is none)."""
+    return next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
+
+
+def names(*words: str) -> Check:
+    """Check: the `error:` line names every word (the file, topic, key, field or reason)."""
+
+    def check(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
+        line = error_line(done)
+        missing = [w for w in words if w not in line]
+        return f"the error line does not name {missing}: {line[:200]!r}" if missing else None
+
+    return check

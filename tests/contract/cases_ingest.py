@@ -2,7 +2,7 @@
 sonarmap's own MCAP layout cut short): decompression bombs and lying chunk sizes, bag
 chunks declaring gigabytes, unusable sonar geometry and navigation, truncated copies.
 
-Recordings are written in the work directory by `tests/ingest_recordings.py`; bombs are
+Recordings are written in the work directory by `tests.fixtures.write_recording`; bombs are
 built by substituting a chunk's zstd payload while the MCAP writer runs, so the rest of
 the file (indexes, summary) stays valid and the reader meets the bomb where a run would.
 """
@@ -12,19 +12,14 @@ from __future__ import annotations
 import functools
 import struct
 import subprocess
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from benchmarks.qa.case import Case
-
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "tests"))
-
-from ingest_recordings import write_recording  # noqa: E402
+from tests.contract.case import Case, names
+from tests.fixtures import write_recording
 
 RANGES = ((np.arange(64) + 0.5) * 0.25).astype(np.float32)
 GiB = 1 << 30
@@ -135,47 +130,36 @@ def _bag(work: Path, declare: int) -> list[str]:
     return ["topics", "lying.bag"]
 
 
-def _names(*parts: str) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
-    """The error line names all `parts` (file, topic, time, reason)."""
-
-    def check(_: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
-        missing = [p for p in parts if p not in line]
-        return f"error line lacks {missing}: {line[:160]}" if missing else None
-
-    return check
-
-
 RESOURCES = [
     Case(
         "resources",
         "zstd bomb: 2 GiB frame in a chunk declaring ~256 kB",
         _bomb("b.mcap", expands_to=2 * GiB),
-        check=_names("b.mcap", "byte offset", "more than"),
+        check=names("b.mcap", "byte offset", "more than"),
     ),
     Case(
         "resources",
         "zstd bomb with a 2 GiB frame content size",
         _bomb("b.mcap", expands_to=2 * GiB, content_size=True),
-        check=_names("b.mcap", "byte offset"),
+        check=names("b.mcap", "byte offset"),
     ),
     Case(
         "resources",
         "consistent 1 GiB chunk (declared and real)",
         _bomb("b.mcap", expands_to=GiB, declare=GiB, content_size=True),
-        check=_names("b.mcap", "byte offset", "over the limit"),
+        check=names("b.mcap", "byte offset", "over the limit"),
     ),
     Case(
         "resources",
         "four consistent 1 GiB chunks",
         _bomb("b.mcap", expands_to=GiB, chunks=(0, 1, 2, 3), declare=GiB),
-        check=_names("over the limit"),
+        check=names("over the limit"),
     ),
     Case(
         "resources",
         "chunk declaring 8 GiB, small payload",
         _bomb("b.mcap", expands_to=1 << 20, declare=8 * GiB),
-        check=_names("over the limit"),
+        check=names("over the limit"),
     ),
     Case(
         "resources",
@@ -188,20 +172,20 @@ RESOURCES = [
         "SONARMAP_MAX_CHUNK_MB=1 on 4 MB chunks",
         _normal,
         env={"SONARMAP_MAX_CHUNK_MB": "1"},
-        check=_names("SONARMAP_MAX_CHUNK_MB"),
+        check=names("SONARMAP_MAX_CHUNK_MB"),
     ),
     Case(
         "resources",
         "SONARMAP_MAX_CHUNK_MB=junk",
         _normal,
         env={"SONARMAP_MAX_CHUNK_MB": "junk"},
-        check=_names("SONARMAP_MAX_CHUNK_MB"),
+        check=names("SONARMAP_MAX_CHUNK_MB"),
     ),
     Case(
         "resources",
         "ROS 1 bag chunk declaring 3 GiB",
         lambda w: _bag(w, 3 * GiB),
-        check=_names("lying.bag", "declares"),
+        check=names("lying.bag", "declares"),
     ),
     Case(
         "resources",
@@ -302,7 +286,7 @@ REFUSED: list[tuple[str, dict[str, Any], tuple[str, ...]]] = [
     ("all-inf positions", dict(nav=_nav(_set(slice(None), np.inf))), (NAV, "none of")),
 ]
 EXIT_CODES = [
-    Case("exit codes", name, _rec("h.mcap", **kw), check=_names("h.mcap", *parts))
+    Case("exit codes", name, _rec("h.mcap", **kw), check=names("h.mcap", *parts))
     for name, kw, parts in REFUSED
 ]
 

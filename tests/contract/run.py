@@ -1,12 +1,12 @@
-"""The QA campaign: hostile inputs against the README's contract, counted per category.
+"""The contract suite's own runner: every case, then how many were tried and held per area.
 
-    python benchmarks/qa_campaign.py [--only SUBSTRING] [--module NAME] [--json]
+    python -m tests.contract.run [--only SUBSTRING] [--module NAME] [--json]   (repo root)
 
-Runs every case of `benchmarks/qa/cases_*.py` (see `benchmarks/qa/case.py`) as its own
+Runs every case of `tests/contract/cases_*.py` (see `tests/contract/__init__.py`) as its own
 `python -m sonarmap.pipeline` process in a fresh directory, and prints, per category, how many
-cases were tried and how many held, then the cases that did not hold and why. Exit 0
-when every case held, 1 otherwise. It is a study, not a test: the suite keeps one test
-per fault class; this campaign tries more variants and measures memory and time.
+cases were tried and how many held, then the cases that did not hold and why. Exit 0 when
+every case held, 1 otherwise. `make qa` runs the same cases through pytest
+(`tests/contract/test_contract.py`), which prints the same table at its end.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import argparse
 import importlib
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -22,19 +23,21 @@ import time
 from collections import Counter
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-sys.path.insert(0, str(ROOT))
+from tests.contract.case import MAX_ERROR_CHARS, Case
 
-from benchmarks.qa.case import MAX_ERROR_CHARS, Case  # noqa: E402
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
 
 
 def load_cases(module: str = "*") -> list[Case]:
     cases: list[Case] = []
-    for module_path in sorted((HERE / "qa").glob(f"cases_{module}.py")):
-        module = importlib.import_module(f"benchmarks.qa.{module_path.stem}")
-        cases.extend(module.CASES)
+    for module_path in sorted(HERE.glob(f"cases_{module}.py")):
+        cases.extend(importlib.import_module(f"tests.contract.{module_path.stem}").CASES)
     return cases
+
+
+def case_id(case: Case) -> str:
+    return f"{case.category}/{case.name}"
 
 
 def _run(case: Case, workdir: Path) -> tuple[subprocess.CompletedProcess[str], float, float]:
@@ -58,9 +61,7 @@ def _run(case: Case, workdir: Path) -> tuple[subprocess.CompletedProcess[str], f
         out, err = proc.communicate()
     seconds = time.monotonic() - start
     # ru_maxrss of the children waited for so far: the largest is the one just run,
-    # unless an earlier case used more; so each case runs in a fresh interpreter below.
-    import resource
-
+    # unless an earlier case used more; so each case runs in a fresh interpreter (verdict).
     rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     return subprocess.CompletedProcess(args, proc.returncode, out, err), seconds, rss_mb
 
@@ -91,52 +92,66 @@ def judge(case: Case, workdir: Path) -> tuple[str | None, dict[str, float]]:
 
 def _one(name: str) -> None:
     """Child mode: judge one case in this fresh interpreter, print its verdict as JSON."""
-    case = next(c for c in load_cases() if f"{c.category}/{c.name}" == name)
+    case = next(c for c in load_cases() if case_id(c) == name)
     with tempfile.TemporaryDirectory(prefix="sonarmap-qa-") as tmp:
         why, figures = judge(case, Path(tmp))
     print(json.dumps({"why": why, **figures}))
 
 
+def verdict(case: Case) -> dict[str, object]:
+    """{"why": None or the broken clause, "seconds", "rss_mb"}: the case judged in a fresh
+    interpreter (its children's peak memory is its own)."""
+    child = subprocess.run(
+        [sys.executable, "-m", "tests.contract.run", "--one", case_id(case)],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+    )
+    try:
+        return dict(json.loads(child.stdout.strip().splitlines()[-1]))
+    except (IndexError, json.JSONDecodeError):
+        return {"why": f"contract child failed: {child.stderr.strip()[-200:]}"}
+
+
+def table(verdicts: dict[str, dict[str, object]]) -> list[str]:
+    """The per-category summary ("tried N  held M"), then the cases that did not hold."""
+    tried: Counter[str] = Counter()
+    held: Counter[str] = Counter()
+    for name, v in verdicts.items():
+        category = name.split("/", 1)[0]
+        tried[category] += 1
+        held[category] += v["why"] is None
+    rows = [f"{c:<24} tried {tried[c]:>3}  held {held[c]:>3}" for c in sorted(tried)]
+    rows.append(f"{'all':<24} tried {sum(tried.values()):>3}  held {sum(held.values()):>3}")
+    rows += [f"  not held: {n}: {v['why']}" for n, v in verdicts.items() if v["why"] is not None]
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--only", default="", help="run the cases whose category/name holds this")
-    parser.add_argument("--module", default="*", help="only benchmarks/qa/cases_MODULE.py")
+    parser.add_argument("--module", default="*", help="only tests/contract/cases_MODULE.py")
     parser.add_argument("--json", action="store_true", help="one JSON document on stdout")
     parser.add_argument("--one", default=None, help=argparse.SUPPRESS)
     opts = parser.parse_args()
     if opts.one is not None:
         _one(opts.one)
         return 0
-    tried: Counter[str] = Counter()
-    held: Counter[str] = Counter()
-    failures: list[dict[str, object]] = []
+    verdicts: dict[str, dict[str, object]] = {}
     for case in load_cases(opts.module):
-        name = f"{case.category}/{case.name}"
+        name = case_id(case)
         if opts.only not in name:
             continue
-        child = subprocess.run(
-            [sys.executable, __file__, "--one", name], capture_output=True, text=True
-        )
-        try:
-            verdict = json.loads(child.stdout.strip().splitlines()[-1])
-        except (IndexError, json.JSONDecodeError):
-            verdict = {"why": f"campaign child failed: {child.stderr.strip()[-200:]}"}
-        tried[case.category] += 1
-        if verdict["why"] is None:
-            held[case.category] += 1
-        else:
-            failures.append({"case": name, **verdict})
-        print(f"{'held' if verdict['why'] is None else 'FAIL'}  {name}", file=sys.stderr)
-    table = {c: {"tried": tried[c], "held": held[c]} for c in sorted(tried)}
+        verdicts[name] = verdict(case)
+        print(f"{'held' if verdicts[name]['why'] is None else 'FAIL'}  {name}", file=sys.stderr)
+    failures = [{"case": n, **v} for n, v in verdicts.items() if v["why"] is not None]
     if opts.json:
-        print(json.dumps({"categories": table, "failures": failures}, indent=1))
+        tried = Counter(n.split("/", 1)[0] for n in verdicts)
+        held = Counter(n.split("/", 1)[0] for n, v in verdicts.items() if v["why"] is None)
+        categories = {c: {"tried": tried[c], "held": held[c]} for c in sorted(tried)}
+        print(json.dumps({"categories": categories, "failures": failures}, indent=1))
     else:
-        for category, row in table.items():
-            print(f"{category:<24} tried {row['tried']:>3}  held {row['held']:>3}")
-        total = sum(tried.values())
-        print(f"{'all':<24} tried {total:>3}  held {sum(held.values()):>3}")
-        for failure in failures:
-            print(f"  not held: {failure['case']}: {failure['why']}")
+        print("\n".join(table(verdicts)))
     return 0 if not failures else 1
 
 

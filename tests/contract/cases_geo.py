@@ -15,8 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import small_recording
+from tests.contract.case import Case, names
+from tests.fixtures import small_recording
 
 NAN, INF = float("nan"), float("inf")
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -94,23 +94,12 @@ def _mount(
     return build
 
 
-def _names(*parts: str) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
-    """The error line names all `parts` (file, topic, transform, reason)."""
-
-    def check(_: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = next((ln for ln in done.stderr.splitlines() if ln.startswith("error:")), "")
-        missing = [p for p in parts if p not in line]
-        return f"error line lacks {missing}: {line[:160]}" if missing else None
-
-    return check
-
-
 def _refused(
     sonar: str, what: str
 ) -> Callable[[Path, subprocess.CompletedProcess[str]], str | None]:
     from sonarmap.schemas.topics import FRAME_SONAR
 
-    return _names("dive.mcap", "/tf_static", f"base_link -> {FRAME_SONAR[sonar]}", what)
+    return names("dive.mcap", "/tf_static", f"base_link -> {FRAME_SONAR[sonar]}", what)
 
 
 _QUAT = "zero or non-finite norm"

@@ -25,11 +25,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from benchmarks.qa.case import Case, Check
-from benchmarks.qa.fixtures import small_recording
+from tests.contract.case import Case, error_line, names
+from tests.fixtures import small_recording
+from tests.fixtures.shared_data import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "data"
 RUN_S = 150.0
 """Cases that map a recording (not a refusal) may take a real run's time."""
 
@@ -50,21 +50,6 @@ def _sonarmap(work: Path, *args: str) -> subprocess.CompletedProcess[str]:
         text=True,
         timeout=600,
     )
-
-
-def _error_line(done: subprocess.CompletedProcess[str]) -> str:
-    lines = [ln for ln in done.stderr.splitlines() if ln.startswith("error:")]
-    return lines[0] if lines else ""
-
-
-def _names(fragment: str) -> Check:
-    """The error line names `fragment` (a path as the CLI escapes it)."""
-
-    def check(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-        line = _error_line(done)
-        return None if fragment in line else f"error line does not name {fragment!r}: {line!r}"
-
-    return check
 
 
 def _one_clean_line(done: subprocess.CompletedProcess[str]) -> str | None:
@@ -151,7 +136,7 @@ def _link_absolute_store_too(work: Path) -> list[str]:
 
 
 def _bag_of_links(work: Path) -> list[str]:
-    bag = SHARED / "bags" / "ros2" / "talker_mcap"
+    bag = SHARED_DATA / "bags" / "ros2" / "talker_mcap"
     if not bag.is_dir():
         return ["status", str(work / "no-shared-data")]
     (work / "bag").mkdir()
@@ -201,7 +186,7 @@ def _huge_path(work: Path) -> list[str]:
 
 
 def _bounded_line(_work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
-    line = _error_line(done)
+    line = error_line(done)
     return None if "…" in line and len(line) <= 400 else f"error line not shortened: {line[:80]}"
 
 
@@ -304,7 +289,7 @@ def _full_sweep_out(work: Path) -> list[str]:
 
 def _store_kept(work: Path, done: subprocess.CompletedProcess[str]) -> str | None:
     """A full disk under --store is named, and the line says what happened."""
-    line = _error_line(done)
+    line = error_line(done)
     return None if "No space left on device" in line or "/dev/full" in line else line[:160]
 
 
@@ -469,17 +454,17 @@ CASES = [
          expect_exit=(0,), check=_strict_stdout),
     Case("exit codes", "status of a bag folder made of symlinks", _bag_of_links,
          expect_exit=(0,), check=_strict_stdout),
-    Case("exit codes", "dangling symlink", _link_dangling, check=_names("gone.mcap")),
-    Case("exit codes", "symlink loop", _link_loop, check=_names("a.mcap")),
+    Case("exit codes", "dangling symlink", _link_dangling, check=names("gone.mcap")),
+    Case("exit codes", "symlink loop", _link_loop, check=names("a.mcap")),
     # long names
     Case("exit codes", "recording name of 300 characters", _long_recording,
-         check=_names("File name too long")),
+         check=names("File name too long")),
     Case("exit codes", "recording name of 256 characters", _name_256,
-         check=_names("File name too long")),
+         check=names("File name too long")),
     Case("exit codes", "--store with a 300-character component", _long_store,
-         check=_names("File name too long")),
+         check=names("File name too long")),
     Case("exit codes", "sweep --out with a 300-character component", _long_sweep_out,
-         check=_names("File name too long")),
+         check=names("File name too long")),
     Case("exit codes", "path longer than PATH_MAX", _over_path_max, check=_bounded_line),
     Case("resources", "a 100 KB path: error line bounded", _huge_path, check=_bounded_line),
     # control characters
@@ -496,32 +481,32 @@ CASES = [
     Case("exit codes", "recording name with undecodable bytes", _undecodable, check=_one_clean),
     # read-only and full outputs
     Case("exit codes", "--store under read-only /sys", _sys_store,
-         check=_names("/sys/sonarmap-qa-store")),
-    Case("exit codes", "--store under /proc", _proc_store, check=_names("/proc/self")),
+         check=names("/sys/sonarmap-qa-store")),
+    Case("exit codes", "--store under /proc", _proc_store, check=names("/proc/self")),
     Case("exit codes", "sweep --out under read-only /sys", _sys_sweep_out,
-         check=lambda w, d: _names("/sys/sonarmap-qa-sweep")(w, d) or _no_store(w)),
+         check=lambda w, d: names("/sys/sonarmap-qa-sweep")(w, d) or _no_store(w)),
     Case("exit codes", "demo --out under read-only /sys", _sys_demo_out,
-         check=_names("/sys/sonarmap-qa-demo")),
+         check=names("/sys/sonarmap-qa-demo")),
     Case("exit codes", "study --out under read-only /sys", _sys_study_out,
-         check=_names("/sys/sonarmap-qa-study")),
+         check=names("/sys/sonarmap-qa-study")),
     Case("exit codes", "--store on a read-only bind mount", _ro_bind_store,
-         check=_names("store")),
+         check=names("store")),
     Case("exit codes", "--store on a full 4 MB tmpfs", _full_store, check=_store_kept,
          max_seconds=RUN_S),
     Case("exit codes", "sweep --out on a full 16 KB tmpfs", _full_sweep_out,
          max_seconds=RUN_S),
     # sweeps
     Case("exit codes", "sweep of a missing recording", _sweep_missing,
-         check=_names("missing.mcap")),
+         check=names("missing.mcap")),
     Case("exit codes", "sweep of a good and a missing recording", _sweep_good_and_missing,
-         check=lambda w, d: _names("missing.mcap")(w, d) or _no_store(w)),
+         check=lambda w, d: names("missing.mcap")(w, d) or _no_store(w)),
     Case("exit codes", "sweep with a corrupt MCAP", _sweep_bad_magic,
-         check=lambda w, d: _names("corrupt.mcap")(w, d) or _no_store(w)),
+         check=lambda w, d: names("corrupt.mcap")(w, d) or _no_store(w)),
     Case("exit codes", "sweep with an empty file", _sweep_empty,
-         check=lambda w, d: _names("empty.mcap")(w, d) or _no_store(w)),
+         check=lambda w, d: names("empty.mcap")(w, d) or _no_store(w)),
     Case("exit codes", "sweep with a folder that is not a bag", _sweep_directory,
-         check=lambda w, d: _names("folder")(w, d) or _no_store(w)),
-    Case("exit codes", "sweep of a text file", _sweep_text, check=_names("notes.mcap")),
+         check=lambda w, d: names("folder")(w, d) or _no_store(w)),
+    Case("exit codes", "sweep of a text file", _sweep_text, check=names("notes.mcap")),
     Case("exit codes", "sweep with one bad swept value", _sweep_bad_point,
          check=_refused_first),
     Case("exit codes", "sweep with a bad --fix key", _sweep_bad_fix, check=_refused_first),

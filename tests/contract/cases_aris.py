@@ -17,11 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.qa.case import Case
 from sonarmap.pipeline.readers.aris_layout import FILE_HEADER, FRAME_HEADER, SIGNATURE
+from tests.contract.case import Case
+from tests.fixtures.shared_data import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[2]
-SHARED = ROOT.parent / "shared" / "data"
 BEAMS, SAMPLES = 48, 200
 FRAME = 1024 + BEAMS * SAMPLES
 
@@ -118,7 +118,7 @@ def _msg(text: str | None, rel: str, size: int = 0) -> Callable[[Path], list[str
 def _sqlite_bag(work: Path) -> Path:
     bag = work / "bag"
     shutil.copytree(
-        SHARED / "bags" / "ros2" / "talker_sqlite3",
+        SHARED_DATA / "bags" / "ros2" / "talker_sqlite3",
         bag,
         ignore=shutil.ignore_patterns("*-shm", "*-wal"),
     )

@@ -19,8 +19,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.cases_share import _fresh_run, _rehash
+from tests.contract.case import Case
+from tests.contract.cases_share import _fresh_run, _rehash
 
 STORE = ("data", "store")
 RERUN = ["run", "rec.mcap", "--force", "submaps"]

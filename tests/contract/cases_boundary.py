@@ -22,14 +22,14 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from benchmarks.qa.case import Case
-from benchmarks.qa.fixtures import ROOT, small_recording
 from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.stages.base import DATASET, Input, Output, Stage, StageConfig, StageInputError
+from tests.contract.case import Case, names
+from tests.fixtures import ROOT, small_recording
 
 STORE = "data/store"
 ENV = {
-    "SONARMAP_GRAPH": "benchmarks.qa.cases_boundary:GRAPH",
+    "SONARMAP_GRAPH": "tests.contract.cases_boundary:GRAPH",
     "PYTHONPATH": str(ROOT),
 }
 
@@ -97,15 +97,14 @@ def _refusal(refuse: str, stage: str) -> Any:
 
 
 def _names(file: str) -> Any:
-    """Check: the one error line names `file` (the recording or an artifact's file)."""
+    """Check: the one error line names `file` (the recording or an artifact's file), and no
+    control character reached the terminal."""
+    named = names(file)
 
     def check(work: Path, proc: subprocess.CompletedProcess[str]) -> str | None:
-        line = next((ln for ln in proc.stderr.splitlines() if ln.startswith("error:")), "")
-        if file not in line:
-            return f"the error does not name {file}: {line[:200]}"
         if "\x1b" in proc.stderr or "\x07" in proc.stderr:
             return "control characters reached the terminal"
-        return None
+        return named(work, proc)
 
     return check
 

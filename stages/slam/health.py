@@ -1,0 +1,99 @@
+"""What the slam stage can say about its own result without ground truth (issue 51).
+
+- Scan matches proposed, accepted, rejected, and found degenerate (by direction: the body
+  axis nearest the direction the scans left unconstrained, `sonarmap.stages.slam.degeneracy`).
+- SLAM against dead reckoning. Both read the same AHRS heading and start at the same pose,
+  so they can part only by what SLAM corrected: the odometry's position noise
+  (`odom_chain_sigma_xy_m` per keyframe step, which covers its scale error) and the
+  heading bias's wander since the start (`heading_bias_walk_deg_sqrt_s`). Chained along
+  the dead-reckoned track (`sonarmap.stages.slam.pcm.chain_covariance`), that is the
+  navigation's predicted drift; where the two trajectories part by more than its 99 %
+  bound (sqrt(chi2(0.99, 2)) times the largest position standard deviation), either the
+  navigation is worse than its noise model says, or scan matching went wrong: a warning.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from sonarmap.stages.slam.config import SlamConfig
+from sonarmap.stages.slam.pcm import chain_covariance
+
+__all__ = ["CHI2_99_2DOF", "predicted_drift_m", "slam_summary"]
+
+CHI2_99_2DOF = 9.210340371976184
+"""chi2.ppf(0.99, 2) (a test checks it against scipy)."""
+
+
+def predicted_drift_m(config: SlamConfig, dr_se2: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """(K,) the largest position standard deviation [m] of dead reckoning relative to its
+    first pose, by the navigation's noise model (see the module docstring)."""
+    n = len(dr_se2)
+    step = np.zeros((max(n - 1, 0), 3, 3))
+    step[:, 0, 0] = step[:, 1, 1] = config.odom_chain_sigma_xy_m**2
+    if config.heading_sigma_deg is not None and config.heading_bias_walk_deg_sqrt_s is not None:
+        dt = np.maximum(np.diff(t_s), 0.0)
+        step[:, 2, 2] = np.deg2rad(config.heading_bias_walk_deg_sqrt_s) ** 2 * dt
+    else:
+        step[:, 2, 2] = np.deg2rad(config.odom_sigma_yaw_deg) ** 2
+    chain = chain_covariance(dr_se2, step)
+    return np.sqrt(np.linalg.eigvalsh(chain[:, :2, :2])[:, -1])
+
+
+def _matches(rows: list[dict[str, Any]], kind: str) -> dict[str, Any]:
+    mine = [r for r in rows if r["type"] == kind]
+    directions = Counter(d for r in mine for d in r.get("degenerate", "").split(",") if d)
+    return {
+        "proposed": len(mine),
+        "accepted": sum(r["status"] == "accepted" for r in mine),
+        "rejected": sum(r["status"] == "rejected" for r in mine),
+        "degenerate": sum(bool(r.get("degenerate")) for r in mine),
+        "degenerate_by_direction": dict(sorted(directions.items())),
+    }
+
+
+def slam_summary(
+    config: SlamConfig,
+    rows: list[dict[str, Any]],
+    ids: np.ndarray,
+    dr_se2: np.ndarray,
+    slam_se2: np.ndarray,
+    t_s: np.ndarray,
+    fell_back: bool,
+) -> dict[str, Any]:
+    """The stage's summary.json: matches, SLAM vs dead reckoning, warnings (one line each)."""
+    ssm, loop = _matches(rows, "ssm"), _matches(rows, "loop")
+    gap = np.hypot(*(slam_se2[:, :2] - dr_se2[:, :2]).T)
+    bound = np.sqrt(CHI2_99_2DOF) * predicted_drift_m(config, dr_se2, t_s)
+    excess = np.where(bound > 0, gap / np.where(bound > 0, bound, 1.0), 0.0)
+    worst = int(np.argmax(excess)) if len(excess) else 0
+    drift = {
+        "max_gap_m": round(float(gap.max()), 4) if len(gap) else 0.0,
+        "final_gap_m": round(float(gap[-1]), 4) if len(gap) else 0.0,
+        "worst_keyframe_id": int(ids[worst]) if len(ids) else None,
+        "gap_at_worst_m": round(float(gap[worst]), 4) if len(gap) else 0.0,
+        "predicted_bound_at_worst_m": round(float(bound[worst]), 4) if len(bound) else 0.0,
+        "exceeds_prediction": bool(len(excess) and excess[worst] > 1.0),
+    }
+    warnings = []
+    if drift["exceeds_prediction"] and config.mode == "slam":
+        found = ssm["degenerate"] + loop["degenerate"]
+        warnings.append(
+            f"slam: SLAM and dead reckoning part by {drift['gap_at_worst_m']:.2f} m at keyframe"
+            f" {drift['worst_keyframe_id']}, more than the {drift['predicted_bound_at_worst_m']:.2f}"
+            " m the navigation's noise model allows there (99 %): the navigation is worse than"
+            " slam.odom_chain_sigma_xy_m says, or scan matching went wrong"
+            f" ({found} of {ssm['proposed'] + loop['proposed']} matches found degenerate);"
+            " compare the two trajectories before trusting the map"
+        )
+    return {
+        "mode": config.mode,
+        "keyframes": len(ids),
+        "fell_back_to_dead_reckoning": fell_back,
+        "scan_matching": {"ssm": ssm, "loop": loop},
+        "dead_reckoning_vs_slam": drift,
+        "warnings": warnings,
+    }
