@@ -71,9 +71,12 @@ class _CuttingProxy:
         for c in self.conns:
             try:
                 c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
-                c.close()
+                # shutdown first: a close alone leaves a socket that another thread is
+                # reading from open and silent (a black hole, not a dropped link).
+                c.shutdown(socket.SHUT_RDWR)
             except OSError:
                 pass
+            c.close()
 
 
 @pytest.fixture
