@@ -3,9 +3,12 @@
 Message type names are rosbags' ROS 2 style ("sonar_oculus/msg/OculusPing"); the bag's
 embedded definitions are used to deserialise, so custom types need no registration.
 
-A bag stores messages in the order they arrived (chunks in file order, messages at
-rising offsets within a chunk) while its index is sorted by time, so a recorder clock set
-back shows in the file order: such messages are dropped with a warning (`clock.backwards`).
+A recorder stores messages in the order they arrived (chunks in file order, messages at
+rising offsets within a chunk) while the index is sorted by time, so a recorder clock set
+back shows in the file order: such messages of the streams sonarmap maps from (sonar,
+navigation, DVL, IMU, depth) are dropped with a warning (`clock.backwards`). Other topics
+are left as the index has them: the rosbag API lets a script write any topic with times
+out of order (as in rosbags' unsorted-chunks example), and such a topic is listed whole.
 """
 
 from __future__ import annotations
@@ -22,7 +25,12 @@ import numpy as np
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.formats.rosmsg import ros1_typestore
 from sonarmap.pipeline.readers.clock import backwards
+from sonarmap.pipeline.readers.depth import FLUID_PRESSURE_TYPE
+from sonarmap.pipeline.readers.dvl import TWIST_TYPES
 from sonarmap.pipeline.readers.limits import CHUNK_LIMIT_ENV, max_chunk_bytes
+from sonarmap.pipeline.readers.navigation import NAV_TYPES
+from sonarmap.pipeline.readers.roles import IMU_TYPE
+from sonarmap.pipeline.readers.sonar_decode import IMAGE_SONAR_TYPES, SONAR_TYPES
 from sonarmap.pipeline.readers.source_types import TimeIndexedSource
 
 log = logging.getLogger(__name__)
@@ -57,6 +65,12 @@ def _capped(compression: str, size: int, path: str, pos: int) -> Callable[[bytes
     return decompress
 
 
+MAPPED_TYPES = frozenset(
+    (*SONAR_TYPES, *IMAGE_SONAR_TYPES, *NAV_TYPES, *TWIST_TYPES, IMU_TYPE, FLUID_PRESSURE_TYPE)
+)
+"""Message types of the streams a map is made from: their clocks are checked."""
+
+
 class Ros1Source(TimeIndexedSource):
     """A ROS 1 bag file."""
 
@@ -82,7 +96,8 @@ class Ros1Source(TimeIndexedSource):
         # What the index claims, less what a clock set back drops (warned on its own).
         counts = {t: sum(c.msgcount for c in conns) for t, conns in self._conns.items()}
         for topic, conns in self._conns.items():
-            counts[topic] -= self._drop_backwards(topic, conns)
+            if conns[0].msgtype in MAPPED_TYPES:
+                counts[topic] -= self._drop_backwards(topic, conns)
         self._set_topics(
             path,
             {topic: self._index_times(conns) for topic, conns in self._conns.items()},
