@@ -6,8 +6,6 @@ trickles bytes fails in bounded time."""
 from __future__ import annotations
 
 import os
-import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,6 +18,7 @@ from test_share_remotes import AWS_ID, AWS_SECRET, s3_env  # noqa: F401 - fixtur
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.share import remote_index
 from sonarmap.pipeline.engine.share.push_pull import list_remote
+from tests.fixtures.hostile_http import misbehaving_server
 
 
 def _bucket(env: dict[str, str], keys: int) -> None:
@@ -93,42 +92,8 @@ def test_an_s3_listing_over_the_object_cap_is_refused(
 @pytest.fixture
 def trickling_server() -> Iterator[int]:
     """Answers every request with headers and then one byte every 0.3 s, for good."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    stop = threading.Event()
-
-    def serve(conn: socket.socket) -> None:
-        try:
-            conn.recv(65536)
-            conn.sendall(
-                b"HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: 100000000\r\n\r\n"
-            )
-            while not stop.is_set():
-                conn.sendall(b"<")
-                time.sleep(0.3)
-        except OSError:
-            pass
-        finally:
-            conn.close()
-
-    def accept() -> None:
-        sock.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                conn = sock.accept()[0]
-            except OSError:
-                continue
-            threading.Thread(target=serve, args=(conn,), daemon=True).start()
-
-    thread = threading.Thread(target=accept, daemon=True)
-    thread.start()
-    try:
-        yield int(sock.getsockname()[1])
-    finally:
-        stop.set()
-        thread.join()
-        sock.close()
+    with misbehaving_server("trickle") as port:
+        yield port
 
 
 def test_an_http_server_that_trickles_bytes_fails_in_bounded_time(

@@ -7,13 +7,10 @@ from __future__ import annotations
 
 import logging
 import os
-import socket
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Iterator
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 import pytest
@@ -24,6 +21,7 @@ from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.share import remote_index
 from sonarmap.pipeline.engine.share.push_pull import list_remote
+from tests.fixtures.hostile_http import misbehaving_server
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,30 +47,8 @@ def _one_error(res: subprocess.CompletedProcess[str], code: int = 2) -> str:
 @pytest.fixture
 def silent_server() -> Iterator[int]:
     """Accepts connections and never answers."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-    held: list[socket.socket] = []
-    stop = threading.Event()
-
-    def accept() -> None:
-        sock.settimeout(0.2)
-        while not stop.is_set():
-            try:
-                held.append(sock.accept()[0])
-            except OSError:
-                continue
-
-    thread = threading.Thread(target=accept, daemon=True)
-    thread.start()
-    try:
-        yield int(sock.getsockname()[1])
-    finally:
-        stop.set()
-        thread.join()
-        for c in held:
-            c.close()
-        sock.close()
+    with misbehaving_server("silent") as port:
+        yield port
 
 
 def test_an_http_remote_that_never_answers_times_out(silent_server: int, tmp_path: Path) -> None:
@@ -87,27 +63,10 @@ def test_an_http_remote_that_never_answers_times_out(silent_server: int, tmp_pat
     assert DEFAULT_TIMEOUT_S <= 20
 
 
-class _Loop(BaseHTTPRequestHandler):
-    def do_GET(self) -> None:
-        self.send_response(302)
-        self.send_header("Location", self.path)
-        self.end_headers()
-
-    do_HEAD = do_GET
-
-    def log_message(self, *args: object) -> None:
-        pass
-
-
 def test_an_http_redirect_loop_is_named(tmp_path: Path) -> None:
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _Loop)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    try:
-        url = f"http://127.0.0.1:{server.server_address[1]}/lab"
+    with misbehaving_server("redirect_loop") as port:
+        url = f"http://127.0.0.1:{port}/lab"
         res = _cli(dict(os.environ), "pull", url, "--store", str(tmp_path / "s"))
-    finally:
-        server.shutdown()
-        server.server_close()
     assert "redirect loop" in _one_error(res)
 
 

@@ -10,17 +10,14 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
-import threading
-import time
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tests.contract.case import Case, names
+from tests.fixtures.hostile_http import started_server
 
 S = 1_000_000_000
 T0 = 1_700_000_000 * S
@@ -219,65 +216,16 @@ def _existing_not_utf8(work: Path) -> list[str]:
 # -- remotes -----------------------------------------------------------------------------
 
 
-def _serve(handler: Any) -> int:
-    """A server on 127.0.0.1 for the rest of the campaign (a daemon thread); its port."""
-    sock = socket.socket()
-    sock.bind(("127.0.0.1", 0))
-    sock.listen(16)
-
-    def accept() -> None:
-        while True:
-            conn = sock.accept()[0]
-            threading.Thread(target=handler, args=(conn,), daemon=True).start()
-
-    threading.Thread(target=accept, daemon=True).start()
-    return int(sock.getsockname()[1])
-
-
-def _silent(conn: socket.socket) -> None:
-    time.sleep(120)
-    conn.close()
-
-
-def _trickle(conn: socket.socket) -> None:
-    try:
-        conn.recv(65536)
-        conn.sendall(
-            b"HTTP/1.1 200 OK\r\nContent-Type: text/html\r\nContent-Length: 99999999\r\n\r\n"
-        )
-        for _ in range(400):
-            conn.sendall(b"<")
-            time.sleep(0.3)
-    except OSError:
-        pass
-    finally:
-        conn.close()
-
-
-class _Loop(BaseHTTPRequestHandler):
-    def do_GET(self) -> None:
-        self.send_response(302)
-        self.send_header("Location", self.path)
-        self.end_headers()
-
-    do_HEAD = do_GET
-
-    def log_message(self, *args: object) -> None:
-        pass
-
-
 def _pull_silent(work: Path) -> list[str]:
-    return ["pull", f"http://127.0.0.1:{_serve(_silent)}/lab"]
+    return ["pull", f"http://127.0.0.1:{started_server('silent')}/lab"]
 
 
 def _pull_trickle(work: Path) -> list[str]:
-    return ["pull", f"http://127.0.0.1:{_serve(_trickle)}/lab"]
+    return ["pull", f"http://127.0.0.1:{started_server('trickle')}/lab"]
 
 
 def _pull_loop(work: Path) -> list[str]:
-    server = ThreadingHTTPServer(("127.0.0.1", 0), _Loop)
-    threading.Thread(target=server.serve_forever, daemon=True).start()
-    return ["pull", f"http://127.0.0.1:{server.server_address[1]}/lab"]
+    return ["pull", f"http://127.0.0.1:{started_server('redirect_loop')}/lab"]
 
 
 def _push_missing_folder(work: Path) -> list[str]:
