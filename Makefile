@@ -56,11 +56,11 @@ test: $(TESTING)
 # The wheel built from the sdist, installed into a fresh virtual environment, runs the demo
 # from a directory outside the checkout.
 test-wheel: $(TESTING)
-	$(BIN)/python -m pytest -q -m wheel tests/test_wheel.py
+	$(BIN)/python -m pytest -m wheel tests/test_wheel.py
 
 # The tests that read ../shared/data, with it hidden as in a user's clone: each must skip.
 test-without-shared: $(TESTING)
-	SONARMAP_SHARED_DATA=/nonexistent $(BIN)/python -m pytest -q -m shared_data
+	SONARMAP_SHARED_DATA=/nonexistent $(BIN)/python -m pytest -m shared_data
 
 # The contract suite (tests/contract, left out of `make test`): each case runs `sonarmap` on a
 # hostile input as a user would and checks exit code, one-line error, memory and time; it ends
