@@ -19,35 +19,13 @@ from test_robust_clocks import _nav, _pings, _write
 from sonarmap.pipeline.formats.rosmsg import ros1_typestore, ros2_typestore
 from sonarmap.pipeline.readers import open_recording, open_source
 from sonarmap.schemas.topics import ODOMETRY_TYPE
+from tests.fixtures.ingest import odometry
 
 S = 1_000_000_000
 NAV = "/odometry/dead_reckoning"
 # 0..12 s, then the clock is set back 8 s: 4.1..10 s again, at another place.
 FIRST = [T0 + int(k * 0.1 * S) for k in range(121)]
 AGAIN = [T0 + int((4.1 + k * 0.1) * S) for k in range(60)]
-
-
-def _ros1_odom(t_ns: int, x: float) -> Any:
-    t = ros1_typestore().types
-    header = t["std_msgs/msg/Header"](
-        seq=0,
-        stamp=t["builtin_interfaces/msg/Time"](sec=t_ns // S, nanosec=t_ns % S),
-        frame_id="odom",
-    )
-    pose = t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=x, y=0.0, z=0.0),
-        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-    )
-    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    return t[ODOMETRY_TYPE](
-        header=header,
-        child_frame_id="base_link",
-        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-        twist=t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
-            covariance=np.zeros(36),
-        ),
-    )
 
 
 def _bag1(path: Path, chunk: int) -> Path:
@@ -57,7 +35,7 @@ def _bag1(path: Path, chunk: int) -> Path:
         bag.chunk_threshold = chunk
         conn = bag.add_connection(NAV, ODOMETRY_TYPE, typestore=store)
         for t, x in [(t, 0.5 * (t - T0) / S) for t in FIRST] + [(t, 100.0) for t in AGAIN]:
-            bag.write(conn, t, store.serialize_ros1(_ros1_odom(t, x), ODOMETRY_TYPE))
+            bag.write(conn, t, store.serialize_ros1(odometry(t, (x, 0.0, 0.0), ros1=True), ODOMETRY_TYPE))
     return path
 
 

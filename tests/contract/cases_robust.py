@@ -18,6 +18,7 @@ import numpy as np
 
 from tests.contract.case import Case, names
 from tests.fixtures.hostile_http import started_server
+from tests.fixtures.ingest import odometry
 
 S = 1_000_000_000
 T0 = 1_700_000_000 * S
@@ -35,27 +36,6 @@ def _set_back() -> list[tuple[int, float]]:
     return first + [(T0 + int((4.1 + k * 0.1) * S), 100.0) for k in range(60)]
 
 
-def _odom(types: Any, t_ns: int, x: float, ros1: bool) -> Any:
-    stamp = types["builtin_interfaces/msg/Time"](sec=t_ns // S, nanosec=t_ns % S)
-    header = types["std_msgs/msg/Header"](
-        **({"seq": 0} if ros1 else {}), stamp=stamp, frame_id="odom"
-    )
-    zero = types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
-    pose = types["geometry_msgs/msg/Pose"](
-        position=types["geometry_msgs/msg/Point"](x=x, y=0.0, z=0.0),
-        orientation=types["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-    )
-    return types[ODOM](
-        header=header,
-        child_frame_id="base_link",
-        pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-        twist=types["geometry_msgs/msg/TwistWithCovariance"](
-            twist=types["geometry_msgs/msg/Twist"](linear=zero, angular=zero),
-            covariance=np.zeros(36),
-        ),
-    )
-
-
 def _bag1_set_back(work: Path) -> list[str]:
     from rosbags.rosbag1 import Writer
 
@@ -65,7 +45,7 @@ def _bag1_set_back(work: Path) -> list[str]:
     with Writer(work / "d.bag") as bag:
         conn = bag.add_connection(NAV, ODOM, typestore=store)
         for t, x in _set_back():
-            bag.write(conn, t, store.serialize_ros1(_odom(store.types, t, x, True), ODOM))
+            bag.write(conn, t, store.serialize_ros1(odometry(t, (x, 0.0, 0.0), ros1=True), ODOM))
     return ["topics", "d.bag"]
 
 
@@ -78,17 +58,16 @@ def _sqlite_set_back(work: Path) -> list[str]:
     with Writer(work / "dive", version=8) as bag:
         conn = bag.add_connection(NAV, ODOM, typestore=store)
         for t, x in _set_back():
-            bag.write(conn, t, store.serialize_cdr(_odom(store.types, t, x, False), ODOM))
+            bag.write(conn, t, store.serialize_cdr(odometry(t, (x, 0.0, 0.0)), ODOM))
     return ["topics", "dive"]
 
 
 def _mcap_set_back(work: Path) -> list[str]:
-    from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter, ros2_typestore
+    from sonarmap.pipeline.formats.rosmsg import Ros2McapWriter
 
-    types = ros2_typestore().types
     with (work / "d.mcap").open("wb") as f, Ros2McapWriter(f) as w:
         for t, x in _set_back():
-            w.write(NAV, ODOM, _odom(types, t, x, False), t)
+            w.write(NAV, ODOM, odometry(t, (x, 0.0, 0.0)), t)
     return ["topics", "d.mcap"]
 
 
