@@ -15,7 +15,7 @@ def classification_scores(objects: pa.Table) -> dict[str, Any]:
     """Per-class precision (among accepted predictions) and recall, when labels exist.
 
     Returns {"objects": n, "accepted": n, "per_class": {name: {"precision", "recall",
-    "support"}}, "piling_recall": r}; only counts when `true_class_name` is present
+    "support"}}, "piling_recall": r, "piling_precision": p}; only counts when `true_class_name` is present
     and labels at least one object: an unlabelled recording has no precision to report,
     not a precision of zero.
     """
@@ -45,4 +45,8 @@ def classification_scores(objects: pa.Table) -> dict[str, Any]:
         1 for p, t in zip(predicted, truth, strict=True) if t in PILING_CLASSES and p == t
     )
     result["piling_recall"] = piling_hit / piling_truth if piling_truth else None
+    # Precision the same way: of the objects called a piling class, the share that are that
+    # class (an object called a piling but of another class, or of none, is a false one).
+    piling_called = sum(1 for p in predicted if p in PILING_CLASSES)
+    result["piling_precision"] = piling_hit / piling_called if piling_called else None
     return result
