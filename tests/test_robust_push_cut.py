@@ -9,6 +9,7 @@ import json
 import socket
 import struct
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -21,10 +22,12 @@ from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 class _CuttingProxy:
     """Forwards 127.0.0.1:port to `upstream`; from the `cut_at`-th PUT on, resets every
-    connection and refuses new ones (a link that drops, a server that dies)."""
+    connection and refuses new ones (a link that drops, a server that dies), or with
+    `silent` stops reading and answering while every connection stays open (a link that
+    goes quiet: no reset ever reaches the client)."""
 
-    def __init__(self, upstream: int, cut_at: int) -> None:
-        self.upstream, self.cut_at, self.puts = upstream, cut_at, 0
+    def __init__(self, upstream: int, cut_at: int, silent: bool = False) -> None:
+        self.upstream, self.cut_at, self.puts, self.silent = upstream, cut_at, 0, silent
         self.cut = threading.Event()
         self.lock = threading.Lock()
         self.conns: list[socket.socket] = []
@@ -44,6 +47,8 @@ class _CuttingProxy:
             with self.lock:
                 self.conns += [client, server]
                 if self.cut.is_set():
+                    if self.silent:
+                        continue
                     self._reset()
                     return
             threading.Thread(target=self._pump, args=(client, server, True), daemon=True).start()
@@ -58,8 +63,9 @@ class _CuttingProxy:
                         if self.puts >= self.cut_at:
                             self.cut.set()
                     if self.cut.is_set():
-                        self._reset()
-                        return
+                        if not self.silent:
+                            self._reset()
+                        return  # silent: nothing more is read, sent or closed
                 dst.sendall(data)
         except OSError:
             pass
@@ -128,3 +134,28 @@ def test_a_connection_cut_mid_push_is_one_line_and_leaves_nothing_half_visible(
     assert sum(o["Key"].endswith("/manifest.json") for o in listed["Contents"]) == len(
         list(ArtifactStore(alice).iter_artifacts())
     )
+
+
+def test_a_push_whose_link_goes_silent_ends_in_bounded_time(
+    s3_env: dict[str, str],  # noqa: F811
+    alice: Path,  # noqa: F811
+) -> None:
+    """No reset, no answer, the connection left open: the push must still end, with one
+    line saying it timed out, within a deadline that grows only with the bytes sent."""
+    upstream = int(s3_env["AWS_ENDPOINT_URL_S3"].rsplit(":", 1)[1])
+    proxy = _CuttingProxy(upstream, 3, silent=True)
+    env = {
+        **s3_env,
+        "AWS_ENDPOINT_URL_S3": f"http://127.0.0.1:{proxy.port}",
+        "SONARMAP_REMOTE_TIMEOUT_S": "2",
+    }
+    t0 = time.monotonic()
+    res = _cli(env, "push", "s3://lab/silent", "--store", str(alice), timeout=120)
+    elapsed = time.monotonic() - t0
+    assert proxy.cut.is_set(), res.stderr[-2000:]
+    line = _one_error(res)
+    assert "error: remote s3://lab/silent: push: timed out" in line, line
+    # Each file has 4 timeouts plus its size at 64 KiB/s; files go four at a time, and the
+    # first failure stops new ones: the push ends within about one largest file's deadline.
+    largest = max(p.stat().st_size for p in alice.rglob("*") if p.is_file())
+    assert elapsed < 4 * 2 + largest / (64 << 10) + 30, (elapsed, largest)

@@ -37,6 +37,7 @@ from sonarmap.pipeline.engine.share.remote_index import (
 )
 from sonarmap.pipeline.engine.share.remotes import (
     check_bucket,
+    deadline,
     display,
     open_remote,
     read_only,
@@ -113,10 +114,10 @@ def _write_manifest(fs: Any, dest: str, data: bytes) -> None:
     temporary name renamed into place (a reader never reads half a manifest)."""
     protocol = fs.protocol if isinstance(fs.protocol, str) else fs.protocol[0]
     if protocol in ("s3", "s3a", "gs", "gcs"):
-        fs.pipe_file(f"{dest}/{MANIFEST}", data)
+        fs.pipe_file(f"{dest}/{MANIFEST}", data, **deadline(fs, len(data)))
         return
     tmp = f"{dest}/.{MANIFEST}.{uuid.uuid4().hex[:12]}.tmp"
-    fs.pipe_file(tmp, data)
+    fs.pipe_file(tmp, data, **deadline(fs, len(data)))
     try:
         fs.mv(tmp, f"{dest}/{MANIFEST}")
     except OSError:
@@ -215,7 +216,9 @@ def _push(
 
 def _exists(fs: Any, path: str, remote: str) -> bool:
     try:
-        return bool(fs.exists(path))
+        return bool(fs.exists(path, **deadline(fs)))
+    except TimeoutError:
+        raise  # the remote's (an OSError too), named by `push` with its cause
     except OSError as err:
         raise os_error(err, display(remote)) from err
 
@@ -226,6 +229,8 @@ def _upload_job(fs: Any, src: Path, dst: str, entry: Mapping[str, Any], label: s
     def run(progress: Callable[[int], None]) -> bool:
         try:
             return upload(fs, src, dst, size, sha, progress)
+        except TimeoutError:
+            raise  # the remote's deadline (an OSError too), named by `push` with its cause
         except OSError as err:
             raise os_error(err, label) from err
 

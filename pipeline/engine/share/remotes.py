@@ -17,6 +17,7 @@ from sonarmap.pipeline.engine.errors import StoreError
 
 __all__ = [
     "check_bucket",
+    "deadline",
     "display",
     "http_timeout",
     "open_remote",
@@ -89,6 +90,16 @@ plus its declared size at this rate, and no longer."""
 def request_deadline_s(nbytes: int = 0) -> float:
     """How long one http request moving `nbytes` may take in all [s]."""
     return DEADLINE_FACTOR * remote_timeout_s() + nbytes / MIN_RATE_BPS
+
+
+def deadline(fs: Any, nbytes: int = 0) -> dict[str, float]:
+    """Keyword arguments that bound one call on `fs` by `request_deadline_s(nbytes)`.
+
+    Library timeouts bound a wait for a reply; a link that goes quiet while a request is
+    being sent, or a server that accepts and then reads nothing, is covered by none of them.
+    fsspec's sync wrapper of an async filesystem (s3fs, sshfs, http) takes `timeout` as a
+    deadline for the whole call; other filesystems (local) take no such argument."""
+    return {"timeout": request_deadline_s(nbytes)} if getattr(fs, "async_impl", False) else {}
 
 
 def http_timeout(nbytes: int = 0) -> Any:

@@ -15,14 +15,14 @@ import os
 import sys
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
-from sonarmap.pipeline.engine.share.remotes import http_timeout
+from sonarmap.pipeline.engine.share.remotes import deadline, http_timeout
 
 __all__ = [
     "CHUNK",
@@ -68,6 +68,28 @@ class TransferStats:
 Progress = Callable[[int], None]
 
 
+class _Callback:
+    """fsspec's transfer callback protocol, forwarding byte counts to a progress function."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+
+    def set_size(self, size: int) -> None:
+        pass
+
+    def relative_update(self, inc: int = 1) -> None:
+        self.progress(int(inc))
+
+    def absolute_update(self, value: int) -> None:
+        pass
+
+    def branched(self, path_1: str, path_2: str, **kwargs: Any) -> None:
+        return None
+
+    def call(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+
 def _sha256_remote(fs: Any, path: str) -> str:
     digest = hashlib.sha256()
     with fs.open(path, "rb") as f:
@@ -78,7 +100,9 @@ def _sha256_remote(fs: Any, path: str) -> str:
 
 def _remote_size(fs: Any, path: str) -> int | None:
     try:
-        info = fs.info(path)
+        info = fs.info(path, **deadline(fs))
+    except TimeoutError:
+        raise  # the remote's (an OSError too): not "absent"
     except (FileNotFoundError, OSError):
         return None
     size = info.get("size")
@@ -93,7 +117,13 @@ def upload(
         progress(size)
         return False
     parent = dst.rsplit("/", 1)[0]
-    fs.makedirs(parent, exist_ok=True)
+    fs.makedirs(parent, exist_ok=True, **deadline(fs))
+    if getattr(fs, "async_impl", False):
+        # A link that goes quiet mid-upload leaves an async library (s3fs, sshfs) waiting
+        # on a write that no read timeout covers: the whole file must be sent within a
+        # deadline that grows with its size.
+        fs.put_file(str(src), dst, callback=_Callback(progress), **deadline(fs, size))
+        return True
     with src.open("rb") as fin, fs.open(dst, "wb") as fout:
         while chunk := fin.read(CHUNK):
             fout.write(chunk)
@@ -206,15 +236,20 @@ def run_jobs(jobs: Sequence[Job], label: str, stats: TransferStats) -> None:
                 stats.add(job.run(progress), job.size)
             return
         with ThreadPoolExecutor(max_workers=WORKERS) as pool:
-            futures = [(job, pool.submit(job.run, progress)) for job in jobs]
+            futures = {pool.submit(job.run, progress): job for job in jobs}
+            # Stop starting files at the first failure (a dead remote would otherwise make
+            # every queued file wait out its own timeout); the running ones end on theirs.
+            _, pending = wait(futures, return_when=FIRST_EXCEPTION)
+            for fut in pending:
+                fut.cancel()
             first: BaseException | None = None
-            for job, fut in futures:
+            for fut, job in futures.items():
+                if fut.cancelled():
+                    continue
                 try:
                     stats.add(fut.result(), job.size)
                 except BaseException as err:  # re-raised below, after the pool drains
                     first = first or err
-                    for _, later in futures:
-                        later.cancel()
             if first is not None:
                 raise first
 
