@@ -23,9 +23,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CLEAN",
+    "OCULUS_PAIR",
     "SENSOR_KEYS",
+    "chosen_sensors",
     "image_block",
     "sensor_names",
+    "sensor_recipe",
     "sensor_settings",
     "with_sensors",
     "with_settings",
@@ -33,6 +36,10 @@ __all__ = [
 
 CLEAN = "sim-clean"
 """The simulator's clean sensor (iid Rayleigh noise, median 4): `SimConfig()`'s."""
+
+OCULUS_PAIR = {"horizontal": "oculus-m750d-750khz", "vertical": "oculus-m1200d"}
+"""The README vehicle's sonars (docs/your-vehicle.md): an M750d at 750 kHz (130 deg, as the
+sim's horizontal geometry) and an M1200d at 1.2 MHz (the sim's vertical frequency)."""
 
 SENSOR_KEYS = (
     "noise_mean_level",
@@ -102,6 +109,25 @@ def sensor_settings(name: str) -> dict[str, float]:
     if name != CLEAN:
         out |= {k: float(v) for k, v in _image_block(name)["simulator"].items()}
     return out
+
+
+def chosen_sensors(
+    both: str | None, horizontal: str | None, vertical: str | None, default: Mapping[str, str]
+) -> dict[str, str]:
+    """Sensor per sonar from `--sonar` (both), `--horizontal-sonar` / `--vertical-sonar`
+    (each wins over `both`) and `default` for a sonar none names; names checked."""
+    out = dict(default)
+    out |= {s: both for s in _SONARS if both is not None}
+    out |= {s: n for s, n in (("horizontal", horizontal), ("vertical", vertical)) if n}
+    for name in out.values():
+        sensor_settings(name)  # an unknown or malformed sensor is a ConfigError here
+    return out
+
+
+def sensor_recipe(sonars: Mapping[str, str]) -> dict[str, dict[str, Any]]:
+    """What a recording's bytes take from its sensors: per sonar the name and its settings
+    (so a cache keyed on it misses when a preset's image block changes)."""
+    return {s: {"name": n, **sensor_settings(n)} for s, n in sorted(sonars.items())}
 
 
 def _validated(doc: dict[str, Any], where: str) -> SimConfig:
