@@ -22,7 +22,7 @@ _DEFAULT_REFLECTIVITY: dict[str, float] = {
 }
 
 _TEXTURE_KEYS = ("gain_db", "noise_corr_range", "noise_corr_beam", "noise_range_slope_db")
-"""The image-character settings added by issue 50, neutral at 0 (the clean sensor)."""
+"""The image-character settings added for real sensors, neutral at 0 (the clean sensor)."""
 
 
 class _Model(BaseModel):

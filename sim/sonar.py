@@ -28,10 +28,12 @@ from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import SonarPing
 from sonarmap.sim.config import SonarConfig
 from sonarmap.sim.image_noise import (
-    exponential_field,
     gaussian_field,
+    quantile_index,
+    quantile_table,
     range_profile,
-    weibull_scale,
+    rayleigh_unit_mean,
+    weibull,
 )
 from sonarmap.sim.world import World
 from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
@@ -73,6 +75,8 @@ class SonarModel:
         self._noise_table = _noise_table(cfg.noise_mean_level, cfg.noise_shape)
         self._gain = 10.0 ** (cfg.gain_db / 10.0)
         self._profile = range_profile(self.n_ranges, cfg.noise_range_slope_db)[:, None]
+        self._noise_q = quantile_table(weibull(cfg.noise_mean_level, cfg.noise_shape))
+        self._speckle_q = quantile_table(rayleigh_unit_mean)
         pattern_rng = np.random.default_rng([12345, cfg.n_beams, cfg.aperture_samples])
         self._patterns = [self._jittered_fan(pattern_rng) for _ in range(_N_PATTERNS)]
 
@@ -222,26 +226,23 @@ class SonarModel:
         return image
 
     def _to_uint8_textured(self, intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """As `_to_uint8`, the speckle and the noise drawn from correlated fields (inverse
-        CDFs of exponential variates: Rayleigh sqrt(4 E / pi), unit mean; Weibull lambda
-        E^(1/shape)) and the noise scaled by the range profile; float32 throughout."""
+        """As `_to_uint8`, the noise and the speckle drawn from two correlated fields
+        (`sonarmap.sim.image_noise`: unit-mean Rayleigh speckle, Weibull noise) and the
+        noise scaled by the range profile; float32 throughout."""
         cfg = self.cfg
-        shape = (self.n_ranges, self.n_beams)
-        a_r, a_b = cfg.noise_corr_range, cfg.noise_corr_beam
+        shape = (2, self.n_ranges, self.n_beams)
+        field = gaussian_field(rng, shape, cfg.noise_corr_range, cfg.noise_corr_beam)
         nz = np.flatnonzero(intensity)
         level_nz = self._level(intensity[nz]).astype(np.float32)
         if cfg.speckle:
-            e = exponential_field(gaussian_field(rng, shape, a_r, a_b).ravel()[nz])
-            level_nz *= np.sqrt(e * np.float32(4.0 / np.pi))
+            level_nz *= self._speckle_q[quantile_index(field[1].ravel()[nz])]
         if cfg.noise_mean_level > 0:
-            e = exponential_field(gaussian_field(rng, shape, a_r, a_b))
-            lam = weibull_scale(cfg.noise_mean_level, cfg.noise_shape)
-            image = (np.float32(lam) * self._profile) * e ** np.float32(1.0 / cfg.noise_shape)
-            image = image.ravel()
+            image = (self._noise_q[quantile_index(field[0])] * self._profile).ravel()
         else:
             image = np.zeros(len(intensity), dtype=np.float32)
         image[nz] += level_nz
-        return np.minimum(image + np.float32(0.5), np.float32(255.0)).astype(np.uint8)
+        image += np.float32(0.5)
+        return np.minimum(image, np.float32(255.0), out=image).astype(np.uint8)
 
 
 def _noise_table(mean_level: float, shape: float) -> np.ndarray:
