@@ -7,8 +7,8 @@ machine is shared, so each figure is the median of `--repeat` runs, with the CPU
 this process and of its render workers (`resource.getrusage`) and the load average
 beside it. `cpu_bound_frame_pairs_per_s` is what the CPU time allows on two idle cores:
 n / max(writer CPU, all CPU / 2). Usage: `python benchmarks/bench_simulate.py
-[--duration-s S] [--seed N] [--scene FILE] [--workers 1,2] [--repeat 3]`; prints one
-JSON object.
+[--duration-s S] [--seed N] [--scene FILE] [--workers 1,2] [--repeat 3] [--sonar NAME]`;
+prints one JSON object.
 
 Measured 2026-12-01, issue 22 (default marina, 1441 frame pairs, seed 0, medians of 3,
 the shared 2-core box at load 5-9; "base" is the tree before this work, from `git archive`):
@@ -55,6 +55,10 @@ def _once(scene_path: Path, args: argparse.Namespace, workers: int) -> dict[str,
     from sonarmap.sim.scene import load_scene
 
     config = SimConfig(mission=MissionConfig(duration_s=args.duration_s))
+    if args.sonar:
+        from sonarmap.pipeline.training.sim_sensors import with_sensors
+
+        config = with_sensors(config, {"horizontal": args.sonar, "vertical": args.sonar})
     run = simulate(load_scene(scene_path), config, args.seed)
     self0, kids0 = _cpu_s(resource.RUSAGE_SELF), _cpu_s(resource.RUSAGE_CHILDREN)
     load = os.getloadavg()[0]
@@ -88,6 +92,7 @@ def main() -> None:
     ap.add_argument("--scene", default=str(ROOT / "configs" / "scenes" / "marina.yaml"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration-s", type=float, default=None)
+    ap.add_argument("--sonar", default=None, help="sensor of both sonars (sonarmap simulate)")
     ap.add_argument("--workers", default="1,2", help="render processes to compare, e.g. 1,2")
     ap.add_argument("--repeat", type=int, default=3, help="runs per worker count (median)")
     args = ap.parse_args()

@@ -21,6 +21,9 @@ _DEFAULT_REFLECTIVITY: dict[str, float] = {
     "seafloor": 0.35,
 }
 
+_TEXTURE_KEYS = ("gain_db", "noise_corr_range", "noise_corr_beam", "noise_range_slope_db")
+"""The image-character settings added for real sensors, neutral at 0 (the clean sensor)."""
+
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -89,6 +92,26 @@ class SonarConfig(_Model):
         description="Weibull shape of the additive noise amplitude: 2 is Rayleigh; lower is"
         " spikier (higher speckle contrast), higher flatter (a bright, even background)",
     )
+    gain_db: float = Field(
+        default=0.0, ge=-40.0, le=40.0, description="gain on every return [dB of intensity]"
+    )
+    noise_corr_range: float = Field(
+        default=0.0,
+        ge=0.0,
+        lt=1.0,
+        description="lag-1 correlation along range of the Gaussian field behind the noise and"
+        " the speckle (`sonarmap.sim.image_noise`); 0: white",
+    )
+    noise_corr_beam: float = Field(
+        default=0.0, ge=0.0, lt=1.0, description="the same across beams; 0: white"
+    )
+    noise_range_slope_db: float = Field(
+        default=0.0,
+        ge=-40.0,
+        le=40.0,
+        description="background level change from the nearest to the farthest range bin [dB,"
+        " 20 log10, linear in range]; noise_mean_level holds at mid range",
+    )
     label_min_level: float = Field(
         default=10.0, ge=0.0, description="noise-free level for a labelled pixel"
     )
@@ -107,6 +130,17 @@ class SonarConfig(_Model):
                 " targets could fall between beams"
             )
         return self
+
+    def unrecorded(self) -> set[str]:
+        """Image-character settings at their neutral value: left out of the config a
+        recording carries, so the clean sensor's files keep their bytes (and hashes)."""
+        return {k for k in _TEXTURE_KEYS if getattr(self, k) == 0.0}
+
+    @property
+    def textured(self) -> bool:
+        """Gain, correlated noise or a range-dependent background asked for (else the
+        clean sensor's white-noise path, whose bytes tests pin)."""
+        return any(getattr(self, k) != 0.0 for k in _TEXTURE_KEYS)
 
     @property
     def n_ranges(self) -> int:
@@ -179,6 +213,10 @@ class SimConfig(_Model):
             if unknown:
                 raise ValueError(f"{name}.reflectivity has unknown classes {sorted(unknown)}")
         return self
+
+    def unrecorded(self) -> dict[str, set[str]]:
+        """`exclude` for this config's dump as a recording carries it (`SonarConfig.unrecorded`)."""
+        return {s: self.sonar(s).unrecorded() for s in ("horizontal", "vertical")}
 
     def sonar(self, name: str) -> SonarConfig:
         """The horizontal or vertical sonar config."""

@@ -13,8 +13,9 @@ energy is spread over the range interval its aperture stratum covers (halfway to
 ranges of its neighbours across the aperture that hit the same object), then
 accumulated per (range bin, beam) with `np.bincount`. So elevation ambiguity is real:
 a vertical piling at horizontal distance d fills ranges d .. d / cos(aperture / 2).
-The 8-bit level is 255 (I / I_sat)^gamma times Rayleigh speckle plus additive noise
-(Weibull amplitude; Rayleigh by default).
+The 8-bit level is 255 (g I / I_sat)^gamma (gain g) times Rayleigh speckle plus additive
+noise (Weibull amplitude; Rayleigh by default), the noise scaled by a range profile and
+both drawn from a correlated field when the config asks (`sonarmap.sim.image_noise`).
 Labels and the true unresolved angle come from the strongest contribution per pixel.
 """
 
@@ -26,6 +27,14 @@ from scipy.special import gamma, ndtri
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import SonarPing
 from sonarmap.sim.config import SonarConfig
+from sonarmap.sim.image_noise import (
+    gaussian_field,
+    quantile_index,
+    quantile_table,
+    range_profile,
+    rayleigh_unit_mean,
+    weibull,
+)
 from sonarmap.sim.world import World
 from sonarmap.stages.kernels.geometry import matrix_from_rpy_product, polar_to_xyz
 
@@ -64,6 +73,10 @@ class SonarModel:
         half = self.aperture_rad / 2
         self._bp_k = -np.log(cfg.aperture_edge_gain) / half**2
         self._noise_table = _noise_table(cfg.noise_mean_level, cfg.noise_shape)
+        self._gain = 10.0 ** (cfg.gain_db / 10.0)
+        self._profile = range_profile(self.n_ranges, cfg.noise_range_slope_db)[:, None]
+        self._noise_q = quantile_table(weibull(cfg.noise_mean_level, cfg.noise_shape))
+        self._speckle_q = quantile_table(rayleigh_unit_mean)
         pattern_rng = np.random.default_rng([12345, cfg.n_beams, cfg.aperture_samples])
         self._patterns = [self._jittered_fan(pattern_rng) for _ in range(_N_PATTERNS)]
 
@@ -193,11 +206,13 @@ class SonarModel:
     def _level(self, intensity: np.ndarray) -> np.ndarray:
         """Noise-free 8-bit level 255 (I / I_sat)^gamma (unclipped)."""
         cfg = self.cfg
-        return 255.0 * (intensity / cfg.saturation_intensity) ** cfg.display_gamma
+        return 255.0 * (self._gain * intensity / cfg.saturation_intensity) ** cfg.display_gamma
 
     def _to_uint8(self, intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Speckle (multiplicative Rayleigh, unit mean), additive noise (`_noise_table`), uint8."""
         cfg = self.cfg
+        if cfg.textured:
+            return self._to_uint8_textured(intensity, rng)
         nz = np.flatnonzero(intensity)
         level_nz = self._level(intensity[nz])
         if cfg.speckle:
@@ -209,6 +224,25 @@ class SonarModel:
             image = np.zeros(len(intensity), dtype=np.uint8)
         image[nz] = np.minimum(image[nz] + level_nz + 0.5, 255.0).astype(np.uint8)
         return image
+
+    def _to_uint8_textured(self, intensity: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """As `_to_uint8`, the noise and the speckle drawn from two correlated fields
+        (`sonarmap.sim.image_noise`: unit-mean Rayleigh speckle, Weibull noise) and the
+        noise scaled by the range profile; float32 throughout."""
+        cfg = self.cfg
+        shape = (2, self.n_ranges, self.n_beams)
+        field = gaussian_field(rng, shape, cfg.noise_corr_range, cfg.noise_corr_beam)
+        nz = np.flatnonzero(intensity)
+        level_nz = self._level(intensity[nz]).astype(np.float32)
+        if cfg.speckle:
+            level_nz *= self._speckle_q[quantile_index(field[1].ravel()[nz])]
+        if cfg.noise_mean_level > 0:
+            image = (self._noise_q[quantile_index(field[0])] * self._profile).ravel()
+        else:
+            image = np.zeros(len(intensity), dtype=np.float32)
+        image[nz] += level_nz
+        image += np.float32(0.5)
+        return np.minimum(image, np.float32(255.0), out=image).astype(np.uint8)
 
 
 def _noise_table(mean_level: float, shape: float) -> np.ndarray:

@@ -19,6 +19,7 @@ from sonarmap.pipeline.commands._common import (
     cli_graph,
     emit_json,
 )
+from sonarmap.pipeline.commands.simulate import DEFAULT_SENSORS, SONAR_OPTS
 
 __all__ = ["demo", "register"]
 
@@ -90,6 +91,20 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     return training_simulations(getattr(resolved, "training", TrainingDataConfig()))
 
 
+DEMO_SENSORS: dict[str, str] | None = None
+"""The demo recording's sensors when no `--sonar` names one (None: the simulator's clean
+sensor, and the recording's recipe as before sensors had names)."""
+
+
+def _sensors(both: str | None, horizontal: str | None, vertical: str | None) -> Any:
+    """The demo recording's sensors (part of its recipe), or None for the clean default."""
+    from sonarmap.pipeline.training.sim_sensors import chosen_sensors
+
+    if not (both or horizontal or vertical or DEMO_SENSORS):
+        return None
+    return chosen_sensors(both, horizontal, vertical, DEMO_SENSORS or DEFAULT_SENSORS)
+
+
 def demo(
     ctx: typer.Context,
     out: Path = typer.Option(Path("data/demo"), "--out", help="Where the dataset and report go."),
@@ -103,6 +118,9 @@ def demo(
     workers: int | None = WORKERS_OPT,
     no_figures: bool = NO_FIGURES_OPT,
     json_: bool = JSON_OPT,
+    sonar: str | None = SONAR_OPTS["sonar"],
+    horizontal_sonar: str | None = SONAR_OPTS["horizontal"],
+    vertical_sonar: str | None = SONAR_OPTS["vertical"],
 ) -> None:
     """The whole pipeline on a simulated marina, ending with the coverage table and report."""
     from sonarmap.pipeline.api import RunRequest, run_dataset
@@ -116,7 +134,10 @@ def demo(
         scene_file = scene_path(scene)
         dataset = out / f"{scene_file.stem}-seed{seed}.mcap"
         console.print(f"dataset: {dataset}")
-        mapped = Simulation(scene_file, seed, dataset, goals, duration_s)
+        sonars = _sensors(sonar, horizontal_sonar, vertical_sonar)
+        mapped = Simulation(scene_file, seed, dataset, goals, duration_s, sonars=sonars)
+        if sonars is not None:
+            console.print(f"sensors: {', '.join(f'{s} {n}' for s, n in sonars.items())}")
         ensure_simulations(
             [mapped, *_training_simulations(config, set_ or (), store)], os.cpu_count() or 1
         )

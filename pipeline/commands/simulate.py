@@ -7,10 +7,29 @@ from typing import Any
 
 import typer
 
-__all__ = ["DEFAULT_SCENE", "register"]
+__all__ = ["DEFAULT_SCENE", "DEFAULT_SENSORS", "SONAR_OPTS", "register"]
 
 DEFAULT_SCENE = "marina"
 """A scene name in configs/scenes/ (the help shows the name, not the install path)."""
+
+DEFAULT_SENSORS = {"horizontal": "sim-clean", "vertical": "sim-clean"}
+"""The sensors a simulation gets when no `--sonar` names one."""
+
+SONAR_OPTS = {
+    "sonar": typer.Option(
+        None,
+        "--sonar",
+        help="Sensor of both sonars: a preset of configs/sonars/ with an image block"
+        " (its image character; the sim geometry is kept) or sim-clean.",
+    ),
+    "horizontal": typer.Option(
+        None, "--horizontal-sonar", help="Sensor of the horizontal sonar (wins over --sonar)."
+    ),
+    "vertical": typer.Option(
+        None, "--vertical-sonar", help="Sensor of the vertical sonar (wins over --sonar)."
+    ),
+}
+"""The sensor options of `simulate` and `demo`."""
 
 
 def simulate_cmd(
@@ -34,6 +53,16 @@ def simulate_cmd(
         max=64,
         help="Processes rendering pings (same bytes for any number; 1: in this process).",
     ),
+    sonar: str | None = SONAR_OPTS["sonar"],
+    horizontal_sonar: str | None = SONAR_OPTS["horizontal"],
+    vertical_sonar: str | None = SONAR_OPTS["vertical"],
+    settings: list[str] | None = typer.Option(
+        None,
+        "--set",
+        "-s",
+        help="Simulator setting KEY=VALUE (repeatable; after the sensors), e.g."
+        " horizontal.noise_mean_level=53 or mission.speed_m_s=0.3.",
+    ),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     config_path: Path | None = typer.Option(
         None,
@@ -52,7 +81,10 @@ def simulate_cmd(
     from sonarmap.pipeline.formats.sim_preview import render_preview
     from sonarmap.pipeline.formats.simulation import write_simulation
     from sonarmap.pipeline.training.datasets import read_scene, scene_path, sim_config
+    from sonarmap.pipeline.training.sim_sensors import chosen_sensors, with_settings
     from sonarmap.sim.dataset import simulate
+
+    sonars = chosen_sensors(sonar, horizontal_sonar, vertical_sonar, DEFAULT_SENSORS)
 
     scene = scene_path(scene_name)
     scene_obj = read_scene(scene)
@@ -63,13 +95,16 @@ def simulate_cmd(
     scene_text = read_user_file(scene, "scene", ConfigError, CONFIG_MAX_BYTES).decode()
     if output.parent.exists() and not output.parent.is_dir():
         raise SourceError(f"output directory {output.parent} is not a directory")
-    config = sim_config(goals, duration_s)
+    config = with_settings(sim_config(goals, duration_s, sonars=sonars), settings or ())
     table = _class_table(config_path)
     try:
         run = simulate(scene_obj, config, seed, table)
     except ValueError as err:
         raise ConfigError(f"scene {scene}: {err}") from err
     console = stderr_console()
+    given = {"horizontal": sonar or horizontal_sonar, "vertical": sonar or vertical_sonar}
+    named = ", ".join(f"{s} {n}{'' if given[s] else ' (default)'}" for s, n in sonars.items())
+    console.print(f"sensors: {named}" + (f"; set {', '.join(settings)}" if settings else ""))
     with Progress(
         TextColumn("simulate"),
         BarColumn(),

@@ -214,8 +214,16 @@ def simulation_metadata(run: SimRun) -> dict[str, str]:
         "seed": str(run.seed),
         "scene": run.world.scene.name,
         "n_frames": str(run.n_frames),
-        "config": run.config.model_dump_json(),
-        "sonars": json.dumps({s: run.config.sonar(s).model_dump(mode="json") for s in SONARS}),
+        # Neutral image-character settings are left out: clean recordings keep their bytes.
+        "config": run.config.model_dump_json(exclude=run.config.unrecorded()),  # type: ignore[arg-type]
+        "sonars": json.dumps(
+            {
+                s: run.config.sonar(s).model_dump(
+                    mode="json", exclude=run.config.sonar(s).unrecorded()
+                )
+                for s in SONARS
+            }
+        ),
         "navigation_noise": run.config.navigation.model_dump_json(),
         "mission": run.config.mission.model_dump_json(),
         "has_ground_truth": "true",

@@ -73,14 +73,20 @@ def read_scene(path: Path) -> Scene:
 
 
 def sim_config(
-    goals: int | None, duration_s: float | None, sensor: Mapping[str, Any] | None = None
+    goals: int | None,
+    duration_s: float | None,
+    sensor: Mapping[str, Any] | None = None,
+    sonars: Mapping[str, str] | None = None,
 ) -> SimConfig:
     """The simulator's defaults with a mission of `goals` goals, cut after `duration_s`,
-    and the sensor draw `sensor` (`sonarmap.sim.randomise.draw_sensor`) when given."""
+    the named sensors `sonars` ({"horizontal"/"vertical": preset or "sim-clean"},
+    `sonarmap.pipeline.training.sim_sensors`; None: the clean sensor) and the sensor draw
+    `sensor` (`sonarmap.sim.randomise.draw_sensor`) when given."""
+    from sonarmap.pipeline.training.sim_sensors import with_sensors
     from sonarmap.sim.config import SimConfig
     from sonarmap.sim.randomise import randomised_config
 
-    base = SimConfig()
+    base = SimConfig() if sonars is None else with_sensors(SimConfig(), sonars)
     mission = base.mission.model_copy(
         update={"n_goals": goals or base.mission.n_goals, "duration_s": duration_s}
     )
@@ -94,6 +100,7 @@ def _recipe(
     goals: int | None,
     duration_s: float | None,
     sensor: Mapping[str, Any] | None = None,
+    sonars: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
     from sonarmap.sim.version import SIM_VERSION as sim_version
 
@@ -109,6 +116,10 @@ def _recipe(
     # Only when drawn: a default-sensor recipe (and its lock entry) stays as it was.
     if sensor is not None:
         recipe["sensor"] = json.loads(json.dumps(sensor, sort_keys=True))
+    if sonars is not None:
+        from sonarmap.pipeline.training.sim_sensors import sensor_recipe
+
+        recipe["sonars"] = sensor_recipe(sonars)
     return recipe
 
 
@@ -132,12 +143,19 @@ def ensure_simulation(
     progress: Callable[[int, int], None] | None = None,
     sensor: Mapping[str, Any] | None = None,
     scene_text: str | None = None,
+    sonars: Mapping[str, str] | None = None,
 ) -> Path:
     """Simulate `scene` with `seed` into `out` unless an identical one is already there
     (`sensor`: a `sonarmap.sim.randomise.draw_sensor` draw, part of the recipe; `scene_text`: a
-    generated scene, written to `scene` first when the file differs)."""
+    generated scene, written to `scene` first when the file differs; `sonars`: named
+    sensors, `sim_config`, part of the recipe)."""
     recipe = _recipe(
-        scene_text.encode() if scene_text is not None else scene, seed, goals, duration_s, sensor
+        scene_text.encode() if scene_text is not None else scene,
+        seed,
+        goals,
+        duration_s,
+        sensor,
+        sonars,
     )
     sidecar = out.with_suffix(".recipe.json")
     if _is_current(out, recipe):
@@ -152,7 +170,7 @@ def ensure_simulation(
     from sonarmap.pipeline.formats.simulation import write_simulation
     from sonarmap.sim.dataset import simulate
 
-    run = simulate(read_scene(scene), sim_config(goals, duration_s, sensor), seed)
+    run = simulate(read_scene(scene), sim_config(goals, duration_s, sensor, sonars), seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     try:
         write_simulation(run, out, scene_yaml=scene.read_text(), progress=progress)
@@ -176,12 +194,14 @@ class Simulation:
     scene_text: str | None = field(default=None, compare=False, repr=False)
     """A generated scene's YAML, written to `scene` only when simulating (planning
     writes nothing)."""
+    sonars: Mapping[str, str] | None = field(default=None, compare=False, hash=False)
+    """Named sensors per sonar (`sim_config`; None: the clean sensor, left out of the recipe)."""
 
     def recipe(self) -> dict[str, Any]:
         """What the recording's bytes depend on (scene sha256, seed, mission, sensor,
         simulator)."""
         scene = self.scene_text.encode() if self.scene_text is not None else self.scene
-        return _recipe(scene, self.seed, self.goals, self.duration_s, self.sensor)
+        return _recipe(scene, self.seed, self.goals, self.duration_s, self.sensor, self.sonars)
 
     def is_current(self) -> bool:
         """The output exists with this recipe (nothing to simulate)."""
@@ -196,6 +216,7 @@ class Simulation:
             duration_s=self.duration_s,
             sensor=self.sensor,
             scene_text=self.scene_text,
+            sonars=self.sonars,
         )
 
 
