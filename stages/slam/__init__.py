@@ -13,6 +13,7 @@ Modules:
     health: summary.json, what the stage can say about its result without ground truth.
     pose_graph: the iSAM2 pose graph.
     points: the leading-edge points SLAM registers.
+    thinning: those points thinned on a voxel grid and outlier-filtered before ICP.
     outputs: trajectory tables and the points trajectory.png draws.
 """
 
@@ -28,7 +29,10 @@ STAGE = Stage(
     # 11: scan matches free along the directions they leave unconstrained (degeneracy),
     # sequential ones gated against the step's odometry (Mahalanobis) under a Huber kernel;
     # factors.parquet gains `degenerate`; summary.json (health: SLAM vs dead reckoning)
-    version=11,
+    # 12: each keyframe's points thinned on the voxel grid and outlier-filtered (radius
+    # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass; summary.json
+    # gains `points` (what thinning and the filter dropped) and its warning
+    version=12,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),
