@@ -154,6 +154,10 @@ def _run_level(dataset: Path, overrides: tuple[str, ...]) -> dict[str, Any]:
     with tempfile.TemporaryDirectory(prefix="bench_noise_cost_") as tmp:
         cmd = [sys.executable, "-m", "benchmarks.bench_noise_cost", "--child", str(dataset)]
         cmd += ["--store", str(Path(tmp) / "store")]
+        # A training directory of its own, empty: the shipped model is found from its
+        # lock, whatever recordings another simulator left in the user's cache (those
+        # would be fingerprinted and the model trained again, inside the measurement).
+        cmd += ["--set", f"training.directory={Path(tmp) / 'training'}"]
         for item in overrides:
             cmd += ["--set", item]
         t0 = time.perf_counter()
