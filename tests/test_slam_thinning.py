@@ -65,3 +65,17 @@ def test_summary_counts_dropped_points_and_warns_when_most_are_isolated() -> Non
     noisy = {"thinned": 1000, "outliers_removed": 700, "kept": 300}
     loud = slam_summary(config, [], ids, dr, dr, t_s, False, noisy)
     assert len(loud["warnings"]) == 1 and "700 of 1,000" in loud["warnings"][0]
+
+
+def test_budget_thins_only_keyframes_over_it_on_coarser_voxels() -> None:
+    rng = np.random.default_rng(3)
+    flood = rng.uniform(0.0, 30.0, (50_000, 2))
+    quiet = np.column_stack([np.arange(0.0, 10.0, 0.25), np.zeros(40)])
+    kf = np.r_[np.zeros(len(flood)), np.ones(len(quiet))].astype(np.int64)
+    out = thin_and_filter(kf, np.concatenate([flood, quiet]), 0.25, None, 5, max_points=500)
+    kept = np.bincount(out.keyframe, minlength=2)
+    assert 100 < kept[0] <= 500  # thinned on coarser voxels, the fan still covered
+    assert np.ptp(out.points[out.keyframe == 0], axis=0).min() > 25.0
+    np.testing.assert_array_equal(out.points[out.keyframe == 1], voxel_downsample(quiet, 0.25))
+    assert out.over_budget_keyframes == 1
+    assert out.over_budget_points == out.thinned_points - len(out.points)

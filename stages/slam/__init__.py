@@ -30,8 +30,9 @@ STAGE = Stage(
     # sequential ones gated against the step's odometry (Mahalanobis) under a Huber kernel;
     # factors.parquet gains `degenerate`; summary.json (health: SLAM vs dead reckoning)
     # 12: each keyframe's points thinned on the voxel grid and outlier-filtered (radius
-    # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass; summary.json
-    # gains `points` (what thinning and the filter dropped) and its warning
+    # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass, then held to
+    # max_points_per_keyframe (coarser voxels); summary.json gains `points` (what thinning,
+    # the filter and the budget dropped) and their warnings
     version=12,
     config=SlamConfig,
     inputs=(

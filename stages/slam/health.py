@@ -1,8 +1,9 @@
 """What the slam stage can say about its own result without ground truth (issue 51).
 
 - The scan-matching points: horizontal features, their leading edges, the voxels those
-  occupy, the points the outlier filter dropped, the points kept (issue 50); most of them
-  dropped is a warning (`OUTLIER_WARN_SHARE`).
+  occupy, the points the outlier filter dropped, the keyframes over the point budget and
+  the points they lost, the points kept (issue 50); most points dropped as outliers, or
+  any keyframe over the budget, is a warning.
 
 - Scan matches proposed, accepted, rejected, and found degenerate (by direction: the body
   axis nearest the direction the scans left unconstrained, `sonarmap.stages.slam.degeneracy`).
@@ -110,6 +111,14 @@ def slam_summary(
             f" points ({outliers / thinned:.0%}: fewer than {config.outlier_min_neighbours}"
             f" others within {config.outlier_radius_m} m): the features are mostly isolated"
             " detections (noise); check the features stage's detections"
+        )
+    over, lost = points.get("over_budget_keyframes", 0), points.get("over_budget_points", 0)
+    if config.mode == "slam" and over:
+        warnings.append(
+            f"slam: {over} of {len(ids)} keyframes held more than"
+            f" slam.max_points_per_keyframe ({config.max_points_per_keyframe}) scan-matching"
+            f" points and were thinned on coarser voxels ({lost:,} points merged): the"
+            " features are flooded; check the features stage's detections"
         )
     return {
         "mode": config.mode,

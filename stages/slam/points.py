@@ -39,6 +39,7 @@ def keyframe_points(
     leading_edge_only: bool = True,
     outlier_radius_m: float | None = None,
     outlier_min_neighbours: int = 5,
+    max_points: int | None = None,
 ) -> list[np.ndarray]:
     """Horizontal features per keyframe as (N_k, 2) base_link points at elevation 0
     (`counted_keyframe_points` without its counts)."""
@@ -50,6 +51,7 @@ def keyframe_points(
         leading_edge_only,
         outlier_radius_m,
         outlier_min_neighbours,
+        max_points,
     )[0]
 
 
@@ -61,6 +63,7 @@ def counted_keyframe_points(
     leading_edge_only: bool = True,
     outlier_radius_m: float | None = None,
     outlier_min_neighbours: int = 5,
+    max_points: int | None = None,
 ) -> tuple[list[np.ndarray], dict[str, int]]:
     """Horizontal features per keyframe as (N_k, 2) base_link points at elevation 0,
     thinned on a voxel grid and outlier-filtered (`sonarmap.stages.slam.thinning`), and
@@ -75,10 +78,13 @@ def counted_keyframe_points(
         leading_edge_only: keep only `leading_edges` cells.
         outlier_radius_m, outlier_min_neighbours: after thinning, drop the points with
             fewer than this many others within this radius in their keyframe (None: off).
+        max_points: most points a keyframe keeps; one holding more is thinned again on
+            coarser voxels (`sonarmap.stages.slam.thinning.within_budget`; None: no budget).
 
     Returns:
         The K clouds (voxel order) and counts: horizontal features, leading edges,
-        thinned points, outliers removed, points kept, most points in one keyframe.
+        thinned points, outliers removed, keyframes over the budget and the points they
+        lost, points kept, most points in one keyframe.
     """
     # Compared in Arrow: a million strings turned into Python objects cost ~0.1 s.
     horizontal = pc.fill_null(pc.equal(features.column("sonar"), "horizontal"), False)
@@ -100,7 +106,9 @@ def counted_keyframe_points(
     pts = fan_in_frame(range_m, angle, T_base_sonar)[:, :2]
     order = np.argsort(kf, kind="stable")
     kf, pts = kf[order], pts[order]
-    thinned = thin_and_filter(kf, pts, voxel_m, outlier_radius_m, outlier_min_neighbours)
+    thinned = thin_and_filter(
+        kf, pts, voxel_m, outlier_radius_m, outlier_min_neighbours, max_points
+    )
     lo = np.searchsorted(thinned.keyframe, keyframe_ids, side="left")
     hi = np.searchsorted(thinned.keyframe, keyframe_ids, side="right")
     clouds = [thinned.points[a:b] for a, b in zip(lo, hi, strict=True)]
@@ -109,6 +117,8 @@ def counted_keyframe_points(
         "leading_edges": len(kf),
         "thinned": thinned.thinned_points,
         "outliers_removed": thinned.outliers,
+        "over_budget_keyframes": thinned.over_budget_keyframes,
+        "over_budget_points": thinned.over_budget_points,
         "kept": len(thinned.points),
         "max_per_keyframe": int(max((len(c) for c in clouds), default=0)),
     }

@@ -105,6 +105,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config.leading_edge_only,
         config.outlier_radius_m,
         config.outlier_min_neighbours,
+        config.max_points_per_keyframe,
     )
     dr_se2 = dr[:, [0, 1, 5]]
     t_s = (t_ns - t_ns[0]) * 1e-9

@@ -23,7 +23,7 @@ from sonarmap.stages.kernels.lazy import lazy
 
 spatial = lazy("scipy.spatial")
 
-__all__ = ["ThinnedPoints", "radius_inliers", "thin_and_filter", "voxel_thin"]
+__all__ = ["ThinnedPoints", "radius_inliers", "thin_and_filter", "voxel_thin", "within_budget"]
 
 
 def voxel_thin(keyframe: np.ndarray, points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, ...]:
@@ -84,6 +84,42 @@ def radius_inliers(
     return np.asarray(count) - 1 >= min_neighbours
 
 
+def within_budget(
+    keyframe: np.ndarray, points: np.ndarray, voxel_m: float, max_points: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Each keyframe holding more than `max_points` thinned again on voxels twice as
+    large, and again, until it holds at most that many (coverage kept, density cut).
+
+    Args:
+        keyframe: (N,) ascending keyframe index of each point (`voxel_thin`'s order).
+        points: (N, 2) points [m], already thinned at `voxel_m`.
+        voxel_m: the voxel they were thinned at [m].
+        max_points: most points a keyframe keeps.
+
+    Returns:
+        (keyframe, points, number of keyframes thinned again).
+    """
+    ids, starts, counts = np.unique(keyframe, return_index=True, return_counts=True)
+    over = np.flatnonzero(counts > max_points)
+    if len(over) == 0:
+        return keyframe, points, 0
+    parts_k, parts_p, last = [], [], 0
+    for i in over.tolist():  # only the flooded keyframes, each a contiguous slice
+        a, b = int(starts[i]), int(starts[i] + counts[i])
+        parts_k.append(keyframe[last:a])
+        parts_p.append(points[last:a])
+        mine, size = points[a:b], voxel_m
+        while len(mine) > max_points:
+            size *= 2.0
+            mine = voxel_thin(np.zeros(len(mine), np.int64), mine, size)[1]
+        parts_k.append(np.full(len(mine), ids[i], dtype=np.int64))
+        parts_p.append(mine)
+        last = b
+    parts_k.append(keyframe[last:])
+    parts_p.append(points[last:])
+    return np.concatenate(parts_k), np.concatenate(parts_p), len(over)
+
+
 @dataclass(frozen=True)
 class ThinnedPoints:
     """Result of `thin_and_filter`: the kept points and what was dropped, in counts.
@@ -94,6 +130,8 @@ class ThinnedPoints:
         input_points: points given.
         thinned_points: voxels occupied (points after thinning).
         outliers: thinned points removed by the radius filter.
+        over_budget_keyframes: keyframes thinned again to `max_points` (`within_budget`).
+        over_budget_points: points those lost.
     """
 
     keyframe: np.ndarray
@@ -101,6 +139,8 @@ class ThinnedPoints:
     input_points: int
     thinned_points: int
     outliers: int
+    over_budget_keyframes: int = 0
+    over_budget_points: int = 0
 
 
 def thin_and_filter(
@@ -109,13 +149,19 @@ def thin_and_filter(
     voxel_m: float,
     radius_m: float | None,
     min_neighbours: int,
+    max_points: int | None = None,
 ) -> ThinnedPoints:
     """Per keyframe: voxel centroids (`voxel_thin`), then the radius outlier filter
-    (`radius_inliers`; `radius_m` None: off)."""
+    (`radius_inliers`; `radius_m` None: off), then the point budget (`within_budget`;
+    `max_points` None: none)."""
     kf, thinned = voxel_thin(keyframe, points, voxel_m)
     keep = (
         np.ones(len(kf), dtype=bool)
         if radius_m is None
         else radius_inliers(kf, thinned, radius_m, min_neighbours)
     )
-    return ThinnedPoints(kf[keep], thinned[keep], len(points), len(kf), int((~keep).sum()))
+    out_k, out_p, over = kf[keep], thinned[keep], 0
+    if max_points is not None:
+        out_k, out_p, over = within_budget(out_k, out_p, voxel_m, max_points)
+    lost = int(keep.sum()) - len(out_p)
+    return ThinnedPoints(out_k, out_p, len(points), len(kf), int((~keep).sum()), over, lost)
