@@ -67,15 +67,18 @@ def test_summary_counts_dropped_points_and_warns_when_most_are_isolated() -> Non
     assert len(loud["warnings"]) == 1 and "700 of 1,000" in loud["warnings"][0]
 
 
-def test_budget_thins_only_keyframes_over_it_on_coarser_voxels() -> None:
+def test_budget_keeps_the_densest_points_of_keyframes_over_it_only() -> None:
     rng = np.random.default_rng(3)
-    flood = rng.uniform(0.0, 30.0, (50_000, 2))
+    speckle = rng.uniform(0.0, 30.0, (3_000, 2))
+    wall = np.column_stack([np.full(200, 15.0), np.linspace(5.0, 25.0, 200)])
     quiet = np.column_stack([np.arange(0.0, 10.0, 0.25), np.zeros(40)])
-    kf = np.r_[np.zeros(len(flood)), np.ones(len(quiet))].astype(np.int64)
-    out = thin_and_filter(kf, np.concatenate([flood, quiet]), 0.25, None, 5, max_points=500)
-    kept = np.bincount(out.keyframe, minlength=2)
-    assert 100 < kept[0] <= 500  # thinned on coarser voxels, the fan still covered
-    assert np.ptp(out.points[out.keyframe == 0], axis=0).min() > 25.0
-    np.testing.assert_array_equal(out.points[out.keyframe == 1], voxel_downsample(quiet, 0.25))
+    kf = np.r_[np.zeros(len(speckle) + len(wall)), np.ones(len(quiet))].astype(np.int64)
+    points = np.concatenate([speckle, wall, quiet])
+    out = thin_and_filter(kf, points, 0.05, None, 5, max_points=300)
+    flooded = out.points[out.keyframe == 0]
+    assert len(flooded) == 300
+    on_wall = np.abs(flooded[:, 0] - 15.0) < 0.05
+    assert on_wall.mean() > 0.5  # the wall's points, most of the 300 kept (6 % of input)
+    np.testing.assert_array_equal(out.points[out.keyframe == 1], voxel_downsample(quiet, 0.05))
     assert out.over_budget_keyframes == 1
     assert out.over_budget_points == out.thinned_points - len(out.points)

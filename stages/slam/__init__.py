@@ -31,7 +31,7 @@ STAGE = Stage(
     # factors.parquet gains `degenerate`; summary.json (health: SLAM vs dead reckoning)
     # 12: each keyframe's points thinned on the voxel grid and outlier-filtered (radius
     # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass, then held to
-    # max_points_per_keyframe (coarser voxels); summary.json gains `points` (what thinning,
+    # max_points_per_keyframe (the densest kept); summary.json gains `points` (what thinning,
     # the filter and the budget dropped) and their warnings
     version=12,
     config=SlamConfig,

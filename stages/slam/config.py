@@ -156,11 +156,10 @@ class SlamConfig(StageConfig):
         2000,
         ge=10,
         le=10000000,
-        description="after the outlier filter, a keyframe holding more points is thinned"
-        " again on voxels twice as large until it holds at most this many (a warning with"
-        " counts): scan matching's cost per keyframe stays within a few clean ones' (the"
-        " clean demo marina's busiest keyframe holds 636 points, so nothing is clipped"
-        " there); None: no budget",
+        description="after the outlier filter, a keyframe holding more points keeps"
+        " this many, those with the most neighbours (a warning with counts): scan matching's cost"
+        " per keyframe stays within a few clean ones' (the clean demo marina's busiest"
+        " keyframe holds 636 points, so nothing is clipped there); None: no budget",
     )
     leading_edge_only: bool = Field(True, description="first cell of each run along a beam")
     point_noise_m: float = Field(0.5, gt=0, le=100, description="grid dilation and overlap radius")

@@ -78,8 +78,8 @@ def counted_keyframe_points(
         leading_edge_only: keep only `leading_edges` cells.
         outlier_radius_m, outlier_min_neighbours: after thinning, drop the points with
             fewer than this many others within this radius in their keyframe (None: off).
-        max_points: most points a keyframe keeps; one holding more is thinned again on
-            coarser voxels (`sonarmap.stages.slam.thinning.within_budget`; None: no budget).
+        max_points: most points a keyframe keeps; one holding more keeps those with the
+            most neighbours (`sonarmap.stages.slam.thinning.densest`; None: no budget).
 
     Returns:
         The K clouds (voxel order) and counts: horizontal features, leading edges,

@@ -8,6 +8,9 @@ after thinning, a 1 m disc holds at most about (2 r / voxel + 1)^2 points whatev
 number of detections, so the neighbour count is linear in the thinned points, and those
 are bounded by the area the sonar sees over the voxel area. A false detection rarely has
 five others within a metre once its neighbours are merged into voxels; a surface does.
+A keyframe still holding more than a budget (a dense flood passes the filter) keeps the
+points with the most neighbours: a surface returns from the same place beam after beam,
+so its points are denser than the speckle around it.
 
 Everything here is vectorised over all keyframes at once: the keyframes are stacked
 apart along a third axis, far enough that no neighbourhood spans two of them.
@@ -23,7 +26,18 @@ from sonarmap.stages.kernels.lazy import lazy
 
 spatial = lazy("scipy.spatial")
 
-__all__ = ["ThinnedPoints", "radius_inliers", "thin_and_filter", "voxel_thin", "within_budget"]
+__all__ = [
+    "RANK_RADIUS_M",
+    "ThinnedPoints",
+    "densest",
+    "neighbour_counts",
+    "radius_inliers",
+    "thin_and_filter",
+    "voxel_thin",
+]
+
+RANK_RADIUS_M = 1.0
+"""Neighbourhood radius that ranks points for the budget when the outlier filter is off."""
 
 
 def voxel_thin(keyframe: np.ndarray, points: np.ndarray, voxel_m: float) -> tuple[np.ndarray, ...]:
@@ -62,62 +76,47 @@ def voxel_thin(keyframe: np.ndarray, points: np.ndarray, voxel_m: float) -> tupl
     return kf.astype(np.int64), sums / counts[:, None]
 
 
-def radius_inliers(
-    keyframe: np.ndarray, points: np.ndarray, radius_m: float, min_neighbours: int
-) -> np.ndarray:
-    """(N,) bool: points with at least `min_neighbours` other points of their own keyframe
-    within `radius_m` (PCL's RadiusOutlierRemoval, per keyframe).
+def neighbour_counts(keyframe: np.ndarray, points: np.ndarray, radius_m: float) -> np.ndarray:
+    """(N,) int: other points of the same keyframe within `radius_m` of each point.
 
     Args:
         keyframe: (N,) int keyframe index of each point.
         points: (N, 2) points [m].
         radius_m: neighbourhood radius [m].
-        min_neighbours: neighbours needed, the point itself not counted.
     """
     if len(points) == 0:
-        return np.zeros(0, dtype=bool)
+        return np.zeros(0, dtype=np.int64)
     # Keyframes stacked 4 radii apart along z: a ball never reaches the next keyframe.
     z = (np.asarray(keyframe, np.float64) - float(np.min(keyframe))) * (4.0 * radius_m)
     lifted = np.column_stack([points, z])
     tree = spatial.cKDTree(lifted)
-    count = tree.query_ball_point(lifted, radius_m, return_length=True)
-    return np.asarray(count) - 1 >= min_neighbours
+    return np.asarray(tree.query_ball_point(lifted, radius_m, return_length=True)) - 1
 
 
-def within_budget(
-    keyframe: np.ndarray, points: np.ndarray, voxel_m: float, max_points: int
-) -> tuple[np.ndarray, np.ndarray, int]:
-    """Each keyframe holding more than `max_points` thinned again on voxels twice as
-    large, and again, until it holds at most that many (coverage kept, density cut).
+def radius_inliers(
+    keyframe: np.ndarray, points: np.ndarray, radius_m: float, min_neighbours: int
+) -> np.ndarray:
+    """(N,) bool: points with at least `min_neighbours` other points of their own keyframe
+    within `radius_m` (PCL's RadiusOutlierRemoval, per keyframe)."""
+    return neighbour_counts(keyframe, points, radius_m) >= min_neighbours
+
+
+def densest(keyframe: np.ndarray, count: np.ndarray, max_points: int) -> np.ndarray:
+    """(N,) bool: per keyframe, its `max_points` points with the most neighbours (ties: the
+    earlier point); every point of a keyframe holding no more.
 
     Args:
-        keyframe: (N,) ascending keyframe index of each point (`voxel_thin`'s order).
-        points: (N, 2) points [m], already thinned at `voxel_m`.
-        voxel_m: the voxel they were thinned at [m].
+        keyframe: (N,) ascending keyframe index of each point.
+        count: (N,) neighbour count of each point (`neighbour_counts`).
         max_points: most points a keyframe keeps.
-
-    Returns:
-        (keyframe, points, number of keyframes thinned again).
     """
-    ids, starts, counts = np.unique(keyframe, return_index=True, return_counts=True)
-    over = np.flatnonzero(counts > max_points)
-    if len(over) == 0:
-        return keyframe, points, 0
-    parts_k, parts_p, last = [], [], 0
-    for i in over.tolist():  # only the flooded keyframes, each a contiguous slice
-        a, b = int(starts[i]), int(starts[i] + counts[i])
-        parts_k.append(keyframe[last:a])
-        parts_p.append(points[last:a])
-        mine, size = points[a:b], voxel_m
-        while len(mine) > max_points:
-            size *= 2.0
-            mine = voxel_thin(np.zeros(len(mine), np.int64), mine, size)[1]
-        parts_k.append(np.full(len(mine), ids[i], dtype=np.int64))
-        parts_p.append(mine)
-        last = b
-    parts_k.append(keyframe[last:])
-    parts_p.append(points[last:])
-    return np.concatenate(parts_k), np.concatenate(parts_p), len(over)
+    n = len(keyframe)
+    order = np.lexsort((np.arange(n), -np.asarray(count), keyframe))
+    ranked = keyframe[order]
+    first = np.searchsorted(ranked, ranked, side="left")
+    keep = np.zeros(n, dtype=bool)
+    keep[order] = (np.arange(n) - first) < max_points
+    return keep
 
 
 @dataclass(frozen=True)
@@ -130,7 +129,7 @@ class ThinnedPoints:
         input_points: points given.
         thinned_points: voxels occupied (points after thinning).
         outliers: thinned points removed by the radius filter.
-        over_budget_keyframes: keyframes thinned again to `max_points` (`within_budget`).
+        over_budget_keyframes: keyframes held to the budget (`densest`).
         over_budget_points: points those lost.
     """
 
@@ -152,16 +151,21 @@ def thin_and_filter(
     max_points: int | None = None,
 ) -> ThinnedPoints:
     """Per keyframe: voxel centroids (`voxel_thin`), then the radius outlier filter
-    (`radius_inliers`; `radius_m` None: off), then the point budget (`within_budget`;
-    `max_points` None: none)."""
+    (`radius_inliers`; `radius_m` None: off), then the point budget: a keyframe holding
+    more than `max_points` keeps its densest (`densest`: neighbours within `radius_m`, or
+    `RANK_RADIUS_M` with the filter off; None: no budget). Points stay in voxel order."""
     kf, thinned = voxel_thin(keyframe, points, voxel_m)
-    keep = (
-        np.ones(len(kf), dtype=bool)
-        if radius_m is None
-        else radius_inliers(kf, thinned, radius_m, min_neighbours)
-    )
-    out_k, out_p, over = kf[keep], thinned[keep], 0
-    if max_points is not None:
-        out_k, out_p, over = within_budget(out_k, out_p, voxel_m, max_points)
-    lost = int(keep.sum()) - len(out_p)
-    return ThinnedPoints(out_k, out_p, len(points), len(kf), int((~keep).sum()), over, lost)
+    if radius_m is None and max_points is None:
+        return ThinnedPoints(kf, thinned, len(points), len(kf), 0)
+    count = neighbour_counts(kf, thinned, RANK_RADIUS_M if radius_m is None else radius_m)
+    keep = np.ones(len(kf), dtype=bool) if radius_m is None else count >= min_neighbours
+    outliers = int((~keep).sum())
+    over = lost = 0
+    if max_points is not None and keep.any():
+        held = np.unique(kf[keep], return_counts=True)[1]
+        over = int((held > max_points).sum())
+        budget = np.zeros(len(kf), dtype=bool)
+        budget[keep] = densest(kf[keep], count[keep], max_points)
+        lost = int(keep.sum() - budget.sum())
+        keep = budget
+    return ThinnedPoints(kf[keep], thinned[keep], len(points), len(kf), outliers, over, lost)
