@@ -147,7 +147,11 @@ class SlamConfig(StageConfig):
         le=100,
         description="after thinning, a keyframe point needs `outlier_min_neighbours` others"
         " within this radius, else it is dropped before scan matching (the authors' PCL"
-        " RadiusOutlierRemoval: 1.0 m, 5); None: off",
+        " RadiusOutlierRemoval: 1.0 m, 5). It also drops the sparse features that pin a"
+        " canal's along-wall direction (benchmarks/bench_slam_degeneracy.py, canal seeds"
+        " 0/1: ATE 0.044/0.057 -> 0.070/0.113 m, dead reckoning 0.122/0.183); it halves"
+        " the error under a moderate flood (bench_noise_cost floor0: 0.27 -> 0.13 m);"
+        " None: off",
     )
     outlier_min_neighbours: int = Field(
         5, ge=1, le=10000, description="neighbours (itself not counted) of the outlier filter"
