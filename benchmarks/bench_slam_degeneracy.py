@@ -18,6 +18,7 @@ yaw bias), `clean` (a DVL five times better: dead reckoning hard to beat) and `l
     .venv/bin/python benchmarks/bench_slam_degeneracy.py                 # degenerate scenes
     .venv/bin/python benchmarks/bench_slam_degeneracy.py --scenes marina,pier --before --navs default
     .venv/bin/python benchmarks/bench_slam_degeneracy.py --scaling 12,24,48  # cost vs length
+    .venv/bin/python benchmarks/bench_slam_degeneracy.py --slam '{"outlier_radius_m": null}'
 """
 
 from __future__ import annotations
@@ -64,7 +65,9 @@ def _counts(factors, kind: str) -> dict[str, int]:
     }
 
 
-def run_one(scene: str, seed: int, nav: str, goals: int, before: bool) -> dict[str, object]:
+def run_one(
+    scene: str, seed: int, nav: str, goals: int, before: bool, slam: dict | None = None
+) -> dict[str, object]:
     from sonarmap.stages.slam.stage import STAGE, SlamConfig
     from tests.test_slam import ate_se2, simulated_slam_inputs
 
@@ -74,7 +77,7 @@ def run_one(scene: str, seed: int, nav: str, goals: int, before: bool) -> dict[s
     kf = inputs["keyframes.keyframes"]
     truth = _xy(kf, "gt_")
     t0 = time.process_time()
-    out = STAGE.run(SlamConfig(), inputs)
+    out = STAGE.run(SlamConfig(**(slam or {})), inputs)
     cpu = time.process_time() - t0
     dr = ate_se2(_xy(kf), truth)
     slam = ate_se2(_xy(out["poses"]), truth)
@@ -129,6 +132,11 @@ def main() -> None:
     parser.add_argument("--goals", type=int, default=6, help="mission goals (short missions)")
     parser.add_argument("--before", action="store_true", help="also run version 10's config")
     parser.add_argument("--scaling", default="", help="marina goal counts, e.g. 12,24,48")
+    parser.add_argument(
+        "--slam",
+        default="{}",
+        help="slam config fields (JSON) for the runs, e.g. '{\"outlier_radius_m\": null}'",
+    )
     args = parser.parse_args()
     from sonarmap.sim.scene import SceneError
 
@@ -137,7 +145,9 @@ def main() -> None:
         for seed in (int(s) for s in args.seeds.split(",")):
             for nav in args.navs.split(","):
                 try:
-                    rows.append(run_one(scene, seed, nav, args.goals, args.before))
+                    rows.append(
+                        run_one(scene, seed, nav, args.goals, args.before, json.loads(args.slam))
+                    )
                 except SceneError as err:  # e.g. a class outside the default class table
                     print(f"{scene}: skipped ({str(err).splitlines()[0][:120]})", flush=True)
                     continue

@@ -13,6 +13,7 @@ Modules:
     health: summary.json, what the stage can say about its result without ground truth.
     pose_graph: the iSAM2 pose graph.
     points: the leading-edge points SLAM registers.
+    thinning: those points thinned on a voxel grid and outlier-filtered before ICP.
     outputs: trajectory tables and the points trajectory.png draws.
 """
 
@@ -28,7 +29,11 @@ STAGE = Stage(
     # 11: scan matches free along the directions they leave unconstrained (degeneracy),
     # sequential ones gated against the step's odometry (Mahalanobis) under a Huber kernel;
     # factors.parquet gains `degenerate`; summary.json (health: SLAM vs dead reckoning)
-    version=11,
+    # 12: each keyframe's points thinned on the voxel grid and outlier-filtered (radius
+    # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass, then held to
+    # max_points_per_keyframe (the densest kept); summary.json gains `points` (what thinning,
+    # the filter and the budget dropped) and their warnings
+    version=12,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

@@ -1,5 +1,10 @@
 """What the slam stage can say about its own result without ground truth (issue 51).
 
+- The scan-matching points: horizontal features, their leading edges, the voxels those
+  occupy, the points the outlier filter dropped, the keyframes over the point budget and
+  the points they lost, the points kept (issue 50); most points dropped as outliers, or
+  any keyframe over the budget, is a warning.
+
 - Scan matches proposed, accepted, rejected, and found degenerate (by direction: the body
   axis nearest the direction the scans left unconstrained, `sonarmap.stages.slam.degeneracy`).
 - SLAM against dead reckoning. Both read the same AHRS heading and start at the same pose,
@@ -22,10 +27,16 @@ import numpy as np
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.pcm import chain_covariance
 
-__all__ = ["CHI2_99_2DOF", "predicted_drift_m", "slam_summary"]
+__all__ = ["CHI2_99_2DOF", "OUTLIER_WARN_SHARE", "predicted_drift_m", "slam_summary"]
 
 CHI2_99_2DOF = 9.210340371976184
 """chi2.ppf(0.99, 2) (a test checks it against scipy)."""
+
+
+OUTLIER_WARN_SHARE = 0.5
+"""The outlier filter dropping more than this share of the thinned points warns: on the
+simulator's clean sensor it drops about 1 % (marina), so most points isolated means
+the front end is passing noise."""
 
 
 def predicted_drift_m(config: SlamConfig, dr_se2: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -63,8 +74,11 @@ def slam_summary(
     slam_se2: np.ndarray,
     t_s: np.ndarray,
     fell_back: bool,
+    point_counts: dict[str, int] | None = None,
 ) -> dict[str, Any]:
-    """The stage's summary.json: matches, SLAM vs dead reckoning, warnings (one line each)."""
+    """The stage's summary.json: matches, SLAM vs dead reckoning, the scan-matching points
+    (`sonarmap.stages.slam.points.counted_keyframe_points`: what thinning and the outlier
+    filter dropped), warnings (one line each)."""
     ssm, loop = _matches(rows, "ssm"), _matches(rows, "loop")
     gap = np.hypot(*(slam_se2[:, :2] - dr_se2[:, :2]).T)
     bound = np.sqrt(CHI2_99_2DOF) * predicted_drift_m(config, dr_se2, t_s)
@@ -89,8 +103,26 @@ def slam_summary(
             f" ({found} of {ssm['proposed'] + loop['proposed']} matches found degenerate);"
             " compare the two trajectories before trusting the map"
         )
+    points = dict(point_counts or {})
+    thinned, outliers = points.get("thinned", 0), points.get("outliers_removed", 0)
+    if config.mode == "slam" and thinned and outliers > OUTLIER_WARN_SHARE * thinned:
+        warnings.append(
+            f"slam: the outlier filter dropped {outliers:,} of {thinned:,} scan-matching"
+            f" points ({outliers / thinned:.0%}: fewer than {config.outlier_min_neighbours}"
+            f" others within {config.outlier_radius_m} m): the features are mostly isolated"
+            " detections (noise); check the features stage's detections"
+        )
+    over, lost = points.get("over_budget_keyframes", 0), points.get("over_budget_points", 0)
+    if config.mode == "slam" and over:
+        warnings.append(
+            f"slam: {over} of {len(ids)} keyframes held more than"
+            f" slam.max_points_per_keyframe ({config.max_points_per_keyframe}) scan-matching"
+            f" points and were thinned on coarser voxels ({lost:,} points merged): the"
+            " features are flooded; check the features stage's detections"
+        )
     return {
         "mode": config.mode,
+        "points": points,
         "keyframes": len(ids),
         "fell_back_to_dead_reckoning": fell_back,
         "scan_matching": {"ssm": ssm, "loop": loop},

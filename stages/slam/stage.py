@@ -26,6 +26,9 @@ directions of SE(2) its scans leave unconstrained (a straight wall's direction: 
 point-to-line information against one step of odometry, `sonarmap.stages.slam.degeneracy`),
 and a sequential match must agree with its step's odometry within a chi-square gate
 (Mahalanobis, under both covariances) and enters under a Huber kernel (version 11).
+Each keyframe's points are thinned on the voxel grid and then outlier-filtered (the
+authors' radius filter: `sonarmap.stages.slam.thinning`), so scan matching's cost is
+bounded by the area the sonar sees, not by the number of detections (version 12).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -56,7 +59,7 @@ from sonarmap.stages.slam.config import SlamConfig, with_sensor_fan
 from sonarmap.stages.slam.frontend import SlamResult, run_slam
 from sonarmap.stages.slam.health import slam_summary
 from sonarmap.stages.slam.outputs import factors_table, plot_points, poses_table, tum_text
-from sonarmap.stages.slam.points import keyframe_points, leading_edges
+from sonarmap.stages.slam.points import counted_keyframe_points, keyframe_points, leading_edges
 from sonarmap.stages.slam.pose_graph import wrap_angle
 
 __all__ = [
@@ -94,12 +97,15 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     dr = _pose_columns(keyframes, "")
     gt = None if keyframes.column("gt_x_m").null_count else _pose_columns(keyframes, "gt_")
     T_base_sonar = Sensors.of(inputs["keyframes.sensors"]).horizontal.T_base_sonar
-    points = keyframe_points(
+    points, point_counts = counted_keyframe_points(
         ids,
         inputs["features.features"],
         T_base_sonar,
         config.point_resolution_m,
         config.leading_edge_only,
+        config.outlier_radius_m,
+        config.outlier_min_neighbours,
+        config.max_points_per_keyframe,
     )
     dr_se2 = dr[:, [0, 1, 5]]
     t_s = (t_ns - t_ns[0]) * 1e-9
@@ -126,7 +132,9 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     ).reshape(-1, 2)
     n_loops = len(loops)
     log.info("slam (%s): %d keyframes, %d loop closures", config.mode, len(ids), n_loops)
-    summary = slam_summary(config, rows, ids, dr_se2, pose6[:, [0, 1, 5]], t_s, fell_back)
+    summary = slam_summary(
+        config, rows, ids, dr_se2, pose6[:, [0, 1, 5]], t_s, fell_back, point_counts
+    )
     # summary["warnings"] are printed by the engine (a JSON output's warnings reach the
     # run's `warning:` lines), also when the artifact is found cached.
     return {
