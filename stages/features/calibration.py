@@ -11,8 +11,9 @@ Warnings (stated rules, not fitted; "warnings" reach the run's warning lines):
 - flood: the detection rate on background bands is over 3x the stated rate;
 - starve: it is under a third of the stated rate, when at least 30 false alarms were
   expected there (a Poisson count 3x off its mean of 30 is over 5 sigma away);
-- starve: fewer features per keyframe and sonar than a third of the false alarms the
-  calibration expects per ping (the thresholds pass less than the background alone gives);
+- starve: fewer detections per keyframe and sonar (before the budget) than a third of the
+  false alarms the calibration expects per ping (the thresholds pass less than the
+  background alone gives);
 - budget: keyframes clipped by the feature budget, with the features dropped;
 - bands whose law was borrowed from the nearest fitted band (saturated, constant or empty).
 """
@@ -111,6 +112,8 @@ def with_measurements(
         det = int(band_detections[sonar][bg].sum()) if sonar in band_detections else 0
         rate = det / cells if cells else None
         per_kf = features.get(sonar, 0) / keyframes if keyframes else 0.0
+        all_det = int(band_detections[sonar].sum()) if sonar in band_detections else 0
+        det_kf = all_det / keyframes if keyframes else 0.0
         n_clip, n_drop = clipped.get(sonar, (0, 0))
         e["measured"] = {
             "background_bands": np.flatnonzero(bg).tolist(),
@@ -118,11 +121,12 @@ def with_measurements(
             "background_detections": det,
             "background_detection_rate": rounded(rate),
             "features_per_keyframe": rounded(per_kf),
+            "detections_per_keyframe_before_budget": rounded(det_kf),
             "keyframes_clipped": n_clip,
             "features_dropped": n_drop,
         }
         out["sonars"][sonar] = e
-        out["warnings"] += _warnings(sonar, p, rate, cells, per_kf, e, keyframes)
+        out["warnings"] += _warnings(sonar, p, rate, cells, det_kf, e, keyframes)
         if n_clip:
             out["warnings"].append(
                 f"features: {sonar} sonar: the feature budget ({budget} per keyframe) clipped"
@@ -156,7 +160,7 @@ def _warnings(
     expected = float(entry.get("expected_false_alarms_per_ping") or 0.0)
     if keyframes and expected * keyframes >= MIN_EXPECTED and per_kf < expected / FLOOD_FACTOR:
         found.append(
-            f"features: {sonar} sonar starves: {per_kf:.1f} features per keyframe, under"
+            f"features: {sonar} sonar starves: {per_kf:.1f} detections per keyframe, under"
             f" 1/{FLOOD_FACTOR:g} of the {expected:.1f} false alarms per ping its calibration"
             " expects from background alone"
         )

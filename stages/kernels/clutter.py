@@ -14,7 +14,7 @@ range band.
 Fit (Weibull-plot regression, robust to the objects): the objects in an image are its
 upper tail, so the law is fitted to the bulk only. For a band, with F(v) the empirical
 fraction of pixels at or below level v (levels are integers: level v holds the continuous
-values in [v - 0.5, v + 0.5)), the points (ln(v + 0.5), ln(-ln(1 - F(v)))) whose F lies in
+values in [v - 0.5, v + 0.5); after the 3x3 mean filter, steps of 1/9 level), the points (ln(v + 0.5), ln(-ln(1 - F(v)))) whose F lies in
 the central quantiles [q_lo, q_hi] (plus the nearest level outside each end, so that a
 coarse, quantised band still has two points) lie on the line k ln x - k ln lambda for a
 Weibull law of shape k and scale lambda; least squares gives both (Weibull-plot or
@@ -29,11 +29,15 @@ Thresholds, for a stated per-cell false-alarm rate p:
   image drawn from the fitted law, i.e. tau calibrated for the measured clutter rather than
   from the exponential model's closed form (`cfar.threshold_factor`).
 
-A band is called background (holds no return) when its sampled pixels exceed the fitted
-law's 99th percentile between 1/2 and 2 times as often as the law says (1 %): its
-upper tail is the law's, so detections there are false alarms (a band whose bulk is a
-return, the seabed, has its tail clipped at the top level and fails the lower bound). The
-detection rate measured there checks the law's extrapolation from the 99th percentile to p.
+A band is called background (holds no return) when its upper tail is the law's: its sampled
+pixels exceed the fitted law's 99.9th percentile (the tail ratio: that share / 0.1 %) at
+least as often as the law says (a band whose bulk is a return, the seabed, has a tail
+lighter than its law, or clipped at the top level), at most 5x as often, and at most 1.25x
+as often as in the sonar's cleanest such band (the law's misfit, common to every band, is
+allowed; the excess tail of a band holding returns on 0.1 % of its pixels is not). The
+99.9th percentile is the tail point next to the detection rate (1e-3): returns too few to
+move the 99th percentile do move it. Detections there are false alarms
+(`background_bands`).
 
 Pure numpy (no I/O); `sonarmap.stages.features.calibration` builds the recorded result.
 """
@@ -48,6 +52,7 @@ from sonarmap.stages.kernels.cfar import CfarMethod, cfar_noise
 
 __all__ = [
     "BandLaw",
+    "background_bands",
     "band_edges_m",
     "band_histograms",
     "band_of_ranges",
@@ -57,10 +62,12 @@ __all__ = [
     "threshold_level",
 ]
 
-BACKGROUND_TAIL_Q = 0.99
-"""A band is background when its pixels exceed the law's 99th percentile ..."""
-BACKGROUND_TAIL_SLACK = 2.0
-"""... between 1/2 and 2x as often as the law says (1 %)."""
+BACKGROUND_TAIL_Q = 0.999
+"""A band is background when its pixels exceed the law's 99.9th percentile ..."""
+BACKGROUND_TAIL_LIMITS = (1.0, 5.0)
+"""... between 1x and 5x as often as the law says (0.1 %) ..."""
+BACKGROUND_TAIL_SLACK = 1.25
+"""... and at most 1.25x as often as in the cleanest band."""
 MC_SHAPE = (4096, 32)
 """Rows (range) x beams of the Monte Carlo image that calibrates tau (131 k cells)."""
 
@@ -74,7 +81,7 @@ class BandLaw:
         scale_levels: Weibull scale lambda [image levels].
         median_level: the band's empirical median level.
         pixels: pixels sampled.
-        tail_ratio: sampled exceedance of the law's 99th percentile / 0.01.
+        tail_ratio: sampled exceedance of the law's 99.9th percentile / 0.001.
         reason: why it could not be fitted ("" when fitted).
     """
 
@@ -89,10 +96,15 @@ class BandLaw:
     def fitted(self) -> bool:
         return self.shape is not None
 
-    @property
-    def background(self) -> bool:
-        t = self.tail_ratio
-        return t is not None and 1 / BACKGROUND_TAIL_SLACK <= t <= BACKGROUND_TAIL_SLACK
+
+def background_bands(laws: list[BandLaw]) -> np.ndarray:
+    """(n_bands,) bool: the bands whose tail is the law's (module docstring)."""
+    lo, hi = BACKGROUND_TAIL_LIMITS
+    tail = np.array([np.nan if law.tail_ratio is None else law.tail_ratio for law in laws])
+    ok = (tail >= lo) & (tail <= hi)
+    if not ok.any():
+        return ok
+    return ok & (tail <= BACKGROUND_TAIL_SLACK * tail[ok].min())
 
 
 def band_edges_m(ranges_m: np.ndarray, n_bands: int) -> np.ndarray:
@@ -113,32 +125,38 @@ def band_of_ranges(ranges_m: np.ndarray, edges_m: np.ndarray) -> np.ndarray:
 
 
 def band_histograms(
-    images: list[np.ndarray], bands: list[np.ndarray], n_bands: int, n_levels: int
+    images: list[np.ndarray], bands: list[np.ndarray], n_bands: int, n_levels: int, res: int = 1
 ) -> np.ndarray:
-    """(n_bands, n_levels) counts of each integer level per band over the images
-    (`bands[i]`: the band of each range row of `images[i]`; levels clipped to the range)."""
-    hist = np.zeros((n_bands, n_levels), np.int64)
+    """(n_bands, (n_levels - 1) res + 1) counts of each level step (1/res of an image level)
+    per band over the images (`bands[i]`: the band of each range row of `images[i]`)."""
+    n_bins = (n_levels - 1) * res + 1
+    hist = np.zeros((n_bands, n_bins), np.int64)
     for image, band in zip(images, bands, strict=True):
-        lv = np.clip(np.rint(np.asarray(image, np.float64)), 0, n_levels - 1).astype(np.int64)
-        code = band[:, None] * n_levels + lv
-        hist += np.bincount(code.ravel(), minlength=n_bands * n_levels).reshape(hist.shape)
+        scaled = np.rint(np.asarray(image, np.float64) * res)
+        lv = np.clip(scaled, 0, n_bins - 1).astype(np.int64)
+        code = band[:, None] * n_bins + lv
+        hist += np.bincount(code.ravel(), minlength=n_bands * n_bins).reshape(hist.shape)
     return hist
 
 
-def exceedance(level: np.ndarray | float, shape: float, scale: float) -> np.ndarray:
-    """P(integer level > L) under Weibull(shape, scale) quantised to the nearest level."""
-    x = (np.asarray(level, np.float64) + 0.5) / scale
+def exceedance(level: np.ndarray | float, shape: float, scale: float, res: int = 1) -> np.ndarray:
+    """P(value > L) for L on the grid of 1/res levels, under Weibull(shape, scale)
+    quantised to the nearest grid step."""
+    x = (np.asarray(level, np.float64) + 0.5 / res) / scale
     return np.exp(-(x**shape))
 
 
-def fit_band(hist: np.ndarray, q_lo: float, q_hi: float, saturation_level: int) -> BandLaw:
-    """Weibull-plot fit of one band's level histogram over its central quantiles."""
+def fit_band(
+    hist: np.ndarray, q_lo: float, q_hi: float, saturation_level: int, res: int = 1
+) -> BandLaw:
+    """Weibull-plot fit of one band's histogram (steps of 1/res level) over its central
+    quantiles; shape and scale in image levels."""
     total = int(hist.sum())
     if total == 0:
         return BandLaw(None, None, 0.0, 0, None, "no pixels")
     cdf = np.cumsum(hist) / total
-    levels = np.arange(hist.size)
-    median = float(np.searchsorted(cdf, 0.5))
+    levels = np.arange(hist.size) / res
+    median = float(np.searchsorted(cdf, 0.5)) / res
     inside = (cdf >= q_lo) & (cdf <= q_hi)
     below, above = np.flatnonzero(cdf < q_lo), np.flatnonzero(cdf > q_hi)
     if below.size:
@@ -150,24 +168,25 @@ def fit_band(hist: np.ndarray, q_lo: float, q_hi: float, saturation_level: int) 
         return BandLaw(None, None, median, total, None, f"saturated (median level {median:g})")
     if np.count_nonzero(inside) < 2:
         return BandLaw(None, None, median, total, None, f"constant (level {median:g})")
-    x = np.log(levels[inside] + 0.5)
+    x = np.log(levels[inside] + 0.5 / res)
     y = np.log(-np.log1p(-cdf[inside]))
     k, c = np.polyfit(x, y, 1)
     if not np.isfinite(k) or k <= 0:
         return BandLaw(None, None, median, total, None, "no Weibull fit")
     scale = float(np.exp(-c / k))
-    q99 = scale * (-np.log(1 - BACKGROUND_TAIL_Q)) ** (1 / k) - 0.5
-    if q99 >= saturation_level:  # the tail is clipped away: it cannot be checked
+    q_tail = scale * (-np.log(1 - BACKGROUND_TAIL_Q)) ** (1 / k) - 0.5 / res
+    if q_tail >= saturation_level:  # the tail is clipped away: it cannot be checked
         return BandLaw(float(k), scale, median, total, None)
-    above_q99 = hist[levels > q99].sum() / total
-    return BandLaw(float(k), scale, median, total, float(above_q99 / (1 - BACKGROUND_TAIL_Q)))
+    above_q_tail = hist[levels > q_tail].sum() / total
+    return BandLaw(float(k), scale, median, total, float(above_q_tail / (1 - BACKGROUND_TAIL_Q)))
 
 
-def threshold_level(shape: float, scale: float, pfa: float, n_levels: int) -> int:
-    """The smallest integer level L with P(level > L) <= pfa (n_levels - 1 if none)."""
-    levels = np.arange(n_levels)
-    ok = np.flatnonzero(exceedance(levels, shape, scale) <= pfa)
-    return int(ok[0]) if ok.size else n_levels - 1
+def threshold_level(shape: float, scale: float, pfa: float, n_levels: int, res: int = 1) -> float:
+    """The smallest L on the grid of 1/res levels with P(value > L) <= pfa (the top level
+    n_levels - 1 if none)."""
+    levels = np.arange((n_levels - 1) * res + 1) / res
+    ok = np.flatnonzero(exceedance(levels, shape, scale, res) <= pfa)
+    return float(levels[ok[0]]) if ok.size else float(n_levels - 1)
 
 
 def local_threshold_factor(
@@ -180,12 +199,13 @@ def local_threshold_factor(
     rank: int,
     pfa_local: float,
     seed: int = 0,
+    res: int = 1,
 ) -> float:
     """tau with P(I > tau * noise) = pfa_local on background drawn from the fitted law
     (deterministic: a fixed seed; levels quantised and clipped like the images)."""
     rng = np.random.default_rng(seed)
     draw = scale * rng.weibull(shape, MC_SHAPE)
-    image = np.clip(np.rint(draw), 0, n_levels - 1)
+    image = np.clip(np.rint(draw * res) / res, 0, n_levels - 1)
     noise = cfar_noise(image, train_hs, guard_hs, method, rank or train_hs)
     ok = np.isfinite(noise)
     ratio = np.divide(image[ok], noise[ok], out=np.full(int(ok.sum()), np.inf), where=noise[ok] > 0)

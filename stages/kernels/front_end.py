@@ -30,6 +30,8 @@ ndimage = lazy("scipy.ndimage")
 
 PASS_ITERATIONS = 3
 """Fixed-point steps of the local test's pass fraction (`calibrate_sonar`)."""
+RESOLUTION = {"none": 1, "box3x3": 9}
+"""Steps per image level of the filtered image (a mean of 9 integers moves by 1/9)."""
 DIGITS = 6
 """Significant digits of the floats recorded (deterministic bytes)."""
 
@@ -68,13 +70,12 @@ class UnmodelableImages(ValueError):
 
 def denoised(image: np.ndarray, method: str) -> np.ndarray:
     """The image detection and calibration see: "box3x3" = the mean of each cell's 3x3
-    neighbourhood (range x beam, edges repeated), rounded to the image's levels; "none" =
-    the image itself."""
+    neighbourhood (range x beam, edges repeated), float; "none" = the image itself."""
     img = np.asarray(image)
     if method == "none":
         return img
-    mean = ndimage.uniform_filter(img.astype(np.float32), 3, mode="nearest")
-    return np.rint(mean).astype(img.dtype) if np.issubdtype(img.dtype, np.integer) else mean
+    # float32 is exact for 9 x 255 and keeps the mean's 1/9-level steps (RESOLUTION)
+    return ndimage.uniform_filter(img.astype(np.float32), 3, mode="nearest")
 
 
 def rounded(x: float | None) -> float | None:
@@ -131,14 +132,15 @@ def calibrate_sonar(
     Raises:
         UnmodelableImages: no band can be fitted and a threshold is to be measured.
     """
-    images = [denoised(im, config.denoise) for im in images]
     n_levels = _n_levels(images)
+    res = RESOLUTION[config.denoise]
+    images = [denoised(im, config.denoise) for im in images]
     edges = clutter.band_edges_m(ranges_m[0], config.range_bands)
     n_bands = len(edges) - 1
     bands = [clutter.band_of_ranges(r, edges) for r in ranges_m]
-    hist = clutter.band_histograms(list(images), bands, n_bands, n_levels)
+    hist = clutter.band_histograms(list(images), bands, n_bands, n_levels, res)
     lo, hi = config.fit_quantiles
-    laws = [clutter.fit_band(h, lo, hi, n_levels - 1) for h in hist]
+    laws = [clutter.fit_band(h, lo, hi, n_levels - 1, res) for h in hist]
     measured_floor = config.intensity_floor is None
     measured_tau = config.threshold_factor is None
     if not any(law.fitted for law in laws) and (measured_floor or measured_tau):
@@ -156,29 +158,28 @@ def calibrate_sonar(
     n_beams = int(np.asarray(images[0]).shape[1])
     rank = (config.os_rank or config.train_cells_per_side) if config.method == "os" else 0
     fits = [laws[source[b]] for b in range(n_bands)]
-    taus = [_tau(fit, n_levels, config, rank) for fit in fits]
-    floors = [_floor(fit, n_levels, config, p) for fit in fits]
-    background = [
-        law.background and floors[b] < n_levels - 1 for b, law in enumerate(laws)
-    ]  # the law's p-quantile must lie inside the levels for its rate to be checked
+    taus = [_tau(fit, n_levels, config, rank, res) for fit in fits]
+    floors = [_floor(fit, n_levels, config, p, res) for fit in fits]
+    # The law's p-quantile must lie inside the levels for its rate to be checked.
+    background = (clutter.background_bands(laws) & (np.asarray(floors) < n_levels - 1)).tolist()
     passing = None
     if measured_floor and any(background):
-        # The local test rejects some of the floor's exceedances (a bright beam's are
-        # background to it); measured on the sampled pings' background bands, the floor
-        # is set for p / that fraction, so that floor AND local test meet p.
-        # A lower floor lets through weaker cells, which the local test keeps less often:
-        # a few fixed-point steps (PASS_ITERATIONS) settle the fraction.
+        # The law fixes how the floor moves with the rate; the sampled background bands fix
+        # the level: the ratio of the detections found there (floor AND local test) to the
+        # law's expectation (the local test rejects some exceedances, e.g. a bright beam's,
+        # and the law's tail can be light) sets the floors for p / ratio. A lower floor
+        # changes the ratio: a few fixed-point steps (PASS_ITERATIONS) settle it.
         for _ in range(PASS_ITERATIONS):
-            passing = _local_pass_fraction(
-                images, ranges_m, edges, background, taus, floors, config
+            passing = _background_ratio(
+                images, ranges_m, edges, background, taus, floors, fits, config, res
             )
-            floors = [_floor(fit, n_levels, config, min(p / passing, 0.5)) for fit in fits]
+            floors = [_floor(fit, n_levels, config, min(p / passing, 0.5), res) for fit in fits]
     out_bands: list[dict[str, Any]] = []
     for b, law in enumerate(laws):
         fit = fits[b]
         rate = None
         if fit.fitted:
-            rate = float(clutter.exceedance(floors[b], fit.shape, fit.scale_levels))
+            rate = float(clutter.exceedance(floors[b], fit.shape, fit.scale_levels, res))
             rate *= passing if passing is not None else 1.0
         out_bands.append(
             {
@@ -191,7 +192,7 @@ def calibrate_sonar(
                 if law.fitted
                 else f"borrowed from band {source[b]} ({law.reason})",
                 "background": bool(background[b]),
-                "tail_ratio_q99": rounded(law.tail_ratio),
+                "tail_ratio_q999": rounded(law.tail_ratio),
                 "intensity_floor_levels": rounded(floors[b]),
                 "threshold_factor": rounded(taus[b]),
                 "expected_false_alarm_rate": rounded(rate),
@@ -208,53 +209,66 @@ def calibrate_sonar(
         "levels": n_levels,
         "expected_false_alarms_per_ping": rounded(float(sum(k for k in known if k is not None))),
         "borrowed_bands": [b for b, law in enumerate(laws) if not law.fitted],
-        "local_test_pass_fraction": rounded(passing),
+        "background_to_law_ratio": rounded(passing),
     }
 
 
-def _floor(fit: clutter.BandLaw, n_levels: int, config: CalibrationSettings, p: float) -> float:
+def _floor(
+    fit: clutter.BandLaw, n_levels: int, config: CalibrationSettings, p: float, res: int
+) -> float:
     if config.intensity_floor is not None:
         return float(config.intensity_floor)
-    return float(clutter.threshold_level(fit.shape, fit.scale_levels, p, n_levels))  # type: ignore[arg-type]
+    return clutter.threshold_level(fit.shape, fit.scale_levels, p, n_levels, res)  # type: ignore[arg-type]
 
 
-def _tau(fit: clutter.BandLaw, n_levels: int, config: CalibrationSettings, rank: int) -> float:
+def _tau(
+    fit: clutter.BandLaw, n_levels: int, config: CalibrationSettings, rank: int, res: int
+) -> float:
     if config.threshold_factor == "exponential":
         return threshold_factor(config.method, 2 * config.train_cells_per_side, config.pfa, rank)
     if config.threshold_factor is not None:
         return float(config.threshold_factor)
     return clutter.local_threshold_factor(
         fit.shape, fit.scale_levels, n_levels, config.train_cells_per_side,  # type: ignore[arg-type]
-        config.guard_cells_per_side, config.method, rank, config.pfa,
+        config.guard_cells_per_side, config.method, rank, config.pfa, res=res,
     )  # fmt: skip
 
 
-def _local_pass_fraction(
+def _background_ratio(
     images: Sequence[np.ndarray],
     ranges_m: Sequence[np.ndarray],
     edges: np.ndarray,
     background: list[bool],
     taus: list[float],
     floors: list[float],
+    fits: list[clutter.BandLaw],
     config: CalibrationSettings,
+    res: int,
 ) -> float:
-    """Of the (denoised) sampled pixels over their band's floor in background bands, the
-    share the local CFAR test keeps too (1 with fewer than 30 over the floor)."""
+    """Detections (floor AND local test) on the sampled (denoised) pixels of the background
+    bands / the law's expected count there at the floors; 1 when both are under 30,
+    clipped to 1/20..20."""
     bg = np.asarray(background)
-    over = kept = 0
+    law_rate = np.array(
+        [
+            float(clutter.exceedance(fl, f.shape, f.scale_levels, res)) if f.fitted else 0.0  # type: ignore[arg-type]
+            for fl, f in zip(floors, fits, strict=True)
+        ]
+    )
+    found = expected = 0.0
     rank = (config.os_rank or config.train_cells_per_side) if config.method == "os" else 0
+    w = config.train_cells_per_side + config.guard_cells_per_side
     for image, r in zip(images, ranges_m, strict=True):
         band = clutter.band_of_ranges(r, edges)
-        tau, floor = np.asarray(taus)[band], np.asarray(floors)[band]
         mask = cfar_detect_rows(
-            image, config.train_cells_per_side, config.guard_cells_per_side, tau,
-            np.full_like(floor, -np.inf), config.method, rank,
+            image, config.train_cells_per_side, config.guard_cells_per_side,
+            np.asarray(taus)[band], np.asarray(floors)[band], config.method, rank,
         )  # fmt: skip
-        high = np.asarray(image) > floor[:, None]
         rows = bg[band]
-        w = config.train_cells_per_side + config.guard_cells_per_side
         rows[:w] = False
         rows[max(rows.size - w, 0) :] = False
-        over += int(high[rows].sum())
-        kept += int((high & mask)[rows].sum())
-    return 1.0 if over < 30 else max(kept / over, 0.05)
+        found += float(mask[rows].sum())
+        expected += float(law_rate[band][rows].sum()) * image.shape[1]
+    if found < 30 and expected < 30:
+        return 1.0
+    return float(np.clip(found / max(expected, 1e-9), 0.05, 20.0))
