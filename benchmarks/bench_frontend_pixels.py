@@ -46,7 +46,10 @@ VARIANTS = {
     "old": {"intensity_floor": 20.0, "threshold_factor": "exponential", "denoise": "none"},
     "calibrated_raw": {"denoise": "none"},
     "calibrated": {},
+    "beam3": {"denoise": "beam3"},
+    "range3": {"denoise": "range3"},
 }
+SEAFLOOR = 6
 
 
 def measure(frames: list, variant: str) -> dict:
@@ -62,7 +65,7 @@ def measure(frames: list, variant: str) -> dict:
     th = thresholds(calibrate(frames, cfg))
     out = {}
     for sonar in ("horizontal", "vertical"):
-        hit = lab = fa = bg = det = 0
+        hit = lab = fa = bg = det = obj = obj_hit = 0
         for f in frames:
             ping = getattr(f, sonar)
             mask = detect_mask(ping, cfg, th[sonar])
@@ -70,6 +73,9 @@ def measure(frames: list, variant: str) -> dict:
             # Background: 2+ cells from any labelled pixel (a smoothed object's halo and
             # the simulator's blur are not false alarms of the detector).
             away = ~binary_dilation(labelled, np.ones((5, 5), bool))
+            objects = labelled & (ping.labels != SEAFLOOR)
+            obj += int(objects.sum())
+            obj_hit += int((mask & objects).sum())
             hit += int((mask & labelled).sum())
             lab += int(labelled.sum())
             fa += int((mask & away).sum())
@@ -77,6 +83,7 @@ def measure(frames: list, variant: str) -> dict:
             det += int(mask.sum())
         out[sonar] = {
             "labelled_detected": round(hit / max(lab, 1), 4),
+            "object_detected": round(obj_hit / max(obj, 1), 4),
             "false_alarm_rate": float(f"{fa / max(bg, 1):.3g}"),
             "detections_per_ping": round(det / len(frames), 1),
             "false_alarms_per_ping": round(fa / len(frames), 1),

@@ -107,7 +107,7 @@ def test_unmodelable_images_are_refused_in_one_line() -> None:
         )
         for f in _frames()[:3]
     ]  # fmt: skip
-    with pytest.raises(StageInputError, match=r"horizontal sonar: no background .*constant"):
+    with pytest.raises(StageInputError, match=r"horizontal sonar: no background .*empty"):
         STAGE.run(FeaturesConfig(), {"keyframes.frames": frames})
     out = STAGE.run(
         FeaturesConfig(intensity_floor=20.0, threshold_factor=2.0), {"keyframes.frames": frames}

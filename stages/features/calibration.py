@@ -81,9 +81,12 @@ def calibrate(frames: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
         entry["sampled_keyframes"] = [int(f.keyframe_id) for f in picked]
         doc["sonars"][sonar] = entry
         if entry["borrowed_bands"]:
+            why = "; ".join(
+                f"band {b}: {entry['bands'][b]['fit']}" for b in entry["borrowed_bands"]
+            )
             doc["warnings"].append(
-                f"features: {sonar} sonar: range bands {entry['borrowed_bands']} could not be"
-                " modelled (saturated, constant or empty): assumed the nearest fitted band's law"
+                f"features: {sonar} sonar: {len(entry['borrowed_bands'])} range bands could not"
+                f" be modelled, each assumed its nearest fitted band's law ({why})"
             )
     return doc
 

@@ -64,7 +64,7 @@ class FeaturesConfig(StageConfig):
         description="the clutter law is fitted to this quantile range of each band: objects"
         " may fill up to 1 - upper of a band without moving the fit",
     )
-    denoise: Literal["box3x3", "none"] = Field(
+    denoise: Literal["box3x3", "beam3", "range3", "none"] = Field(
         "box3x3",
         description="filter before calibration and detection: a 3x3 (range x beam) mean,"
         " rounded to levels (by measurement, docs/front-end.md), or none (the paper's sim)",

@@ -68,6 +68,8 @@ BACKGROUND_TAIL_LIMITS = (1.0, 5.0)
 """... between 1x and 5x as often as the law says (0.1 %) ..."""
 BACKGROUND_TAIL_SLACK = 1.25
 """... and at most 1.25x as often as in the cleanest band."""
+MIN_SHAPE = 0.5
+"""A fitted shape under this is no clutter law (a band mixing two populations)."""
 MC_SHAPE = (4096, 32)
 """Rows (range) x beams of the Monte Carlo image that calibrates tau (131 k cells)."""
 
@@ -151,9 +153,13 @@ def fit_band(
 ) -> BandLaw:
     """Weibull-plot fit of one band's histogram (steps of 1/res level) over its central
     quantiles; shape and scale in image levels."""
+    # Level 0 is no signal (blanked or unlit cells, e.g. a fan looking above the surface),
+    # not background: it is left out of the fit (a band of zeros and noise would otherwise
+    # fit a degenerate law).
+    hist = np.concatenate([[0], hist[1:]])
     total = int(hist.sum())
     if total == 0:
-        return BandLaw(None, None, 0.0, 0, None, "no pixels")
+        return BandLaw(None, None, 0.0, 0, None, "empty (every pixel 0)")
     cdf = np.cumsum(hist) / total
     levels = np.arange(hist.size) / res
     median = float(np.searchsorted(cdf, 0.5)) / res
@@ -171,7 +177,7 @@ def fit_band(
     x = np.log(levels[inside] + 0.5 / res)
     y = np.log(-np.log1p(-cdf[inside]))
     k, c = np.polyfit(x, y, 1)
-    if not np.isfinite(k) or k <= 0:
+    if not np.isfinite(k) or k < MIN_SHAPE:
         return BandLaw(None, None, median, total, None, "no Weibull fit")
     scale = float(np.exp(-c / k))
     q_tail = scale * (-np.log(1 - BACKGROUND_TAIL_Q)) ** (1 / k) - 0.5 / res

@@ -28,9 +28,10 @@ __all__ = [
 
 ndimage = lazy("scipy.ndimage")
 
-PASS_ITERATIONS = 3
-"""Fixed-point steps of the local test's pass fraction (`calibrate_sonar`)."""
-RESOLUTION = {"none": 1, "box3x3": 9}
+SOLVE_STEPS = 20
+"""Bisection steps for the law's rate that meets p on the background bands."""
+RESOLUTION = {"none": 1, "box3x3": 9, "beam3": 3, "range3": 3}
+FILTER_SIZE = {"box3x3": (3, 3), "beam3": (1, 3), "range3": (3, 1)}
 """Steps per image level of the filtered image (a mean of 9 integers moves by 1/9)."""
 DIGITS = 6
 """Significant digits of the floats recorded (deterministic bytes)."""
@@ -75,7 +76,7 @@ def denoised(image: np.ndarray, method: str) -> np.ndarray:
     if method == "none":
         return img
     # float32 is exact for 9 x 255 and keeps the mean's 1/9-level steps (RESOLUTION)
-    return ndimage.uniform_filter(img.astype(np.float32), 3, mode="nearest")
+    return ndimage.uniform_filter(img.astype(np.float32), FILTER_SIZE[method], mode="nearest")
 
 
 def rounded(x: float | None) -> float | None:
@@ -165,15 +166,14 @@ def calibrate_sonar(
     passing = None
     if measured_floor and any(background):
         # The law fixes how the floor moves with the rate; the sampled background bands fix
-        # the level: the ratio of the detections found there (floor AND local test) to the
-        # law's expectation (the local test rejects some exceedances, e.g. a bright beam's,
-        # and the law's tail can be light) sets the floors for p / ratio. A lower floor
-        # changes the ratio: a few fixed-point steps (PASS_ITERATIONS) settle it.
-        for _ in range(PASS_ITERATIONS):
-            passing = _background_ratio(
-                images, ranges_m, edges, background, taus, floors, fits, config, res
-            )
-            floors = [_floor(fit, n_levels, config, min(p / passing, 0.5), res) for fit in fits]
+        # the level: the law's rate q that the floors are set for is solved (bisection in
+        # log q, within p/20..20p) so that floor AND local test detect p per cell on the
+        # sampled background bands (the local test rejects some exceedances, e.g. a bright
+        # beam's, and the law's tail can be light). Recorded as the ratio p / q.
+        kept = _background_values(images, ranges_m, edges, background, taus, config)
+        q = _solve_rate(kept, fits, n_levels, config, p, res)
+        passing = p / q
+        floors = [_floor(fit, n_levels, config, q, res) for fit in fits]
     out_bands: list[dict[str, Any]] = []
     for b, law in enumerate(laws):
         fit = fits[b]
@@ -234,41 +234,64 @@ def _tau(
     )  # fmt: skip
 
 
-def _background_ratio(
+def _background_values(
     images: Sequence[np.ndarray],
     ranges_m: Sequence[np.ndarray],
     edges: np.ndarray,
     background: list[bool],
     taus: list[float],
-    floors: list[float],
-    fits: list[clutter.BandLaw],
     config: CalibrationSettings,
-    res: int,
-) -> float:
-    """Detections (floor AND local test) on the sampled (denoised) pixels of the background
-    bands / the law's expected count there at the floors; 1 when both are under 30,
-    clipped to 1/20..20."""
+) -> tuple[list[np.ndarray], int]:
+    """Per band, the sorted (denoised) values of the sampled background pixels that pass
+    the local test (empty for other bands); and the background cells counted."""
     bg = np.asarray(background)
-    law_rate = np.array(
-        [
-            float(clutter.exceedance(fl, f.shape, f.scale_levels, res)) if f.fitted else 0.0  # type: ignore[arg-type]
-            for fl, f in zip(floors, fits, strict=True)
-        ]
-    )
-    found = expected = 0.0
     rank = (config.os_rank or config.train_cells_per_side) if config.method == "os" else 0
     w = config.train_cells_per_side + config.guard_cells_per_side
+    found: list[list[np.ndarray]] = [[] for _ in background]
+    cells = 0
     for image, r in zip(images, ranges_m, strict=True):
         band = clutter.band_of_ranges(r, edges)
         mask = cfar_detect_rows(
             image, config.train_cells_per_side, config.guard_cells_per_side,
-            np.asarray(taus)[band], np.asarray(floors)[band], config.method, rank,
+            np.asarray(taus)[band], np.full(band.size, -np.inf), config.method, rank,
         )  # fmt: skip
         rows = bg[band]
         rows[:w] = False
         rows[max(rows.size - w, 0) :] = False
-        found += float(mask[rows].sum())
-        expected += float(law_rate[band][rows].sum()) * image.shape[1]
-    if found < 30 and expected < 30:
-        return 1.0
-    return float(np.clip(found / max(expected, 1e-9), 0.05, 20.0))
+        cells += int(rows.sum()) * image.shape[1]
+        for b in np.flatnonzero(bg):
+            sel = rows & (band == b)
+            found[b].append(np.asarray(image)[sel][mask[sel]])
+    return [np.sort(np.concatenate(v)) if v else np.zeros(0) for v in found], cells
+
+
+def _solve_rate(
+    kept: tuple[list[np.ndarray], int],
+    fits: list[clutter.BandLaw],
+    n_levels: int,
+    config: CalibrationSettings,
+    p: float,
+    res: int,
+) -> float:
+    """The law's rate q whose floors detect p per cell on the sampled background bands."""
+    values, cells = kept
+    if cells == 0:
+        return p
+
+    def rate(q: float) -> float:
+        n = 0
+        for b, v in enumerate(values):
+            if v.size:
+                floor = _floor(fits[b], n_levels, config, q, res)
+                n += v.size - int(np.searchsorted(v, floor, side="right"))
+        return n / cells
+
+    lo, hi = np.log(p / 20), np.log(min(20 * p, 0.5))
+    if rate(float(np.exp(lo))) >= p:
+        return float(np.exp(lo))
+    if rate(float(np.exp(hi))) <= p:
+        return float(np.exp(hi))
+    for _ in range(SOLVE_STEPS):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if rate(float(np.exp(mid))) < p else (lo, mid)
+    return float(np.exp(hi))
