@@ -140,9 +140,9 @@ class _Ping:
 
 def test_real_files_background_rate_within_2x_of_the_stated_rate(shared_data: Path) -> None:
     """The real ARIS frames: calibrated on frames 0, 2, 4, checked on 1, 3, 5 (observed
-    8.6e-4 on 5 background bands of 8); the one real Oculus ping: calibrated and checked on
-    itself (observed 7.0e-4 on 1 background band, the farthest: 13 detections in 18,688
-    cells). Stated rate 1e-3."""
+    1.0e-3 on 4 background bands of 8); the one real Oculus ping: calibrated and checked on
+    itself (observed 1.0e-3 on 1 background band, the farthest, 18,688 cells). Stated rate
+    1e-3."""
     from sonarmap.pipeline.readers.aris import ArisSource
     from sonarmap.pipeline.readers.oculus_raw import parse_ping
 
