@@ -162,3 +162,18 @@ def test_real_files_background_rate_within_2x_of_the_stated_rate(shared_data: Pa
     doc = calibrate_sonar([oculus], [rows], cfg, "oculus")
     rate = _background_rate([oculus], doc, cfg)
     assert p / 2 <= rate <= 2 * p, rate
+
+
+def test_summary_line_and_report_section_name_what_was_pinned_and_the_warnings() -> None:
+    from sonarmap.pipeline.front_end_summary import front_end_lines, front_end_summary
+    from sonarmap.stages.evaluate.front_end import front_end_markdown, front_end_report
+
+    _, doc = _run(intensity_floor=254.0)
+    block = front_end_summary(doc)
+    lines = front_end_lines({"front_end": block})
+    assert [ln.split(":")[0] for ln in lines] == ["front end, horizontal", "front end, vertical"]
+    assert all("floor 254 (pinned)" in ln and "CFAR factor" in ln for ln in lines)
+    assert block["pinned"] == {"intensity_floor": 254.0} and block["warnings"] == doc["warnings"]
+    report = "\n".join(front_end_markdown(front_end_report(doc, 10, 5, len(_frames()))))
+    assert "pinned by config: {'intensity_floor': 254.0}" in report
+    assert "**warning:** features: horizontal sonar starves" in report
