@@ -64,10 +64,11 @@ class FeaturesConfig(StageConfig):
         description="the clutter law is fitted to this quantile range of each band: objects"
         " may fill up to 1 - upper of a band without moving the fit",
     )
-    denoise: Literal["box3x3", "beam3", "range3", "none"] = Field(
-        "box3x3",
-        description="filter before calibration and detection: a 3x3 (range x beam) mean,"
-        " rounded to levels (by measurement, docs/front-end.md), or none (the paper's sim)",
+    denoise: Literal["auto", "box3x3", "beam3", "range3", "none"] = Field(
+        "auto",
+        description="filter before calibration and detection: auto = a 3x3 (range x beam)"
+        " mean only for a sonar whose unfiltered background puts the stated rate's floor at"
+        " full scale in most bands, else none (by measurement, docs/front-end.md)",
     )
     max_features_per_keyframe_per_sonar: int | None = Field(
         20000,

@@ -60,7 +60,7 @@ def detect_mask(
     tau, floor = th.rows(np.asarray(ping.ranges_m))
     rank = (config.os_rank or config.train_cells_per_side) if config.method == "os" else 0
     return cfar_detect_rows(
-        denoised(ping.image, config.denoise),
+        denoised(ping.image, th.denoise),
         config.train_cells_per_side,
         config.guard_cells_per_side,
         tau,

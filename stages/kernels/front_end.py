@@ -85,11 +85,13 @@ def rounded(x: float | None) -> float | None:
 
 @dataclass(frozen=True)
 class BandThresholds:
-    """Per range band: edges [m], threshold factor tau and intensity floor [levels]."""
+    """Per range band: edges [m], threshold factor tau and intensity floor [levels]; and
+    the filter the calibration chose (`denoised`)."""
 
     edges_m: tuple[float, ...]
     tau: tuple[float, ...]
     floor_levels: tuple[float, ...]
+    denoise: str = "none"
 
     def rows(self, ranges_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(tau, floor) of each range row."""
@@ -104,6 +106,7 @@ class BandThresholds:
             tuple(float(e) for e in sonar_doc["band_edges_m"]),
             tuple(float(b["threshold_factor"]) for b in bands),
             tuple(float(b["intensity_floor_levels"]) for b in bands),
+            str(sonar_doc.get("denoise", "none")),
         )
 
 
@@ -134,8 +137,9 @@ def calibrate_sonar(
         UnmodelableImages: no band can be fitted and a threshold is to be measured.
     """
     n_levels = _n_levels(images)
-    res = RESOLUTION[config.denoise]
-    images = [denoised(im, config.denoise) for im in images]
+    method = config.denoise if config.denoise != "auto" else _auto_denoise(images, ranges_m, config)
+    res = RESOLUTION[method]
+    images = [denoised(im, method) for im in images]
     edges = clutter.band_edges_m(ranges_m[0], config.range_bands)
     n_bands = len(edges) - 1
     bands = [clutter.band_of_ranges(r, edges) for r in ranges_m]
@@ -203,6 +207,7 @@ def calibrate_sonar(
         )
     known = [b["expected_false_alarms_per_ping"] for b in out_bands]
     return {
+        "denoise": method,
         "band_edges_m": [rounded(float(e)) for e in edges],
         "bands": out_bands,
         "beams": n_beams,
@@ -211,6 +216,27 @@ def calibrate_sonar(
         "borrowed_bands": [b for b, law in enumerate(laws) if not law.fitted],
         "background_to_law_ratio": rounded(passing),
     }
+
+
+def _auto_denoise(
+    images: Sequence[np.ndarray], ranges_m: Sequence[np.ndarray], config: CalibrationSettings
+) -> str:
+    """`denoise: auto`: the 3x3 mean only where detection without it is impossible: when
+    more than half of the bands fitted on the unfiltered images put the stated rate's floor
+    at the top level (a spiky background whose 1e-3 tail passes full scale), else none
+    (the filter moves returns by a cell: on the clean sensor it costs map accuracy)."""
+    n_levels = _n_levels(images)
+    edges = clutter.band_edges_m(ranges_m[0], config.range_bands)
+    bands = [clutter.band_of_ranges(r, edges) for r in ranges_m]
+    hist = clutter.band_histograms(list(images), bands, len(edges) - 1, n_levels)
+    lo, hi = config.fit_quantiles
+    fits = [f for f in (clutter.fit_band(h, lo, hi, n_levels - 1) for h in hist) if f.fitted]
+    p = config.false_alarm_rate_per_cell
+    top = sum(
+        clutter.threshold_level(f.shape, f.scale_levels, p, n_levels) >= n_levels - 1  # type: ignore[arg-type]
+        for f in fits
+    )
+    return "box3x3" if not fits or top > len(fits) / 2 else "none"
 
 
 def _floor(
