@@ -7,7 +7,8 @@ sensor statistics and front-end variant. Not the headline map figure.
 
 Variants: `old` (intensity floor 20, exponential-model tau, no filter: the front end
 before issue 50), `calibrated_raw` (calibrated on the sampled pings, no filter) and
-`calibrated` (the default: a 3x3 mean filter, then calibrated). `--fit` sets
+`calibrated` (the default, denoise auto), `calibrated_box3x3` (the 3x3 mean always),
+`beam3` / `range3` (a 3-cell mean across beams / along range). `--fit` sets
 `features.fit_quantiles`.
 """
 
@@ -46,6 +47,7 @@ VARIANTS = {
     "old": {"intensity_floor": 20.0, "threshold_factor": "exponential", "denoise": "none"},
     "calibrated_raw": {"denoise": "none"},
     "calibrated": {},
+    "calibrated_box3x3": {"denoise": "box3x3"},
     "beam3": {"denoise": "beam3"},
     "range3": {"denoise": "range3"},
 }

@@ -11,12 +11,16 @@ Here the same detector runs with thresholds measured from the recording, per son
 per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels.clutter`):
 
 1. calibration: from `features.calibration_pings` keyframes evenly spaced over the
-   recording, each band's background is fitted with a Weibull law over its 50-90 %
-   quantiles (objects are the upper tail and move no fit while they fill < 10 % of a band);
+   recording, each band's background is fitted with a Weibull law over its 60-95 %
+   quantiles (objects are the upper tail and move no fit while they fill < 5 % of a band);
+   where the unfiltered background puts the floor of step 2 at full scale in most bands
+   (a spiky sensor), a 3x3 mean is applied first (`features.denoise: auto`; the authors
+   used fastNlMeans on real images);
 2. the intensity floor of a band is the smallest level whose exceedance under that law is
    at most the stated per-cell false-alarm rate (`features.false_alarm_rate_per_cell`,
-   1e-3); this replaces the fixed floor of 20 levels, which floods a real Oculus image
-   (background median 43) and is meaningless on an ARIS one (89);
+   1e-3), its level set so that the sampled background bands detect that rate; this
+   replaces the fixed floor of 20 levels, which floods a real Oculus image (background
+   median 43) and is meaningless on an ARIS one (89);
 3. SOCA-CFAR stays the local detector (it keeps the leading edge of extended returns, as
    in the paper), its threshold factor calibrated so that the local test alone has
    Pfa = `features.pfa` (0.1) under the fitted law (Monte Carlo, fixed seed) instead of the
@@ -24,7 +28,7 @@ per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels
    (shape 3.4) background;
 4. a per-image feature budget keeps the strongest detections and warns when it clips.
 
-No denoising filter: see docs/front-end.md for the measurement that decided it.
+The measurements that decided the law, the filter and the rules: docs/front-end.md.
 Any value can be pinned in config (a pinned value is reported as pinned); the old fixed
 front end is `intensity_floor: 20, threshold_factor: exponential`.
 """
