@@ -49,7 +49,8 @@ def _masks(table: pa.Table, frame: KeyframeImages, sonar: str) -> np.ndarray:
 
 def _scores(table: pa.Table) -> dict[str, float]:
     counts = dict.fromkeys(("obj", "obj_hit", "lab", "lab_hit", "det", "near", "water", "fa"), 0)
-    along_range = np.ones((3, 1), dtype=bool)
+    # The 3x3 denoising filter moves a return's edge by up to one cell, in range or beam.
+    near_cell = np.ones((3, 3), dtype=bool)
     for frame in _frames():
         for sonar in ("horizontal", "vertical"):
             ping = getattr(frame, sonar)
@@ -63,7 +64,7 @@ def _scores(table: pa.Table) -> dict[str, float]:
             counts["lab"] += lab.sum()
             counts["lab_hit"] += (det & lab).sum()
             counts["det"] += det.sum()
-            counts["near"] += (det & binary_dilation(lab, along_range)).sum()
+            counts["near"] += (det & binary_dilation(lab, near_cell)).sum()
             counts["water"] += water.sum()
             counts["fa"] += (det & water).sum()
     return {
@@ -75,18 +76,19 @@ def _scores(table: pa.Table) -> dict[str, float]:
 
 
 def test_default_detector_recall_and_precision_on_a_simulated_mission() -> None:
-    """Observed (tiny scene, seed 1, 11 keyframes): object recall 0.91, precision 0.99,
-    false alarms on empty water 0 at the default floor. Recall over all labelled cells,
-    seafloor included, is 0.58: grazing seafloor returns are labelled down to a noise-free
-    level of 6, below the floor. SOCA alone
-    (floor 0) false-alarms on ~0.7 % of water cells against the configured Pfa of 10 %
-    (the Pfa model assumes square-law noise; the images are gamma-compressed amplitude)."""
+    """Calibrated front end (tiny scene, seed 1, 11 keyframes; clean sensor, so no filter),
+    observed: object recall 0.98, recall over all labelled cells 0.75 (the old fixed floor
+    of 20: 0.91 / 0.58, grazing seafloor returns fell below it), precision 0.87, false
+    alarms on empty water 7.2e-4 against the stated per-cell rate of 1e-3 (old: 0). SOCA
+    alone (floor 0) false-alarms on less than its configured Pfa of 10 %."""
     cfg = FeaturesConfig()
     scores = _scores(STAGE.run(cfg, {"keyframes.frames": _frames()})["features"])
     logger.info("features default: %s (configured pfa %.3g)", scores, cfg.pfa)
-    assert scores["recall_objects"] >= 0.8
-    assert scores["precision"] >= 0.9
-    assert scores["false_alarm_rate"] < 1e-4
+    assert scores["recall_objects"] >= 0.95
+    assert scores["recall_labelled"] >= 0.7
+    assert scores["precision"] >= 0.8
+    p = cfg.false_alarm_rate_per_cell
+    assert p / 4 < scores["false_alarm_rate"] < 2 * p
     cfar_only = _scores(features_table(_frames(), cfg.model_copy(update={"intensity_floor": 0.0})))
     logger.info("features CFAR only: %s", cfar_only)
     assert 0.0 < cfar_only["false_alarm_rate"] < cfg.pfa

@@ -17,6 +17,7 @@ from sonarmap.pipeline.commands._common import (
     cli_graph,
     emit_json,
 )
+from sonarmap.pipeline.front_end_summary import front_end_lines
 
 __all__ = ["register", "run"]
 
@@ -64,13 +65,29 @@ def run(
                 scores=json_,
             )
         sensors = _sensors(result)
+        front_end = _front_end(result)
         if json_:
-            emit_json({**result.to_json(), "summary": {**summary, **sensors}})
+            emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
             return
         from sonarmap.pipeline.report_cli import print_summary, progress_shares_stdout
 
         print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
         _print_sensors(sensors)
+        for line in front_end_lines(front_end):
+            typer.echo(line)
+
+
+def _front_end(result: Any) -> dict[str, Any]:
+    """The features stage's calibration, shortened per sonar (`front_end_summary`)."""
+    import json
+
+    from sonarmap.pipeline.front_end_summary import front_end_summary
+
+    ref = result.artifacts.get("features")
+    path = None if ref is None else Path(ref.path) / "calibration.json"
+    if path is None or not path.is_file():
+        return {}
+    return {"front_end": front_end_summary(json.loads(path.read_text()))}
 
 
 def _sensors(result: Any) -> dict[str, Any]:

@@ -24,7 +24,8 @@ STAGE = Stage(
     # 10: the figures move to the `map_figures` stage; side_view.parquet is the side view's
     # data, the report lists no figures; 11: the trust report carries slam's summary (matches
     # found degenerate, SLAM against the navigation's predicted drift, its warnings)
-    version=11,
+    # 12: the report's front-end section (inputs features.calibration, fuse.fused)
+    version=12,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(
@@ -40,6 +41,8 @@ STAGE = Stage(
         Input("submaps", "stats"),
         Input("keyframes", "frames"),
         Input("classify", "objects"),
+        Input("features", "calibration"),
+        Input("fuse", "fused"),
     ),
     outputs=(
         Output("metrics", "json", "metrics.json"),

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from sonarmap.stages.evaluate.front_end import front_end_markdown
 from sonarmap.stages.evaluate.submaps import submaps_markdown
 from sonarmap.stages.evaluate.trust import trust_markdown
 
@@ -137,6 +138,7 @@ def render_markdown(
         *_per_class_table(metrics),
         *submaps_markdown(metrics.get("submaps")),
         *trust_markdown(metrics.get("trust")),
+        *front_end_markdown(metrics.get("front_end")),
     ]
     errs = metrics.get("errors", {})
     if errs:

@@ -30,6 +30,7 @@ from sonarmap.stages.evaluate import STAGE
 from sonarmap.stages.evaluate.class_accounting import per_class_metrics, remember_last
 from sonarmap.stages.evaluate.config import EvaluateConfig
 from sonarmap.stages.evaluate.foxglove_map import evaluate_map_mcap
+from sonarmap.stages.evaluate.front_end import front_end_report
 from sonarmap.stages.evaluate.headline import (
     headline_errors,
     poses_are_ground_truth,
@@ -197,6 +198,10 @@ def aligned_map_errors(
     }
 
 
+def _rows(table: Any) -> int:
+    return 0 if table is None else int(table.num_rows)
+
+
 def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     map_table: pa.Table = inputs["voxelize.map"]
     summary: dict[str, Any] = inputs["voxelize.summary"]
@@ -282,6 +287,12 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         map_table, keyframes, poses, inputs.get("slam.factors"),
         config.trust_cell_m, config.trust_height_tolerance_m, inputs.get("slam.summary"),
     )  # fmt: skip
+    metrics["front_end"] = front_end_report(
+        inputs.get("features.calibration"),
+        _rows(inputs.get("fuse.fused")),
+        _rows(inputs.get("classify.objects")),
+        keyframes.num_rows,
+    )
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows)
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)

@@ -4,6 +4,7 @@ This module declares the stage (what planning imports: no numpy, no pyarrow).
 
 Modules:
     config: its config section.
+    calibration: the calibration (`calibration.json`) and its flood / starve warnings.
     stage: the computation: the features table, one keyframe at a time through
         `sonarmap.stages.kernels.frame_features` (and `sonarmap.stages.kernels.cfar`).
 """
@@ -16,14 +17,21 @@ __all__ = ["STAGE", "FeaturesConfig"]
 
 STAGE = Stage(
     name="features",
-    version=1,
+    # 2: thresholds calibrated from the recording per sonar and range band (issue 50),
+    # recorded in calibration.json; a per-keyframe feature budget
+    version=2,
     config=FeaturesConfig,
     inputs=(Input("keyframes", "frames"),),
     outputs=(
         Output(
-            "features", "parquet", "features.parquet", schema="sonarmap.schemas.features:FEATURES_SCHEMA"
+            "features",
+            "parquet",
+            "features.parquet",
+            schema="sonarmap.schemas.features:FEATURES_SCHEMA",
         ),
+        Output("calibration", "json", "calibration.json"),
     ),
     run=deferred("sonarmap.stages.features.stage:run"),
-    description="SOCA-CFAR detections on both polar images of every keyframe",
+    description="SOCA-CFAR detections on both polar images of every keyframe, thresholds"
+    " calibrated from the recording",
 )

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from typing import Literal
+
+from pydantic import Field, model_validator
 
 from sonarmap.stages.base import StageConfig
 from sonarmap.stages.kernels.choices import CfarMethod
@@ -11,20 +13,76 @@ __all__ = ["FeaturesConfig"]
 
 
 class FeaturesConfig(StageConfig):
-    """Config section `features`.
+    """Config section `features`: the detection front end.
 
-    Attributes:
-        method: CFAR variant: "soca" (paper), "ca", "go" or "os".
-        train_cells_per_side: training cells on each side of the cell under test, along range.
-        guard_cells_per_side: guard cells on each side, along range.
-        pfa: desired false-alarm probability (sets the threshold factor, exponential model).
-        os_rank: OS only, 1-based rank of the order statistic (0: train_cells_per_side).
-        intensity_floor: a detection also needs an image level above this [0-255 levels].
+    Every threshold is measured from the recording unless pinned here
+    (`sonarmap.stages.features.calibration`): `null` = measured, a value = pinned, and a
+    pinned value is reported as pinned in `calibration.json`. The old fixed front end
+    (before issue 50) is `intensity_floor: 20, threshold_factor: exponential`.
     """
 
-    method: CfarMethod = "soca"
-    train_cells_per_side: int = Field(10, ge=1, le=200)
-    guard_cells_per_side: int = Field(5, ge=0, le=200)
-    pfa: float = Field(0.1, gt=0.0, lt=1.0)
-    os_rank: int = Field(0, ge=0, le=400)
-    intensity_floor: float = Field(20.0, ge=0.0, le=65535.0)
+    method: CfarMethod = Field("soca", description='local CFAR: "soca" (paper), "ca", "go", "os"')
+    train_cells_per_side: int = Field(
+        10, ge=1, le=200, description="training cells on each side of the cell under test"
+    )
+    guard_cells_per_side: int = Field(5, ge=0, le=200, description="guard cells on each side")
+    pfa: float = Field(
+        0.1,
+        gt=0.0,
+        lt=1.0,
+        description="false-alarm probability of the local CFAR test alone (the paper's 0.1):"
+        " sets its threshold factor under the measured clutter law",
+    )
+    os_rank: int = Field(0, ge=0, le=400, description="OS only: 1-based rank (0: train cells)")
+    false_alarm_rate_per_cell: float = Field(
+        1e-3,
+        gt=0.0,
+        lt=0.5,
+        description="stated per-cell false-alarm rate on background: sets each range band's"
+        " intensity floor under its fitted clutter law",
+    )
+    intensity_floor: float | None = Field(
+        None,
+        ge=0.0,
+        le=65535.0,
+        description="null: measured per range band (false_alarm_rate_per_cell); a number:"
+        " pinned for every band [image levels]",
+    )
+    threshold_factor: float | Literal["exponential"] | None = Field(
+        None,
+        description="local CFAR factor tau. null: measured per band (pfa under the fitted"
+        " law); a number: pinned; 'exponential': the exponential-noise formula for pfa",
+    )
+    range_bands: int = Field(
+        8, ge=1, le=64, description="range bands the background is fitted in (equal bin counts)"
+    )
+    calibration_pings: int = Field(
+        24, ge=1, le=1000, description="keyframes sampled (evenly, deterministic) to calibrate"
+    )
+    fit_quantiles: tuple[float, float] = Field(
+        (0.6, 0.95),
+        description="the clutter law is fitted to this quantile range of each band: objects"
+        " may fill up to 1 - upper of a band without moving the fit",
+    )
+    denoise: Literal["auto", "box3x3", "beam3", "range3", "none"] = Field(
+        "auto",
+        description="filter before calibration and detection: auto = a 3x3 (range x beam)"
+        " mean only for a sonar whose unfiltered background puts the stated rate's floor at"
+        " full scale in most bands, else none (by measurement, docs/front-end.md)",
+    )
+    max_features_per_keyframe_per_sonar: int | None = Field(
+        20000,
+        ge=1,
+        le=10_000_000,
+        description="feature budget per image: over it, the strongest (intensity, then"
+        " nearest range, then beam) are kept, and the clipping is warned; null: no budget",
+    )
+
+    @model_validator(mode="after")
+    def _quantiles(self) -> FeaturesConfig:
+        lo, hi = self.fit_quantiles
+        if not 0.0 < lo < hi < 1.0:
+            raise ValueError(f"fit_quantiles must satisfy 0 < lo < hi < 1, got {lo}, {hi}")
+        if isinstance(self.threshold_factor, float) and not 0.0 < self.threshold_factor <= 1e3:
+            raise ValueError("threshold_factor must be in (0, 1000]")
+        return self

@@ -1,18 +1,41 @@
-"""Features: SOCA-CFAR detections on both polar images of every keyframe (paper Sec. IV.C).
+"""Features: CFAR detections on both polar images of every keyframe (paper Sec. IV.C),
+with thresholds the recording calibrates.
 
-Each image is searched along range, per beam, by `sonarmap.stages.kernels.cfar.cfar_detect` (SOCA by
-default; CA, GO and OS through config), ANDed with an intensity floor; every detected
-cell is one feature row (schema `sonarmap.schemas.features.FEATURES_SCHEMA`).
+Paper: each image is searched along range, per beam, by SOCA-CFAR (Ntc = 20 training and
+Ngc = 10 guard cells, Pfa = 0.1 in the authors' simulation settings), ANDed with a fixed
+intensity threshold; every detected cell is one feature. The authors set the CFAR Pfa,
+the threshold and a fastNlMeans denoising by hand, differently for simulated and real data
+(docs/authors-code.md section 2.2).
 
-Defaults (`FeaturesConfig`): SOCA with 10 training + 5 guard cells per side (the
-authors' Ntc = 20, Ngc = 10), Pfa = 0.1 and an intensity floor of 20 levels, lower than
-the authors' floors, which were set for denoised or Cartesian images and lose weak
-returns in ours (docs/decisions/005-cfar-defaults.md).
+Here the same detector runs with thresholds measured from the recording, per sonar and
+per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels.clutter`):
+
+1. calibration: from `features.calibration_pings` keyframes evenly spaced over the
+   recording, each band's background is fitted with a Weibull law over its 60-95 %
+   quantiles (objects are the upper tail and move no fit while they fill < 5 % of a band);
+   where the unfiltered background puts the floor of step 2 at full scale in most bands
+   (a spiky sensor), a 3x3 mean is applied first (`features.denoise: auto`; the authors
+   used fastNlMeans on real images);
+2. the intensity floor of a band is the smallest level whose exceedance under that law is
+   at most the stated per-cell false-alarm rate (`features.false_alarm_rate_per_cell`,
+   1e-3), its level set so that the sampled background bands detect that rate; this
+   replaces the fixed floor of 20 levels, which floods a real Oculus image (background
+   median 43) and is meaningless on an ARIS one (89);
+3. SOCA-CFAR stays the local detector (it keeps the leading edge of extended returns, as
+   in the paper), its threshold factor calibrated so that the local test alone has
+   Pfa = `features.pfa` (0.1) under the fitted law (Monte Carlo, fixed seed) instead of the
+   exponential model's closed form, which suits neither a spiky (shape 1.2) nor a flat
+   (shape 3.4) background;
+4. a per-image feature budget keeps the strongest detections and warns when it clips.
+
+The measurements that decided the law, the filter and the rules: docs/front-end.md.
+Any value can be pinned in config (a pinned value is reported as pinned); the old fixed
+front end is `intensity_floor: 20, threshold_factor: exponential`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,37 +43,78 @@ import pyarrow as pa
 
 from sonarmap.schemas.features import FEATURES_SCHEMA, SONARS
 from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.base import Input, StageInputError
 from sonarmap.stages.features import STAGE
+from sonarmap.stages.features.calibration import calibrate, thresholds, with_measurements
 from sonarmap.stages.features.config import FeaturesConfig
-from sonarmap.stages.kernels.frame_features import detect_ping, keyframe_features
+from sonarmap.stages.kernels.frame_features import detect_ping, frame_detections, keyframe_features
+from sonarmap.stages.kernels.front_end import UnmodelableImages
 
-__all__ = ["STAGE", "FeaturesConfig", "detect_ping", "features_table", "keyframe_features"]
+__all__ = [
+    "STAGE",
+    "FeaturesConfig",
+    "detect_ping",
+    "features_and_calibration",
+    "features_table",
+    "keyframe_features",
+]
 
 
-def features_table(frames: Iterable[KeyframeImages], config: FeaturesConfig) -> pa.Table:
-    """`features.parquet` for a sequence of keyframes (one keyframe in memory at a time).
+def features_and_calibration(
+    frames: Sequence[KeyframeImages], config: FeaturesConfig
+) -> tuple[pa.Table, dict[str, Any]]:
+    """`features.parquet` and `calibration.json` for a sequence of keyframes (calibrated on
+    a sample of them, then detected one keyframe in memory at a time).
 
     Raises:
         ValueError: keyframe ids not strictly increasing.
+        UnmodelableImages: a sonar's images cannot be modelled and a threshold is measured.
     """
+    doc = calibrate(frames, config)
+    th = thresholds(doc)
     chunks: list[dict[str, np.ndarray]] = []
+    n_feat = dict.fromkeys(SONARS, 0)
+    clipped = {s: [0, 0] for s in SONARS}
+    band_det: dict[str, np.ndarray] = {}
+    band_rows: dict[str, np.ndarray] = {}
     last = -1
     for frame in frames:
         if frame.keyframe_id <= last:
             raise ValueError(f"features: keyframe ids must increase, got {frame.keyframe_id}")
         last = frame.keyframe_id
-        chunks.append(keyframe_features(frame, config))
+        cols, found = frame_detections(frame, config, th)
+        chunks.append(cols)
+        for i, s in enumerate(SONARS):
+            n_feat[s] += int(np.count_nonzero(cols["sonar_index"] == i))
+            clipped[s][0] += found.dropped[s] > 0
+            clipped[s][1] += found.dropped[s]
+            band_det[s] = band_det.get(s, 0) + found.band_detections[s]
+            band_rows[s] = band_rows.get(s, 0) + found.band_rows[s]
+    doc = with_measurements(
+        doc, len(chunks), n_feat, band_det, band_rows,
+        {s: (c[0], c[1]) for s, c in clipped.items()}, config.max_features_per_keyframe_per_sonar,
+    )  # fmt: skip
     names = [f.name for f in FEATURES_SCHEMA]
     if not chunks:
-        return FEATURES_SCHEMA.empty_table()
+        return FEATURES_SCHEMA.empty_table(), doc
     cols = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]}
     sonar = pa.DictionaryArray.from_arrays(
         pa.array(cols.pop("sonar_index").astype(np.int32)), pa.array(list(SONARS))
     ).cast(pa.string())
     arrays = [sonar if n == "sonar" else pa.array(cols[n]) for n in names]
-    return pa.Table.from_arrays(arrays, schema=FEATURES_SCHEMA)
+    return pa.Table.from_arrays(arrays, schema=FEATURES_SCHEMA), doc
+
+
+def features_table(frames: Sequence[KeyframeImages], config: FeaturesConfig) -> pa.Table:
+    """`features.parquet` alone (`features_and_calibration`)."""
+    return features_and_calibration(frames, config)[0]
 
 
 def run(config: FeaturesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages]} -> {"features"}."""
-    return {"features": features_table(inputs["keyframes.frames"], config)}
+    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages]} ->
+    {"features", "calibration"}; unmodelable images are refused as bad input (exit 2)."""
+    try:
+        table, doc = features_and_calibration(inputs["keyframes.frames"], config)
+    except UnmodelableImages as err:
+        raise StageInputError(Input("keyframes", "frames"), str(err)) from err
+    return {"features": table, "calibration": doc}

@@ -38,7 +38,7 @@ from sonarmap.stages.kernels.lazy import lazy
 optimize = lazy("scipy.optimize")
 special = lazy("scipy.special")
 
-__all__ = ["CfarMethod", "cfar_detect", "cfar_noise", "threshold_factor"]
+__all__ = ["CfarMethod", "cfar_detect", "cfar_detect_rows", "cfar_noise", "threshold_factor"]
 
 
 def _soca_core(tau: float, half: int) -> float:
@@ -192,13 +192,51 @@ def cfar_detect(
         raise ValueError(f"unknown CFAR method {method!r}")
     k = (rank or train_hs) if method == "os" else 0
     tau = threshold_factor(method, 2 * train_hs, pfa, k)
+    n_r = np.asarray(image).shape[0]
+    return cfar_detect_rows(
+        image, train_hs, guard_hs, np.full(n_r, tau), np.full(n_r, float(floor)), method, k
+    )
+
+
+def cfar_detect_rows(
+    image: np.ndarray,
+    train_hs: int,
+    guard_hs: int,
+    tau_rows: np.ndarray,
+    floor_rows: np.ndarray,
+    method: CfarMethod = "soca",
+    rank: int = 0,
+) -> np.ndarray:
+    """CFAR detections with a threshold factor and an intensity floor per range row
+    (the calibrated front end: `sonarmap.stages.kernels.clutter`, per range band).
+
+    Args:
+        image: (n_ranges, n_beams) polar intensities.
+        train_hs, guard_hs: training / guard cells per side along range.
+        tau_rows: (n_ranges,) threshold factor of each row.
+        floor_rows: (n_ranges,) a detection also needs intensity > floor [image levels].
+        method: "soca" (default), "ca", "go" or "os".
+        rank: OS only, 1-based rank (0 means train_hs).
+
+    Returns:
+        (n_ranges, n_beams) bool detection mask.
+    """
+    if train_hs < 1 or guard_hs < 0:
+        raise ValueError(f"need train_hs >= 1 and guard_hs >= 0, got {train_hs}, {guard_hs}")
+    if method not in ("soca", "ca", "go", "os"):
+        raise ValueError(f"unknown CFAR method {method!r}")
     img = np.asarray(image)
     n_r, w = img.shape[0], train_hs + guard_hs
     mask = np.zeros(img.shape, dtype=bool)
     if n_r < 2 * w + 1:
         return mask
+    tau = np.asarray(tau_rows, np.float64)[w : n_r - w, None]
+    floor = np.asarray(floor_rows, np.float64)[w : n_r - w, None]
+    cut = img[w : n_r - w]
     if method == "os":
-        return (img > tau * cfar_noise(img, train_hs, guard_hs, method, k)) & (img > floor)
+        noise = cfar_noise(img, train_hs, guard_hs, method, rank or train_hs)[w : n_r - w]
+        mask[w : n_r - w] = (cut > tau * noise) & (cut > floor)
+        return mask
     # Fast path: compare sums, no per-cell division (same decision as I > tau * noise).
     leading, lagging = _window_sums(img, train_hs, guard_hs)
     if method == "soca":
@@ -207,6 +245,5 @@ def cfar_detect(
         ref, scale = np.maximum(leading, lagging), tau / train_hs
     else:
         ref, scale = leading + lagging, tau / (2 * train_hs)
-    cut = img[w : n_r - w]
-    mask[w : n_r - w] = (cut > ref * np.float32(scale)) & (cut > floor)
+    mask[w : n_r - w] = (cut > ref * scale.astype(np.float32)) & (cut > floor)
     return mask

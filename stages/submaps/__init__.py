@@ -18,8 +18,9 @@ STAGE = Stage(
     # 2: points written in sorted batches of 64 frames (same rows, other Parquet pages)
     # 3: classes that borrow a beam-frame model (infer.borrowed_models, unknown_argmax_classes)
     # 4: the class models are infer's outputs, read back, and the clustering classify's
-    # (same bytes)
-    version=4,
+    # (same bytes); 5: frames are detected with the features stage's calibration (input
+    # features.calibration), with its feature budget
+    version=5,
     config=SubmapsConfig,
     inputs=(
         DATASET,
@@ -29,6 +30,7 @@ STAGE = Stage(
         Input("classify", "object_features"),
         Input("classify", "clustering"),
         Input("features", "features"),
+        Input("features", "calibration"),
         Input("fuse", "fused"),
         Input("infer", "class_reference"),
         Input("infer", "class_cells"),

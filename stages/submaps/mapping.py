@@ -27,6 +27,7 @@ from sonarmap.stages.kernels.class_query import (
     update_and_query_beam_class,
 )
 from sonarmap.stages.kernels.frame_features import CfarSettings, keyframe_features
+from sonarmap.stages.kernels.front_end import BandThresholds
 from sonarmap.stages.kernels.fusion import FusionSettings, fuse_keyframe
 from sonarmap.stages.kernels.point_tables import points_table, tag_points
 from sonarmap.stages.kernels.sightings import sightings
@@ -103,6 +104,7 @@ class FrameMapper:
     """
 
     features: CfarSettings
+    thresholds: Mapping[str, BandThresholds] | None
     fuse: FusionSettings
     infer: ClassModelSettings
     clustering: tuple[float, int, int]
@@ -136,7 +138,7 @@ class FrameMapper:
         for frame_id, (hp, vp) in enumerate(pings, start=first):
             k = int(self.frame_keyframe[frame_id])
             image = KeyframeImages(frame_id, int(hp.t_ns), hp, vp, {})
-            feats = keyframe_features(image, self.features)
+            feats = keyframe_features(image, self.features, self.thresholds)
             feats["is_horizontal"] = feats["sonar_index"] == 0
             fu = fuse_keyframe(image, feats, self.T_h_v, self.fuse)
             is_h = feats["is_horizontal"]

@@ -51,6 +51,7 @@ from sonarmap.schemas.submaps import (
     SUBMAP_POINTS_SCHEMA,
 )
 from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.features.calibration import thresholds
 from sonarmap.stages.kernels.class_models import (
     ClassModelSettings,
     ClassState,
@@ -97,10 +98,13 @@ def map_submap_frames(
     clustering: tuple[float, int, int],
     sections: Mapping[str, Any],
     config: SubmapsConfig,
+    calibration: Mapping[str, Any] | None = None,
 ) -> tuple[pa.Table, pa.Table, dict[str, Any]]:
     """Frames, points and loss accounting of a mission's submaps (module docstring),
     `states` the class models infer learned (`restore_class_states`) and `clustering`
-    (eps_m, min_samples, min_features) the one classify used.
+    (eps_m, min_samples, min_features) the one classify used, `calibration` the features
+    stage's (`calibration.json`: the frames are detected with its thresholds; None: each
+    frame calibrates itself).
 
     With `config.workers` > 1 the chunks of `FRAMES_PER_CHUNK` frames are mapped in
     that many processes (`sonarmap.stages.submaps.workers`); the outputs are the same bytes.
@@ -124,6 +128,7 @@ def map_submap_frames(
     horizontal = features.filter(pc.equal(features.column("sonar"), "horizontal"))
     mapper = FrameMapper(
         features=sections["features"],
+        thresholds=_thresholds(calibration),
         fuse=sections["fuse"],
         infer=icfg,
         clustering=clustering,
@@ -170,6 +175,16 @@ def map_submap_frames(
     return frames, pa.concat_tables(tables), stats
 
 
+def _thresholds(calibration: Mapping[str, Any] | None) -> dict[str, Any] | None:
+    """Per sonar, the thresholds of the features stage's calibration."""
+    if calibration is None:
+        return None
+    try:
+        return thresholds(dict(calibration))
+    except (KeyError, TypeError, ValueError) as err:
+        raise StageInputError(Input("features", "calibration"), f"unreadable: {err}") from err
+
+
 def _pose_matrices(table: pa.Table, what: str) -> np.ndarray:
     return pose_matrix(np.stack([column(table, c, what) for c in _POSE], axis=1).astype(np.float64))
 
@@ -204,5 +219,6 @@ def _run(config: SubmapsConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         _clustering(inputs["classify.clustering"]),
         {**{s: inputs[f"config.{s}"] for s in _SECTIONS}, "infer": _infer_section(inputs)},
         config,
+        inputs.get("features.calibration"),
     )
     return {"frames": frames, "points": points, "stats": stats}
