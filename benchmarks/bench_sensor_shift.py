@@ -7,8 +7,9 @@
 Five sensors render the same marina mission (a seed never trained on): the simulator's
 default; "oculus", a Weibull noise of mean 53 and shape 1.2 (background median and speckle
 contrast near the real Oculus ping's 43 / 0.64); "aris", mean 88 and shape 3.4 (near the
-real ARIS frames' 89 / 0.28); and two more inside `sonarmap.sim.randomise`'s ranges, "dim"
-(20 / 1.6) and "bright" (120 / 2.5). Gain, reflectivity and mounting stay the defaults.
+real ARIS frames' 89 / 0.28); and three more inside `sonarmap.sim.randomise`'s ranges,
+"dim" (20 / 1.6), "mid" (40 / 3.0) and "bright" (120 / 2.5; its pinned front end finds no
+object: the floor rule gives 254 and nothing clears it). Gain, reflectivity and mounting stay the defaults.
 Each mission runs through the pipeline up to `classify` (default config, pooled views)
 with each model (`classify.model=DIR`).
 
@@ -39,6 +40,7 @@ SENSORS = {
     "aris": {"noise_mean_level": 88.0, "noise_shape": 3.4},
     "oculus": {"noise_mean_level": 53.0, "noise_shape": 1.2},
     "dim": {"noise_mean_level": 20.0, "noise_shape": 1.6},
+    "mid": {"noise_mean_level": 40.0, "noise_shape": 3.0},
     "bright": {"noise_mean_level": 120.0, "noise_shape": 2.5},
 }
 

@@ -28,13 +28,13 @@ class TrainConfig(StageConfig):
         1.0, ge=0, le=1000, description="smallest crop side [m] (keeps piling scale)"
     )
     patch_normalisation: Literal["peak", "background"] = Field(
-        "peak",
+        "background",
         description="'background': each range's median over the beams subtracted, scaled by"
         " the box's 99th percentile (a bright noise floor stays dark; issue 50); 'peak':"
         " divided by the patch maximum (models before issue 50)",
     )
     sensor_copies: int = Field(
-        0,
+        3,
         ge=0,
         le=64,
         description="noisy copies of every training keyframe besides the clean one, each"
