@@ -30,6 +30,16 @@ def _number(
     return kind(value)
 
 
+_NORMALISATIONS = ("peak", "background")
+
+
+def _normalisation(config: Mapping[str, Any]) -> str:
+    value = config.get("patch_normalisation", "peak")
+    if value not in _NORMALISATIONS:
+        raise ValueError(f"the model file's 'patch_normalisation' is not one of {_NORMALISATIONS}")
+    return str(value)
+
+
 @dataclass(frozen=True)
 class ModelSettings:
     """Patch extraction and clustering the model was trained with.
@@ -40,6 +50,8 @@ class ModelSettings:
         min_side_m: smallest side of a patch's box [m].
         eps_m, min_samples, min_features: the DBSCAN clustering of features into
             objects (None: a model file written before they were stored).
+        patch_normalisation: how patches were scaled (`sonarmap.stages.classify.objects.
+            extract_objects`): "peak" for model files written before it was stored.
     """
 
     size_px: int
@@ -48,6 +60,7 @@ class ModelSettings:
     eps_m: float | None = None
     min_samples: int | None = None
     min_features: int | None = None
+    patch_normalisation: str = "peak"
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> ModelSettings:
@@ -59,4 +72,5 @@ class ModelSettings:
             eps_m=_number(config, "eps_m", float, optional=True),
             min_samples=_number(config, "min_samples", int, optional=True),
             min_features=_number(config, "min_features", int, optional=True),
+            patch_normalisation=_normalisation(config),
         )

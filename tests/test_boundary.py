@@ -207,6 +207,11 @@ def test_model_settings_read_the_model_files_config() -> None:
     settings = ModelSettings.from_config(config)
     assert (settings.size_px, settings.margin_m, settings.eps_m) == (40, 0.2, 0.25)
     assert settings.min_samples is None  # an older model file: classify's config must say
+    assert settings.patch_normalisation == "peak"  # written before issue 50: its patches
+    newer = ModelSettings.from_config({**config, "patch_normalisation": "background"})
+    assert newer.patch_normalisation == "background"
+    with pytest.raises(ValueError, match="'patch_normalisation' is not one of"):
+        ModelSettings.from_config({**config, "patch_normalisation": "median"})
     with pytest.raises(ValueError, match="has no 'margin_m'"):
         ModelSettings.from_config({"size_px": 40, "min_side_m": 1.0})
     with pytest.raises(ValueError, match="'size_px' is not a positive int"):

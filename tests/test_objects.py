@@ -14,6 +14,7 @@ from sonarmap.stages.classify.objects import (
     extract_objects,
     horizontal_features,
     los_rotate,
+    row_background,
 )
 from sonarmap.stages.classify.segmentation import (
     cell_areas_m2,
@@ -22,6 +23,7 @@ from sonarmap.stages.classify.segmentation import (
     keep_clusters,
     majority_class,
 )
+from sonarmap.stages.classify.sensor_noise import noisy_image
 from sonarmap.stages.kernels.clustering import cluster_features
 
 RANGES_M = ((np.arange(400) + 0.5) * 0.05).astype(np.float32)
@@ -98,6 +100,46 @@ def test_crop_preserves_aspect_ratio_and_pads_outside_the_box(uneven: bool) -> N
     # Outside the box grown by its margin (0.1 m = 3.3 px) everything is padding.
     assert not patch[:, : int(cols.min() - 5)].any()
     assert not patch[:, int(cols.max() + 6) :].any()
+
+
+def test_background_normalised_patch_ignores_the_sensors_noise_floor() -> None:
+    """The same object on a dark and on a bright, speckled floor: peak-normalised patches
+    differ wholesale (the floor becomes a grey patch), background-normalised ones agree."""
+    angles = np.linspace(-1.1, 1.1, 512).astype(np.float32)
+    clean = _polar_of_rect(angles, 9.8, 10.2, -0.1, 0.1) // 2  # an object at level 127
+    rng = np.random.default_rng(3)
+    floor = rng.weibull(1.2, clean.shape) * 45.0  # Oculus-like: median ~33, heavy tail
+    bright = np.minimum(clean + floor + 0.5, 255).astype(np.uint8)
+    box = np.array([[9.8, 10.2, -0.1, 0.1]])
+    kw: dict[str, Any] = {"margin_m": 0.3, "min_side_m": 1.0}
+    peak = [crop_patches(im, RANGES_M, angles, box, **kw)[0] for im in (clean, bright)]
+    norm = [
+        crop_patches(im, RANGES_M, angles, box, background=row_background(im), **kw)[0]
+        for im in (clean, bright)
+    ]
+    for p in norm:
+        assert p.dtype == np.float32 and p.min() >= 0.0 and p.max() <= 1.0
+    # The object's pixels stay near 1 and the floor near 0 only after normalisation.
+    obj = norm[0] > 0.5
+    assert obj.sum() > 50
+    assert np.median(norm[1][~obj]) < 0.05
+    assert np.median(peak[1][~obj]) > 0.1
+    assert np.abs(norm[1] - norm[0]).mean() < 0.7 * np.abs(peak[1] - peak[0]).mean()
+    # row_background: the per-range median over beams, i.e. the floor, not the object.
+    assert np.all(row_background(clean) == 0)
+    assert np.median(row_background(bright)) == pytest.approx(np.median(bright), abs=3)
+
+
+def test_noisy_image_is_seeded_and_spans_its_noise_levels() -> None:
+    image = np.zeros((200, 100), np.uint8)
+    image[50:60] = 200
+    a = noisy_image(image, (2.0, 128.0), (0.9, 4.5), (0, 1, 2, 3))
+    np.testing.assert_array_equal(a, noisy_image(image, (2.0, 128.0), (0.9, 4.5), (0, 1, 2, 3)))
+    assert a.dtype == np.uint8 and (a[50:60] >= 200).all()  # added, never taken away
+    means = [noisy_image(image, (10.0, 10.0), (2.0, 2.0), (s,))[100:].mean() for s in range(3)]
+    assert means == pytest.approx([10.0] * 3, abs=1.0)  # the drawn mean level is the mean
+    levels = {int(np.median(noisy_image(image, (2.0, 128.0), (2.0, 2.0), (s,)))) for s in range(8)}
+    assert len(levels) > 4  # different copies, different floors
 
 
 def test_line_of_sight_crop_looks_the_same_at_any_bearing() -> None:

@@ -139,9 +139,11 @@ def trained() -> dict:
     frames = _keyframes("marina", 1, 6, 6, 72)
     # A small, fast model. On 72 keyframes and 20 epochs the paper's stronger augmentation
     # regularises (recall at 0.8: 0.86 vs 0.81 with the defaults tuned for the full set).
+    # No noisy sensor copies: they would make this fixture 4x slower; what they buy is
+    # measured by benchmarks/bench_sensor_shift.py.
     cfg = TrainConfig(
         epochs=20, channels=(16, 32), hidden=64, noise_std=0.05, max_rotation_deg=20,
-        val_block_keyframes=10,
+        val_block_keyframes=10, sensor_copies=0,
     )  # fmt: skip
     t0 = time.perf_counter()
     out = dict(
@@ -265,3 +267,22 @@ def test_epochs_are_cut_to_the_presentation_budget() -> None:
     assert epochs_for(5000, cfg) == 30  # 150,000 // 5,000
     assert epochs_for(10**6, cfg) == 1  # never fewer than one pass
     assert epochs_for(10, TrainConfig(epochs=3)) == 3
+
+
+def test_noisy_sensor_copies_are_seeded_and_show_the_same_objects() -> None:
+    """`train.sensor_copies`: every keyframe's objects again, through other noise floors;
+    the same bytes run to run (the model stays reproducible)."""
+    from sonarmap.stages.classify.train import collect_samples
+
+    frames = _keyframes("tiny", 21, 2, 6, 4)
+    pairs = [(frames, _label_features(frames))]
+    clean = collect_samples(pairs, TrainConfig(sensor_copies=0))
+    a = collect_samples(pairs, TrainConfig(sensor_copies=2))
+    b = collect_samples(pairs, TrainConfig(sensor_copies=2))
+    assert len(clean.class_id) > 0
+    np.testing.assert_array_equal(a.patches, b.patches)
+    np.testing.assert_array_equal(np.sort(a.class_id), np.sort(np.repeat(clean.class_id, 3)))
+    np.testing.assert_array_equal(np.unique(a.keyframe_id), np.unique(clean.keyframe_id))
+    k = np.sum(clean.keyframe_id == clean.keyframe_id[0])
+    np.testing.assert_array_equal(a.patches[:k], clean.patches[:k])  # copy 0 is the clean one
+    assert not np.array_equal(a.patches[k : 2 * k], a.patches[:k])  # copy 1 is not

@@ -27,7 +27,8 @@ STAGE = Stage(
     # 5: output `clustering` (what submaps clusters its frames with)
     # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
     # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
-    version=7,
+    # 8: patches normalised as the model file says (`patch_normalisation`, issue 50)
+    version=8,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),

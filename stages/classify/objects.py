@@ -46,6 +46,7 @@ __all__ = [
     "extract_objects",
     "horizontal_features",
     "los_rotate",
+    "row_background",
 ]
 
 PATCH_SIZE_PX = 40
@@ -58,6 +59,15 @@ def _square_boxes(boxes: np.ndarray, margin_m: float, min_side_m: float) -> np.n
     cy = (boxes[:, 2] + boxes[:, 3]) / 2
     side = np.maximum(boxes[:, 1] - boxes[:, 0], boxes[:, 3] - boxes[:, 2]) + 2 * margin_m
     return np.stack([cx, cy, np.maximum(side, min_side_m)], axis=1)
+
+
+def row_background(image: np.ndarray) -> np.ndarray:
+    """The image's background level at each range: (n_ranges,) median over the beams.
+
+    Objects fill a minority of the beams at any range, so the median is the noise floor
+    of that range (the additive noise and any range-dependent gain), whatever the sensor.
+    """
+    return np.median(image, axis=1).astype(np.float32)
 
 
 def los_rotate(xy_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndarray:
@@ -84,6 +94,8 @@ def crop_patches(
     margin_m: float,
     min_side_m: float = 0.0,
     size_px: int = PATCH_SIZE_PX,
+    background: np.ndarray | None = None,
+    peak_quantile: float = 0.99,
 ) -> np.ndarray:
     """Aspect-preserving Cartesian crops of a polar image, one per bounding box.
 
@@ -91,7 +103,10 @@ def crop_patches(
     square is sampled on a size x size grid (bilinear in range bin and beam index, via
     the explicit angle table, so uneven beam spacing is honoured), and pixels outside
     the grown box are zero: the box is padded, never stretched. Each patch is divided
-    by its maximum (gain invariance) to lie in [0, 1].
+    by its maximum (gain invariance) to lie in [0, 1]; with `background` (the image's
+    level per range bin, `row_background`), that level is first subtracted at each
+    pixel's range and the patch is divided by the `peak_quantile` quantile of its box
+    instead (one speckle spike does not set the scale), then clipped to [0, 1].
 
     With `bearing_rad`, box k is given in the line-of-sight frame of bearing_rad[k]
     (`los_rotate`) and the patch is cut in that frame: the sonar is always straight
@@ -106,6 +121,8 @@ def crop_patches(
         margin_m: margin added on each side of a box [m].
         min_side_m: smallest square side [m] (keeps tiny clusters from being blown up).
         size_px: patch side [px].
+        background: optional (n_ranges,) background level per range bin [image levels].
+        peak_quantile: with `background`, the quantile of the box's pixels scaled to 1.
 
     Returns:
         (k, size_px, size_px) float32 patches in [0, 1], row 0 = far, column 0 = left.
@@ -137,9 +154,19 @@ def crop_patches(
         image.astype(np.float32), [row.ravel(), col.ravel()], order=1, mode="constant", cval=0.0
     ).reshape(k, size_px, size_px)
     vals *= inside
-    peak = vals.reshape(k, -1).max(axis=1)
+    if background is None:
+        peak = vals.reshape(k, -1).max(axis=1)
+        vals /= np.where(peak > 0, peak, 1.0)[:, None, None]
+        return vals.astype(np.float32)
+    # Above the background of each pixel's range (outside the image: none), so a bright
+    # noise floor is not a bright patch; scaled by a high quantile of the box, not its
+    # one brightest speckle.
+    level = np.interp(row, np.arange(n_r), np.asarray(background, np.float32))
+    vals = np.clip(vals - level.astype(np.float32), 0.0, None) * inside
+    flat = np.where(inside, vals, np.nan).reshape(k, -1)
+    peak = np.nan_to_num(np.nanquantile(flat, peak_quantile, axis=1))
     vals /= np.where(peak > 0, peak, 1.0)[:, None, None]
-    return vals.astype(np.float32)
+    return np.clip(vals, 0.0, 1.0).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -189,6 +216,7 @@ def extract_objects(
     drop_fan_edge: bool = False,
     fan_edge_margin_m: float = 0.25,
     fan_edge_max_outside_m2: float = 0.025,
+    normalisation: str = "peak",
 ) -> KeyframeObjects:
     """Cluster one horizontal image's features into objects and crop their patches.
 
@@ -203,6 +231,10 @@ def extract_objects(
         drop_fan_edge: drop clusters whose bounding box, padded by `fan_edge_margin_m`,
             has at least `fan_edge_max_outside_m2` outside the fan (`fan_outside_area_m2`;
             original sim: 5 px padding, 10 px = 0.025 m2).
+        normalisation: "peak": each patch divided by its maximum (models trained before
+            issue 50); "background": the image's `row_background` subtracted at each
+            pixel's range and the rest divided by the box's 99th percentile, clipped to
+            [0, 1] (`crop_patches`), so a bright or speckled noise floor stays dark.
 
     Returns:
         The keyframe's objects (dropped clusters are none of them).
@@ -237,6 +269,7 @@ def extract_objects(
     patches = crop_patches(
         ping.image, ping.ranges_m, ping.angles_rad, los_boxes, los_bearing,
         margin_m=margin_m, min_side_m=min_side_m, size_px=size_px,
+        background=row_background(ping.image) if normalisation == "background" else None,
     )  # fmt: skip
     truth = None
     if ping.labels is not None:

@@ -166,6 +166,7 @@ def classify_keyframes(
             size_px=settings.size_px, min_area_m2=cfg.min_object_area_m2,
             drop_fan_edge=cfg.drop_fan_edge_objects, fan_edge_margin_m=cfg.fan_edge_margin_m,
             fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
+            normalisation=settings.patch_normalisation,
         )  # fmt: skip
         if oracle:
             if objs.true_class_id is None:

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -27,6 +27,7 @@ import pyarrow as pa
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.classify.objects import PATCH_SIZE_PX, extract_objects, horizontal_features
+from sonarmap.stages.classify.sensor_noise import noisy_image
 from sonarmap.stages.classify.size_rule import curve_png, grow, one_size
 from sonarmap.stages.classify.train_config import TrainConfig
 from sonarmap.stages.classify.training import STAGE
@@ -110,21 +111,25 @@ def collect_samples(
                 f = by_kf[frame.keyframe_id]
             else:
                 continue
-            objs = extract_objects(
-                frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
-                eps_m=cfg.eps_m, min_samples=cfg.min_samples, min_features=cfg.min_features,
-                margin_m=cfg.margin_m, min_side_m=cfg.min_side_m,
-            )  # fmt: skip
-            assert objs.true_class_id is not None
-            k = objs.count
-            parts.append(
-                (
-                    objs.patches,
-                    objs.true_class_id,
-                    np.full(k, frame.keyframe_id, np.int64),
-                    np.full(k, d, np.int64),
-                )
-            )
+            ping = frame.horizontal
+            for copy in range(1 + cfg.sensor_copies):
+                if copy:  # the same objects seen through another sensor's noise floor
+                    seed = (cfg.seed, d, frame.keyframe_id, copy)
+                    image = noisy_image(
+                        frame.horizontal.image, cfg.sensor_noise_mean_level,
+                        cfg.sensor_noise_shape, seed,
+                    )  # fmt: skip
+                    ping = replace(frame.horizontal, image=image)
+                objs = extract_objects(
+                    ping, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
+                    eps_m=cfg.eps_m, min_samples=cfg.min_samples, min_features=cfg.min_features,
+                    margin_m=cfg.margin_m, min_side_m=cfg.min_side_m,
+                    normalisation=cfg.patch_normalisation,
+                )  # fmt: skip
+                assert objs.true_class_id is not None
+                k = objs.count
+                kf, ds = np.full(k, frame.keyframe_id, np.int64), np.full(k, d, np.int64)
+                parts.append((objs.patches, objs.true_class_id, kf, ds))
     if not parts:
         z = np.zeros(0, np.int64)
         return Samples(np.zeros((0, PATCH_SIZE_PX, PATCH_SIZE_PX), np.float32), z, z, z)
@@ -322,6 +327,7 @@ def _train_classifier(
         "channels": list(cfg.channels), "hidden": cfg.hidden, "dropout_p": cfg.dropout_p,
         "size_px": PATCH_SIZE_PX, "spatial_dropout": cfg.spatial_dropout, "margin_m": cfg.margin_m, "min_side_m": cfg.min_side_m,
         "eps_m": cfg.eps_m, "min_samples": cfg.min_samples, "min_features": cfg.min_features,
+        "patch_normalisation": cfg.patch_normalisation,
         "class_ids": [table.ids[n] for n in names],
     }  # fmt: skip
     return {

@@ -27,6 +27,27 @@ class TrainConfig(StageConfig):
     min_side_m: float = Field(
         1.0, ge=0, le=1000, description="smallest crop side [m] (keeps piling scale)"
     )
+    patch_normalisation: Literal["peak", "background"] = Field(
+        "background",
+        description="'background': each range's median over the beams subtracted, scaled by"
+        " the box's 99th percentile (a bright noise floor stays dark; issue 50); 'peak':"
+        " divided by the patch maximum (models before issue 50)",
+    )
+    sensor_copies: int = Field(
+        3,
+        ge=0,
+        le=64,
+        description="noisy copies of every training keyframe besides the clean one, each"
+        " with additive noise of another sensor (`sonarmap.stages.classify.sensor_noise`)",
+    )
+    sensor_noise_mean_level: tuple[float, float] = Field(
+        (2.0, 128.0),
+        description="mean of the added noise [8-bit levels], log-uniform: the span of"
+        " `sonarmap.sim.randomise` (real Oculus and ARIS backgrounds 43 and 89)",
+    )
+    sensor_noise_shape: tuple[float, float] = Field(
+        (0.9, 4.5), description="Weibull shape of the added noise, uniform (as sim.randomise)"
+    )
     channels: tuple[_Filters, _Filters] = Field(
         (32, 64), description="conv filters; (16, 32) trains 2.5x faster, recall 0.56 vs 0.78"
     )

@@ -9,7 +9,8 @@ __all__ = ["STAGE", "TrainConfig"]
 
 STAGE = Stage(
     name="train",
-    version=4,
+    # 5: patches above each range's background (`patch_normalisation`), noisy sensor copies
+    version=5,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
