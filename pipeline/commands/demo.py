@@ -91,9 +91,10 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     return training_simulations(getattr(resolved, "training", TrainingDataConfig()))
 
 
-DEMO_SENSORS: dict[str, str] | None = None
-"""The demo recording's sensors when no `--sonar` names one (None: the simulator's clean
-sensor, and the recording's recipe as before sensors had names)."""
+DEMO_SENSORS: dict[str, str] | None = DEFAULT_SENSORS
+"""The demo recording's sensors when no `--sonar` names one (`simulate`'s default, the
+Oculus pair; part of the recording's recipe; None would be the clean sensor with the
+recipe as before sensors had names)."""
 
 
 def _sensors(both: str | None, horizontal: str | None, vertical: str | None) -> Any:

@@ -7,13 +7,16 @@ from typing import Any
 
 import typer
 
+from sonarmap.pipeline.training.sim_sensors import OCULUS_PAIR
+
 __all__ = ["DEFAULT_SCENE", "DEFAULT_SENSORS", "SONAR_OPTS", "register"]
 
 DEFAULT_SCENE = "marina"
 """A scene name in configs/scenes/ (the help shows the name, not the install path)."""
 
-DEFAULT_SENSORS = {"horizontal": "sim-clean", "vertical": "sim-clean"}
-"""The sensors a simulation gets when no `--sonar` names one."""
+DEFAULT_SENSORS = dict(OCULUS_PAIR)
+"""The sensors a simulation gets when no `--sonar` names one: the README vehicle's Oculus
+pair's image character (`--sonar sim-clean`: the simulator's clean sensor)."""
 
 SONAR_OPTS = {
     "sonar": typer.Option(
