@@ -165,7 +165,7 @@ def test_real_files_background_rate_within_2x_of_the_stated_rate(shared_data: Pa
 
 
 def test_summary_line_and_report_section_name_what_was_pinned_and_the_warnings() -> None:
-    from sonarmap.pipeline.front_end_summary import front_end_lines, front_end_summary
+    from sonarmap.pipeline.report_cli import front_end_lines, front_end_summary
     from sonarmap.stages.evaluate.front_end import front_end_markdown, front_end_report
 
     _, doc = _run(intensity_floor=254.0)

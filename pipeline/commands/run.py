@@ -17,7 +17,6 @@ from sonarmap.pipeline.commands._common import (
     cli_graph,
     emit_json,
 )
-from sonarmap.pipeline.front_end_summary import front_end_lines
 
 __all__ = ["register", "run"]
 
@@ -69,7 +68,11 @@ def run(
         if json_:
             emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
             return
-        from sonarmap.pipeline.report_cli import print_summary, progress_shares_stdout
+        from sonarmap.pipeline.report_cli import (
+            front_end_lines,
+            print_summary,
+            progress_shares_stdout,
+        )
 
         print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
         _print_sensors(sensors)
@@ -81,7 +84,7 @@ def _front_end(result: Any) -> dict[str, Any]:
     """The features stage's calibration, shortened per sonar (`front_end_summary`)."""
     import json
 
-    from sonarmap.pipeline.front_end_summary import front_end_summary
+    from sonarmap.pipeline.report_cli import front_end_summary
 
     ref = result.artifacts.get("features")
     path = None if ref is None else Path(ref.path) / "calibration.json"

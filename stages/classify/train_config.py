@@ -14,6 +14,9 @@ from sonarmap.stages.base import StageConfig
 
 __all__ = ["TrainConfig"]
 
+NoiseLevel = Annotated[float, Field(gt=0.0, le=255.0)]
+NoiseShape = Annotated[float, Field(ge=0.5, le=10.0)]  # as the simulator's noise_shape
+
 _Filters = Annotated[int, Field(ge=1, le=1024)]
 
 
@@ -40,12 +43,13 @@ class TrainConfig(StageConfig):
         description="noisy copies of every training keyframe besides the clean one, each"
         " with additive noise of another sensor (`sonarmap.stages.classify.sensor_noise`)",
     )
-    sensor_noise_mean_level: tuple[float, float] = Field(
+    sensor_noise_mean_level: tuple[NoiseLevel, NoiseLevel] = Field(
         (2.0, 128.0),
-        description="mean of the added noise [8-bit levels], log-uniform: the span of"
+        description="mean of the added noise [8-bit levels], log-uniform between the two (either"
+        " order): the span of"
         " `sonarmap.sim.randomise` (real Oculus and ARIS backgrounds 43 and 89)",
     )
-    sensor_noise_shape: tuple[float, float] = Field(
+    sensor_noise_shape: tuple[NoiseShape, NoiseShape] = Field(
         (0.9, 4.5), description="Weibull shape of the added noise, uniform (as sim.randomise)"
     )
     channels: tuple[_Filters, _Filters] = Field(

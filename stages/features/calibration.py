@@ -27,7 +27,7 @@ import numpy as np
 
 from sonarmap.schemas.features import SONARS
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.stages.kernels.front_end import BandThresholds, calibrate_sonar, rounded
+from sonarmap.stages.kernels.front_end import calibrate_sonar, rounded
 
 __all__ = ["FLOOD_FACTOR", "MIN_EXPECTED", "calibrate", "sampled_indices", "with_measurements"]
 
@@ -89,11 +89,6 @@ def calibrate(frames: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
                 f" be modelled, each assumed its nearest fitted band's law ({why})"
             )
     return doc
-
-
-def thresholds(doc: dict[str, Any]) -> dict[str, BandThresholds]:
-    """What detection reads of a calibration, per sonar."""
-    return {s: BandThresholds.of(e) for s, e in (doc.get("sonars") or {}).items()}
 
 
 def with_measurements(

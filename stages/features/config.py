@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -10,6 +10,9 @@ from sonarmap.stages.base import StageConfig
 from sonarmap.stages.kernels.choices import CfarMethod
 
 __all__ = ["FeaturesConfig"]
+
+LowerQuantile = Annotated[float, Field(gt=0.0, lt=0.9)]
+UpperQuantile = Annotated[float, Field(ge=0.9, lt=1.0)]
 
 
 class FeaturesConfig(StageConfig):
@@ -59,7 +62,7 @@ class FeaturesConfig(StageConfig):
     calibration_pings: int = Field(
         24, ge=1, le=1000, description="keyframes sampled (evenly, deterministic) to calibrate"
     )
-    fit_quantiles: tuple[float, float] = Field(
+    fit_quantiles: tuple[LowerQuantile, UpperQuantile] = Field(
         (0.6, 0.95),
         description="the clutter law is fitted to this quantile range of each band: objects"
         " may fill up to 1 - upper of a band without moving the fit",

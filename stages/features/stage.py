@@ -45,10 +45,10 @@ from sonarmap.schemas.features import FEATURES_SCHEMA, SONARS
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.base import Input, StageInputError
 from sonarmap.stages.features import STAGE
-from sonarmap.stages.features.calibration import calibrate, thresholds, with_measurements
+from sonarmap.stages.features.calibration import calibrate, with_measurements
 from sonarmap.stages.features.config import FeaturesConfig
 from sonarmap.stages.kernels.frame_features import detect_ping, frame_detections, keyframe_features
-from sonarmap.stages.kernels.front_end import UnmodelableImages
+from sonarmap.stages.kernels.front_end import UnmodelableImages, thresholds
 
 __all__ = [
     "STAGE",

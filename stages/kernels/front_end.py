@@ -24,6 +24,7 @@ __all__ = [
     "UnmodelableImages",
     "calibrate_sonar",
     "denoised",
+    "thresholds",
 ]
 
 ndimage = lazy("scipy.ndimage")
@@ -108,6 +109,11 @@ class BandThresholds:
             tuple(float(b["intensity_floor_levels"]) for b in bands),
             str(sonar_doc.get("denoise", "none")),
         )
+
+
+def thresholds(doc: dict[str, Any]) -> dict[str, BandThresholds]:
+    """What detection reads of a calibration (`calibration.json`), per sonar."""
+    return {s: BandThresholds.of(e) for s, e in (doc.get("sonars") or {}).items()}
 
 
 def _n_levels(images: Sequence[np.ndarray]) -> int:

@@ -1,7 +1,6 @@
-"""Scan-matching inputs thinned and outlier-filtered before ICP (issue 50, item 5).
+"""Scan-matching inputs thinned and outlier-filtered before ICP.
 
-The authors' SLAM front end (SSLAM `feature.yaml`, `../shared/reference/
-original-implementation.md` Sec. 2.2) turns each keyframe's features into metres, thins
+The authors' SLAM front end (SSLAM `feature.yaml`, docs/authors-code.md section 2.2) turns each keyframe's features into metres, thins
 them on a 0.5 m grid (libpointmatcher OctreeGrid) and then removes the points with fewer
 than 5 neighbours within 1.0 m (PCL RadiusOutlierRemoval). The order matters for cost:
 after thinning, a 1 m disc holds at most about (2 r / voxel + 1)^2 points whatever the

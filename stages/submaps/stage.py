@@ -51,7 +51,6 @@ from sonarmap.schemas.submaps import (
     SUBMAP_POINTS_SCHEMA,
 )
 from sonarmap.stages.base import Input, StageInputError
-from sonarmap.stages.features.calibration import thresholds
 from sonarmap.stages.kernels.class_models import (
     ClassModelSettings,
     ClassState,
@@ -59,6 +58,7 @@ from sonarmap.stages.kernels.class_models import (
     restore_class_states,
 )
 from sonarmap.stages.kernels.clustering import clustering_params
+from sonarmap.stages.kernels.front_end import thresholds
 from sonarmap.stages.kernels.fusion import sonar_offset
 from sonarmap.stages.kernels.pairing import interpolate_poses, posed_pairs
 from sonarmap.stages.kernels.poses import pose_matrix
