@@ -135,9 +135,9 @@ def _xy(table, prefix: str = "") -> np.ndarray:
 # (scene, seed, goals): short missions (3-6 s each) where version 10 was worse than dead
 # reckoning by more than 5 cm (benchmarks/bench_slam_degeneracy.py, 6 goals).
 @functools.cache
-def _inputs(scene: str, seed: int, goals: int) -> dict[str, object]:
+def _inputs(scene: str, seed: int, goals: int, detector: str = "cfar") -> dict[str, object]:
     return simulated_slam_inputs(
-        str(SCENES / f"{scene}.yaml"), n_goals=goals, seed=seed, detector="cfar"
+        str(SCENES / f"{scene}.yaml"), n_goals=goals, seed=seed, detector=detector
     )
 
 
@@ -171,8 +171,10 @@ def test_slam_is_not_worse_than_dead_reckoning_on_degenerate_scenes(
 
 def test_the_warning_catches_version_10_sliding_along_the_quay() -> None:
     """The long quay as version 10 matched it: SLAM slid 1.7 m from dead reckoning (ATE
-    0.53 m against 0.10 m), past the 1.0 m the navigation's noise model allows."""
-    inputs = _inputs("long_quay", 0, 6)
+    0.53 m against 0.10 m), past the 1.0 m the navigation's noise model allows, on the
+    features of the fixed front end it was measured with (the calibrated one's features
+    slide it less: a slide is what this test needs)."""
+    inputs = _inputs("long_quay", 0, 6, "cfar_fixed")
     kf = inputs["keyframes.keyframes"]
     out = STAGE.run(SlamConfig(**VERSION_10), inputs)
     truth = _xy(kf, "gt_")

@@ -33,8 +33,8 @@ class TrainConfig(StageConfig):
     patch_normalisation: Literal["peak", "background"] = Field(
         "background",
         description="'background': each range's median over the beams subtracted, scaled by"
-        " the box's 99th percentile (a bright noise floor stays dark; issue 50); 'peak':"
-        " divided by the patch maximum (models before issue 50)",
+        " the box's 99th percentile (a bright noise floor stays dark); 'peak':"
+        " divided by the patch maximum (models trained before patches were normalised)",
     )
     sensor_copies: int = Field(
         3,

@@ -20,8 +20,9 @@ class FeaturesConfig(StageConfig):
 
     Every threshold is measured from the recording unless pinned here
     (`sonarmap.stages.features.calibration`): `null` = measured, a value = pinned, and a
-    pinned value is reported as pinned in `calibration.json`. The old fixed front end
-    (before issue 50) is `intensity_floor: 20, threshold_factor: exponential`.
+    pinned value is reported as pinned in `calibration.json`. The fixed front end of
+    before the calibration is `intensity_floor: 20, threshold_factor: exponential,
+    denoise: none`.
     """
 
     method: CfarMethod = Field("soca", description='local CFAR: "soca" (paper), "ca", "go", "os"')
