@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.engine.errors import ConfigError
@@ -54,27 +55,30 @@ SENSOR_KEYS = (
 _SONARS = ("horizontal", "vertical")
 
 
+def _presets_dir() -> Path:
+    # Not `readers.sonar_models.PRESETS_DIR`: that module loads numpy, and the demo's
+    # cached run (which names its sensors) loads no heavy library.
+    from sonarmap.pipeline.package_data import configs_dir
+
+    return configs_dir() / "sonars"
+
+
 def sensor_names() -> list[str]:
     """`sim-clean` and every preset with an image block, sorted."""
-    from sonarmap.pipeline.readers.sonar_models import PRESETS_DIR, preset_names
-
-    with_image = [
-        n for n in preset_names() if "\nimage:" in (PRESETS_DIR / f"{n}.yaml").read_text()
-    ]
-    return [CLEAN, *with_image]
+    presets = sorted(_presets_dir().glob("*.yaml"))
+    return [CLEAN, *(p.stem for p in presets if "\nimage:" in p.read_text())]
 
 
 @functools.lru_cache(maxsize=64)
 def _image_block(name: str) -> dict[str, Any]:
     from sonarmap.pipeline.engine.config.yaml_files import read_yaml
-    from sonarmap.pipeline.readers.sonar_models import PRESETS_DIR
 
     if name not in sensor_names() or name == CLEAN:
         raise ConfigError(
             f"sonar {name[:80]!r}: no simulated sensor of that name (sensors: "
             f"{', '.join(sensor_names())})"
         )
-    path = PRESETS_DIR / f"{name}.yaml"
+    path = _presets_dir() / f"{name}.yaml"
     block = read_yaml(path, "sonar preset", ConfigError).get("image")
     sim = block.get("simulator") if isinstance(block, dict) else None
     if not isinstance(sim, dict) or block.get("source") not in ("measured", "assumed"):
