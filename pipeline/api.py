@@ -247,7 +247,7 @@ def summarize(
     for name in ("features", "fuse"):
         if name in artifacts:
             outputs = artifacts[name].manifest.get("outputs", {})
-            summary[name] = {k: v.get("rows") for k, v in outputs.items()}
+            summary[name] = {k: v["rows"] for k, v in outputs.items() if "rows" in v}
     if scores and "classify" in artifacts:
         from sonarmap.pipeline.engine.store.codecs import read_verified
         from sonarmap.pipeline.scoring import classification_scores

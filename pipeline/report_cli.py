@@ -7,7 +7,13 @@ from typing import Any
 from sonarmap.pipeline.engine.run.runner import RunResult
 from sonarmap.pipeline.tables import print_table
 
-__all__ = ["front_end_lines", "front_end_summary", "print_summary", "progress_shares_stdout"]
+__all__ = [
+    "front_end_lines",
+    "front_end_of",
+    "front_end_summary",
+    "print_summary",
+    "progress_shares_stdout",
+]
 
 KEY_CHARS = 12
 """Characters of an artifact key shown on the terminal (`--json` gives the whole path)."""
@@ -206,15 +212,37 @@ def front_end_lines(summary: dict[str, Any]) -> list[str]:
     }
     lines = []
     for sonar, s in (block.get("sonars") or {}).items():
+        measured = s["background_detection_rate"]
         lines.append(
-            f"front end, {sonar}: background median {_fmt_span(s['background_median_levels'])}"
-            f" levels over {s['bands']} range bands ({s['background_bands']} background);"
-            f" floor {_fmt_span(s['intensity_floor_levels'])} ({how['floor']}),"
+            f"front end, {sonar}: background median"
+            f" {_fmt_span(s['background_median_levels'], '{:.0f}')} levels over {s['bands']}"
+            f" range bands ({s['background_bands']} background);"
+            f" floor {_fmt_span(s['intensity_floor_levels'], '{:.0f}')} ({how['floor']}),"
             f" CFAR factor {_fmt_span(s['threshold_factor'], '{:.2f}')} ({how['tau']});"
-            f" stated false alarms {block.get('stated_false_alarm_rate_per_cell')}/cell,"
-            f" measured on background {s['background_detection_rate']};"
-            f" {s['features_per_keyframe']} features/keyframe"
-            f" (expected false alarms {s['expected_false_alarms_per_ping']}/ping),"
+            f" false alarms stated {_rate(block.get('stated_false_alarm_rate_per_cell'))}/cell,"
+            f" measured on background {_rate(measured)};"
+            f" {_count(s['features_per_keyframe'])} features/keyframe"
+            f" ({_count(s['expected_false_alarms_per_ping'])} false alarms expected per ping),"
             f" {s['keyframes_clipped']} keyframes clipped by the budget"
         )
     return lines
+
+
+def _rate(value: float | None) -> str:
+    return "-" if value is None else f"{value:.1e}"
+
+
+def _count(value: float | None) -> str:
+    return "-" if value is None else f"{value:,.0f}"
+
+
+def front_end_of(result: RunResult) -> dict[str, Any]:
+    """{"front_end": the features stage's calibration, shortened per sonar} ({} without)."""
+    import json
+    from pathlib import Path
+
+    ref = result.artifacts.get("features")
+    path = None if ref is None else Path(ref.path) / "calibration.json"
+    if path is None or not path.is_file():
+        return {}
+    return {"front_end": front_end_summary(json.loads(path.read_text()))}

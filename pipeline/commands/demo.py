@@ -160,12 +160,21 @@ def demo(
         evaluate = result.artifacts.get("evaluate")
         if evaluate is not None:
             summary["report"] = str(_write_report(out / "report", result, no_figures))
+        from sonarmap.pipeline.report_cli import front_end_of
+
+        front_end = front_end_of(result)
         if json_:
-            emit_json({**result.to_json(), "summary": summary})
+            emit_json({**result.to_json(), "summary": {**summary, **front_end}})
             return
-        from sonarmap.pipeline.report_cli import print_summary, progress_shares_stdout
+        from sonarmap.pipeline.report_cli import (
+            front_end_lines,
+            print_summary,
+            progress_shares_stdout,
+        )
 
         print_summary(result, summary, stages_listed=progress_shares_stdout())
+        for line in front_end_lines(front_end):
+            typer.echo(line)
 
 
 def register(app: typer.Typer) -> None:

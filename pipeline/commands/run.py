@@ -64,7 +64,9 @@ def run(
                 scores=json_,
             )
         sensors = _sensors(result)
-        front_end = _front_end(result)
+        from sonarmap.pipeline.report_cli import front_end_of
+
+        front_end = front_end_of(result)
         if json_:
             emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
             return
@@ -78,19 +80,6 @@ def run(
         _print_sensors(sensors)
         for line in front_end_lines(front_end):
             typer.echo(line)
-
-
-def _front_end(result: Any) -> dict[str, Any]:
-    """The features stage's calibration, shortened per sonar (`front_end_summary`)."""
-    import json
-
-    from sonarmap.pipeline.report_cli import front_end_summary
-
-    ref = result.artifacts.get("features")
-    path = None if ref is None else Path(ref.path) / "calibration.json"
-    if path is None or not path.is_file():
-        return {}
-    return {"front_end": front_end_summary(json.loads(path.read_text()))}
 
 
 def _sensors(result: Any) -> dict[str, Any]:
