@@ -19,7 +19,7 @@ STAGE = Stage(
     name="features",
     # 2: thresholds calibrated from the recording per sonar and range band (issue 50),
     # recorded in calibration.json; a per-keyframe feature budget
-    version=2,
+    version=3,
     config=FeaturesConfig,
     inputs=(Input("keyframes", "frames"),),
     outputs=(
