@@ -53,7 +53,9 @@ def test_voxel_thin_is_voxel_downsample_per_keyframe() -> None:
         np.testing.assert_array_equal(out[out_kf == k], voxel_downsample(pts[kf == k], 0.25))
 
 
-def test_summary_counts_dropped_points_and_warns_when_most_are_isolated() -> None:
+def test_summary_counts_dropped_points_without_warning() -> None:
+    """The share dropped is recorded, not warned: at the front end's stated false-alarm
+    rate a sparse scene has most of its points isolated by design."""
     config = SlamConfig()
     ids = np.arange(3)
     dr = np.zeros((3, 3))
@@ -63,8 +65,8 @@ def test_summary_counts_dropped_points_and_warns_when_most_are_isolated() -> Non
     quiet = slam_summary(config, [], ids, dr, dr, t_s, False, counts)
     assert quiet["points"]["outliers_removed"] == 12 and not quiet["warnings"]
     noisy = {"thinned": 1000, "outliers_removed": 700, "kept": 300}
-    loud = slam_summary(config, [], ids, dr, dr, t_s, False, noisy)
-    assert len(loud["warnings"]) == 1 and "700 of 1,000" in loud["warnings"][0]
+    sparse = slam_summary(config, [], ids, dr, dr, t_s, False, noisy)
+    assert sparse["points"]["outliers_removed"] == 700 and not sparse["warnings"]
 
 
 def test_budget_keeps_the_densest_points_of_keyframes_over_it_only() -> None:
