@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import logging
-from functools import cache
-from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -14,27 +12,13 @@ from scipy.ndimage import binary_dilation
 
 from sonarmap.schemas.features import FEATURES_SCHEMA
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.sim.config import MissionConfig, SimConfig
-from sonarmap.sim.dataset import simulate
-from sonarmap.sim.scene import load_scene
 from sonarmap.stages.features.stage import STAGE, FeaturesConfig, features_table
+from tests.fixtures.tiny_keyframes import tiny_keyframes
 
 logger = logging.getLogger(__name__)
 
-SCENES = Path(__file__).resolve().parents[1] / "configs" / "scenes"
 
 SEAFLOOR = 6
-
-
-@cache
-def _frames() -> tuple[KeyframeImages, ...]:
-    """Every 4th ping pair of a 20 s tiny-scene mission (labels and truth attached)."""
-    cfg = SimConfig(mission=MissionConfig(n_goals=2, duration_s=20.0))
-    run = simulate(load_scene(SCENES / "tiny.yaml"), cfg, seed=1)
-    return tuple(
-        KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)
-        for k, f in enumerate(run.frame(i) for i in range(0, run.n_frames, 4))
-    )
 
 
 def _masks(table: pa.Table, frame: KeyframeImages, sonar: str) -> np.ndarray:
@@ -51,7 +35,7 @@ def _scores(table: pa.Table) -> dict[str, float]:
     counts = dict.fromkeys(("obj", "obj_hit", "lab", "lab_hit", "det", "near", "water", "fa"), 0)
     # The 3x3 denoising filter moves a return's edge by up to one cell, in range or beam.
     near_cell = np.ones((3, 3), dtype=bool)
-    for frame in _frames():
+    for frame in tiny_keyframes():
         for sonar in ("horizontal", "vertical"):
             ping = getattr(frame, sonar)
             det = _masks(table, frame, sonar)
@@ -82,20 +66,22 @@ def test_default_detector_recall_and_precision_on_a_simulated_mission() -> None:
     alarms on empty water 7.2e-4 against the stated per-cell rate of 1e-3 (old: 0). SOCA
     alone (floor 0) false-alarms on less than its configured Pfa of 10 %."""
     cfg = FeaturesConfig()
-    scores = _scores(STAGE.run(cfg, {"keyframes.frames": _frames()})["features"])
+    scores = _scores(STAGE.run(cfg, {"keyframes.frames": tiny_keyframes()})["features"])
     logger.info("features default: %s (configured pfa %.3g)", scores, cfg.pfa)
     assert scores["recall_objects"] >= 0.95
     assert scores["recall_labelled"] >= 0.7
     assert scores["precision"] >= 0.8
     p = cfg.false_alarm_rate_per_cell
     assert p / 4 < scores["false_alarm_rate"] < 2 * p
-    cfar_only = _scores(features_table(_frames(), cfg.model_copy(update={"intensity_floor": 0.0})))
+    cfar_only = _scores(
+        features_table(tiny_keyframes(), cfg.model_copy(update={"intensity_floor": 0.0}))
+    )
     logger.info("features CFAR only: %s", cfar_only)
     assert 0.0 < cfar_only["false_alarm_rate"] < cfg.pfa
 
 
 def test_table_follows_the_schema_sorted_with_per_keyframe_ids() -> None:
-    table = features_table(_frames()[:3], FeaturesConfig())
+    table = features_table(tiny_keyframes()[:3], FeaturesConfig())
     assert table.schema.equals(FEATURES_SCHEMA)
     kf = table["keyframe_id"].to_numpy()
     fid = table["feature_id"].to_numpy()
@@ -105,7 +91,7 @@ def test_table_follows_the_schema_sorted_with_per_keyframe_ids() -> None:
     assert np.array_equal(key, np.arange(len(kf)))
     for k in np.unique(kf):
         assert np.array_equal(fid[kf == k], np.arange((kf == k).sum()))
-    for frame in _frames()[:3]:
+    for frame in tiny_keyframes()[:3]:
         for s in ("horizontal", "vertical"):
             m = (kf == frame.keyframe_id) & (sonar == s)
             ping = getattr(frame, s)
@@ -116,19 +102,19 @@ def test_table_follows_the_schema_sorted_with_per_keyframe_ids() -> None:
 
 
 def test_same_input_gives_the_same_table() -> None:
-    a = features_table(_frames()[:2], FeaturesConfig())
-    b = features_table(_frames()[:2], FeaturesConfig())
+    a = features_table(tiny_keyframes()[:2], FeaturesConfig())
+    b = features_table(tiny_keyframes()[:2], FeaturesConfig())
     assert a.equals(b)
 
 
 def test_empty_sequence_and_decreasing_ids() -> None:
     assert features_table([], FeaturesConfig()).num_rows == 0
-    f = _frames()
+    f = tiny_keyframes()
     with pytest.raises(ValueError, match="increase"):
         features_table([f[1], f[0]], FeaturesConfig())
 
 
 @pytest.mark.parametrize("method", ["ca", "go", "os"])
 def test_other_variants_run_through_config(method: str) -> None:
-    table = features_table(_frames()[:2], FeaturesConfig(method=method))  # type: ignore[arg-type]
+    table = features_table(tiny_keyframes()[:2], FeaturesConfig(method=method))  # type: ignore[arg-type]
     assert table.num_rows > 0

@@ -7,39 +7,23 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.sim.config import MissionConfig, SimConfig
-from sonarmap.sim.dataset import simulate
-from sonarmap.sim.scene import load_scene
 from sonarmap.stages.base import StageInputError
 from sonarmap.stages.features.stage import STAGE, FeaturesConfig
 from sonarmap.stages.kernels.cfar import cfar_detect
 from sonarmap.stages.kernels.clutter import band_of_ranges
 from sonarmap.stages.kernels.frame_features import detect_mask
 from sonarmap.stages.kernels.front_end import BandThresholds, calibrate_sonar
-
-SCENES = Path(__file__).resolve().parents[1] / "configs" / "scenes"
-
-
-@cache
-def _frames() -> tuple[KeyframeImages, ...]:
-    """Every 4th ping pair of a 20 s tiny-scene mission."""
-    cfg = SimConfig(mission=MissionConfig(n_goals=2, duration_s=20.0))
-    run = simulate(load_scene(SCENES / "tiny.yaml"), cfg, seed=1)
-    return tuple(
-        KeyframeImages(k, f.t_ns, f.horizontal, f.vertical)
-        for k, f in enumerate(run.frame(i) for i in range(0, run.n_frames, 4))
-    )
+from tests.fixtures.tiny_keyframes import tiny_keyframes
 
 
 def _run(**pins: object) -> tuple[object, dict]:
-    out = STAGE.run(FeaturesConfig(**pins), {"keyframes.frames": _frames()})  # type: ignore[arg-type]
+    out = STAGE.run(FeaturesConfig(**pins), {"keyframes.frames": tiny_keyframes()})  # type: ignore[arg-type]
     return out["features"], out["calibration"]
 
 
@@ -76,7 +60,7 @@ def test_pinned_values_win_and_are_reported_pinned() -> None:
 
 def test_the_old_fixed_front_end_is_reachable_by_pinning() -> None:
     cfg = FeaturesConfig(intensity_floor=20.0, threshold_factor="exponential", denoise="none")
-    ping = _frames()[3].horizontal
+    ping = tiny_keyframes()[3].horizontal
     doc = calibrate_sonar([ping.image], [ping.ranges_m], cfg, "horizontal")
     old = cfar_detect(ping.image, 10, 5, 0.1, "soca", floor=20.0)
     assert np.array_equal(detect_mask(ping, cfg, BandThresholds.of(doc)), old)
@@ -90,8 +74,8 @@ def test_flooding_warns() -> None:
     text = "\n".join(doc["warnings"])
     assert "horizontal sonar floods" in text and "vertical sonar floods" in text
     clipped = doc["sonars"]["horizontal"]["measured"]
-    assert clipped["keyframes_clipped"] == len(_frames()) and clipped["features_dropped"] > 0
-    assert f"clipped {len(_frames())} of {len(_frames())} keyframes" in text
+    assert clipped["keyframes_clipped"] == len(tiny_keyframes()) and clipped["features_dropped"] > 0
+    assert f"clipped {len(tiny_keyframes())} of {len(tiny_keyframes())} keyframes" in text
 
 
 def test_starving_warns() -> None:
@@ -105,7 +89,7 @@ def test_unmodelable_images_are_refused_in_one_line() -> None:
             f.keyframe_id, f.t_ns,
             replace(f.horizontal, image=np.zeros_like(f.horizontal.image)), f.vertical,
         )
-        for f in _frames()[:3]
+        for f in tiny_keyframes()[:3]
     ]  # fmt: skip
     with pytest.raises(StageInputError, match=r"horizontal sonar: no background .*empty"):
         STAGE.run(FeaturesConfig(), {"keyframes.frames": frames})
@@ -174,6 +158,6 @@ def test_summary_line_and_report_section_name_what_was_pinned_and_the_warnings()
     assert [ln.split(":")[0] for ln in lines] == ["front end, horizontal", "front end, vertical"]
     assert all("floor 254 (pinned)" in ln and "CFAR factor" in ln for ln in lines)
     assert block["pinned"] == {"intensity_floor": 254.0} and block["warnings"] == doc["warnings"]
-    report = "\n".join(front_end_markdown(front_end_report(doc, 10, 5, len(_frames()))))
+    report = "\n".join(front_end_markdown(front_end_report(doc, 10, 5, len(tiny_keyframes()))))
     assert "pinned by config: {'intensity_floor': 254.0}" in report
     assert "**warning:** features: horizontal sonar starves" in report

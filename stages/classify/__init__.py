@@ -38,7 +38,12 @@ STAGE = Stage(
         Input("train", "model"),
     ),
     outputs=(
-        Output("objects", "parquet", "objects.parquet", schema="sonarmap.schemas.objects:OBJECTS_SCHEMA"),
+        Output(
+            "objects",
+            "parquet",
+            "objects.parquet",
+            schema="sonarmap.schemas.objects:OBJECTS_SCHEMA",
+        ),
         Output(
             "object_features",
             "parquet",

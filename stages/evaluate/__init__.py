@@ -47,7 +47,11 @@ STAGE = Stage(
     outputs=(
         Output("metrics", "json", "metrics.json"),
         Output(
-            "errors", "parquet", "errors.parquet", optional=True, schema="sonarmap.schemas.map:ERRORS_SCHEMA"
+            "errors",
+            "parquet",
+            "errors.parquet",
+            optional=True,
+            schema="sonarmap.schemas.map:ERRORS_SCHEMA",
         ),
         Output("report", "bytes", "report.md"),
         Output(

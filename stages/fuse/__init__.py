@@ -24,7 +24,9 @@ STAGE = Stage(
         Input("keyframes", "sensors"),
         Input("features", "features"),
     ),
-    outputs=(Output("fused", "parquet", "fused.parquet", schema="sonarmap.schemas.fused:FUSED_SCHEMA"),),
+    outputs=(
+        Output("fused", "parquet", "fused.parquet", schema="sonarmap.schemas.fused:FUSED_SCHEMA"),
+    ),
     run=deferred("sonarmap.stages.fuse.stage:run"),
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",
 )

@@ -36,7 +36,9 @@ STAGE = Stage(
         Input("fuse", "fused"),
     ),
     outputs=(
-        Output("points", "parquet", "points.parquet", schema="sonarmap.schemas.points:POINTS_SCHEMA"),
+        Output(
+            "points", "parquet", "points.parquet", schema="sonarmap.schemas.points:POINTS_SCHEMA"
+        ),
         Output("stats", "json", "stats.json"),
         Output(
             "class_reference",

@@ -164,6 +164,13 @@ def cfar_noise(
     return out
 
 
+def _check_window(train_hs: int, guard_hs: int, method: str) -> None:
+    if train_hs < 1 or guard_hs < 0:
+        raise ValueError(f"need train_hs >= 1 and guard_hs >= 0, got {train_hs}, {guard_hs}")
+    if method not in ("soca", "ca", "go", "os"):
+        raise ValueError(f"unknown CFAR method {method!r}")
+
+
 def cfar_detect(
     image: np.ndarray,
     train_hs: int,
@@ -186,10 +193,7 @@ def cfar_detect(
     Returns:
         (n_ranges, n_beams) bool detection mask.
     """
-    if train_hs < 1 or guard_hs < 0:
-        raise ValueError(f"need train_hs >= 1 and guard_hs >= 0, got {train_hs}, {guard_hs}")
-    if method not in ("soca", "ca", "go", "os"):
-        raise ValueError(f"unknown CFAR method {method!r}")
+    _check_window(train_hs, guard_hs, method)
     k = (rank or train_hs) if method == "os" else 0
     tau = threshold_factor(method, 2 * train_hs, pfa, k)
     n_r = np.asarray(image).shape[0]
@@ -221,10 +225,7 @@ def cfar_detect_rows(
     Returns:
         (n_ranges, n_beams) bool detection mask.
     """
-    if train_hs < 1 or guard_hs < 0:
-        raise ValueError(f"need train_hs >= 1 and guard_hs >= 0, got {train_hs}, {guard_hs}")
-    if method not in ("soca", "ca", "go", "os"):
-        raise ValueError(f"unknown CFAR method {method!r}")
+    _check_window(train_hs, guard_hs, method)
     img = np.asarray(image)
     n_r, w = img.shape[0], train_hs + guard_hs
     mask = np.zeros(img.shape, dtype=bool)

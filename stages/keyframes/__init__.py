@@ -21,7 +21,10 @@ STAGE = Stage(
     inputs=(DATASET,),
     outputs=(
         Output(
-            "keyframes", "parquet", "keyframes.parquet", schema="sonarmap.schemas.keyframes:KEYFRAMES_SCHEMA"
+            "keyframes",
+            "parquet",
+            "keyframes.parquet",
+            schema="sonarmap.schemas.keyframes:KEYFRAMES_SCHEMA",
         ),
         Output("frames", "frames", "keyframes.mcap"),
         Output("sensors", "json", "sensors.json", record="sonarmap.schemas.sensors:Sensors"),

@@ -42,7 +42,9 @@ STAGE = Stage(
     ),
     outputs=(
         Output("poses", "parquet", "poses.parquet", schema="sonarmap.schemas.slam:POSES_SCHEMA"),
-        Output("factors", "parquet", "factors.parquet", schema="sonarmap.schemas.slam:FACTORS_SCHEMA"),
+        Output(
+            "factors", "parquet", "factors.parquet", schema="sonarmap.schemas.slam:FACTORS_SCHEMA"
+        ),
         Output("trajectory", "bytes", "trajectory.tum"),
         Output("summary", "json", "summary.json"),
         Output(

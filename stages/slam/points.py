@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
@@ -31,28 +33,10 @@ def leading_edges(keyframe_id: np.ndarray, beam: np.ndarray, range_bin: np.ndarr
     return out
 
 
-def keyframe_points(
-    keyframe_ids: np.ndarray,
-    features: pa.Table,
-    T_base_sonar: np.ndarray,
-    voxel_m: float,
-    leading_edge_only: bool = True,
-    outlier_radius_m: float | None = None,
-    outlier_min_neighbours: int = 5,
-    max_points: int | None = None,
-) -> list[np.ndarray]:
-    """Horizontal features per keyframe as (N_k, 2) base_link points at elevation 0
-    (`counted_keyframe_points` without its counts)."""
-    return counted_keyframe_points(
-        keyframe_ids,
-        features,
-        T_base_sonar,
-        voxel_m,
-        leading_edge_only,
-        outlier_radius_m,
-        outlier_min_neighbours,
-        max_points,
-    )[0]
+def keyframe_points(*args: Any, **kwargs: Any) -> list[np.ndarray]:
+    """Horizontal features per keyframe as (N_k, 2) base_link points at elevation 0:
+    `counted_keyframe_points` (same arguments) without its counts."""
+    return counted_keyframe_points(*args, **kwargs)[0]
 
 
 def counted_keyframe_points(
