@@ -129,9 +129,7 @@ def _serve(args: list[str], timeout_s: float = 60.0) -> tuple[Received, str, str
         )
     finally:
         proc.send_signal(signal.SIGINT)
-        # Ctrl-C must end it; 60 s because on a loaded machine the server's shutdown was
-        # seen to take over 30 s (never alone, nor beside three CPU-bound processes).
-        out, err = proc.communicate(timeout=60)
+        out, err = proc.communicate(timeout=30)
     return got, out, head + err, proc.returncode
 
 
