@@ -36,6 +36,7 @@ from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.stages.base import Output, Stage, StageConfig
 from sonarmap.stages.classify.stage import STAGE as CLASSIFY
+from tests.fixtures.signals import default_sigint
 
 runner = CliRunner()
 
@@ -185,6 +186,7 @@ def test_a_signalled_run_ends_with_its_worker_and_gc_keeps_its_finished_work(
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_sigint,
     )
     try:
         _wait_for(calls, "double")

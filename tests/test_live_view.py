@@ -25,6 +25,7 @@ from sonarmap.pipeline.graph import pipeline_stages
 from sonarmap.pipeline.live.feed import LiveFeed
 from sonarmap.pipeline.live.server import LiveServer
 from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
+from tests.fixtures.signals import default_sigint
 
 ROOT = Path(__file__).resolve().parent.parent
 pytest.importorskip("websockets")
@@ -111,6 +112,7 @@ def _serve(args: list[str], timeout_s: float = 60.0) -> tuple[Received, str, str
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_sigint,
     )
     try:
         assert proc.stderr is not None

@@ -24,6 +24,7 @@ from typing import Any
 
 from tests.contract.case import Case, names
 from tests.fixtures import ROOT, small_recording
+from tests.fixtures.signals import default_sigint
 
 STORE = "data/store"
 TOY_ENV = {"SONARMAP_GRAPH": "tests.toy_stages:GRAPH", "PYTHONPATH": str(ROOT)}
@@ -46,9 +47,24 @@ def _toy_run(work: Path, *extra: str, gate: bool = True) -> subprocess.Popen[byt
     env = {**os.environ, **TOY_ENV, "TOY_CALL_LOG": str(work / "calls.log")}
     if gate:
         env["TOY_GATE"] = str(work / "gate")
-    cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "raw.bin", "--store", STORE, "-q", *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "sonarmap.pipeline",
+        "run",
+        "raw.bin",
+        "--store",
+        STORE,
+        "-q",
+        *extra,
+    ]
     proc = subprocess.Popen(
-        cmd, cwd=work, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        cmd,
+        cwd=work,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        preexec_fn=default_sigint,
     )
     atexit.register(proc.kill)  # a case that fails before its check leaves no run behind
     return proc
@@ -151,7 +167,17 @@ def _finished_work_kept(*stages: str) -> Any:
         if list((work / STORE / ".tmp").iterdir()):
             return "the killed commit's temporary directory is left"
         rerun = subprocess.run(
-            [sys.executable, "-m", "sonarmap.pipeline", "run", "raw.bin", "--store", STORE, "-q", "--json"],
+            [
+                sys.executable,
+                "-m",
+                "sonarmap.pipeline",
+                "run",
+                "raw.bin",
+                "--store",
+                STORE,
+                "-q",
+                "--json",
+            ],
             cwd=work,
             env={**os.environ, **TOY_ENV},
             capture_output=True,
@@ -175,7 +201,12 @@ def _real_gc_mid_run(work: Path) -> list[str]:
     cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "rec.mcap", "--store", STORE, "-q",
            "--until", "slam"]  # fmt: skip
     proc = subprocess.Popen(
-        cmd, cwd=work, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        cmd,
+        cwd=work,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        preexec_fn=default_sigint,
     )
     atexit.register(proc.kill)
     _BACKGROUND[str(work)] = proc
@@ -341,16 +372,22 @@ def _toy_empty(*sets: str) -> Any:
     return build
 
 
+STARVED = ["--set", "features.intensity_floor=250"]
+"""A floor pinned near saturation: the small recording's features then never fuse (the
+calibrated front end fuses a few points on it, the old fixed one none; these cases are
+about what a run says when fusion collapses)."""
+
+
 def _real_nav_jump(work: Path) -> list[str]:
-    """The small recording as it is: 0 fused points from thousands of features."""
+    """The small recording, starved: 0 fused points from hundreds of features."""
     small_recording(work / "rec.mcap")
-    return ["run", "rec.mcap", "--store", STORE, "-q"]
+    return ["run", "rec.mcap", "--store", STORE, "-q", *STARVED]
 
 
-def _real_until(stage: str) -> Any:
+def _real_until(stage: str, *extra: str) -> Any:
     def build(work: Path) -> list[str]:
         small_recording(work / "rec.mcap")
-        return ["run", "rec.mcap", "--store", STORE, "-q", "--json", "--until", stage]
+        return ["run", "rec.mcap", "--store", STORE, "-q", "--json", "--until", stage, *extra]
 
     return build
 
@@ -651,7 +688,7 @@ CASES = [
     Case(
         "empty maps",
         "real run until fuse: fused collapse warned",
-        _real_until("fuse"),
+        _real_until("fuse", *STARVED),
         expect_exit=(0,),
         check=_warns("fuse: 0 fused points"),
         **_REAL,
