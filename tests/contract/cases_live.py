@@ -40,6 +40,12 @@ def _wait_for(path: Path, text: str, timeout_s: float = 60.0) -> None:
     raise RuntimeError(f"{text!r} never appeared in {path}")
 
 
+def _toy_command(*extra: str) -> list[str]:
+    """`sonarmap run` of the toy recording into the case's store."""
+    return [sys.executable, "-m", "sonarmap.pipeline", "run", "raw.bin", "--store", STORE, "-q",
+            *extra]  # fmt: skip
+
+
 def _toy_run(work: Path, *extra: str, gate: bool = True) -> subprocess.Popen[bytes]:
     """A toy run in the background, held in its `double` stage until `work/gate` exists."""
     data = work / "raw.bin"
@@ -47,17 +53,7 @@ def _toy_run(work: Path, *extra: str, gate: bool = True) -> subprocess.Popen[byt
     env = {**os.environ, **TOY_ENV, "TOY_CALL_LOG": str(work / "calls.log")}
     if gate:
         env["TOY_GATE"] = str(work / "gate")
-    cmd = [
-        sys.executable,
-        "-m",
-        "sonarmap.pipeline",
-        "run",
-        "raw.bin",
-        "--store",
-        STORE,
-        "-q",
-        *extra,
-    ]
+    cmd = _toy_command(*extra)
     proc = subprocess.Popen(
         cmd,
         cwd=work,
@@ -167,17 +163,7 @@ def _finished_work_kept(*stages: str) -> Any:
         if list((work / STORE / ".tmp").iterdir()):
             return "the killed commit's temporary directory is left"
         rerun = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "sonarmap.pipeline",
-                "run",
-                "raw.bin",
-                "--store",
-                STORE,
-                "-q",
-                "--json",
-            ],
+            _toy_command("--json"),
             cwd=work,
             env={**os.environ, **TOY_ENV},
             capture_output=True,
