@@ -3,7 +3,7 @@ share of labelled pixels detected and the false-alarm rate on unlabelled pixels,
 sensor statistics and front-end variant. Not the headline map figure.
 
     .venv/bin/python benchmarks/bench_frontend_pixels.py [--scene marina] [--seed 0]
-        [--pings 24] [--goals 4]
+        [--pings 24] [--goals 4] [--sensors clean,oculus_like,aris_like,oculus_pair,aris_pair]
 
 Variants: `old` (intensity floor 20, exponential-model tau, no filter: the front end
 before issue 50), `calibrated_raw` (calibrated on the sampled pings, no filter) and
@@ -24,14 +24,23 @@ SENSORS = {
     "oculus_like": {"noise_mean_level": 53.0, "noise_shape": 1.2},
     "aris_like": {"noise_mean_level": 88.0, "noise_shape": 3.4},
 }
+PRESET_PAIRS = {
+    "oculus_pair": {"horizontal": "oculus-m750d-750khz", "vertical": "oculus-m1200d"},
+    "aris_pair": {"horizontal": "aris1800-48", "vertical": "aris1800-48"},
+}
+"""The measured presets (grain along range and beam, range slope, gain): `--sensors`."""
 
 
-def _pings(scene: str, seed: int, goals: int, n: int, update: dict) -> list:
+def _pings(scene: str, seed: int, goals: int, n: int, sensor: str) -> list:
     from sonarmap.pipeline.training.datasets import read_scene, scene_path, sim_config
+    from sonarmap.pipeline.training.sim_sensors import with_sensors
     from sonarmap.sim.dataset import simulate
 
     cfg = sim_config(goals, None)
-    if update:
+    update = SENSORS.get(sensor, {})
+    if sensor in PRESET_PAIRS:
+        cfg = with_sensors(cfg, PRESET_PAIRS[sensor])
+    elif update:
         cfg = cfg.model_copy(
             update={
                 s: getattr(cfg, s).model_copy(update=update) for s in ("horizontal", "vertical")
@@ -48,6 +57,8 @@ VARIANTS = {
     "calibrated_raw": {"denoise": "none"},
     "calibrated": {},
     "calibrated_box3x3": {"denoise": "box3x3"},
+    "box3x5": {"denoise": "box3x5"},
+    "box5x5": {"denoise": "box5x5"},
     "beam3": {"denoise": "beam3"},
     "range3": {"denoise": "range3"},
 }
@@ -58,9 +69,10 @@ def measure(frames: list, variant: str) -> dict:
     from scipy.ndimage import binary_dilation
 
     from sonarmap.schemas.sonar import KeyframeImages
-    from sonarmap.stages.features.calibration import calibrate, thresholds
+    from sonarmap.stages.features.calibration import calibrate
     from sonarmap.stages.features.config import FeaturesConfig
     from sonarmap.stages.kernels.frame_features import detect_mask
+    from sonarmap.stages.kernels.front_end import thresholds
 
     cfg = FeaturesConfig(fit_quantiles=FIT, **VARIANTS[variant])
     frames = [KeyframeImages(i, f.t_ns, f.horizontal, f.vertical) for i, f in enumerate(frames)]
@@ -101,12 +113,15 @@ def main() -> None:
     ap.add_argument("--goals", type=int, default=4)
     ap.add_argument("--variants", default=",".join(VARIANTS))
     ap.add_argument("--fit", default="0.6,0.95")
+    ap.add_argument("--sensors", default=",".join(SENSORS))
     args = ap.parse_args()
     global FIT
     FIT = tuple(float(x) for x in args.fit.split(","))
     doc = {}
-    for name, update in SENSORS.items():
-        frames = _pings(args.scene, args.seed, args.goals, args.pings, update)
+    for name in args.sensors.split(","):
+        if name not in SENSORS and name not in PRESET_PAIRS:
+            ap.error(f"--sensors: unknown {name!r} (known: {', '.join([*SENSORS, *PRESET_PAIRS])})")
+        frames = _pings(args.scene, args.seed, args.goals, args.pings, name)
         doc[name] = {v: measure(frames, v) for v in args.variants.split(",")}
         print(json.dumps({name: doc[name]}), flush=True)
 

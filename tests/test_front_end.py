@@ -161,3 +161,27 @@ def test_summary_line_and_report_section_name_what_was_pinned_and_the_warnings()
     report = "\n".join(front_end_markdown(front_end_report(doc, 10, 5, len(tiny_keyframes()))))
     assert "pinned by config: {'intensity_floor': 254.0}" in report
     assert "**warning:** features: horizontal sonar starves" in report
+
+
+def _grain(a_range: float, a_beam: float) -> list[np.ndarray]:
+    """Oculus-like spiky clutter (Weibull mean 53, shape 1.2) with lag-1 grain correlation
+    `a_range` / `a_beam` (the simulator's Gaussian copula), four 8-bit pings."""
+    from scipy.special import ndtr
+
+    from sonarmap.sim.image_noise import gaussian_field, weibull
+
+    rng = np.random.default_rng(7)
+    z = gaussian_field(rng, (4, 400, 256), a_range, a_beam)
+    level = weibull(53.0, 1.2)(-np.log1p(-ndtr(z.astype(np.float64)).clip(0, 1 - 1e-12)))
+    return [np.clip(np.rint(im), 0, 255).astype(np.uint8) for im in level]
+
+
+def test_denoise_auto_sizes_the_mean_to_the_grain() -> None:
+    """Spiky iid clutter keeps the 3x3 mean; the real Oculus ping's grain (lag-1 0.35 along
+    range, 0.64 across beams) averages fewer looks in 3x3 cells, so the window grows."""
+    cfg = FeaturesConfig()
+    rows = np.arange(400, dtype=np.float64)
+    iid = calibrate_sonar(_grain(0.0, 0.0), [rows] * 4, cfg, "h")
+    grain = calibrate_sonar(_grain(0.35, 0.64), [rows] * 4, cfg, "h")
+    assert iid["denoise"] == "box3x3"
+    assert grain["denoise"] in ("box3x5", "box5x5")

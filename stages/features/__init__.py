@@ -18,8 +18,9 @@ __all__ = ["STAGE", "FeaturesConfig"]
 STAGE = Stage(
     name="features",
     # 2: thresholds calibrated from the recording per sonar and range band (issue 50),
-    # recorded in calibration.json; a per-keyframe feature budget
-    version=3,
+    # recorded in calibration.json; a per-keyframe feature budget. 3: a flood is never
+    # also a starve. 4: denoise auto sizes the mean to the grain's correlation.
+    version=4,
     config=FeaturesConfig,
     inputs=(Input("keyframes", "frames"),),
     outputs=(

@@ -68,7 +68,9 @@ class FeaturesConfig(StageConfig):
         description="the clutter law is fitted to this quantile range of each band: objects"
         " may fill up to 1 - upper of a band without moving the fit",
     )
-    denoise: Literal["auto", "box3x3", "beam3", "range3", "none"] = Field(
+    denoise: Literal[
+        "auto", "box3x3", "box3x5", "box5x3", "box5x5", "beam3", "range3", "none"
+    ] = Field(
         "auto",
         description="filter before calibration and detection: auto = a 3x3 (range x beam)"
         " mean only for a sonar whose unfiltered background puts the stated rate's floor at"

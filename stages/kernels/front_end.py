@@ -31,8 +31,12 @@ ndimage = lazy("scipy.ndimage")
 
 SOLVE_STEPS = 20
 """Bisection steps for the law's rate that meets p on the background bands."""
-RESOLUTION = {"none": 1, "box3x3": 9, "beam3": 3, "range3": 3}
-FILTER_SIZE = {"box3x3": (3, 3), "beam3": (1, 3), "range3": (3, 1)}
+FILTER_SIZE = {
+    "box3x3": (3, 3), "box3x5": (3, 5), "box5x3": (5, 3), "box5x5": (5, 5),
+    "beam3": (1, 3), "range3": (3, 1),
+}  # fmt: skip
+"""(range, beam) cells of each mean filter."""
+RESOLUTION = {"none": 1} | {m: r * b for m, (r, b) in FILTER_SIZE.items()}
 """Steps per image level of the filtered image (a mean of 9 integers moves by 1/9)."""
 DIGITS = 6
 """Significant digits of the floats recorded (deterministic bytes)."""
@@ -71,12 +75,13 @@ class UnmodelableImages(ValueError):
 
 
 def denoised(image: np.ndarray, method: str) -> np.ndarray:
-    """The image detection and calibration see: "box3x3" = the mean of each cell's 3x3
-    neighbourhood (range x beam, edges repeated), float; "none" = the image itself."""
+    """The image detection and calibration see: "boxRxB" = the mean of each cell's R x B
+    neighbourhood (range x beam, edges repeated; "beam3" / "range3" along one axis),
+    float; "none" = the image itself."""
     img = np.asarray(image)
     if method == "none":
         return img
-    # float32 is exact for 9 x 255 and keeps the mean's 1/9-level steps (RESOLUTION)
+    # float32 is exact for 25 x 255 and keeps the mean's 1/n-level steps (RESOLUTION)
     return ndimage.uniform_filter(img.astype(np.float32), FILTER_SIZE[method], mode="nearest")
 
 
@@ -227,10 +232,12 @@ def calibrate_sonar(
 def _auto_denoise(
     images: Sequence[np.ndarray], ranges_m: Sequence[np.ndarray], config: CalibrationSettings
 ) -> str:
-    """`denoise: auto`: the 3x3 mean only where detection without it is impossible: when
-    more than half of the bands fitted on the unfiltered images put the stated rate's floor
-    at the top level (a spiky background whose 1e-3 tail passes full scale), else none
-    (the filter moves returns by a cell: on the clean sensor it costs map accuracy)."""
+    """`denoise: auto`: no filter unless detection without one is impossible: when more
+    than half of the bands fitted on the unfiltered images put the stated rate's floor at
+    the top level (a spiky background whose 1e-3 tail passes full scale; the filter moves
+    returns by a cell, which costs the clean sensor map accuracy). Then a mean filter, the
+    smallest of `SMOOTHING_WINDOWS` that averages as many independent looks as a 3x3 mean
+    does on uncorrelated clutter of the fitted law (`_window_for_grain`)."""
     n_levels = _n_levels(images)
     edges = clutter.band_edges_m(ranges_m[0], config.range_bands)
     bands = [clutter.band_of_ranges(r, edges) for r in ranges_m]
@@ -242,7 +249,48 @@ def _auto_denoise(
         clutter.threshold_level(f.shape, f.scale_levels, p, n_levels) >= n_levels - 1  # type: ignore[arg-type]
         for f in fits
     )
-    return "box3x3" if not fits or top > len(fits) / 2 else "none"
+    if fits and top <= len(fits) / 2:
+        return "none"
+    return _window_for_grain(images, fits) if fits else "box3x3"
+
+
+SMOOTHING_WINDOWS = ("box3x3", "box3x5", "box5x3", "box5x5")
+"""Candidate means for a spiky background, fewest cells first (range x beam)."""
+LOOKS_SLACK = 1.1
+"""A window qualifies when its spread is within 10 % of the iid 3x3 mean's (estimates of
+both from a few pings vary by a few per cent)."""
+
+
+def _spread(values: np.ndarray) -> float:
+    """Interquartile range: the bulk's spread, which the objects (the upper tail) do not move."""
+    q25, q75 = np.quantile(values, (0.25, 0.75))
+    return float(q75 - q25)
+
+
+def _window_for_grain(images: Sequence[np.ndarray], fits: list[clutter.BandLaw]) -> str:
+    """The smallest mean window whose filtered images keep no more of the raw spread than a
+    3x3 mean keeps of uncorrelated clutter of the same law.
+
+    Why: a 3x3 mean averages 9 independent looks of uncorrelated speckle; real sensors'
+    grain is correlated along range and beam (a real Oculus ping: lag-1 0.35 / 0.64), so the
+    same 9 cells average fewer looks and the floor stays high. The target is the spread
+    ratio (filtered / raw interquartile range) of a 3x3 mean over a fixed-seed iid image
+    drawn from the median fitted law; each candidate's ratio is measured on the sampled
+    images (pooled). Larger than 5x5 is not tried: a return would move by over two cells.
+    """
+    law = fits[len(fits) // 2]
+    rng = np.random.default_rng(0)
+    iid = (law.scale_levels or 1.0) * rng.weibull(law.shape or 1.0, clutter.MC_SHAPE)
+    target = _spread(denoised(iid, "box3x3")) / _spread(iid)
+    raw = np.concatenate([np.asarray(im, np.float32).ravel() for im in images])
+    raw_spread = _spread(raw)
+    if raw_spread <= 0:
+        return "box3x3"
+    for method in SMOOTHING_WINDOWS:
+        filtered = np.concatenate([denoised(im, method).ravel() for im in images])
+        if _spread(filtered) / raw_spread <= LOOKS_SLACK * target:
+            return method
+    return SMOOTHING_WINDOWS[-1]
 
 
 def _floor(
