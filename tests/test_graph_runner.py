@@ -62,7 +62,9 @@ def test_two_workers_give_the_store_one_worker_gives(
 ) -> None:
     log = tmp_path / "calls.log"
     monkeypatch.setenv("TOY_CALL_LOG", str(log))
-    slow = ("double.sleep_s=1",)  # double still runs when count starts
+    # double still runs when count starts: 3 s covers a second worker process starting on a
+    # loaded machine (with 1 s, one worker once ran both while the other was still importing)
+    slow = ("double.sleep_s=3",)
     serial = _run(tmp_path, tmp_path / "one", workers=1, overrides=slow)
     parallel = _run(tmp_path, tmp_path / "two", workers=2, overrides=slow)
     contents = _contents(tmp_path / "one")
