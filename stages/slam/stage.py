@@ -106,6 +106,8 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config.outlier_radius_m,
         config.outlier_min_neighbours,
         config.max_points_per_keyframe,
+        None if config.lone_cell_beams is None else (config.lone_cell_beams, config.lone_cell_bins),
+        config.lone_cell_min_neighbours,
     )
     dr_se2 = dr[:, [0, 1, 5]]
     t_s = (t_ns - t_ns[0]) * 1e-9

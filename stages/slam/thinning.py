@@ -28,6 +28,7 @@ spatial = lazy("scipy.spatial")
 __all__ = [
     "RANK_RADIUS_M",
     "ThinnedPoints",
+    "cell_inliers",
     "densest",
     "neighbour_counts",
     "radius_inliers",
@@ -98,6 +99,49 @@ def radius_inliers(
     """(N,) bool: points with at least `min_neighbours` other points of their own keyframe
     within `radius_m` (PCL's RadiusOutlierRemoval, per keyframe)."""
     return neighbour_counts(keyframe, points, radius_m) >= min_neighbours
+
+
+def cell_inliers(
+    keyframe: np.ndarray,
+    beam: np.ndarray,
+    range_bin: np.ndarray,
+    detected: tuple[np.ndarray, np.ndarray, np.ndarray],
+    half_beams: int,
+    half_bins: int,
+    min_neighbours: int,
+) -> np.ndarray:
+    """(N,) bool: cells with at least `min_neighbours` other detections of their keyframe
+    within +-`half_beams` beams and +-`half_bins` range bins.
+
+    Counted in the sonar's own cells, not in metres: the CFAR fixes a false-alarm rate per
+    cell, so a false alarm's expected neighbours in this window are the same at every range
+    (window cells x rate: 64 x 1e-3 = 0.06 at the defaults, and three or more in 4e-5 of
+    them). A metric radius holds about r times more cells near the sonar than at range r:
+    near-range false alarms pass it and a lone far piling's few returns do not.
+
+    Args:
+        keyframe, beam, range_bin: (N,) int cells to test.
+        detected: (keyframe, beam, range_bin) of every detection to count (the cells tested
+            among them: each is not its own neighbour).
+        half_beams, half_bins: window half-widths [cells].
+        min_neighbours: detections needed besides the cell itself.
+    """
+    if len(keyframe) == 0:
+        return np.zeros(0, dtype=bool)
+    scale = np.array([half_beams + 0.5, half_bins + 0.5, 1.0])
+
+    def lift(k: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
+        # keyframes one unit apart along the third axis, cells in window units: the
+        # Chebyshev ball of radius 1 is the window and never spans two keyframes
+        cells = np.column_stack([b, r, k]).astype(np.float64)
+        cells[:, 2] *= 2.0
+        return cells / scale
+
+    tree = spatial.cKDTree(lift(*detected))
+    found = tree.query_ball_point(
+        lift(keyframe, beam, range_bin), 1.0, p=np.inf, return_length=True
+    )
+    return np.asarray(found) - 1 >= min_neighbours
 
 
 def densest(keyframe: np.ndarray, count: np.ndarray, max_points: int) -> np.ndarray:
