@@ -23,6 +23,9 @@ from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.degeneracy import FREE_M2, constrained_covariance, degeneracy
 from sonarmap.stages.slam.frontend import run_slam
 from sonarmap.stages.slam.health import CHI2_99_2DOF, slam_summary
+from sonarmap.stages.slam.loops import view_change_deg
+from sonarmap.stages.slam.pose_graph import se2_between
+from sonarmap.stages.slam.scan_matching import transform_points
 from sonarmap.stages.slam.stage import STAGE
 from tests.test_slam import ate_se2, simulated_slam_inputs
 
@@ -189,3 +192,16 @@ def test_the_warning_catches_version_10_sliding_along_the_quay() -> None:
     assert ate_se2(_xy(out["poses"]), truth) > ate_se2(_xy(kf), truth) + 0.05
     (line,) = out["summary"]["warnings"]
     assert line.startswith("slam: SLAM and dead reckoning part by")
+
+
+def test_view_change_is_the_angle_between_the_two_sightings_of_the_structure() -> None:
+    """A piling's points 10 m ahead of the target keyframe, seen again from 10 m further on
+    (behind them: 180 deg) or from 10 m to the side (45 deg); unpaired points count 0."""
+    piling = np.array([[10.0, 0.0], [10.0, 0.2], [10.2, 0.1]])
+    behind = np.array([20.0, 0.0, np.pi])  # the source keyframe, in the target's frame
+    source = transform_points(se2_between(behind, np.zeros(3)), piling)
+    assert view_change_deg(source, piling, behind, 0.5) > 170.0
+    side = np.array([0.0, 10.0, 0.0])
+    source = transform_points(se2_between(side, np.zeros(3)), piling)
+    assert view_change_deg(source, piling, side, 0.5) == pytest.approx(45.0, abs=2.0)
+    assert view_change_deg(source + 5.0, piling, side, 0.5) == 0.0

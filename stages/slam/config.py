@@ -218,6 +218,14 @@ class SlamConfig(StageConfig):
     nssm_target_frames: int = Field(
         5, ge=1, le=1000, description="target frames around the best one"
     )
+    nssm_max_candidates: int | None = Field(
+        100,
+        ge=1,
+        le=1000000,
+        description="older keyframes, the nearest to the new one, whose points are counted"
+        " for a loop target: bounds the cost per keyframe on a mission that keeps revisiting"
+        " one area (a 6-goal mission has fewer); None: all within reach",
+    )
     nssm_min_frame_points: int = Field(10, ge=1, le=1000000)
     nssm_max_range_m: float = Field(30.0, gt=0, le=1000)
     nssm_max_heading_change_deg: float = Field(
@@ -249,6 +257,14 @@ class SlamConfig(StageConfig):
         gt=0,
         le=1000000,
         description="chi2(0.999, 3) gate of a loop against the odometry chain",
+    )
+    loop_max_view_change_deg: float | None = Field(
+        None,
+        gt=0,
+        le=180,
+        description="a loop candidate whose matched structure is seen from directions more"
+        " than this apart (median over its paired points) is rejected: a curved hull seen"
+        " from another side returns from another part of its surface; None: off",
     )
     loop_cauchy_k: float | None = Field(
         1.0,
