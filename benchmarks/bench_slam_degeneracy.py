@@ -41,8 +41,16 @@ NAVIGATIONS: dict[str, dict[str, float]] = {
     "clean": {"dvl_noise_m_s": 0.004, "dvl_scale_error": 0.002, "yaw_bias_deg": 0.2},
     "lowcost": {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03},
 }
-BEFORE = {"degeneracy_min_ratio": None, "ssm_gate_probability": None, "ssm_huber_k": None}
-"""The config that turns version 11's three additions off (the stage as version 10 ran)."""
+BEFORE = {
+    "degeneracy_min_ratio": None,
+    "ssm_gate_probability": None,
+    "ssm_huber_k": None,
+    "lone_cell_beams": None,
+    "min_points": 30,
+    "min_overlap_points": 30,
+}
+"""The config that turns version 11's three additions and version 13's lone-cell filter and
+point counts off (the stage as version 10 ran, but for version 12's thinning)."""
 
 
 def _scene(name: str) -> str:
