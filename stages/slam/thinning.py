@@ -128,20 +128,26 @@ def cell_inliers(
     """
     if len(keyframe) == 0:
         return np.zeros(0, dtype=bool)
-    scale = np.array([half_beams + 0.5, half_bins + 0.5, 1.0])
+    dk, db, dr = (np.asarray(a, np.int64) for a in detected)
+    k, b, r = (np.asarray(a, np.int64) for a in (keyframe, beam, range_bin))
+    # One sorted key per detection (keyframe, beam, bin), padded by the window on both
+    # axes so that no window wraps into the next beam or keyframe; a window's count is
+    # then, per beam offset, one range of the sorted keys (two binary searches).
+    lo_b, lo_r = min(db.min(), b.min()), min(dr.min(), r.min())
+    span_r = max(dr.max(), r.max()) - lo_r + 1 + 2 * half_bins
+    span_b = max(db.max(), b.max()) - lo_b + 1 + 2 * half_beams
+    lo_k = min(dk.min(), k.min())
 
-    def lift(k: np.ndarray, b: np.ndarray, r: np.ndarray) -> np.ndarray:
-        # keyframes one unit apart along the third axis, cells in window units: the
-        # Chebyshev ball of radius 1 is the window and never spans two keyframes
-        cells = np.column_stack([b, r, k]).astype(np.float64)
-        cells[:, 2] *= 2.0
-        return cells / scale
+    def key(kf: np.ndarray, bm: np.ndarray, rb: np.ndarray) -> np.ndarray:
+        return ((kf - lo_k) * span_b + (bm - lo_b + half_beams)) * span_r + (rb - lo_r + half_bins)
 
-    tree = spatial.cKDTree(lift(*detected))
-    found = tree.query_ball_point(
-        lift(keyframe, beam, range_bin), 1.0, p=np.inf, return_length=True
-    )
-    return np.asarray(found) - 1 >= min_neighbours
+    keys = np.sort(key(dk, db, dr))
+    found = np.zeros(len(k), dtype=np.int64)
+    for offset in range(-half_beams, half_beams + 1):
+        first = np.searchsorted(keys, key(k, b + offset, r - half_bins), side="left")
+        last = np.searchsorted(keys, key(k, b + offset, r + half_bins), side="right")
+        found += last - first
+    return found - 1 >= min_neighbours
 
 
 def densest(keyframe: np.ndarray, count: np.ndarray, max_points: int) -> np.ndarray:
