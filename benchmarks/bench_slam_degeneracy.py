@@ -17,7 +17,8 @@ yaw bias), `clean` (a DVL five times better: dead reckoning hard to beat) and `l
 
     .venv/bin/python benchmarks/bench_slam_degeneracy.py                 # degenerate scenes
     .venv/bin/python benchmarks/bench_slam_degeneracy.py --scenes marina,pier --before --navs default
-    .venv/bin/python benchmarks/bench_slam_degeneracy.py --scaling 12,24,48  # cost vs length
+    .venv/bin/python benchmarks/bench_slam_degeneracy.py --scenes "" --scaling 10,20,40 \
+        --scaling-scene shipyard  # cost vs length: ~175, ~350, ~700 keyframes
     .venv/bin/python benchmarks/bench_slam_degeneracy.py --slam '{"outlier_radius_m": null}'
 """
 
@@ -40,8 +41,16 @@ NAVIGATIONS: dict[str, dict[str, float]] = {
     "clean": {"dvl_noise_m_s": 0.004, "dvl_scale_error": 0.002, "yaw_bias_deg": 0.2},
     "lowcost": {"yaw_bias_deg": 3.0, "dvl_scale_error": 0.03},
 }
-BEFORE = {"degeneracy_min_ratio": None, "ssm_gate_probability": None, "ssm_huber_k": None}
-"""The config that turns version 11's three additions off (the stage as version 10 ran)."""
+BEFORE = {
+    "degeneracy_min_ratio": None,
+    "ssm_gate_probability": None,
+    "ssm_huber_k": None,
+    "lone_cell_beams": None,
+    "min_points": 30,
+    "min_overlap_points": 30,
+}
+"""The config that turns version 11's three additions and version 13's lone-cell filter and
+point counts off (the stage as version 10 ran, but for version 12's thinning)."""
 
 
 def _scene(name: str) -> str:
@@ -69,7 +78,7 @@ def run_one(
     scene: str, seed: int, nav: str, goals: int, before: bool, slam: dict | None = None
 ) -> dict[str, object]:
     from sonarmap.stages.slam.stage import STAGE, SlamConfig
-    from tests.test_slam import ate_se2, simulated_slam_inputs
+    from tests.fixtures import ate_se2, simulated_slam_inputs
 
     inputs = simulated_slam_inputs(
         _scene(scene), n_goals=goals, seed=seed, navigation=NAVIGATIONS[nav], detector="cfar"
@@ -114,11 +123,12 @@ def _line(r: dict[str, object]) -> str:
     )
 
 
-def scaling(goals: list[int], seed: int) -> list[dict[str, object]]:
-    """slam's CPU time per keyframe on longer missions of the default marina."""
+def scaling(goals: list[int], seed: int, scene: str = "marina") -> list[dict[str, object]]:
+    """slam's CPU time per keyframe on longer missions of one scene (the marina holds about
+    500 keyframes at most: its free water runs out of goals 4 m apart; the shipyard more)."""
     rows = []
     for n in goals:
-        r = run_one("marina", seed, "default", n, before=False)
+        r = run_one(scene, seed, "default", n, before=False)
         rows.append({k: r[k] for k in ("keyframes", "slam_ms_per_keyframe_cpu", "ate_slam_m")})
         print(f"scaling: {n} goals {rows[-1]}", flush=True)
     return rows
@@ -131,7 +141,8 @@ def main() -> None:
     parser.add_argument("--navs", default=",".join(NAVIGATIONS))
     parser.add_argument("--goals", type=int, default=6, help="mission goals (short missions)")
     parser.add_argument("--before", action="store_true", help="also run version 10's config")
-    parser.add_argument("--scaling", default="", help="marina goal counts, e.g. 12,24,48")
+    parser.add_argument("--scaling", default="", help="goal counts, e.g. 10,20,40")
+    parser.add_argument("--scaling-scene", default="marina", help="the scene --scaling grows")
     parser.add_argument(
         "--slam",
         default="{}",
@@ -141,7 +152,7 @@ def main() -> None:
     from sonarmap.sim.scene import SceneError
 
     rows = []
-    for scene in args.scenes.split(","):
+    for scene in filter(None, args.scenes.split(",")):
         for seed in (int(s) for s in args.seeds.split(",")):
             for nav in args.navs.split(","):
                 try:
@@ -164,7 +175,8 @@ def main() -> None:
     }
     summary["within_dr_plus_5cm_goal"] = summary["runs"]
     if args.scaling:
-        summary["scaling"] = scaling([int(g) for g in args.scaling.split(",")], 0)
+        goals = [int(g) for g in args.scaling.split(",")]
+        summary["scaling"] = scaling(goals, 0, args.scaling_scene)
     print(json.dumps({"summary": summary, "rows": rows}))
 
 

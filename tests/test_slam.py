@@ -181,7 +181,9 @@ def test_ssm_refinement_reduces_scan_matching_error() -> None:
         ate[name] = ate_se2(_columns(out["poses"], ["x_m", "y_m"]), truth)
     rms = {name: float(np.sqrt(np.mean(e**2))) for name, e in errors.items()}
     assert len(errors["refined"]) >= 50
-    assert rms["refined"] < 0.8 * rms["incremental"], rms
+    # slam v13 drops lone false alarms before matching, so the incremental match has less
+    # for the refinement to clean up: 0.068 -> 0.054 m (refined 0.048 -> 0.047 m)
+    assert rms["refined"] < 0.9 * rms["incremental"], rms
     assert ate["refined"] < ate["incremental"] < ate_se2(dr, truth), ate
 
 
@@ -234,6 +236,9 @@ def test_a_failed_loop_target_falls_back_to_another_stretch_of_the_track(
     (What the fallback gains is measured in benchmarks/bench_slam.py.)"""
 
     def loop_rows(**cfg: int) -> list[dict]:
+        # 30 points as before slam v13: with 10, two more (sparse) loops are tried and the
+        # odometry gate rejects them, so not every loop would pass
+        cfg = {"min_points": 30, "min_overlap_points": 30, **cfg}
         out = STAGE.run(SlamConfig(**cfg), pier_default_nav_inputs)
         return [r for r in out["factors"].to_pylist() if r["type"] == "loop"]
 

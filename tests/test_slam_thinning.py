@@ -7,7 +7,12 @@ import numpy as np
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.health import slam_summary
 from sonarmap.stages.slam.scan_matching import voxel_downsample
-from sonarmap.stages.slam.thinning import radius_inliers, thin_and_filter, voxel_thin
+from sonarmap.stages.slam.thinning import (
+    cell_inliers,
+    radius_inliers,
+    thin_and_filter,
+    voxel_thin,
+)
 
 
 def test_radius_filter_drops_isolated_points_and_keeps_dense_structure() -> None:
@@ -18,6 +23,44 @@ def test_radius_filter_drops_isolated_points_and_keeps_dense_structure() -> None
     keep = radius_inliers(np.zeros(len(points), np.int64), points, 1.0, 5)
     assert keep[1 : len(wall) - 1].all()  # each end has only 4 others within 1 m
     assert not keep[len(wall) :].any()
+
+
+def test_lone_false_alarms_are_dropped_at_every_range_a_far_piling_is_kept() -> None:
+    """False alarms at the front end's per-cell rate (1e-3) over a 512-beam, 600-bin image,
+    and a piling 25 m out (6 beams, runs of 4 bins): counted in cells, the false alarms go
+    at every range and the piling stays. The metric radius filter keeps the near-range
+    false alarms (cells there are dense in metres) and drops the piling."""
+    rng = np.random.default_rng(3)
+    cells = np.flatnonzero(rng.random(512 * 600) < 1e-3)
+    noise_b, noise_r = cells // 600, cells % 600
+    pile_b, pile_r = np.repeat(np.arange(250, 256), 4), np.tile(np.arange(500, 504), 6)
+    pile_r = pile_r + np.repeat([0, 0, 1, 1, 0, 0], 4)  # the arc's edge curves back
+    beam, bins = np.r_[noise_b, pile_b], np.r_[noise_r, pile_r]
+    kf = np.zeros(len(beam), np.int64)
+    keep = cell_inliers(kf, beam, bins, (kf, beam, bins), 2, 6, 3)
+    is_pile = np.arange(len(beam)) >= len(noise_b)
+    assert keep[is_pile].all()
+    assert keep[~is_pile].sum() <= 1  # expected: 0.01 of the ~300
+    # The same cells in metres (5 cm bins, 130 deg fan), each beam's leading edge, thinned
+    # on 0.25 m voxels and radius-filtered (1 m, 5 neighbours) as the stage does without it.
+    first = np.r_[True, (beam[1:] != beam[:-1]) | (bins[1:] != bins[:-1] + 1)]
+    angle = np.deg2rad(-65.0 + 130.0 * (beam[first] + 0.5) / 512)
+    rng_m = 0.05 * (bins[first] + 0.5)
+    xy = np.column_stack([rng_m * np.cos(angle), rng_m * np.sin(angle)])
+    metric = thin_and_filter(kf[first], xy, 0.25, 1.0, 5).points
+    pile = xy[is_pile[first]].mean(axis=0)
+    assert (np.hypot(*metric.T) < 5.0).sum() > 10  # near-range false alarms kept
+    assert (np.hypot(*(metric - pile).T) > 1.0).all()  # the piling dropped
+
+
+def test_cell_filter_counts_detections_within_the_keyframe_only() -> None:
+    beam, bins = np.array([10, 11, 12, 10]), np.array([100, 100, 101, 102])
+    both = cell_inliers(
+        np.zeros(4, np.int64), beam, bins, (np.zeros(4, np.int64), beam, bins), 2, 6, 3
+    )
+    split = np.array([0, 0, 1, 1])
+    apart = cell_inliers(split, beam, bins, (split, beam, bins), 2, 6, 3)
+    assert both.all() and not apart.any()
 
 
 def test_radius_filter_counts_neighbours_within_the_keyframe_only() -> None:

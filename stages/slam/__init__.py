@@ -33,7 +33,13 @@ STAGE = Stage(
     # 1.0 m, 5 neighbours) before scan matching, all keyframes in one pass, then held to
     # max_points_per_keyframe (the densest kept); summary.json gains `points` (what thinning,
     # the filter and the budget dropped) and their warnings
-    version=12,
+    # 13: leading edges with fewer than 3 other detections within +-2 beams, +-6 range bins
+    # of them in their image are dropped as lone false alarms (counted in cells: the front
+    # end's rate is per cell); min_points and min_overlap_points 30 -> 10 (lone pilings);
+    # summary.json's `points` gains `lone_cells_removed`; loop targets from a k-d tree over
+    # the older keyframes' positions, at most nssm_max_candidates (100) nearest ones
+    # (`loop_max_view_change_deg`, off by default, rejects loops seen from another side)
+    version=13,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

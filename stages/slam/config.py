@@ -141,6 +141,21 @@ class SlamConfig(StageConfig):
         " thinned to one centroid per voxel before scan matching, which bounds its points"
         " by the area the sonar sees over the voxel area whatever the detections",
     )
+    lone_cell_beams: int | None = Field(
+        2,
+        ge=0,
+        le=1000,
+        description="before thinning, a leading edge needs `lone_cell_min_neighbours` other"
+        " detections within this many beams and `lone_cell_bins` range bins of it in its"
+        " image, else it is a lone false alarm and dropped. Counted in cells because the"
+        " front end's false-alarm rate is per cell: a metric radius holds many more cells"
+        " near the sonar, where false alarms then pass it, than at a far piling"
+        " (open_pilings, benchmarks/bench_slam_degeneracy.py); None: off",
+    )
+    lone_cell_bins: int = Field(6, ge=0, le=10000, description="range half-width of that window")
+    lone_cell_min_neighbours: int = Field(
+        3, ge=1, le=10000, description="detections (itself not counted) that window needs"
+    )
     outlier_radius_m: float | None = Field(
         1.0,
         gt=0,
@@ -179,9 +194,17 @@ class SlamConfig(StageConfig):
         0.9, gt=0, le=1, description="consensus within this of the best: nearest the guess wins"
     )
     icp_max_iterations: int = Field(40, ge=1, le=10000)
-    min_points: int = Field(30, ge=3, le=1000000, description="points needed in source and target")
+    min_points: int = Field(
+        10,
+        ge=3,
+        le=1000000,
+        description="points needed in source and target. Whether they pin the motion down is"
+        " the degeneracy check's to say, not a count's: this only keeps ICP off near-empty"
+        " keyframes. A lone piling 15-30 m out leaves about 10 points once thinned, two in"
+        " view 20 (30 until version 13, which refused every match in open water)",
+    )
     min_overlap_points: int = Field(
-        30, ge=3, le=1000000, description="overlapping points to accept"
+        10, ge=3, le=1000000, description="overlapping points to accept (as min_points)"
     )
     ssm_target_frames: int = Field(3, ge=1, le=1000)
     ssm_window_xy_m: float = Field(1.0, gt=0, le=1000, description="global search half-width")
@@ -194,6 +217,14 @@ class SlamConfig(StageConfig):
     nssm_source_frames: int = Field(5, ge=1, le=1000)
     nssm_target_frames: int = Field(
         5, ge=1, le=1000, description="target frames around the best one"
+    )
+    nssm_max_candidates: int | None = Field(
+        100,
+        ge=1,
+        le=1000000,
+        description="older keyframes, the nearest to the new one, whose points are counted"
+        " for a loop target: bounds the cost per keyframe on a mission that keeps revisiting"
+        " one area (a 6-goal mission has fewer); None: all within reach",
     )
     nssm_min_frame_points: int = Field(10, ge=1, le=1000000)
     nssm_max_range_m: float = Field(30.0, gt=0, le=1000)
@@ -226,6 +257,14 @@ class SlamConfig(StageConfig):
         gt=0,
         le=1000000,
         description="chi2(0.999, 3) gate of a loop against the odometry chain",
+    )
+    loop_max_view_change_deg: float | None = Field(
+        None,
+        gt=0,
+        le=180,
+        description="a loop candidate whose matched structure is seen from directions more"
+        " than this apart (median over its paired points) is rejected: a curved hull seen"
+        " from another side returns from another part of its surface; None: off",
     )
     loop_cauchy_k: float | None = Field(
         1.0,

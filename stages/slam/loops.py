@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from sonarmap.stages.kernels.lazy import lazy
 from sonarmap.stages.slam.config import LEGACY_FAN_DEG, SlamConfig
 from sonarmap.stages.slam.pcm import chain_covariance, maximum_clique, pairwise_consistency
 from sonarmap.stages.slam.pose_graph import (
@@ -34,7 +35,9 @@ from sonarmap.stages.slam.scan_matching import (
     transform_points,
 )
 
-__all__ = ["LoopCandidate", "LoopClosures", "baseline_covariance_factor"]
+spatial = lazy("scipy.spatial")
+
+__all__ = ["LoopCandidate", "LoopClosures", "baseline_covariance_factor", "view_change_deg"]
 
 _RESOLVE_ITERATIONS = 4
 """Extra iSAM2 iterations of a batch re-solve after the loop re-registration."""
@@ -69,6 +72,24 @@ def baseline_covariance_factor(
     return float(((growth_m + baseline_m) / (growth_m + reference_m)) ** 2)
 
 
+def view_change_deg(
+    source: np.ndarray, target: np.ndarray, pose: np.ndarray, gate_m: float
+) -> float:
+    """Median angle [deg] between the directions from which the two keyframes see the
+    structure they match: each source point registered at `pose` (frame of the target's
+    keyframe) and paired within `gate_m`, seen from the origin and from `pose`; 0 unpaired."""
+    if len(source) == 0 or len(target) == 0:
+        return 0.0
+    moved = transform_points(pose, source)
+    dist, _ = spatial.cKDTree(target).query(moved, distance_upper_bound=gate_m)
+    seen = moved[np.isfinite(dist)]
+    if len(seen) == 0:
+        return 0.0
+    from_t = np.arctan2(seen[:, 1], seen[:, 0])
+    from_k = np.arctan2(seen[:, 1] - pose[1], seen[:, 0] - pose[0])
+    return float(np.degrees(np.median(np.abs(wrap_angle(from_t - from_k)))))
+
+
 @dataclass
 class LoopCandidate:
     src: int
@@ -101,23 +122,41 @@ class LoopClosures:
         max_range_m = c.nssm_max_range_m + 5 * sigma_xy
         max_heading = np.deg2rad(c.nssm_max_heading_change_deg)
         n_old = max(0, k - c.nssm_min_separation)
-        heading = np.abs(wrap_angle(self.est[:n_old, 2] - self.est[k, 2]))
-        distance_m = np.hypot(*(self.est[:n_old, :2] - self.est[k, :2]).T)
-        # Keyframes none of whose points can be in view are left out before moving their
-        # points (1 m of margin over rounding); the counts are the same without them.
-        near = (distance_m - self.reach_m[:n_old] <= max_range_m + 1.0) & (heading <= max_heading)
-        old = [int(i) for i in np.flatnonzero(near) if len(self.points[i])]
+        if n_old == 0:
+            return []
+        # Candidates from a spatial index over the older keyframes' positions: the nearest
+        # `nssm_max_candidates` within the reach of any keyframe's points (a mission that
+        # keeps revisiting one basin would otherwise bring every older keyframe into view,
+        # and the cost per keyframe would grow with the mission); then keyframes none of
+        # whose own points can be in view are left out before moving their points (1 m of
+        # margin over rounding).
+        tree = spatial.cKDTree(self.est[:n_old, :2])
+        ball = max_range_m + 1.0 + float(self.reach_m[:n_old].max())
+        if c.nssm_max_candidates is None:
+            found = tree.query_ball_point(self.est[k, :2], ball)
+        else:
+            dist, found = tree.query(
+                self.est[k, :2], k=min(n_old, c.nssm_max_candidates), distance_upper_bound=ball
+            )
+            found = np.atleast_1d(found)[np.isfinite(np.atleast_1d(dist))]
+        cand = np.sort(np.asarray(found, dtype=np.int64))
+        heading = np.abs(wrap_angle(self.est[cand, 2] - self.est[k, 2]))
+        distance_m = np.hypot(*(self.est[cand, :2] - self.est[k, :2]).T)
+        near = (distance_m - self.reach_m[cand] <= max_range_m + 1.0) & (heading <= max_heading)
+        old = [int(i) for i in cand[near] if len(self.points[i])]
         if not old:
             return []
-        world = np.concatenate([transform_points(self.est[i], self.points[i]) for i in old])
+        # each older keyframe's points straight into the frame of k (one pass over them)
+        rel = se2_between(self.est[k], self.est[old])
+        local = np.concatenate(
+            [transform_points(rel[j], self.points[i]) for j, i in enumerate(old)]
+        )
         owner = np.concatenate([np.full(len(self.points[i]), i) for i in old])
-        local = transform_points(se2_between(self.est[k], np.zeros(3)), world)
         r = np.hypot(local[:, 0], local[:, 1])
         bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))
         visible = (r < max_range_m) & (
             bearing < np.deg2rad(c.nssm_aperture_deg or LEGACY_FAN_DEG) / 2 + 5 * sigma_yaw
         )
-        visible &= heading[owner] <= max_heading
         counts = np.bincount(owner[visible], minlength=k)
         chosen: list[int] = []
         for t in np.argsort(-counts, kind="stable"):
@@ -169,6 +208,10 @@ class LoopClosures:
         dev = se2_log(se2_between(guess, match.pose))
         if not reason and dev @ np.linalg.solve(rel + cov, dev) > c.nssm_gate_chi2:
             reason = "inconsistent with odometry"
+        if not reason and c.loop_max_view_change_deg is not None:
+            seen = view_change_deg(source, target, match.pose, c.max_correspondence_m)
+            if seen > c.loop_max_view_change_deg:
+                reason = "viewpoint change"
         row = self._row(
             "loop",
             t,

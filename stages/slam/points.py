@@ -9,7 +9,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from sonarmap.stages.kernels.geometry import fan_in_frame
-from sonarmap.stages.slam.thinning import thin_and_filter
+from sonarmap.stages.slam.thinning import cell_inliers, thin_and_filter
 
 __all__ = ["counted_keyframe_points", "keyframe_points", "leading_edges"]
 
@@ -48,6 +48,8 @@ def counted_keyframe_points(
     outlier_radius_m: float | None = None,
     outlier_min_neighbours: int = 5,
     max_points: int | None = None,
+    cell_window: tuple[int, int] | None = None,
+    cell_min_neighbours: int = 3,
 ) -> tuple[list[np.ndarray], dict[str, int]]:
     """Horizontal features per keyframe as (N_k, 2) base_link points at elevation 0,
     thinned on a voxel grid and outlier-filtered (`sonarmap.stages.slam.thinning`), and
@@ -64,6 +66,9 @@ def counted_keyframe_points(
             fewer than this many others within this radius in their keyframe (None: off).
         max_points: most points a keyframe keeps; one holding more keeps those with the
             most neighbours (`sonarmap.stages.slam.thinning.densest`; None: no budget).
+        cell_window, cell_min_neighbours: before thinning, drop the cells with fewer than
+            this many other detections within (beams, range bins) of them in the image
+            (`sonarmap.stages.slam.thinning.cell_inliers`: lone false alarms; None: off).
 
     Returns:
         The K clouds (voxel order) and counts: horizontal features, leading edges,
@@ -77,16 +82,22 @@ def counted_keyframe_points(
     n_horizontal = len(kf)
     range_m = features.column("range_m").to_numpy()[keep]
     angle = features.column("angle_rad").to_numpy()[keep]
-    if leading_edge_only:
-        edge = leading_edges(
-            kf,
-            features.column("beam").to_numpy()[keep],
-            features.column("range_bin").to_numpy()[keep],
-        )
-        kf, range_m, angle = kf[edge], range_m[edge], angle[edge]
+    beam = features.column("beam").to_numpy()[keep]
+    range_bin = features.column("range_bin").to_numpy()[keep]
     # Rows of keyframes not asked for are left out before any work on them.
     wanted = np.isin(kf, keyframe_ids)
-    kf, range_m, angle = kf[wanted], range_m[wanted], angle[wanted]
+    kf, range_m, angle, beam, range_bin = (a[wanted] for a in (kf, range_m, angle, beam, range_bin))
+    detected = (kf, beam, range_bin)
+    if leading_edge_only:
+        edge = leading_edges(kf, beam, range_bin)
+        kf, range_m, angle, beam, range_bin = (
+            a[edge] for a in (kf, range_m, angle, beam, range_bin)
+        )
+    n_edges, lone = len(kf), 0
+    if cell_window is not None:
+        inlier = cell_inliers(kf, beam, range_bin, detected, *cell_window, cell_min_neighbours)
+        lone = int((~inlier).sum())
+        kf, range_m, angle = kf[inlier], range_m[inlier], angle[inlier]
     pts = fan_in_frame(range_m, angle, T_base_sonar)[:, :2]
     order = np.argsort(kf, kind="stable")
     kf, pts = kf[order], pts[order]
@@ -98,7 +109,8 @@ def counted_keyframe_points(
     clouds = [thinned.points[a:b] for a, b in zip(lo, hi, strict=True)]
     counts = {
         "horizontal_features": int(n_horizontal),
-        "leading_edges": len(kf),
+        "leading_edges": n_edges,
+        "lone_cells_removed": lone,
         "thinned": thinned.thinned_points,
         "outliers_removed": thinned.outliers,
         "over_budget_keyframes": thinned.over_budget_keyframes,

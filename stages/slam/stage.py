@@ -28,7 +28,10 @@ and a sequential match must agree with its step's odometry within a chi-square g
 (Mahalanobis, under both covariances) and enters under a Huber kernel (version 11).
 Each keyframe's points are thinned on the voxel grid and then outlier-filtered (the
 authors' radius filter: `sonarmap.stages.slam.thinning`), so scan matching's cost is
-bounded by the area the sonar sees, not by the number of detections (version 12).
+bounded by the area the sonar sees, not by the number of detections (version 12). Before
+that, leading edges with too few other detections around them in the image's own cells
+are dropped as lone false alarms (`sonarmap.stages.slam.thinning.cell_inliers`), and loop
+targets come from a k-d tree over the keyframe positions (version 13).
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
@@ -106,6 +109,8 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         config.outlier_radius_m,
         config.outlier_min_neighbours,
         config.max_points_per_keyframe,
+        None if config.lone_cell_beams is None else (config.lone_cell_beams, config.lone_cell_bins),
+        config.lone_cell_min_neighbours,
     )
     dr_se2 = dr[:, [0, 1, 5]]
     t_s = (t_ns - t_ns[0]) * 1e-9

@@ -28,6 +28,7 @@ spatial = lazy("scipy.spatial")
 __all__ = [
     "RANK_RADIUS_M",
     "ThinnedPoints",
+    "cell_inliers",
     "densest",
     "neighbour_counts",
     "radius_inliers",
@@ -98,6 +99,55 @@ def radius_inliers(
     """(N,) bool: points with at least `min_neighbours` other points of their own keyframe
     within `radius_m` (PCL's RadiusOutlierRemoval, per keyframe)."""
     return neighbour_counts(keyframe, points, radius_m) >= min_neighbours
+
+
+def cell_inliers(
+    keyframe: np.ndarray,
+    beam: np.ndarray,
+    range_bin: np.ndarray,
+    detected: tuple[np.ndarray, np.ndarray, np.ndarray],
+    half_beams: int,
+    half_bins: int,
+    min_neighbours: int,
+) -> np.ndarray:
+    """(N,) bool: cells with at least `min_neighbours` other detections of their keyframe
+    within +-`half_beams` beams and +-`half_bins` range bins.
+
+    Counted in the sonar's own cells, not in metres: the CFAR fixes a false-alarm rate per
+    cell, so a false alarm's expected neighbours in this window are the same at every range
+    (window cells x rate: 64 x 1e-3 = 0.06 at the defaults, and three or more in 4e-5 of
+    them). A metric radius holds about r times more cells near the sonar than at range r:
+    near-range false alarms pass it and a lone far piling's few returns do not.
+
+    Args:
+        keyframe, beam, range_bin: (N,) int cells to test.
+        detected: (keyframe, beam, range_bin) of every detection to count (the cells tested
+            among them: each is not its own neighbour).
+        half_beams, half_bins: window half-widths [cells].
+        min_neighbours: detections needed besides the cell itself.
+    """
+    if len(keyframe) == 0:
+        return np.zeros(0, dtype=bool)
+    dk, db, dr = (np.asarray(a, np.int64) for a in detected)
+    k, b, r = (np.asarray(a, np.int64) for a in (keyframe, beam, range_bin))
+    # One sorted key per detection (keyframe, beam, bin), padded by the window on both
+    # axes so that no window wraps into the next beam or keyframe; a window's count is
+    # then, per beam offset, one range of the sorted keys (two binary searches).
+    lo_b, lo_r = min(db.min(), b.min()), min(dr.min(), r.min())
+    span_r = max(dr.max(), r.max()) - lo_r + 1 + 2 * half_bins
+    span_b = max(db.max(), b.max()) - lo_b + 1 + 2 * half_beams
+    lo_k = min(dk.min(), k.min())
+
+    def key(kf: np.ndarray, bm: np.ndarray, rb: np.ndarray) -> np.ndarray:
+        return ((kf - lo_k) * span_b + (bm - lo_b + half_beams)) * span_r + (rb - lo_r + half_bins)
+
+    keys = np.sort(key(dk, db, dr))
+    found = np.zeros(len(k), dtype=np.int64)
+    for offset in range(-half_beams, half_beams + 1):
+        first = np.searchsorted(keys, key(k, b + offset, r - half_bins), side="left")
+        last = np.searchsorted(keys, key(k, b + offset, r + half_bins), side="right")
+        found += last - first
+    return found - 1 >= min_neighbours
 
 
 def densest(keyframe: np.ndarray, count: np.ndarray, max_points: int) -> np.ndarray:
