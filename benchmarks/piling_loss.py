@@ -1,6 +1,6 @@
 """Where a run's pilings are lost (issue 50): detection, the CNN's argmax, or its acceptance.
 
-    .venv/bin/python -m benchmarks.piling_loss STORE [STORE ...] [--json]
+    .venv/bin/python -m benchmarks.piling_loss STORE|OBJECTS.parquet [...] [--json]
 
 For each store (a `sonarmap run --store` of a simulated recording, whose objects carry
 their label-image class) it reads the classify stage's `objects.parquet` and prints, for
@@ -36,8 +36,8 @@ THRESHOLDS = (0.5, 0.9, 0.95, 0.98, 0.99)
 
 
 def objects_of(store: Path) -> dict[str, np.ndarray]:
-    """The classify stage's objects.parquet of a store holding one run."""
-    found = sorted(store.glob("classify/*/objects.parquet"))
+    """The classify stage's objects.parquet of a store holding one run (or that file)."""
+    found = [store] if store.is_file() else sorted(store.glob("classify/*/objects.parquet"))
     if len(found) != 1:
         raise SystemExit(f"{store}: expected one classify/*/objects.parquet, found {len(found)}")
     return {k: np.asarray(v) for k, v in pq.read_table(found[0]).to_pydict().items()}
