@@ -91,7 +91,7 @@ def main() -> None:
         above = " / ".join(str(v) for v in r["right_above"].values())
         prec = " / ".join("-" if v is None else f"{v:.2f}" for v in r["precision_above"].values())
         print(
-            f"| {Path(name).name} | {r['pilings']} | {r['piling_features_median']} |"
+            f"| {name} | {r['pilings']} | {r['piling_features_median']} |"
             f" {r['piling_box_m_median']} | {r['argmax_right']} | {above} | {prec} |",
             file=sys.stderr,
         )
