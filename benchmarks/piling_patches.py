@@ -1,13 +1,13 @@
 """Piling patches as the classifier sees them, clean sensor against a noisy one (issue 50).
 
-    .venv/bin/python -m benchmarks.piling_patches OUT.png CLEAN_STORE NOISY_STORE [--quantile 0.9]
+    .venv/bin/python -m benchmarks.piling_patches OUT.png CLEAN_STORE NOISY_STORE
 
 Each store holds one `sonarmap run` of a simulated recording (same scene and mission).
 The patches are cut by the shipped code (`sonarmap.stages.classify.objects.extract_objects`,
 the shipped model's clustering and crop settings, background normalisation) from every
 7th keyframe, six true cylindrical and six true rectangular pilings per row pair. The
-last row pair cuts the noisy run's patches again with the row's `--quantile` quantile in
-place of its median as the background level (an untrained alternative, shown only).
+last row pair cuts the noisy run's patches again with `train.patch_normalisation: grain`
+(each range's 90th percentile as its background level instead of its median).
 `docs/img/piling_patches_sensors.png` is marina seed 0, 6 goals, clean against the
 Oculus pair (`benchmarks.bench_sensors`' recordings).
 """
@@ -16,21 +16,19 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
 
 from sonarmap.pipeline.formats.frames_io import read_frames
 from sonarmap.schemas.classes import DEFAULT_TABLE
-from sonarmap.schemas.sonar import SonarPing
 from sonarmap.stages.classify import objects as O
 
 CLASSES = ("cylindrical_piling", "rectangular_piling")
 PER_ROW = 6
 
 
-def patches(store: Path, quantile: float | None) -> dict[str, list[np.ndarray]]:
+def patches(store: Path, normalisation: str) -> dict[str, list[np.ndarray]]:
     """Up to PER_ROW patches per piling class from every 7th keyframe of the store's run."""
     (frames_path,) = store.glob("keyframes/*/keyframes.mcap")
     (features_path,) = store.glob("features/*/features.parquet")
@@ -40,30 +38,16 @@ def patches(store: Path, quantile: float | None) -> dict[str, list[np.ndarray]]:
         f = by_kf.get(frame.keyframe_id)
         if frame.keyframe_id % 7 or f is None:
             continue
-        level = None
-        if quantile is not None:  # the same features, another background level per range
-            level = np.quantile(frame.horizontal.image, quantile, axis=1).astype(np.float32)
-        objs = _cut(frame.horizontal, f, level)
+        objs = O.extract_objects(
+            frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
+            eps_m=0.25, min_samples=2, min_features=10, margin_m=0.2, min_side_m=1.0,
+            normalisation=normalisation,
+        )  # fmt: skip
         for patch, c in zip(objs.patches, objs.true_class_id, strict=True):
             name = DEFAULT_TABLE.name_of(int(c))
             if name in got and len(got[name]) < PER_ROW:
                 got[name].append(patch)
     return got
-
-
-def _cut(ping: SonarPing, f: dict[str, np.ndarray], level: np.ndarray | None) -> Any:
-    """The objects of one ping as classify cuts them; `level`: that background instead."""
-    original = O.row_background
-    if level is not None:
-        O.row_background = lambda image: level  # extract_objects reads it by this name
-    try:
-        return O.extract_objects(
-            ping, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"], eps_m=0.25,
-            min_samples=2, min_features=10, margin_m=0.2, min_side_m=1.0,
-            normalisation="background",
-        )  # fmt: skip
-    finally:
-        O.row_background = original
 
 
 def main() -> None:
@@ -76,14 +60,12 @@ def main() -> None:
     ap.add_argument("out", type=Path)
     ap.add_argument("clean", type=Path)
     ap.add_argument("noisy", type=Path)
-    ap.add_argument("--quantile", type=float, default=0.9)
     args = ap.parse_args()
     blocks = [
-        ("clean sensor", patches(args.clean, None)),
-        ("noisy sensor (shipped normalisation)", patches(args.noisy, None)),
-        (f"noisy sensor, row {args.quantile:g} quantile subtracted (not trained)",
-         patches(args.noisy, args.quantile)),
-    ]  # fmt: skip
+        ("clean sensor", patches(args.clean, "background")),
+        ("noisy sensor (shipped normalisation)", patches(args.noisy, "background")),
+        ("noisy sensor, normalisation 'grain'", patches(args.noisy, "grain")),
+    ]
     fig, ax = plt.subplots(
         6, PER_ROW, figsize=(6, 6.9), gridspec_kw={"hspace": 0.08, "wspace": 0.04}
     )
