@@ -45,7 +45,7 @@ sim's horizontal geometry) and an M1200d at 1.2 MHz (the sim's vertical frequenc
 
 ARIS_PAIR = {"horizontal": "aris1800-48", "vertical": "aris1800-48"}
 """An ARIS 1800 on both sonars: the preset whose image character was measured from the
-real ARIS frames (`../shared/data/aris/`)."""
+real ARIS frames (docs/simulated-sensors.md)."""
 
 SENSOR_KEYS = (
     "noise_mean_level",
