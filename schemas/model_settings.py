@@ -30,7 +30,7 @@ def _number(
     return kind(value)
 
 
-_NORMALISATIONS = ("peak", "background")
+_NORMALISATIONS = ("peak", "background", "grain")
 
 
 def _normalisation(config: Mapping[str, Any]) -> str:
@@ -51,7 +51,8 @@ class ModelSettings:
         eps_m, min_samples, min_features: the DBSCAN clustering of features into
             objects (None: a model file written before they were stored).
         patch_normalisation: how patches were scaled (`sonarmap.stages.classify.objects.
-            extract_objects`): "peak" for model files written before it was stored.
+            extract_objects`: "peak", "background" or "grain"): "peak" for model files
+            written before it was stored.
     """
 
     size_px: int

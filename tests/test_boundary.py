@@ -210,6 +210,8 @@ def test_model_settings_read_the_model_files_config() -> None:
     assert settings.patch_normalisation == "peak"  # written before issue 50: its patches
     newer = ModelSettings.from_config({**config, "patch_normalisation": "background"})
     assert newer.patch_normalisation == "background"
+    grain = ModelSettings.from_config({**config, "patch_normalisation": "grain"})
+    assert grain.patch_normalisation == "grain"
     with pytest.raises(ValueError, match="'patch_normalisation' is not one of"):
         ModelSettings.from_config({**config, "patch_normalisation": "median"})
     with pytest.raises(ValueError, match="has no 'margin_m'"):

@@ -130,6 +130,35 @@ def test_background_normalised_patch_ignores_the_sensors_noise_floor() -> None:
     assert np.median(row_background(bright)) == pytest.approx(np.median(bright), abs=3)
 
 
+
+def test_grain_normalisation_darkens_grain_correlated_across_beams() -> None:
+    """Grain correlated across beams (the real Oculus ping's) leaves blobs above the row
+    median as bright as the object; above the row's 90th percentile ("grain") they go
+    dark and the object stays."""
+    from scipy.ndimage import uniform_filter1d
+
+    from sonarmap.stages.classify.objects import GRAIN_QUANTILE
+
+    angles = np.linspace(-1.1, 1.1, 512).astype(np.float32)
+    obj_img = _polar_of_rect(angles, 9.8, 10.2, -0.1, 0.1)
+    rng = np.random.default_rng(5)
+    field = uniform_filter1d(rng.standard_normal(obj_img.shape), 6, axis=1) * 6**0.5
+    grain = 40.0 * np.exp(0.6 * field)  # log-normal grain, blobs ~6 beams wide
+    image = np.minimum(np.maximum(obj_img, grain), 255).astype(np.uint8)
+    box = np.array([[9.8, 10.2, -0.1, 0.1]])
+    kw: dict[str, Any] = {"margin_m": 0.3, "min_side_m": 1.0}
+    clean = crop_patches(obj_img, RANGES_M, angles, box, **kw)[0]
+    median, upper = (
+        crop_patches(image, RANGES_M, angles, box, background=row_background(image, q), **kw)[0]
+        for q in (0.5, GRAIN_QUANTILE)
+    )
+    obj = clean > 0.5
+    assert obj.sum() > 50
+    assert np.median(upper[obj]) > 0.9  # the object stays white
+    bright_floor = [float((p[~obj] > 0.3).mean()) for p in (median, upper)]
+    assert bright_floor[1] < 0.5 * bright_floor[0], bright_floor
+    assert np.all(row_background(image, GRAIN_QUANTILE) >= row_background(image))
+
 def test_noisy_image_is_seeded_and_spans_its_noise_levels() -> None:
     image = np.zeros((200, 100), np.uint8)
     image[50:60] = 200

@@ -137,3 +137,31 @@ def test_the_size_rule_stops_after_two_steps_without_a_point_and_keeps_the_best(
     # Still rising at the ceiling: the largest set, flagged as not converged.
     chosen, curve = _run_rule({2: 0.5, 4: 0.6, 6: 0.7}, 6)
     assert chosen == 6 and not curve["converged"]
+
+
+def test_a_sets_named_sensors_reach_its_recipe_and_file_and_a_bad_name_is_refused(
+    tmp_path: Path,
+) -> None:
+    def sims(*overrides: str) -> list[Any]:
+        config = load_config(
+            all_stages(), None, [f"training.directory={tmp_path}", *overrides], extra_sections()
+        )
+        return training_simulations(config.training)  # type: ignore[attr-defined]
+
+    # A clean set keeps its name and recipe (the lock's entries); a set with named sensors
+    # carries the presets' image settings, in a file of its own.
+    sets = (
+        "training.sets=[{scene: pier, seed: 3, goals: 1},"
+        " {scene: pier, seed: 3, goals: 1, sonars: {horizontal: aris1800-48}},"
+        " {scene: pier, seed: 3, goals: 1,"
+        " sonars: {horizontal: oculus-m750d-750khz, vertical: oculus-m1200d}}]"
+    )
+    clean, aris, oculus = sims(sets)
+    assert clean.out.name == "pier-seed3-goals1.mcap" and "sonars" not in clean.recipe()
+    assert aris.out.name == "pier-seed3-goals1-aris1800-48.mcap"
+    assert oculus.out.name == "pier-seed3-goals1-oculus-m750d-750khz-oculus-m1200d.mcap"
+    assert aris.recipe()["sonars"]["horizontal"]["noise_mean_level"] > 50
+    assert oculus.recipe()["sonars"]["vertical"]["name"] == "oculus-m1200d"
+    assert {clean.recipe()["seed"], aris.recipe()["seed"]} == {3}
+    with pytest.raises(ConfigError, match=r"training\.sets\[0\]\.sonars.*atlantis"):
+        sims("training.sets=[{scene: pier, seed: 3, goals: 1, sonars: {vertical: atlantis}}]")

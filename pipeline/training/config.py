@@ -25,6 +25,27 @@ class TrainingSet(ConfigModel):
     seed: int = Field(ge=0, le=2**32 - 1)
     goals: int = Field(ge=1, le=10000)
     duration_s: float | None = Field(None, gt=0, le=7 * 86400)
+    sonars: dict[str, str] | None = Field(
+        None,
+        description="simulated sensor per sonar ({horizontal, vertical}: a preset of"
+        " configs/sonars with an image block, or sim-clean; `sonarmap.pipeline.training."
+        "sim_sensors`); null: the simulator's clean sensor",
+    )
+
+    @field_validator("sonars")
+    @classmethod
+    def _sonars_exist(cls, value: dict[str, str] | None) -> dict[str, str] | None:
+        if value is None:
+            return value
+        from sonarmap.pipeline.training.sim_sensors import chosen_sensors
+
+        if not value or set(value) - {"horizontal", "vertical"}:
+            raise ValueError("sonars: a mapping of horizontal and/or vertical to a sensor name")
+        try:
+            chosen_sensors(None, value.get("horizontal"), value.get("vertical"), {})
+        except ConfigError as err:
+            raise ValueError(str(err)) from err
+        return value
 
     @field_validator("scene")
     @classmethod

@@ -287,12 +287,16 @@ def training_simulations(training: TrainingDataConfig) -> list[Simulation]:
     for item in training.sets:
         scene = scene_path(item.scene)
         suffix = f"-{item.duration_s:g}s" if item.duration_s else ""
+        if item.sonars:  # one file per sensor pair; the clean sensor's name is unchanged
+            names = dict.fromkeys(item.sonars[s] for s in sorted(item.sonars))
+            suffix += "-" + "-".join(names)
         name = f"{scene.stem}-seed{item.seed}-goals{item.goals}{suffix}.mcap"
         sims.append(
             Simulation(
-                scene, item.seed, Path(training.directory) / name, item.goals, item.duration_s
+                scene, item.seed, Path(training.directory) / name, item.goals, item.duration_s,
+                sonars=item.sonars,
             )
-        )
+        )  # fmt: skip
     return sims + procedural_simulations(training)
 
 

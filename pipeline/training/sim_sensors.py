@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from sonarmap.sim.config import SimConfig
 
 __all__ = [
+    "ARIS_PAIR",
     "CLEAN",
     "OCULUS_PAIR",
     "SENSOR_KEYS",
@@ -41,6 +42,10 @@ CLEAN = "sim-clean"
 OCULUS_PAIR = {"horizontal": "oculus-m750d-750khz", "vertical": "oculus-m1200d"}
 """The README vehicle's sonars (docs/your-vehicle.md): an M750d at 750 kHz (130 deg, as the
 sim's horizontal geometry) and an M1200d at 1.2 MHz (the sim's vertical frequency)."""
+
+ARIS_PAIR = {"horizontal": "aris1800-48", "vertical": "aris1800-48"}
+"""An ARIS 1800 on both sonars: the preset whose image character was measured from the
+real ARIS frames (docs/simulated-sensors.md)."""
 
 SENSOR_KEYS = (
     "noise_mean_level",

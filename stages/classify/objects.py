@@ -52,6 +52,12 @@ __all__ = [
 PATCH_SIZE_PX = 40
 """Side of the CNN input patch [px] (paper: 40x40 grayscale)."""
 
+GRAIN_QUANTILE = 0.9
+"""Background level of normalisation "grain": this quantile over the beams of each range.
+Grain correlated across beams (the real Oculus ping's lag-1 is 0.64) leaves blobs as
+bright as a piling above the median; above the 90th percentile they go dark, while
+objects, a minority of the beams at any range, stay above it (issue 50)."""
+
 
 def _square_boxes(boxes: np.ndarray, margin_m: float, min_side_m: float) -> np.ndarray:
     """(k, 4) boxes grown by the margin -> (k, 3) square (x_centre, y_centre, side) [m]."""
@@ -61,13 +67,15 @@ def _square_boxes(boxes: np.ndarray, margin_m: float, min_side_m: float) -> np.n
     return np.stack([cx, cy, np.maximum(side, min_side_m)], axis=1)
 
 
-def row_background(image: np.ndarray) -> np.ndarray:
-    """The image's background level at each range: (n_ranges,) median over the beams.
+def row_background(image: np.ndarray, quantile: float = 0.5) -> np.ndarray:
+    """The image's background level at each range: (n_ranges,) `quantile` over the beams.
 
     Objects fill a minority of the beams at any range, so the median is the noise floor
     of that range (the additive noise and any range-dependent gain), whatever the sensor.
     """
-    return np.median(image, axis=1).astype(np.float32)
+    if quantile == 0.5:
+        return np.median(image, axis=1).astype(np.float32)
+    return np.quantile(image, quantile, axis=1).astype(np.float32)
 
 
 def los_rotate(xy_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndarray:
@@ -234,7 +242,8 @@ def extract_objects(
         normalisation: "peak": each patch divided by its maximum (models trained before
             issue 50); "background": the image's `row_background` subtracted at each
             pixel's range and the rest divided by the box's 99th percentile, clipped to
-            [0, 1] (`crop_patches`), so a bright or speckled noise floor stays dark.
+            [0, 1] (`crop_patches`), so a bright or speckled noise floor stays dark;
+            "grain": the same above each range's `GRAIN_QUANTILE` quantile instead.
 
     Returns:
         The keyframe's objects (dropped clusters are none of them).
@@ -269,7 +278,7 @@ def extract_objects(
     patches = crop_patches(
         ping.image, ping.ranges_m, ping.angles_rad, los_boxes, los_bearing,
         margin_m=margin_m, min_side_m=min_side_m, size_px=size_px,
-        background=row_background(ping.image) if normalisation == "background" else None,
+        background=_background(ping.image, normalisation),
     )  # fmt: skip
     truth = None
     if ping.labels is not None:
@@ -283,6 +292,12 @@ def extract_objects(
         patches=patches,
         true_class_id=truth,
     )
+
+
+def _background(image: np.ndarray, normalisation: str) -> np.ndarray | None:
+    if normalisation == "peak":
+        return None
+    return row_background(image, GRAIN_QUANTILE if normalisation == "grain" else 0.5)
 
 
 FEATURE_COLUMNS: tuple[str, ...] = ("feature_id", "range_bin", "beam", "range_m", "angle_rad")

@@ -30,10 +30,11 @@ class TrainConfig(StageConfig):
     min_side_m: float = Field(
         1.0, ge=0, le=1000, description="smallest crop side [m] (keeps piling scale)"
     )
-    patch_normalisation: Literal["peak", "background"] = Field(
+    patch_normalisation: Literal["peak", "background", "grain"] = Field(
         "background",
         description="'background': each range's median over the beams subtracted, scaled by"
-        " the box's 99th percentile (a bright noise floor stays dark); 'peak':"
+        " the box's 99th percentile (a bright noise floor stays dark); 'grain': the same"
+        " above each range's 90th percentile (correlated grain stays dark too); 'peak':"
         " divided by the patch maximum (models trained before patches were normalised)",
     )
     sensor_copies: int = Field(
