@@ -205,3 +205,31 @@ def test_view_change_is_the_angle_between_the_two_sightings_of_the_structure() -
     source = transform_points(se2_between(side, np.zeros(3)), piling)
     assert view_change_deg(source, piling, side, 0.5) == pytest.approx(45.0, abs=2.0)
     assert view_change_deg(source + 5.0, piling, side, 0.5) == 0.0
+
+
+def test_loop_targets_come_from_the_nearest_candidates_only() -> None:
+    """`nssm_max_candidates`: of 32 older keyframes in view, only the 5 nearest are
+    counted. The far ones hold more points in view, so a search that ignored the cap
+    would pick one of them."""
+    from types import SimpleNamespace
+
+    from sonarmap.stages.slam.loops import LoopClosures
+
+    k, n_old = 40, 32  # nssm_min_separation 8: keyframes 0-31 may close a loop with 40
+    est = np.zeros((k + 1, 3))
+    est[:n_old, 0] = 0.5 * np.arange(n_old)  # keyframe 40 sits at the origin, by 0-4
+    points = [
+        np.column_stack(
+            [np.full(15 if i < 5 else 50, 3.0), np.linspace(-1, 1, 15 if i < 5 else 50)]
+        )
+        for i in range(k + 1)
+    ]
+    reach = np.array([np.hypot(*p.T).max() for p in points])
+
+    def targets(cap: int | None) -> list[int]:
+        cfg = SlamConfig(nssm_max_candidates=cap, nssm_fallback_targets=0, nssm_aperture_deg=130)
+        front = SimpleNamespace(cfg=cfg, est=est, points=points, reach_m=reach)
+        return LoopClosures._footprint_targets(front, k, 0.1, 0.01)  # type: ignore[arg-type]
+
+    assert targets(5) == [0]
+    assert targets(None)[0] >= 5
