@@ -208,7 +208,9 @@ class _FrontEnd(LoopClosures):
         found = degeneracy(
             source, index.points, index.tree, pose, c.point_noise_m, c.degeneracy_min_ratio
         )
-        return constrained_covariance(cov, found), found.label, found.count
+        # The check's own angle (about 13 deg at 0.05) bounds how well it knows the wall.
+        tilt = float(np.tan(np.arcsin(np.sqrt(c.degeneracy_min_ratio))))
+        return constrained_covariance(cov, found, pose[:2], tilt), found.label, found.count
 
     def _step_cov(self, odometry: np.ndarray, dt_s: float) -> np.ndarray:
         """(3, 3) covariance of the odometry over one step: its white noise for the step's
