@@ -39,7 +39,7 @@ STAGE = Stage(
     # summary.json's `points` gains `lone_cells_removed`; loop targets from a k-d tree over
     # the older keyframes' positions, at most nssm_max_candidates (100) nearest ones
     # (`loop_max_view_change_deg`, off by default, rejects loops seen from another side)
-    version=14,
+    version=13,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),
