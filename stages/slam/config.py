@@ -119,7 +119,7 @@ class SlamConfig(StageConfig):
         description="how far a wall's apparent direction may be off its true one (grazing"
         " beams tilt it): a degenerate factor's variance across its free direction grows"
         " by (motion along it, at most the matched structure's length, x tan of this)^2;"
-        " 12.92 is the check's own angle at 0.05 (asin sqrt 0.05); docs/slam.md: it fixes"
+        " 12.921 is the check's own angle at 0.05 (asin sqrt 0.05); docs/slam.md: it fixes"
         " fan_edge but costs the demo marina 0.079 -> 0.091 m; None: off",
     )
     ssm_gate_probability: float | None = Field(
