@@ -74,6 +74,17 @@ def _counts(factors, kind: str) -> dict[str, int]:
     }
 
 
+def aligned_error_rms_xy(estimate: np.ndarray, truth: np.ndarray) -> list[float]:
+    """RMS of the (K, 2) position error along world x and y after the SE(2) alignment of
+    `ate_se2`. On `fan_edge` the wall runs along x: dead reckoning's x part is what no scan
+    match found degenerate can correct (the floor of SLAM's ATE there)."""
+    mu_e, mu_t = estimate.mean(axis=0), truth.mean(axis=0)
+    u, _, vt = np.linalg.svd((truth - mu_t).T @ (estimate - mu_e))
+    rot = u @ np.diag([1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    error = (estimate - mu_e) @ rot.T + mu_t - truth
+    return [round(float(v), 3) for v in np.sqrt(np.mean(error**2, axis=0))]
+
+
 def run_one(
     scene: str, seed: int, nav: str, goals: int, before: bool, slam: dict | None = None
 ) -> dict[str, object]:
@@ -98,6 +109,7 @@ def run_one(
         "keyframes": kf.num_rows,
         "ate_dr_m": round(dr, 3),
         "ate_slam_m": round(slam, 3),
+        "dr_error_rms_xy_m": aligned_error_rms_xy(_xy(kf), truth),
         "ssm": _counts(out["factors"], "ssm"),
         "loop": loops,
         "slam_ms_per_keyframe_cpu": round(1000 * cpu / kf.num_rows, 1),

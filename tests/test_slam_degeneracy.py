@@ -20,7 +20,12 @@ from scipy.stats import chi2
 from sonarmap.pipeline.engine.run.output_checks import check_stage
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
 from sonarmap.stages.slam.config import SlamConfig
-from sonarmap.stages.slam.degeneracy import FREE_M2, constrained_covariance, degeneracy
+from sonarmap.stages.slam.degeneracy import (
+    FREE_M2,
+    Degeneracy,
+    constrained_covariance,
+    degeneracy,
+)
 from sonarmap.stages.slam.frontend import run_slam
 from sonarmap.stages.slam.health import CHI2_99_2DOF, slam_summary
 from sonarmap.stages.slam.loops import view_change_deg
@@ -71,6 +76,18 @@ def test_a_straight_wall_leaves_its_own_direction_free_a_corner_does_not(yaw: fl
     assert v @ cov @ v == pytest.approx(FREE_M2 + 1e-3)
     normal = np.array([-found.direction[1], found.direction[0], 0.0])
     assert normal @ cov @ normal == pytest.approx(1e-3)
+    # A 2 m motion along the wall leaks up to 2 m * tilt across it (direction known only
+    # to within the check's angle): that much variance is added across, nothing along.
+    step = 2.0 * found.direction
+    leaky = constrained_covariance(np.eye(3) * 1e-3, found, step, 0.23)
+    assert normal @ leaky @ normal == pytest.approx(1e-3 + (2.0 * 0.23) ** 2)
+    assert v @ leaky @ v == pytest.approx(FREE_M2 + 1e-3)
+    across = constrained_covariance(np.eye(3) * 1e-3, found, 2.0 * normal[:2], 0.23)
+    assert normal @ across @ normal == pytest.approx(1e-3)
+    # A structure 0.5 m long (a piling's arc) cannot be seen along 2 m of itself.
+    short = Degeneracy(found.ratio, found.direction, True, 0.5)
+    capped = constrained_covariance(np.eye(3) * 1e-3, short, step, 0.23)
+    assert normal @ capped @ normal == pytest.approx(1e-3 + (0.5 * 0.23) ** 2)
 
     corner = _wall(rng, corner=True)
     both = degeneracy(corner, corner, cKDTree(corner), np.zeros(3), 0.5, 0.05)
@@ -160,6 +177,20 @@ CASES = [
 ]
 
 
+def test_a_wall_at_the_fan_s_edge_leaks_nothing_along_it() -> None:
+    """Every match is degenerate there, and the wall's apparent tilt (grazing beams)
+    biases each one across it by its motion along it times the tilt; through the odometry's
+    scale state those biases added up along the wall (default config: 0.131 m against dead
+    reckoning's 0.085 m). With the leak as variance across (`degeneracy_tilt_deg`, opt-in
+    at the check's own angle), SLAM keeps to dead reckoning."""
+    inputs = _inputs("fan_edge", 0, 6)
+    kf = inputs["keyframes.keyframes"]
+    truth = _xy(kf, "gt_")
+    out = STAGE.run(SlamConfig(degeneracy_tilt_deg=12.921), inputs)
+    dr, slam = ate_se2(_xy(kf), truth), ate_se2(_xy(out["poses"]), truth)
+    assert slam <= dr + 0.01, (dr, slam)
+
+
 @pytest.mark.parametrize(("scene", "seed", "goals"), CASES, ids=[c[0] for c in CASES])
 def test_slam_is_not_worse_than_dead_reckoning_on_degenerate_scenes(
     scene: str, seed: int, goals: int
@@ -205,3 +236,31 @@ def test_view_change_is_the_angle_between_the_two_sightings_of_the_structure() -
     source = transform_points(se2_between(side, np.zeros(3)), piling)
     assert view_change_deg(source, piling, side, 0.5) == pytest.approx(45.0, abs=2.0)
     assert view_change_deg(source + 5.0, piling, side, 0.5) == 0.0
+
+
+def test_loop_targets_come_from_the_nearest_candidates_only() -> None:
+    """`nssm_max_candidates`: of 32 older keyframes in view, only the 5 nearest are
+    counted. The far ones hold more points in view, so a search that ignored the cap
+    would pick one of them."""
+    from types import SimpleNamespace
+
+    from sonarmap.stages.slam.loops import LoopClosures
+
+    k, n_old = 40, 32  # nssm_min_separation 8: keyframes 0-31 may close a loop with 40
+    est = np.zeros((k + 1, 3))
+    est[:n_old, 0] = 0.5 * np.arange(n_old)  # keyframe 40 sits at the origin, by 0-4
+    points = [
+        np.column_stack(
+            [np.full(15 if i < 5 else 50, 3.0), np.linspace(-1, 1, 15 if i < 5 else 50)]
+        )
+        for i in range(k + 1)
+    ]
+    reach = np.array([np.hypot(*p.T).max() for p in points])
+
+    def targets(cap: int | None) -> list[int]:
+        cfg = SlamConfig(nssm_max_candidates=cap, nssm_fallback_targets=0, nssm_aperture_deg=130)
+        front = SimpleNamespace(cfg=cfg, est=est, points=points, reach_m=reach)
+        return LoopClosures._footprint_targets(front, k, 0.1, 0.01)  # type: ignore[arg-type]
+
+    assert targets(5) == [0]
+    assert targets(None)[0] >= 5

@@ -112,6 +112,16 @@ class SlamConfig(StageConfig):
         " sin 13 deg; `sonarmap.stages.slam.degeneracy`): its factor is made free along it"
         " and the odometry carries that direction; None: off",
     )
+    degeneracy_tilt_deg: float | None = Field(
+        None,
+        gt=0,
+        lt=90,
+        description="how far a wall's apparent direction may be off its true one (grazing"
+        " beams tilt it): a degenerate factor's variance across its free direction grows"
+        " by (motion along it, at most the matched structure's length, x tan of this)^2;"
+        " 12.921 is the check's own angle at 0.05 (asin sqrt 0.05); docs/slam.md: it fixes"
+        " fan_edge but costs the demo marina 0.079 -> 0.091 m; None: off",
+    )
     ssm_gate_probability: float | None = Field(
         0.999,
         gt=0,

@@ -52,11 +52,13 @@ class Degeneracy:
             there are no pairs).
         direction: (2,) unit vector of l_min, body frame of the source (x forward, y port).
         degenerate: whether the match leaves that direction unconstrained.
+        extent_m: length of the paired source points along `direction` [m].
     """
 
     ratio: float
     direction: np.ndarray
     degenerate: bool
+    extent_m: float = 0.0
 
     @property
     def count(self) -> int:
@@ -115,13 +117,33 @@ def degeneracy(
     cross = h[:2, 2:] @ h[2:, :2] / h[2, 2] if h[2, 2] > 0 else 0.0
     values, vectors = np.linalg.eigh(h[:2, :2] - cross)
     ratio = float(values[0] / values[1]) if values[1] > 0 else 0.0
-    return Degeneracy(ratio, vectors[:, 0], ratio < min_ratio)
+    along = p @ vectors[:, 0]
+    extent = float(along.max() - along.min())
+    return Degeneracy(ratio, vectors[:, 0], ratio < min_ratio, extent)
 
 
-def constrained_covariance(cov: np.ndarray, found: Degeneracy) -> np.ndarray:
+def constrained_covariance(
+    cov: np.ndarray, found: Degeneracy, translation_m: np.ndarray | None = None, tilt: float = 0.0
+) -> np.ndarray:
     """(3, 3) `cov` (body frame x, y, yaw) with the variance along the degenerate
-    translation direction raised by `FREE_M2`; unchanged when there is none."""
+    translation direction raised by `FREE_M2`; unchanged when there is none.
+
+    The direction is known only to within the check's own angle: structure whose normals
+    tilt less than that is one wall to it, and a wall seen at grazing incidence looks
+    rotated in the sonar's frame by a bias that moves with the vehicle. The match's motion
+    along the wall, s, then leaks s * tan(tilt) into the direction across it. That leak is
+    a bias shared by every match along the wall (and through the odometry's scale state it
+    adds up), so `translation_m` (2,), the match's translation, and `tilt`, tan of that
+    angle, add its square as variance across the free direction. The two scans see
+    different stretches of the structure only as far as it reaches: the slide is at most
+    `found.extent_m`, the paired points' length along the wall (a lone piling's arc, seen
+    from two sides of a loop, is one short structure, not a long tilted one)."""
     if not found.degenerate:
         return cov
     v = np.array([*found.direction, 0.0])
-    return cov + FREE_M2 * np.outer(v, v)
+    out = cov + FREE_M2 * np.outer(v, v)
+    if translation_m is not None and tilt > 0:
+        u = np.array([-v[1], v[0], 0.0])
+        slide = min(abs(float(np.dot(translation_m, v[:2]))), found.extent_m)
+        out = out + (slide * tilt) ** 2 * np.outer(u, u)
+    return out

@@ -208,7 +208,9 @@ class _FrontEnd(LoopClosures):
         found = degeneracy(
             source, index.points, index.tree, pose, c.point_noise_m, c.degeneracy_min_ratio
         )
-        return constrained_covariance(cov, found), found.label, found.count
+        # How far off the wall's direction may be (opt-in: see docs/slam.md, Known limits).
+        tilt = 0.0 if c.degeneracy_tilt_deg is None else np.tan(np.deg2rad(c.degeneracy_tilt_deg))
+        return constrained_covariance(cov, found, pose[:2], float(tilt)), found.label, found.count
 
     def _step_cov(self, odometry: np.ndarray, dt_s: float) -> np.ndarray:
         """(3, 3) covariance of the odometry over one step: its white noise for the step's

@@ -31,7 +31,9 @@ authors' radius filter: `sonarmap.stages.slam.thinning`), so scan matching's cos
 bounded by the area the sonar sees, not by the number of detections (version 12). Before
 that, leading edges with too few other detections around them in the image's own cells
 are dropped as lone false alarms (`sonarmap.stages.slam.thinning.cell_inliers`), and loop
-targets come from a k-d tree over the keyframe positions (version 13).
+targets come from a k-d tree over the keyframe positions (version 13). Opt-in
+(`degeneracy_tilt_deg`), a degenerate match's factor is also loose across its free
+direction by its motion along it times the tangent of a wall's possible apparent tilt.
 
 Modes: `slam`, `dead_reckoning` (the navigation poses with their propagated covariance),
 `ground_truth` (true poses, to isolate mapping errors as in the paper's simulation study).
