@@ -177,6 +177,7 @@ def front_end_summary(doc: dict[str, Any]) -> dict[str, Any]:
             "bands": len(bands),
             "background_bands": sum(bool(b.get("background")) for b in bands),
             "sampled_pings": len(entry.get("sampled_keyframes") or []),
+            "denoise": entry.get("denoise", "none"),
             "background_median_levels": _span([b.get("median_level") for b in bands]),
             "intensity_floor_levels": _span([b.get("intensity_floor_levels") for b in bands]),
             "threshold_factor": _span([b.get("threshold_factor") for b in bands]),
@@ -217,6 +218,7 @@ def front_end_lines(summary: dict[str, Any]) -> list[str]:
             f"front end, {sonar}: background median"
             f" {_fmt_span(s['background_median_levels'], '{:.0f}')} levels over {s['bands']}"
             f" range bands ({s['background_bands']} background);"
+            f"{_filter(s.get('denoise'))}"
             f" floor {_fmt_span(s['intensity_floor_levels'], '{:.0f}')} ({how['floor']}),"
             f" CFAR factor {_fmt_span(s['threshold_factor'], '{:.2f}')} ({how['tau']});"
             f" false alarms stated {_rate(block.get('stated_false_alarm_rate_per_cell'))}/cell,"
@@ -226,6 +228,14 @@ def front_end_lines(summary: dict[str, Any]) -> list[str]:
             f" {s['keyframes_clipped']} keyframes clipped by the budget"
         )
     return lines
+
+
+def _filter(denoise: str | None) -> str:
+    """The filter the calibration chose, as the line says it ("" for none)."""
+    if not denoise or denoise == "none":
+        return ""
+    size = {"beam3": "1x3", "range3": "3x1"}.get(denoise, denoise.removeprefix("box"))
+    return f" {size} mean filter (range x beam);"
 
 
 def _rate(value: float | None) -> str:

@@ -185,3 +185,9 @@ def test_denoise_auto_sizes_the_mean_to_the_grain() -> None:
     grain = calibrate_sonar(_grain(0.35, 0.64), [rows] * 4, cfg, "h")
     assert iid["denoise"] == "box3x3"
     assert grain["denoise"] in ("box3x5", "box5x5")
+    # ... and the run's summary line says which filter the recording got
+    from sonarmap.pipeline.report_cli import front_end_lines, front_end_summary
+
+    doc = {"sonars": {"horizontal": {**grain, "measured": {}}}}
+    (line,) = front_end_lines({"front_end": front_end_summary(doc)})
+    assert f"{grain['denoise'].removeprefix('box')} mean filter" in line
