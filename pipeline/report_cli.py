@@ -234,6 +234,8 @@ def _filter(denoise: str | None) -> str:
     """The filter the calibration chose, as the line says it ("" for none)."""
     if not denoise or denoise == "none":
         return ""
+    # Read off the name, not `front_end.FILTER_SIZE`: a fully cached run prints this line
+    # and must not load numpy (tests/test_demo.py).
     size = {"beam3": "1x3", "range3": "3x1"}.get(denoise, denoise.removeprefix("box"))
     return f" {size} mean filter (range x beam);"
 

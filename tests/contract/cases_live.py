@@ -53,7 +53,11 @@ def _toy_run(work: Path, *extra: str, gate: bool = True) -> subprocess.Popen[byt
     env = {**os.environ, **TOY_ENV, "TOY_CALL_LOG": str(work / "calls.log")}
     if gate:
         env["TOY_GATE"] = str(work / "gate")
-    cmd = _toy_command(*extra)
+    return _spawn(_toy_command(*extra), work, env)
+
+
+def _spawn(cmd: list[str], work: Path, env: dict[str, str]) -> subprocess.Popen[bytes]:
+    """`cmd` in the background in `work`, Ctrl-C-able, its stderr kept; killed at exit."""
     proc = subprocess.Popen(
         cmd,
         cwd=work,
@@ -186,15 +190,7 @@ def _real_gc_mid_run(work: Path) -> list[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", "rec.mcap", "--store", STORE, "-q",
            "--until", "slam"]  # fmt: skip
-    proc = subprocess.Popen(
-        cmd,
-        cwd=work,
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        preexec_fn=default_sigint,
-    )
-    atexit.register(proc.kill)
+    proc = _spawn(cmd, work, env)
     _BACKGROUND[str(work)] = proc
     deadline = time.monotonic() + 120
     while not list((work / STORE / "features").glob("*/manifest.json")):
