@@ -67,6 +67,7 @@ def follow(
     from sonarmap.pipeline.engine.errors import SourceError
     from sonarmap.pipeline.engine.run.progress import StageProgress
     from sonarmap.pipeline.live.follow import Follower, FollowOptions
+    from sonarmap.pipeline.live.growing import check_mcap_start
     from sonarmap.pipeline.live.session import check_port, live_session
 
     check_port(port, "--port")
@@ -77,6 +78,7 @@ def follow(
         )
     if not dataset.is_file():
         raise SourceError(f"{dataset}: no such file")
+    check_mcap_start(dataset)
     graph = cli_graph(ctx)
     # The whole config is checked before the first look at the recording.
     load_config(graph.config_stages, config, set_ or (), graph.extra_sections)

@@ -19,7 +19,7 @@ from pathlib import Path
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.limits import max_chunk_bytes
 
-__all__ = ["MAGIC", "TAIL", "Growth", "McapSnapshot", "mcap_closed"]
+__all__ = ["MAGIC", "TAIL", "Growth", "McapSnapshot", "check_mcap_start", "mcap_closed"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _OP_FOOTER, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x02, 0x05, 0x06, 0x0F
@@ -35,6 +35,15 @@ TAIL = (
 """What closes the snapshot: DataEnd, a Footer naming no summary, the magic."""
 _READ_BYTES = 8 << 20
 """Largest piece of the source read at once (a big chunk is copied in pieces)."""
+
+
+def check_mcap_start(path: Path) -> None:
+    """SourceError unless `path` starts as an MCAP file does (or holds less than the magic:
+    a recorder that has just opened it)."""
+    with path.open("rb") as f:
+        head = f.read(len(MAGIC))
+    if len(head) == len(MAGIC) and head != MAGIC:
+        raise SourceError(f"{path}: not an MCAP file (no MCAP magic at byte 0)")
 
 
 def mcap_closed(path: Path) -> bool:
@@ -108,9 +117,7 @@ class McapSnapshot:
             if self.copied_until == 0:
                 if size < len(MAGIC):
                     return Growth(0, 0, None, False)
-                f.seek(0)
-                if f.read(len(MAGIC)) != MAGIC:
-                    raise SourceError(f"{self.source}: not an MCAP file (no MCAP magic at byte 0)")
+                check_mcap_start(self.source)
                 self.path.write_bytes(MAGIC + TAIL)
                 self.copied_until = len(MAGIC)
             new_bytes, records = self._copy(f, size)
