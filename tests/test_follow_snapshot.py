@@ -11,6 +11,7 @@ import struct
 from pathlib import Path
 
 import pytest
+import yaml
 from mcap.reader import make_reader
 from mcap.records import Chunk, DataEnd, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
@@ -19,13 +20,13 @@ from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.live.growing import MAGIC, McapSnapshot, mcap_closed
+from sonarmap.pipeline.live.growing import MAGIC, BagSnapshot, McapSnapshot, mcap_closed
 from sonarmap.pipeline.readers import open_source
 
 TOPICS = ("/a", "/b")
 
 
-def _recording() -> bytes:
+def _recording(numbers: range = range(60)) -> bytes:
     """A small ROS 2 MCAP: two topics, messages of varied sizes, small chunks (several
     messages in some, one in others), attachments and metadata after the messages."""
     buf = io.BytesIO()
@@ -33,7 +34,7 @@ def _recording() -> bytes:
     w.start(profile="ros2", library="test")
     schema = w.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
     ids = [w.register_channel(t, "cdr", schema) for t in TOPICS]
-    for i in range(60):
+    for i in numbers:
         size = 20 + (i * 37) % 400
         w.add_message(ids[i % 2], 1_000_000_000 + i * 10_000_000, bytes([i]) * size, 0, i)
     w.add_attachment(0, 0, "scene.yaml", "application/yaml", b"x: 1\n")
@@ -114,6 +115,45 @@ def test_grown_piece_by_piece_it_is_the_whole_files_snapshot(tmp_path: Path) -> 
     assert snap.size < len(data)  # the summary is not copied: the snapshot has none
 
 
+def test_a_bag_directory_is_followed_file_by_file_until_its_metadata(tmp_path: Path) -> None:
+    bag, scratch = tmp_path / "dive", tmp_path / "scratch"
+    bag.mkdir()
+    parts = [_recording(range(0, 30)), _recording(range(30, 60))]
+    snap = BagSnapshot(bag, scratch)
+
+    def by_topic(path: Path) -> dict[str, list[int]]:
+        source = open_source(path)
+        return {t.topic: source.times(t.topic).tolist() for t in source.topics()}
+
+    def seen() -> list[int]:
+        return sorted(t for ts in by_topic(snap.path).values() for t in ts)
+
+    def times(data: bytes, cut: int | None = None) -> list[int]:
+        records = _complete_messages(data)
+        return sorted(t for end, msgs in records if end <= (cut or end) for _, t, _ in msgs)
+
+    (bag / "dive_0.mcap").write_bytes(parts[0][: len(parts[0]) // 2])
+    assert not snap.update().closed
+    assert seen() == times(parts[0], len(parts[0]) // 2)
+    (bag / "dive_0.mcap").write_bytes(parts[0])  # split: the next file opens
+    (bag / "dive_1.mcap").write_bytes(parts[1][:500])
+    assert not snap.update().closed
+    assert seen() == times(parts[0]) + times(parts[1], 500)
+    (bag / "dive_1.mcap").write_bytes(parts[1])
+    assert not snap.update().closed  # every file closed, but no metadata.yaml yet
+    meta = {
+        "rosbag2_bagfile_information": {
+            "storage_identifier": "mcap",
+            "relative_file_paths": ["dive_0.mcap", "dive_1.mcap"],
+        }
+    }
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    growth = snap.update()
+    assert growth.closed and growth.last_log_time_ns == 1_000_000_000 + 59 * 10_000_000
+    assert seen() == times(parts[0]) + times(parts[1])
+    assert by_topic(snap.path) == by_topic(bag)
+
+
 def test_not_an_mcap_file_is_refused(tmp_path: Path) -> None:
     src = tmp_path / "x.mcap"
     src.write_bytes(b"not an mcap file at all")
@@ -123,13 +163,14 @@ def test_not_an_mcap_file_is_refused(tmp_path: Path) -> None:
     assert McapSnapshot(src, tmp_path / "s.mcap").update().new_bytes == 0
 
 
-@pytest.mark.parametrize("what", ["junk", "missing", "folder"])
+@pytest.mark.parametrize("what", ["junk", "missing", "sqlite bag"])
 def test_follow_refuses_what_it_cannot_read_in_one_line(tmp_path: Path, what: str) -> None:
     path = tmp_path / "dive.mcap"
     if what == "junk":
         path.write_bytes(b"junk" * 10)
-    elif what == "folder":
+    elif what == "sqlite bag":
         path.mkdir()
+        (path / "dive_0.db3").write_bytes(b"SQLite format 3\x00")
     args = ["follow", str(path), "--store", str(tmp_path / "s"), "--port", "0", "-q"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2, result.output

@@ -26,7 +26,9 @@ INTERRUPTED = 130
 def follow(
     ctx: typer.Context,
     dataset: Path = typer.Argument(
-        ..., help="MCAP file being written (it may hold nothing yet, but must exist)."
+        ...,
+        help="MCAP file, or rosbag2 directory of MCAP files, being written (it may hold "
+        "nothing yet, but must exist).",
     ),
     config: Path | None = CONFIG_OPT,
     set_: list[str] | None = SET_OPT,
@@ -50,13 +52,14 @@ def follow(
         "footer, or Ctrl-C).",
     ),
 ) -> None:
-    """Map DATASET while it is written, serving the growing map to Foxglove.
+    """Map DATASET (MCAP file or rosbag2 directory) while it is written, live in Foxglove.
 
     Every --every-s, when new records arrived, maps what is complete so far (up to
     voxelize, no figures) and publishes it on ws://127.0.0.1:PORT as `run --live` does.
-    When the recording is closed (its MCAP footer written) or idle for --idle-timeout-s,
-    runs it as `run` does (same artifacts, same summary) and exits 0; Ctrl-C exits 130,
-    keeping every stage already committed.
+    When the recording is closed (its MCAP footer written; a bag: its metadata.yaml
+    naming every file, each closed) or idle for --idle-timeout-s, runs it as `run`
+    does (same artifacts, same summary) and exits 0; Ctrl-C exits 130, keeping every
+    stage already committed.
     """
     import tempfile
 
@@ -64,21 +67,13 @@ def follow(
     from sonarmap.pipeline.commands._errors import writes_under
     from sonarmap.pipeline.commands.run import print_run
     from sonarmap.pipeline.engine.config.load import load_config
-    from sonarmap.pipeline.engine.errors import SourceError
     from sonarmap.pipeline.engine.run.progress import StageProgress
     from sonarmap.pipeline.live.follow import Follower, FollowOptions
-    from sonarmap.pipeline.live.growing import check_mcap_start
+    from sonarmap.pipeline.live.growing import check_followable
     from sonarmap.pipeline.live.session import check_port, live_session
 
     check_port(port, "--port")
-    if dataset.is_dir():
-        raise SourceError(
-            f"{dataset}: a bag directory: `follow` reads one MCAP file being written "
-            "(map a closed bag with `sonarmap run`)"
-        )
-    if not dataset.is_file():
-        raise SourceError(f"{dataset}: no such file")
-    check_mcap_start(dataset)
+    check_followable(dataset)
     graph = cli_graph(ctx)
     # The whole config is checked before the first look at the recording.
     load_config(graph.config_stages, config, set_ or (), graph.extra_sections)

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
-from sonarmap.pipeline.live.growing import McapSnapshot
+from sonarmap.pipeline.live.growing import BagSnapshot, McapSnapshot
 
 if TYPE_CHECKING:
     from sonarmap.pipeline.engine.run.graph import Graph
@@ -90,7 +90,8 @@ class Update:
 
 
 class Follower:
-    """Watches `request.dataset` (an MCAP file being written) and maps its snapshot.
+    """Watches `request.dataset` (an MCAP file, or a rosbag2 directory of MCAP files,
+    being written) and maps its snapshot.
 
     Args:
         request: the run asked for (dataset, config, store, workers).
@@ -115,7 +116,11 @@ class Follower:
     ) -> None:
         self.request = request
         self.graph = graph
-        self.snapshot = McapSnapshot(request.dataset, scratch / "growing.mcap")
+        self.snapshot: McapSnapshot | BagSnapshot = (
+            BagSnapshot(request.dataset, scratch)
+            if request.dataset.is_dir()
+            else McapSnapshot(request.dataset, scratch / "growing.mcap")
+        )
         self.options = options
         self._on_stage, self._drain, self._say = on_stage, drain, say
         self._arrived_t: list[int] = []  # the newest log time after each growth ...

@@ -19,7 +19,16 @@ from pathlib import Path
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.limits import max_chunk_bytes
 
-__all__ = ["MAGIC", "TAIL", "Growth", "McapSnapshot", "check_mcap_start", "mcap_closed"]
+__all__ = [
+    "MAGIC",
+    "TAIL",
+    "BagSnapshot",
+    "Growth",
+    "McapSnapshot",
+    "check_followable",
+    "check_mcap_start",
+    "mcap_closed",
+]
 
 MAGIC = b"\x89MCAP0\r\n"
 _OP_FOOTER, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x02, 0x05, 0x06, 0x0F
@@ -35,6 +44,20 @@ TAIL = (
 """What closes the snapshot: DataEnd, a Footer naming no summary, the magic."""
 _READ_BYTES = 8 << 20
 """Largest piece of the source read at once (a big chunk is copied in pieces)."""
+
+
+def check_followable(path: Path) -> None:
+    """SourceError unless `path` is an MCAP file (`check_mcap_start`) or a bag directory
+    without sqlite3 files (what a recorder writing MCAP storage makes)."""
+    if path.is_file():
+        check_mcap_start(path)
+    elif not path.is_dir():
+        raise SourceError(f"{path}: no such file or directory")
+    elif others := sorted(p.name for p in path.glob("*.db3")):
+        raise SourceError(
+            f"{path}: sqlite3 storage ({others[0]}): `follow` reads a bag recorded "
+            "with MCAP storage (`ros2 bag record -s mcap`); `run` it once it is closed"
+        )
 
 
 def check_mcap_start(path: Path) -> None:
@@ -183,3 +206,84 @@ def _pieces(f: object, length: int) -> Iterator[bytes]:
             raise SourceError("the MCAP file shrank while it was read")
         yield piece
         length -= len(piece)
+
+
+class BagSnapshot:
+    """Keeps `folder` a rosbag2 directory (MCAP storage) of `source`'s complete records.
+
+    A recorder writing a bag directory (`ros2 bag record -s mcap`) opens its split files
+    one after the other and writes `metadata.yaml` when it stops. Each split file found
+    gets its own `McapSnapshot`; the snapshot's own `metadata.yaml` lists those holding
+    something. The bag is closed when its `metadata.yaml` is there, names every MCAP file
+    of the directory, and each of them is closed.
+
+    Args:
+        source: the bag directory being written.
+        folder: where the snapshot directory is made (its name is `source`'s).
+    """
+
+    def __init__(self, source: Path, folder: Path) -> None:
+        self.source = Path(source)
+        self.path = Path(folder) / (self.source.name or "bag")
+        self.path.mkdir(parents=True, exist_ok=True)
+        self._files: dict[str, McapSnapshot] = {}
+        self._listed: list[str] = []
+
+    @property
+    def size(self) -> int:
+        """Bytes of the source's files copied into the snapshot."""
+        return sum(s.size for s in self._files.values())
+
+    def update(self) -> Growth:
+        """Copy the complete records added to the bag's files since the last call."""
+        check_followable(self.source)
+        names = sorted((p.name for p in self.source.glob("*.mcap")), key=_split_order)
+        new_bytes = records = 0
+        for name in names:
+            snap = self._files.setdefault(name, McapSnapshot(self.source / name, self.path / name))
+            if snap.data_ended:
+                continue
+            growth = snap.update()
+            new_bytes, records = new_bytes + growth.new_bytes, records + growth.records
+        listed = [n for n in names if self._files[n].size > 0]
+        if listed != self._listed:
+            self._write_metadata(listed)
+        times = [s.last_log_time_ns for s in self._files.values() if s.last_log_time_ns]
+        return Growth(new_bytes, records, max(times, default=None), self._closed(names))
+
+    def _write_metadata(self, names: list[str]) -> None:
+        import yaml
+
+        doc = {
+            "rosbag2_bagfile_information": {
+                "storage_identifier": "mcap",
+                "relative_file_paths": names,  # no topic counts: they are not known yet
+            }
+        }
+        tmp = self.path / "metadata.yaml.tmp"
+        tmp.write_text(yaml.safe_dump(doc))
+        tmp.replace(self.path / "metadata.yaml")
+        self._listed = names
+
+    def _closed(self, names: list[str]) -> bool:
+        meta = self.source / "metadata.yaml"
+        if not meta.is_file() or not names:
+            return False
+        from sonarmap.pipeline.engine.config.yaml_files import read_yaml
+
+        try:
+            info = read_yaml(meta, "bag metadata", SourceError)["rosbag2_bagfile_information"]
+            listed = sorted(Path(n).name for n in info["relative_file_paths"])
+        except (SourceError, KeyError, TypeError):
+            return False  # being written, or not yet the final one: look again
+        files = [self._files[n] for n in names]
+        return listed == sorted(names) and all(
+            f.data_ended and mcap_closed(f.source) for f in files
+        )
+
+
+def _split_order(name: str) -> tuple[int, str]:
+    """rosbag2 names its split files `BAG_0.mcap`, `BAG_1.mcap`, ... `BAG_10.mcap`."""
+    stem = name.rsplit(".", 1)[0]
+    index = stem.rsplit("_", 1)[-1]
+    return (int(index) if index.isdigit() else -1, name)
