@@ -90,14 +90,20 @@ def main() -> None:
     parser.add_argument("--speed", type=float, default=1.0)
     parser.add_argument("--every-s", type=float, default=2.0)
     parser.add_argument("-j", "--workers", type=int, default=None)
+    parser.add_argument("--split-s", type=float, default=None, help="write a bag directory")
     args = parser.parse_args()
     source = _recording(args.recording, args.goals, args.seed)
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     jobs = [] if args.workers is None else ["-j", str(args.workers)]
     with tempfile.TemporaryDirectory(prefix="bench-follow-") as tmp:
         work = Path(tmp)
-        growing, store = work / "dive.mcap", work / "store"
-        growing.write_bytes(b"")
+        growing, store = work / "dive", work / "store"
+        split = [] if args.split_s is None else ["--split-s", str(args.split_s)]
+        if split:
+            growing.mkdir()
+        else:
+            growing = growing.with_suffix(".mcap")
+            growing.write_bytes(b"")
         err_log, wrote_log = work / "follow.err", work / "writer.out"
         with err_log.open("w") as err_f:
             follow = subprocess.Popen(
@@ -119,7 +125,7 @@ def main() -> None:
                 writer = subprocess.Popen(
                     [
                         *(sys.executable, "-m", "sonarmap.pipeline.live.replay", str(source)),
-                        *(str(growing), "--speed", str(args.speed)),
+                        *(str(growing), "--speed", str(args.speed), *split),
                     ],
                     cwd=ROOT,
                     env=env,

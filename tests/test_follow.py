@@ -1,5 +1,6 @@
 """`sonarmap follow`: one process writes a small simulated mission slowly (the `mcap`
-Writer, small chunks, flushed, paced by the recording's own times), another follows it;
+Writer, small chunks, flushed, paced by the recording's own times; one MCAP file, or a
+rosbag2 directory of split files), another follows it;
 a Foxglove client sees a map before the writer is done, and the artifacts `follow` leaves
 are those of a batch `run` of the finished file (same keys, same bytes). Ctrl-C: 130."""
 
@@ -70,9 +71,19 @@ def _artifacts(store: Path, result_keys: dict[str, str]) -> dict[str, dict[str, 
 
 
 @pytest.mark.slow
-def test_follow_maps_while_written_and_ends_as_run(mission: Path, tmp_path: Path) -> None:
-    growing, store = tmp_path / "dive.mcap", tmp_path / "store"
-    growing.write_bytes(b"")  # the recorder has opened it
+@pytest.mark.parametrize("kind", ["mcap", "bag"])
+def test_follow_maps_while_written_and_ends_as_run(
+    mission: Path, tmp_path: Path, kind: str
+) -> None:
+    store = tmp_path / "store"
+    if kind == "mcap":
+        growing = tmp_path / "dive.mcap"
+        growing.write_bytes(b"")  # the recorder has opened it
+        split: tuple[str, ...] = ()
+    else:  # split files every 10 s of the mission, metadata.yaml at the end
+        growing = tmp_path / "dive"
+        growing.mkdir()
+        split = ("--split-s", "10")
     follow = _start(
         *("sonarmap.pipeline", "follow", str(growing), "--store", str(store), "--port", "0"),
         *("-j", "1", "--every-s", "1", "--json"),
@@ -82,7 +93,7 @@ def test_follow_maps_while_written_and_ends_as_run(mission: Path, tmp_path: Path
         url, head = _address(follow)
         # 30 s of mission written in about 12 s: several updates fit in before its end.
         writer = _start(
-            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2.5"
+            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2.5", *split
         )
         seen: list[Received] = []
 
