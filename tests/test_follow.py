@@ -155,3 +155,29 @@ def test_ctrl_c_stops_cleanly_with_130(mission: Path, tmp_path: Path) -> None:
             follow.kill()
     assert follow.returncode == 130, err
     assert "follow: interrupted" in err and "Traceback" not in err
+
+
+def test_the_loop_ends_on_the_footer_or_after_the_idle_timeout(
+    mission: Path, tmp_path: Path
+) -> None:
+    from sonarmap.pipeline.graph import default_graph
+    from sonarmap.pipeline.live.follow import Follower, FollowOptions
+
+    said: list[str] = []
+    never = FollowOptions(every_s=1e9, poll_s=0.05)  # watch only: no map update
+    closed = Follower(
+        RunRequest(mission), default_graph(), tmp_path, say=said.append, options=never
+    )
+    assert closed.follow() == [] and closed.closed  # a finished file: at once
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(mission.read_bytes()[:100_000])
+    idle = FollowOptions(every_s=1e9, poll_s=0.05, idle_timeout_s=0.3)
+    follower = Follower(
+        RunRequest(cut), default_graph(), tmp_path / "s", say=said.append, options=idle
+    )
+    updates = follower.follow()
+    assert not follower.closed
+    # the first update comes with the first data; this cut holds no sonar message yet
+    assert [u.number for u in updates] == [1] and "no sonar topic" in updates[0].problem
+    assert said[0].startswith("follow: update 1: 0.0 MB read, no map yet (snapshot: no sonar")
+    assert said[1:] == ["follow: no growth for 0.3 s: mapping what was written"]

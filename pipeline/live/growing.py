@@ -141,6 +141,7 @@ class McapSnapshot:
                 if size < len(MAGIC):
                     return Growth(0, 0, None, False)
                 check_mcap_start(self.source)
+                self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.path.write_bytes(MAGIC + TAIL)
                 self.copied_until = len(MAGIC)
             new_bytes, records = self._copy(f, size)
