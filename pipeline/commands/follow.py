@@ -108,7 +108,8 @@ def follow(
                 options=options,
             )
             follower.follow()
-            say(f"follow: {dataset} closed after {len(follower.updates)} updates: final run")
+            ended = "closed" if follower.closed else "idle"
+            say(f"follow: {dataset} {ended} after {len(follower.updates)} updates: final run")
             with StageProgress(enabled=not quiet) as progress:
                 result, summary = run_dataset(
                     request,
