@@ -91,9 +91,9 @@ def test_follow_maps_while_written_and_ends_as_run(
     writer = None
     try:
         url, head = _address(follow)
-        # 30 s of mission written in about 12 s: several updates fit in before its end.
+        # 30 s of mission written in 15 s: several updates fit in before its end.
         writer = _start(
-            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2.5", *split
+            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2", *split
         )
         seen: list[Received] = []
 
