@@ -20,5 +20,6 @@ COMMAND_MODULES: tuple[str, ...] = (
     "study",
     "share",
     "view",
+    "follow",
 )
 """Order in which commands appear in `sonarmap --help`."""

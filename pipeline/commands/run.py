@@ -18,7 +18,7 @@ from sonarmap.pipeline.commands._common import (
     emit_json,
 )
 
-__all__ = ["register", "run"]
+__all__ = ["print_run", "register", "run"]
 
 
 def run(
@@ -63,23 +63,29 @@ def run(
                 on_stage=view.chain(progress.on_stage),
                 scores=json_,
             )
-        sensors = _sensors(result)
-        from sonarmap.pipeline.report_cli import front_end_of
+        print_run(result, summary, json_=json_, quiet=quiet)
 
-        front_end = front_end_of(result)
-        if json_:
-            emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
-            return
-        from sonarmap.pipeline.report_cli import (
-            front_end_lines,
-            print_summary,
-            progress_shares_stdout,
-        )
 
-        print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
-        _print_sensors(sensors)
-        for line in front_end_lines(front_end):
-            typer.echo(line)
+def print_run(result: Any, summary: dict[str, Any], *, json_: bool, quiet: bool) -> None:
+    """What `run` prints after its stages: the JSON document, or the summary, the sensors
+    and the front end (`follow` prints the same after its final run)."""
+    sensors = _sensors(result)
+    from sonarmap.pipeline.report_cli import front_end_of
+
+    front_end = front_end_of(result)
+    if json_:
+        emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
+        return
+    from sonarmap.pipeline.report_cli import (
+        front_end_lines,
+        print_summary,
+        progress_shares_stdout,
+    )
+
+    print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
+    _print_sensors(sensors)
+    for line in front_end_lines(front_end):
+        typer.echo(line)
 
 
 def _sensors(result: Any) -> dict[str, Any]:

@@ -111,10 +111,16 @@ def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Sour
     missing = [str(f) for f in files if not f.is_file()]
     if not files or missing:
         raise SourceError(f"{path}: bag files listed in metadata.yaml are missing: {missing}")
-    indexed = {
-        t["topic_metadata"]["name"]: int(t.get("message_count", 0))
-        for t in meta.get("topics_with_message_count", [])
-    }
+    # A metadata.yaml listing no topics claims no counts (`follow`'s snapshot of a bag
+    # being written cannot know them): nothing to check the messages against.
+    indexed = (
+        {
+            t["topic_metadata"]["name"]: int(t.get("message_count", 0))
+            for t in meta["topics_with_message_count"]
+        }
+        if "topics_with_message_count" in meta
+        else None
+    )
     storage = meta.get("storage_identifier", "")
     if storage == "mcap":
         from sonarmap.pipeline.readers.mcap_source import McapSource

@@ -1,0 +1,219 @@
+"""`sonarmap follow`'s loop: map a recording while it is written, until it is closed.
+
+A poll every `poll_s` copies the recording's new complete records into a snapshot
+(`growing.McapSnapshot`: a valid, closed MCAP of what has arrived). At most every
+`every_s`, when something new arrived, the normal run maps the snapshot up to the map
+(`MAP_STAGE`, no figures, the normal store, in this process) and the live feed publishes
+each stage as it finishes, as `run --live` does. Each update is the engine's ordinary run on a new
+dataset: whatever the store already holds for it (cached stages, per-keyframe work where
+the stages keep it) is reused, and nothing here knows which.
+
+The loop returns when the recording is closed (its footer and magic written), or after
+`idle_timeout_s` without growth; the caller then runs the finished recording as `run` does.
+"""
+
+from __future__ import annotations
+
+import bisect
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sonarmap.pipeline.api import RunRequest, run_dataset
+from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
+from sonarmap.pipeline.live.growing import BagSnapshot, McapSnapshot
+
+if TYPE_CHECKING:
+    from sonarmap.pipeline.engine.run.graph import Graph
+
+__all__ = ["MAP_STAGE", "FollowOptions", "Follower", "Update"]
+
+MAP_STAGE = "voxelize"
+"""The last stage of an update: the map (evaluation and figures wait for the end)."""
+
+
+@dataclass(frozen=True)
+class FollowOptions:
+    """How `follow` watches and maps.
+
+    Attributes:
+        every_s: least time between the starts of two map updates [s].
+        poll_s: time between two looks at the recording's size [s].
+        idle_timeout_s: end as if closed after this long without growth [s] (None: never).
+    """
+
+    every_s: float = 2.0
+    poll_s: float = 0.25
+    idle_timeout_s: float | None = None
+
+
+@dataclass
+class Update:
+    """One map update.
+
+    Attributes:
+        number: 1, 2, ...
+        read_bytes: bytes of the recording in the snapshot it mapped.
+        keyframes: keyframes of its run (None when it made none).
+        t_last_ns: log time of the newest keyframe (None: none).
+        compute_s: wall time of the run and its publication [s].
+        lag_s: from the arrival of the newest keyframe's data to its map published [s].
+        voxels: the map's voxel counts ({} when it made no map).
+        problem: why it made no map ("" when it did).
+        warnings: the run's warnings (empty or collapsed outputs), counted.
+    """
+
+    number: int
+    read_bytes: int
+    keyframes: int | None = None
+    t_last_ns: int | None = None
+    compute_s: float = 0.0
+    lag_s: float | None = None
+    voxels: dict[str, int] = field(default_factory=dict)
+    problem: str = ""
+    warnings: int = 0
+
+    def line(self) -> str:
+        """The progress line `follow` prints on stderr."""
+        head = f"follow: update {self.number}: {self.read_bytes / 1e6:.1f} MB read"
+        if self.problem:
+            return f"{head}, no map yet ({self.problem})"
+        vox = ", ".join(f"{k} {v}" for k, v in sorted(self.voxels.items()))
+        lag = "" if self.lag_s is None else f", lag {self.lag_s:.1f} s"
+        warn = f", {self.warnings} warnings (the final run prints them)" if self.warnings else ""
+        return (
+            f"{head}, {self.keyframes} keyframes, map voxels: {vox or '-'}; "
+            f"computed in {self.compute_s:.1f} s{lag}{warn}"
+        )
+
+
+class Follower:
+    """Watches `request.dataset` (an MCAP file, or a rosbag2 directory of MCAP files,
+    being written) and maps its snapshot.
+
+    Args:
+        request: the run asked for (dataset, config, store, workers).
+        graph: the graph the CLI built.
+        scratch: a private folder for the snapshot.
+        on_stage: the live feed's `on_stage` (None: no live view).
+        drain: waits until the feed published what it was given (None: no live view).
+        say: prints one progress line.
+        options: the timing options.
+    """
+
+    def __init__(
+        self,
+        request: RunRequest,
+        graph: Graph,
+        scratch: Path,
+        *,
+        on_stage: Callable[[Any], None] | None = None,
+        drain: Callable[[], object] | None = None,
+        say: Callable[[str], None] = print,
+        options: FollowOptions = FollowOptions(),
+    ) -> None:
+        self.request = request
+        self.graph = graph
+        self.snapshot: McapSnapshot | BagSnapshot = (
+            BagSnapshot(request.dataset, scratch)
+            if request.dataset.is_dir()
+            else McapSnapshot(request.dataset, scratch / "growing.mcap")
+        )
+        self.options = options
+        self._on_stage, self._drain, self._say = on_stage, drain, say
+        self._arrived_t: list[int] = []  # the newest log time after each growth ...
+        self._arrived_wall: list[float] = []  # ... and when it was seen
+        self.updates: list[Update] = []
+        self.closed = False
+
+    def follow(self, clock: Callable[[], float] = time.time) -> list[Update]:
+        """Poll and map until the recording is closed or idle; the updates made.
+
+        Raises:
+            SourceError: the file is not an MCAP file (or not there).
+            ConfigError: the config is bad (found by the first update).
+            KeyboardInterrupt: Ctrl-C (what was committed stays in the store).
+        """
+        mapped_size = 0
+        last_start = -float("inf")
+        last_growth = clock()
+        while True:
+            growth = self.snapshot.update()
+            now = clock()
+            if growth.new_bytes:
+                last_growth = now
+                if growth.last_log_time_ns is not None:
+                    self._arrived_t.append(growth.last_log_time_ns)
+                    self._arrived_wall.append(now)
+            if growth.closed:
+                self.closed = True
+                return self.updates
+            idle = self.options.idle_timeout_s
+            if idle is not None and now - last_growth >= idle:
+                self._say(f"follow: no growth for {idle:g} s: mapping what was written")
+                return self.updates
+            if self.snapshot.size > mapped_size and now - last_start >= self.options.every_s:
+                last_start = now
+                mapped_size = self.snapshot.size
+                self.updates.append(self._update(clock))
+                self._say(self.updates[-1].line())
+            else:
+                time.sleep(self.options.poll_s)
+
+    def _update(self, clock: Callable[[], float]) -> Update:
+        names = [s.name for s in self.graph.stages]
+        request = replace(
+            self.request,
+            dataset=self.snapshot.path,
+            until=MAP_STAGE if MAP_STAGE in names else None,
+            figures=False,
+            force=(),
+            # In this process: the imports, the model and the warm caches stay from one
+            # update to the next (worker processes would start over each time: measured
+            # 5 s an update with two of them at 1-4 keyframes, 2 s in-process).
+            workers=1,
+        )
+        update = Update(len(self.updates) + 1, self.snapshot.size)
+        start = clock()
+        try:
+            result, summary = run_dataset(request, self.graph, on_stage=self._on_stage)
+        except ConfigError:
+            raise
+        except PipelineError as err:
+            # A recording's first seconds often cannot be mapped yet (no navigation
+            # under the pings, no keyframe, an empty map): the next update has more.
+            update.problem = str(err).replace(str(self.snapshot.path), "snapshot")[:200]
+            return update
+        if self._drain is not None:
+            self._drain()
+        done = clock()
+        update.compute_s = done - start
+        update.keyframes = summary.get("keyframes")
+        update.voxels = dict(summary.get("voxels") or {})
+        update.warnings = len(result.warnings)
+        update.t_last_ns = _t_last(result)
+        arrival = self.arrival(update.t_last_ns)
+        update.lag_s = None if arrival is None else done - arrival
+        return update
+
+    def arrival(self, t_ns: int | None) -> float | None:
+        """When data at log time `t_ns` was first seen in the recording (None: unknown)."""
+        if t_ns is None:
+            return None
+        i = bisect.bisect_left(self._arrived_t, t_ns)
+        return self._arrived_wall[i] if i < len(self._arrived_wall) else None
+
+
+def _t_last(result: Any) -> int | None:
+    """The newest keyframe's log time in a run's keyframes artifact."""
+    ref = result.artifacts.get("keyframes")
+    path = None if ref is None else Path(ref.path) / "keyframes.parquet"
+    if path is None or not path.is_file():
+        return None
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    t = pq.read_table(path, columns=["t_ns"]).column("t_ns")
+    return None if len(t) == 0 else int(pc.max(t).as_py())

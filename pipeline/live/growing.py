@@ -1,0 +1,290 @@
+"""A valid, closed copy of the complete part of an MCAP file that is still being written.
+
+A recorder appends records to its file and writes the summary, the footer and the closing
+magic only when it stops; until then the last record is usually half written. `McapSnapshot`
+keeps a copy holding the header and every complete data record so far, closed by a DataEnd
+and a Footer whose summary offsets are 0 ("no summary section", MCAP spec): a file every
+reader takes as whole (`sonarmap.pipeline.readers` scans it sequentially, without the
+"cut short" warning). Each `update` reads only the bytes added since the last one: the new
+complete records are appended where the old tail was, and the tail is written again.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.limits import max_chunk_bytes
+
+__all__ = [
+    "MAGIC",
+    "TAIL",
+    "BagSnapshot",
+    "Growth",
+    "McapSnapshot",
+    "check_followable",
+    "check_mcap_start",
+    "mcap_closed",
+]
+
+MAGIC = b"\x89MCAP0\r\n"
+_OP_FOOTER, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END = 0x02, 0x05, 0x06, 0x0F
+_HEAD = 9  # opcode (1) + record length (8)
+_FOOTER_RECORD = _HEAD + 8 + 8 + 4  # summary_start, summary_offset_start, summary_crc
+TAIL = (
+    bytes([_OP_DATA_END])
+    + struct.pack("<QI", 4, 0)  # data_section_crc 0: not computed
+    + bytes([_OP_FOOTER])
+    + struct.pack("<QQQI", 20, 0, 0, 0)  # no summary, no summary offsets, no CRC
+    + MAGIC
+)
+"""What closes the snapshot: DataEnd, a Footer naming no summary, the magic."""
+_READ_BYTES = 8 << 20
+"""Largest piece of the source read at once (a big chunk is copied in pieces)."""
+
+
+def check_followable(path: Path) -> None:
+    """SourceError unless `path` is an MCAP file (`check_mcap_start`) or a bag directory
+    without sqlite3 files (what a recorder writing MCAP storage makes)."""
+    if path.is_file():
+        check_mcap_start(path)
+    elif not path.is_dir():
+        raise SourceError(f"{path}: no such file or directory")
+    elif others := sorted(p.name for p in path.glob("*.db3")):
+        raise SourceError(
+            f"{path}: sqlite3 storage ({others[0]}): `follow` reads a bag recorded "
+            "with MCAP storage (`ros2 bag record -s mcap`); `run` it once it is closed"
+        )
+
+
+def check_mcap_start(path: Path) -> None:
+    """SourceError unless `path` starts as an MCAP file does (or holds less than the magic:
+    a recorder that has just opened it)."""
+    with path.open("rb") as f:
+        head = f.read(len(MAGIC))
+    if len(head) == len(MAGIC) and head != MAGIC:
+        raise SourceError(f"{path}: not an MCAP file (no MCAP magic at byte 0)")
+
+
+def mcap_closed(path: Path) -> bool:
+    """Whether `path` ends as a finished MCAP file does: a Footer record, then the magic."""
+    try:
+        with path.open("rb") as f:
+            size = f.seek(0, 2)
+            if size < len(MAGIC) * 2 + _FOOTER_RECORD:
+                return False
+            f.seek(size - len(MAGIC) - _FOOTER_RECORD)
+            tail = f.read()
+    except OSError:
+        return False
+    (length,) = struct.unpack_from("<Q", tail, 1)
+    return tail[0] == _OP_FOOTER and length == 20 and tail.endswith(MAGIC)
+
+
+@dataclass
+class Growth:
+    """What one `McapSnapshot.update` found.
+
+    Attributes:
+        new_bytes: bytes of complete records copied by this update.
+        records: complete top-level records copied by this update.
+        last_log_time_ns: the latest log time copied so far (chunk and message records;
+            None before the first).
+        closed: the source is finished (its data section ended, footer and magic written).
+    """
+
+    new_bytes: int
+    records: int
+    last_log_time_ns: int | None
+    closed: bool
+
+
+class McapSnapshot:
+    """Keeps `path` a closed, summary-less MCAP copy of `source`'s complete records.
+
+    Args:
+        source: the MCAP file being written (it may not hold even its magic yet).
+        path: where the snapshot is kept (overwritten).
+    """
+
+    def __init__(self, source: Path, path: Path) -> None:
+        self.source = Path(source)
+        self.path = Path(path)
+        self.copied_until = 0  # source offset after the last copied record (0: none yet)
+        self.data_ended = False
+        self.last_log_time_ns: int | None = None
+        # A record longer than any chunk sonarmap would decompress can only be damage:
+        # waiting for it to complete would wait forever.
+        self._max_record = 2 * max_chunk_bytes() + (1 << 20)
+
+    @property
+    def size(self) -> int:
+        """Bytes of the source copied into the snapshot (header and complete records)."""
+        return self.copied_until
+
+    def update(self) -> Growth:
+        """Copy the complete records added to the source since the last call.
+
+        Raises:
+            SourceError: the source is not an MCAP file, or declares an impossible record.
+        """
+        try:
+            f = self.source.open("rb")
+        except FileNotFoundError as err:
+            raise SourceError(f"{self.source}: no such file") from err
+        with f:
+            size = f.seek(0, 2)
+            if self.copied_until == 0:
+                if size < len(MAGIC):
+                    return Growth(0, 0, None, False)
+                check_mcap_start(self.source)
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self.path.write_bytes(MAGIC + TAIL)
+                self.copied_until = len(MAGIC)
+            new_bytes, records = self._copy(f, size)
+        closed = self.data_ended and mcap_closed(self.source)
+        return Growth(new_bytes, records, self.last_log_time_ns, closed)
+
+    def _copy(self, f: object, size: int) -> tuple[int, int]:
+        """Append the complete records between `copied_until` and `size`, then the tail."""
+        import io
+
+        assert isinstance(f, io.BufferedReader)
+        start = pos = self.copied_until
+        records = 0
+        f.seek(pos)
+        with self.path.open("r+b") as out:
+            out.seek(start)
+            while not self.data_ended and pos + _HEAD <= size:
+                head = f.read(_HEAD)
+                opcode = head[0]
+                (length,) = struct.unpack_from("<Q", head, 1)
+                if length > self._max_record:
+                    raise SourceError(
+                        f"{self.source}: MCAP record at byte offset {pos} declares {length} "
+                        f"bytes, over the limit of {self._max_record} (a damaged file)"
+                    )
+                end = pos + _HEAD + length
+                if end > size:
+                    break  # half written: read next time
+                if opcode == _OP_DATA_END:
+                    self.data_ended = True  # the summary follows: the snapshot has none
+                    break
+                out.write(head)
+                first = True
+                for piece in _pieces(f, length):
+                    if first and opcode in (_OP_CHUNK, _OP_MESSAGE):
+                        self._note_time(opcode, piece)
+                    first = False
+                    out.write(piece)
+                pos, records = end, records + 1
+            out.write(TAIL)
+            out.truncate()
+        self.copied_until = pos
+        return pos - start, records
+
+    def _note_time(self, opcode: int, body: bytes) -> None:
+        # Chunk: message_start_time, message_end_time first; Message: channel id (2),
+        # sequence (4), then log_time. Read from the record's head, nothing decompressed.
+        if opcode == _OP_CHUNK and len(body) >= 16:
+            (t,) = struct.unpack_from("<Q", body, 8)
+        elif opcode == _OP_MESSAGE and len(body) >= 14:
+            (t,) = struct.unpack_from("<Q", body, 6)
+        else:
+            return
+        if self.last_log_time_ns is None or t > self.last_log_time_ns:
+            self.last_log_time_ns = t
+
+
+def _pieces(f: object, length: int) -> Iterator[bytes]:
+    """`length` bytes of `f` in pieces of at most `_READ_BYTES` (memory stays bounded)."""
+    while length > 0:
+        piece = f.read(min(length, _READ_BYTES))  # type: ignore[attr-defined]
+        if not piece:
+            raise SourceError("the MCAP file shrank while it was read")
+        yield piece
+        length -= len(piece)
+
+
+class BagSnapshot:
+    """Keeps `folder` a rosbag2 directory (MCAP storage) of `source`'s complete records.
+
+    A recorder writing a bag directory (`ros2 bag record -s mcap`) opens its split files
+    one after the other and writes `metadata.yaml` when it stops. Each split file found
+    gets its own `McapSnapshot`; the snapshot's own `metadata.yaml` lists those holding
+    something. The bag is closed when its `metadata.yaml` is there, names every MCAP file
+    of the directory, and each of them is closed.
+
+    Args:
+        source: the bag directory being written.
+        folder: where the snapshot directory is made (its name is `source`'s).
+    """
+
+    def __init__(self, source: Path, folder: Path) -> None:
+        self.source = Path(source)
+        self.path = Path(folder) / (self.source.name or "bag")
+        self.path.mkdir(parents=True, exist_ok=True)
+        self._files: dict[str, McapSnapshot] = {}
+        self._listed: list[str] = []
+
+    @property
+    def size(self) -> int:
+        """Bytes of the source's files copied into the snapshot."""
+        return sum(s.size for s in self._files.values())
+
+    def update(self) -> Growth:
+        """Copy the complete records added to the bag's files since the last call."""
+        check_followable(self.source)
+        names = sorted((p.name for p in self.source.glob("*.mcap")), key=_split_order)
+        new_bytes = records = 0
+        for name in names:
+            snap = self._files.setdefault(name, McapSnapshot(self.source / name, self.path / name))
+            if snap.data_ended:
+                continue
+            growth = snap.update()
+            new_bytes, records = new_bytes + growth.new_bytes, records + growth.records
+        listed = [n for n in names if self._files[n].size > 0]
+        if listed != self._listed:
+            self._write_metadata(listed)
+        times = [s.last_log_time_ns for s in self._files.values() if s.last_log_time_ns]
+        return Growth(new_bytes, records, max(times, default=None), self._closed(names))
+
+    def _write_metadata(self, names: list[str]) -> None:
+        import yaml
+
+        doc = {
+            "rosbag2_bagfile_information": {
+                "storage_identifier": "mcap",
+                "relative_file_paths": names,  # no topic counts: they are not known yet
+            }
+        }
+        tmp = self.path / "metadata.yaml.tmp"
+        tmp.write_text(yaml.safe_dump(doc))
+        tmp.replace(self.path / "metadata.yaml")
+        self._listed = names
+
+    def _closed(self, names: list[str]) -> bool:
+        meta = self.source / "metadata.yaml"
+        if not meta.is_file() or not names:
+            return False
+        from sonarmap.pipeline.engine.config.yaml_files import read_yaml
+
+        try:
+            info = read_yaml(meta, "bag metadata", SourceError)["rosbag2_bagfile_information"]
+            listed = sorted(Path(n).name for n in info["relative_file_paths"])
+        except (SourceError, KeyError, TypeError):
+            return False  # being written, or not yet the final one: look again
+        files = [self._files[n] for n in names]
+        return listed == sorted(names) and all(
+            f.data_ended and mcap_closed(f.source) for f in files
+        )
+
+
+def _split_order(name: str) -> tuple[int, str]:
+    """rosbag2 names its split files `BAG_0.mcap`, `BAG_1.mcap`, ... `BAG_10.mcap`."""
+    stem = name.rsplit(".", 1)[0]
+    index = stem.rsplit("_", 1)[-1]
+    return (int(index) if index.isdigit() else -1, name)

@@ -1,0 +1,183 @@
+"""`sonarmap follow`: one process writes a small simulated mission slowly (the `mcap`
+Writer, small chunks, flushed, paced by the recording's own times; one MCAP file, or a
+rosbag2 directory of split files), another follows it;
+a Foxglove client sees a map before the writer is done, and the artifacts `follow` leaves
+are those of a batch `run` of the finished file (same keys, same bytes). Ctrl-C: 130."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from contextlib import suppress
+from pathlib import Path
+
+import pytest
+from foxglove_ws_client import Received, collect
+
+from sonarmap.pipeline.api import RunRequest, run_dataset
+from tests.fixtures.signals import default_sigint
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
+websockets = pytest.importorskip("websockets")
+
+
+@pytest.fixture(scope="module")
+def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+
+    out = tmp_path_factory.mktemp("follow") / "tiny.mcap"
+    ensure_simulations([Simulation(scene_path("tiny"), 2, out, duration_s=30.0)], 1)
+    return out
+
+
+def _start(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(
+        [sys.executable, "-m", *args],
+        cwd=ROOT,
+        env=ENV,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=default_sigint,
+    )
+
+
+def _address(proc: subprocess.Popen[str]) -> tuple[str, str]:
+    assert proc.stderr is not None
+    head = ""
+    while not (m := re.search(r"live: (ws://127\.0\.0\.1:\d+)", head)):
+        line = proc.stderr.readline()
+        assert line, f"exited before serving: {head}"
+        head += line
+    return m.group(1), head
+
+
+def _artifacts(store: Path, result_keys: dict[str, str]) -> dict[str, dict[str, bytes]]:
+    """Each stage's files but its manifest (which records when and how long)."""
+    return {
+        stage: {
+            p.name: p.read_bytes()
+            for p in sorted((store / stage / key).iterdir())
+            if p.name != "manifest.json"
+        }
+        for stage, key in result_keys.items()
+    }
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["mcap", "bag"])
+def test_follow_maps_while_written_and_ends_as_run(
+    mission: Path, tmp_path: Path, kind: str
+) -> None:
+    store = tmp_path / "store"
+    if kind == "mcap":
+        growing = tmp_path / "dive.mcap"
+        growing.write_bytes(b"")  # the recorder has opened it
+        split: tuple[str, ...] = ()
+    else:  # split files every 10 s of the mission, metadata.yaml at the end
+        growing = tmp_path / "dive"
+        growing.mkdir()
+        split = ("--split-s", "10")
+    follow = _start(
+        *("sonarmap.pipeline", "follow", str(growing), "--store", str(store), "--port", "0"),
+        *("-j", "1", "--every-s", "1", "--json"),
+    )
+    writer = None
+    try:
+        url, head = _address(follow)
+        # 30 s of mission written in 15 s: several updates fit in before its end.
+        writer = _start(
+            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2", *split
+        )
+        seen: list[Received] = []
+
+        def until(g: Received) -> bool:
+            seen[:] = [g]
+            return follow.poll() is not None
+
+        with suppress(websockets.ConnectionClosed):  # the server goes when follow ends
+            asyncio.run(collect(url, until, timeout_s=240.0))
+        got = seen[-1]
+        out, err = follow.communicate(timeout=60)
+        w_out, w_err = writer.communicate(timeout=60)
+    finally:
+        for proc in (follow, writer):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+    err = head + err
+    assert follow.returncode == 0, err
+    assert writer.returncode == 0, w_err
+    assert "Traceback" not in err and "error:" not in err
+    done = float(re.search(r"done \d+ ([\d.]+)", w_out).group(1))  # type: ignore[union-attr]
+    maps = got.messages.get("/map/standard", [])
+    # `collect` stamps arrivals with time.monotonic(); the writer reports time.time()
+    offset = time.time() - time.monotonic()
+    early = [t_log for arrived, t_log, _ in maps if arrived + offset < done]
+    assert early, f"no map before the writer finished: {err}"
+    assert len(re.findall(r"follow: update \d+: .* keyframes, map voxels", err)) >= 1, err
+    assert maps[-1][1] > early[0]  # the final map reaches further than the first one
+
+    import json
+
+    doc = json.loads(out)
+    keys = {s["stage"]: s["key"] for s in doc["stages"]}
+    batch_store = tmp_path / "batch"
+    result, _ = run_dataset(RunRequest(growing, store_dir=batch_store, workers=1))
+    assert keys == {s.stage: s.key for s in result.stages}
+    assert _artifacts(store, keys) == _artifacts(batch_store, keys)
+
+
+def test_ctrl_c_stops_cleanly_with_130(mission: Path, tmp_path: Path) -> None:
+    cut = tmp_path / "cut.mcap"
+    data = mission.read_bytes()
+    cut.write_bytes(data[: len(data) // 3])  # a recording that stopped growing, not closed
+    follow = _start(
+        *("sonarmap.pipeline", "follow", str(cut), "--store", str(tmp_path / "s")),
+        *("--port", "0", "-j", "1"),
+    )
+    try:
+        _, head = _address(follow)
+        assert follow.stderr is not None
+        line = ""
+        while not line.startswith("follow: update 1:"):  # the first update, mapped or not
+            line = follow.stderr.readline()
+            assert line, head
+        follow.send_signal(signal.SIGINT)
+        _, err = follow.communicate(timeout=60)
+    finally:
+        if follow.poll() is None:
+            follow.kill()
+    assert follow.returncode == 130, err
+    assert "follow: interrupted" in err and "Traceback" not in err
+
+
+def test_the_loop_ends_on_the_footer_or_after_the_idle_timeout(
+    mission: Path, tmp_path: Path
+) -> None:
+    from sonarmap.pipeline.graph import default_graph
+    from sonarmap.pipeline.live.follow import Follower, FollowOptions
+
+    said: list[str] = []
+    never = FollowOptions(every_s=1e9, poll_s=0.05)  # watch only: no map update
+    closed = Follower(
+        RunRequest(mission), default_graph(), tmp_path, say=said.append, options=never
+    )
+    assert closed.follow() == [] and closed.closed  # a finished file: at once
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(mission.read_bytes()[:100_000])
+    idle = FollowOptions(every_s=1e9, poll_s=0.05, idle_timeout_s=0.3)
+    follower = Follower(
+        RunRequest(cut), default_graph(), tmp_path / "s", say=said.append, options=idle
+    )
+    updates = follower.follow()
+    assert not follower.closed
+    # the first update comes with the first data; this cut holds no sonar message yet
+    assert [u.number for u in updates] == [1] and "no sonar topic" in updates[0].problem
+    assert said[0].startswith("follow: update 1: 0.0 MB read, no map yet (snapshot: no sonar")
+    assert said[1:] == ["follow: no growth for 0.3 s: mapping what was written"]
