@@ -175,7 +175,7 @@ def _execute(
             if slot.tmp is not None:  # not committed by another process meanwhile
                 sections = job_sections(item.stage, config)
                 produced = {n: outputs_of[n].outputs for n in item.stage.upstream}
-                job = ComputeJob(item, sections, spec, upstream, produced, slot.tmp)
+                job = ComputeJob(item, sections, spec, upstream, produced, slot.tmp, store.root)
                 slot.extra = slots.compute(job)
         return slot.committed(), "computed" if slot.tmp is not None else "reused"
 
