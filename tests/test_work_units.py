@@ -92,6 +92,7 @@ def test_unit_assembled_artifact_equals_cold_and_direct(tmp_path: Path) -> None:
     manifest = cold.artifacts["chunks"].manifest
     assert (manifest["units_reused"], manifest["units_computed"]) == (0, 13)
     assert len(manifest["units"]) == 13
+    assert cold.stages[0].units == (0, 13)
     COMPUTED.clear()
     warm = _run(data, tmp_path / "st", force=("chunks",))
     assert COMPUTED["chunks"] == 0 and warm.artifacts["chunks"].manifest["units_reused"] == 13
@@ -149,6 +150,7 @@ def test_tampered_unit_fails_verify_and_is_recomputed_locally(tmp_path: Path) ->
     again = _run(data, tmp_path / "st", force=("chunks",))
     manifest = again.artifacts["chunks"].manifest
     assert (manifest["units_reused"], manifest["units_computed"], COMPUTED["chunks"]) == (3, 1, 1)
+    assert any("altered on disk, recomputed" in w for w in again.warnings)
     assert _bytes(again) == _bytes(cold)
     store.verify(again.artifacts["chunks"])  # the recomputed unit replaced the altered one
 
@@ -188,3 +190,11 @@ def test_features_units_equal_direct_and_survive_extension() -> None:
     longer, _ = features_and_calibration(frames, cfg, memo)
     assert memo.hits == n and len(memo.data) == len(frames)
     assert longer.equals(features_and_calibration(frames, cfg)[0])
+
+
+def test_sweep_line_says_what_each_stage_reused() -> None:
+    from sonarmap.pipeline.experiments.sweep import units_reused
+
+    stages = [{"stage": "keyframes"}, {"stage": "features", "units": [120, 10]}]
+    assert units_reused(stages) == "; units reused: features 120/130"
+    assert units_reused([{"stage": "features", "units": None}]) == ""

@@ -51,7 +51,7 @@ def sweep(
     import hashlib
 
     from sonarmap.pipeline.commands._errors import check_writable, display_path, one_line
-    from sonarmap.pipeline.experiments.sweep import expand, run_sweep
+    from sonarmap.pipeline.experiments.sweep import expand, run_sweep, units_reused
     from sonarmap.pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
     from sonarmap.pipeline.experiments.sweep_output import write_sweep
 
@@ -73,7 +73,7 @@ def sweep(
 
     def done(o: RunOutcome) -> None:
         # Plain lines (not a rich console): a log file or CI keeps each on one line.
-        tail = f": {o.error}" if o.error else ""
+        tail = f": {o.error}" if o.error else units_reused(o.stages)
         typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
 
     from sonarmap.pipeline.commands._errors import writes_under

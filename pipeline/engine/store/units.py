@@ -156,11 +156,17 @@ class UnitMemo:
 
     def manifest_fields(self) -> dict[str, Any]:
         """What the artifact's manifest records of its units."""
-        return {
+        fields = {
             "units": dict(sorted(self.used.items())),
             "units_reused": self.hits,
             "units_computed": self.misses,
         }
+        if self.warnings:
+            fields["unit_warnings"] = [
+                f"{len(self.warnings)} work units altered on disk,"
+                f" recomputed (first: {self.warnings[0]})"
+            ]
+        return fields
 
 
 def iter_unit_files(root: Path) -> Iterator[tuple[str, str, Path]]:
