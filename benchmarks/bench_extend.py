@@ -1,0 +1,129 @@
+"""What per-keyframe work units save (issue 53): an extended and a trimmed recording run on
+the store of the base, against cold runs on fresh stores; and a keyframe-spacing sweep
+against its points run cold one by one.
+
+Each run is a child `sonarmap run REC --store S -j 1 --json`; its CPU time (user + sys)
+and peak RSS come from `os.wait4`. For every run on the shared store the table says which
+stages were hits, how many work units each computing stage reused, and whether every
+artifact's files equal (sha256) the cold run's of the same recording.
+
+    python benchmarks/bench_extend.py --base m8_base.mcap --extended m8_full.mcap \\
+        --trimmed m8_trim.mcap --work /tmp/bench_extend [--sweep]
+
+The recordings: `sonarmap simulate -o m8_full.mcap --goals 8 --seed 0 -j 2`, then the
+same with `--duration-s` at 1/1.1 of its length (base) and 0.9 of that (trimmed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+SONARMAP = [sys.executable, "-m", "sonarmap.pipeline"]
+
+
+def child(args: list[str]) -> dict[str, Any]:
+    """Run one child: its JSON document, stderr, CPU seconds (user + sys), peak RSS [MB]
+    and wall seconds (`os.wait4`: this child's own figures)."""
+    import tempfile
+
+    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(args, stdout=out, stderr=err, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        wall = time.perf_counter() - t0
+        out.seek(0)
+        err.seek(0)
+        text, log = out.read(), err.read()
+    if proc.returncode:
+        sys.exit(f"{' '.join(args)} failed:\n{log[-2000:]}")
+    return {
+        "doc": json.loads(text) if text.strip() else {},
+        "stderr": log,
+        "wall_s": wall,
+        "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
+        "peak_rss_mb": round(usage.ru_maxrss / 1024),
+    }
+
+
+def run(rec: Path, store: Path, extra: tuple[str, ...] = ()) -> dict[str, Any]:
+    return child([*SONARMAP, "run", str(rec), "--store", str(store), "-j", "1", "--json", *extra])
+
+
+def _files(stage: dict[str, Any]) -> dict[str, str]:
+    manifest = json.loads((Path(stage["path"]) / "manifest.json").read_text())
+    return {name: f["sha256"] for name, f in manifest["files"].items()}
+
+
+def compare(warm: dict[str, Any], cold: dict[str, Any]) -> list[str]:
+    """Stages whose files differ between two runs of the same recording."""
+    cold_stages = {s["stage"]: s for s in cold["doc"]["stages"]}
+    return [
+        s["stage"] for s in warm["doc"]["stages"] if _files(s) != _files(cold_stages[s["stage"]])
+    ]
+
+
+def describe(name: str, got: dict[str, Any], cold_cpu: float | None = None) -> str:
+    stages = got["doc"].get("stages", [])
+    hits = [s["stage"] for s in stages if s["status"] == "hit"]
+    units = ", ".join(
+        f"{s['stage']} {s['units'][0]}/{sum(s['units'])}" for s in stages if s.get("units")
+    )
+    share = f" ({100 * got['cpu_s'] / cold_cpu:.0f} % of cold)" if cold_cpu else ""
+    return (
+        f"{name:<28} cpu {got['cpu_s']:6.1f} s{share}  peak {got['peak_rss_mb']:5.0f} MB"
+        f"  wall {got['wall_s']:5.1f} s  hits [{', '.join(hits)}]  units reused [{units}]"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", type=Path, required=True)
+    ap.add_argument("--extended", type=Path, required=True)
+    ap.add_argument("--trimmed", type=Path, required=True)
+    ap.add_argument("--work", type=Path, required=True, help="stores go here (emptied)")
+    ap.add_argument("--sweep", action="store_true", help="also the spacing sweep")
+    ap.add_argument("--spacings", default="2,3,4,6")
+    args = ap.parse_args()
+    shutil.rmtree(args.work, ignore_errors=True)
+    args.work.mkdir(parents=True)
+    shared = args.work / "shared"
+    base = run(args.base, shared)
+    print(describe("base, cold", base), flush=True)
+    ext = run(args.extended, shared)
+    trim = run(args.trimmed, shared)
+    ext_cold = run(args.extended, args.work / "ext_cold")
+    trim_cold = run(args.trimmed, args.work / "trim_cold")
+    print(describe("extended, on base's store", ext, ext_cold["cpu_s"]))
+    print(describe("extended, cold", ext_cold))
+    print(describe("trimmed, on base's store", trim, trim_cold["cpu_s"]))
+    print(describe("trimmed, cold", trim_cold))
+    print(f"extended: stages differing from cold: {compare(ext, ext_cold) or 'none'}")
+    print(f"trimmed: stages differing from cold: {compare(trim, trim_cold) or 'none'}")
+    if not args.sweep:
+        return
+    sweep = child(
+        [*SONARMAP, "sweep", str(args.base), "--set", f"keyframes.spacing_m={args.spacings}",
+         "-j", "1", "--store", str(args.work / "sweep"), "--out", str(args.work / "sweep_out")]
+    )  # fmt: skip
+    sweep_cpu = sweep["cpu_s"]
+    lines = [line for line in sweep["stderr"].splitlines() if line.startswith("ok ")]
+    cold_cpu = 0.0
+    for value in args.spacings.split(","):
+        one = run(args.base, args.work / f"cold_{value}", ("--set", f"keyframes.spacing_m={value}"))
+        cold_cpu += one["cpu_s"]
+    print(f"sweep {args.spacings}: cpu {sweep_cpu:.1f} s against {cold_cpu:.1f} s cold one by"
+          f" one ({100 * sweep_cpu / cold_cpu:.0f} %)")  # fmt: skip
+    print("\n".join(f"  {line}" for line in lines))
+
+
+if __name__ == "__main__":
+    main()
