@@ -198,3 +198,26 @@ def test_sweep_line_says_what_each_stage_reused() -> None:
     stages = [{"stage": "keyframes"}, {"stage": "features", "units": [120, 10]}]
     assert units_reused(stages) == "; units reused: features 120/130"
     assert units_reused([{"stage": "features", "units": None}]) == ""
+
+
+def test_push_and_pull_carry_the_units_and_pull_refuses_an_altered_one(tmp_path: Path) -> None:
+    from sonarmap.pipeline.engine.share.push_pull import pull, push
+
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    cold = _run(data, tmp_path / "alice")
+    listed = cold.artifacts["chunks"].manifest["units"]
+    remote = tmp_path / "remote"
+    push(ArtifactStore(tmp_path / "alice"), str(remote), ["chunks"], create=True)
+    assert {p.name for p in (remote / "units" / "chunks").rglob("*") if p.is_file()} == set(listed)
+    bob = ArtifactStore(tmp_path / "bob")
+    (ref,) = pull(bob, str(remote), ["chunks"])
+    bob.verify(ref)
+    assert {key for _, key, _ in iter_unit_files(bob.root)} == set(listed)
+    victim = unit_path(remote, "chunks", sorted(listed)[0])
+    raw = bytearray(victim.read_bytes())
+    raw[-1] ^= 1
+    victim.write_bytes(bytes(raw))
+    with pytest.raises(ArtifactCorrupt):
+        pull(ArtifactStore(tmp_path / "carol"), str(remote), ["chunks"])
+    assert not list(iter_unit_files(tmp_path / "carol"))

@@ -12,7 +12,7 @@ the payload: a JSON line naming each array's dtype and shape, then the arrays' r
 recomputed with a warning on a local run; `verify_units` refuses it on `--verify`/`pull`.
 
 The artifact a stage commits lists the units it was assembled from in its manifest
-(`"units": {key: sha256}`), so `gc` keeps the units of kept artifacts and removes the
+(`"units": {key: {"sha256", "size"}}`), so `gc` keeps the units of kept artifacts and removes the
 rest, and `push`/`pull` carry them beside the artifact.
 """
 
@@ -36,7 +36,10 @@ __all__ = [
     "UnitMemo",
     "decode_unit",
     "encode_unit",
+    "file_entry",
+    "install_unit",
     "iter_unit_files",
+    "unit_entries",
     "unit_path",
     "verify_units",
 ]
@@ -115,16 +118,43 @@ def _write_atomic(root: Path, path: Path, data: bytes) -> None:
             tmp.unlink()
 
 
+def file_entry(data: bytes) -> dict[str, Any]:
+    """What a manifest records of a unit file (as of an artifact's files)."""
+    return {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+
+
+def install_unit(root: Path, stage: str, key: str, data: bytes, where: str) -> None:
+    """Put a unit fetched from elsewhere (`pull`) in place, after checking it decodes."""
+    decode_unit(data, where)
+    _write_atomic(root, unit_path(root, stage, key), data)
+
+
+def unit_entries(manifest: Mapping[str, Any], where: str) -> dict[str, dict[str, Any]]:
+    """The units a manifest lists, checked for shape (key: 64 hex, sha256 and size)."""
+    raw = manifest.get("units") or {}
+    if not isinstance(raw, Mapping):
+        raise ArtifactCorrupt(f"{where}: manifest 'units' is not an object")
+    out = {}
+    for key, entry in raw.items():
+        ok = isinstance(key, str) and len(key) == 64 and set(key) <= _HEX
+        ok = ok and isinstance(entry, Mapping) and isinstance(entry.get("size"), int)
+        sha = entry.get("sha256") if isinstance(entry, Mapping) else None
+        if not ok or not isinstance(sha, str) or len(sha) != 64 or not set(sha) <= _HEX:
+            raise ArtifactCorrupt(f"{where}: manifest lists a malformed unit {str(key)[:70]!r}")
+        out[key] = {"sha256": sha, "size": int(entry["size"])}
+    return out
+
+
 class UnitMemo:
     """A stage's get/put of its units in one store (picklable: a worker process gets it).
 
-    Records the keys it handed out or stored (`used`, key -> sha256 of the file) and how
+    Records the keys it handed out or stored (`used`, key -> the file's sha256 and size) and how
     many were found (`hits`) or computed (`misses`); `warnings` says which were altered.
     """
 
     def __init__(self, root: Path, stage: str) -> None:
         self.root, self.stage = Path(root), stage
-        self.used: dict[str, str] = {}
+        self.used: dict[str, dict[str, Any]] = {}
         self.hits = 0
         self.misses = 0
         self.warnings: list[str] = []
@@ -145,14 +175,14 @@ class UnitMemo:
             self.misses += 1
             return None
         self.hits += 1
-        self.used[key] = hashlib.sha256(data).hexdigest()
+        self.used[key] = file_entry(data)
         return arrays
 
     def put(self, key: str, arrays: Mapping[str, Any]) -> None:
         """Store a computed unit (atomically; the same key always holds the same arrays)."""
         data = encode_unit(arrays)
         _write_atomic(self.root, unit_path(self.root, self.stage, key), data)
-        self.used[key] = hashlib.sha256(data).hexdigest()
+        self.used[key] = file_entry(data)
 
     def manifest_fields(self) -> dict[str, Any]:
         """What the artifact's manifest records of its units."""
@@ -184,14 +214,15 @@ def iter_unit_files(root: Path) -> Iterator[tuple[str, str, Path]]:
 
 def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
     """Raise `ArtifactCorrupt` unless every unit the manifest lists is present and matches
-    both its own digest and the sha256 the manifest recorded."""
-    for key, sha in dict(manifest.get("units") or {}).items():
-        path = unit_path(root, stage, str(key))
-        where = f"unit {stage}/{str(key)[:12]} of artifact {stage}/{str(manifest.get('key'))[:12]}"
+    both its own digest and the sha256 and size the manifest recorded."""
+    art = f"artifact {stage}/{str(manifest.get('key'))[:12]}"
+    for key, entry in unit_entries(manifest, art).items():
+        path = unit_path(root, stage, key)
+        where = f"unit {stage}/{key[:12]} of {art}"
         try:
             data = path.read_bytes()
         except FileNotFoundError as err:
             raise ArtifactCorrupt(f"{where}: missing") from err
-        if hashlib.sha256(data).hexdigest() != sha:
-            raise ArtifactCorrupt(f"{where}: sha256 does not match the artifact's manifest")
+        if file_entry(data) != entry:
+            raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
         decode_unit(data, where)
