@@ -193,7 +193,7 @@ def test_features_units_equal_direct_and_survive_extension() -> None:
 
 
 def test_sweep_line_says_what_each_stage_reused() -> None:
-    from sonarmap.pipeline.experiments.sweep import units_reused
+    from sonarmap.pipeline.commands.sweep import units_reused
 
     stages = [{"stage": "keyframes"}, {"stage": "features", "units": [120, 10]}]
     assert units_reused(stages) == "; units reused: features 120/130"

@@ -41,7 +41,6 @@ __all__ = [
     "run_sweep",
     "stage_path",
     "sweep_tables",
-    "units_reused",
 ]
 
 if TYPE_CHECKING:
@@ -85,18 +84,6 @@ class RunOutcome:
 
     def to_json(self) -> dict[str, Any]:
         return dict(self.__dict__)
-
-
-def units_reused(stages: Sequence[Mapping[str, Any]]) -> str:
-    """What a run's stages reused of the per-keyframe work units already in the store, as
-    "; units reused: features 120/130, classify 0/130" ("" when no stage computed any)."""
-    parts = []
-    for s in stages:
-        units = s.get("units")
-        if units:
-            reused, computed = units
-            parts.append(f"{s.get('stage')} {reused}/{reused + computed}")
-    return f"; units reused: {', '.join(parts)}" if parts else ""
 
 
 def stage_path(stages: Sequence[Mapping[str, Any]], stage: str) -> Path | None:
