@@ -10,8 +10,10 @@ artifact's files equal (sha256) the cold run's of the same recording.
     python benchmarks/bench_extend.py --base m8_base.mcap --extended m8_full.mcap \\
         --trimmed m8_trim.mcap --work /tmp/bench_extend [--sweep]
 
-The recordings: `sonarmap simulate -o m8_full.mcap --goals 8 --seed 0 -j 2`, then the
-same with `--duration-s` at 1/1.1 of its length (base) and 0.9 of that (trimmed).
+The recordings: `sonarmap simulate -o m8_full.mcap --goals 8 --seed 0 -j 2` (extended),
+then `--cut m8_full.mcap` writes the base (cut at 1/1.1 of its length) and the trimmed
+(0.9 of the base) beside it, by log time with the mcap library. (`simulate --duration-s`
+does not make a prefix: the cut mission's trajectory differs from the first ping on.)
 """
 
 from __future__ import annotations
@@ -58,6 +60,47 @@ def run(rec: Path, store: Path, extra: tuple[str, ...] = ()) -> dict[str, Any]:
     return child([*SONARMAP, "run", str(rec), "--store", str(store), "-j", "1", "--json", *extra])
 
 
+def cut_mcap(src: Path, dst: Path, seconds: float) -> int:
+    """Copy the messages of `src` logged in its first `seconds` (schemas, channels,
+    attachments and metadata kept; the metadata's `n_frames` set to the horizontal pings
+    kept) to `dst`; returns the messages written."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with src.open("rb") as f_in, dst.open("wb") as f_out:
+        reader = make_reader(f_in)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        end = summary.statistics.message_start_time + int(seconds * 1e9)
+        header = reader.get_header()
+        writer = Writer(f_out)
+        writer.start(profile=header.profile, library=header.library)
+        schema_ids = {
+            sid: writer.register_schema(s.name, s.encoding, s.data)
+            for sid, s in summary.schemas.items()
+        }
+        channel_ids = {
+            cid: writer.register_channel(c.topic, c.message_encoding, schema_ids[c.schema_id], c.metadata)
+            for cid, c in summary.channels.items()
+        }  # fmt: skip
+        n = frames = 0
+        for _, channel, msg in reader.iter_messages(ending_at=end, log_time_order=True):
+            writer.add_message(
+                channel_ids[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence
+            )
+            n += 1
+            frames += channel.topic == "/sonar/horizontal"
+        for a in reader.iter_attachments():
+            writer.add_attachment(a.create_time, a.log_time, a.name, a.media_type, a.data)
+        for m in reader.iter_metadata():
+            meta = dict(m.metadata)
+            if "n_frames" in meta:
+                meta["n_frames"] = str(frames)
+            writer.add_metadata(m.name, meta)
+        writer.finish()
+    return n
+
+
 def _files(stage: dict[str, Any]) -> dict[str, str]:
     manifest = json.loads((Path(stage["path"]) / "manifest.json").read_text())
     return {name: f["sha256"] for name, f in manifest["files"].items()}
@@ -86,13 +129,24 @@ def describe(name: str, got: dict[str, Any], cold_cpu: float | None = None) -> s
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", type=Path, required=True)
-    ap.add_argument("--extended", type=Path, required=True)
-    ap.add_argument("--trimmed", type=Path, required=True)
-    ap.add_argument("--work", type=Path, required=True, help="stores go here (emptied)")
+    ap.add_argument("--cut", type=Path, help="write <stem>_base.mcap, <stem>_trim.mcap, exit")
+    ap.add_argument("--base", type=Path)
+    ap.add_argument("--extended", type=Path)
+    ap.add_argument("--trimmed", type=Path)
+    ap.add_argument("--work", type=Path, help="stores go here (emptied)")
     ap.add_argument("--sweep", action="store_true", help="also the spacing sweep")
     ap.add_argument("--spacings", default="2,3,4,6")
     args = ap.parse_args()
+    if args.cut is not None:
+        from mcap.reader import make_reader
+
+        with args.cut.open("rb") as f:
+            stats = make_reader(f).get_summary().statistics  # type: ignore[union-attr]
+        length = (stats.message_end_time - stats.message_start_time) / 1e9
+        for name, seconds in (("base", length / 1.1), ("trim", 0.9 * length / 1.1)):
+            out = args.cut.with_name(f"{args.cut.stem}_{name}.mcap")
+            print(f"{out}: first {seconds:.1f} s, {cut_mcap(args.cut, out, seconds)} messages")
+        return
     shutil.rmtree(args.work, ignore_errors=True)
     args.work.mkdir(parents=True)
     shared = args.work / "shared"
