@@ -47,8 +47,12 @@ def child(args: list[str]) -> dict[str, Any]:
         text, log = out.read(), err.read()
     if proc.returncode:
         sys.exit(f"{' '.join(args)} failed:\n{log[-2000:]}")
+    try:
+        doc = json.loads(text)
+    except ValueError:  # `sweep` prints a table, not JSON
+        doc = {}
     return {
-        "doc": json.loads(text) if text.strip() else {},
+        "doc": doc,
         "stderr": log,
         "wall_s": wall,
         "cpu_s": round(usage.ru_utime + usage.ru_stime, 2),
@@ -135,6 +139,7 @@ def main() -> None:
     ap.add_argument("--trimmed", type=Path)
     ap.add_argument("--work", type=Path, help="stores go here (emptied)")
     ap.add_argument("--sweep", action="store_true", help="also the spacing sweep")
+    ap.add_argument("--sweep-only", action="store_true", help="only the spacing sweep (--base)")
     ap.add_argument("--spacings", default="2,3,4,6")
     args = ap.parse_args()
     if args.cut is not None:
@@ -149,6 +154,13 @@ def main() -> None:
         return
     shutil.rmtree(args.work, ignore_errors=True)
     args.work.mkdir(parents=True)
+    if not args.sweep_only:
+        extend_and_trim(args)
+    if args.sweep or args.sweep_only:
+        spacing_sweep(args)
+
+
+def extend_and_trim(args: argparse.Namespace) -> None:
     shared = args.work / "shared"
     base = run(args.base, shared)
     print(describe("base, cold", base), flush=True)
@@ -162,8 +174,9 @@ def main() -> None:
     print(describe("trimmed, cold", trim_cold))
     print(f"extended: stages differing from cold: {compare(ext, ext_cold) or 'none'}")
     print(f"trimmed: stages differing from cold: {compare(trim, trim_cold) or 'none'}")
-    if not args.sweep:
-        return
+
+
+def spacing_sweep(args: argparse.Namespace) -> None:
     sweep = child(
         [*SONARMAP, "sweep", str(args.base), "--set", f"keyframes.spacing_m={args.spacings}",
          "-j", "1", "--store", str(args.work / "sweep"), "--out", str(args.work / "sweep_out")]
