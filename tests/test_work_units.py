@@ -184,11 +184,11 @@ def test_features_units_equal_direct_and_survive_extension() -> None:
     assert sampled_by_time(t[:n], 3).tolist() == sampled_by_time(t, 3).tolist()
     memo = _DictUnits()
     short, short_doc = features_and_calibration(frames[:n], cfg, memo)
-    assert (len(memo.data), memo.hits) == (n, 0)
+    assert (len(memo.data), memo.hits) == (n + 1, 0)  # a unit per keyframe, the calibration
     plain, plain_doc = features_and_calibration(frames[:n], cfg)
     assert short.equals(plain) and short_doc == plain_doc
     longer, _ = features_and_calibration(frames, cfg, memo)
-    assert memo.hits == n and len(memo.data) == len(frames)
+    assert memo.hits == n + 1 and len(memo.data) == len(frames) + 1
     assert longer.equals(features_and_calibration(frames, cfg)[0])
 
 

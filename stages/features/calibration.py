@@ -35,6 +35,8 @@ __all__ = [
     "FLOOD_FACTOR",
     "MIN_EXPECTED",
     "calibrate",
+    "calibrate_sample",
+    "calibration_sample",
     "sampled_by_time",
     "with_measurements",
 ]
@@ -72,18 +74,29 @@ def sampled_by_time(t_ns: np.ndarray, n_sample: int) -> np.ndarray:
     return np.unique(pick)
 
 
+def calibration_sample(
+    frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
+) -> list[KeyframeImages]:
+    """The keyframes calibrated on (`sampled_by_time`); `t_ns`: each frame's ping time
+    when known without reading the frames (keyframes.parquet)."""
+    times = np.array([f.t_ns for f in frames], np.int64) if t_ns is None else t_ns
+    return [frames[int(i)] for i in sampled_by_time(times, config.calibration_pings)]
+
+
 def calibrate(
     frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
 ) -> dict[str, Any]:
-    """The calibration of a recording's keyframes (before detection); `t_ns`: each
-    frame's ping time when known without reading the frames (keyframes.parquet).
+    """The calibration of a recording's keyframes (before detection); `t_ns` as in
+    `calibration_sample`.
 
     Raises:
         UnmodelableImages: a sonar's sampled images cannot be modelled (see `calibrate_sonar`).
     """
-    times = np.array([f.t_ns for f in frames], np.int64) if t_ns is None else t_ns
-    idx = sampled_by_time(times, config.calibration_pings)
-    picked = [frames[int(i)] for i in idx]
+    return calibrate_sample(calibration_sample(frames, config, t_ns), config)
+
+
+def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
+    """The calibration of the sampled keyframes `picked` (`calibrate`)."""
     doc: dict[str, Any] = {
         "stated_false_alarm_rate_per_cell": config.false_alarm_rate_per_cell,
         "local_cfar": {

@@ -48,9 +48,17 @@ from sonarmap.schemas.features import FEATURES_SCHEMA, SONARS
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.base import UNITS_INPUT, Input, StageInputError, Units
 from sonarmap.stages.features import STAGE
-from sonarmap.stages.features.calibration import calibrate, with_measurements
+from sonarmap.stages.features.calibration import (
+    calibrate_sample,
+    calibration_sample,
+    with_measurements,
+)
 from sonarmap.stages.features.config import FeaturesConfig
-from sonarmap.stages.features.units import cached_detections, detection_base
+from sonarmap.stages.features.units import (
+    cached_calibration,
+    cached_detections,
+    detection_base,
+)
 from sonarmap.stages.kernels.frame_features import detect_ping, keyframe_features
 from sonarmap.stages.kernels.front_end import UnmodelableImages, thresholds
 
@@ -79,7 +87,8 @@ def features_and_calibration(
         ValueError: keyframe ids not strictly increasing.
         UnmodelableImages: a sonar's images cannot be modelled and a threshold is measured.
     """
-    doc = calibrate(frames, config, t_ns)
+    picked = calibration_sample(frames, config, t_ns)
+    doc = cached_calibration(picked, config, STAGE.name, STAGE.version, calibrate_sample, units)
     th = thresholds(doc)
     base = detection_base(STAGE.name, STAGE.version, config, th)
     chunks: list[dict[str, np.ndarray]] = []

@@ -6,12 +6,17 @@ calibration set), and the digest of the keyframe's two images with their range a
 axes. The keyframe's id is not in the key: the unit holds the feature columns without
 `keyframe_id` (added back when assembled), so a keyframe with the same pings reuses it in
 another recording or at another keyframe spacing.
+
+The calibration is a unit too: keyed by the version, the config and the sampled
+keyframes' digests in order, it holds `calibration.json` before detection (its JSON as
+bytes), so a recording whose sample is unchanged skips the fits and the Monte Carlo.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+import json
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,7 +28,7 @@ from sonarmap.stages.kernels.frame_features import FrameDetections, frame_detect
 from sonarmap.stages.kernels.front_end import BandThresholds
 from sonarmap.stages.kernels.unit_keys import array_digest, unit_key
 
-__all__ = ["cached_detections", "detection_base"]
+__all__ = ["cached_calibration", "cached_detections", "detection_base"]
 
 _COUNTS = ("dropped", "band_detections", "band_rows")
 
@@ -75,3 +80,33 @@ def cached_detections(
         stored[f"_band_rows_{s}"] = np.asarray(found.band_rows[s])
     units.put(key, stored)
     return cols, found
+
+
+def cached_calibration(
+    picked: Sequence[KeyframeImages],
+    config: Any,
+    name: str,
+    version: int,
+    calibrate: Callable[[Sequence[KeyframeImages], Any], dict[str, Any]],
+    units: Units | None,
+) -> dict[str, Any]:
+    """`calibrate(picked, config)`, taken from `units` when it holds it."""
+    if units is None:
+        return calibrate(picked, config)
+    key = unit_key(
+        {
+            "stage": name,
+            "version": version,
+            "config": config.model_dump(mode="json"),
+            "calibration_of": [_frame_digest(f) for f in picked],
+            "ids": [int(f.keyframe_id) for f in picked],  # the doc names them
+        }
+    )
+    got = units.get(key)
+    if got is not None:
+        return dict(json.loads(np.asarray(got["json"], np.uint8).tobytes()))
+    doc = calibrate(picked, config)
+    text = json.dumps(doc, allow_nan=False).encode()
+    if json.loads(text) == doc:  # plain JSON values only: what it gives back is the doc
+        units.put(key, {"json": np.frombuffer(text, np.uint8)})
+    return doc
