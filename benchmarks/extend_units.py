@@ -1,13 +1,14 @@
 """What per-keyframe work units save (issue 53): an extended and a trimmed recording run on
 the store of the base, against cold runs on fresh stores; and a keyframe-spacing sweep
-against its points run cold one by one.
+against its points run cold one by one. (Not a `bench_*.py`: it takes recordings, so
+`make bench`'s `run_all.py` does not run it.)
 
 Each run is a child `sonarmap run REC --store S -j 1 --json`; its CPU time (user + sys)
 and peak RSS come from `os.wait4`. For every run on the shared store the table says which
 stages were hits, how many work units each computing stage reused, and whether every
 artifact's files equal (sha256) the cold run's of the same recording.
 
-    python benchmarks/bench_extend.py --base m8_base.mcap --extended m8_full.mcap \\
+    python benchmarks/extend_units.py --base m8_base.mcap --extended m8_full.mcap \\
         --trimmed m8_trim.mcap --work /tmp/bench_extend [--sweep]
 
 The recordings: `sonarmap simulate -o m8_full.mcap --goals 8 --seed 0 -j 2` (extended),

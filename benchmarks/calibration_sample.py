@@ -9,7 +9,7 @@ calibration is deterministic), so the same units. Printed: the share of lengths 
 sample survives, for the time grid (features v5) and for the even spread over the
 recording it replaced (v4).
 
-    python benchmarks/bench_calibration_sample.py data/store/keyframes/<key>/keyframes.parquet
+    python benchmarks/calibration_sample.py data/store/keyframes/<key>/keyframes.parquet
 """
 
 from __future__ import annotations
