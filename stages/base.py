@@ -19,6 +19,7 @@ from sonarmap.stages.kernels.lazy import resolve
 
 __all__ = [
     "DATASET",
+    "UNITS_INPUT",
     "ConfigModel",
     "Input",
     "Output",
@@ -26,6 +27,7 @@ __all__ = [
     "Stage",
     "StageConfig",
     "StageInputError",
+    "Units",
 ]
 
 OutputKind = Literal["parquet", "json", "bytes", "frames"]
@@ -94,6 +96,23 @@ class Input:
 
 DATASET = Input("", "dataset")
 """The raw recording (bound to the first stage, opened with its config section)."""
+
+
+UNITS_INPUT = "units"
+"""Where a stage declaring `units=True` finds its `Units` memo in `run`'s inputs (absent
+when the stage is called directly: it then computes everything)."""
+
+
+class Units(typing.Protocol):
+    """Per-keyframe work units a stage caches (the engine's memo; the stage sees no path).
+
+    The stage computes each key (sha256 of everything the unit depends on: its version,
+    the config fields it reads, the keyframe's own content, any global value it uses) and
+    stores plain numeric arrays under it; `get` gives them back, or None.
+    """
+
+    def get(self, key: str) -> Mapping[str, Any] | None: ...
+    def put(self, key: str, arrays: Mapping[str, Any]) -> None: ...
 
 
 class StageInputError(ValueError):
@@ -194,6 +213,9 @@ class Stage:
         dataset_section: the section the "dataset" input is opened with (None: its own).
         input_columns: (input, columns) pairs: read only these columns of a Parquet input
             (a stage that needs a few columns of a large table).
+        units: the stage caches per-keyframe work units: the engine binds a `Units` memo
+            under `UNITS_INPUT`, and the artifact's manifest lists the units it used
+            (`sonarmap.pipeline.engine.store.units`).
         off_critical_path: nothing in the graph waits for its outputs (the figures): with
             several workers the runner gives it a worker process when one is idle, so the
             slot in the runner's own process, where the dataset is already open, stays
@@ -212,6 +234,7 @@ class Stage:
     dataset_section: str | None = None
     input_columns: tuple[tuple[Input, tuple[str, ...]], ...] = ()
     off_critical_path: bool = False
+    units: bool = False
 
     def __post_init__(self) -> None:
         def typed(item: Input | str) -> Input:

@@ -519,3 +519,27 @@ def test_the_ground_truth_oracle_labels_every_object_with_its_true_class(
     ]
     with pytest.raises(ValueError, match=r"classify\.labels=ground_truth: keyframe 0 has no label"):
         _run(unlabelled, features, labels="ground_truth")
+
+
+def test_classify_from_work_units_equals_computed_and_reuses_every_keyframe(
+    keyframes: list[KeyframeImages],
+) -> None:
+    """A keyframe's objects and beliefs are cached per keyframe (issue 53): assembled from
+    the units, the outputs are the same bytes; a longer run reuses the shorter's units."""
+    from tests.test_work_units import _DictUnits
+
+    memo = _DictUnits()
+    features = _features(keyframes)
+    torch.set_num_threads(1)
+    inputs = {"features.features": features, "train.model": _model_bytes()}
+    short = {**inputs, "keyframes.frames": keyframes[:-1], "units": memo}
+    cfg = ClassifyConfig(pool_views=False)
+    first = STAGE.run(cfg, short)
+    assert (len(memo.data), memo.hits) == (len(keyframes) - 1, 0)
+    again = STAGE.run(cfg, {**inputs, "keyframes.frames": keyframes, "units": memo})
+    assert memo.hits == len(keyframes) - 1 and len(memo.data) == len(keyframes)
+    plain = STAGE.run(cfg, {**inputs, "keyframes.frames": keyframes})
+    for name in ("objects", "object_features"):
+        assert again[name].equals(plain[name])
+    n_short = first["objects"].num_rows
+    assert first["objects"].equals(plain["objects"].slice(0, n_short))

@@ -487,3 +487,20 @@ def test_gate_and_ratio_cut_keep_fewer_points_that_still_lie_on_the_mesh() -> No
     assert np.median(d_cut) <= 0.15 and np.mean(d_cut <= 0.3) >= 0.85
     assert 50 < paper.num_rows < cut.num_rows
     assert np.median(d_paper) <= 0.2 and np.mean(d_paper <= 0.3) >= 0.7
+
+
+def test_fused_points_from_work_units_equal_computed() -> None:
+    """Each keyframe's points are a work unit (issue 53): assembled from the units, the
+    table is the same; a second run computes nothing."""
+    from tests.test_work_units import _DictUnits
+
+    inputs = _inputs()
+    args = (inputs["keyframes.frames"], inputs["features.features"], inputs["keyframes.sensors"])
+    memo = _DictUnits()
+    first = fuse_table(*args, FuseConfig(), memo)
+    stored = len(memo.data)
+    assert stored > 0 and memo.hits == 0
+    again = fuse_table(*args, FuseConfig(), memo)
+    assert memo.hits == stored and len(memo.data) == stored
+    plain = fuse_table(*args, FuseConfig())
+    assert first.equals(plain) and again.equals(plain)

@@ -72,7 +72,8 @@ def gc(
         typer.echo(f"{verb} {line}", err=True)
     typer.echo(
         f"{verb} {len(report['removed'])} artifacts ({report['bytes_freed'] / 1e6:.1f} MB, "
-        f"{len(report['broken'])} broken), {report['tmp_removed']} leftovers of killed runs; "
+        f"{len(report['broken'])} broken), {report.get('units_removed', 0)} work units, "
+        f"{report['tmp_removed']} leftovers of killed runs; "
         f"kept {report['kept']}"
         + (f", {report['live_runs']} runs in progress" if report["live_runs"] else "")
     )

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -16,10 +17,22 @@ from sonarmap.pipeline.commands._common import (
     emit_json,
 )
 
-__all__ = ["register", "sweep"]
+__all__ = ["register", "sweep", "units_reused"]
 
 if TYPE_CHECKING:
     from sonarmap.pipeline.experiments.sweep import RunOutcome
+
+
+def units_reused(stages: Sequence[Mapping[str, Any]]) -> str:
+    """What a run's stages reused of the per-keyframe work units already in the store, as
+    "; units reused: features 120/130, classify 0/130" ("" when no stage computed any)."""
+    parts = []
+    for s in stages:
+        units = s.get("units")
+        if units:
+            reused, computed = units
+            parts.append(f"{s.get('stage')} {reused}/{reused + computed}")
+    return f"; units reused: {', '.join(parts)}" if parts else ""
 
 
 def sweep(
@@ -73,7 +86,7 @@ def sweep(
 
     def done(o: RunOutcome) -> None:
         # Plain lines (not a rich console): a log file or CI keeps each on one line.
-        tail = f": {o.error}" if o.error else ""
+        tail = f": {o.error}" if o.error else units_reused(o.stages)
         typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
 
     from sonarmap.pipeline.commands._errors import writes_under

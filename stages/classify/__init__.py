@@ -28,7 +28,9 @@ STAGE = Stage(
     # 6: MC-dropout masks shared by one keyframe's objects, numpy-drawn (mc_predict_groups)
     # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
     # 8: patches normalised as the model file says (`patch_normalisation`, issue 50)
-    version=8,
+    # 9: the CNN runs one keyframe per call (float32 rounding of batched products moves);
+    # per-keyframe work units (issue 53)
+    version=9,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),
@@ -55,6 +57,7 @@ STAGE = Stage(
     run=deferred("sonarmap.stages.classify.stage:_run"),
     key_excludes=MODEL_CHOICE_FIELDS,
     reads_sections=("classes",),
+    units=True,
     description="DBSCAN objects of horizontal features, classified by an MC-dropout CNN,"
     " pooled over the keyframes that see them",
 )

@@ -2,8 +2,10 @@
 
 Per keyframe: DBSCAN clusters of the horizontal sonar's features (metric fan-plane
 coordinates), clusters of at least n features, 40x40 aspect-preserving patches; then
-m Monte-Carlo dropout passes of the CNN over the objects of all keyframes at once
-(`sonarmap.stages.classify.cnn.mc_predict_groups`). Two cluster rules
+m Monte-Carlo dropout passes of the CNN over that keyframe's objects
+(`sonarmap.stages.classify.cnn.mc_predict_groups`, one keyframe per call, so a keyframe's
+result is the same whichever keyframes run beside it). Each keyframe's objects and beliefs
+are a work unit the engine caches (`sonarmap.stages.classify.units`). Two cluster rules
 of the authors' simulation code, off by default, drop objects before classification: a
 minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
 see `sonarmap.stages.classify.objects`. An object takes the argmax class of the mean softmax when that
@@ -37,11 +39,12 @@ from sonarmap.schemas.model_settings import ModelSettings
 from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
 from sonarmap.schemas.sensors import Sensors
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.base import UNITS_INPUT, Input, StageInputError, Units
 from sonarmap.stages.classify import STAGE
 from sonarmap.stages.classify.class_columns import class_columns, truth_columns
 from sonarmap.stages.classify.config import ClassifyConfig
 from sonarmap.stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
+from sonarmap.stages.classify.units import KeyframeResult, classify_base, keyframe_result
 from sonarmap.stages.kernels.clustering import clustering
 from sonarmap.stages.kernels.lazy import lazy
 
@@ -71,7 +74,7 @@ _GEOMETRY_SCHEMA = pa.schema([f for f in OBJECTS_SCHEMA if f.name not in _CLASS_
 
 
 def _object_rows(
-    frame: KeyframeImages, objs: KeyframeObjects, first_id: int, table: ClassTable
+    frame: KeyframeImages, objs: KeyframeResult, first_id: int, table: ClassTable
 ) -> dict[str, Any]:
     """The class-independent columns of objects.parquet for one keyframe's k objects."""
     k = objs.count
@@ -127,6 +130,8 @@ def classify_keyframes(
     keyframes: pa.Table | None = None,
     T_base_sonar: np.ndarray | None = None,
     table: ClassTable = DEFAULT_TABLE,
+    units: Units | None = None,
+    base: Mapping[str, Any] | None = None,
 ) -> tuple[pa.Table, pa.Table]:
     """Objects and classes of every keyframe.
 
@@ -140,6 +145,8 @@ def classify_keyframes(
             mounting of the horizontal sonar; both needed when `cfg.pool_views`.
         table: the class table (config section `classes`): label ids of the model's
             classes and names of label-image ids.
+        units, base: the engine's per-keyframe memo and what every unit key shares
+            (`sonarmap.stages.classify.units`); None: every keyframe computed.
 
     Returns:
         (objects table, object_features table).
@@ -149,17 +156,16 @@ def classify_keyframes(
     by_kf = horizontal_features(features)
     eps_m, min_samples, min_features = clustering(cfg, settings).values()
     table.check(class_names, "the classifier's classes", unknown_ok=False)
+    base = base if base is not None else {}
     class_ids = np.array([table.ids[n] for n in class_names], np.int64)
     geo_parts: list[pa.Table] = []
     link_parts: list[pa.Table] = []
     truths: list[np.ndarray] = [np.zeros(0, np.int64)]
-    patches: list[np.ndarray] = []  # every keyframe's, for one batched MC-dropout pass
-    seeds: list[int] = []
+    beliefs: list[tuple[np.ndarray, np.ndarray]] = []
     oracle = cfg.labels == "ground_truth"
-    next_id = 0
-    for frame in frames:
-        f = by_kf.get(frame.keyframe_id) or _empty_features()
-        objs = extract_objects(
+
+    def extract(frame: KeyframeImages, f: dict[str, np.ndarray]) -> KeyframeObjects:
+        return extract_objects(
             frame.horizontal, f["range_bin"], f["beam"], f["range_m"], f["angle_rad"],
             eps_m=eps_m, min_samples=min_samples, min_features=min_features,
             margin_m=settings.margin_m, min_side_m=settings.min_side_m,
@@ -168,6 +174,14 @@ def classify_keyframes(
             fan_edge_max_outside_m2=cfg.fan_edge_max_outside_m2,
             normalisation=settings.patch_normalisation,
         )  # fmt: skip
+
+    next_id = 0
+    for frame in frames:
+        f = by_kf.get(frame.keyframe_id) or _empty_features()
+        seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
+        objs = keyframe_result(
+            frame, f, extract, model, len(class_names), settings, cfg, seed, base, units
+        )
         if oracle:
             if objs.true_class_id is None:
                 raise StageInputError(
@@ -176,10 +190,8 @@ def classify_keyframes(
                     " image (a field recording?); use classify.labels=cnn",
                 )
             truths.append(objs.true_class_id.astype(np.int64))
-            mean = var = np.zeros((objs.count, len(class_names)))
         else:
-            patches.append(objs.patches)
-            seeds.append(cfg.seed * _SEED_STRIDE + frame.keyframe_id)
+            beliefs.append((objs.mean, objs.var))
         geo_parts.append(
             pa.Table.from_pydict(_object_rows(frame, objs, next_id, table), schema=_GEOMETRY_SCHEMA)
         )
@@ -200,9 +212,8 @@ def classify_keyframes(
     if oracle:
         classes = truth_columns(np.concatenate(truths), class_names, table)
     else:
-        mean, var = cnn.mc_predict_groups(
-            model, np.concatenate(patches), [len(p) for p in patches], seeds, cfg.mc_passes
-        )
+        mean = np.concatenate([m for m, _ in beliefs])
+        var = np.concatenate([v for _, v in beliefs])
         if cfg.pool_views:
             assert keyframes is not None and T_base_sonar is not None
             pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
@@ -241,8 +252,12 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         table.check(names, "train.model: the classifier's classes", unknown_ok=False)
     except ValueError as err:
         raise StageInputError(Input("train", "model"), str(err)) from err
+    units = inputs.get(UNITS_INPUT)
+    base = classify_base(
+        STAGE.name, STAGE.version, config, STAGE.key_excludes, bytes(model_bytes), table
+    )
     objects, links = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
-        keyframes, mount, table,
+        keyframes, mount, table, units, base,
     )  # fmt: skip
     return {"objects": objects, "object_features": links, "clustering": params}

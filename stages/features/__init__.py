@@ -20,9 +20,11 @@ STAGE = Stage(
     # 2: thresholds calibrated from the recording per sonar and range band (issue 50),
     # recorded in calibration.json; a per-keyframe feature budget. 3: a flood is never
     # also a starve. 4: denoise auto sizes the mean to the grain's correlation.
-    version=4,
+    # 5: the calibration samples keyframes on a grid of absolute time (stable when a
+    # recording is extended or trimmed); per-keyframe detection units (issue 53).
+    version=5,
     config=FeaturesConfig,
-    inputs=(Input("keyframes", "frames"),),
+    inputs=(Input("keyframes", "frames"), Input("keyframes", "keyframes")),
     outputs=(
         Output(
             "features",
@@ -32,7 +34,9 @@ STAGE = Stage(
         ),
         Output("calibration", "json", "calibration.json"),
     ),
+    input_columns=((Input("keyframes", "keyframes"), ("keyframe_id", "t_ns")),),
     run=deferred("sonarmap.stages.features.stage:run"),
+    units=True,
     description="SOCA-CFAR detections on both polar images of every keyframe, thresholds"
     " calibrated from the recording",
 )

@@ -1,7 +1,9 @@
 """The features stage's second output, `calibration.json`: what the front end measured of
 the recording, the thresholds it set, and, after detection, whether it flooded or starved.
 
-Per sonar: the keyframes sampled (evenly spaced, deterministic), the range band edges [m],
+Per sonar: the keyframes sampled (`sampled_by_time`: a grid of absolute ping time, so the
+sample of a recording's start is the same when it is extended or trimmed at its end), the
+range band edges [m],
 each band's background median, fitted law and thresholds, the stated per-cell false-alarm
 rate and the expected false alarms per ping, which values were measured and which pinned
 by config; then the measured detection rate on the bands called background and the
@@ -29,7 +31,15 @@ from sonarmap.schemas.features import SONARS
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.kernels.front_end import calibrate_sonar, rounded
 
-__all__ = ["FLOOD_FACTOR", "MIN_EXPECTED", "calibrate", "sampled_indices", "with_measurements"]
+__all__ = [
+    "FLOOD_FACTOR",
+    "MIN_EXPECTED",
+    "calibrate",
+    "calibrate_sample",
+    "calibration_sample",
+    "sampled_by_time",
+    "with_measurements",
+]
 
 FLOOD_FACTOR = 3.0
 """A background detection rate over 3x (or under 1/3 of) the stated rate warns."""
@@ -37,21 +47,56 @@ MIN_EXPECTED = 30.0
 """The starve check on background bands needs this many false alarms expected there."""
 
 
-def sampled_indices(n_frames: int, n_sample: int) -> np.ndarray:
-    """Evenly spaced frame positions 0..n_frames-1, first and last included, unique."""
-    if n_frames <= 0:
-        return np.zeros(0, np.int64)
-    return np.unique(np.linspace(0, n_frames - 1, min(n_sample, n_frames)).round().astype(np.int64))
+def sampled_by_time(t_ns: np.ndarray, n_sample: int) -> np.ndarray:
+    """Positions of the keyframes calibrated on: those nearest to `n_sample` ticks of a grid
+    of absolute ping time (ties to the earlier keyframe), unique, ascending.
+
+    Rule: the period P is the largest power of two nanoseconds with n_sample * P at most
+    the recording's span D (so the ticks cover its first D/2 to D); the ticks are the first
+    n_sample multiples of P from the first keyframe's time on. Extending the recording at
+    its end, or trimming it there, keeps P (unless D crosses a power of two: a 10 % change
+    does so with probability about 14 %) and the ticks, so the same keyframes are sampled
+    (unless a trim cuts into the ticks), the thresholds are the same and so is every
+    keyframe's detection unit. With at most n_sample keyframes (or a span under n_sample
+    ns), all are sampled.
+    """
+    t = np.asarray(t_ns, np.int64)
+    n = t.size
+    span = int(t[-1] - t[0]) if n else 0
+    if n <= n_sample or span < n_sample:
+        return np.arange(n, dtype=np.int64)
+    period = 1 << ((span // n_sample).bit_length() - 1)
+    first = -(-int(t[0]) // period) * period
+    ticks = first + period * np.arange(n_sample, dtype=np.int64)
+    right = np.clip(np.searchsorted(t, ticks), 1, n - 1)
+    left = right - 1
+    pick = np.where(ticks - t[left] <= t[right] - ticks, left, right)
+    return np.unique(pick)
 
 
-def calibrate(frames: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
-    """The calibration of a recording's keyframes (before detection).
+def calibration_sample(
+    frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
+) -> list[KeyframeImages]:
+    """The keyframes calibrated on (`sampled_by_time`); `t_ns`: each frame's ping time
+    when known without reading the frames (keyframes.parquet)."""
+    times = np.array([f.t_ns for f in frames], np.int64) if t_ns is None else t_ns
+    return [frames[int(i)] for i in sampled_by_time(times, config.calibration_pings)]
+
+
+def calibrate(
+    frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
+) -> dict[str, Any]:
+    """The calibration of a recording's keyframes (before detection); `t_ns` as in
+    `calibration_sample`.
 
     Raises:
         UnmodelableImages: a sonar's sampled images cannot be modelled (see `calibrate_sonar`).
     """
-    idx = sampled_indices(len(frames), config.calibration_pings)
-    picked = [frames[int(i)] for i in idx]
+    return calibrate_sample(calibration_sample(frames, config, t_ns), config)
+
+
+def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
+    """The calibration of the sampled keyframes `picked` (`calibrate`)."""
     doc: dict[str, Any] = {
         "stated_false_alarm_rate_per_cell": config.false_alarm_rate_per_cell,
         "local_cfar": {

@@ -10,8 +10,11 @@ the threshold and a fastNlMeans denoising by hand, differently for simulated and
 Here the same detector runs with thresholds measured from the recording, per sonar and
 per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels.clutter`):
 
-1. calibration: from `features.calibration_pings` keyframes evenly spaced over the
-   recording, each band's background is fitted with a Weibull law over its 60-95 %
+1. calibration: from the `features.calibration_pings` keyframes nearest to the ticks of a
+   grid of absolute ping time (`calibration.sampled_by_time`: a power-of-two period, the
+   ticks covering the first half to all of the recording, so extending or trimming a
+   recording at its end keeps the sample and every keyframe's cached detections), each
+   band's background is fitted with a Weibull law over its 60-95 %
    quantiles (objects are the upper tail and move no fit while they fill < 5 % of a band);
    where the unfiltered background puts the floor of step 2 at full scale in most bands
    (a spiky sensor), a 3x3 mean is applied first (`features.denoise: auto`; the authors
@@ -43,11 +46,20 @@ import pyarrow as pa
 
 from sonarmap.schemas.features import FEATURES_SCHEMA, SONARS
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.base import UNITS_INPUT, Input, StageInputError, Units
 from sonarmap.stages.features import STAGE
-from sonarmap.stages.features.calibration import calibrate, with_measurements
+from sonarmap.stages.features.calibration import (
+    calibrate_sample,
+    calibration_sample,
+    with_measurements,
+)
 from sonarmap.stages.features.config import FeaturesConfig
-from sonarmap.stages.kernels.frame_features import detect_ping, frame_detections, keyframe_features
+from sonarmap.stages.features.units import (
+    cached_calibration,
+    cached_detections,
+    detection_base,
+)
+from sonarmap.stages.kernels.frame_features import detect_ping, keyframe_features
 from sonarmap.stages.kernels.front_end import UnmodelableImages, thresholds
 
 __all__ = [
@@ -61,17 +73,24 @@ __all__ = [
 
 
 def features_and_calibration(
-    frames: Sequence[KeyframeImages], config: FeaturesConfig
+    frames: Sequence[KeyframeImages],
+    config: FeaturesConfig,
+    units: Units | None = None,
+    t_ns: np.ndarray | None = None,
 ) -> tuple[pa.Table, dict[str, Any]]:
     """`features.parquet` and `calibration.json` for a sequence of keyframes (calibrated on
-    a sample of them, then detected one keyframe in memory at a time).
+    a sample of them, then detected one keyframe in memory at a time, or taken from
+    `units`, the engine's per-keyframe memo: `sonarmap.stages.features.units`); `t_ns`:
+    the frames' ping times when known without reading them.
 
     Raises:
         ValueError: keyframe ids not strictly increasing.
         UnmodelableImages: a sonar's images cannot be modelled and a threshold is measured.
     """
-    doc = calibrate(frames, config)
+    picked = calibration_sample(frames, config, t_ns)
+    doc = cached_calibration(picked, config, STAGE.name, STAGE.version, calibrate_sample, units)
     th = thresholds(doc)
+    base = detection_base(STAGE.name, STAGE.version, config, th)
     chunks: list[dict[str, np.ndarray]] = []
     n_feat = dict.fromkeys(SONARS, 0)
     clipped = {s: [0, 0] for s in SONARS}
@@ -82,7 +101,7 @@ def features_and_calibration(
         if frame.keyframe_id <= last:
             raise ValueError(f"features: keyframe ids must increase, got {frame.keyframe_id}")
         last = frame.keyframe_id
-        cols, found = frame_detections(frame, config, th)
+        cols, found = cached_detections(frame, config, th, base, units)
         chunks.append(cols)
         for i, s in enumerate(SONARS):
             n_feat[s] += int(np.count_nonzero(cols["sonar_index"] == i))
@@ -110,11 +129,23 @@ def features_table(frames: Sequence[KeyframeImages], config: FeaturesConfig) -> 
     return features_and_calibration(frames, config)[0]
 
 
+def _times(keyframes: pa.Table | None, n_frames: int) -> np.ndarray | None:
+    """The keyframes' ping times from keyframes.parquet (None: not given, or not one row
+    per frame: the frames are read for them)."""
+    if keyframes is None or keyframes.num_rows != n_frames:
+        return None
+    keyframes = keyframes.sort_by("keyframe_id")
+    return keyframes.column("t_ns").to_numpy().astype(np.int64)
+
+
 def run(config: FeaturesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages]} ->
+    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages], optionally
+    "keyframes.keyframes" (ids and times) and the engine's "units"} ->
     {"features", "calibration"}; unmodelable images are refused as bad input (exit 2)."""
+    frames = inputs["keyframes.frames"]
+    t_ns = _times(inputs.get("keyframes.keyframes"), len(frames))
     try:
-        table, doc = features_and_calibration(inputs["keyframes.frames"], config)
+        table, doc = features_and_calibration(frames, config, inputs.get(UNITS_INPUT), t_ns)
     except UnmodelableImages as err:
         raise StageInputError(Input("keyframes", "frames"), str(err)) from err
     return {"features": table, "calibration": doc}

@@ -28,5 +28,6 @@ STAGE = Stage(
         Output("fused", "parquet", "fused.parquet", schema="sonarmap.schemas.fused:FUSED_SCHEMA"),
     ),
     run=deferred("sonarmap.stages.fuse.stage:run"),
+    units=True,
     description="orthogonal stereo association of horizontal and vertical features (Eq. 3, 5, 6)",
 )

@@ -24,7 +24,7 @@ from sonarmap.pipeline.engine.errors import (
 )
 from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
-from sonarmap.stages.base import Input, Output, Stage, StageInputError
+from sonarmap.stages.base import UNITS_INPUT, Input, Output, Stage, StageInputError
 
 __all__ = ["ComputeJob", "compute_in_worker", "job_sections", "not_opened", "run_job"]
 
@@ -47,6 +47,9 @@ class ComputeJob:
     may be a closure (the training stage of `sonarmap.pipeline.training.model` is), and a job
     that carried it could not travel to a worker process."""
     tmp: Path
+    units_root: Path | None = None
+    """The store whose per-keyframe units a stage declaring `units` reads and adds to
+    (None: no memo, the stage computes everything)."""
 
 
 def job_sections(stage: Stage, config: BaseModel) -> dict[str, Any]:
@@ -134,9 +137,13 @@ def run_job(
     any other exception of the stage is a `StageFailed` (exit 1).
     """
     from sonarmap.pipeline.engine.store.codecs import write_output
+    from sonarmap.pipeline.engine.store.units import UnitMemo
 
     stage = job.item.stage
     inputs = _bind_inputs(job, verified, opened)
+    memo = None
+    if stage.units and job.units_root is not None:
+        memo = inputs[UNITS_INPUT] = UnitMemo(job.units_root, stage.name)
     provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}
     try:
         values = stage.run(job.sections[stage.name], inputs)
@@ -157,7 +164,7 @@ def run_job(
         raise _rejected_input(err, job) from err
     except Exception as err:
         raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
-    return {"outputs": facts}
+    return {"outputs": facts, **(memo.manifest_fields() if memo is not None else {})}
 
 
 def compute_in_worker(job: ComputeJob) -> dict[str, Any]:

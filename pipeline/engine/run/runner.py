@@ -51,6 +51,8 @@ class StageResult:
     path: str
     reason: str = ""
     warnings: tuple[str, ...] = ()
+    units: tuple[int, int] | None = None
+    """A stage computed from per-keyframe work units: (reused, computed) units."""
 
 
 @dataclass
@@ -175,7 +177,7 @@ def _execute(
             if slot.tmp is not None:  # not committed by another process meanwhile
                 sections = job_sections(item.stage, config)
                 produced = {n: outputs_of[n].outputs for n in item.stage.upstream}
-                job = ComputeJob(item, sections, spec, upstream, produced, slot.tmp)
+                job = ComputeJob(item, sections, spec, upstream, produced, slot.tmp, store.root)
                 slot.extra = slots.compute(job)
         return slot.committed(), "computed" if slot.tmp is not None else "reused"
 
@@ -191,6 +193,10 @@ def _execute(
             # stage's record (or the final one) names it with the rest.
             record_run(store, dataset, config, planned, external, done=done)
         warnings = tuple(message for message, is_fatal in found if not is_fatal)
+        units = None
+        if status == "computed" and "units" in ref.manifest:
+            units = (int(ref.manifest["units_reused"]), int(ref.manifest["units_computed"]))
+            warnings += tuple(str(w) for w in ref.manifest.get("unit_warnings") or ())
         if fatal is not None:
             cause = f"; first sign: {result.warnings[0]}" if result.warnings else ""
             raise output_checks.EmptyMap(f"{display_path(dataset.path.name)}: {fatal}{cause}")
@@ -203,6 +209,7 @@ def _execute(
             path=str(ref.path),
             reason=item.reason,
             warnings=warnings,
+            units=units,
         )
         if on_stage is not None:
             on_stage(finished[name])

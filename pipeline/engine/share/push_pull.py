@@ -12,7 +12,7 @@ the stage is not a reserved store folder and equals the recipe's and the path's,
 is the hash of the recipe, a model's file sha256 is pinned, every file is streamed with
 its declared size as a hard limit and hashed on the way, parses as the kind its name
 says (`model.pt` is loaded weights-only), and only then is anything committed. Manifests
-are JSON; nothing is ever unpickled.
+are JSON; nothing is ever unpickled. Work units travel with their artifact (`unit_share`).
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ from sonarmap.pipeline.engine.share.transfer import (
     upload,
 )
 from sonarmap.pipeline.engine.share.trust import MODEL_FILE, TrustPolicy, check_model_file
+from sonarmap.pipeline.engine.share.unit_share import install_units, staged_units, unit_files
 from sonarmap.pipeline.engine.store.artifact import PULL_CACHE
 from sonarmap.pipeline.engine.store.artifact_store import (
     MANIFEST,
@@ -59,8 +60,10 @@ from sonarmap.pipeline.engine.store.artifact_store import (
     ArtifactStore,
     safe_relative,
 )
+from sonarmap.pipeline.engine.store.disk import free_bytes
 from sonarmap.pipeline.engine.store.integrity import check_parses
 from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
+from sonarmap.pipeline.engine.store.units import unit_entries
 
 __all__ = ["list_remote", "pull", "push"]
 
@@ -203,6 +206,8 @@ def _push(
         for rel, entry in sorted(ref.manifest["files"].items()):
             label = f"{display(remote)}/{ref.stage}/{ref.key[:12]}/{rel}"
             jobs.append(_upload_job(fs, ref.file(rel), f"{dest}/{rel}", entry, label))
+        for src, rel, entry in unit_files(ref):  # its work units, before its manifest
+            jobs.append(_upload_job(fs, src, f"{root}/{rel}", entry, f"{display(remote)}/{rel}"))
     run_jobs(jobs, f"push {display(remote)}", stats)
     for ref in pending:  # upstream first: a visible artifact's inputs are visible too
         dest = f"{root}/{ref.stage}/{ref.key}"
@@ -235,13 +240,6 @@ def _upload_job(fs: Any, src: Path, dst: str, entry: Mapping[str, Any], label: s
             raise os_error(err, label) from err
 
     return Job(run, size)
-
-
-def _free_bytes(path: Path) -> int:
-    probe = path
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    return shutil.disk_usage(probe).free
 
 
 def pull(
@@ -311,8 +309,10 @@ def _pull(
 
     order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
     missing = [(s, k) for s, k in order if store.get(s, k) is None]
+    units = {(s, k): unit_entries(manifest_of(s, k), f"remote {s}/{k[:12]}") for s, k in missing}
     need = sum(int(e["size"]) for s, k in missing for e in manifest_of(s, k)["files"].values())
-    free = _free_bytes(store.root)
+    need += sum(int(e["size"]) for listed in units.values() for e in listed.values())
+    free = free_bytes(store.root)
     if need > free:
         raise StoreError(f"{store.root}: pull needs {need} bytes, the disk has {free} free")
     staging = store.tmp_path("pull")
@@ -330,6 +330,8 @@ def _pull(
                         fs, f"{root}/{stage}/{key}/{rel}", dst, entry, f"{stage}/{key}", rel, cache
                     )
                 )
+            for rel, dst, entry in staged_units(staging, stage, units[(stage, key)]):
+                jobs.append(_download_job(fs, f"{root}/{rel}", dst, entry, rel, "", cache))
         run_jobs(jobs, f"pull {display(remote)}", stats)
         for stage, key in missing:
             # Sizes and sha256s were checked while streaming, the key before any download.
@@ -340,6 +342,7 @@ def _pull(
                 check_parses(path, where)
                 if path.suffix == ".pt" or rel == MODEL_FILE:
                     check_model_file(path, where)
+        install_units(store.root, staging, units)  # before the artifacts listing them
         refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
         _forget(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
     except ArtifactCorrupt:

@@ -35,7 +35,7 @@ __all__ = [
 MODEL_STAGES = frozenset({"train"})
 """Stages whose artifacts are models: accepted from a remote only when pinned."""
 MODEL_FILE = "model.pt"
-RESERVED = frozenset({"runs"})
+RESERVED = frozenset({"runs", "units"})
 """Store folders that are not stages (and every name starting with `.` or `_`)."""
 _SHA = re.compile(r"^[0-9a-f]{64}$")
 

@@ -28,6 +28,7 @@ from sonarmap.pipeline.engine.store.artifact import ArtifactRef, Problem, safe_r
 from sonarmap.pipeline.engine.store.disk import disk_error
 from sonarmap.pipeline.engine.store.integrity import recovery_hint, verify_artifact_dir, verify_file
 from sonarmap.pipeline.engine.store.manifest import read_manifest
+from sonarmap.pipeline.engine.store.units import UNITS, verify_units
 
 __all__ = [
     "MANIFEST",
@@ -132,6 +133,7 @@ class ArtifactStore:
         """Check every file's size and sha256 and the key against the recipe."""
         try:
             verify_artifact_dir(ref.path, ref.manifest)
+            verify_units(self.root, ref.stage, ref.manifest)
         except ArtifactCorrupt as err:
             raise ArtifactCorrupt(f"{err}; {recovery_hint(ref.stage)}") from err
 
@@ -146,7 +148,7 @@ class ArtifactStore:
         if not self.root.is_dir():
             return
         for stage_dir in sorted(p for p in self.root.iterdir() if p.is_dir()):
-            if not stage_dir.name.isidentifier() or stage_dir.name == _RUNS:
+            if not stage_dir.name.isidentifier() or stage_dir.name in (_RUNS, UNITS):
                 continue
             for key_dir in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
                 stage, key = stage_dir.name, key_dir.name

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
+from pathlib import Path
 
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.text import display_path
 
-__all__ = ["disk_error"]
+__all__ = ["disk_error", "free_bytes"]
 
 
 def disk_error(err: OSError, where: object = None) -> StoreError:
@@ -39,3 +41,11 @@ def disk_error(err: OSError, where: object = None) -> StoreError:
         errno.ENAMETOOLONG: "; use shorter paths",
     }.get(err.errno or -1, "")
     return StoreError(f"{place}: {reason}{f' ({name})' if name else ''}{hint}")
+
+
+def free_bytes(path: Path) -> int:
+    """Free bytes on the disk holding `path` (or its nearest existing parent)."""
+    probe = path
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return shutil.disk_usage(probe).free

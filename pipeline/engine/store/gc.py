@@ -22,6 +22,9 @@ Removed:
   once that pid is gone; leases whose owner is gone (their flock is free).
   Temporaries of live processes are never touched; names without a pid (older
   versions) go when older than `stale_tmp_s`.
+- per-keyframe work units (`sonarmap.pipeline.engine.store.units`) that no kept artifact's
+  manifest lists; none while a run is live (its units are listed only once it commits)
+  and none written after `gc` started.
 Every removal is a rename out of sight first, so a reader never sees half a directory.
 """
 
@@ -42,6 +45,7 @@ from sonarmap.pipeline.engine.store.artifact import PULL_CACHE, ArtifactRef, Pro
 from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
 from sonarmap.pipeline.engine.store.leases import LEASES, pid_alive, scan_leases
 from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
+from sonarmap.pipeline.engine.store.units import iter_unit_files
 
 
 class CollectedStore(Protocol):
@@ -263,6 +267,9 @@ def collect(
         if dry_run or _remove_dir(store, ref.stage, ref.key, ref.path, roots, started_ns):
             removed.append(f"{ref.stage}/{ref.key}")
             freed += _size(ref)
+    kept_refs = [ref for address, ref in refs.items() if address in keep]
+    units_removed, units_freed = _collect_units(store, kept_refs, roots, dry_run, started_ns)
+    freed += units_freed
     leftovers = _leftovers(store, stale_tmp_s)
     if not dry_run:
         for path in leftovers:
@@ -275,4 +282,36 @@ def collect(
         "bytes_freed": freed,
         "live_runs": roots.live_runs,
         "stale_leases": stale_leases,
+        "units_removed": units_removed,
     }
+
+
+def _collect_units(
+    store: CollectedStore,
+    kept: Iterable[ArtifactRef],
+    roots: _Roots,
+    dry_run: bool,
+    started_ns: int,
+) -> tuple[int, int]:
+    """Remove the units no kept artifact lists: (how many, bytes)."""
+    listed = {
+        (ref.stage, str(key)) for ref in kept for key in dict(ref.manifest.get("units") or {})
+    }
+    removed = freed = 0
+    for stage, key, path in list(iter_unit_files(store.root)):
+        if (stage, key) in listed:
+            continue
+        roots.holds(("", ""))  # reads leases again if a run started meanwhile
+        if roots.live_runs:
+            break
+        try:
+            st = path.stat()
+            if st.st_mtime_ns >= started_ns:
+                continue
+            if not dry_run:
+                path.unlink()
+        except OSError:
+            continue
+        removed += 1
+        freed += st.st_size
+    return removed, freed

@@ -1,0 +1,228 @@
+"""Per-keyframe work units: content-addressed results a stage caches below its artifact.
+
+A stage that declares `units=True` (`sonarmap.stages.base.Stage`) is handed a `UnitMemo`
+under `inputs["units"]`: `get(key)` / `put(key, arrays)` of a dict of numpy arrays. The
+stage computes the key itself from what the unit depends on (its version and config
+fields, the keyframe's own content, the thresholds it uses); it never sees a path.
+
+Layout: `<store>/units/<stage>/<key[:2]>/<key>`, written atomically (temporary file in
+the store's `.tmp`, fsync, rename). A file is `MAGIC`, the raw sha256 of the payload, then
+the payload: a JSON line naming each array's dtype and shape, then the arrays' raw bytes
+(plain numbers only: never a pickle, and the same arrays always give the same bytes). A unit whose digest does not match (altered on disk) is
+recomputed with a warning on a local run; `verify_units` refuses it on `--verify`/`pull`.
+
+The artifact a stage commits lists the units it was assembled from in its manifest
+(`"units": {key: {"sha256", "size"}}`), so `gc` keeps the units of kept artifacts and removes the
+rest, and `push`/`pull` carry them beside the artifact.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import uuid
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+
+__all__ = [
+    "MAGIC",
+    "UNITS",
+    "UnitMemo",
+    "decode_unit",
+    "encode_unit",
+    "file_entry",
+    "install_unit",
+    "iter_unit_files",
+    "unit_entries",
+    "unit_path",
+    "verify_units",
+]
+
+log = logging.getLogger(__name__)
+
+UNITS = "units"
+"""The store folder of the units (never a stage's folder: the store scan skips it)."""
+MAGIC = b"SMUNIT1\n"
+_HEX = frozenset("0123456789abcdef")
+
+
+def unit_path(root: Path, stage: str, key: str) -> Path:
+    """Where unit `key` of `stage` lives in the store at `root` (refuses odd names)."""
+    if not stage.isidentifier() or len(key) != 64 or not set(key) <= _HEX:
+        raise ArtifactCorrupt(f"invalid unit address {stage[:40]}/{key[:70]}")
+    return Path(root) / UNITS / stage / key[:2] / key
+
+
+def encode_unit(arrays: Mapping[str, Any]) -> bytes:
+    """The file bytes of a unit: magic, sha256 of the payload, the payload (a JSON header
+    line naming each array's dtype and shape, then their raw bytes in that order)."""
+    import numpy as np
+
+    items = [(k, np.ascontiguousarray(arrays[k])) for k in sorted(arrays)]
+    for name, a in items:
+        if a.dtype.hasobject or a.dtype.kind not in "biuf":
+            raise ValueError(f"unit array {name!r}: dtype {a.dtype} is not a plain number")
+    header = [[k, a.dtype.str, list(a.shape)] for k, a in items]
+    payload = json.dumps(header, separators=(",", ":")).encode() + b"\n"
+    payload += b"".join(a.tobytes() for _, a in items)
+    return MAGIC + hashlib.sha256(payload).digest() + payload
+
+
+def decode_unit(data: bytes, where: str) -> dict[str, Any]:
+    """The arrays of a unit file; `ArtifactCorrupt` (one line) if altered or not a unit."""
+    import numpy as np
+
+    head = len(MAGIC) + 32
+    if data[: len(MAGIC)] != MAGIC or len(data) < head:
+        raise ArtifactCorrupt(f"{where}: not a work unit (no magic bytes)")
+    payload = data[head:]
+    if hashlib.sha256(payload).digest() != data[len(MAGIC) : head]:
+        raise ArtifactCorrupt(f"{where}: the unit's content does not match its digest")
+    line, _, body = payload.partition(b"\n")
+    try:
+        out, offset = {}, 0
+        for name, dtype, shape in json.loads(line):
+            dt = np.dtype(dtype)
+            if dt.hasobject or dt.kind not in "biuf":
+                raise ValueError(f"dtype {dtype} is not a plain number")
+            n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+            if offset + n > len(body):
+                raise ValueError("truncated")
+            out[str(name)] = np.frombuffer(body, dt, n // dt.itemsize, offset).reshape(shape)
+            offset += n
+        if offset != len(body):
+            raise ValueError("trailing bytes")
+    except (TypeError, ValueError) as err:
+        raise ArtifactCorrupt(f"{where}: unreadable unit ({err})") from err
+    return out
+
+
+def _write_atomic(root: Path, path: Path, data: bytes) -> None:
+    tmp = Path(root) / ".tmp" / f"unit-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with tmp.open("wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.replace(path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def file_entry(data: bytes) -> dict[str, Any]:
+    """What a manifest records of a unit file (as of an artifact's files)."""
+    return {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
+
+
+def install_unit(root: Path, stage: str, key: str, data: bytes, where: str) -> None:
+    """Put a unit fetched from elsewhere (`pull`) in place, after checking it decodes."""
+    decode_unit(data, where)
+    _write_atomic(root, unit_path(root, stage, key), data)
+
+
+def unit_entries(manifest: Mapping[str, Any], where: str) -> dict[str, dict[str, Any]]:
+    """The units a manifest lists, checked for shape (key: 64 hex, sha256 and size)."""
+    raw = manifest.get("units") or {}
+    if not isinstance(raw, Mapping):
+        raise ArtifactCorrupt(f"{where}: manifest 'units' is not an object")
+    out = {}
+    for key, entry in raw.items():
+        ok = isinstance(key, str) and len(key) == 64 and set(key) <= _HEX
+        ok = ok and isinstance(entry, Mapping) and isinstance(entry.get("size"), int)
+        sha = entry.get("sha256") if isinstance(entry, Mapping) else None
+        if not ok or not isinstance(sha, str) or len(sha) != 64 or not set(sha) <= _HEX:
+            raise ArtifactCorrupt(f"{where}: manifest lists a malformed unit {str(key)[:70]!r}")
+        out[key] = {"sha256": sha, "size": int(entry["size"])}
+    return out
+
+
+class UnitMemo:
+    """A stage's get/put of its units in one store (picklable: a worker process gets it).
+
+    Records the keys it handed out or stored (`used`, key -> the file's sha256 and size) and how
+    many were found (`hits`) or computed (`misses`); `warnings` says which were altered.
+    """
+
+    def __init__(self, root: Path, stage: str) -> None:
+        self.root, self.stage = Path(root), stage
+        self.used: dict[str, dict[str, Any]] = {}
+        self.hits = 0
+        self.misses = 0
+        self.warnings: list[str] = []
+
+    def get(self, key: str) -> dict[str, Any] | None:
+        """The unit's arrays, or None (absent, or altered: then it is recomputed)."""
+        path = unit_path(self.root, self.stage, key)
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            self.misses += 1
+            return None
+        try:
+            arrays = decode_unit(data, f"unit {self.stage}/{key[:12]}")
+        except ArtifactCorrupt as err:
+            log.warning("%s: recomputing it", err)
+            self.warnings.append(f"{err}: recomputed")
+            self.misses += 1
+            return None
+        self.hits += 1
+        self.used[key] = file_entry(data)
+        return arrays
+
+    def put(self, key: str, arrays: Mapping[str, Any]) -> None:
+        """Store a computed unit (atomically; the same key always holds the same arrays)."""
+        data = encode_unit(arrays)
+        _write_atomic(self.root, unit_path(self.root, self.stage, key), data)
+        self.used[key] = file_entry(data)
+
+    def manifest_fields(self) -> dict[str, Any]:
+        """What the artifact's manifest records of its units."""
+        fields = {
+            "units": dict(sorted(self.used.items())),
+            "units_reused": self.hits,
+            "units_computed": self.misses,
+        }
+        if self.warnings:
+            fields["unit_warnings"] = [
+                f"{len(self.warnings)} work units altered on disk,"
+                f" recomputed (first: {self.warnings[0]})"
+            ]
+        return fields
+
+
+def iter_unit_files(root: Path) -> Iterator[tuple[str, str, Path]]:
+    """Every unit file in the store: (stage, key, path); other names are left alone."""
+    base = Path(root) / UNITS
+    if not base.is_dir():
+        return
+    for stage_dir in sorted(p for p in base.iterdir() if p.is_dir()):
+        for shard in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
+            for f in sorted(shard.iterdir()):
+                key = f.name
+                if len(key) == 64 and set(key) <= _HEX and key[:2] == shard.name and f.is_file():
+                    yield stage_dir.name, key, f
+
+
+def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
+    """Raise `ArtifactCorrupt` unless every unit the manifest lists is present and matches
+    both its own digest and the sha256 and size the manifest recorded."""
+    art = f"artifact {stage}/{str(manifest.get('key'))[:12]}"
+    for key, entry in unit_entries(manifest, art).items():
+        path = unit_path(root, stage, key)
+        where = f"unit {stage}/{key[:12]} of {art}"
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError as err:
+            raise ArtifactCorrupt(f"{where}: missing") from err
+        if file_entry(data) != entry:
+            raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
+        decode_unit(data, where)
