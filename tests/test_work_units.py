@@ -155,6 +155,26 @@ def test_tampered_unit_fails_verify_and_is_recomputed_locally(tmp_path: Path) ->
     store.verify(again.artifacts["chunks"])  # the recomputed unit replaced the altered one
 
 
+def test_a_copied_artifact_brings_its_units_and_a_missing_one_is_refused(tmp_path: Path) -> None:
+    """The model cache's copy into a run's store (`copy_verified`) carries the units its
+    manifest lists; `verify` reads the units of the store holding the artifact (a push takes
+    upstream artifacts from the model cache)."""
+    from sonarmap.pipeline.training.model_cache import copy_verified
+
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    ref = _run(data, tmp_path / "cache").artifacts["chunks"]
+    ArtifactStore(tmp_path / "other").verify(ref)  # units looked up beside `ref`, not in other/
+    dest = ArtifactStore(tmp_path / "run")
+    copied = copy_verified(ref, dest)
+    dest.verify(copied)
+    assert {k for _, k, _ in iter_unit_files(dest.root)} == set(ref.manifest["units"])
+    unit_path(ref.path.parent.parent, "chunks", sorted(ref.manifest["units"])[0]).unlink()
+    with pytest.raises(ArtifactCorrupt, match="missing"):
+        copy_verified(ref, ArtifactStore(tmp_path / "run2"))
+    assert ArtifactStore(tmp_path / "run2").get("chunks", ref.key) is None
+
+
 class _DictUnits:
     """An in-memory `Units` memo that counts what it served."""
 

@@ -35,6 +35,7 @@ from sonarmap.pipeline.engine.store.artifact_store import (
     safe_relative,
     verify_artifact_dir,
 )
+from sonarmap.pipeline.engine.store.units import copy_units
 from sonarmap.pipeline.training.cache_dir import default_training_directory
 from sonarmap.stages.base import Stage
 
@@ -124,6 +125,8 @@ def copy_verified(ref: ArtifactRef, dest: ArtifactStore) -> ArtifactRef:
         verify_artifact_dir(tmp, ref.manifest)
         return {}
 
+    # its work units first: the committed copy lists them (store.units)
+    copy_units(ref.path.parent.parent, dest.root, ref.stage, ref.manifest)
     keep = {k: v for k, v in ref.manifest.items() if k not in ("files", "build_seconds")}
     return dest.commit(ref.stage, ref.key, copy, keep)
 

@@ -133,7 +133,8 @@ class ArtifactStore:
         """Check every file's size and sha256 and the key against the recipe."""
         try:
             verify_artifact_dir(ref.path, ref.manifest)
-            verify_units(self.root, ref.stage, ref.manifest)
+            # the units of the store holding `ref` (a fallback's, for push)
+            verify_units(ref.path.parent.parent, ref.stage, ref.manifest)
         except ArtifactCorrupt as err:
             raise ArtifactCorrupt(f"{err}; {recovery_hint(ref.stage)}") from err
 

@@ -34,6 +34,7 @@ __all__ = [
     "MAGIC",
     "UNITS",
     "UnitMemo",
+    "copy_units",
     "decode_unit",
     "encode_unit",
     "file_entry",
@@ -226,3 +227,18 @@ def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
         if file_entry(data) != entry:
             raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
         decode_unit(data, where)
+
+
+def copy_units(src_root: Path, dest_root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
+    """Copy the units an artifact's manifest lists from the store at `src_root` to the one
+    at `dest_root`, each checked (`verify_units`) first, so a copied artifact never lists a
+    unit its new store lacks.
+
+    Raises:
+        ArtifactCorrupt: a listed unit is missing or altered in the source store.
+    """
+    verify_units(src_root, stage, manifest)
+    for key in unit_entries(manifest, f"artifact {stage}"):
+        dest = unit_path(dest_root, stage, key)
+        if not dest.exists():
+            _write_atomic(dest_root, dest, unit_path(src_root, stage, key).read_bytes())
