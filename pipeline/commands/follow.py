@@ -104,6 +104,7 @@ def follow(
                 Path(scratch),
                 on_stage=view.feed.on_stage,
                 drain=view.feed.server.drain,
+                publish=view.feed.server.submit,
                 say=say,
                 options=options,
             )
@@ -118,6 +119,7 @@ def follow(
                     on_stage=view.chain(progress.on_stage),
                     scores=json_,
                 )
+            follower.clear_preview()
             view.feed.server.drain()
             print_run(result, summary, json_=json_, quiet=quiet)
     except KeyboardInterrupt:
