@@ -117,9 +117,12 @@ class Preview:
         self.window.update(self.snapshot.size)
         if self.anchor is None or self._last is None or not (growth.new_bytes or self._fresh):
             return []
-        self._fresh = False
         anchor, (last_t, last_pose) = self.anchor, self._last
         kcfg = self.config.keyframes
+        newest = self.snapshot.last_log_time_ns
+        if newest is not None and newest - last_t < round(kcfg.min_gap_s * 1e9):
+            return []  # no keyframe can be due yet: the window is not even read
+        self._fresh = False
         self.window.write(last_t - _MARGIN_NS, self.window_path)
         rec = open_recording(self.window_path, kcfg)
         posed = posed_pairs(rec, kcfg.pair_tolerance_s)
