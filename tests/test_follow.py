@@ -237,3 +237,14 @@ def test_the_preview_maps_keyframes_as_a_batch_run(mission: Path, tmp_path: Path
     assert sum(len(p.xyz) for p in new) > 0
     for p in new:
         np.testing.assert_array_equal(p.xyz, xyz[kf_col == p.keyframe_id])
+    # the next full update reaches keyframe k + 2: the preview keeps those after it
+    t_next = int(kfs.column("t_ns")[k + 2].as_py())
+    pose_next = pose_matrix(nav[k + 2])[0]
+    preview.set_anchor(
+        replace(anchor, keyframe_id=k + 2, t_ns=t_next, nav_pose=nav[k + 2], T_world=pose_next)
+    )
+    assert [p.keyframe_id for p in preview.keyframes] == ids[2:]
+    np.testing.assert_allclose(
+        [p.pose for p in preview.keyframes], nav[k + 3 : k + 1 + len(new)], atol=1e-9
+    )
+    assert preview.poll() == []  # nothing newer: none mapped twice

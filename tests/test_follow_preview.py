@@ -17,8 +17,8 @@ from sonarmap.pipeline.live.growing import McapSnapshot
 from sonarmap.pipeline.live.window import RecordWindow
 from sonarmap.stages.kernels.geometry import pose_from_se3
 from sonarmap.stages.kernels.poses import pose_matrix
-from sonarmap.stages.kernels.preview import chained_poses, continue_selection
-from sonarmap.stages.keyframes.stage import select_keyframes
+from sonarmap.stages.kernels.preview import chained_poses
+from sonarmap.stages.keyframes.stage import continue_selection, select_keyframes
 
 
 def _walk(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ takes seconds to tens of seconds. Meanwhile, at every poll, the preview:
 1. cuts the recording's last seconds, from just before its last keyframe, out of its own
    snapshot (`window.RecordWindow`: only the new records are read);
 2. pairs and poses the pings there and continues the keyframe rule from the last
-   keyframe (`kernels.preview.continue_selection`: the same keyframes as a batch run);
+   keyframe (`stages.keyframes.stage.continue_selection`: the same keyframes as a batch run);
    a pair within `pair_tolerance_s` of the newest ping waits (its partner may come);
 3. detects each new keyframe's features with the last full update's calibration and
    fuses its two sonars (`kernels.preview.keyframe_points`: the batch kernels);
@@ -64,12 +64,14 @@ class Anchor:
 @dataclass
 class PreviewKeyframe:
     """One previewed keyframe: id, time, world pose (6,) x, y, z, roll, pitch, yaw
-    [m, rad] and its fused points (n, 3) in the horizontal sonar frame [m]."""
+    [m, rad], its fused points (n, 3) in the horizontal sonar frame [m] and its
+    navigation pose (6,)."""
 
     keyframe_id: int
     t_ns: int
     pose: np.ndarray
     xyz: np.ndarray
+    nav_pose: np.ndarray
 
 
 @dataclass
@@ -95,10 +97,22 @@ class Preview:
         self.window = RecordWindow(self.snapshot.path)
 
     def set_anchor(self, anchor: Anchor) -> None:
-        """A full update finished: its map supersedes the preview, which restarts there."""
+        """A full update finished: its map supersedes the preview up to its newest
+        keyframe. The keyframes previewed after that one stay, posed again from the new
+        anchor (their points were detected with the previous calibration: detecting them
+        again would delay the new ones)."""
+        from sonarmap.stages.kernels.geometry import pose_from_se3
+        from sonarmap.stages.kernels.preview import chained_poses
+
         self.anchor = anchor
-        self.keyframes = []
-        self._last = (anchor.t_ns, anchor.nav_pose)
+        kept = [k for k in self.keyframes if k.t_ns > anchor.t_ns]
+        if kept:
+            nav = np.stack([k.nav_pose for k in kept])
+            T = chained_poses(anchor.T_world, anchor.nav_pose, nav)
+            for i, k in enumerate(kept):
+                k.keyframe_id, k.pose = anchor.keyframe_id + 1 + i, pose_from_se3(T[i])
+        self.keyframes = kept
+        self._last = (kept[-1].t_ns, kept[-1].nav_pose) if kept else (anchor.t_ns, anchor.nav_pose)
         self._fresh = True
 
     def poll(self) -> list[PreviewKeyframe]:
@@ -107,11 +121,8 @@ class Preview:
         from sonarmap.schemas.sonar import KeyframeImages
         from sonarmap.stages.kernels.geometry import pose_from_se3
         from sonarmap.stages.kernels.pairing import posed_pairs
-        from sonarmap.stages.kernels.preview import (
-            chained_poses,
-            continue_selection,
-            keyframe_points,
-        )
+        from sonarmap.stages.kernels.preview import chained_poses, keyframe_points
+        from sonarmap.stages.keyframes.stage import continue_selection
 
         self.growth = growth = self.snapshot.update()
         self.window.update(self.snapshot.size)
@@ -150,7 +161,7 @@ class Preview:
             )
             xyz = np.stack([fu["x_m"], fu["y_m"], fu["z_m"]], axis=1)
             pose = pose_from_se3(T_world[i])
-            out.append(PreviewKeyframe(frame.keyframe_id, frame.t_ns, pose, xyz))
+            out.append(PreviewKeyframe(frame.keyframe_id, frame.t_ns, pose, xyz, posed.pose[k[i]]))
         self.keyframes.extend(out)
         self._last = (int(t_pair[k[-1]]), posed.pose[k[-1]])
         return out

@@ -1,6 +1,7 @@
-"""One keyframe at a time, as `sonarmap follow`'s preview maps them: the keyframe rule
-continued from the last keyframe, and a keyframe's fused points, by the very kernels the
-`keyframes`, `features` and `fuse` stages run over a whole recording."""
+"""One keyframe at a time, as `sonarmap follow`'s preview maps them: a keyframe's fused
+points, by the very kernels the `features` and `fuse` stages run over a whole recording,
+and its pose dead-reckoned from an anchor (the keyframe rule continued from the last
+keyframe is `stages.keyframes.stage.continue_selection`)."""
 
 from __future__ import annotations
 
@@ -14,38 +15,7 @@ from sonarmap.stages.kernels.front_end import BandThresholds
 from sonarmap.stages.kernels.fusion import FusionSettings, fuse_keyframe
 from sonarmap.stages.kernels.poses import pose_matrix
 
-__all__ = ["chained_poses", "continue_selection", "keyframe_points"]
-
-
-def continue_selection(
-    last_t_ns: int,
-    last_pose: np.ndarray,
-    t_ns: np.ndarray,
-    poses: np.ndarray,
-    spacing_m: float,
-    rotation_rad: float,
-    min_gap_ns: int,
-) -> tuple[np.ndarray, list[str]]:
-    """The keyframes among candidates after the last keyframe.
-
-    The rule (`stages.keyframes.stage.select_keyframes`) is greedy: whether a candidate
-    is kept depends only on the last keyframe kept before it. Run on the last keyframe
-    followed by the candidates after it, it keeps what it keeps on the whole recording.
-
-    Args:
-        last_t_ns, last_pose: the last keyframe's time [ns] and (6,) pose.
-        t_ns: (k,) ascending candidate times after `last_t_ns` [ns].
-        poses: (k, 6) their poses.
-
-    Returns:
-        (indices into the candidates, reason of each).
-    """
-    from sonarmap.stages.keyframes.stage import select_keyframes
-
-    t = np.concatenate([[np.int64(last_t_ns)], np.asarray(t_ns, np.int64)])
-    p = np.concatenate([np.asarray(last_pose, np.float64).reshape(1, 6), poses], axis=0)
-    sel, reasons = select_keyframes(t, p, spacing_m, rotation_rad, min_gap_ns)
-    return sel[1:] - 1, reasons[1:]
+__all__ = ["chained_poses", "keyframe_points"]
 
 
 def chained_poses(
