@@ -101,3 +101,31 @@ def test_the_window_holds_every_message_since_its_start(tmp_path: Path) -> None:
             assert [m for m in got if m[1] >= since] == wanted
             assert len(got) - len(wanted) < 10
     assert everything is not None and {m[0] for m in everything} == {"/a", "/b"}
+
+
+def test_a_preview_that_cannot_read_its_window_says_so_once_and_follow_goes_on(
+    tmp_path: Path,
+) -> None:
+    import time
+
+    from sonarmap.pipeline.api import RunRequest
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.graph import default_graph
+    from sonarmap.pipeline.live.follow import Follower
+
+    source = tmp_path / "dive.mcap"
+    source.write_bytes(b"")
+    said: list[str] = []
+    follower = Follower(
+        RunRequest(source), default_graph(), tmp_path, say=said.append, publish=lambda *a: None
+    )
+    assert follower.preview is not None
+    window = str(follower.preview.window_path)
+
+    def poll() -> list:
+        raise SourceError(f"{window}: no navigation topic")
+
+    follower.preview.poll = poll  # type: ignore[method-assign]
+    assert not follower._preview_step(time.time)
+    assert not follower._preview_step(time.time)
+    assert said == ["follow: no preview (window: no navigation topic); the full updates go on"]

@@ -146,6 +146,7 @@ class Follower:
                 scratch / "window.mcap",
             )
         self._last_growth = 0.0
+        self._preview_problem = ""
         self._arrived_t: list[int] = []  # the newest log time after each growth ...
         self._arrived_wall: list[float] = []  # ... and when it was seen
         self.updates: list[Update] = []
@@ -216,7 +217,18 @@ class Follower:
         """Map the keyframes newly complete; whether any was."""
         if self.preview is None:
             return False
-        new = self.preview.poll()
+        try:
+            new = self.preview.poll()
+        except (PipelineError, ValueError) as err:
+            self._note(self.preview.growth, clock())
+            # The window is read as a recording of its own: what it lacks (no navigation
+            # in it, a sonar silent for its seconds) stops the preview, never the updates.
+            problem = str(err).replace(str(self.preview.window_path), "window")[:200]
+            if problem != self._preview_problem:
+                self._say(f"follow: no preview ({problem}); the full updates go on")
+            self._preview_problem = problem
+            return False
+        self._preview_problem = ""
         self._note(self.preview.growth, clock())
         if not new:
             return False
