@@ -122,6 +122,13 @@ def test_follow_maps_while_written_and_ends_as_run(
     assert early, f"no map before the writer finished: {err}"
     assert len(re.findall(r"follow: update \d+: .* keyframes, map voxels", err)) >= 1, err
     assert maps[-1][1] > early[0]  # the final map reaches further than the first one
+    previews = [m for m in got.messages.get("/map/preview", []) if len(m[2].data)]
+    if kind == "mcap":  # each keyframe mapped at once between the full updates
+        assert previews, err
+        assert re.search(r"follow: preview keyframe \d+: \d+ points", err), err
+        assert got.messages.get("/trajectory/preview"), err
+    else:  # a bag's split files: full updates only
+        assert not previews and "preview keyframe" not in err
 
     import json
 
@@ -181,3 +188,63 @@ def test_the_loop_ends_on_the_footer_or_after_the_idle_timeout(
     assert [u.number for u in updates] == [1] and "no sonar topic" in updates[0].problem
     assert said[0].startswith("follow: update 1: 0.0 MB read, no map yet (snapshot: no sonar")
     assert said[1:] == ["follow: no growth for 0.3 s: mapping what was written"]
+
+
+def test_the_preview_maps_keyframes_as_a_batch_run(mission: Path, tmp_path: Path) -> None:
+    """Anchored at a keyframe of a batch run (its calibration, its pose), the preview of
+    the finished file maps the keyframes after it as the batch run does: the same
+    keyframes, poses (the navigation, as no SLAM moved the anchor) and fused points."""
+    from dataclasses import replace
+
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.graph import default_graph
+    from sonarmap.pipeline.live.growing import McapSnapshot
+    from sonarmap.pipeline.live.preview import Preview, anchor_of
+    from sonarmap.stages.kernels.poses import pose_matrix
+
+    graph = default_graph()
+    request = RunRequest(mission, store_dir=tmp_path / "s", until="fuse", workers=1)
+    result, _ = run_dataset(replace(request, figures=False), graph)
+    anchor = anchor_of(result, {s.name: s for s in graph.stages})
+    assert anchor is not None
+
+    kfs = pq.read_table(Path(result.artifacts["keyframes"].path) / "keyframes.parquet")
+    fused = pq.read_table(Path(result.artifacts["fuse"].path) / "fused.parquet")
+    cols = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+    nav = np.stack([kfs.column(c).to_numpy() for c in cols], axis=1)
+    k = 1  # anchored at the second keyframe: the others come from the preview
+    assert kfs.num_rows >= k + 4
+    t_k = int(kfs.column("t_ns")[k].as_py())
+    anchor = replace(
+        anchor, keyframe_id=k, t_ns=t_k, nav_pose=nav[k], T_world=pose_matrix(nav[k])[0]
+    )
+    config = load_config(graph.config_stages, None, (), graph.extra_sections)
+    preview = Preview(McapSnapshot(mission, tmp_path / "p.mcap"), config, tmp_path / "w.mcap")
+    assert preview.poll() == []  # no anchor yet: nothing mapped
+    preview.set_anchor(anchor)
+    new = preview.poll()
+    # all but those held back at the very end (a partner ping may still come)
+    assert kfs.num_rows - k - 2 <= len(new) <= kfs.num_rows - k - 1
+    ids = [p.keyframe_id for p in new]
+    assert ids == list(range(k + 1, k + 1 + len(new)))
+    assert [p.t_ns for p in new] == kfs.column("t_ns").to_pylist()[k + 1 : k + 1 + len(new)]
+    np.testing.assert_allclose([p.pose for p in new], nav[k + 1 : k + 1 + len(new)], atol=1e-9)
+    kf_col = fused.column("keyframe_id").to_numpy()
+    xyz = np.stack([fused.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")], axis=1)
+    assert sum(len(p.xyz) for p in new) > 0
+    for p in new:
+        np.testing.assert_array_equal(p.xyz, xyz[kf_col == p.keyframe_id])
+    # the next full update reaches keyframe k + 2: the preview keeps those after it
+    t_next = int(kfs.column("t_ns")[k + 2].as_py())
+    pose_next = pose_matrix(nav[k + 2])[0]
+    preview.set_anchor(
+        replace(anchor, keyframe_id=k + 2, t_ns=t_next, nav_pose=nav[k + 2], T_world=pose_next)
+    )
+    assert [p.keyframe_id for p in preview.keyframes] == ids[2:]
+    np.testing.assert_allclose(
+        [p.pose for p in preview.keyframes], nav[k + 3 : k + 1 + len(new)], atol=1e-9
+    )
+    assert preview.poll() == []  # nothing newer: none mapped twice

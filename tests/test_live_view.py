@@ -85,7 +85,8 @@ def test_each_topic_arrives_during_the_run_map_on_voxelize(
     live_run: tuple[Path, Received, dict[str, float]],
 ) -> None:
     _, got, finished = live_run
-    assert set(got.messages) == set(TOPIC_SCHEMAS)
+    # every topic but `follow`'s preview
+    assert set(got.messages) == set(TOPIC_SCHEMAS) - {"/map/preview", "/trajectory/preview"}
     for ch in got.channels.values():
         assert ch["schemaName"] == f"foxglove.{TOPIC_SCHEMAS[ch['topic']]}"
         assert ch["encoding"] == "protobuf"

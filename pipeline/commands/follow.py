@@ -55,7 +55,9 @@ def follow(
     """Map DATASET (MCAP file or rosbag2 directory) while it is written, live in Foxglove.
 
     Every --every-s, when new records arrived, maps what is complete so far (up to
-    voxelize, no figures) and publishes it on ws://127.0.0.1:PORT as `run --live` does.
+    voxelize, no figures, in a background thread) and publishes it on ws://127.0.0.1:PORT
+    as `run --live` does. Meanwhile each new keyframe is mapped at once, dead-reckoned
+    from the last update, and published on /map/preview (an MCAP file; not a bag).
     When the recording is closed (its MCAP footer written; a bag: its metadata.yaml
     naming every file, each closed) or idle for --idle-timeout-s, runs it as `run`
     does (same artifacts, same summary) and exits 0; Ctrl-C exits 130, keeping every
@@ -104,6 +106,7 @@ def follow(
                 Path(scratch),
                 on_stage=view.feed.on_stage,
                 drain=view.feed.server.drain,
+                publish=view.feed.server.submit,
                 say=say,
                 options=options,
             )
@@ -118,6 +121,7 @@ def follow(
                     on_stage=view.chain(progress.on_stage),
                     scores=json_,
                 )
+            follower.clear_preview()
             view.feed.server.drain()
             print_run(result, summary, json_=json_, quiet=quiet)
     except KeyboardInterrupt:

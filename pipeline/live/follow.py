@@ -15,6 +15,7 @@ The loop returns when the recording is closed (its footer and magic written), or
 from __future__ import annotations
 
 import bisect
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -23,15 +24,18 @@ from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
-from sonarmap.pipeline.live.growing import BagSnapshot, McapSnapshot
+from sonarmap.pipeline.live.growing import BagSnapshot, Growth, McapSnapshot
+from sonarmap.pipeline.live.preview import Anchor, Preview, anchor_of
 
 if TYPE_CHECKING:
     from sonarmap.pipeline.engine.run.graph import Graph
 
-__all__ = ["MAP_STAGE", "FollowOptions", "Follower", "Update"]
+__all__ = ["MAP_STAGE", "PREVIEW_TOPICS", "FollowOptions", "Follower", "Update"]
 
 MAP_STAGE = "voxelize"
 """The last stage of an update: the map (evaluation and figures wait for the end)."""
+PREVIEW_TOPICS = ("/map/preview", "/trajectory/preview")
+"""The preview's topics (`sonarmap.pipeline.live.preview`)."""
 
 
 @dataclass(frozen=True)
@@ -63,6 +67,7 @@ class Update:
         voxels: the map's voxel counts ({} when it made no map).
         problem: why it made no map ("" when it did).
         warnings: the run's warnings (empty or collapsed outputs), counted.
+        anchor: where the preview restarts from (None: no preview, or nothing to anchor).
     """
 
     number: int
@@ -74,6 +79,7 @@ class Update:
     voxels: dict[str, int] = field(default_factory=dict)
     problem: str = ""
     warnings: int = 0
+    anchor: Anchor | None = None
 
     def line(self) -> str:
         """The progress line `follow` prints on stderr."""
@@ -99,6 +105,7 @@ class Follower:
         scratch: a private folder for the snapshot.
         on_stage: the live feed's `on_stage` (None: no live view).
         drain: waits until the feed published what it was given (None: no live view).
+        publish: the live server's `submit` (None: no live view, no preview).
         say: prints one progress line.
         options: the timing options.
     """
@@ -111,6 +118,7 @@ class Follower:
         *,
         on_stage: Callable[[Any], None] | None = None,
         drain: Callable[[], object] | None = None,
+        publish: Callable[[tuple[str, ...], Callable[[], Any]], None] | None = None,
         say: Callable[[str], None] = print,
         options: FollowOptions = FollowOptions(),
     ) -> None:
@@ -123,6 +131,22 @@ class Follower:
         )
         self.options = options
         self._on_stage, self._drain, self._say = on_stage, drain, say
+        self._publish = publish
+        self.preview: Preview | None = None
+        if publish is not None and not request.dataset.is_dir():
+            # A bag's split files have no single window to cut: full updates only.
+            from sonarmap.pipeline.engine.config.load import load_config
+
+            config = load_config(
+                graph.config_stages, request.config_path, request.overrides, graph.extra_sections
+            )
+            self.preview = Preview(
+                McapSnapshot(request.dataset, scratch / "preview.mcap"),
+                config,
+                scratch / "window.mcap",
+            )
+        self._last_growth = 0.0
+        self._preview_problem = ""
         self._arrived_t: list[int] = []  # the newest log time after each growth ...
         self._arrived_wall: list[float] = []  # ... and when it was seen
         self.updates: list[Update] = []
@@ -131,6 +155,9 @@ class Follower:
     def follow(self, clock: Callable[[], float] = time.time) -> list[Update]:
         """Poll and map until the recording is closed or idle; the updates made.
 
+        The full updates run in a background thread; the preview (when there is one) maps
+        each new keyframe here meanwhile.
+
         Raises:
             SourceError: the file is not an MCAP file (or not there).
             ConfigError: the config is bad (found by the first update).
@@ -138,29 +165,92 @@ class Follower:
         """
         mapped_size = 0
         last_start = -float("inf")
-        last_growth = clock()
+        self._last_growth = clock()
+        worker: threading.Thread | None = None
+        done: list[Update | BaseException] = []
         while True:
-            growth = self.snapshot.update()
+            if worker is not None and not worker.is_alive():
+                worker.join()
+                worker = None
+                self._finished(done.pop())
             now = clock()
-            if growth.new_bytes:
-                last_growth = now
-                if growth.last_log_time_ns is not None:
-                    self._arrived_t.append(growth.last_log_time_ns)
-                    self._arrived_wall.append(now)
-            if growth.closed:
-                self.closed = True
-                return self.updates
-            idle = self.options.idle_timeout_s
-            if idle is not None and now - last_growth >= idle:
-                self._say(f"follow: no growth for {idle:g} s: mapping what was written")
-                return self.updates
-            if self.snapshot.size > mapped_size and now - last_start >= self.options.every_s:
-                last_start = now
-                mapped_size = self.snapshot.size
-                self.updates.append(self._update(clock))
-                self._say(self.updates[-1].line())
-            else:
+            if worker is None:
+                growth = self.snapshot.update()
+                self._note(growth, now)
+                if growth.closed:
+                    self.closed = True
+                    return self.updates
+                idle = self.options.idle_timeout_s
+                if idle is not None and now - self._last_growth >= idle:
+                    self._say(f"follow: no growth for {idle:g} s: mapping what was written")
+                    return self.updates
+                if self.snapshot.size > mapped_size and now - last_start >= self.options.every_s:
+                    last_start, mapped_size = now, self.snapshot.size
+                    worker = threading.Thread(
+                        target=lambda: done.append(_caught(lambda: self._update(clock))),
+                        name="sonarmap-follow-update",
+                        daemon=True,  # Ctrl-C ends follow; the store's commits are atomic
+                    )
+                    worker.start()
+            if not self._preview_step(clock):
                 time.sleep(self.options.poll_s)
+
+    def _note(self, growth: Growth, now: float) -> None:
+        if growth.new_bytes:
+            self._last_growth = now
+            if growth.last_log_time_ns is not None:
+                self._arrived_t.append(growth.last_log_time_ns)
+                self._arrived_wall.append(now)
+
+    def _finished(self, outcome: Update | BaseException) -> None:
+        """A full update ended: its line; its map supersedes the preview, which restarts
+        from its newest keyframe."""
+        if isinstance(outcome, BaseException):
+            raise outcome
+        self.updates.append(outcome)
+        self._say(outcome.line())
+        if self.preview is not None and outcome.anchor is not None:
+            self.preview.set_anchor(outcome.anchor)
+            self._publish_preview(outcome.t_last_ns or 0)
+
+    def _preview_step(self, clock: Callable[[], float]) -> bool:
+        """Map the keyframes newly complete; whether any was."""
+        if self.preview is None:
+            return False
+        try:
+            new = self.preview.poll()
+        except (PipelineError, ValueError) as err:
+            self._note(self.preview.growth, clock())
+            # The window is read as a recording of its own: what it lacks (no navigation
+            # in it, a sonar silent for its seconds) stops the preview, never the updates.
+            problem = str(err).replace(str(self.preview.window_path), "window")[:200]
+            if problem != self._preview_problem:
+                self._say(f"follow: no preview ({problem}); the full updates go on")
+            self._preview_problem = problem
+            return False
+        self._preview_problem = ""
+        self._note(self.preview.growth, clock())
+        if not new:
+            return False
+        self._publish_preview(new[-1].t_ns)
+        now = clock()
+        for kf in new:
+            arrival = self.arrival(kf.t_ns)
+            lag = "" if arrival is None else f", lag {now - arrival:.1f} s"
+            self._say(f"follow: preview keyframe {kf.keyframe_id}: {len(kf.xyz)} points{lag}")
+        return True
+
+    def clear_preview(self) -> None:
+        """The final run's map is out: the preview is cleared from the live view."""
+        if self.preview is not None:
+            self.preview.keyframes = []
+            self._publish_preview(0)
+
+    def _publish_preview(self, t_ns: int) -> None:
+        if self.preview is None or self._publish is None:
+            return
+        messages = self.preview.messages(t_ns)
+        self._publish(PREVIEW_TOPICS, lambda: messages)
 
     def _update(self, clock: Callable[[], float]) -> Update:
         names = [s.name for s in self.graph.stages]
@@ -196,6 +286,8 @@ class Follower:
         update.t_last_ns = _t_last(result)
         arrival = self.arrival(update.t_last_ns)
         update.lag_s = None if arrival is None else done - arrival
+        if self.preview is not None:
+            update.anchor = anchor_of(result, {s.name: s for s in self.graph.stages})
         return update
 
     def arrival(self, t_ns: int | None) -> float | None:
@@ -204,6 +296,14 @@ class Follower:
             return None
         i = bisect.bisect_left(self._arrived_t, t_ns)
         return self._arrived_wall[i] if i < len(self._arrived_wall) else None
+
+
+def _caught(work: Callable[[], Update]) -> Update | BaseException:
+    """`work()`, or what it raised (handed to the follow loop, which raises it)."""
+    try:
+        return work()
+    except BaseException as err:  # the loop's thread raises it again
+        return err
 
 
 def _t_last(result: Any) -> int | None:

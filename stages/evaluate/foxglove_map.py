@@ -77,8 +77,9 @@ def map_mcap(
     T_base_sonar: np.ndarray,
     classes: ClassTable = DEFAULT_TABLE,
 ) -> bytes:
-    """evaluate's `map.mcap`: every topic above but `/live/fused`, maps stamped at the
-    last keyframe, the mesh at the first; class ids those of the class table `classes`."""
+    """evaluate's `map.mcap`: every topic above but the live ones (`/live/fused`, `follow`'s
+    preview), maps stamped at the last keyframe, the mesh at the first; class ids those
+    of the class table `classes`."""
     t = keyframes.column("t_ns")
     t_first, t_last = (int(pc.min(t).as_py() or 0), int(pc.max(t).as_py() or 0))
     messages = [

@@ -52,6 +52,7 @@ __all__ = [
     "map_messages",
     "mesh_messages",
     "object_messages",
+    "preview_messages",
     "timestamp",
     "trajectory_messages",
 ]
@@ -63,6 +64,8 @@ TOPIC_SCHEMAS: dict[str, str] = {
     "/map/standard": "PointCloud",
     "/map/semantic": "PointCloud",
     "/live/fused": "PointCloud",
+    "/map/preview": "PointCloud",
+    "/trajectory/preview": "PosesInFrame",
     "/tf": "FrameTransforms",
     "/trajectory/slam": "PosesInFrame",
     "/trajectory/dead_reckoning": "PosesInFrame",
@@ -245,10 +248,11 @@ def trajectory_messages(keyframes: pa.Table, poses: pa.Table | None) -> list[Sce
 
 
 def fused_messages(
-    fused: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray
+    fused: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray, topic: str = "/live/fused"
 ) -> list[SceneMessage]:
     """fuse.fused registered at the dead-reckoning keyframe poses, one cloud at the
-    last keyframe (the map as far as the run knows before SLAM)."""
+    last keyframe (the map as far as the run knows before SLAM); `follow`'s preview
+    gives its own keyframes and points, and its topic."""
     ids, T = pose_matrices(keyframes)
     kf = fused.column("keyframe_id").to_numpy().astype(np.int64)
     xyz = np.stack([fused.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")], axis=1)
@@ -266,7 +270,25 @@ def fused_messages(
         }
     )
     t_end = int(pc.max(keyframes.column("t_ns")).as_py() or 0)
-    return [SceneMessage("/live/fused", _point_cloud(cloud_records(table), t_end), t_end)]
+    return [SceneMessage(topic, _point_cloud(cloud_records(table), t_end), t_end)]
+
+
+def preview_messages(
+    fused: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray, t_ns: int
+) -> list[SceneMessage]:
+    """`follow`'s preview (keyframes mapped since the last full update, at their
+    dead-reckoned poses): its points on /map/preview and its keyframes on
+    /trajectory/preview, stamped `t_ns`; empty tables clear both."""
+    fm = foxglove_messages()
+    cloud = fused_messages(fused, keyframes, T_base_sonar, "/map/preview")[0]
+    xyz, quat = _poses(keyframes)
+    poses = fm.PosesInFrame(
+        timestamp=timestamp(t_ns), frame_id=FRAME_MAP, poses=_pose_list(xyz, quat)
+    )
+    return [
+        SceneMessage("/map/preview", cloud.message, t_ns),
+        SceneMessage("/trajectory/preview", poses, t_ns),
+    ]
 
 
 def _colour(class_id: int) -> Any:

@@ -45,6 +45,7 @@ __all__ = [
     "KeyframesConfig",
     "PingPairs",
     "PosedPairs",
+    "continue_selection",
     "interpolate_poses",
     "pair_pings",
     "posed_pairs",
@@ -85,6 +86,35 @@ def select_keyframes(
             reasons.append("translation" if moved >= spacing_m else "rotation")
             last = i
     return np.asarray(chosen, np.int64), reasons
+
+
+def continue_selection(
+    last_t_ns: int,
+    last_pose: np.ndarray,
+    t_ns: np.ndarray,
+    poses: np.ndarray,
+    spacing_m: float,
+    rotation_rad: float,
+    min_gap_ns: int,
+) -> tuple[np.ndarray, list[str]]:
+    """The keyframes among candidates after the last keyframe.
+
+    The rule (`select_keyframes`) is greedy: whether a candidate
+    is kept depends only on the last keyframe kept before it. Run on the last keyframe
+    followed by the candidates after it, it keeps what it keeps on the whole recording.
+
+    Args:
+        last_t_ns, last_pose: the last keyframe's time [ns] and (6,) pose.
+        t_ns: (k,) ascending candidate times after `last_t_ns` [ns].
+        poses: (k, 6) their poses.
+
+    Returns:
+        (indices into the candidates, reason of each).
+    """
+    t = np.concatenate([[np.int64(last_t_ns)], np.asarray(t_ns, np.int64)])
+    p = np.concatenate([np.asarray(last_pose, np.float64).reshape(1, 6), poses], axis=0)
+    sel, reasons = select_keyframes(t, p, spacing_m, rotation_rad, min_gap_ns)
+    return sel[1:] - 1, reasons[1:]
 
 
 def _table(
