@@ -16,7 +16,7 @@ TEST_APT := openssh-server openssh-client
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
 
-.PHONY: setup setup-test system-deps test test-wheel test-without-shared qa demo docs bench lint study clean-store
+.PHONY: setup setup-test system-deps test test-realtime test-wheel test-without-shared qa demo docs bench lint study clean-store
 
 setup: $(RUNTIME)
 setup-test: $(TESTING)
@@ -51,7 +51,12 @@ system-deps:
 	fi
 
 test: $(TESTING)
-	$(BIN)/python -m pytest -m "not wheel" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -m "not wheel and not realtime" $(PYTEST_ARGS)
+
+# The tests whose length the wall clock sets, not computing (follow mapping a recording
+# written at its own pace; a push whose link goes silent until its timeout): about 70 s.
+test-realtime: $(TESTING)
+	$(BIN)/python -m pytest -m realtime $(PYTEST_ARGS)
 
 # The wheel built from the sdist, installed into a fresh virtual environment, runs the demo
 # from a directory outside the checkout.

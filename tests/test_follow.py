@@ -70,7 +70,7 @@ def _artifacts(store: Path, result_keys: dict[str, str]) -> dict[str, dict[str, 
     }
 
 
-@pytest.mark.slow
+@pytest.mark.realtime
 @pytest.mark.parametrize("kind", ["mcap", "bag"])
 def test_follow_maps_while_written_and_ends_as_run(
     mission: Path, tmp_path: Path, kind: str

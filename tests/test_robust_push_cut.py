@@ -136,6 +136,7 @@ def test_a_connection_cut_mid_push_is_one_line_and_leaves_nothing_half_visible(
     )
 
 
+@pytest.mark.realtime
 def test_a_push_whose_link_goes_silent_ends_in_bounded_time(
     s3_env: dict[str, str],  # noqa: F811
     alice: Path,  # noqa: F811
