@@ -7,11 +7,8 @@ are those of a batch `run` of the finished file (same keys, same bytes). Ctrl-C:
 from __future__ import annotations
 
 import asyncio
-import os
 import re
 import signal
-import subprocess
-import sys
 import time
 from contextlib import suppress
 from pathlib import Path
@@ -20,10 +17,8 @@ import pytest
 from foxglove_ws_client import Received, collect
 
 from sonarmap.pipeline.api import RunRequest, run_dataset
-from tests.fixtures.signals import default_sigint
+from tests.fixtures.live_process import live_address, start_module
 
-ROOT = Path(__file__).resolve().parent.parent
-ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
 websockets = pytest.importorskip("websockets")
 
 
@@ -34,28 +29,6 @@ def mission(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("follow") / "tiny.mcap"
     ensure_simulations([Simulation(scene_path("tiny"), 2, out, duration_s=30.0)], 1)
     return out
-
-
-def _start(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen(
-        [sys.executable, "-m", *args],
-        cwd=ROOT,
-        env=ENV,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=default_sigint,
-    )
-
-
-def _address(proc: subprocess.Popen[str]) -> tuple[str, str]:
-    assert proc.stderr is not None
-    head = ""
-    while not (m := re.search(r"live: (ws://127\.0\.0\.1:\d+)", head)):
-        line = proc.stderr.readline()
-        assert line, f"exited before serving: {head}"
-        head += line
-    return m.group(1), head
 
 
 def _artifacts(store: Path, result_keys: dict[str, str]) -> dict[str, dict[str, bytes]]:
@@ -84,15 +57,15 @@ def test_follow_maps_while_written_and_ends_as_run(
         growing = tmp_path / "dive"
         growing.mkdir()
         split = ("--split-s", "10")
-    follow = _start(
+    follow = start_module(
         *("sonarmap.pipeline", "follow", str(growing), "--store", str(store), "--port", "0"),
         *("-j", "1", "--every-s", "1", "--json"),
     )
     writer = None
     try:
-        url, head = _address(follow)
+        url, head = live_address(follow)
         # 30 s of mission written in 15 s: several updates fit in before its end.
-        writer = _start(
+        writer = start_module(
             "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2", *split
         )
         seen: list[Received] = []
@@ -144,12 +117,12 @@ def test_ctrl_c_stops_cleanly_with_130(mission: Path, tmp_path: Path) -> None:
     cut = tmp_path / "cut.mcap"
     data = mission.read_bytes()
     cut.write_bytes(data[: len(data) // 3])  # a recording that stopped growing, not closed
-    follow = _start(
+    follow = start_module(
         *("sonarmap.pipeline", "follow", str(cut), "--store", str(tmp_path / "s")),
         *("--port", "0", "-j", "1"),
     )
     try:
-        _, head = _address(follow)
+        _, head = live_address(follow)
         assert follow.stderr is not None
         line = ""
         while not line.startswith("follow: update 1:"):  # the first update, mapped or not

@@ -5,11 +5,7 @@ computes and receives every topic, the map as soon as voxelize finishes; then
 from __future__ import annotations
 
 import asyncio
-import os
-import re
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -25,9 +21,8 @@ from sonarmap.pipeline.graph import pipeline_stages
 from sonarmap.pipeline.live.feed import LiveFeed
 from sonarmap.pipeline.live.server import LiveServer
 from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
-from tests.fixtures.signals import default_sigint
+from tests.fixtures.live_process import live_address, start_module
 
-ROOT = Path(__file__).resolve().parent.parent
 pytest.importorskip("websockets")
 
 
@@ -105,27 +100,13 @@ def test_each_topic_arrives_during_the_run_map_on_voxelize(
 
 def _serve(args: list[str], timeout_s: float = 60.0) -> tuple[Received, str, str, int]:
     """Start `sonarmap ARGS`, connect to the address it prints, collect, then Ctrl-C."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")])}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "sonarmap.pipeline", *args],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        preexec_fn=default_sigint,
-    )
+    proc = start_module("sonarmap.pipeline", *args)
     try:
-        assert proc.stderr is not None
-        head = ""
-        while not (m := re.search(r"live: (ws://127\.0\.0\.1:\d+)", head)):
-            line = proc.stderr.readline()
-            assert line, f"exited before serving: {head}"
-            head += line
+        url, head = live_address(proc)
         wanted = {"/sonar/horizontal/fan", "/trajectory/slam", "/objects", "/ground_truth/mesh"}
         got = asyncio.run(
             collect(
-                m.group(1),
+                url,
                 lambda g: _has_error_map(g) and wanted <= set(g.messages),
                 timeout_s=timeout_s,
             )
