@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import logging
 import os
 import signal
@@ -135,9 +136,19 @@ class _UserFormatter(logging.Formatter):
         return prefix + one_line(scrub_userinfo(record.getMessage()), MAX_LINE_CHARS - len(prefix))
 
 
+def reflowed(doc: str) -> str:
+    """A help text's paragraphs each on one line (rich keeps a docstring's line breaks, so
+    at 80 columns a paragraph wrapped at 88 broke mid-sentence); blank lines kept."""
+    paragraphs = inspect.cleandoc(doc).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs)
+
+
 for _name in COMMAND_MODULES:
     if importlib.util.find_spec(f"sonarmap.pipeline.commands.{_name}") is not None:
         importlib.import_module(f"sonarmap.pipeline.commands.{_name}").register(app)
+for _command in app.registered_commands:
+    if _command.help is None and _command.callback is not None and _command.callback.__doc__:
+        _command.help = reflowed(_command.callback.__doc__)
 
 
 def main() -> None:
