@@ -153,7 +153,7 @@ def main() -> None:
                 writer = subprocess.Popen(
                     [
                         *(sys.executable, "-m", "sonarmap.pipeline.live.replay", str(source)),
-                        *(str(growing), "--speed", str(args.speed), *split),
+                        *(str(growing), "--speed", str(args.speed), "--log-writes", *split),
                     ],
                     cwd=ROOT,
                     env=env,

@@ -5,8 +5,9 @@
 in small chunks flushed as they fill, sleeping so that a message is written when its log
 time comes (divided by `--speed`). The summary, footer and magic come last, when the copy
 ends. With `--split-s`, OUT is a rosbag2 directory whose split files open one after the
-other every S s of log time, and whose `metadata.yaml` is written at the end. It prints `wrote T_NS WALL_S` on stdout for each sonar ping, so a test or benchmark
-knows when each ping reached the file; `sonarmap follow OUT` maps it meanwhile.
+other every S s of log time, and whose `metadata.yaml` is written at the end. With
+`--log-writes` it prints `wrote T_NS WALL_S` on stdout for each sonar ping, so a test or
+benchmark knows when each ping reached the file; `sonarmap follow OUT` maps it meanwhile.
 """
 
 from __future__ import annotations
@@ -173,16 +174,23 @@ def main(argv: list[str]) -> int:
     import argparse
 
     parser = argparse.ArgumentParser(prog="python -m sonarmap.pipeline.live.replay")
-    parser.add_argument("source", type=Path)
-    parser.add_argument("out", type=Path)
-    parser.add_argument("--speed", type=float, default=1.0)
-    parser.add_argument("--chunk-bytes", type=int, default=4096)
+    parser.add_argument("source", type=Path, help="a closed recording (MCAP file)")
+    parser.add_argument("out", type=Path, help="the MCAP file (or bag directory) to write")
+    parser.add_argument("--speed", type=float, default=1.0, help="times the recording's pace")
+    parser.add_argument("--chunk-bytes", type=int, default=4096, help="MCAP chunk size")
     parser.add_argument("--split-s", type=float, default=None, help="write a bag directory")
+    parser.add_argument(
+        "--log-writes",
+        action="store_true",
+        help="print 'wrote T_NS WALL_S' for each sonar ping and 'done N WALL_S' at the end",
+    )
     args = parser.parse_args(argv)
 
     def report(t_ns: int, wall: float) -> None:
-        print(f"wrote {t_ns} {wall:.3f}", flush=True)
+        if args.log_writes:
+            print(f"wrote {t_ns} {wall:.3f}", flush=True)
 
+    start = time.time()
     n = write_slowly(
         args.source,
         args.out,
@@ -191,7 +199,11 @@ def main(argv: list[str]) -> int:
         split_s=args.split_s,
         on_ping=report,
     )
-    print(f"done {n} {time.time():.3f}", flush=True)
+    if args.log_writes:
+        print(f"done {n} {time.time():.3f}", flush=True)
+    print(
+        f"replay: wrote {n} messages to {args.out} in {time.time() - start:.1f} s", file=sys.stderr
+    )
     return 0
 
 
