@@ -66,7 +66,8 @@ def test_follow_maps_while_written_and_ends_as_run(
         url, head = live_address(follow)
         # 30 s of mission written in 15 s: several updates fit in before its end.
         writer = start_module(
-            "sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2", *split
+            *("sonarmap.pipeline.live.replay", str(mission), str(growing), "--speed", "2"),
+            *("--log-writes", *split),
         )
         seen: list[Received] = []
 
