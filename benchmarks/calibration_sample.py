@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from sonarmap.stages.features.calibration import sampled_by_time
+from sonarmap.stages.kernels.time_grid import sampled_by_time
 
 
 def _even(t: np.ndarray, k: int) -> np.ndarray:

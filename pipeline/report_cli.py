@@ -176,7 +176,7 @@ def front_end_summary(doc: dict[str, Any]) -> dict[str, Any]:
         sonars[sonar] = {
             "bands": len(bands),
             "background_bands": sum(bool(b.get("background")) for b in bands),
-            "sampled_pings": len(entry.get("sampled_keyframes") or []),
+            "sampled_pings": len(entry.get("sampled_t_ns") or []),
             "denoise": entry.get("denoise", "none"),
             "background_median_levels": _span([b.get("median_level") for b in bands]),
             "intensity_floor_levels": _span([b.get("intensity_floor_levels") for b in bands]),

@@ -108,8 +108,12 @@ class Units(typing.Protocol):
 
     The stage computes each key (sha256 of everything the unit depends on: its version,
     the config fields it reads, the keyframe's own content, any global value it uses) and
-    stores plain numeric arrays under it; `get` gives them back, or None.
+    stores plain numeric arrays under it; `get` gives them back, or None. A stage reading
+    the dataset keys its whole-recording units by `dataset`, the dataset's content
+    fingerprint (the one its artifacts are keyed by).
     """
+
+    dataset: str
 
     def get(self, key: str) -> Mapping[str, Any] | None: ...
     def put(self, key: str, arrays: Mapping[str, Any]) -> None: ...

@@ -37,7 +37,7 @@ def test_calibration_is_deterministic_and_recorded() -> None:
     for sonar in ("horizontal", "vertical"):
         entry = doc["sonars"][sonar]
         assert len(entry["band_edges_m"]) == len(entry["bands"]) + 1 == 9
-        assert entry["sampled_keyframes"] == sorted(set(entry["sampled_keyframes"]))
+        assert entry["sampled_t_ns"] == sorted(set(entry["sampled_t_ns"]))
         for band in entry["bands"]:
             assert band["fit"] == "measured" and band["shape"] > 0
             assert (

@@ -136,3 +136,54 @@ def test_no_keyframe_when_navigation_misses_the_pings(tmp_path: Path) -> None:
     with pytest.raises(StageInputError, match="no keyframe: 0 sonar pairs") as refused:
         STAGE.run(cfg, {"dataset": open_recording(path, cfg)})
     assert refused.value.input == DATASET
+
+
+class _MemoUnits:
+    """An in-memory `Units` memo of one dataset that counts what it served."""
+
+    def __init__(self, dataset: str) -> None:
+        self.dataset, self.data, self.hits = dataset, {}, 0
+
+    def get(self, key: str) -> dict | None:
+        got = self.data.get(key)
+        self.hits += got is not None
+        return got
+
+    def put(self, key: str, arrays: dict) -> None:
+        self.data[key] = {k: np.array(v) for k, v in arrays.items()}
+
+
+def _images(frames) -> list[tuple[int, int, bytes, bytes]]:
+    return [
+        (f.keyframe_id, f.t_ns, f.horizontal.image.tobytes(), f.vertical.image.tobytes())
+        for f in frames
+    ]
+
+
+def test_recording_unit_serves_every_spacing_and_the_calibration_sample_ignores_it(
+    tmp_path: Path,
+) -> None:
+    """What the stage reads of the whole recording is one unit per dataset: a second
+    spacing takes it (the same keyframes, sensors and truth as read from the file), and
+    the ping pairs the front end calibrates on are the same at every spacing."""
+    path = tmp_path / "d.mcap"
+    write_synthetic(path, n_pings=80, rate_hz=2.0)
+    memo = _MemoUnits("0" * 64)
+    samples = []
+    for spacing in (2.0, 4.0):
+        cfg = KeyframesConfig(spacing_m=spacing, calibration_pairs=8)
+        cached = STAGE.run(cfg, {"dataset": open_recording(path, cfg), "units": memo})
+        read = STAGE.run(cfg, {"dataset": open_recording(path, cfg)})
+        assert cached["keyframes"].equals(read["keyframes"])
+        assert cached["sensors"] == read["sensors"]
+        assert _images(cached["frames"]) == _images(read["frames"])
+        samples.append(_images(cached["calibration_frames"]))
+        assert samples[-1] == _images(read["calibration_frames"])
+    assert (len(memo.data), memo.hits) == (1, 1)
+    assert samples[0] == samples[1] and len(samples[0]) == 8
+    # Each carries its horizontal ping index as its id, on a grid of absolute time.
+    assert [s[0] for s in samples[0]] == sorted({s[0] for s in samples[0]})
+    other = _MemoUnits("1" * 64)  # another dataset never takes this one's unit
+    cfg = KeyframesConfig()
+    STAGE.run(cfg, {"dataset": open_recording(path, cfg), "units": other})
+    assert other.hits == 0

@@ -97,6 +97,15 @@ def _run_stage(path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[dict[str, A
     return out, len(calls)
 
 
+def _read_pings(out: dict[str, Any]) -> set[int]:
+    """The ping times a keyframes run decodes: its keyframes' and its calibration pairs'."""
+    table = out["keyframes"]
+    kept = set(table.column("t_ns").to_pylist()) | set(table.column("t_vertical_ns").to_pylist())
+    for f in out["calibration_frames"]:
+        kept |= {f.horizontal.t_ns, f.vertical.t_ns}
+    return kept
+
+
 def test_keyframes_decompress_only_navigation_and_the_keyframes_images(
     split: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -131,8 +140,7 @@ def test_corrupt_chunk_is_reported_by_the_run_that_reads_it_and_by_topics_always
     split: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     out, _ = _run_stage(split, monkeypatch)
-    table = out["keyframes"]
-    kept = set(table.column("t_ns").to_pylist()) | set(table.column("t_vertical_ns").to_pylist())
+    kept = _read_pings(out)
     with split.open("rb") as f:
         summary = make_reader(f).get_summary()
     assert summary is not None
@@ -149,7 +157,7 @@ def test_corrupt_chunk_is_reported_by_the_run_that_reads_it_and_by_topics_always
     clean = _keyframes(run(split))
     bad_unused = _with_bad_crc(split, unused, tmp_path / "unused.mcap")
     bad_used = _with_bad_crc(split, used, tmp_path / "used.mcap")
-    # A chunk no keyframe needs is never decompressed: the run is computed from intact
+    # A chunk no keyframe or calibration pair needs is never decompressed: the run is computed from intact
     # chunks only; `topics` checks every chunk and reports it.
     assert _keyframes(run(bad_unused)) == clean
     for path, chunk in ((bad_unused, unused), (bad_used, used)):

@@ -192,24 +192,34 @@ class _DictUnits:
 
 
 def test_features_units_equal_direct_and_survive_extension() -> None:
-    from sonarmap.stages.features.calibration import sampled_by_time
+    from sonarmap.stages.features.calibration import calibration_sample
     from sonarmap.stages.features.stage import FeaturesConfig, features_and_calibration
+    from sonarmap.stages.kernels.time_grid import sampled_by_time
     from tests.fixtures.tiny_keyframes import tiny_keyframes
 
     frames = list(tiny_keyframes())
-    cfg = FeaturesConfig(calibration_pings=3)
+    cfg = FeaturesConfig()
     n = len(frames) * 9 // 10
     t = np.array([f.t_ns for f in frames], np.int64)
     # The sample of the shorter recording is the longer one's (the grid keeps its period).
     assert sampled_by_time(t[:n], 3).tolist() == sampled_by_time(t, 3).tolist()
+    sample = calibration_sample(frames[:n], n=3)
     memo = _DictUnits()
-    short, short_doc = features_and_calibration(frames[:n], cfg, memo)
+    short, short_doc = features_and_calibration(frames[:n], cfg, memo, sample=sample)
     assert (len(memo.data), memo.hits) == (n + 1, 0)  # a unit per keyframe, the calibration
-    plain, plain_doc = features_and_calibration(frames[:n], cfg)
+    plain, plain_doc = features_and_calibration(frames[:n], cfg, sample=sample)
     assert short.equals(plain) and short_doc == plain_doc
-    longer, _ = features_and_calibration(frames, cfg, memo)
+    sample = calibration_sample(frames, n=3)
+    longer, _ = features_and_calibration(frames, cfg, memo, sample=sample)
     assert memo.hits == n + 1 and len(memo.data) == len(frames) + 1
-    assert longer.equals(features_and_calibration(frames, cfg)[0])
+    assert longer.equals(features_and_calibration(frames, cfg, sample=sample)[0])
+    # Another keyframe spacing: every other keyframe, the same calibration pairs (stage
+    # `keyframes` samples pings, not keyframes): all units are served, none computed.
+    hits, stored = memo.hits, len(memo.data)
+    sparse = features_and_calibration(frames[::2], cfg, memo, sample=sample)
+    assert memo.hits - hits == len(frames[::2]) + 1 and len(memo.data) == stored
+    direct = features_and_calibration(frames[::2], cfg, sample=sample)
+    assert sparse[0].equals(direct[0]) and sparse[1] == direct[1]
 
 
 def test_sweep_line_says_what_each_stage_reused() -> None:

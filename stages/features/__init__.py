@@ -22,9 +22,16 @@ STAGE = Stage(
     # also a starve. 4: denoise auto sizes the mean to the grain's correlation.
     # 5: the calibration samples keyframes on a grid of absolute time (stable when a
     # recording is extended or trimmed); per-keyframe detection units (issue 53).
-    version=5,
+    # 6: calibrated on the ping pairs stage `keyframes` samples on that grid, whatever the
+    # keyframe selection (a spacing sweep calibrates once); calibration.json names their
+    # times (`sampled_t_ns`).
+    version=6,
     config=FeaturesConfig,
-    inputs=(Input("keyframes", "frames"), Input("keyframes", "keyframes")),
+    inputs=(
+        Input("keyframes", "frames"),
+        Input("keyframes", "keyframes"),
+        Input("keyframes", "calibration_frames"),
+    ),
     outputs=(
         Output(
             "features",

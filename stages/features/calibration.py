@@ -1,10 +1,10 @@
 """The features stage's second output, `calibration.json`: what the front end measured of
 the recording, the thresholds it set, and, after detection, whether it flooded or starved.
 
-Per sonar: the keyframes sampled (`sampled_by_time`: a grid of absolute ping time, so the
-sample of a recording's start is the same when it is extended or trimmed at its end), the
-range band edges [m],
-each band's background median, fitted law and thresholds, the stated per-cell false-alarm
+Per sonar: the times of the ping pairs sampled (stage `keyframes` picks them,
+`keyframes.calibration_pairs` on a grid of absolute ping time: the same sample whatever the
+keyframe selection, and the same when the recording is extended or trimmed at its end),
+the range band edges [m], each band's background median, fitted law and thresholds, the stated per-cell false-alarm
 rate and the expected false alarms per ping, which values were measured and which pinned
 by config; then the measured detection rate on the bands called background and the
 features per keyframe.
@@ -30,6 +30,7 @@ import numpy as np
 from sonarmap.schemas.features import SONARS
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.kernels.front_end import calibrate_sonar, rounded
+from sonarmap.stages.kernels.time_grid import sampled_by_time
 
 __all__ = [
     "FLOOD_FACTOR",
@@ -37,7 +38,6 @@ __all__ = [
     "calibrate",
     "calibrate_sample",
     "calibration_sample",
-    "sampled_by_time",
     "with_measurements",
 ]
 
@@ -47,56 +47,34 @@ MIN_EXPECTED = 30.0
 """The starve check on background bands needs this many false alarms expected there."""
 
 
-def sampled_by_time(t_ns: np.ndarray, n_sample: int) -> np.ndarray:
-    """Positions of the keyframes calibrated on: those nearest to `n_sample` ticks of a grid
-    of absolute ping time (ties to the earlier keyframe), unique, ascending.
-
-    Rule: the period P is the largest power of two nanoseconds with n_sample * P at most
-    the recording's span D (so the ticks cover its first D/2 to D); the ticks are the first
-    n_sample multiples of P from the first keyframe's time on. Extending the recording at
-    its end, or trimming it there, keeps P (unless D crosses a power of two: a 10 % change
-    does so with probability about 14 %) and the ticks, so the same keyframes are sampled
-    (unless a trim cuts into the ticks), the thresholds are the same and so is every
-    keyframe's detection unit. With at most n_sample keyframes (or a span under n_sample
-    ns), all are sampled.
-    """
-    t = np.asarray(t_ns, np.int64)
-    n = t.size
-    span = int(t[-1] - t[0]) if n else 0
-    if n <= n_sample or span < n_sample:
-        return np.arange(n, dtype=np.int64)
-    period = 1 << ((span // n_sample).bit_length() - 1)
-    first = -(-int(t[0]) // period) * period
-    ticks = first + period * np.arange(n_sample, dtype=np.int64)
-    right = np.clip(np.searchsorted(t, ticks), 1, n - 1)
-    left = right - 1
-    pick = np.where(ticks - t[left] <= t[right] - ticks, left, right)
-    return np.unique(pick)
+DEFAULT_SAMPLE = 24
+"""Keyframes sampled when no ping pairs are handed over (`keyframes.calibration_pairs`'s
+default)."""
 
 
 def calibration_sample(
-    frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
+    frames: Sequence[KeyframeImages], t_ns: np.ndarray | None = None, n: int = DEFAULT_SAMPLE
 ) -> list[KeyframeImages]:
-    """The keyframes calibrated on (`sampled_by_time`); `t_ns`: each frame's ping time
-    when known without reading the frames (keyframes.parquet)."""
+    """`n` keyframes on a grid of absolute time (`sampled_by_time`), for a caller with
+    keyframes and no calibration sample of stage `keyframes`; `t_ns`: each frame's ping
+    time when known without reading the frames (keyframes.parquet)."""
     times = np.array([f.t_ns for f in frames], np.int64) if t_ns is None else t_ns
-    return [frames[int(i)] for i in sampled_by_time(times, config.calibration_pings)]
+    return [frames[int(i)] for i in sampled_by_time(times, n)]
 
 
 def calibrate(
     frames: Sequence[KeyframeImages], config: Any, t_ns: np.ndarray | None = None
 ) -> dict[str, Any]:
-    """The calibration of a recording's keyframes (before detection); `t_ns` as in
-    `calibration_sample`.
+    """The calibration of a sample of keyframes (`calibration_sample`), before detection.
 
     Raises:
         UnmodelableImages: a sonar's sampled images cannot be modelled (see `calibrate_sonar`).
     """
-    return calibrate_sample(calibration_sample(frames, config, t_ns), config)
+    return calibrate_sample(calibration_sample(frames, t_ns), config)
 
 
 def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str, Any]:
-    """The calibration of the sampled keyframes `picked` (`calibrate`)."""
+    """The calibration of the sampled ping pairs `picked` (before detection)."""
     doc: dict[str, Any] = {
         "stated_false_alarm_rate_per_cell": config.false_alarm_rate_per_cell,
         "local_cfar": {
@@ -123,7 +101,7 @@ def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str,
         ) if pings else None  # fmt: skip
         if entry is None:
             continue
-        entry["sampled_keyframes"] = [int(f.keyframe_id) for f in picked]
+        entry["sampled_t_ns"] = [int(f.t_ns) for f in picked]
         doc["sonars"][sonar] = entry
         if entry["borrowed_bands"]:
             why = "; ".join(

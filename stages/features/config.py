@@ -60,9 +60,6 @@ class FeaturesConfig(StageConfig):
     range_bands: int = Field(
         8, ge=1, le=64, description="range bands the background is fitted in (equal bin counts)"
     )
-    calibration_pings: int = Field(
-        24, ge=1, le=1000, description="keyframes sampled (evenly, deterministic) to calibrate"
-    )
     fit_quantiles: tuple[LowerQuantile, UpperQuantile] = Field(
         (0.6, 0.95),
         description="the clutter law is fitted to this quantile range of each band: objects"

@@ -10,11 +10,12 @@ the threshold and a fastNlMeans denoising by hand, differently for simulated and
 Here the same detector runs with thresholds measured from the recording, per sonar and
 per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels.clutter`):
 
-1. calibration: from the `features.calibration_pings` keyframes nearest to the ticks of a
-   grid of absolute ping time (`calibration.sampled_by_time`: a power-of-two period, the
-   ticks covering the first half to all of the recording, so extending or trimming a
-   recording at its end keeps the sample and every keyframe's cached detections), each
-   band's background is fitted with a Weibull law over its 60-95 %
+1. calibration: from the `keyframes.calibration_pairs` ping pairs nearest to the ticks of
+   a grid of absolute ping time, which stage `keyframes` decodes beside the keyframes
+   (`sonarmap.stages.kernels.time_grid`: a power-of-two period, the ticks covering the
+   first half to all of the recording; the sample does not depend on the keyframe
+   selection, so a spacing sweep calibrates once, and extending or trimming a recording
+   at its end keeps it and every keyframe's cached detections), each band's background is fitted with a Weibull law over its 60-95 %
    quantiles (objects are the upper tail and move no fit while they fill < 5 % of a band);
    where the unfiltered background puts the floor of step 2 at full scale in most bands
    (a spiky sensor), a 3x3 mean is applied first (`features.denoise: auto`; the authors
@@ -77,17 +78,19 @@ def features_and_calibration(
     config: FeaturesConfig,
     units: Units | None = None,
     t_ns: np.ndarray | None = None,
+    sample: Sequence[KeyframeImages] | None = None,
 ) -> tuple[pa.Table, dict[str, Any]]:
-    """`features.parquet` and `calibration.json` for a sequence of keyframes (calibrated on
-    a sample of them, then detected one keyframe in memory at a time, or taken from
-    `units`, the engine's per-keyframe memo: `sonarmap.stages.features.units`); `t_ns`:
+    """`features.parquet` and `calibration.json` for a sequence of keyframes: calibrated on
+    `sample` (stage `keyframes`' calibration pairs; None: a sample of the keyframes on the
+    same time grid), then detected one keyframe in memory at a time, or taken from
+    `units`, the engine's per-keyframe memo (`sonarmap.stages.features.units`); `t_ns`:
     the frames' ping times when known without reading them.
 
     Raises:
         ValueError: keyframe ids not strictly increasing.
         UnmodelableImages: a sonar's images cannot be modelled and a threshold is measured.
     """
-    picked = calibration_sample(frames, config, t_ns)
+    picked = list(sample) if sample is not None else calibration_sample(frames, t_ns)
     doc = cached_calibration(picked, config, STAGE.name, STAGE.version, calibrate_sample, units)
     th = thresholds(doc)
     base = detection_base(STAGE.name, STAGE.version, config, th)
@@ -139,13 +142,15 @@ def _times(keyframes: pa.Table | None, n_frames: int) -> np.ndarray | None:
 
 
 def run(config: FeaturesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages], optionally
+    """Stage entry point: {"keyframes.frames": Sequence[KeyframeImages],
+    "keyframes.calibration_frames" (the ping pairs calibrated on), optionally
     "keyframes.keyframes" (ids and times) and the engine's "units"} ->
     {"features", "calibration"}; unmodelable images are refused as bad input (exit 2)."""
     frames = inputs["keyframes.frames"]
     t_ns = _times(inputs.get("keyframes.keyframes"), len(frames))
+    sample = inputs.get("keyframes.calibration_frames")
     try:
-        table, doc = features_and_calibration(frames, config, inputs.get(UNITS_INPUT), t_ns)
+        table, doc = features_and_calibration(frames, config, inputs.get(UNITS_INPUT), t_ns, sample)
     except UnmodelableImages as err:
         raise StageInputError(Input("keyframes", "frames"), str(err)) from err
     return {"features": table, "calibration": doc}

@@ -4,6 +4,7 @@ This module declares the stage (what planning imports: no numpy, no pyarrow).
 
 Modules:
     config: its config section.
+    recording_facts: steps 1-2 of the whole recording, a work unit per dataset.
     stage: the computation (`sonarmap.stages.kernels.pairing` pairs and poses the pings).
 """
 
@@ -16,7 +17,9 @@ __all__ = ["STAGE", "KeyframesConfig"]
 STAGE = Stage(
     name="keyframes",
     # 3: keyframes.mcap in LZ4 chunks (was zstd): same images, other bytes
-    version=3,
+    # 4: calibration.mcap, the ping pairs the front end calibrates on (issue 53); what
+    # it reads of the whole recording is a work unit per dataset
+    version=4,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(
@@ -27,10 +30,12 @@ STAGE = Stage(
             schema="sonarmap.schemas.keyframes:KEYFRAMES_SCHEMA",
         ),
         Output("frames", "frames", "keyframes.mcap"),
+        Output("calibration_frames", "frames", "calibration.mcap"),
         Output("sensors", "json", "sensors.json", record="sonarmap.schemas.sensors:Sensors"),
         Output("scene_mesh", "bytes", "scene.ply", optional=True),
     ),
     run=deferred("sonarmap.stages.keyframes.stage:run"),
+    units=True,
     description="pair sonar pings, pose them from navigation, select keyframes by spacing",
     key_excludes=("submap_stride",),
 )

@@ -50,6 +50,9 @@ class KeyframesConfig(StageConfig):
         *_mount_xyz_m, *_mount_rpy_deg: T_base_sensor; None takes it from the recording's
             /tf_static (/tf) tree by the sensor messages' frame_id, else a default (warned).
             Set, they override the recording.
+        calibration_pairs: ping pairs the front end calibrates on (stage `features`): those
+            nearest to a grid of absolute ping time (`sonarmap.stages.kernels.time_grid`),
+            decoded beside the keyframes whatever the selection settings above.
         submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
             k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
             only (the paper). Read by `submaps` only, so it is not in this stage's key.
@@ -88,4 +91,5 @@ class KeyframesConfig(StageConfig):
     dvl_mount_xyz_m: tuple[_MountM, _MountM, _MountM] | None = None
     dvl_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
     imu_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
+    calibration_pairs: int = Field(24, ge=1, le=1000)
     submap_stride: int = Field(0, ge=0, le=10000)

@@ -28,7 +28,7 @@ import pyarrow as pa
 from sonarmap.schemas.keyframes import GT_POSE_COLUMNS, KEYFRAMES_SCHEMA, POSE_COLUMNS
 from sonarmap.schemas.recording import Recording
 from sonarmap.schemas.sonar import KeyframeImages
-from sonarmap.stages.base import DATASET, StageInputError
+from sonarmap.stages.base import UNITS_INPUT
 from sonarmap.stages.kernels.pairing import (
     PingPairs,
     PosedPairs,
@@ -37,8 +37,10 @@ from sonarmap.stages.kernels.pairing import (
     posed_pairs,
 )
 from sonarmap.stages.kernels.sonar_geometry import sonar_geometry
+from sonarmap.stages.kernels.time_grid import sampled_by_time
 from sonarmap.stages.keyframes import STAGE
 from sonarmap.stages.keyframes.config import KeyframesConfig
+from sonarmap.stages.keyframes.recording_facts import cached_facts, no_keyframe
 
 __all__ = [
     "STAGE",
@@ -155,10 +157,34 @@ def _frames(
         )
 
 
+def _calibration_frames(
+    rec: Recording, posed: PosedPairs, n_sample: int
+) -> Iterator[KeyframeImages]:
+    """The ping pairs the front end calibrates on: the posed pairs nearest to a grid of
+    absolute time (`sampled_by_time`), whatever the keyframe selection; each carries its
+    horizontal ping index as its id."""
+    pairs, h_t, v_t = posed.pairs, posed.h_t_ns, posed.v_t_ns
+    cand = posed.posed
+    pick = cand[sampled_by_time(h_t[pairs.horizontal[cand]], n_sample)]
+    h_idx, v_idx = pairs.horizontal[pick], pairs.vertical[pick]
+    t_h, t_v = h_t[h_idx], v_t[v_idx]
+    pings = zip(
+        rec.pings("horizontal", h_idx, labels=False),
+        rec.pings("vertical", v_idx, labels=False),
+        strict=True,
+    )
+    for k, (hp, vp) in enumerate(pings):
+        yield KeyframeImages(
+            int(h_idx[k]), int(t_h[k]), hp, vp, {"pair_dt_s": float(t_v[k] - t_h[k]) * 1e-9}
+        )
+
+
 def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    """Stage entry point: {"dataset": Recording} -> keyframes, frames, sensors, scene_mesh."""
+    """Stage entry point: {"dataset": Recording, optionally the engine's "units"} ->
+    keyframes, frames, calibration_frames, sensors, scene_mesh."""
     rec: Recording = inputs["dataset"]
-    posed = posed_pairs(rec, config.pair_tolerance_s)
+    facts = cached_facts(rec, config, STAGE.name, STAGE.version, inputs.get(UNITS_INPUT))
+    posed = facts.posed
     h_t, v_t, pairs, pose, cand = posed.h_t_ns, posed.v_t_ns, posed.pairs, posed.pose, posed.posed
     t_pair = h_t[pairs.horizontal]
     sel, reasons = select_keyframes(
@@ -170,11 +196,7 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     if len(sel) == 0:
         # Bad data, not a bug: the engine reports it as exit 2 naming the recording.
-        raise StageInputError(
-            DATASET,
-            f"no keyframe: {len(pairs.horizontal)} sonar pairs ({len(h_t)} horizontal, "
-            f"{len(v_t)} vertical pings), {len(cand)} inside the navigation stream",
-        )
+        raise no_keyframe(posed)
     k = cand[sel]
     log.info(
         "%s: %d/%d horizontal pings paired (%d horizontal, %d vertical unpaired), "
@@ -189,23 +211,21 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     )
     h_idx, v_idx = pairs.horizontal[k], pairs.vertical[k]
     t_h, t_v = h_t[h_idx], v_t[v_idx]
-    truth = rec.ground_truth()
+    truth = facts.truth
     gt = None
     if truth is not None:
         gt, _ = interpolate_poses(truth, t_h)
-    mounts = rec.mountings()
     sensors: dict[str, Any] = {
-        s: {"T_base_sonar": np.asarray(mounts[s], np.float64).round(12).tolist()}
+        s: {"T_base_sonar": np.asarray(facts.mounts[s], np.float64).round(12).tolist()}
         for s in ("horizontal", "vertical")
     }
     # Where each role's topic, frame and mount came from (recording, config or default).
-    provenance = getattr(rec, "provenance", None)
-    described = rec.describe()
+    described = facts.described
     for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
         ping = next(iter(rec.pings(s, idx[:1], labels=False)))  # the first keyframe's
         sensors[s].update(sonar_geometry(ping, (described.get("sonars") or {}).get(s)))
     sensors.update(
-        provenance=provenance() if callable(provenance) else {},
+        provenance=facts.provenance,
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),
         source={
@@ -225,6 +245,7 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     return {
         "keyframes": _table(t_h, t_v, h_idx, v_idx, pose[k], gt, reasons),
         "frames": _frames(rec, t_h, t_v, h_idx, v_idx),
+        "calibration_frames": _calibration_frames(rec, posed, config.calibration_pairs),
         "sensors": sensors,
         "scene_mesh": rec.attachments().get("scene.ply"),
     }

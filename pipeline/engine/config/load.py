@@ -120,7 +120,10 @@ def check_class_names(config: BaseModel, where: str) -> None:
             raise ConfigError(f"{where}: {section_name}: {one_line(message)}") from err
 
 
-MOVED_KEYS: dict[str, str] = {"classify.overlay": "figures.overlay"}
+MOVED_KEYS: dict[str, str] = {
+    "classify.overlay": "figures.overlay",
+    "features.calibration_pings": "keyframes.calibration_pairs",
+}
 """Config keys that moved to another section: an old key is refused naming the new one."""
 
 

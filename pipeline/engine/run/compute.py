@@ -143,7 +143,8 @@ def run_job(
     inputs = _bind_inputs(job, verified, opened)
     memo = None
     if stage.units and job.units_root is not None:
-        memo = inputs[UNITS_INPUT] = UnitMemo(job.units_root, stage.name)
+        dataset = job.dataset.fingerprint if stage.reads_dataset else ""
+        memo = inputs[UNITS_INPUT] = UnitMemo(job.units_root, stage.name, dataset)
     provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}
     try:
         values = stage.run(job.sections[stage.name], inputs)

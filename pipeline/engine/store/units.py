@@ -153,8 +153,10 @@ class UnitMemo:
     many were found (`hits`) or computed (`misses`); `warnings` says which were altered.
     """
 
-    def __init__(self, root: Path, stage: str) -> None:
+    def __init__(self, root: Path, stage: str, dataset: str = "") -> None:
         self.root, self.stage = Path(root), stage
+        self.dataset = dataset
+        """The content fingerprint of the run's dataset (for a stage reading it)."""
         self.used: dict[str, dict[str, Any]] = {}
         self.hits = 0
         self.misses = 0
