@@ -15,7 +15,7 @@ from sonarmap.schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
 from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.classify.cnn import PatchCNN, model_to_bytes
-from sonarmap.stages.classify.stage import STAGE, ClassifyConfig
+from sonarmap.stages.classify.stage import STAGE, ClassifyConfig, keyframe_seed
 
 ROOT = Path(__file__).resolve().parents[1]
 NAMES = ["cylindrical_piling", "rectangular_piling", "seafloor"]
@@ -357,7 +357,8 @@ def test_single_view_rule_accepts_the_mean_of_m_passes_above_0_99(
             eps_m=0.25, min_samples=2, min_features=10, margin_m=mcfg["margin_m"],
             min_side_m=mcfg["min_side_m"], size_px=40,
         )  # fmt: skip
-        mean, _ = mc_predict_groups(model, objs.patches, [objs.count], [fr.keyframe_id], 20)
+        seed = keyframe_seed(cfg.seed, fr.t_ns)
+        mean, _ = mc_predict_groups(model, objs.patches, [objs.count], [seed], 20)
         np.testing.assert_allclose(mean.max(axis=1), p[kf == fr.keyframe_id], rtol=1e-7)
     # Pooling over views (the default) decides differently on the same sightings.
     pooled = STAGE.run(ClassifyConfig(threshold=0.99), inputs)["objects"]

@@ -29,8 +29,9 @@ STAGE = Stage(
     # 7: overlay.png moves to the `figures` stage (config `figures.overlay`)
     # 8: patches normalised as the model file says (`patch_normalisation`, issue 50)
     # 9: the CNN runs one keyframe per call (float32 rounding of batched products moves);
-    # per-keyframe work units (issue 53)
-    version=9,
+    # per-keyframe work units (issue 53). 10: dropout seeded by the keyframe's ping time
+    # (was its id) and units keyed without feature ids, so sweep points share them
+    version=10,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),

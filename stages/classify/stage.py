@@ -10,8 +10,9 @@ of the authors' simulation code, off by default, drop objects before classificat
 minimum covered area (`min_object_area_m2`) and the fan edge (`drop_fan_edge_objects`);
 see `sonarmap.stages.classify.objects`. An object takes the argmax class of the mean softmax when that
 mean probability exceeds the threshold and is "unknown" otherwise; mean and variance
-are recorded. Dropout masks are seeded per keyframe (seed, keyframe_id) and shared by
-its objects, so outputs are byte-identical run to run.
+are recorded. Dropout masks are seeded per keyframe (seed, the keyframe's ping time) and
+shared by its objects, so outputs are byte-identical run to run, and a keyframe keeps its
+masks (and its work unit) at any keyframe spacing or position in the recording.
 
 Beyond the paper (on by default, `pool_views`): the decision is taken on the class
 distribution pooled over the sightings of the same place in nearby keyframes
@@ -27,6 +28,7 @@ this stage's config only override them.
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -58,7 +60,12 @@ __all__ = ["STAGE", "ClassifyConfig", "classify_keyframes", "clustering"]
 
 log = logging.getLogger(__name__)
 
-_SEED_STRIDE = 1_000_003
+
+def keyframe_seed(seed: int, t_ns: int) -> int:
+    """The dropout seed of the keyframe whose horizontal ping is at `t_ns`: 63 bits of the
+    sha256 of (config seed, ping time), so it follows the ping, not the keyframe's id."""
+    digest = hashlib.sha256(f"{int(seed)}:{int(t_ns)}".encode()).digest()
+    return int.from_bytes(digest[:8], "little") >> 1
 
 
 def _empty_features() -> dict[str, np.ndarray]:
@@ -178,7 +185,7 @@ def classify_keyframes(
     next_id = 0
     for frame in frames:
         f = by_kf.get(frame.keyframe_id) or _empty_features()
-        seed = cfg.seed * _SEED_STRIDE + frame.keyframe_id
+        seed = keyframe_seed(cfg.seed, frame.t_ns)
         objs = keyframe_result(
             frame, f, extract, model, len(class_names), settings, cfg, seed, base, units
         )

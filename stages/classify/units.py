@@ -8,8 +8,9 @@ seed). Pooling over views, which mixes keyframes, runs after, on the assembled r
 
 Key: sha256 of the stage's name and version, its config (the model-choice fields left
 out, as in the stage key: the model enters by the sha256 of its bytes), the class table,
-the keyframe's dropout seed, and the digest of its horizontal image, axes and label image
-with its feature rows.
+the keyframe's dropout seed (from its ping time), and the digest of its horizontal image,
+axes and label image with its feature rows (positions, not ids): the same pings give the
+same unit at any keyframe spacing.
 """
 
 from __future__ import annotations
@@ -31,7 +32,9 @@ cnn = lazy("sonarmap.stages.classify.cnn")
 
 __all__ = ["KeyframeResult", "classify_base", "keyframe_result"]
 
-_FEATURE_COLUMNS = ("feature_id", "range_bin", "beam", "range_m", "angle_rad")
+_FEATURE_COLUMNS = ("range_bin", "beam", "range_m", "angle_rad")
+"""What the key takes of the keyframe's features: not their ids, which number them
+through the recording (the unit's `feature_index` counts rows of the keyframe's own)."""
 
 
 @dataclass(frozen=True)
