@@ -17,7 +17,8 @@ __all__ = ["STAGE", "FiguresConfig"]
 
 STAGE = Stage(
     name="figures",
-    version=1,
+    # 2: overlay.png draws the fan as a Cartesian raster (was 77k pcolormesh quads)
+    version=2,
     config=FiguresConfig,
     reads_sections=("classes", "slam"),
     inputs=(

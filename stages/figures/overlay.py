@@ -11,7 +11,44 @@ from sonarmap.schemas.objects import UNKNOWN_CLASS_ID
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.kernels.figure_png import png_bytes
 
-__all__ = ["busiest_keyframe", "overlay_png"]
+__all__ = ["busiest_keyframe", "fan_raster", "overlay_png"]
+
+RASTER_PX = 600
+"""Pixels of the longer side of the fan's Cartesian raster in `overlay_png`."""
+
+
+def fan_raster(
+    image: np.ndarray, ranges_m: np.ndarray, angles_rad: np.ndarray, px: int = RASTER_PX
+) -> tuple[np.ndarray, tuple[float, float, float, float]]:
+    """A polar sonar image resampled (nearest range bin and beam) onto a Cartesian grid of
+    the fan plane, x = -r sin(a) (right), y = r cos(a) (forward); NaN outside the fan.
+
+    Returns:
+        (image (rows, cols) float, extent (left, right, bottom, top) [m] for `imshow`).
+    """
+    r = np.asarray(ranges_m, np.float64)
+    a = np.asarray(angles_rad, np.float64)
+    xs, ys = -r[-1] * np.sin(a), r[:, None] * np.cos(a)[None, :]
+    left, right = min(float(xs.min()), 0.0), max(float(xs.max()), 0.0)
+    bottom, top = min(float(ys.min()), 0.0), float(r[-1])
+    cell = max(right - left, top - bottom) / px
+    cols = max(1, int(np.ceil((right - left) / cell)))
+    rows = max(1, int(np.ceil((top - bottom) / cell)))
+    gx = left + (np.arange(cols) + 0.5) * cell
+    gy = bottom + (np.arange(rows) + 0.5) * cell
+    rr = np.hypot(gx[None, :], gy[:, None])
+    aa = np.arctan2(-gx[None, :], gy[:, None])
+    # Nearest bin and beam on the (possibly uneven) axes; beams may run either way.
+    ri = np.clip(np.searchsorted(r, rr), 1, len(r) - 1)
+    ri -= (rr - r[ri - 1]) < (r[ri] - rr)
+    order = np.argsort(a)
+    sa = a[order]
+    bi = np.clip(np.searchsorted(sa, aa), 1, len(sa) - 1)
+    bi -= (aa - sa[bi - 1]) < (sa[bi] - aa)
+    half_beam = float(np.abs(np.diff(sa)).max()) / 2 if len(sa) > 1 else np.pi
+    inside = (rr >= r[0]) & (rr <= r[-1]) & (aa >= sa[0] - half_beam) & (aa <= sa[-1] + half_beam)
+    out = np.where(inside, np.asarray(image, np.float64)[ri, order[bi]], np.nan)
+    return out, (left, left + cols * cell, bottom, bottom + rows * cell)
 
 
 def busiest_keyframe(objects: pa.Table) -> tuple[int, pa.Table]:
@@ -43,16 +80,14 @@ def overlay_png(
     from matplotlib.patches import Rectangle
 
     ping = frame.horizontal
-    step_r = max(1, len(ping.ranges_m) // 300)
-    step_b = max(1, len(ping.angles_rad) // 256)
-    r = ping.ranges_m[::step_r, None].astype(np.float64)
-    a = ping.angles_rad[None, ::step_b].astype(np.float64)
+    img, extent = fan_raster(ping.image, ping.ranges_m, ping.angles_rad)
     fig = Figure(figsize=(8, 6), dpi=100)
     ax = fig.add_subplot()
-    img = ping.image[::step_r, ::step_b]
-    vmin, vmax = float(np.percentile(img, 90)), max(float(img.max()), 1.0)
-    ax.pcolormesh(-r * np.sin(a), r * np.cos(a), img, cmap="gray", vmin=vmin, vmax=vmax,
-                  shading="auto", rasterized=True)  # fmt: skip
+    shown = img[np.isfinite(img)]
+    vmin = float(np.percentile(shown, 90)) if shown.size else 0.0
+    vmax = max(float(shown.max()) if shown.size else 1.0, 1.0)
+    ax.imshow(img, cmap="gray", vmin=vmin, vmax=vmax, extent=extent, origin="lower",
+              interpolation="nearest")  # fmt: skip
     cmap = matplotlib.colormaps["tab10"]
     for row in objects.to_pylist():
         cid = table.ids.get(row["class_name"], 0)

@@ -16,7 +16,9 @@ __all__ = ["STAGE", "MapFiguresConfig"]
 
 STAGE = Stage(
     name="map_figures",
-    version=1,
+    # 2: top-down panels drawn as rasters of the highest point per cell (was a marker
+    # per point)
+    version=2,
     config=MapFiguresConfig,
     inputs=(
         Input("voxelize", "map"),
