@@ -10,7 +10,8 @@ __all__ = ["STAGE", "TrainConfig"]
 STAGE = Stage(
     name="train",
     # 5: patches above each range's background (`patch_normalisation`), noisy sensor copies
-    version=5,
+    # 6: the no-structure class (id 0) is learned only when validation holds some of it
+    version=6,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
