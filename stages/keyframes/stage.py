@@ -148,13 +148,25 @@ def _table(
 
 
 def _frames(
-    rec: Recording, t_h: np.ndarray, t_v: np.ndarray, h_idx: np.ndarray, v_idx: np.ndarray
+    rec: Recording,
+    t_h: np.ndarray,
+    t_v: np.ndarray,
+    h_idx: np.ndarray,
+    v_idx: np.ndarray,
+    ids: np.ndarray | None = None,
+    labels: bool = True,
 ) -> Iterator[KeyframeImages]:
-    pairs = zip(rec.pings("horizontal", h_idx), rec.pings("vertical", v_idx), strict=True)
+    """The pairs' images, decoded as they are read; `ids`: each pair's id (None: 0, 1, ...)."""
+    pairs = zip(
+        rec.pings("horizontal", h_idx, labels=labels),
+        rec.pings("vertical", v_idx, labels=labels),
+        strict=True,
+    )
     for k, (hp, vp) in enumerate(pairs):
         yield KeyframeImages(
-            int(k), int(t_h[k]), hp, vp, {"pair_dt_s": float(t_v[k] - t_h[k]) * 1e-9}
-        )
+            int(k if ids is None else ids[k]), int(t_h[k]), hp, vp,
+            {"pair_dt_s": float(t_v[k] - t_h[k]) * 1e-9},
+        )  # fmt: skip
 
 
 def _calibration_frames(
@@ -163,20 +175,10 @@ def _calibration_frames(
     """The ping pairs the front end calibrates on: the posed pairs nearest to a grid of
     absolute time (`sampled_by_time`), whatever the keyframe selection; each carries its
     horizontal ping index as its id."""
-    pairs, h_t, v_t = posed.pairs, posed.h_t_ns, posed.v_t_ns
-    cand = posed.posed
+    pairs, h_t, v_t, cand = posed.pairs, posed.h_t_ns, posed.v_t_ns, posed.posed
     pick = cand[sampled_by_time(h_t[pairs.horizontal[cand]], n_sample)]
     h_idx, v_idx = pairs.horizontal[pick], pairs.vertical[pick]
-    t_h, t_v = h_t[h_idx], v_t[v_idx]
-    pings = zip(
-        rec.pings("horizontal", h_idx, labels=False),
-        rec.pings("vertical", v_idx, labels=False),
-        strict=True,
-    )
-    for k, (hp, vp) in enumerate(pings):
-        yield KeyframeImages(
-            int(h_idx[k]), int(t_h[k]), hp, vp, {"pair_dt_s": float(t_v[k] - t_h[k]) * 1e-9}
-        )
+    return _frames(rec, h_t[h_idx], v_t[v_idx], h_idx, v_idx, ids=h_idx, labels=False)
 
 
 def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
