@@ -15,7 +15,8 @@ per range band (`sonarmap.stages.features.calibration`, `sonarmap.stages.kernels
    (`sonarmap.stages.kernels.time_grid`: a power-of-two period, the ticks covering the
    first half to all of the recording; the sample does not depend on the keyframe
    selection, so a spacing sweep calibrates once, and extending or trimming a recording
-   at its end keeps it and every keyframe's cached detections), each band's background is fitted with a Weibull law over its 60-95 %
+   at its end keeps it and every keyframe's cached detections), each band's background
+   is fitted with a Weibull law over its 60-95 %
    quantiles (objects are the upper tail and move no fit while they fill < 5 % of a band);
    where the unfiltered background puts the floor of step 2 at full scale in most bands
    (a spiky sensor), a 3x3 mean is applied first (`features.denoise: auto`; the authors

@@ -15,7 +15,6 @@ bytes), so a recording whose sample is unchanged skips the fits and the Monte Ca
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -26,7 +25,7 @@ from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.base import Units
 from sonarmap.stages.kernels.frame_features import FrameDetections, frame_detections
 from sonarmap.stages.kernels.front_end import BandThresholds
-from sonarmap.stages.kernels.unit_keys import array_digest, unit_key
+from sonarmap.stages.kernels.unit_keys import array_digest, json_array, json_doc, unit_key
 
 __all__ = ["cached_calibration", "cached_detections", "detection_base"]
 
@@ -104,9 +103,9 @@ def cached_calibration(
     )
     got = units.get(key)
     if got is not None:
-        return dict(json.loads(np.asarray(got["json"], np.uint8).tobytes()))
+        return json_doc(got["json"])
     doc = calibrate(picked, config)
-    text = json.dumps(doc, allow_nan=False).encode()
-    if json.loads(text) == doc:  # plain JSON values only: what it gives back is the doc
-        units.put(key, {"json": np.frombuffer(text, np.uint8)})
+    stored = json_array(doc)
+    if stored is not None:
+        units.put(key, {"json": stored})
     return doc

@@ -12,7 +12,6 @@ first read reported.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,7 +21,7 @@ from sonarmap.schemas.recording import PoseTrack, Recording
 from sonarmap.schemas.topics import SONARS
 from sonarmap.stages.base import DATASET, StageInputError, Units
 from sonarmap.stages.kernels.pairing import PingPairs, PosedPairs, posed_pairs
-from sonarmap.stages.kernels.unit_keys import unit_key
+from sonarmap.stages.kernels.unit_keys import json_array, json_doc, unit_key
 
 __all__ = ["SELECTION_FIELDS", "RecordingFacts", "cached_facts", "no_keyframe", "read_facts"]
 
@@ -77,17 +76,8 @@ def read_facts(rec: Recording, pair_tolerance_s: float) -> RecordingFacts:
     )
 
 
-def _json_array(doc: Any) -> np.ndarray | None:
-    """`doc` as UTF-8 JSON bytes, or None when JSON would not give it back unchanged."""
-    try:
-        text = json.dumps(doc, allow_nan=False, sort_keys=True).encode()
-    except (TypeError, ValueError):
-        return None
-    return np.frombuffer(text, np.uint8) if json.loads(text) == doc else None
-
-
 def _encode(facts: RecordingFacts) -> dict[str, np.ndarray] | None:
-    described, provenance = _json_array(facts.described), _json_array(facts.provenance)
+    described, provenance = json_array(facts.described), json_array(facts.provenance)
     if described is None or provenance is None:
         return None
     p = facts.posed
@@ -112,9 +102,6 @@ def _encode(facts: RecordingFacts) -> dict[str, np.ndarray] | None:
 
 
 def _decode(got: Any) -> RecordingFacts:
-    def doc(name: str) -> dict[str, Any]:
-        return dict(json.loads(np.asarray(got[name], np.uint8).tobytes()))
-
     unpaired = np.asarray(got["unpaired"]).tolist()
     pairs = PingPairs(
         np.asarray(got["pairs_horizontal"]), np.asarray(got["pairs_vertical"]), *unpaired
@@ -130,7 +117,9 @@ def _decode(got: Any) -> RecordingFacts:
             np.asarray(got["truth_rpy_rad"]),
         )  # fmt: skip
     mounts = {s: np.asarray(got[f"mount_{s}"]) for s in SONARS}
-    return RecordingFacts(posed, truth, mounts, doc("provenance"), doc("described"))
+    return RecordingFacts(
+        posed, truth, mounts, json_doc(got["provenance"]), json_doc(got["described"])
+    )
 
 
 def cached_facts(
