@@ -15,6 +15,9 @@ RUNTIME_APT := libegl1 libgl1 libx11-6 libusb-1.0-0
 TEST_APT := openssh-server openssh-client
 TORCH_VERSION := 2.13.0
 PYTEST_ARGS ?=
+# `make test` runs its files on this many processes (pytest-xdist; one file stays on one
+# process, so a module's fixtures are built once): 2 halves its time on the 2-core CI box.
+TEST_WORKERS ?= 2
 
 .PHONY: setup setup-test system-deps test test-realtime test-wheel test-without-shared qa demo docs bench lint study clean-store
 
@@ -51,7 +54,7 @@ system-deps:
 	fi
 
 test: $(TESTING)
-	$(BIN)/python -m pytest -m "not wheel and not realtime" $(PYTEST_ARGS)
+	$(BIN)/python -m pytest -m "not wheel and not realtime" -n $(TEST_WORKERS) --dist loadfile $(PYTEST_ARGS)
 
 # The tests whose length the wall clock sets, not computing (follow mapping a recording
 # written at its own pace; a push whose link goes silent until its timeout): about 70 s.

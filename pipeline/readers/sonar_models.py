@@ -159,6 +159,14 @@ def _text_table(path: Path, where: str) -> np.ndarray:
     return _checked_table([float(v) for v in values], where)
 
 
+def _shown(spec: str, limit: int = 240) -> str:
+    """The spec as a message shows it: whole when it is a plausible path, else its head and
+    its tail (a file's name is at the end, so a plain cut would hide the part that matters)."""
+    if len(spec) <= limit:
+        return spec
+    return f"{spec[: limit // 3]}…{spec[-(2 * limit) // 3 :]}"
+
+
 @functools.lru_cache(maxsize=64)
 def load_sonar(spec: str) -> SonarModel:
     """A preset by name, or a beam-table file (.csv/.txt: angles; .yaml: list or mapping).
@@ -175,7 +183,7 @@ def load_sonar(spec: str) -> SonarModel:
     path = Path(spec)
     if not path.is_file():
         raise ConfigError(
-            f"sonar {spec[:80]!r}: neither a preset ({', '.join(preset_names())}) nor a "
+            f"sonar {_shown(spec)!r}: neither a preset ({', '.join(preset_names())}) nor a "
             "beam-table file (.csv, .txt, .yaml)"
         )
     where = str(path)
