@@ -101,6 +101,18 @@ def test_demo_on_a_small_scene_then_fully_cached(
     report = Path(summary["report"])
     assert report.is_file() and report.stat().st_size > 200
     assert "## Stages" in report.read_text() and "| evaluate |" in report.read_text()
+    # The classifier's shares of sure objects count the objects table's own acceptances,
+    # and the report states them.
+    classify = Path(next(s["path"] for s in doc["stages"] if s["stage"] == "classify"))
+    acceptance = json.loads((classify / "acceptance.json").read_text())
+    objects = pq.read_table(classify / "objects.parquet")
+    accepted = np.count_nonzero(
+        objects.column("class_name").to_numpy(zero_copy_only=False) != "unknown"
+    )
+    assert acceptance["objects"] == objects.num_rows > 0
+    assert acceptance["pooled_sure_fraction"] == round(accepted / objects.num_rows, 4)
+    assert 0.0 <= acceptance["sure_fraction"] <= 1.0
+    assert "## Classifier" in report.read_text()
     pngs = {
         p.name for p in report.parent.iterdir() if p.suffix == ".png" and p.stat().st_size > 1000
     }

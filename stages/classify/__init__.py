@@ -31,7 +31,9 @@ STAGE = Stage(
     # 9: the CNN runs one keyframe per call (float32 rounding of batched products moves);
     # per-keyframe work units (issue 53). 10: dropout seeded by the keyframe's ping time
     # (was its id) and units keyed without feature ids, so sweep points share them
-    version=10,
+    # 11: acceptance.json, the share of sure objects against the model's validation split,
+    # and its warning (input train.metrics)
+    version=11,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),
@@ -39,6 +41,7 @@ STAGE = Stage(
         Input("keyframes", "sensors"),
         Input("features", "features"),
         Input("train", "model"),
+        Input("train", "metrics"),
     ),
     outputs=(
         Output(
@@ -54,6 +57,7 @@ STAGE = Stage(
             schema="sonarmap.schemas.objects:OBJECT_FEATURES_SCHEMA",
         ),
         Output("clustering", "json", "clustering.json"),
+        Output("acceptance", "json", "acceptance.json"),
     ),
     run=deferred("sonarmap.stages.classify.stage:_run"),
     key_excludes=MODEL_CHOICE_FIELDS,

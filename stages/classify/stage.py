@@ -38,11 +38,12 @@ import pyarrow as pa
 
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.model_settings import ModelSettings
-from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA
+from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from sonarmap.schemas.sensors import Sensors
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.base import UNITS_INPUT, Input, StageInputError, Units
 from sonarmap.stages.classify import STAGE
+from sonarmap.stages.classify.acceptance import acceptance_report
 from sonarmap.stages.classify.class_columns import class_columns, truth_columns
 from sonarmap.stages.classify.config import ClassifyConfig
 from sonarmap.stages.classify.objects import KeyframeObjects, extract_objects, horizontal_features
@@ -139,7 +140,7 @@ def classify_keyframes(
     table: ClassTable = DEFAULT_TABLE,
     units: Units | None = None,
     base: Mapping[str, Any] | None = None,
-) -> tuple[pa.Table, pa.Table]:
+) -> tuple[pa.Table, pa.Table, np.ndarray | None]:
     """Objects and classes of every keyframe.
 
     Args:
@@ -156,7 +157,8 @@ def classify_keyframes(
             (`sonarmap.stages.classify.units`); None: every keyframe computed.
 
     Returns:
-        (objects table, object_features table).
+        (objects table, object_features table, each object's largest single-view class
+        probability: None with labels from ground truth).
     """
     if cfg.pool_views and (keyframes is None or T_base_sonar is None):
         raise ValueError("classify.pool_views needs the keyframes' poses and the sonar mounting")
@@ -214,13 +216,16 @@ def classify_keyframes(
         )
         next_id += objs.count
     if not geo_parts or next_id == 0:
-        return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table()
+        empty = None if oracle else np.zeros(0)
+        return OBJECTS_SCHEMA.empty_table(), OBJECT_FEATURES_SCHEMA.empty_table(), empty
     geometry = pa.concat_tables([t for t in geo_parts if t.num_rows])
+    single_view_max = None
     if oracle:
         classes = truth_columns(np.concatenate(truths), class_names, table)
     else:
         mean = np.concatenate([m for m, _ in beliefs])
         var = np.concatenate([v for _, v in beliefs])
+        single_view_max = mean.max(axis=1) if len(mean) else np.zeros(0)
         if cfg.pool_views:
             assert keyframes is not None and T_base_sonar is not None
             pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
@@ -234,7 +239,7 @@ def classify_keyframes(
     )
     links = pa.concat_tables(link_parts)
     log.info("classified %d objects in %d keyframes", objects.num_rows, len(geo_parts))
-    return objects, links
+    return objects, links, single_view_max
 
 
 def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
@@ -263,8 +268,15 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
     base = classify_base(
         STAGE.name, STAGE.version, config, STAGE.key_excludes, bytes(model_bytes), table
     )
-    objects, links = classify_keyframes(
+    objects, links, single_view_max = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount, table, units, base,
     )  # fmt: skip
-    return {"objects": objects, "object_features": links, "clustering": params}
+    accepted = int(np.sum(objects.column("class_id").to_numpy() != UNKNOWN_CLASS_ID))
+    acceptance = acceptance_report(
+        single_view_max, accepted, inputs.get("train.metrics"), config.threshold
+    )
+    return {
+        "objects": objects, "object_features": links, "clustering": params,
+        "acceptance": acceptance,
+    }  # fmt: skip

@@ -11,7 +11,9 @@ STAGE = Stage(
     name="train",
     # 5: patches above each range's background (`patch_normalisation`), noisy sensor copies
     # 6: the no-structure class (id 0) is learned only when validation holds some of it
-    version=6,
+    # 7: metrics.json names the acceptance threshold of its validation (classify compares a
+    # run's share of sure objects with it)
+    version=7,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(

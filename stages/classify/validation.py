@@ -39,8 +39,9 @@ def evaluate(
     Returns:
         {"n": int, "accuracy": float, "confusion": [[int]] (rows = true, cols = argmax),
         "classes": {name: {"support", "precision", "recall", "accepted",
-        "accepted_precision", "accepted_recall"}}, "accepted_fraction": float}; a ratio
-        with an empty denominator is None. "accepted" = mean probability > threshold.
+        "accepted_precision", "accepted_recall"}}, "accepted_fraction": float,
+        "threshold": float}; a ratio with an empty denominator is None. "accepted" = mean
+        probability > threshold.
     """
     k = len(class_names)
     mean, _ = cnn.mc_predict(model, patches, cfg.mc_passes, cfg.seed)
@@ -68,6 +69,7 @@ def evaluate(
         "n": n,
         "accuracy": ratio(np.trace(cm), n),
         "accepted_fraction": ratio(acc.sum(), n),
+        "threshold": float(cfg.threshold),
         "confusion": cm.tolist(),
         "class_names": list(class_names),
         "classes": classes,

@@ -25,7 +25,8 @@ STAGE = Stage(
     # data, the report lists no figures; 11: the trust report carries slam's summary (matches
     # found degenerate, SLAM against the navigation's predicted drift, its warnings)
     # 12: the report's front-end section (inputs features.calibration, fuse.fused)
-    version=12,
+    # 13: the report's classifier section (input classify.acceptance)
+    version=13,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(
@@ -41,6 +42,7 @@ STAGE = Stage(
         Input("submaps", "stats"),
         Input("keyframes", "frames"),
         Input("classify", "objects"),
+        Input("classify", "acceptance"),
         Input("features", "calibration"),
         Input("fuse", "fused"),
     ),

@@ -110,6 +110,24 @@ def _assigned_class_table(classes: Mapping[str, Any]) -> list[str]:
     return [*lines, ""]
 
 
+def _acceptance_markdown(block: Mapping[str, Any] | None) -> list[str]:
+    """The report's "Classifier" section: the share of this recording's objects the CNN is
+    sure of, in single views and pooled, beside its validation objects' share
+    (`sonarmap.stages.classify.acceptance`)."""
+    if not block or not block.get("objects"):
+        return []
+    lines = [
+        "## Classifier",
+        "",
+        f"Objects the CNN is sure of (p > {_fmt(block.get('threshold'))}), of"
+        f" {block['objects']}: {_fmt(block.get('sure_fraction'))} in single views,"
+        f" {_fmt(block.get('pooled_sure_fraction'))} pooled over the keyframes that see them"
+        f" (its validation objects, single views: {_fmt(block.get('validation_sure_fraction'))}).",
+        "",
+    ]
+    return [*lines, *[f"- **warning:** {w}" for w in block.get("warnings") or []], ""]
+
+
 def render_markdown(
     metrics: Mapping[str, Any],
     dataset: str,
@@ -139,6 +157,7 @@ def render_markdown(
         *submaps_markdown(metrics.get("submaps")),
         *trust_markdown(metrics.get("trust")),
         *front_end_markdown(metrics.get("front_end")),
+        *_acceptance_markdown(metrics.get("classifier_acceptance")),
     ]
     errs = metrics.get("errors", {})
     if errs:

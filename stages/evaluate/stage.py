@@ -293,6 +293,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         _rows(inputs.get("classify.objects")),
         keyframes.num_rows,
     )
+    metrics["classifier_acceptance"] = inputs.get("classify.acceptance")
     outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows)
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
