@@ -544,3 +544,74 @@ def test_classify_from_work_units_equals_computed_and_reuses_every_keyframe(
         assert again[name].equals(plain[name])
     n_short = first["objects"].num_rows
     assert first["objects"].equals(plain["objects"].slice(0, n_short))
+
+
+class _MemoUnits:
+    """An in-memory per-keyframe memo (the engine's `Units`)."""
+
+    def __init__(self) -> None:
+        self.data: dict[str, dict[str, np.ndarray]] = {}
+
+    def get(self, key: str) -> dict[str, np.ndarray] | None:
+        return self.data.get(key)
+
+    def put(self, key: str, arrays: dict[str, np.ndarray]) -> None:
+        self.data[key] = {k: np.array(v) for k, v in arrays.items()}
+
+
+def _settings() -> dict:
+    from sonarmap.stages.classify.cnn import model_from_bytes
+
+    _, names, cfg = model_from_bytes(_model_bytes())
+    return {"class_names": names, "config": cfg}
+
+
+def test_a_run_whose_keyframes_are_all_cached_units_never_loads_the_cnn(
+    keyframes: list[KeyframeImages], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from sonarmap.stages.base import UNITS_INPUT
+    from sonarmap.stages.classify import stage
+
+    loaded: list[stage.LazyModel] = []
+    call = stage.LazyModel.__call__
+
+    def spy(self: stage.LazyModel) -> PatchCNN:
+        loaded.append(self)
+        return call(self)
+
+    monkeypatch.setattr(stage.LazyModel, "__call__", spy)
+    memo = _MemoUnits()
+    inputs = {
+        "keyframes.frames": keyframes,
+        "features.features": _features(keyframes),
+        "train.model": _model_bytes(),
+        "train.settings": _settings(),
+        UNITS_INPUT: memo,
+    }
+    cfg = ClassifyConfig(pool_views=False, threshold=0.0)
+    first = dict(STAGE.run(cfg, inputs))
+    assert loaded and len(memo.data) == len(keyframes)
+    loaded.clear()
+    again = dict(STAGE.run(cfg, inputs))  # every keyframe a unit: no torch work at all
+    assert loaded == []
+    assert again["objects"].equals(first["objects"])
+    # without settings.json (a model trained before it existed) the model file says
+    old = dict(STAGE.run(cfg, {**inputs, "train.settings": None}))
+    assert old["objects"].equals(first["objects"]) and len(loaded) == 1
+
+
+def test_a_settings_file_that_disagrees_with_its_model_is_refused(
+    keyframes: list[KeyframeImages],
+) -> None:
+    from sonarmap.stages.base import StageInputError
+
+    wrong = _settings()
+    wrong["class_names"] = list(reversed(wrong["class_names"]))
+    inputs = {
+        "keyframes.frames": keyframes,
+        "features.features": _features(keyframes),
+        "train.model": _model_bytes(),
+        "train.settings": wrong,
+    }
+    with pytest.raises(StageInputError, match=r"differ from its settings\.json"):
+        STAGE.run(ClassifyConfig(pool_views=False), inputs)

@@ -33,7 +33,9 @@ STAGE = Stage(
     # (was its id) and units keyed without feature ids, so sweep points share them
     # 11: acceptance.json, the share of sure objects against the model's validation split,
     # and its warning (input train.metrics)
-    version=11,
+    # 12: the CNN is loaded only when a keyframe's unit must be computed (input
+    # train.settings: the class names and settings without torch)
+    version=12,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),
@@ -42,6 +44,7 @@ STAGE = Stage(
         Input("features", "features"),
         Input("train", "model"),
         Input("train", "metrics"),
+        Input("train", "settings"),
     ),
     outputs=(
         Output(

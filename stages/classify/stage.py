@@ -28,9 +28,11 @@ this stage's config only override them.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import json
 import logging
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -131,7 +133,7 @@ def _pooled(
 def classify_keyframes(
     frames: Sequence[KeyframeImages],
     features: pa.Table,
-    model: PatchCNN,
+    model: Callable[[], PatchCNN],
     class_names: list[str],
     settings: ModelSettings,
     cfg: ClassifyConfig,
@@ -146,8 +148,9 @@ def classify_keyframes(
     Args:
         frames: keyframe images in keyframe order (read one at a time).
         features: features.parquet (only horizontal rows are used).
-        model: the classifier; class_names: its output names; settings: the model
-            file's clustering and patch settings.
+        model: gives the classifier (called only for a keyframe not in `units`);
+            class_names: its output names; settings: the model file's clustering and
+            patch settings.
         cfg: clustering, acceptance and pooling config.
         keyframes: keyframes.parquet (dead-reckoning poses) and T_base_sonar: (4, 4)
             mounting of the horizontal sonar; both needed when `cfg.pool_views`.
@@ -242,21 +245,70 @@ def classify_keyframes(
     return objects, links, single_view_max
 
 
+class LazyModel:
+    """The CNN of a model file, loaded on the first call (torch imported, its threads
+    fixed to one until `close`): a run whose every keyframe is a cached unit loads none.
+
+    The class names and settings come from the model's `settings.json` where it has one
+    (train version 8 on), else from the model file, loaded at once. A model file that
+    disagrees with its `settings.json` is refused when it is loaded.
+    """
+
+    def __init__(self, data: bytes, settings: Any) -> None:
+        self.data = data
+        self._net: PatchCNN | None = None
+        self._threads = contextlib.ExitStack()
+        ok = isinstance(settings, Mapping) and isinstance(settings.get("config"), Mapping)
+        if ok and isinstance(settings.get("class_names"), list):
+            self.names = [str(n) for n in settings["class_names"]]
+            self.config = dict(settings["config"])
+        else:
+            self.names, self.config = [], {}
+            self()  # no settings.json: the model file says
+
+    def __call__(self) -> PatchCNN:
+        if self._net is not None:
+            return self._net
+        self._threads.enter_context(cnn.fixed_threads(1))
+        try:
+            net, names, config = cnn.model_from_bytes(self.data)
+        except ValueError as err:
+            raise StageInputError(Input("train", "model"), str(err)) from err
+        if self.names and (names, _as_json(config)) != (self.names, _as_json(self.config)):
+            why = "the model file's classes or settings differ from its settings.json"
+            raise StageInputError(Input("train", "model"), why)
+        self._net, self.names, self.config = net, names, config
+        return net
+
+    def close(self) -> None:
+        self._threads.close()
+
+
+def _as_json(value: Any) -> Any:
+    return json.loads(json.dumps(value))
+
+
 def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
-    with cnn.fixed_threads(1):
-        return _classify(config, inputs)
-
-
-def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     model_bytes = inputs["train.model"]
     if not isinstance(model_bytes, bytes | bytearray):
         raise ValueError(f"train.model must be bytes, got {type(model_bytes).__name__}")
+    model = LazyModel(bytes(model_bytes), inputs.get("train.settings"))
     try:
-        model, names, mcfg = cnn.model_from_bytes(bytes(model_bytes))
+        return _classify(config, inputs, model)
+    finally:
+        model.close()
+
+
+def _classify(
+    config: ClassifyConfig, inputs: Mapping[str, Any], model: LazyModel
+) -> dict[str, Any]:
+    model_bytes = bytes(inputs["train.model"])
+    names, mcfg = model.names, model.config
+    try:
         settings = ModelSettings.from_config(mcfg)
         params = clustering(config, settings)
-    except ValueError as err:
-        raise StageInputError(Input("train", "model"), str(err)) from err
+    except (ValueError, KeyError, TypeError) as err:
+        raise StageInputError(Input("train", "settings"), f"model settings: {err}") from err
     keyframes, sensors = inputs.get("keyframes.keyframes"), inputs.get("keyframes.sensors")
     mount = None if sensors is None else Sensors.of(sensors).horizontal.T_base_sonar
     table: ClassTable = inputs.get("config.classes", DEFAULT_TABLE)
@@ -266,8 +318,9 @@ def _classify(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, An
         raise StageInputError(Input("train", "model"), str(err)) from err
     units = inputs.get(UNITS_INPUT)
     base = classify_base(
-        STAGE.name, STAGE.version, config, STAGE.key_excludes, bytes(model_bytes), table
-    )
+        STAGE.name, STAGE.version, config, STAGE.key_excludes, model_bytes, table,
+        _as_json({"class_names": names, "config": mcfg}),
+    )  # fmt: skip
     objects, links, single_view_max = classify_keyframes(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount, table, units, base,

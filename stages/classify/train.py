@@ -346,6 +346,9 @@ def _train_classifier(
     }  # fmt: skip
     return {
         "model": cnn.model_to_bytes(model, names, model_cfg),
+        # What classify needs of the model before (or without) running it, readable
+        # without torch: a run whose every keyframe is a cached unit never loads the CNN.
+        "settings": {"class_names": names, "config": model_cfg},
         "metrics": metrics,
         "confusion": confusion_png(metrics["confusion"], names),
         "curve": curve_png(curve),

@@ -13,11 +13,14 @@ STAGE = Stage(
     # 6: the no-structure class (id 0) is learned only when validation holds some of it
     # 7: metrics.json names the acceptance threshold of its validation (classify compares a
     # run's share of sure objects with it)
-    version=7,
+    # 8: settings.json, the model file's class names and settings (read without torch)
+    version=8,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(
         Output("model", "bytes", "model.pt"),
+        # optional: model folders trained before version 8 have none
+        Output("settings", "json", "settings.json", optional=True),
         Output("metrics", "json", "metrics.json"),
         Output("confusion", "bytes", "confusion.png"),
         Output("curve", "bytes", "size_curve.png"),

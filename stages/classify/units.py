@@ -69,14 +69,16 @@ class KeyframeResult:
 
 def classify_base(
     name: str, version: int, config: Any, excluded: tuple[str, ...], model_bytes: bytes,
-    table: Any,
+    table: Any, model_settings: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:  # fmt: skip
-    """What every keyframe's unit key shares."""
+    """What every keyframe's unit key shares (`model_settings`: the class names and
+    settings the run reads the model's beliefs with)."""
     return {
         "stage": name,
         "version": version,
         "config": config.model_dump(mode="json", exclude=set(excluded)),
         "model": hashlib.sha256(model_bytes).hexdigest(),
+        "model_settings": model_settings,
         "classes": table.model_dump(mode="json") if hasattr(table, "model_dump") else repr(table),
     }
 
@@ -103,7 +105,8 @@ def keyframe_result(
     """One keyframe's objects and beliefs: from `units`, or computed (and stored there).
 
     `extract(frame, f)` finds the keyframe's objects (`objects.extract_objects` with the
-    stage's settings); beliefs are zeros when labels come from the ground truth.
+    stage's settings); `model()` gives the CNN (loaded on the first call: a keyframe found
+    in `units` needs none); beliefs are zeros when labels come from the ground truth.
     """
     key = None
     if units is not None:
@@ -115,7 +118,9 @@ def keyframe_result(
     if cfg.labels == "ground_truth" or objs.count == 0:
         mean = var = np.zeros((objs.count, n_classes))
     else:
-        mean, var = cnn.mc_predict_groups(model, objs.patches, [objs.count], [seed], cfg.mc_passes)
+        mean, var = cnn.mc_predict_groups(
+            model(), objs.patches, [objs.count], [seed], cfg.mc_passes
+        )
     found = KeyframeResult(
         objs.feature_index, objs.object_index, objs.boxes, objs.centroid_xy, objs.n_features,
         objs.true_class_id, mean, var,
