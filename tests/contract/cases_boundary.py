@@ -133,7 +133,15 @@ def _features_store() -> Path:
         rec = small_recording(base / "rec.mcap", duration_s=45.0)
         store = base / "store"
         if not list((store / "features").glob("*/manifest.json")):
-            cmd = [sys.executable, "-m", "sonarmap.pipeline", "run", str(rec), "--store", str(store)]
+            cmd = [
+                sys.executable,
+                "-m",
+                "sonarmap.pipeline",
+                "run",
+                str(rec),
+                "--store",
+                str(store),
+            ]
             env = {**os.environ, "PYTHONPATH": str(ROOT)}
             subprocess.run([*cmd, "--until", "features", "-q"], env=env, check=True)
         _BASE["store"], _BASE["rec"] = store, rec
@@ -223,7 +231,12 @@ CASES = [
             _graph_env(value),
             env={**ENV, "SONARMAP_GRAPH": value},
         )
-        for value in ("no_such_module:GRAPH", "os:path", "sonarmap.pipeline.engine.run.graph:GRAPH_ENV", ":")
+        for value in (
+            "no_such_module:GRAPH",
+            "os:path",
+            "sonarmap.pipeline.engine.run.graph:GRAPH_ENV",
+            ":",
+        )
     ),
     *(
         Case(

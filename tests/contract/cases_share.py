@@ -16,7 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tests.contract.case import Case
+from tests.contract.case import Case, names
 from tests.fixtures import CACHE, cached_run, sonarmap
 
 RUN = CACHE / "share-run"
@@ -136,14 +136,23 @@ def _computed_nothing(work: Path, done: Any) -> str | None:
     return f"computed {computed}" if computed else None
 
 
-def _run_with_pinned_substitute(work: Path) -> list[str]:
-    """The user pins a substituted model: its run must not get the honest keys."""
-    shutil.copyfile(_cached_run() / "rec.mcap", work / "rec.mcap")
-    _reversed_classes(work)
-    model = _artifact(work / "remote", "train")
-    sha = json.loads((model / "manifest.json").read_text())["files"]["model.pt"]["sha256"]
-    _cli(work, "pull", str(work / "remote"), "train", "--trust-model", sha)
-    return ["run", "rec.mcap", "--json"]
+def _pinned_substitute(settings_too: bool) -> Callable[[Path], list[str]]:
+    """The user pins a substituted model (its settings.json edited to match, or not)."""
+
+    def build(work: Path) -> list[str]:
+        shutil.copyfile(_cached_run() / "rec.mcap", work / "rec.mcap")
+        _reversed_classes(work)
+        model = _artifact(work / "remote", "train")
+        if settings_too:
+            settings = json.loads((model / "settings.json").read_text())
+            settings["class_names"] = list(reversed(settings["class_names"]))
+            (model / "settings.json").write_text(json.dumps(settings))
+            _rehash(model, "settings.json")
+        sha = json.loads((model / "manifest.json").read_text())["files"]["model.pt"]["sha256"]
+        _cli(work, "pull", str(work / "remote"), "train", "--trust-model", sha)
+        return ["run", "rec.mcap", "--json"]
+
+    return build
 
 
 def _not_the_honest_keys(work: Path, done: Any) -> str | None:
@@ -384,9 +393,17 @@ CASES = [
     Case(
         "trust",
         "a pinned substitute model gets other classify/evaluate keys",
-        _run_with_pinned_substitute,
+        _pinned_substitute(settings_too=True),
         (0,),
         _not_the_honest_keys,
+        max_seconds=120,
+    ),
+    Case(
+        "trust",
+        "a pinned model.pt whose settings.json still names the honest classes",
+        _pinned_substitute(settings_too=False),
+        (2,),
+        names("model.pt", "settings.json"),
         max_seconds=120,
     ),
     Case("trust", "recipe edited, key kept", _forged_recipe),
