@@ -31,8 +31,8 @@ STAGE = Stage(
     # 9: the CNN runs one keyframe per call (float32 rounding of batched products moves);
     # per-keyframe work units (issue 53). 10: dropout seeded by the keyframe's ping time
     # (was its id) and units keyed without feature ids, so sweep points share them
-    # 11: acceptance.json, the share of sure objects against the model's validation split,
-    # and its warning (input train.metrics)
+    # 11: acceptance.json, the shares of objects accepted in single views and pooled (and
+    # the validation split's), warned when pooling accepts fewer (input train.metrics)
     # 12: the CNN is loaded only when a keyframe's unit must be computed (input
     # train.settings: the class names and settings without torch)
     version=12,

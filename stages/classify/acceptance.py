@@ -8,12 +8,11 @@ the model learned from (another sensor's grain, gain or noise) make its views of
 object disagree, and the classes it still gives are less reliable.
 
 The rule: warn when fewer objects are accepted pooled than in single views, on at least
-`MIN_OBJECTS` objects. On the benchmark's 6-goal missions (three scenes, seven sensors,
-`python -m benchmarks.bench_sensors`) every run whose piling recall was under 0.4 had fewer
-pooled than single-view acceptances (0.57-0.88 as many), every run over 0.5 more (1.01-1.33):
-docs/classifier.md. The share of objects the model was sure of on its own validation split
-is reported beside it (`validation_sure_fraction`): a recording can differ from the
-training scenes for many reasons, so that share is not warned on.
+`MIN_OBJECTS` objects: the point where pooling takes away more than it adds (its
+measurement against piling recall on the benchmark's sensors: docs/classifier.md). The
+share of objects the model was sure of on its own validation split is reported beside it
+(`validation_sure_fraction`): a recording can differ from the training scenes for many
+reasons, so that share is not warned on.
 """
 
 from __future__ import annotations

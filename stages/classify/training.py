@@ -11,8 +11,8 @@ STAGE = Stage(
     name="train",
     # 5: patches above each range's background (`patch_normalisation`), noisy sensor copies
     # 6: the no-structure class (id 0) is learned only when validation holds some of it
-    # 7: metrics.json names the acceptance threshold of its validation (classify compares a
-    # run's share of sure objects with it)
+    # 7: metrics.json names the acceptance threshold of its validation (classify reports a
+    # run's share of sure objects beside the validation's)
     # 8: settings.json, the model file's class names and settings (read without torch)
     version=8,
     config=TrainConfig,
