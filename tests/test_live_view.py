@@ -21,7 +21,7 @@ from sonarmap.pipeline.graph import pipeline_stages
 from sonarmap.pipeline.live.feed import LiveFeed
 from sonarmap.pipeline.live.server import LiveServer
 from sonarmap.stages.evaluate.foxglove_scene import TOPIC_SCHEMAS
-from tests.fixtures.live_process import live_address, start_module
+from tests.fixtures.live_process import live_address, start_module, stderr_until
 
 pytest.importorskip("websockets")
 
@@ -111,6 +111,9 @@ def _serve(args: list[str], timeout_s: float = 60.0) -> tuple[Received, str, str
                 timeout_s=timeout_s,
             )
         )
+        # Ctrl-C only once it serves on: the client can have everything while the run is
+        # still finishing, and a Ctrl-C there stops the run (exit 130), as it should.
+        head += stderr_until(proc, "live: serving")
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=30)
