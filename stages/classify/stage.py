@@ -264,7 +264,11 @@ class LazyModel:
             self.config = dict(settings["config"])
         else:
             self.names, self.config = [], {}
-            self()  # no settings.json: the model file says
+            try:
+                self()  # no settings.json: the model file says
+            except BaseException:
+                self.close()  # the thread count is restored whatever the model file held
+                raise
 
     def __call__(self) -> PatchCNN:
         if self._net is not None:
@@ -302,8 +306,7 @@ def _run(config: ClassifyConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
 def _classify(
     config: ClassifyConfig, inputs: Mapping[str, Any], model: LazyModel
 ) -> dict[str, Any]:
-    model_bytes = bytes(inputs["train.model"])
-    names, mcfg = model.names, model.config
+    model_bytes, names, mcfg = model.data, model.names, model.config
     try:
         settings = ModelSettings.from_config(mcfg)
         params = clustering(config, settings)
