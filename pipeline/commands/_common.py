@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import logging
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,6 +24,7 @@ __all__ = [
     "GraphChoice",
     "cli_graph",
     "emit_json",
+    "logged_warnings",
     "stderr_console",
 ]
 
@@ -98,3 +102,21 @@ def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
     from sonarmap.pipeline.graph import without_figures
 
     return replace(choice.graph(), stages=without_figures(choice.graph().stages))
+
+
+@contextmanager
+def logged_warnings() -> Iterator[set[str]]:
+    """The warning messages logged meanwhile (the CLI's log handler prints them), so a
+    command that also prints a reader's collected warnings prints none twice."""
+    seen: set[str] = set()
+
+    class _Seen(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            seen.add(record.getMessage())
+
+    handler = _Seen(logging.WARNING)
+    logging.getLogger().addHandler(handler)
+    try:
+        yield seen
+    finally:
+        logging.getLogger().removeHandler(handler)

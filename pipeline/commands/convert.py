@@ -11,9 +11,7 @@ composed; a sonar without one gets none, never a default), attachments copied. S
 from __future__ import annotations
 
 import heapq
-import logging
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -232,29 +230,72 @@ def _parse_sets(items: list[str] | None) -> dict[str, Any]:
             raise ConfigError(
                 f"--set {item[:80]!r}: expected key=value (e.g. keyframes.horizontal_topic=/sonar)"
             )
-        key = key.removeprefix("keyframes.")
+        key = key.strip().removeprefix("keyframes.")
+        if key not in _reader_fields():
+            import difflib
+
+            near = difflib.get_close_matches(key, sorted(_reader_fields()), n=1)
+            hint = f"; did you mean keyframes.{near[0]}?" if near else ""
+            raise ConfigError(
+                f"--set {item[:80]!r}: not a reader option; convert takes the keyframes"
+                f" section's topic, frame, mount and navigation settings only"
+                f" (`sonarmap config dump` shows them){hint}"
+            )
+        if _is_text(key):
+            out[key] = value
+            continue
         try:
             out[key] = float(value)
         except ValueError:
             out[key] = _vector(item, value)
+    _check_reader_values(out)
     return out
 
 
-@contextmanager
-def _logged() -> Iterator[set[str]]:
-    """The warning messages logged meanwhile (so none is printed twice)."""
-    seen: set[str] = set()
+def _reader_fields() -> frozenset[str]:
+    """The keyframes settings the reader takes (`ReaderOptions`): convert's options."""
+    from dataclasses import fields
 
-    class _Seen(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            seen.add(record.getMessage())
+    from sonarmap.pipeline.readers import ReaderOptions
 
-    handler = _Seen(logging.WARNING)
-    logging.getLogger().addHandler(handler)
+    return frozenset(f.name for f in fields(ReaderOptions))
+
+
+def _check_reader_values(options: dict[str, Any]) -> None:
+    """Each value checked as `run` checks it, by the keyframes section's own model."""
+    from pydantic import ValidationError
+
+    from sonarmap.pipeline.engine.errors import ConfigError
+    from sonarmap.stages.keyframes import KeyframesConfig
+
     try:
-        yield seen
-    finally:
-        logging.getLogger().removeHandler(handler)
+        KeyframesConfig.model_validate(options)
+    except ValidationError as err:
+        first = err.errors()[0]
+        where = ".".join(str(p) for p in first["loc"])
+        raise ConfigError(f"--set keyframes.{where}: {first['msg']}") from None
+
+
+def _is_text(key: str) -> bool:
+    """Whether the keyframes field `key` holds text (a topic or frame name): its value is
+    kept as given, never read as a number."""
+    from sonarmap.stages.keyframes import KeyframesConfig
+
+    field = KeyframesConfig.model_fields.get(key)
+    return field is not None and "str" in str(field.annotation)
+
+
+def _input_files(source: Path) -> list[Path]:
+    """The files `convert` reads: the source, and a bag directory's own files (at most
+    1000 looked at: an output among more is caught when it is renamed into place)."""
+    if not source.is_dir():
+        return [source]
+    files = [source]
+    for k, entry in enumerate(source.iterdir()):
+        if k >= 1000:
+            break
+        files.append(entry)
+    return files
 
 
 def register(app: typer.Typer) -> None:
@@ -279,8 +320,14 @@ def register(app: typer.Typer) -> None:
 
         if not output.parent.is_dir():
             raise SourceError(f"output directory {output.parent} does not exist")
-        with _logged() as seen:
-            report = convert_recording(source, output, _parse_sets(set_))
+        from sonarmap.pipeline.formats.atomic import check_output_path
+
+        check_output_path(output, _input_files(source))  # before any work
+        options = _parse_sets(set_)
+        from sonarmap.pipeline.commands._common import logged_warnings
+
+        with logged_warnings() as seen:
+            report = convert_recording(source, output, options)
         if json_:
             emit_json(report)
             return

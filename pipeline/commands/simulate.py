@@ -98,6 +98,11 @@ def simulate_cmd(
     scene_text = read_user_file(scene, "scene", ConfigError, CONFIG_MAX_BYTES).decode()
     if output.parent.exists() and not output.parent.is_dir():
         raise SourceError(f"output directory {output.parent} is not a directory")
+    from sonarmap.pipeline.formats.atomic import check_output_path
+
+    for path in (output, preview):  # before any work: a FIFO, a device or a folder
+        if path is not None:
+            check_output_path(path, [scene])
     config = with_settings(sim_config(goals, duration_s, sonars=sonars), settings or ())
     table = _class_table(config_path)
     try:

@@ -74,7 +74,10 @@ def topics(
     ),
 ) -> None:
     """List topics like `ros2 bag info`, with the sonar/navigation roles sonarmap detects."""
-    report = topics_report(path, {"message_definitions": tuple(str(m) for m in msg)})
+    from sonarmap.pipeline.commands._common import logged_warnings
+
+    with logged_warnings() as seen:  # the reader logs some of its warnings itself
+        report = topics_report(path, {"message_definitions": tuple(str(m) for m in msg)})
     if json_:
         emit_json(report)
         return
@@ -105,8 +108,11 @@ def topics(
     err = Console(stderr=True)
     if report["roles_error"]:
         err.print(f"[yellow]roles:[/] {report['roles_error']}")
+    from sonarmap.pipeline.commands._errors import one_line
+
     for w in report["warnings"]:
-        err.print(f"[yellow]warning:[/] {w}")
+        if w not in seen:
+            typer.echo(f"warning: {one_line(w)}", err=True)
 
 
 def register(app: typer.Typer) -> None:
