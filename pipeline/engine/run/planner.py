@@ -77,10 +77,9 @@ def plan(
             recipe["input_content"] = dict(sorted(read.items()))
         key = recipe_key(recipe)
         keys[stage.name] = key
-        exists = store.get(stage.name, key) is not None
-        if stage.name in force:
+        if stage.name in force:  # what is there is replaced, even a corrupt artifact
             hit, reason = False, "forced"
-        elif exists:
+        elif store.get(stage.name, key) is not None:
             hit, reason = True, "cached"
         else:
             hit = False

@@ -193,6 +193,8 @@ def _execute(
             # stage's record (or the final one) names it with the rest.
             record_run(store, dataset, config, planned, external, done=done)
         warnings = tuple(message for message, is_fatal in found if not is_fatal)
+        if name == "keyframes":
+            warnings += tuple(output_checks.recording_warnings(ref, cached=status != "computed"))
         units = None
         if status == "computed" and "units" in ref.manifest:
             units = (int(ref.manifest["units_reused"]), int(ref.manifest["units_computed"]))
@@ -255,8 +257,11 @@ def _discard(store: ArtifactStore, stage: str, key: str) -> None:
     """Move a forced artifact out of sight atomically, then delete it."""
     with store.lock(stage, key):
         path = store.artifact_dir(stage, key)
-        if path.exists():
+        if path.exists() or path.is_symlink():
             trash = store.tmp_path(f"forced-{stage}")
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
-            shutil.rmtree(trash, ignore_errors=True)
+            if trash.is_symlink():
+                trash.unlink()  # only the link: where it leads is not the store's
+            else:
+                shutil.rmtree(trash, ignore_errors=True)

@@ -120,6 +120,12 @@ class ArtifactStore:
 
     def _load(self, stage: str, key: str) -> ArtifactRef | None:
         path = self.artifact_dir(stage, key)
+        if path.is_symlink():
+            # The store writes directories, never links: a link may lead anywhere, and
+            # its files would pass every check made inside it.
+            raise ArtifactCorrupt(
+                f"{path}: a symbolic link, not an artifact directory (the store writes none)"
+            )
         manifest_path = path / MANIFEST
         try:
             model, manifest = read_manifest(manifest_path)
@@ -328,18 +334,51 @@ class ArtifactStore:
                 return record
         return None
 
-    def run_records(self) -> list[dict[str, Any]]:
-        """All run records, oldest first."""
+    def run_records(self, *, strict: bool = False) -> list[dict[str, Any]]:
+        """All run records, oldest first.
+
+        A record that cannot be read (empty, not JSON, not an object: a crash on a
+        filesystem without fsync, a sync tool) is skipped, or with `strict` raises
+        `StoreError` naming it: `gc` must not remove what such a record may name.
+        A record removed meanwhile is skipped either way.
+        """
         runs = self.root / _RUNS
         if not runs.is_dir():
             return []
         records = []
-        for f in runs.glob("*.json"):
-            with contextlib.suppress(OSError, ValueError):
-                record = json.loads(f.read_text())
-                if isinstance(record, dict):
-                    records.append(record)
+        for f in sorted(runs.glob("*.json")):
+            try:
+                text = f.read_bytes()
+                record = json.loads(text) if text.strip() else None
+            except FileNotFoundError:
+                continue
+            except (OSError, ValueError) as err:
+                if strict:
+                    raise StoreError(f"{f}: unreadable run record ({_reason(err)})") from err
+                continue
+            if record is None and strict:
+                raise StoreError(f"{f}: unreadable run record (empty)")
+            if isinstance(record, dict):
+                records.append(record)
+            elif strict:
+                raise StoreError(f"{f}: unreadable run record (not a JSON object)")
         return sorted(records, key=lambda r: str(r.get("updated_at", "")))
+
+    def looks_like_store(self) -> bool:
+        """Whether `root` holds anything only a store writes: a `runs` folder (every run
+        writes one), leases, key locks, commits in progress, the dataset fingerprint cache
+        (a run killed early leaves only those), work units, a pull's resume cache, or an artifact with a
+        manifest (a pulled store may have no runs). `gc` removes nothing from a folder
+        that is not one (a mistyped `--store`)."""
+        from sonarmap.pipeline.engine.store.artifact import PULL_CACHE
+        from sonarmap.pipeline.engine.store.leases import LEASES
+
+        marks = (_RUNS, LEASES, _LOCKS, _TMP, UNITS, PULL_CACHE)
+        if any((self.root / name).is_dir() for name in marks):
+            return True
+        if any((self.root / ".cache").glob("fingerprints*")):  # a run's first write
+            return True
+        return any(isinstance(item, ArtifactRef) for item in self.scan())
 
     def gc(
         self, *, dry_run: bool = False, broken: bool = False, stale_tmp_s: float = 3600.0
@@ -353,3 +392,12 @@ class ArtifactStore:
         from sonarmap.pipeline.engine.store.gc import collect
 
         return collect(self, dry_run=dry_run, broken=broken, stale_tmp_s=stale_tmp_s)
+
+
+def _reason(err: BaseException) -> str:
+    """An unreadable record's reason in a few words (an OSError's strerror, else the
+    parser's first line)."""
+    if isinstance(err, OSError) and err.strerror:
+        return err.strerror
+    text = str(err).splitlines()[0] if str(err) else type(err).__name__
+    return text[:120] or "empty"

@@ -12,6 +12,10 @@ address in its lease before it commits or reads it). Each removal happens under 
 artifact's key lock and looks again at leases and records if either folder changed
 since; an artifact whose directory is newer than the start of `gc` is never removed.
 
+Nothing is removed from a folder that is not a store (`looks_like_store`: a mistyped
+`--store`), nor while a run record cannot be read (it may name what would go): both are
+refused with one line naming the folder or the record.
+
 Removed:
 - unreferenced artifacts;
 - directories that are not artifacts: no manifest (deleted by hand, or a crash of an
@@ -55,7 +59,8 @@ class CollectedStore(Protocol):
     root: Path
 
     def lock(self, stage: str, key: str) -> BaseFileLock: ...
-    def run_records(self) -> list[dict[str, Any]]: ...
+    def run_records(self, *, strict: bool = False) -> list[dict[str, Any]]: ...
+    def looks_like_store(self) -> bool: ...
     def scan(self) -> Iterator[ArtifactRef | Problem]: ...
     def tmp_path(self, prefix: str) -> Path: ...
 
@@ -133,7 +138,7 @@ class _Roots:
         self._seen = self._stamp()
         self._read_ns = time.time_ns()
         leases = scan_leases(self.store.root, prune=prune)  # before the records: see above
-        records = self.store.run_records()
+        records = self.store.run_records(strict=True)  # unreadable: remove nothing
         self.live_runs = leases.live
         self.keep = reachable(self.refs, leases.addresses | _roots(records))
         return leases.stale_removed
@@ -172,7 +177,7 @@ def _remove_dir(
             path.rename(trash)
     except Timeout:
         return False
-    shutil.rmtree(trash, ignore_errors=True)
+    _delete(trash)  # a symbolic link is unlinked: what it leads to is not the store's
     return True
 
 
@@ -234,6 +239,11 @@ def collect(
          "tmp_removed": int, "bytes_freed": int, "live_runs": int, "stale_leases": int};
         `removed` includes the broken ones.
     """
+    if not store.looks_like_store():
+        raise StoreError(
+            f"{store.root}: not a sonarmap store (no runs folder, no artifact with a"
+            " manifest); gc removes nothing there (check --store)"
+        )
     # Writers without a lease (a pull in progress) are covered by this: what they
     # rename into place after now is never removed by this pass.
     started_ns = time.time_ns()
