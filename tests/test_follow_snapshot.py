@@ -7,6 +7,7 @@ in one line, exit 2."""
 from __future__ import annotations
 
 import io
+import os
 import struct
 from pathlib import Path
 
@@ -163,7 +164,18 @@ def test_not_an_mcap_file_is_refused(tmp_path: Path) -> None:
     assert McapSnapshot(src, tmp_path / "s.mcap").update().new_bytes == 0
 
 
-@pytest.mark.parametrize("what", ["junk", "missing", "sqlite bag"])
+def test_a_source_that_shrinks_while_followed_is_refused(tmp_path: Path) -> None:
+    data = _recording()
+    src = tmp_path / "growing.mcap"
+    src.write_bytes(data[: len(data) // 2])
+    snap = McapSnapshot(src, tmp_path / "s.mcap")
+    assert snap.update().new_bytes > 0
+    src.write_bytes(data[: len(data) // 4])
+    with pytest.raises(SourceError, match=r"growing\.mcap: shrank from \d+ to \d+ bytes"):
+        snap.update()
+
+
+@pytest.mark.parametrize("what", ["junk", "missing", "sqlite bag", "ros1 bags", "fifo"])
 def test_follow_refuses_what_it_cannot_read_in_one_line(tmp_path: Path, what: str) -> None:
     path = tmp_path / "dive.mcap"
     if what == "junk":
@@ -171,6 +183,11 @@ def test_follow_refuses_what_it_cannot_read_in_one_line(tmp_path: Path, what: st
     elif what == "sqlite bag":
         path.mkdir()
         (path / "dive_0.db3").write_bytes(b"SQLite format 3\x00")
+    elif what == "ros1 bags":  # a folder that no recorder writing MCAP storage makes
+        path.mkdir()
+        (path / "dive.bag").write_bytes(b"#ROSBAG V2.0\n")
+    elif what == "fifo":
+        os.mkfifo(path)
     args = ["follow", str(path), "--store", str(tmp_path / "s"), "--port", "0", "-q"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 2, result.output

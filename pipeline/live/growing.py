@@ -11,6 +11,7 @@ complete records are appended where the old tail was, and the tail is written ag
 
 from __future__ import annotations
 
+import itertools
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -48,15 +49,42 @@ _READ_BYTES = 8 << 20
 
 def check_followable(path: Path) -> None:
     """SourceError unless `path` is an MCAP file (`check_mcap_start`) or a bag directory
-    without sqlite3 files (what a recorder writing MCAP storage makes)."""
+    without sqlite3 files (what a recorder writing MCAP storage makes): empty, or holding
+    an MCAP file or a metadata.yaml."""
     if path.is_file():
         check_mcap_start(path)
-    elif not path.is_dir():
+    elif not path.exists():
         raise SourceError(f"{path}: no such file or directory")
+    elif not path.is_dir():
+        raise SourceError(f"{path}: not a regular file or a directory (a FIFO, a device?)")
     elif others := sorted(p.name for p in path.glob("*.db3")):
         raise SourceError(
             f"{path}: sqlite3 storage ({others[0]}): `follow` reads a bag recorded "
             "with MCAP storage (`ros2 bag record -s mcap`); `run` it once it is closed"
+        )
+    else:
+        _check_bag_directory(path)
+
+
+def _check_bag_directory(path: Path) -> None:
+    """SourceError when a directory holds files but none a recorder writing MCAP storage
+    makes (`*.mcap`, `metadata.yaml`): a folder of ROS 1 bags or of anything else would
+    otherwise be waited on forever. An empty folder passes: the recorder may have just
+    made it. Each MCAP file there must start as one (`check_mcap_start`)."""
+    names = list(itertools.islice(path.iterdir(), 10_000))
+    mcaps = [p for p in names if p.suffix == ".mcap" and p.is_file()]
+    for mcap in mcaps:
+        check_mcap_start(mcap)
+    if names and not mcaps and not (path / "metadata.yaml").exists():
+        bags = [p.name for p in names if p.suffix == ".bag"]
+        hint = (
+            f" ({bags[0]} is a ROS 1 bag: `sonarmap convert` it, then `run` the MCAP)"
+            if bags
+            else ""
+        )
+        raise SourceError(
+            f"{path}: not a rosbag2 directory being recorded: none of its {len(names)}"
+            f" entries is an .mcap file or metadata.yaml{hint}"
         )
 
 
@@ -129,7 +157,8 @@ class McapSnapshot:
         """Copy the complete records added to the source since the last call.
 
         Raises:
-            SourceError: the source is not an MCAP file, or declares an impossible record.
+            SourceError: the source is not an MCAP file, declares an impossible record, or
+                is shorter than what was copied already.
         """
         try:
             f = self.source.open("rb")
@@ -137,6 +166,12 @@ class McapSnapshot:
             raise SourceError(f"{self.source}: no such file") from err
         with f:
             size = f.seek(0, 2)
+            if size < self.copied_until:
+                raise SourceError(
+                    f"{self.source}: shrank from {self.copied_until} to {size} bytes while"
+                    " followed (truncated or written again): what was mapped may be gone;"
+                    " `run` it once it is written"
+                )
             if self.copied_until == 0:
                 if size < len(MAGIC):
                     return Growth(0, 0, None, False)
