@@ -64,10 +64,15 @@ def sweep(
     import hashlib
 
     from sonarmap.pipeline.commands._errors import check_writable, display_path, one_line
+    from sonarmap.pipeline.engine.errors import ConfigError
     from sonarmap.pipeline.experiments.sweep import expand, run_sweep
     from sonarmap.pipeline.experiments.sweep_checks import check_inputs, failure_exit_code
     from sonarmap.pipeline.experiments.sweep_output import write_sweep
 
+    if jobs < 1:
+        raise ConfigError(f"--jobs {jobs}: at least 1 run at a time")
+    if executor not in ("local", "ray"):
+        raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
     specs = expand(
         datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
     )
