@@ -105,9 +105,46 @@ def _bag_metadata(path: Path) -> dict[str, Any]:
         ) from err
 
 
+def _listed_files(path: Path, meta: dict[str, Any]) -> list[Path]:
+    """The data files a bag's metadata.yaml lists, each inside the bag directory.
+
+    Raises:
+        SourceError: `relative_file_paths` is not a list of names, or one of them is
+            absolute or leads out of the directory (`..`): a bag names its own files.
+    """
+    names = meta.get("relative_file_paths", [])
+    where = path / "metadata.yaml"
+    if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
+        raise SourceError(f"{where}: relative_file_paths is not a list of file names")
+    root = path.resolve()
+    files = []
+    for name in names:
+        file = path / name
+        if Path(name).is_absolute() or not file.resolve().is_relative_to(root):
+            raise SourceError(
+                f"{where}: relative_file_paths lists {name[:120]!r}, outside the bag directory"
+            )
+        files.append(file)
+    return files
+
+
+def _check_mcap_magic(files: list[Path]) -> None:
+    """SourceError naming the first listed file that does not start as an MCAP file."""
+    from sonarmap.pipeline.readers.mcap_scan import MAGIC
+
+    for file in files:
+        with file.open("rb") as f:
+            head = f.read(len(MAGIC))
+        if head != MAGIC:
+            raise SourceError(
+                f"{file}: not an MCAP file (no MCAP magic at byte 0), though the bag's "
+                "metadata.yaml says its storage is mcap"
+            )
+
+
 def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Source:
     meta = _bag_metadata(path)
-    files = [path / name for name in meta.get("relative_file_paths", [])]
+    files = _listed_files(path, meta)
     missing = [str(f) for f in files if not f.is_file()]
     if not files or missing:
         raise SourceError(f"{path}: bag files listed in metadata.yaml are missing: {missing}")
@@ -125,6 +162,7 @@ def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Sour
     if storage == "mcap":
         from sonarmap.pipeline.readers.mcap_source import McapSource
 
+        _check_mcap_magic(files)
         return McapSource(path, files, indexed)
     if storage == "sqlite3":
         from sonarmap.pipeline.readers.sqlite_source import SqliteSource
@@ -145,7 +183,7 @@ def dataset_fingerprint_parts(path: Path) -> list[Path]:
     path = Path(path)
     if path.is_dir():
         meta = _bag_metadata(path)
-        files = [path / "metadata.yaml"] + [path / n for n in meta.get("relative_file_paths", [])]
+        files = [path / "metadata.yaml", *_listed_files(path, meta)]
         return sorted(f.resolve() for f in files)
     if not path.is_file():
         if path.exists():

@@ -19,7 +19,9 @@ STAGE = Stage(
     # 3: keyframes.mcap in LZ4 chunks (was zstd): same images, other bytes
     # 4: calibration.mcap, the ping pairs the front end calibrates on (issue 53); what
     # it reads of the whole recording is a work unit per dataset
-    version=4,
+    # 5: the reader warns of navigation samples sharing a time at two poses (sensors.json)
+    # and refuses positions beyond any Earth-fixed frame
+    version=5,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(

@@ -112,19 +112,34 @@ def _bind_inputs(
 
 
 def _rejected_input(err: StageInputError, job: ComputeJob) -> SourceError:
-    """A stage's refusal of an input, naming the file behind it (artifact or dataset)."""
+    """A stage's refusal of an input, naming the file behind it: the recording where the
+    input is the recording or was read straight from it (an artifact of a stage that reads
+    the dataset, such as the keyframes' images: what the user can fix is the recording),
+    with the artifact file after it; else the artifact file (another recording's, a
+    pinned model's)."""
     item = err.input
-    where = str(job.dataset.path) if item.is_dataset else item.name
+    reason = (err.reason.splitlines() or [""])[0]
+    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
+    # characters whatever the stage put in it.
+    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
+    stage = job.item.stage.name
+    if item.is_dataset:
+        return SourceError(f"{job.dataset.path}: {reason} (input of stage {stage})")
+    where = item.name
+    from_recording = False
     if item.stage in job.refs and item.stage in job.outputs_of:
         output = next((o for o in job.outputs_of[item.stage] if o.name == item.output), None)
         ref = job.refs[item.stage]
         filename = output.filename if output is not None else item.output
         where = f"{ref.stage}/{ref.key}/{filename}"
-    # The stage's first line, cut to a short prefix: the whole line stays a few hundred
-    # characters whatever the stage put in it.
-    reason = (err.reason.splitlines() or [""])[0]
-    reason = reason if len(reason) <= _REASON_CHARS else reason[:_REASON_CHARS] + "..."
-    return SourceError(f"{where}: {reason} (input of stage {job.item.stage.name})")
+        recipe = ref.manifest.get("recipe")
+        read = recipe.get("dataset") if isinstance(recipe, dict) else None
+        from_recording = read is not None and read == job.dataset.fingerprint
+        if from_recording:
+            where = f"{ref.stage}/{ref.key[:12]}/{filename}"
+    if from_recording:
+        return SourceError(f"{job.dataset.path}: {reason} (input of stage {stage}: {where})")
+    return SourceError(f"{where}: {reason} (input of stage {stage})")
 
 
 def run_job(

@@ -9,6 +9,7 @@ is committed (a run that produces no map).
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -16,7 +17,15 @@ from dataclasses import dataclass
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
 
-__all__ = ["CHECKS", "EmptyMap", "OutputCheck", "check_stage", "output_rows", "stage_warnings"]
+__all__ = [
+    "CHECKS",
+    "EmptyMap",
+    "OutputCheck",
+    "check_stage",
+    "output_rows",
+    "recording_warnings",
+    "stage_warnings",
+]
 
 Rows = Mapping[str, int]
 """Row counts by "stage.output" of the artifacts this run has so far."""
@@ -44,8 +53,9 @@ CHECKS: tuple[OutputCheck, ...] = (
     OutputCheck(
         "keyframes",
         lambda r: 0 <= _n(r, "keyframes.keyframes") < 2,
-        "keyframes: {keyframes.keyframes} keyframes (a map needs at least 2): the pings may "
-        "have no beams, empty images or invalid ranges, or all share one timestamp",
+        "keyframes: {keyframes.keyframes} keyframes (a map needs at least 2): the vehicle may "
+        "not have moved keyframes.spacing_m or turned keyframes.rotation_deg, or the pings "
+        "may have no beams, empty images or invalid ranges, or all share one timestamp",
     ),
     OutputCheck(
         "features",
@@ -115,4 +125,53 @@ def check_stage(
     for check in CHECKS if checks is None else checks:
         if check.stage == stage and check.applies(rows):
             found.append((_fill(check.message, rows), check.fatal))
+    return found
+
+
+UNPAIRED_WARN_SHARE = 0.5
+"""`recording_warnings` warns when more than this share of the horizontal pings find no
+vertical ping within `keyframes.pair_tolerance_s`: keyframes are chosen among pairs only,
+so most of the horizontal sonar's pings are then lost to the map (a vertical sonar that
+pings less often, or clocks that are offset)."""
+_SENSORS_MAX_BYTES = 4 << 20
+
+
+def recording_warnings(ref: ArtifactRef | None, cached: bool) -> list[str]:
+    """What the keyframes artifact's `sensors.json` says the recording lost: most
+    horizontal pings without a vertical partner; and, when the artifact was not computed
+    by this process (`cached`), the reader's warnings (substitutions and drops) that the
+    reader logged only when it read the recording, so that a cached run warns as the
+    first run did."""
+    if ref is None:
+        return []
+    path = ref.path / "sensors.json"
+    try:
+        if path.stat().st_size > _SENSORS_MAX_BYTES:
+            return []
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return []  # verified with the artifact when a stage reads it
+    if not isinstance(doc, Mapping):
+        return []
+    found: list[str] = []
+    pairing = doc.get("pairing")
+    if isinstance(pairing, Mapping):
+        h = pairing.get("horizontal_pings")
+        lost = pairing.get("unpaired_horizontal")
+        if (
+            isinstance(h, int)
+            and isinstance(lost, int)
+            and h > 0
+            and lost > UNPAIRED_WARN_SHARE * h
+        ):
+            found.append(
+                f"keyframes: {lost} of {h} horizontal pings have no vertical ping within "
+                f"keyframes.pair_tolerance_s ({pairing.get('vertical_pings', '?')} vertical "
+                f"pings): keyframes are chosen among the {pairing.get('pairs', '?')} pairs "
+                "only (a vertical sonar that pings less often, or offset clocks)"
+            )
+    source = doc.get("source")
+    lines = source.get("warnings") if isinstance(source, Mapping) and cached else None
+    if isinstance(lines, list):
+        found.extend(str(line) for line in lines if isinstance(line, str))
     return found
