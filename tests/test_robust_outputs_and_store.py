@@ -133,3 +133,9 @@ def test_an_artifact_directory_linked_out_of_the_store_is_refused_and_replaced(
     assert "source" in did(result)
     assert ref.path.is_dir() and not ref.path.is_symlink()
     assert (outside / "manifest.json").is_file()  # the link's target is not the store's
+
+
+def test_ls_of_a_missing_store_says_so(tmp_path: Path) -> None:
+    res = CliRunner().invoke(app, ["ls", "--store", str(tmp_path / "typo")])
+    assert res.exit_code == 0, res.output
+    assert "typo: no store there yet" in res.stderr

@@ -16,6 +16,8 @@ def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     """List the artifacts in the store."""
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
 
+    if not store.is_dir():  # a mistyped --store would otherwise look like an empty one
+        typer.echo(f"warning: {store}: no store there yet (no run has written to it)", err=True)
     items = list(ArtifactStore(store).scan())
     rows: list[dict[str, Any]] = [
         {
