@@ -43,6 +43,12 @@ class _ErrorMappingGroup(TyperGroup):
                 _internal(err)
             _fail(line, 2, err)
         except Exception as err:  # the last resort: one line, credentials scrubbed
+            if _usage_error(err):
+                # A bad option value or an unknown option of a command: one line, as every
+                # other error (click's framed box took 5-12 lines, 12 at 80 columns).
+                command = ctx.invoked_subcommand or ""
+                hint = f" (sonarmap {command} --help)".replace("  ", " ")
+                _fail(err.format_message() + hint, 2, err)  # type: ignore[attr-defined]
             if _cli_flow(err):
                 raise
             _internal(err)
@@ -53,6 +59,15 @@ def _cli_flow(err: BaseException) -> bool:
     typer may carry its own copy of click (`typer._click`), so it is told by module."""
     return any(
         c.__module__.endswith(("click.exceptions", "typer.exceptions")) for c in type(err).__mro__
+    )
+
+
+def _usage_error(err: BaseException) -> bool:
+    """Whether `err` is click's usage error (a bad value, a missing argument, an unknown
+    option), from whichever copy of click raised it."""
+    return any(
+        c.__name__ == "UsageError" and c.__module__.endswith("click.exceptions")
+        for c in type(err).__mro__
     )
 
 

@@ -114,3 +114,20 @@ def test_version_and_fast_help_subprocess() -> None:
         check=True,
     )
     assert probe.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["follow", "x.mcap", "--poll-s", "nan"], "--poll-s"),
+        (["run", "x.mcap", "--no-such-option"], "No such option: --no-such-option"),
+        (["sweep", "x.mcap", "-j", "abc"], "--jobs"),
+        (["run"], "Missing argument"),
+    ],
+)
+def test_a_bad_option_of_a_command_is_one_error_line(args: list[str], words: str) -> None:
+    res = CliRunner().invoke(app, args, env={"COLUMNS": "40"})
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], lines
+    assert lines[0].endswith(f"(sonarmap {args[0]} --help)")
