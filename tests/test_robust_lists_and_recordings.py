@@ -159,3 +159,15 @@ def test_topics_prints_each_reader_warning_once_on_one_line(
     printed = [ln for ln in res.stderr.splitlines() if "truncated or corrupt MCAP" in ln]
     logged = [r for r in caplog.records if "truncated or corrupt MCAP" in r.getMessage()]
     assert len(printed) + len(logged) == 1, (printed, logged)
+
+
+def test_a_sparse_navigation_is_warned(tmp_path: Path) -> None:
+    sparse = open_recording(_write(tmp_path / "s.mcap", _pings(4) + _nav([0.0, 20.0, 40.0, 60.0])))
+    sparse.navigation()
+    [line] = [w for w in sparse.source.warnings if "interpolated linearly" in w]
+    assert f"{NAV}: navigation samples 20 s apart (median; over 5 s)" in line
+    dense = open_recording(
+        _write(tmp_path / "d.mcap", _pings(4) + _nav([k * 0.5 for k in range(20)]))
+    )
+    dense.navigation()
+    assert not [w for w in dense.source.warnings if "interpolated linearly" in w]

@@ -17,6 +17,7 @@ from sonarmap.pipeline.readers.geometry_checks import (
     MAX_COORDINATE_M,
     MAX_JUMP_M,
     MAX_SPEED_MPS,
+    SPARSE_NAVIGATION_S,
     navigation_glitches,
     navigation_jump,
     valid_pose_rows,
@@ -221,6 +222,15 @@ class SourceRecording(NavigationSensors):
         gap = gap_warning(where, out.t_ns, "a pose")
         if gap:
             self._warn(gap)
+        if (
+            len(out) > 2
+            and (step := float(np.median(np.diff(out.t_ns))) * 1e-9) > SPARSE_NAVIGATION_S
+        ):
+            self._warn(
+                f"{where}: navigation samples {step:.3g} s apart (median; over "
+                f"{SPARSE_NAVIGATION_S:g} s): poses between them are interpolated linearly, "
+                "so the vehicle's turns there are lost"
+            )
         glitch = navigation_glitches(out.t_ns, out.xyz_m)
         if glitch.any():
             self._warn(
