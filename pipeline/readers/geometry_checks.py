@@ -13,13 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
-    "MAX_COORDINATE_M",
     "MAX_JUMP_M",
     "MAX_RANGE_M",
     "MAX_SPEED_MPS",
     "MIN_BEAMS",
     "MIN_RANGE_BINS",
-    "SPARSE_NAVIGATION_S",
     "beam_direction_problem",
     "navigation_glitches",
     "navigation_jump",
@@ -33,16 +31,6 @@ MIN_RANGE_BINS = 2
 
 MAX_RANGE_M = 10_000.0
 """Imaging sonars reach a few hundred metres; a range beyond this is a corrupt field."""
-
-MAX_COORDINATE_M = 1e8
-"""A navigation position further than this from its frame's origin is in no Earth-fixed
-frame (UTM northings reach 1e7 m, ECEF coordinates 6.4e6 m): a corrupt or wrongly scaled
-field. Beyond it, float64 keeps too few digits of the metres SLAM works in."""
-
-SPARSE_NAVIGATION_S = 5.0
-"""A navigation whose samples are this far apart (median) is warned about: a vehicle at
-1 m/s moves 5 m between them and its turns there are lost to the interpolation (DVLs
-report at 1-10 Hz, inertial navigation at 10-200 Hz)."""
 
 MAX_SPEED_MPS = 50.0
 MAX_JUMP_M = 50.0

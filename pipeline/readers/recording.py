@@ -14,16 +14,15 @@ from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.clock import gap_warning
 from sonarmap.pipeline.readers.dead_reckoning import NavigationSensors
 from sonarmap.pipeline.readers.geometry_checks import (
-    MAX_COORDINATE_M,
     MAX_JUMP_M,
     MAX_SPEED_MPS,
-    SPARSE_NAVIGATION_S,
     navigation_glitches,
     navigation_jump,
     valid_pose_rows,
 )
 from sonarmap.pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
 from sonarmap.pipeline.readers.navigation import nav_pose, pose_track_rows
+from sonarmap.pipeline.readers.navigation_checks import far_position, shared_times, sparse_samples
 from sonarmap.pipeline.readers.roles import Roles, detect_roles
 from sonarmap.pipeline.readers.sonar_decode import (
     IMAGE_SONAR_TYPES,
@@ -171,22 +170,6 @@ class SourceRecording(NavigationSensors):
         self.source.warnings.append(message)
         log.warning(message)
 
-    def _warn_shared_times(self, where: str, track: np.ndarray) -> None:
-        """Warn when samples share a timestamp with another at a different pose: only the
-        first of each time is used (`pose_track_rows`), so the recording's navigation is
-        ambiguous there. Repeats of the same sample (a recorder writing it twice) pass."""
-        order = np.lexsort((np.arange(len(track)), track[:, 0]))
-        t, values = track[order, 0], track[order, 1:]
-        same_time = t[1:] == t[:-1]
-        differs = same_time & np.any(values[1:] != values[:-1], axis=1)
-        if differs.any():
-            first = int(t[1:][differs][0])
-            self._warn(
-                f"{where}: {int(differs.sum())} of {len(track)} navigation samples share "
-                f"their timestamp with another at a different pose (first at t_ns={first}); "
-                "the first of each is used"
-            )
-
     def _checked_rows(self, topic: str, rows: list[tuple[float, ...]]) -> PoseTrack:
         """A navigation topic's rows as a PoseTrack, bad samples dropped with a warning:
         non-finite positions or orientations, zero quaternions and isolated glitches.
@@ -208,29 +191,16 @@ class SourceRecording(NavigationSensors):
                 f"{where}: dropped {n - int(ok.sum())} of {n} navigation samples "
                 "(non-finite position or orientation, or a zero quaternion)"
             )
-        far = ok & (np.abs(track[:, 1:4]).max(axis=1, initial=0.0) > MAX_COORDINATE_M)
-        if far.any():
-            k = int(np.flatnonzero(far)[0])
-            raise SourceError(
-                f"{where}: navigation position {np.abs(track[k, 1:4]).max():.3g} m from its "
-                f"frame's origin at t_ns={int(track[k, 0])}, beyond any Earth-fixed frame "
-                f"({MAX_COORDINATE_M:g} m): a corrupt or wrongly scaled field"
-            )
+        if (far := far_position(where, track[ok])) is not None:
+            raise SourceError(far)
         kept = [r for r, good in zip(rows, ok.tolist(), strict=True) if good]
-        self._warn_shared_times(where, track[ok])
         out = pose_track_rows(kept)
         gap = gap_warning(where, out.t_ns, "a pose")
         if gap:
             self._warn(gap)
-        if (
-            len(out) > 2
-            and (step := float(np.median(np.diff(out.t_ns))) * 1e-9) > SPARSE_NAVIGATION_S
-        ):
-            self._warn(
-                f"{where}: navigation samples {step:.3g} s apart (median; over "
-                f"{SPARSE_NAVIGATION_S:g} s): poses between them are interpolated linearly, "
-                "so the vehicle's turns there are lost"
-            )
+        for line in (shared_times(where, track[ok]), sparse_samples(where, out.t_ns)):
+            if line is not None:
+                self._warn(line)
         glitch = navigation_glitches(out.t_ns, out.xyz_m)
         if glitch.any():
             self._warn(

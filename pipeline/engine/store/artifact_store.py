@@ -364,22 +364,6 @@ class ArtifactStore:
                 raise StoreError(f"{f}: unreadable run record (not a JSON object)")
         return sorted(records, key=lambda r: str(r.get("updated_at", "")))
 
-    def looks_like_store(self) -> bool:
-        """Whether `root` holds anything only a store writes: a `runs` folder (every run
-        writes one), leases, key locks, commits in progress, the dataset fingerprint cache
-        (a run killed early leaves only those), work units, a pull's resume cache, or an artifact with a
-        manifest (a pulled store may have no runs). `gc` removes nothing from a folder
-        that is not one (a mistyped `--store`)."""
-        from sonarmap.pipeline.engine.store.artifact import PULL_CACHE
-        from sonarmap.pipeline.engine.store.leases import LEASES
-
-        marks = (_RUNS, LEASES, _LOCKS, _TMP, UNITS, PULL_CACHE)
-        if any((self.root / name).is_dir() for name in marks):
-            return True
-        if any((self.root / ".cache").glob("fingerprints*")):  # a run's first write
-            return True
-        return any(isinstance(item, ArtifactRef) for item in self.scan())
-
     def gc(
         self, *, dry_run: bool = False, broken: bool = False, stale_tmp_s: float = 3600.0
     ) -> dict[str, Any]:

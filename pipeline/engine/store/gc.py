@@ -12,7 +12,7 @@ address in its lease before it commits or reads it). Each removal happens under 
 artifact's key lock and looks again at leases and records if either folder changed
 since; an artifact whose directory is newer than the start of `gc` is never removed.
 
-Nothing is removed from a folder that is not a store (`looks_like_store`: a mistyped
+Nothing is removed from a folder that is not a store (`_looks_like_store`: a mistyped
 `--store`), nor while a run record cannot be read (it may name what would go): both are
 refused with one line naming the folder or the record.
 
@@ -49,7 +49,7 @@ from sonarmap.pipeline.engine.store.artifact import PULL_CACHE, ArtifactRef, Pro
 from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
 from sonarmap.pipeline.engine.store.leases import LEASES, pid_alive, scan_leases
 from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
-from sonarmap.pipeline.engine.store.units import iter_unit_files
+from sonarmap.pipeline.engine.store.units import UNITS, iter_unit_files
 
 
 class CollectedStore(Protocol):
@@ -60,7 +60,6 @@ class CollectedStore(Protocol):
 
     def lock(self, stage: str, key: str) -> BaseFileLock: ...
     def run_records(self, *, strict: bool = False) -> list[dict[str, Any]]: ...
-    def looks_like_store(self) -> bool: ...
     def scan(self) -> Iterator[ArtifactRef | Problem]: ...
     def tmp_path(self, prefix: str) -> Path: ...
 
@@ -207,6 +206,20 @@ def _leftovers(store: CollectedStore, stale_tmp_s: float) -> list[Path]:
     return found
 
 
+def _looks_like_store(store: CollectedStore) -> bool:
+    """Whether the store's root holds anything only a store writes: run records, leases,
+    key locks, commits in progress, the dataset fingerprint cache (a run killed early
+    leaves only those), work units, a pull's resume cache, or an artifact with a manifest
+    (a pulled store may have no runs). Nothing is removed from a folder that is not one
+    (a mistyped `--store`)."""
+    marks = ("runs", LEASES, ".locks", ".tmp", UNITS, PULL_CACHE)
+    if any((store.root / name).is_dir() for name in marks):
+        return True
+    if any((store.root / ".cache").glob("fingerprints*")):  # a run's first write
+        return True
+    return any(isinstance(item, ArtifactRef) for item in store.scan())
+
+
 def _delete(path: Path) -> None:
     if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path, ignore_errors=True)
@@ -239,7 +252,7 @@ def collect(
          "tmp_removed": int, "bytes_freed": int, "live_runs": int, "stale_leases": int};
         `removed` includes the broken ones.
     """
-    if not store.looks_like_store():
+    if not _looks_like_store(store):
         raise StoreError(
             f"{store.root}: not a sonarmap store (no runs folder, no artifact with a"
             " manifest); gc removes nothing there (check --store)"
