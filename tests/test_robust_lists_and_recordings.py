@@ -171,3 +171,13 @@ def test_a_sparse_navigation_is_warned(tmp_path: Path) -> None:
     )
     dense.navigation()
     assert not [w for w in dense.source.warnings if "interpolated linearly" in w]
+
+
+def test_a_bag_of_symbolic_links_to_its_files_is_read(tmp_path: Path) -> None:
+    files = tmp_path / "elsewhere"
+    files.mkdir()
+    real = _write(files / "dive_0.mcap", _pings(3) + _nav([0.0, 1.0]))
+    bag = _bag(tmp_path, "dive_0.mcap")
+    (bag / "dive_0.mcap").unlink()
+    (bag / "dive_0.mcap").symlink_to(real)
+    assert open_source(bag) is not None

@@ -9,6 +9,7 @@ times in integer nanoseconds; they are what pairs the sonars and the navigation.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -116,15 +117,15 @@ def _listed_files(path: Path, meta: dict[str, Any]) -> list[Path]:
     where = path / "metadata.yaml"
     if not isinstance(names, list) or not all(isinstance(n, str) and n for n in names):
         raise SourceError(f"{where}: relative_file_paths is not a list of file names")
-    root = path.resolve()
     files = []
     for name in names:
-        file = path / name
-        if Path(name).is_absolute() or not file.resolve().is_relative_to(root):
+        # By the name, not where it leads: a bag of symbolic links to the files (a user's
+        # own layout) is read as it is; a name that climbs out or starts at / is not.
+        if Path(name).is_absolute() or os.path.normpath(name).split(os.sep)[0] == "..":
             raise SourceError(
                 f"{where}: relative_file_paths lists {name[:120]!r}, outside the bag directory"
             )
-        files.append(file)
+        files.append(path / name)
     return files
 
 
