@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
@@ -31,7 +30,7 @@ from sonarmap.pipeline.engine.run.planner import plan
 from sonarmap.pipeline.engine.run.run_records import record_run
 from sonarmap.pipeline.engine.run.workers import Slots
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
-from sonarmap.pipeline.engine.store.disk import disk_error
+from sonarmap.pipeline.engine.store.disk import delete_entry, disk_error
 from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.pipeline.engine.text import display_path
 from sonarmap.stages.base import Input, Stage
@@ -261,7 +260,4 @@ def _discard(store: ArtifactStore, stage: str, key: str) -> None:
             trash = store.tmp_path(f"forced-{stage}")
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
-            if trash.is_symlink():
-                trash.unlink()  # only the link: where it leads is not the store's
-            else:
-                shutil.rmtree(trash, ignore_errors=True)
+            delete_entry(trash)

@@ -7,6 +7,7 @@ and the system's own words for the errno.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import shutil
@@ -15,7 +16,7 @@ from pathlib import Path
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.text import display_path
 
-__all__ = ["disk_error", "free_bytes"]
+__all__ = ["delete_entry", "disk_error", "free_bytes"]
 
 
 def disk_error(err: OSError, where: object = None) -> StoreError:
@@ -49,3 +50,13 @@ def free_bytes(path: Path) -> int:
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
     return shutil.disk_usage(probe).free
+
+
+def delete_entry(path: Path) -> None:
+    """Delete a directory tree, or a file or symbolic link (a link is unlinked: what it
+    leads to is not the store's); gone already is fine."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    else:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()

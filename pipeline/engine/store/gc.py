@@ -12,9 +12,9 @@ address in its lease before it commits or reads it). Each removal happens under 
 artifact's key lock and looks again at leases and records if either folder changed
 since; an artifact whose directory is newer than the start of `gc` is never removed.
 
-Nothing is removed from a folder that is not a store (`_looks_like_store`: a mistyped
-`--store`), nor while a run record cannot be read (it may name what would go): both are
-refused with one line naming the folder or the record.
+Nothing is removed from a folder that is not a store (none of `_store_marks` and no
+artifact: a mistyped `--store`), nor while a run record cannot be read (it may name what
+would go): both are refused with one line naming the folder or the record.
 
 Removed:
 - unreferenced artifacts;
@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import contextlib
 import re
-import shutil
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -46,6 +45,7 @@ from filelock import BaseFileLock, Timeout
 
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.store.artifact import PULL_CACHE, ArtifactRef, Problem
+from sonarmap.pipeline.engine.store.disk import delete_entry
 from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
 from sonarmap.pipeline.engine.store.leases import LEASES, pid_alive, scan_leases
 from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
@@ -176,7 +176,7 @@ def _remove_dir(
             path.rename(trash)
     except Timeout:
         return False
-    _delete(trash)  # a symbolic link is unlinked: what it leads to is not the store's
+    delete_entry(trash)  # a symbolic link is unlinked, not what it leads to
     return True
 
 
@@ -206,26 +206,15 @@ def _leftovers(store: CollectedStore, stale_tmp_s: float) -> list[Path]:
     return found
 
 
-def _looks_like_store(store: CollectedStore) -> bool:
-    """Whether the store's root holds anything only a store writes: run records, leases,
-    key locks, commits in progress, the dataset fingerprint cache (a run killed early
-    leaves only those), work units, a pull's resume cache, or an artifact with a manifest
-    (a pulled store may have no runs). Nothing is removed from a folder that is not one
-    (a mistyped `--store`)."""
+def _store_marks(store: CollectedStore) -> bool:
+    """Whether the store's root holds a folder or file only a store writes: run records,
+    leases, key locks, commits in progress, the dataset fingerprint cache (a run killed
+    early leaves only those), work units, a pull's resume cache. Without any, only an
+    artifact with a manifest (a pulled store may have no runs) makes it a store."""
     marks = ("runs", LEASES, ".locks", ".tmp", UNITS, PULL_CACHE)
     if any((store.root / name).is_dir() for name in marks):
         return True
-    if any((store.root / ".cache").glob("fingerprints*")):  # a run's first write
-        return True
-    return any(isinstance(item, ArtifactRef) for item in store.scan())
-
-
-def _delete(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        with contextlib.suppress(FileNotFoundError):
-            path.unlink()
+    return any((store.root / ".cache").glob("fingerprints*"))  # a run's first write
 
 
 def _dir_bytes(path: Path) -> int:
@@ -252,11 +241,7 @@ def collect(
          "tmp_removed": int, "bytes_freed": int, "live_runs": int, "stale_leases": int};
         `removed` includes the broken ones.
     """
-    if not _looks_like_store(store):
-        raise StoreError(
-            f"{store.root}: not a sonarmap store (no runs folder, no artifact with a"
-            " manifest); gc removes nothing there (check --store)"
-        )
+    marked = _store_marks(store)
     # Writers without a lease (a pull in progress) are covered by this: what they
     # rename into place after now is never removed by this pass.
     started_ns = time.time_ns()
@@ -266,6 +251,7 @@ def collect(
         if not isinstance(item, ArtifactRef):
             bad.append(item)
             continue
+        marked = True  # an artifact with a manifest
         if broken:
             try:
                 verify_artifact_dir(item.path, item.manifest)
@@ -274,6 +260,11 @@ def collect(
                 bad.append(Problem(item.stage, item.key, item.path, reason))
                 continue
         refs[(item.stage, item.key)] = item
+    if not marked:  # before any removal
+        raise StoreError(
+            f"{store.root}: not a sonarmap store (no runs folder, no artifact with a"
+            " manifest); gc removes nothing there (check --store)"
+        )
     roots = _Roots(store, refs)
     stale_leases = roots.refresh(prune=not dry_run)
     keep = set(roots.keep)
@@ -296,7 +287,7 @@ def collect(
     leftovers = _leftovers(store, stale_tmp_s)
     if not dry_run:
         for path in leftovers:
-            _delete(path)
+            delete_entry(path)
     return {
         "removed": removed,
         "broken": broken_lines,
