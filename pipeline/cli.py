@@ -18,7 +18,7 @@ from typer.core import TyperGroup
 
 from sonarmap.pipeline import __version__
 from sonarmap.pipeline.commands import COMMAND_MODULES
-from sonarmap.pipeline.commands._common import GraphChoice
+from sonarmap.pipeline.commands._common import GraphChoice, emit_error_json
 from sonarmap.pipeline.commands._errors import MAX_LINE_CHARS, one_line, os_error_line
 from sonarmap.pipeline.engine.errors import PipelineError
 from sonarmap.pipeline.engine.text import scrub_userinfo
@@ -30,28 +30,41 @@ class _ErrorMappingGroup(TyperGroup):
     """Turns known `PipelineError`s into one line on stderr and their exit code (2 or 1),
     and an `OSError` naming a file into `error: PATH: reason` and exit 2."""
 
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        """The top level's own options (`sonarmap --bogus`): one line, as a command's."""
+        try:
+            return super().parse_args(ctx, args)
+        except Exception as err:
+            if _usage_error(err) and type(err).__name__ != "NoArgsIsHelpError":
+                _fail(err.format_message() + " (sonarmap --help)", 2, err)  # type: ignore[attr-defined]
+            raise
+
     def invoke(self, ctx: click.Context) -> object:  # type: ignore[override]
         try:
             return super().invoke(ctx)  # type: ignore[arg-type]
         except PipelineError as err:
-            _fail(str(err), err.exit_code, err)
+            _fail(str(err), err.exit_code, err, ctx)
+        except BrokenPipeError:
+            # The reader of stdout left (`sonarmap topics f.mcap | head`): click's own
+            # handler ends quietly with exit 1, not an `internal error` line.
+            raise
         except OSError as err:
             # A path the user named (recording, --out, --store) that cannot be read or
             # written is bad input; an OSError naming no file is a bug (below).
             line = os_error_line(err)
             if line is None:
-                _internal(err)
-            _fail(line, 2, err)
+                _internal(err, ctx)
+            _fail(line, 2, err, ctx)
         except Exception as err:  # the last resort: one line, credentials scrubbed
             if _usage_error(err):
                 # A bad option value or an unknown option of a command: one line, as every
                 # other error (click's framed box took 5-12 lines, 12 at 80 columns).
                 command = ctx.invoked_subcommand or ""
                 hint = f" (sonarmap {command} --help)".replace("  ", " ")
-                _fail(err.format_message() + hint, 2, err)  # type: ignore[attr-defined]
+                _fail(err.format_message() + hint, 2, err, ctx)  # type: ignore[attr-defined]
             if _cli_flow(err):
                 raise
-            _internal(err)
+            _internal(err, ctx)
 
 
 def _cli_flow(err: BaseException) -> bool:
@@ -71,19 +84,24 @@ def _usage_error(err: BaseException) -> bool:
     )
 
 
-def _internal(err: BaseException) -> NoReturn:
+def _internal(err: BaseException, ctx: click.Context | None = None) -> NoReturn:
     """A bug or a library's unexpected error: one line (no traceback, which would echo
     the URLs and secrets in its frames' text) and exit 1; `-v` logs the traceback,
     scrubbed the same way."""
     logging.getLogger("sonarmap").info("internal error", exc_info=err)
-    _fail(f"internal error: {type(err).__name__}: {err}", 1, err)
+    _fail(f"internal error: {type(err).__name__}: {err}", 1, err, ctx)
 
 
-def _fail(message: str, code: int, cause: BaseException) -> NoReturn:
+def _fail(
+    message: str, code: int, cause: BaseException, ctx: click.Context | None = None
+) -> NoReturn:
     """Print `error: MESSAGE` as one safe line on stderr and exit with `code` (the whole
-    line within the README's 400 characters, any URL's user-info removed)."""
+    line within the README's 400 characters, any URL's user-info removed); a command run
+    with `--json` also prints the line as its JSON document."""
     prefix = "error: "
-    typer.echo(prefix + one_line(scrub_userinfo(message), MAX_LINE_CHARS - len(prefix)), err=True)
+    line = one_line(scrub_userinfo(message), MAX_LINE_CHARS - len(prefix))
+    typer.echo(prefix + line, err=True)
+    emit_error_json(ctx, line, code)
     raise typer.Exit(code) from cause
 
 

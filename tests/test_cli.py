@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -123,6 +124,7 @@ def test_version_and_fast_help_subprocess() -> None:
         (["run", "x.mcap", "--no-such-option"], "No such option: --no-such-option"),
         (["sweep", "x.mcap", "-j", "abc"], "--jobs"),
         (["run"], "Missing argument"),
+        (["--no-such-option", "ls"], "No such option: --no-such-option"),
     ],
 )
 def test_a_bad_option_of_a_command_is_one_error_line(args: list[str], words: str) -> None:
@@ -130,4 +132,37 @@ def test_a_bad_option_of_a_command_is_one_error_line(args: list[str], words: str
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], lines
-    assert lines[0].endswith(f"(sonarmap {args[0]} --help)")
+    command = "" if args[0].startswith("-") else f" {args[0]}"
+    assert lines[0].endswith(f"(sonarmap{command} --help)")
+
+
+def test_a_failed_json_command_still_prints_one_document(tmp_path: Path) -> None:
+    """A program reading `--json` stdout learns why there is no result: the same line as
+    stderr's `error:`, and the exit code."""
+    missing = tmp_path / "nope.mcap"
+    res = runner.invoke(app, ["run", str(missing), "--store", str(tmp_path / "s"), "--json"])
+    assert res.exit_code == 2
+    doc = json.loads(res.stdout)
+    assert doc == {"error": f"{missing}: no such file or directory", "exit_code": 2}
+    assert res.stderr.strip() == f"error: {doc['error']}"
+    plain = runner.invoke(app, ["run", str(missing), "--store", str(tmp_path / "s")])
+    assert plain.exit_code == 2 and plain.stdout == ""
+
+
+def test_a_reader_that_closes_stdout_early_is_no_internal_error(tmp_path: Path) -> None:
+    """`sonarmap ... | head`: the pipe is closed before sonarmap writes (deterministic)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        res = subprocess.run(
+            [sys.executable, "-m", "sonarmap.pipeline", "topics", "--help"],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        os.close(write_end)
+    assert res.returncode == 1
+    assert "internal error" not in res.stderr and "Traceback" not in res.stderr, res.stderr
+

@@ -44,8 +44,10 @@ def _error_lines(stderr: str) -> list[str]:
 def test_one_line_escapes_controls_separators_and_undecodable_bytes() -> None:
     text = one_line("a\nb\rc\x1b[31md\u2028e" + os.fsdecode(b"\xff"))
     assert "\n" not in text and "\r" not in text and "\x1b" not in text
-    assert text == "a\\nb\\rc\\e[31md\\u2028e\\udcff"
+    # The undecodable byte of a file name shows as the byte, as `ls -b` shows it.
+    assert text == "a\\nb\\rc\\e[31md\\u2028e\\xff"
     text.encode("utf-8")  # printable on any UTF-8 stderr
+    assert one_line("\udc7f") == "\\udc7f"  # a lone surrogate that is no such byte
 
 
 def test_long_paths_are_shortened_in_the_middle_and_lines_bounded() -> None:

@@ -45,6 +45,31 @@ def test_a_sweep_that_would_count_one_point_twice_is_refused(
     assert len(points) == 4  # distinct values and keys still cross
 
 
+def test_a_list_setting_is_swept_by_points_in_brackets() -> None:
+    """`slam.nssm_window_xy_m=1,5` would split into points [1] and [5]: refused, naming
+    the bracket form, which gives one point per list."""
+    def is_list(key: str) -> bool:
+        return key == "slam.nssm_window_xy_m"
+
+    with pytest.raises(ConfigError, match=r"is a list.*\[1,5\],\[2,6\]"):
+        expand([Path("a.mcap")], ["slam.nssm_window_xy_m=1,5"], is_list_key=is_list)
+    points = expand(
+        [Path("a.mcap")],
+        ["slam.nssm_window_xy_m=[1,5], [2, 6]", "keyframes.spacing_m=2,3"],
+        is_list_key=is_list,
+    )
+    assert sorted(p.overrides[0][1] for p in points) == ["[1,5]", "[1,5]", "[2, 6]", "[2, 6]"]
+    with pytest.raises(ConfigError, match="not closed"):
+        expand([Path("a.mcap")], ["slam.nssm_window_xy_m=[1,5],[2"], is_list_key=is_list)
+
+
+def test_sweep_of_a_list_setting_without_brackets_is_refused_by_the_cli(tmp_path: Path) -> None:
+    rec = _write(tmp_path / "rec.mcap", _pings(3) + _nav([0.0, 1.0]))
+    res = CliRunner().invoke(app, ["sweep", str(rec), "-s", "slam.nssm_window_xy_m=1,5"])
+    assert res.exit_code == 2, res.output
+    assert "is a list" in res.stderr and "runs on" not in res.stderr
+
+
 @pytest.mark.parametrize("jobs", ["0", "-3"])
 def test_sweep_refuses_fewer_than_one_job(tmp_path: Path, jobs: str) -> None:
     rec = _write(tmp_path / "rec.mcap", _pings(3) + _nav([0.0, 1.0]))

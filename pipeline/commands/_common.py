@@ -23,6 +23,7 @@ __all__ = [
     "WORKERS_OPT",
     "GraphChoice",
     "cli_graph",
+    "emit_error_json",
     "emit_json",
     "logged_warnings",
     "stderr_console",
@@ -46,7 +47,23 @@ WORKERS_OPT = typer.Option(
     help="Stages computed side by side in worker processes (default: the cores; "
     "1: one after another). The artifacts are the same either way.",
 )
-JSON_OPT = typer.Option(False, "--json", help="Print exactly one JSON document on stdout.")
+# `ctx.meta` is shared by a command's context and its group's, so the group's error handler
+# (`cli._ErrorMappingGroup`) sees whether the failed command promised a JSON document.
+_JSON_MODE = "sonarmap.json"
+
+
+def _json_requested(ctx: typer.Context, value: bool) -> bool:
+    if value:
+        ctx.meta[_JSON_MODE] = {"emitted": False}
+    return value
+
+
+JSON_OPT = typer.Option(
+    False,
+    "--json",
+    callback=_json_requested,
+    help="Print exactly one JSON document on stdout (on failure: its error and exit code).",
+)
 NO_FIGURES_OPT = typer.Option(
     False,
     "--no-figures",
@@ -60,6 +77,25 @@ def emit_json(doc: Any) -> None:
     from sonarmap.pipeline.formats.strict_json import dumps_strict
 
     sys.stdout.write(dumps_strict(doc) + "\n")
+    sys.stdout.flush()
+    import click
+
+    ctx = click.get_current_context(silent=True)
+    if ctx is not None and _JSON_MODE in ctx.meta:
+        ctx.meta[_JSON_MODE]["emitted"] = True
+
+
+def emit_error_json(ctx: Any, line: str, exit_code: int) -> None:
+    """A failed `--json` command's one document, `{"error": LINE, "exit_code": N}`, so a
+    program reading stdout is told why there is no result (the same line as on stderr).
+    Nothing when the command took no `--json`, or already printed its document."""
+    mode = ctx.meta.get(_JSON_MODE) if ctx is not None else None
+    if mode is None or mode["emitted"]:
+        return
+    mode["emitted"] = True
+    from sonarmap.pipeline.formats.strict_json import dumps_strict
+
+    sys.stdout.write(dumps_strict({"error": line, "exit_code": exit_code}) + "\n")
     sys.stdout.flush()
 
 

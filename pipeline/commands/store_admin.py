@@ -14,10 +14,13 @@ __all__ = ["gc", "ls", "register"]
 
 def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     """List the artifacts in the store."""
+    from sonarmap.pipeline.commands._errors import one_line
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
+    from sonarmap.pipeline.engine.text import display_path
 
     if not store.is_dir():  # a mistyped --store would otherwise look like an empty one
-        typer.echo(f"warning: {store}: no store there yet (no run has written to it)", err=True)
+        where = display_path(store)
+        typer.echo(f"warning: {where}: no store there yet (no run has written to it)", err=True)
     items = list(ArtifactStore(store).scan())
     rows: list[dict[str, Any]] = [
         {
@@ -33,14 +36,18 @@ def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     broken = [str(p) for p in items if not isinstance(p, ArtifactRef)]
     # One line per directory that is not an artifact; the listing goes on regardless.
     for line in broken:
-        typer.echo(f"warning: {line} (`sonarmap gc` removes it)", err=True)
+        typer.echo(f"warning: {one_line(line)} (`sonarmap gc` removes it)", err=True)
     if json_:
         emit_json({"store": str(store), "artifacts": rows, "broken": broken})
         return
     from rich.console import Console
+    from rich.markup import escape as markup_escape
     from rich.table import Table
 
-    table = Table(title=str(store))
+    from sonarmap.pipeline.engine.text import display_path
+
+    # The store's name as text, never as rich markup (a folder named "[red]x") or raw bytes.
+    table = Table(title=markup_escape(display_path(store)))
     for col in ("stage", "key", "created", "MB"):
         table.add_column(col)
     for r in rows:

@@ -73,12 +73,22 @@ def sweep(
         raise ConfigError(f"--jobs {jobs}: at least 1 run at a time")
     if executor not in ("local", "ray"):
         raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
+    from functools import partial
+
+    from sonarmap.pipeline.engine.config.load import config_model_for, is_list_key
+
+    graph = cli_graph(ctx, figures=not no_figures)
+    model = config_model_for(graph.config_stages, graph.extra_sections)
     specs = expand(
-        datasets, set_ or (), base_overrides=fixed or (), config_path=config, store=store
+        datasets,
+        set_ or (),
+        base_overrides=fixed or (),
+        config_path=config,
+        store=store,
+        is_list_key=partial(is_list_key, model),
     )
     # Every dataset and every point's config before the first run: a missing file or
     # a bad value fails now, not hours in.
-    graph = cli_graph(ctx, figures=not no_figures)
     check_inputs(specs, graph)
     ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
     out_dir = out or Path("data/sweeps") / ident[:12]

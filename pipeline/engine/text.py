@@ -39,6 +39,10 @@ def _escape_char(ch: str) -> str:
     if ch in named:
         return named[ch]
     code = ord(ch)
+    if 0xDC80 <= code <= 0xDCFF:
+        # A byte of a file name that is not UTF-8, as `os.fsdecode` carries it: shown as the
+        # byte itself (`\xff`), as `ls -b` does, not as the surrogate's code point.
+        return f"\\x{code - 0xDC00:02x}"
     if code <= 0xFF:
         return f"\\x{code:02x}"
     return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"

@@ -103,10 +103,11 @@ def expand(
     config_path: Path | None = None,
     store: Path = Path("data/store"),
     protocol: str | None = None,
+    is_list_key: Callable[[str], bool] = lambda key: False,
 ) -> list[RunSpec]:
     """Cross product: every dataset x every combination of `key=v1,v2,...` values (no
-    point twice: `sweep_axes`)."""
-    axes = sweep_axes(datasets, sweep_sets, base_overrides)
+    point twice: `sweep_axes`; a list setting's points in brackets)."""
+    axes = sweep_axes(datasets, sweep_sets, base_overrides, is_list_key)
     combos = list(itertools.product(*axes)) if axes else [()]
     return [
         RunSpec(

@@ -168,6 +168,15 @@ def _is_sequence_type(annotation: Any) -> bool:
     return False
 
 
+def is_list_key(model: type[BaseModel], key: str) -> bool:
+    """Whether the setting `section.field` holds a list (False for a key `model` does not
+    have: loading the config names it then, with the closest key)."""
+    try:
+        return _is_sequence_type(_field_annotation(model, key.strip().split("."), key))
+    except ConfigError:
+        return False
+
+
 def parse_override(model: type[BaseModel], text: str) -> tuple[list[str], Any]:
     """Parse `section.field=value` into (path, typed value); lists are written `a,b`.
 
