@@ -77,3 +77,21 @@ def test_ray_sweep_runs_on_a_real_local_ray_instance(toy_env: list[Path], tmp_pa
     assert calls.count("source") == 2 and calls.count("double") == 4
     pids = {ln.split()[1] for ln in (tmp_path / "calls.log").read_text().splitlines()}
     assert str(os.getpid()) not in pids  # computed in Ray worker processes
+
+
+def test_cli_sweep_never_starts_more_processes_than_runs(
+    toy_env: list[Path], tmp_path: Path
+) -> None:
+    """`-j 4096` forked 4096 workers up front (Linux) for a sweep of 4 runs: the machine
+    ran out of memory. The pool is as large as the runs, and over the cores it says so."""
+    from typer.testing import CliRunner
+
+    from sonarmap.pipeline.cli import app
+
+    args = ["sweep", *map(str, toy_env), "--set", "count.bins=3,5"]
+    args += ["--store", str(tmp_path / "s"), "--out", str(tmp_path / "o"), "-j", "4096"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    runs = 2 * len(toy_env)
+    assert f"{runs} runs on local with {runs} job(s)" in res.stderr
+    assert ("runs at a time on" in res.stderr) == (runs > (os.cpu_count() or 1))

@@ -62,6 +62,7 @@ def sweep(
     the tables are written.
     """
     import hashlib
+    import os
 
     from sonarmap.pipeline.commands._errors import check_writable, display_path, one_line
     from sonarmap.pipeline.engine.errors import ConfigError
@@ -93,6 +94,17 @@ def sweep(
     ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
     out_dir = out or Path("data/sweeps") / ident[:12]
     check_writable(out_dir)
+    if executor == "local":
+        # One process per parallel run, each with its own memory (a run of the demo peaks
+        # at about 0.7 GB): never more than there are runs, and said when over the cores.
+        jobs = min(jobs, len(specs))
+        cores = os.cpu_count() or 1
+        if jobs > cores:
+            typer.echo(
+                f"warning: sweep: {jobs} runs at a time on {cores} cores; each takes its own"
+                " memory, and they share the cores",
+                err=True,
+            )
     typer.echo(f"sweep: {len(specs)} runs on {executor} with {jobs} job(s)", err=True)
 
     def describe(o: RunOutcome) -> str:

@@ -174,8 +174,9 @@ def _local(
             done(outcomes[-1])
         return outcomes
     results: dict[int, RunOutcome] = {}
+    # Linux forks every worker up front: never more than there are runs.
     with ProcessPoolExecutor(
-        max_workers=jobs, initializer=die_with_parent, initargs=(os.getpid(),)
+        max_workers=min(jobs, len(specs)), initializer=die_with_parent, initargs=(os.getpid(),)
     ) as pool:
         futures = {pool.submit(run_one, s, graph): i for i, s in enumerate(specs)}
         for fut in as_completed(futures):
