@@ -201,6 +201,12 @@ def test_one_command_each_way_on_a_simulated_recording(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     labels = load_annotations(tmp_path / "tiny.annotations.yaml")
     assert len(labels.keyframes) == 1 and labels.keyframes[0].objects[0].class_name == "seawall"
+    # Exporting again into the folder would lose the labels the tool wrote back into it.
+    labelled = coco.read_bytes()
+    again = cli.invoke(app, ["label", "export", str(recording), "-o", str(out), "--every", "2",
+                             "--store", str(store)])  # fmt: skip
+    assert again.exit_code == 2 and "already holds an export" in again.stderr
+    assert coco.read_bytes() == labelled
     missing = cli.invoke(app, ["label", "export", str(recording), "-o", str(out), "-k", "999",
-                               "--store", str(store)])  # fmt: skip
+                               "--store", str(store), "--force"])  # fmt: skip
     assert missing.exit_code == 2 and "no keyframe 999" in missing.output

@@ -66,6 +66,16 @@ def _piling_as_seawall(d: dict[str, Any]) -> None:
         (lambda d: d["annotations"][1].update(id=1), r"annotations\[1\]\.id: 1 is also"),
         (lambda d: d.pop("images"), r"images: missing"),
         (lambda d: d["images"][0].pop("file_name"), r"images\[0\]\.file_name: missing"),
+        (  # one image imported twice into Label Studio: two hash prefixes
+            lambda d: d["images"][1].update(
+                file_name="9f8e7d6c-" + d["images"][0]["file_name"].rsplit("/", 1)[-1]
+            ),
+            r"images\[1\]\.file_name '.*' is the exported image .* that images\[0\] names too",
+        ),
+        (  # a tool that resized the images: the shapes' pixels no longer map to metres
+            lambda d: d["images"][0].update(width=d["images"][0]["width"] // 2),
+            r"images\[0\] is \d+ x \d+ pixels, exported at \d+ x \d+: the tool resized it",
+        ),
     ],
 )
 def test_a_coco_file_of_the_wrong_shape_is_refused_naming_the_json_path(

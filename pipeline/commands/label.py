@@ -110,6 +110,9 @@ def label_export(
     pixel_m: float | None = typer.Option(
         None, "--pixel-m", min=0.001, help="Pixel side [m] (default: range resolution)."
     ),
+    force: bool = typer.Option(
+        False, "--force", help="Replace an earlier export in --out (its labels are lost)."
+    ),
     config: Path | None = CONFIG_OPT,
     set_: list[str] | None = SET_OPT,
     store: Path = STORE_OPT,
@@ -119,8 +122,9 @@ def label_export(
     from sonarmap.pipeline.api import RunRequest, run_dataset
     from sonarmap.pipeline.commands._errors import writes_under
     from sonarmap.pipeline.engine.store.codecs import read_verified
-    from sonarmap.pipeline.labels.files import export_labels
+    from sonarmap.pipeline.labels.files import check_export_folder, export_labels
 
+    check_export_folder(out, force)  # before any work: nothing is computed for a refusal
     table = _class_table(ctx, config, set_)
     with writes_under(store):
         until = "classify" if prelabel else "keyframes"

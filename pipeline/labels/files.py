@@ -48,7 +48,7 @@ from sonarmap.schemas.annotations import AnnotatedKeyframe, AnnotatedObject, Ann
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.sonar import KeyframeImages
 
-__all__ = ["GEOMETRY_FILE", "ExportResult", "export_labels", "import_labels"]
+__all__ = ["GEOMETRY_FILE", "ExportResult", "check_export_folder", "export_labels", "import_labels"]
 
 GEOMETRY_FILE = "geometry.json"
 GEOMETRY_FORMAT = "sonarmap-label-geometry/1"
@@ -77,6 +77,27 @@ def _png(pixels: np.ndarray) -> bytes:
 def _write(path: Path, data: bytes) -> None:
     with atomic_output(path) as f:
         f.write(data)
+
+
+def check_export_folder(folder: Path, force: bool) -> None:
+    """Refuse to export into a folder that holds an earlier export, unless `force`: a COCO
+    file there may hold the labels a tool wrote back (the documented round trip exports
+    into the same folder), and a new export renumbers the images that geometry.json maps.
+
+    Raises:
+        ConfigError: `folder` holds geometry.json or a `*.coco.json` file.
+    """
+    if force or not folder.is_dir():
+        return
+    found = sorted(p.name for p in folder.glob("*.coco.json"))
+    if (folder / GEOMETRY_FILE).exists():
+        found.insert(0, GEOMETRY_FILE)
+    if found:
+        raise ConfigError(
+            f"{folder}: already holds an export ({', '.join(found[:3])}); its labels would be"
+            " lost and its images renumbered: export into a new folder, or pass --force"
+            " to replace it"
+        )
 
 
 def export_labels(
@@ -194,14 +215,31 @@ def import_labels(
     check_coco_values(doc, coco_path)
     geometry_of: dict[int, FanGeometry] = {}
     t_of: dict[int, int] = {}
+    named_by: dict[str, int] = {}
     for n, image in enumerate(doc.images):
         key = _match(image.file_name, geometry.images)
+        where = f"{coco_path}: images[{n}]"
         if key is None:
             raise SourceError(
-                f"{coco_path}: images[{n}].file_name {one_line(image.file_name, 80)!r} is not "
+                f"{where}.file_name {one_line(image.file_name, 80)!r} is not "
                 f"an image exported into {coco_path.parent}"
             )
+        if key in named_by:  # an image imported twice into the tool (two hash prefixes)
+            raise SourceError(
+                f"{where}.file_name {one_line(image.file_name, 80)!r} is the exported image"
+                f" {Path(key).name} that images[{named_by[key]}] names too: label each"
+                " image once (merge their shapes into one)"
+            )
+        named_by[key] = n
         entry = geometry.images[key]
+        size = (image.width, image.height)
+        if None not in size and size != (entry.width_px, entry.height_px):
+            # A tool that resized the images: its pixels no longer map to the fan's metres.
+            raise SourceError(
+                f"{where} is {image.width} x {image.height} pixels, exported at"
+                f" {entry.width_px} x {entry.height_px}: the tool resized it, so its shapes"
+                " cannot be placed; label the images at their exported size"
+            )
         fields = {
             k: getattr(entry, k)
             for k in ("width_px", "height_px", "pixel_m", "x_top_m", "y_left_m")
