@@ -60,7 +60,11 @@ class SceneError(ValueError):
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    # allow_inf_nan: a NaN position passed the schema and wrote a recording whose ground
+    # truth was corrupt (every number of a scene is a finite length or angle).
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, populate_by_name=True, allow_inf_nan=False
+    )
 
 
 class CylindricalPiling(_Model):
@@ -232,6 +236,14 @@ SceneObject = Annotated[
 ]
 
 
+MAX_AREA_SIDE_M = 10_000.0
+"""Largest side of a scene's working area (the seafloor grid is 10 m cells over it)."""
+MAX_COORD_M = 1e6
+"""Farthest corner of the working area from the scene's origin."""
+MAX_MARGIN_M = 1_000.0
+"""Longest extension of the seafloor past the working area."""
+
+
 class Scene(_Model):
     """A validated scene: seafloor depth, working area and objects (world frame, metres)."""
 
@@ -241,7 +253,7 @@ class Scene(_Model):
         description="working area (x_min, x_max, y_min, y_max) [m]; missions stay inside"
     )
     seafloor_margin_m: float = Field(
-        default=40.0, ge=0.0, description="seafloor extends past the area"
+        default=40.0, ge=0.0, le=MAX_MARGIN_M, description="seafloor extends past the area"
     )
     objects: list[SceneObject] = Field(default_factory=list)
     meshes: list[MeshObject] = Field(
@@ -253,6 +265,12 @@ class Scene(_Model):
         x0, x1, y0, y1 = self.area_m
         if x1 - x0 < 2.0 or y1 - y0 < 2.0:
             raise ValueError("area_m must be (x_min, x_max, y_min, y_max) with extent >= 2 m")
+        if max(x1 - x0, y1 - y0) > MAX_AREA_SIDE_M or max(map(abs, self.area_m)) > MAX_COORD_M:
+            # The seafloor is a grid over the area and its margin: bounded memory.
+            raise ValueError(
+                f"area_m must span at most {MAX_AREA_SIDE_M:g} m a side, within"
+                f" {MAX_COORD_M:g} m of the origin (a harbour, not an ocean)"
+            )
         return self
 
     def primitives(self) -> list[Primitive]:

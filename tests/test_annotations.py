@@ -223,6 +223,12 @@ def test_sonarmap_train_learns_from_an_annotated_recording_and_edits_retrain(
     assert two["artifact"] != one["artifact"]
     assert "seawall" in two["metrics"]["train_support"]
     assert "rectangular_piling" not in two["metrics"]["train_support"]
+    # Too few labels is the user's to fix, not a bug: exit 2, one line saying what to do.
+    few = [a.replace("min_class_samples=1", "min_class_samples=1000") for a in args]
+    refused = runner.invoke(app, few)
+    assert refused.exit_code == 2, refused.output
+    assert json.loads(refused.stdout)["exit_code"] == 2
+    assert "need two classes with >= 1000" in refused.stderr and "label more" in refused.stderr
     # A typo is a one-line error (exit 2) before any dataset is read.
     ann.write_text(yaml.safe_dump({**doc, "keyframes": [{"t_ns": 1, "objects": [{"class_name": "pilling", "box_m": {"x_min_m": 0, "x_max_m": 1, "y_min_m": 0, "y_max_m": 1}}]}]}))  # fmt: skip
     bad = runner.invoke(app, args)

@@ -428,3 +428,35 @@ def test_a_fifo_or_device_in_a_remote_is_refused_without_blocking(tmp_path: Path
                 transfer.download(LocalFileSystem(), str(src), tmp_path / "o", 1, "0" * 64, "f")
     finally:
         unblock.cancel()
+
+
+def test_a_manifest_that_is_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
+    """A FIFO data file was refused, but `pull` waited forever on a FIFO manifest."""
+    _, remote = _toy_remote(tmp_path)
+    manifest = next((remote / "double").iterdir()) / "manifest.json"
+    manifest.unlink()
+    os.mkfifo(manifest)
+    unblock = threading.Timer(10.0, lambda: manifest.open("wb").close())  # should it regress
+    unblock.start()
+    try:
+        with pytest.raises(ArtifactCorrupt, match="manifest is not a regular file"):
+            pull(ArtifactStore(tmp_path / "bob"), str(remote), ["double"])
+    finally:
+        unblock.cancel()
+    assert list(ArtifactStore(tmp_path / "bob").iter_artifacts()) == []
+
+
+def test_a_manifest_listing_none_of_a_stages_files_is_refused_at_pull(tmp_path: Path) -> None:
+    """It was committed, passed `show --verify`, and failed only in the next stage."""
+    from sonarmap.pipeline.engine.share.trust import TrustPolicy
+
+    _, remote = _toy_remote(tmp_path)
+    manifest_path = next((remote / "double").iterdir()) / "manifest.json"
+    manifest = json.loads(manifest_path.read_text())
+    manifest["files"] = {}
+    manifest_path.write_text(json.dumps(manifest))
+    policy = TrustPolicy.build(required={"double": frozenset({"d.bin"})})
+    bob = ArtifactStore(tmp_path / "bob")
+    with pytest.raises(ArtifactCorrupt, match="manifest lists no 'd.bin', which every double"):
+        pull(bob, str(remote), ["double"], policy=policy)
+    assert list(bob.iter_artifacts()) == []

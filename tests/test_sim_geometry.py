@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,8 @@ from sonarmap.sim.scene import Scene
 from sonarmap.sim.sonar import SonarModel
 from sonarmap.sim.world import World
 from sonarmap.stages.kernels.geometry import se3_from_pose as pose_to_matrix
+
+ROOT = Path(__file__).resolve().parent.parent
 
 CFG = SimConfig()
 PILING = CLASS_IDS["cylindrical_piling"]
@@ -201,3 +205,35 @@ def test_strongest_ray_per_pixel_matches_a_loop_ties_to_the_later_ray() -> None:
         assert top_ray.tolist() == [expected[p] for p in sorted(expected)]
     empty = np.zeros(0, np.int64)
     assert [a.tolist() for a in _strongest(empty, np.zeros(0), empty, 5)] == [[], []]
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        ("position_m: [6.0, 3.0]|position_m: [.nan, 3.0]", "position_m[0] = nan: Input should be a finite"),
+        ("area_m: [-15.0, 15.0, -15.0, 15.0]|area_m: [-1.0e7, 1.0e7, -15, 15]", "area_m must span at most"),
+        ("area_m: [-15.0, 15.0, -15.0, 15.0]|area_m: [-15, 15, -15, 15]\nseafloor_margin_m: 1.0e9", "seafloor_margin_m"),
+    ],
+    ids=["nan-position", "ocean-sized-area", "huge-margin"],
+)
+def test_a_scene_that_is_not_finite_or_not_a_harbour_is_refused_in_one_line(
+    tmp_path: Path, edit: str, words: str
+) -> None:
+    """A NaN position wrote a recording with corrupt ground truth (exit 0); an area of
+    1e7 m asked for a 29 TiB seafloor grid (exit 1). Both are one line, exit 2."""
+    from typer.testing import CliRunner
+
+    from sonarmap.pipeline.cli import app
+
+    old, new = edit.split("|")
+    text = (ROOT / "configs" / "scenes" / "tiny.yaml").read_text()
+    assert old in text
+    scene = tmp_path / "scene.yaml"
+    scene.write_text(text.replace(old, new))
+    out = tmp_path / "x.mcap"
+    args = ["simulate", "-o", str(out), "--scene", str(scene), "--goals", "1"]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and words in lines[0] and ": : " not in lines[0], lines
+    assert not out.exists()

@@ -34,7 +34,16 @@ def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
             TrustPolicy.model_sha(r.manifest) for r in cache.iter_artifacts() if r.stage == "train"
         ]
     shipped = shipped_models(TrainingDataConfig().shipped_models)
-    return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped)
+    return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped, _required())
+
+
+def _required() -> dict[str, frozenset[str]]:
+    """Each pipeline stage's files that every artifact of it holds."""
+    from sonarmap.pipeline.graph import all_stages
+
+    return {
+        s.name: frozenset(o.filename for o in s.outputs if not o.optional) for s in all_stages()
+    }
 
 
 def push(

@@ -68,7 +68,7 @@ def study(
         None, "--fix", help="Override for every protocol's runs: section.field=value."
     ),
     executor: str = typer.Option("local", "--executor", help="local or ray."),
-    jobs: int = typer.Option(1, "--jobs", "-j", help="Parallel runs."),
+    jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Parallel runs (at most one per run)."),
     address: str | None = typer.Option(None, "--address", help="Ray cluster address."),
     out: Path = typer.Option(Path("data/study"), "--out", help="Datasets and results folder."),
     store: Path = STORE_OPT,
@@ -124,6 +124,7 @@ def study(
                 protocol=p["name"],
             )
         ]
+        jobs = min(jobs, len(specs))  # one process per parallel run, never more than runs
         console.print(
             f"study: {len(specs)} runs ({len(protocols)} protocol(s) x {trials} trial(s) x "
             f"{len(values)} spacing(s)) on {executor} with {jobs} job(s)"

@@ -142,14 +142,21 @@ def training_stage_for(
         )
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
-        from sonarmap.stages.classify.train import train_classifier
+        from sonarmap.pipeline.engine.errors import ConfigError
+        from sonarmap.stages.classify.train import TooFewLabels, train_classifier
 
         pairs = [
             (frames(i, bound), bound[f"{pre[i]}features_{i}.features"]) for i in range(n_datasets)
         ]
         n_train = n_datasets - heldout
         table = bound.get("config.classes", DEFAULT_TABLE)
-        return train_classifier(pairs[:n_train], config, table, heldout=pairs[n_train:])
+        try:
+            return train_classifier(pairs[:n_train], config, table, heldout=pairs[n_train:])
+        except TooFewLabels as err:  # the user's labels, not a bug: exit 2
+            raise ConfigError(
+                f"train: {err} (by class id); label more objects, of at least two classes"
+                " (docs/labels-and-classes.md)"
+            ) from None
 
     return Stage(
         base.name, base.version, base.config, inputs, base.outputs, run, base.description,

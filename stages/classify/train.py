@@ -249,6 +249,11 @@ def _learned_classes(class_id: np.ndarray, min_samples: int, n_ids: int) -> list
     return [int(c) for c in np.flatnonzero(counts >= min_samples)]
 
 
+class TooFewLabels(ValueError):
+    """The labelled objects hold fewer than two classes with enough training objects:
+    bad input (more labels are needed), not a bug."""
+
+
 def train_classifier(
     datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
     cfg: TrainConfig,
@@ -306,7 +311,7 @@ def _train_classifier(
         )  # fmt: skip
     say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
     if len(ids) < 2:
-        raise ValueError(
+        raise TooFewLabels(
             f"need two classes with >= {cfg.min_class_samples} training objects, "
             f"have {np.bincount(samples.class_id[train], minlength=n_ids).tolist()}"
         )

@@ -107,7 +107,8 @@ def validation_message(model: type[BaseModel], err: ValidationError, where: str)
     first = err.errors()[0]
     loc = first["loc"]
     problem = one_line(str(first["msg"]).removeprefix("Value error, "), MAX_MESSAGE_CHARS)
-    text = f"{one_line(where)}: {_dotted(loc)}"
+    # A whole-model check (a validator of the model itself) has no field to name.
+    text = f"{one_line(where)}: {_dotted(loc)}" if loc else one_line(where)
     if "input" in first and not isinstance(first["input"], dict):
         text += f" = {short(first['input'])}"
     bounds = allowed_range(model, loc)

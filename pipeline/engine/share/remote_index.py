@@ -127,6 +127,11 @@ def list_remote(remote: str) -> list[str]:
 
 
 def _read_capped(fs: Any, path: str, cap: int, where: str) -> bytes:
+    """At most `cap` bytes of a regular file (a FIFO would block the open forever, a device
+    would never end: neither is a manifest)."""
+    kind = fs.info(path).get("type", "file")  # FileNotFoundError: the caller's to name
+    if kind != "file":
+        raise ArtifactCorrupt(f"{where}: manifest is not a regular file ({str(kind)[:20]})")
     with fs.open(path, "rb") as f:
         data: bytes = f.read(cap + 1)
     if len(data) > cap:
@@ -151,6 +156,7 @@ def remote_manifest(
     model = parse_manifest(manifest, where)
     if model.stage != stage or model.key != key:
         raise ArtifactCorrupt(f"{where}: manifest names another artifact")
+    policy.check_files(stage, model.files, where)
     if model.recipe is None:
         # Without a recipe nothing ties the key to the content: refuse rather than trust.
         raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")

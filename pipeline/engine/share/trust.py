@@ -59,14 +59,28 @@ class TrustPolicy:
 
     pinned: frozenset[str] = frozenset()
     leaves: frozenset[tuple[str, str]] = field(default_factory=frozenset)
+    required: Mapping[str, frozenset[str]] = field(default_factory=dict)
+    """Stage -> the files every artifact of it holds (its outputs that are not optional):
+    a manifest listing none would be committed, verified and then fail downstream."""
+
+    def check_files(self, stage: str, files: Iterable[str], where: str) -> None:
+        """Refuse a manifest that lacks a file every artifact of `stage` has."""
+        missing = sorted(self.required.get(stage, frozenset()) - set(files))
+        if missing:
+            raise ArtifactCorrupt(
+                f"{where}: manifest lists no '{missing[0][:80]}', which every {stage}"
+                " artifact holds"
+            )
 
     @classmethod
     def build(
         cls,
         pins: Iterable[str] = (),
         leaves: Iterable[tuple[str, str, str]] = (),
+        required: Mapping[str, frozenset[str]] | None = None,
     ) -> TrustPolicy:
-        """From user pins and (stage, key, model sha256) of each shipped model.
+        """From user pins, (stage, key, model sha256) of each shipped model and each
+        stage's required files.
 
         Raises:
             StoreError: a pin that is not a 64-digit lowercase sha256.
@@ -79,6 +93,7 @@ class TrustPolicy:
         return cls(
             frozenset(pins) | {sha for _, _, sha in leaf_list},
             frozenset((stage, key) for stage, key, _ in leaf_list),
+            dict(required or {}),
         )
 
     def is_leaf(self, stage: str, key: str, manifest: Mapping[str, Any]) -> bool:
