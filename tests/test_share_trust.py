@@ -457,6 +457,30 @@ def test_a_manifest_listing_none_of_a_stages_files_is_refused_at_pull(tmp_path: 
     manifest_path.write_text(json.dumps(manifest))
     policy = TrustPolicy.build(required={"double": frozenset({"d.bin"})})
     bob = ArtifactStore(tmp_path / "bob")
-    with pytest.raises(ArtifactCorrupt, match="manifest lists no 'd.bin', which every double"):
+    with pytest.raises(ArtifactCorrupt, match=r"manifest lists no 'd\.bin', which every double"):
         pull(bob, str(remote), ["double"], policy=policy)
     assert list(bob.iter_artifacts()) == []
+
+
+@pytest.mark.parametrize(
+    ("variable", "value"),
+    [
+        ("SONARMAP_MAX_FILE_BYTES", "-1"),
+        ("SONARMAP_MAX_FILE_BYTES", "10GB"),
+        ("SONARMAP_MAX_FILE_BYTES", "1e9"),
+        ("SONARMAP_REMOTE_TIMEOUT_S", "abc"),
+        ("SONARMAP_REMOTE_TIMEOUT_S", "0"),
+        ("SONARMAP_REMOTE_TIMEOUT_S", "nan"),
+    ],
+)
+def test_a_sharing_limit_that_is_not_a_number_is_refused_not_ignored(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, variable: str, value: str
+) -> None:
+    """A user who tightened a limit got the default (64 GiB, 15 s) without a word."""
+    _, remote = _toy_remote(tmp_path)
+    monkeypatch.setenv(variable, value)
+    for args in (("pull", str(remote)), ("push", str(remote))):
+        res = _cli(*args, "--store", str(tmp_path / "bob"))
+        _one_error_line(res, f"{variable}='{value}'")
+    bob = tmp_path / "bob"
+    assert not bob.exists() or list(ArtifactStore(bob).iter_artifacts()) == []

@@ -37,6 +37,16 @@ def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
     return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped, _required())
 
 
+def _check_environment() -> None:
+    """The sharing limits a user set in the environment, checked before any transfer (a
+    bad one is one line naming the variable, exit 2)."""
+    from sonarmap.pipeline.engine.share.remotes import remote_timeout_s
+    from sonarmap.pipeline.engine.share.transfer import max_file_bytes
+
+    remote_timeout_s()
+    max_file_bytes()
+
+
 def _required() -> dict[str, frozenset[str]]:
     """Each pipeline stage's files that every artifact of it holds."""
     from sonarmap.pipeline.graph import all_stages
@@ -69,6 +79,8 @@ def push(
     files already at REMOTE with the right sha256 are not sent again.
     """
     from sonarmap.pipeline.engine.share.push_pull import push as do_push
+
+    _check_environment()
     from sonarmap.pipeline.engine.share.remotes import display
     from sonarmap.pipeline.engine.share.transfer import TransferStats
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
@@ -126,6 +138,8 @@ def pull(
     trained in the model cache, or one given with --trust-model.
     """
     from sonarmap.pipeline.engine.share.push_pull import pull as do_pull
+
+    _check_environment()
     from sonarmap.pipeline.engine.share.remotes import display
     from sonarmap.pipeline.engine.share.transfer import TransferStats
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore

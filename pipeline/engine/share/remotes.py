@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
-from sonarmap.pipeline.engine.errors import StoreError
+from sonarmap.pipeline.engine.errors import ConfigError, StoreError
 
 __all__ = [
     "check_bucket",
@@ -69,12 +70,21 @@ answers fails a command in seconds (aiohttp's default is 5 minutes per request).
 
 
 def remote_timeout_s() -> float:
+    """The remote timeout [s], from `SONARMAP_REMOTE_TIMEOUT_S` or the default.
+
+    Raises:
+        ConfigError: the variable is set but not a number of seconds in (0, 3600].
+    """
     raw = os.environ.get(TIMEOUT_ENV, "").strip()
+    if not raw:
+        return DEFAULT_TIMEOUT_S
     try:
-        value = float(raw) if raw else DEFAULT_TIMEOUT_S
+        value = float(raw)
     except ValueError:
-        value = DEFAULT_TIMEOUT_S
-    return value if 0 < value <= 3600 else DEFAULT_TIMEOUT_S
+        value = float("nan")
+    if not 0 < value <= 3600:  # NaN fails too
+        raise ConfigError(f"{TIMEOUT_ENV}={raw[:20]!r}: expected seconds, over 0 and at most 3600")
+    return value
 
 
 DEADLINE_FACTOR = 4
@@ -188,14 +198,22 @@ def open_remote(remote: str) -> tuple[Any, str]:
     # known hosts come from ~/.ssh like the ssh command's.
     scheme = urlsplit(remote).scheme
     try:
-        fs, root = fsspec.core.url_to_fs(remote, **_timeouts(scheme))
+        with warnings.catch_warnings():
+            # asyncssh (sshfs) uses algorithms cryptography deprecates: ten lines of its
+            # warnings came before every sftp command's own output (`-v` does not need them).
+            warnings.filterwarnings("ignore", module=r"asyncssh")
+            fs, root = fsspec.core.url_to_fs(remote, **_timeouts(scheme))
     except ImportError as err:
         package = _EXTRAS.get(scheme, scheme)
         how = "'sonarmap[remotes]'" if scheme in _IN_EXTRA else package
         raise StoreError(
             f"remote {display(remote)}: needs {package}; install with `pip install {how}`"
         ) from err
-    except (ValueError, OSError) as err:
+    except OSError as err:  # sshfs connects here: the same cause words as a transfer's
+        cause = _cause(err) or "cannot connect"
+        detail = _scrub(f"{type(err).__name__}: {err}", remote)
+        raise StoreError(f"remote {display(remote)}: {cause} ({detail})") from err
+    except ValueError as err:
         raise StoreError(f"remote {display(remote)}: {_scrub(str(err), remote)}") from err
     if scheme in ("s3", "s3a"):
         fs.retries = 2  # s3fs retries a timeout 5 times with back-off: minutes, not seconds

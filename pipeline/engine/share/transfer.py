@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, ConfigError, StoreError
 from sonarmap.pipeline.engine.share.remotes import deadline, http_timeout
 
 __all__ = [
@@ -42,9 +42,21 @@ WORKERS = 4
 
 
 def max_file_bytes() -> int:
-    """The largest single file `pull` accepts, from `SONARMAP_MAX_FILE_BYTES` or the default."""
-    raw = os.environ.get("SONARMAP_MAX_FILE_BYTES", "")
-    return int(raw) if raw.isdigit() and len(raw) < 20 else MAX_FILE_BYTES
+    """The largest single file `pull` accepts, from `SONARMAP_MAX_FILE_BYTES` or the default.
+
+    Raises:
+        ConfigError: the variable is set but not a positive whole number of bytes (a limit
+            a user tightened must not silently fall back to 64 GiB).
+    """
+    raw = os.environ.get("SONARMAP_MAX_FILE_BYTES", "").strip()
+    if not raw:
+        return MAX_FILE_BYTES
+    if not raw.isdigit() or len(raw) > 19 or int(raw) <= 0:
+        raise ConfigError(
+            f"SONARMAP_MAX_FILE_BYTES={raw[:20]!r}: expected a whole number of bytes"
+            " (1 to 9999999999999999999)"
+        )
+    return int(raw)
 
 
 @dataclass
