@@ -185,7 +185,10 @@ def file_mesh(obj: MeshObject, floor_z: float) -> Mesh:
     """A mesh file's triangles, scaled, turned about z and placed (`MeshObject`)."""
     import open3d as o3d
 
-    mesh = o3d.io.read_triangle_mesh(Path(obj.file))
+    # Open3D prints its reader's complaints on stdout, in colour; the one-line refusal
+    # below says what is wrong with the file.
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh = o3d.io.read_triangle_mesh(Path(obj.file))
     v = np.asarray(mesh.vertices, np.float64)
     t = np.asarray(mesh.triangles, np.int32)
     if len(t) == 0 or not np.isfinite(v).all():

@@ -316,7 +316,9 @@ def meshes_found(scene: Scene, path: Path) -> Scene:
     meshes = []
     for i, m in enumerate(scene.meshes):
         file = (path.parent / m.file).resolve()
-        if not file.is_file():
+        if not file.exists():
             raise SceneError(f"scene {path}: meshes[{i}].file: no such file {file}")
+        if not file.is_file():  # a device or a FIFO would never end, a folder is no mesh
+            raise SceneError(f"scene {path}: meshes[{i}].file: {file} is not a regular file")
         meshes.append(m.model_copy(update={"file": str(file)}))
     return scene.model_copy(update={"meshes": meshes})

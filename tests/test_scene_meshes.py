@@ -84,6 +84,10 @@ def test_a_mesh_can_float_above_the_seafloor(tmp_path: Path) -> None:
             "not in the class table",
         ),
         ("{class: seawall, file: meshes/block.obj, position_m: [0, 0], scale: -1}", "scale"),
+        (  # a device: it exists (it used to be called missing) and would never end
+            "{class: seawall, file: /dev/zero, position_m: [0, 0]}",
+            "meshes[0].file: /dev/zero is not a regular file",
+        ),
     ],
 )
 def test_a_missing_file_an_unknown_class_or_a_bad_scale_is_refused(
@@ -98,3 +102,14 @@ def test_a_file_that_is_no_mesh_is_refused_naming_it(tmp_path: Path) -> None:
     (tmp_path / "meshes" / "block.obj").write_text("this is not a mesh\n")
     with pytest.raises(SceneError, match=r"block\.obj: no triangles"):
         World(load_scene(path))
+
+
+def test_open3d_says_nothing_on_stdout_about_a_file_that_is_no_mesh(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
+) -> None:
+    """Open3D printed its reader's warning in colour on stdout (a `--json` reader's)."""
+    path = _scene(tmp_path, "{class: seawall, file: meshes/block.obj, position_m: [0, 0]}")
+    (tmp_path / "meshes" / "block.obj").write_text("v 1 2\nf x\n")
+    with pytest.raises(SceneError):
+        World(load_scene(path))
+    assert capfd.readouterr().out == ""

@@ -111,7 +111,9 @@ def demo(
     out: Path = typer.Option(Path("data/demo"), "--out", help="Where the dataset and report go."),
     scene: str = typer.Option("marina", "--scene", help="Scene name or YAML path."),
     seed: int = typer.Option(0, "--seed", min=0, help="Simulation seed."),
-    goals: int | None = typer.Option(None, "--goals", min=1, help="Mission goals (default 20)."),
+    goals: int | None = typer.Option(
+        None, "--goals", min=1, max=1000, help="Mission goals (default 20)."
+    ),
     duration_s: float | None = typer.Option(None, "--duration-s", help="Cut the mission short."),
     config: Path | None = CONFIG_OPT,
     set_: list[str] | None = SET_OPT,

@@ -41,7 +41,9 @@ def simulate_cmd(
         DEFAULT_SCENE, "--scene", help="Scene name in configs/scenes/, or a scene YAML path."
     ),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed (same seed, same bytes)."),
-    goals: int | None = typer.Option(None, "--goals", min=1, help="Number of mission goals."),
+    goals: int | None = typer.Option(
+        None, "--goals", min=1, max=1000, help="Number of mission goals."
+    ),
     duration_s: float | None = typer.Option(
         None, "--duration-s", min=0.001, help="Cut the mission after this many seconds."
     ),

@@ -44,7 +44,7 @@ def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | 
 def study(
     ctx: typer.Context,
     trials: int = typer.Option(10, "--trials", min=1, help="Simulated trials (seeds 0..N-1)."),
-    goals: int = typer.Option(20, "--goals", min=1, help="Random goals per trial."),
+    goals: int = typer.Option(20, "--goals", min=1, max=1000, help="Random goals per trial."),
     duration_s: float | None = typer.Option(
         None,
         "--duration-s",

@@ -145,9 +145,23 @@ def _field_annotation(model: type[BaseModel], path: list[str], where: str) -> An
         if part not in fields:
             prefix = ".".join(path[:i])
             names = [f"{prefix}.{f}" if prefix else f for f in fields]
-            raise ConfigError(f"{where}: unknown key '{dotted}'{_closest(dotted, names)}")
+            hint = _in_another_section(model, path) or _closest(dotted, names)
+            raise ConfigError(f"{where}: unknown key '{dotted}'{hint}")
         current = _section_of(fields[part].annotation)
     return current
+
+
+def _in_another_section(model: type[BaseModel], path: list[str]) -> str:
+    """` (did you mean 'slam.nssm_window_xy_m'?)` when `section.field` names a field that
+    another section has (a close name in the wrong section is the likelier slip)."""
+    if len(path) != 2:
+        return ""
+    found = [
+        f"{name}.{path[1]}"
+        for name, f in model.model_fields.items()
+        if name != path[0] and path[1] in getattr(_section_of(f.annotation), "model_fields", {})
+    ]
+    return f" (did you mean '{found[0]}'?)" if len(found) == 1 else ""
 
 
 def _section_of(annotation: Any) -> Any:

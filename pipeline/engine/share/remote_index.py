@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
@@ -19,6 +20,7 @@ from sonarmap.pipeline.engine.share.remotes import open_remote
 from sonarmap.pipeline.engine.share.transfer import max_file_bytes
 from sonarmap.pipeline.engine.share.trust import TrustPolicy, check_not_reserved
 from sonarmap.pipeline.engine.store.manifest import parse_manifest
+from sonarmap.pipeline.engine.text import one_line
 
 __all__ = [
     "MAX_LISTED_OBJECTS",
@@ -157,6 +159,13 @@ def remote_manifest(
     if model.stage != stage or model.key != key:
         raise ArtifactCorrupt(f"{where}: manifest names another artifact")
     policy.check_files(stage, model.files, where)
+    for rel in model.files:  # named as the remote's, before a local folder exists
+        parts = Path(rel).parts
+        if not rel.strip() or Path(rel).is_absolute() or ".." in parts:
+            raise ArtifactCorrupt(
+                f"{where}: manifest lists the file '{one_line(rel, 80)}', a path outside"
+                " the artifact"
+            )
     if model.recipe is None:
         # Without a recipe nothing ties the key to the content: refuse rather than trust.
         raise ArtifactCorrupt(f"{where}: manifest has no recipe, so its key cannot be checked")
