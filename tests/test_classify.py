@@ -11,7 +11,7 @@ import pyarrow as pa
 import pytest
 import torch
 
-from sonarmap.schemas.classes import CLASS_IDS, CLASS_NAMES, UNKNOWN_CLASS
+from sonarmap.schemas.classes import CLASS_IDS, CLASS_NAMES, DEFAULT_TABLE, UNKNOWN_CLASS
 from sonarmap.schemas.objects import OBJECT_FEATURES_SCHEMA, OBJECTS_SCHEMA, UNKNOWN_CLASS_ID
 from sonarmap.schemas.sonar import KeyframeImages
 from sonarmap.stages.classify.cnn import PatchCNN, model_to_bytes
@@ -293,8 +293,18 @@ def test_pooling_combines_sightings_of_one_place_and_needs_the_poses(
     )
     assert not np.allclose(pooled["probability"].to_numpy(), single["probability"].to_numpy())
     # A zero radius pools nothing.
-    none = STAGE.run(ClassifyConfig(threshold=0.0, pool_radius_m=1e-9), inputs)["objects"]
+    lone = STAGE.run(ClassifyConfig(threshold=0.0, pool_radius_m=1e-9), inputs)
+    none = lone["objects"]
     assert set(none["n_views"].to_pylist()) == {1}
+    # ... so no object of a compact class (a piling: min_views 2) is accepted, and the
+    # acceptance report counts them; a wall's class still is.
+    kinds = DEFAULT_TABLE.frame_kinds()
+    held = [kinds.get(n) == "object" for n in none["argmax_class_name"].to_pylist()]
+    names = none["class_name"].to_pylist()
+    assert any(held) and all(n == "unknown" for n, h in zip(names, held, strict=True) if h)
+    assert all(n != "unknown" for n, h in zip(names, held, strict=True) if not h)
+    assert lone["acceptance"]["unconfirmed"] == sum(held)
+    assert lone["acceptance"]["min_views"] == 2
     without = {k: v for k, v in inputs.items() if k != "keyframes.keyframes"}
     with pytest.raises(ValueError, match="pool_views needs"):
         STAGE.run(ClassifyConfig(), without)

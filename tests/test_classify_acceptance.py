@@ -46,3 +46,23 @@ def test_too_few_objects_or_no_cnn_are_not_warned() -> None:
     oracle = acceptance_report(None, 0, METRICS, 0.99)
     assert oracle["objects"] == 0 and oracle["sure_fraction"] is None
     assert oracle["warnings"] == []
+
+
+def test_a_compact_class_seen_from_one_keyframe_only_stays_unknown() -> None:
+    """`classify.min_views`: a piling (object frame) is a fixed place, so another keyframe
+    sees it again; a cluster no other keyframe sees (the grain's own detections) is not
+    accepted as one, however sure the CNN is. A wall (beam frame) is not held to it: its
+    clusters' centroids move along it with the viewpoint."""
+    from sonarmap.stages.classify.class_columns import class_columns
+
+    names = ["cylindrical_piling", "seawall"]
+    pooled = np.array([[0.999, 0.001], [0.999, 0.001], [0.001, 0.999], [0.6, 0.4]])
+    n_views = np.array([1, 2, 1, 5])
+    args = (pooled, pooled, np.zeros_like(pooled), n_views, np.array([1, 3]), names, 0.99)
+    compact = np.array([True, False])
+    got = class_columns(*args, min_views=2, compact=compact)
+    assert got["class_name"] == ["unknown", "cylindrical_piling", "seawall", "unknown"]
+    assert list(got["argmax_class_name"]) == ["cylindrical_piling"] * 2 + ["seawall", "cylindrical_piling"]
+    off = class_columns(*args, min_views=1, compact=compact)
+    assert off["class_name"][:3] == ["cylindrical_piling", "cylindrical_piling", "seawall"]
+    assert class_columns(*args)["class_name"] == off["class_name"]  # the rule's default: off

@@ -35,7 +35,10 @@ STAGE = Stage(
     # the validation split's), warned when pooling accepts fewer (input train.metrics)
     # 12: the CNN is loaded only when a keyframe's unit must be computed (input
     # train.settings: the class names and settings without torch)
-    version=12,
+    # 13: a compact class (object frame) is accepted only where `min_views` sightings of
+    # its place are pooled;
+    # acceptance.json counts the sure objects held back by that rule
+    version=13,
     config=ClassifyConfig,
     inputs=(
         Input("keyframes", "frames"),

@@ -99,3 +99,12 @@ class ClassifyConfig(ModelChoice):
         le=10000,
         description="range r_s of a sighting's weight 1/(1+(r/r_s)^4); None: equal",
     )
+    min_views: int = Field(
+        2,
+        ge=1,
+        le=1000,
+        description="accept a compact class (frame_kind object: a piling) only where at least"
+        " this many sightings of its place are pooled (pool_views): a cluster no other"
+        " keyframe sees again is no fixed object (the grain's own detections, a fish);"
+        " 1: off, as it is without pool_views",
+    )

@@ -229,12 +229,17 @@ def classify_keyframes(
         mean = np.concatenate([m for m, _ in beliefs])
         var = np.concatenate([v for _, v in beliefs])
         single_view_max = mean.max(axis=1) if len(mean) else np.zeros(0)
+        min_views = 1  # without pooling, no sighting is matched to another
         if cfg.pool_views:
             assert keyframes is not None and T_base_sonar is not None
             pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
+            min_views = cfg.min_views
         else:
             pooled, n_views = mean, np.ones(len(mean), np.int64)
-        classes = class_columns(pooled, mean, var, n_views, class_ids, class_names, cfg.threshold)
+        compact = np.array([table.entry(n).frame_kind == "object" for n in class_names])
+        classes = class_columns(
+            pooled, mean, var, n_views, class_ids, class_names, cfg.threshold, min_views, compact
+        )
     columns = {name: geometry.column(name) for name in geometry.column_names}
     objects = pa.Table.from_pydict(
         {f.name: columns.get(f.name, classes.get(f.name)) for f in OBJECTS_SCHEMA},
@@ -328,10 +333,16 @@ def _classify(
         inputs["keyframes.frames"], inputs["features.features"], model, names, settings, config,
         keyframes, mount, table, units, base,
     )  # fmt: skip
+    # The view-agreement check compares confidence alone, pooled against single views;
+    # the sure objects the `min_views` rule holds back are counted beside it.
     accepted = int(np.sum(objects.column("class_id").to_numpy() != UNKNOWN_CLASS_ID))
+    sure = int(np.sum(objects.column("probability").to_numpy() > config.threshold))
     acceptance = acceptance_report(
-        single_view_max, accepted, inputs.get("train.metrics"), config.threshold
+        single_view_max, sure, inputs.get("train.metrics"), config.threshold
     )
+    if single_view_max is not None:
+        acceptance["unconfirmed"] = sure - accepted
+        acceptance["min_views"] = config.min_views if config.pool_views else 1
     return {
         "objects": objects, "object_features": links, "clustering": params,
         "acceptance": acceptance,

@@ -26,7 +26,8 @@ STAGE = Stage(
     # found degenerate, SLAM against the navigation's predicted drift, its warnings)
     # 12: the report's front-end section (inputs features.calibration, fuse.fused)
     # 13: the report's classifier section (input classify.acceptance)
-    version=13,
+    # 14: ... with the sure objects `classify.min_views` held back
+    version=14,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(

@@ -125,6 +125,13 @@ def _acceptance_markdown(block: Mapping[str, Any] | None) -> list[str]:
         f" (its validation objects, single views: {_fmt(block.get('validation_sure_fraction'))}).",
         "",
     ]
+    if block.get("unconfirmed"):
+        lines += [
+            f"{block['unconfirmed']} objects sure to be a compact class (a piling) stay"
+            f" unknown: fewer than {block.get('min_views')} sightings of their place"
+            " (`classify.min_views`).",
+            "",
+        ]
     return [*lines, *[f"- **warning:** {w}" for w in block.get("warnings") or []], ""]
 
 
