@@ -373,11 +373,8 @@ def _download_job(
     """Fetch one file into the store's resume cache (named by its sha256), then link it
     into the staging directory; a file an interrupted pull already verified is reused."""
     size, sha = int(entry["size"]), str(entry["sha256"])
-    if rel:  # a file of an artifact: stage/key[:12] and the file's name
-        where = f"remote {address[: address.index('/') + 13]}: file '{rel[:80]}'"
-    else:  # a work unit: units/<stage>/<xx>/key[:12]
-        folder, _, key = address.rpartition("/")
-        where = f"remote unit {folder[:60]}/{key[:12]}"
+    folder, _, name = address.rpartition("/")  # stage/key of an artifact, or a unit's path
+    where = f"remote {folder[:60]}/{name[:12]}" + (f": file '{rel[:80]}'" if rel else "")
     cached = cache / sha
 
     def run(progress: Callable[[int], None]) -> bool:
