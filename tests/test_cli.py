@@ -166,3 +166,27 @@ def test_a_reader_that_closes_stdout_early_is_no_internal_error(tmp_path: Path) 
     assert res.returncode == 1
     assert "internal error" not in res.stderr and "Traceback" not in res.stderr, res.stderr
 
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("training:\n  sets:\n    - {scene: TMP/text.yaml, seed: 1, goals: 2}\n", "training.sets[0].scene"),
+        ("training:\n  recorded: [/nonexistent/x.mcap]\n", "training.recorded[0]: /nonexistent"),
+        ("classify:\n  model: /etc\n", "classify.model: /etc: not a model folder"),
+        ("keyframes:\n  message_definitions: ['TMP/text.yaml']\n", "keyframes.message_definitions"),
+    ],
+    ids=["scene", "recorded", "model", "definitions"],
+)
+def test_config_check_reads_what_the_config_names_as_a_run_would(
+    tmp_path: Path, text: str, words: str
+) -> None:
+    """`config check` said ok to configs `run` then refused (a scene that is no scene, a
+    recording that is not there, a folder that holds no model, a file that is no .msg)."""
+    (tmp_path / "text.yaml").write_text("just a sentence\n")
+    path = tmp_path / "c.yaml"
+    path.write_text(text.replace("TMP", str(tmp_path)))
+    res = runner.invoke(app, ["config", "check", str(path)])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and words in lines[0], lines

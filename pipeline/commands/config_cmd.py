@@ -33,9 +33,11 @@ def check(
 ) -> None:
     """Validate a config file; exit 2 with the offending key on error."""
     from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.engine.config.references import check_references
 
     graph = cli_graph(ctx)
-    load_config(graph.config_stages, file, (), graph.extra_sections)
+    config = load_config(graph.config_stages, file, (), graph.extra_sections)
+    check_references(config)  # what it names outside itself, read as a run would
     typer.echo(f"{file}: ok")
 
 

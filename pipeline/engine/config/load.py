@@ -145,7 +145,8 @@ def _field_annotation(model: type[BaseModel], path: list[str], where: str) -> An
         if part not in fields:
             prefix = ".".join(path[:i])
             names = [f"{prefix}.{f}" if prefix else f for f in fields]
-            hint = _in_another_section(model, path) or _closest(dotted, names)
+            moved = dotted in MOVED_KEYS  # says where it went, not where a namesake is
+            hint = (not moved and _in_another_section(model, path)) or _closest(dotted, names)
             raise ConfigError(f"{where}: unknown key '{dotted}'{hint}")
         current = _section_of(fields[part].annotation)
     return current
