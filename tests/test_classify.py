@@ -304,7 +304,11 @@ def test_pooling_combines_sightings_of_one_place_and_needs_the_poses(
     assert any(held) and all(n == "unknown" for n, h in zip(names, held, strict=True) if h)
     assert all(n != "unknown" for n, h in zip(names, held, strict=True) if not h)
     assert lone["acceptance"]["unconfirmed"] == sum(held)
-    assert lone["acceptance"]["min_views"] == 2
+    assert lone["acceptance"]["min_views"] == 2 and lone["acceptance"]["min_seen_share"] == 0.0
+    # The tiny scene's pilings are seen by the keyframes whose fans cover them, so the
+    # opt-in share rule keeps every piling the default keeps.
+    share = STAGE.run(ClassifyConfig(threshold=0.0, min_seen_share=0.5), inputs)
+    assert share["objects"]["class_name"].equals(pooled["class_name"])
     without = {k: v for k, v in inputs.items() if k != "keyframes.keyframes"}
     with pytest.raises(ValueError, match="pool_views needs"):
         STAGE.run(ClassifyConfig(), without)
@@ -554,6 +558,12 @@ def test_classify_from_work_units_equals_computed_and_reuses_every_keyframe(
         assert again[name].equals(plain[name])
     n_short = first["objects"].num_rows
     assert first["objects"].equals(plain["objects"].slice(0, n_short))
+    # The decision after pooling (threshold, pooling, min_seen_share) is not in a unit's
+    # key: a sweep over it reuses every keyframe's CNN work.
+    hits = memo.hits
+    decided = ClassifyConfig(pool_views=False, threshold=0.5, min_views=3, min_seen_share=0.9)
+    STAGE.run(decided, {**inputs, "keyframes.frames": keyframes, "units": memo})
+    assert memo.hits == hits + len(keyframes) and len(memo.data) == len(keyframes)
 
 
 class _MemoUnits:

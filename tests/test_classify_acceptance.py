@@ -48,21 +48,48 @@ def test_too_few_objects_or_no_cnn_are_not_warned() -> None:
     assert oracle["warnings"] == []
 
 
-def test_a_compact_class_seen_from_one_keyframe_only_stays_unknown() -> None:
-    """`classify.min_views`: a piling (object frame) is a fixed place, so another keyframe
-    sees it again; a cluster no other keyframe sees (the grain's own detections) is not
-    accepted as one, however sure the CNN is. A wall (beam frame) is not held to it: its
-    clusters' centroids move along it with the viewpoint."""
+def test_a_compact_class_seldom_seen_where_the_fan_covered_it_stays_unknown() -> None:
+    """`classify.min_seen_share`: a piling (object frame) is a fixed place, so the keyframes
+    whose fan covers it mostly see it; a cluster they seldom see (the grain's own
+    detections, a part of a hull) is not accepted as one, however sure the CNN is. A wall
+    (beam frame) is not held to it: its clusters' centroids move along it with the
+    viewpoint."""
     from sonarmap.stages.classify.class_columns import class_columns
 
     names = ["cylindrical_piling", "seawall"]
     pooled = np.array([[0.999, 0.001], [0.999, 0.001], [0.001, 0.999], [0.6, 0.4]])
-    n_views = np.array([1, 2, 1, 5])
-    args = (pooled, pooled, np.zeros_like(pooled), n_views, np.array([1, 3]), names, 0.99)
+    seen = np.array([0.1, 0.5, 0.1, 1.0])
+    args = (pooled, pooled, np.zeros_like(pooled), np.array([2, 6, 1, 5]), np.array([1, 3]))
     compact = np.array([True, False])
-    got = class_columns(*args, min_views=2, compact=compact)
+    got = class_columns(*args, names, 0.99, 1, seen, 0.5, compact)
     assert got["class_name"] == ["unknown", "cylindrical_piling", "seawall", "unknown"]
-    assert list(got["argmax_class_name"]) == ["cylindrical_piling"] * 2 + ["seawall", "cylindrical_piling"]
-    off = class_columns(*args, min_views=1, compact=compact)
+    assert list(got["argmax_class_name"]) == [*["cylindrical_piling"] * 2, "seawall", "cylindrical_piling"]
+    off = class_columns(*args, names, 0.99, 1, seen, 0.0, compact)
     assert off["class_name"][:3] == ["cylindrical_piling", "cylindrical_piling", "seawall"]
-    assert class_columns(*args)["class_name"] == off["class_name"]  # the rule's default: off
+    assert class_columns(*args, names, 0.99)["class_name"] == off["class_name"]  # no rule
+    # `classify.min_views` (the default, 2): the first piling pooled 2 sightings, so 3 holds
+    # it back and 2 does not; the wall is never held.
+    views = class_columns(*args, names, 0.99, 3, None, 0.0, compact)["class_name"]
+    assert views[:3] == ["unknown", "cylindrical_piling", "seawall"]
+    assert class_columns(*args, names, 0.99, 2, None, 0.0, compact)["class_name"] == off["class_name"]
+
+
+def test_fan_coverage_counts_the_keyframes_whose_fan_holds_the_place() -> None:
+    from sonarmap.stages.classify.view_pooling import fan_coverage
+
+    # Three keyframes along x, the sonar looking ahead (+x), a 10-20 m, +-30 deg fan.
+    sonar = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [30.0, 0.0, np.pi]])
+    fans = np.tile([10.0, 20.0, -np.pi / 6, np.pi / 6], (3, 1))
+    places = np.array([[18.0, 0.0], [18.0, 8.0], [100.0, 0.0]])
+    along = np.array([0.0, 0.0, 0.0])
+    got = fan_coverage(places, along, sonar, fans, np.array([0.0, 5.0, 30.0]), window_m=80.0)
+    # (18, 0): 18 m ahead of the first, 13 m ahead of the second, 12 m ahead of the third
+    # (which looks back); (18, 8): 24 deg off the first's axis, 32 and 34 deg off the others'.
+    assert got.tolist() == [3, 1, 0]
+    at = np.array([0.0, 5.0, 30.0])
+    assert fan_coverage(places, along, sonar, fans, at, window_m=10.0).tolist() == [2, 1, 0]
+    # A place must be wholly in view: (18, 0) is 2 m inside the first's far edge and 2 m
+    # beyond the third's near one, so a 1 m margin keeps all three and a 2.5 m margin only
+    # the second; (18, 8) is 19.7 m from the first, 0.3 m inside its far edge.
+    assert fan_coverage(places, along, sonar, fans, at, 80.0, margin_m=1.0).tolist() == [3, 0, 0]
+    assert fan_coverage(places, along, sonar, fans, at, 80.0, margin_m=2.5).tolist() == [1, 0, 0]

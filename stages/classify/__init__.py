@@ -36,8 +36,9 @@ STAGE = Stage(
     # 12: the CNN is loaded only when a keyframe's unit must be computed (input
     # train.settings: the class names and settings without torch)
     # 13: a compact class (object frame) is accepted only where `min_views` sightings of
-    # its place are pooled;
-    # acceptance.json counts the sure objects held back by that rule
+    # its place pool (and, opt-in, `min_seen_share` of the keyframes whose fan covered it
+    # sighted it); acceptance.json counts the sure objects held back; units are keyed
+    # without the decision's settings
     version=13,
     config=ClassifyConfig,
     inputs=(

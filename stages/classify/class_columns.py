@@ -15,19 +15,24 @@ __all__ = ["class_columns", "truth_columns"]
 def class_columns(
     pooled: np.ndarray, single: np.ndarray, var: np.ndarray, n_views: np.ndarray,
     class_ids: np.ndarray, names: list[str], threshold: float, min_views: int = 1,
+    seen_share: np.ndarray | None = None, min_seen_share: float = 0.0,
     compact: np.ndarray | None = None,
 ) -> dict[str, Any]:  # fmt: skip
     """The class columns: argmax of the (pooled) mean, accepted above the threshold; a
     compact class (`compact[c]`: an object frame, a piling) only where at least
-    `min_views` sightings of its place were pooled. An extended structure (a wall) is
-    not held to it: its clusters' centroids move along it with the viewpoint, so its
-    sightings need not fall on one place."""
+    `min_views` sightings of its place were pooled and it was sighted by at least
+    `min_seen_share` of the keyframes whose fan covered it (`seen_share`; None: not known,
+    no such rule). An extended structure (a wall) is not held to them: its clusters'
+    centroids move along it with the viewpoint, so its sightings need not fall on one
+    place."""
     k = len(pooled)
     best = pooled.argmax(axis=1) if k else np.zeros(0, np.int64)
     rows = np.arange(k)
     p = pooled[rows, best]
     held = np.zeros(len(names), bool) if compact is None else np.asarray(compact, bool)
-    accepted = (p > threshold) & ((n_views >= min_views) | ~held[best])
+    seen = np.ones(k) if seen_share is None else np.asarray(seen_share, np.float64)
+    confirmed = (n_views >= min_views) & (seen >= min_seen_share)
+    accepted = (p > threshold) & (confirmed | ~held[best])
     argmax_names = [names[i] for i in best]
     return {
         "class_id": np.where(accepted, class_ids[best], UNKNOWN_CLASS_ID).astype(np.int64),

@@ -108,3 +108,13 @@ class ClassifyConfig(ModelChoice):
         " keyframe sees again is no fixed object (the grain's own detections, a fish);"
         " 1: off, as it is without pool_views",
     )
+    min_seen_share: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="accept a compact class (frame_kind object: a piling) only where its place"
+        " was sighted by at least this share of the keyframes whose horizontal fan covered it"
+        " within pool_window_m (pool_views): a fixed object is seen more often than not; a"
+        " cluster of the grain's own detections, or a part of a hull, is not. 0: off (the"
+        " default: docs/classifier.md), as without pool_views",
+    )

@@ -103,9 +103,11 @@ def _object_rows(
 
 def _pooled(
     mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
-    cfg: ClassifyConfig,
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Each object's class distribution pooled over its sightings (`sonarmap.stages.classify.view_pooling`)."""
+    cfg: ClassifyConfig, fans: Mapping[int, tuple[float, float, float, float]],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Each object's class distribution pooled over its sightings, how many sightings
+    pooled, and the share of the keyframes whose fan covered its place that sighted it
+    (`sonarmap.stages.classify.view_pooling`)."""
     keyframes = keyframes.sort_by("keyframe_id")
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
@@ -118,16 +120,23 @@ def _pooled(
     if len(obj_kf) and (row.max() >= len(kf_ids) or (kf_ids[row] != obj_kf).any()):
         raise ValueError("keyframes: an object's keyframe_id is not in keyframes.parquet")
     xy = np.column_stack([geometry.column("x_m").to_numpy(), geometry.column("y_m").to_numpy()])
-    return view_pooling.pool_views(
-        mean,
-        view_pooling.sighting_world_xy(xy, pose[row], T_base_sonar),
-        obj_kf,
-        view_pooling.along_track_m(pose[:, :2])[row],
-        geometry.column("range_m").to_numpy(),
-        radius_m=cfg.pool_radius_m,
-        window_m=cfg.pool_window_m,
+    world = view_pooling.sighting_world_xy(xy, pose[row], T_base_sonar)
+    along = view_pooling.along_track_m(pose[:, :2])
+    pooled, n_views = view_pooling.pool_views(
+        mean, world, obj_kf, along[row], geometry.column("range_m").to_numpy(),
+        radius_m=cfg.pool_radius_m, window_m=cfg.pool_window_m,
         range_scale_m=cfg.pool_range_scale_m,
-    )
+    )  # fmt: skip
+    # The horizontal sonar's world pose at each keyframe with an image, and its fan.
+    imaged = np.isin(kf_ids, np.fromiter(fans, np.int64, len(fans)))
+    origin = view_pooling.sighting_world_xy(np.zeros((imaged.sum(), 2)), pose[imaged], T_base_sonar)
+    heading = pose[imaged, 2] + np.arctan2(T_base_sonar[1, 0], T_base_sonar[0, 0])
+    cover = view_pooling.fan_coverage(
+        world, along[row], np.column_stack([origin, heading]),
+        np.array([fans[int(k)] for k in kf_ids[imaged]]).reshape(-1, 4), along[imaged],
+        cfg.pool_window_m, margin_m=cfg.pool_radius_m,
+    )  # fmt: skip
+    return pooled, n_views, n_views / np.maximum(cover, 1)
 
 
 def classify_keyframes(
@@ -188,7 +197,13 @@ def classify_keyframes(
         )  # fmt: skip
 
     next_id = 0
+    fans: dict[int, tuple[float, float, float, float]] = {}  # the image each keyframe covers
     for frame in frames:
+        h = frame.horizontal
+        fans[frame.keyframe_id] = (
+            float(h.ranges_m[0]), float(h.ranges_m[-1]),
+            float(h.angles_rad[0]), float(h.angles_rad[-1]),
+        )  # fmt: skip
         f = by_kf.get(frame.keyframe_id) or _empty_features()
         seed = keyframe_seed(cfg.seed, frame.t_ns)
         objs = keyframe_result(
@@ -229,17 +244,18 @@ def classify_keyframes(
         mean = np.concatenate([m for m, _ in beliefs])
         var = np.concatenate([v for _, v in beliefs])
         single_view_max = mean.max(axis=1) if len(mean) else np.zeros(0)
-        min_views = 1  # without pooling, no sighting is matched to another
+        seen, min_views = None, 1  # without pooling, no sighting is matched to another
         if cfg.pool_views:
             assert keyframes is not None and T_base_sonar is not None
-            pooled, n_views = _pooled(mean, geometry, keyframes, T_base_sonar, cfg)
+            pooled, n_views, seen = _pooled(mean, geometry, keyframes, T_base_sonar, cfg, fans)
             min_views = cfg.min_views
         else:
             pooled, n_views = mean, np.ones(len(mean), np.int64)
         compact = np.array([table.entry(n).frame_kind == "object" for n in class_names])
         classes = class_columns(
-            pooled, mean, var, n_views, class_ids, class_names, cfg.threshold, min_views, compact
-        )
+            pooled, mean, var, n_views, class_ids, class_names, cfg.threshold, min_views,
+            seen, cfg.min_seen_share, compact,
+        )  # fmt: skip
     columns = {name: geometry.column(name) for name in geometry.column_names}
     objects = pa.Table.from_pydict(
         {f.name: columns.get(f.name, classes.get(f.name)) for f in OBJECTS_SCHEMA},
@@ -334,7 +350,7 @@ def _classify(
         keyframes, mount, table, units, base,
     )  # fmt: skip
     # The view-agreement check compares confidence alone, pooled against single views;
-    # the sure objects the `min_views` rule holds back are counted beside it.
+    # the sure objects the `min_views` and `min_seen_share` rules hold back beside it.
     accepted = int(np.sum(objects.column("class_id").to_numpy() != UNKNOWN_CLASS_ID))
     sure = int(np.sum(objects.column("probability").to_numpy() > config.threshold))
     acceptance = acceptance_report(
@@ -343,6 +359,7 @@ def _classify(
     if single_view_max is not None:
         acceptance["unconfirmed"] = sure - accepted
         acceptance["min_views"] = config.min_views if config.pool_views else 1
+        acceptance["min_seen_share"] = config.min_seen_share if config.pool_views else 0.0
     return {
         "objects": objects, "object_features": links, "clustering": params,
         "acceptance": acceptance,

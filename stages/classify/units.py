@@ -7,7 +7,8 @@ their patches (`cnn.mc_predict_groups` over that keyframe's patches only, with i
 seed). Pooling over views, which mixes keyframes, runs after, on the assembled rows.
 
 Key: sha256 of the stage's name and version, its config (the model-choice fields left
-out, as in the stage key: the model enters by the sha256 of its bytes), the class table,
+out, as in the stage key: the model enters by the sha256 of its bytes; and the decision
+fields, `DECISION_FIELDS`, which act on the assembled rows only), the class table,
 the keyframe's dropout seed (from its ping time), and the digest of its horizontal image,
 axes and label image with its feature rows (positions, not ids): the same pings give the
 same unit at any keyframe spacing.
@@ -30,7 +31,15 @@ from sonarmap.stages.kernels.unit_keys import array_digest, unit_key
 
 cnn = lazy("sonarmap.stages.classify.cnn")
 
-__all__ = ["KeyframeResult", "classify_base", "keyframe_result"]
+__all__ = ["DECISION_FIELDS", "KeyframeResult", "classify_base", "keyframe_result"]
+
+DECISION_FIELDS: tuple[str, ...] = (
+    "threshold", "pool_views", "pool_radius_m", "pool_window_m", "pool_range_scale_m",
+    "min_views", "min_seen_share",
+)  # fmt: skip
+"""Settings of the decision taken after pooling, on the whole recording's rows: a
+keyframe's objects and beliefs do not depend on them, so a sweep over them reuses every
+keyframe's CNN work."""
 
 _FEATURE_COLUMNS = ("range_bin", "beam", "range_m", "angle_rad")
 """What the key takes of the keyframe's features: not their ids, which number them
@@ -76,7 +85,7 @@ def classify_base(
     return {
         "stage": name,
         "version": version,
-        "config": config.model_dump(mode="json", exclude=set(excluded)),
+        "config": config.model_dump(mode="json", exclude={*excluded, *DECISION_FIELDS}),
         "model": hashlib.sha256(model_bytes).hexdigest(),
         "model_settings": model_settings,
         "classes": table.model_dump(mode="json") if hasattr(table, "model_dump") else repr(table),

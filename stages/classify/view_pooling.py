@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["along_track_m", "pool_views", "sighting_world_xy"]
+__all__ = ["along_track_m", "fan_coverage", "pool_views", "sighting_world_xy"]
 
 _LOG_FLOOR = 1e-6
 """Probabilities are clipped here before the log: a single 0 would veto a class outright."""
@@ -122,3 +122,45 @@ def pool_views(
     pooled = np.exp(pooled_log)
     pooled /= pooled.sum(axis=1, keepdims=True)
     return pooled, np.bincount(dst, minlength=n).astype(np.int64)
+
+
+def fan_coverage(
+    world_xy_m: np.ndarray,
+    along_track: np.ndarray,
+    sonar_xy_yaw: np.ndarray,
+    fans: np.ndarray,
+    keyframe_along: np.ndarray,
+    window_m: float,
+    margin_m: float = 0.0,
+) -> np.ndarray:
+    """How many keyframes' horizontal fans cover each place: the place lies at least
+    `margin_m` inside the keyframe's range and bearing interval (the pooling radius: the
+    whole of what counts as that place is in view), and the keyframe at most `window_m` of
+    travel from the place's own (the pooling's window). Occlusion is not modelled.
+
+    Args:
+        world_xy_m: (n, 2) places in the world (dead reckoning).
+        along_track: (n,) distance travelled at each place's own keyframe [m].
+        sonar_xy_yaw: (k, 3) the horizontal sonar's world pose at each keyframe.
+        fans: (k, 4) each keyframe's image: nearest and farthest range [m], smallest and
+            largest bearing [rad] (bearing = atan2(y, x) in the fan plane).
+        keyframe_along: (k,) distance travelled at each keyframe [m].
+        window_m: the pooling window.
+        margin_m: how far inside the fan's edges a place must be to count as covered.
+
+    Returns:
+        (n,) int64 count of keyframes covering each place.
+    """
+    places = np.asarray(world_xy_m, np.float64)
+    cover = np.zeros(len(places), np.int64)
+    # One keyframe at a time, vectorised over the places: memory stays O(n).
+    for (x, y, yaw), (r0, r1, a0, a1), at in zip(sonar_xy_yaw, fans, keyframe_along, strict=True):
+        near = np.abs(np.asarray(along_track) - at) <= window_m
+        dx, dy = places[:, 0] - x, places[:, 1] - y
+        r = np.hypot(dx, dy)
+        bearing = np.angle(np.exp(1j * (np.arctan2(dy, dx) - yaw)))
+        inside = np.minimum(bearing - a0, a1 - bearing)  # to the nearer side edge [rad]
+        to_side = r * np.sin(np.clip(inside, 0.0, np.pi / 2))
+        in_range = (r - r0 >= margin_m) & (r1 - r >= margin_m)
+        cover += near & in_range & (inside >= 0) & (to_side >= margin_m)
+    return cover

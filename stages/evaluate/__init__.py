@@ -26,7 +26,7 @@ STAGE = Stage(
     # found degenerate, SLAM against the navigation's predicted drift, its warnings)
     # 12: the report's front-end section (inputs features.calibration, fuse.fused)
     # 13: the report's classifier section (input classify.acceptance)
-    # 14: ... with the sure objects `classify.min_views` held back
+    # 14: ... with the sure objects `classify.min_views` / `min_seen_share` held back
     version=14,
     config=EvaluateConfig,
     reads_sections=("classes",),

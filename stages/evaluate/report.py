@@ -129,7 +129,8 @@ def _acceptance_markdown(block: Mapping[str, Any] | None) -> list[str]:
         lines += [
             f"{block['unconfirmed']} objects sure to be a compact class (a piling) stay"
             f" unknown: fewer than {block.get('min_views')} sightings of their place"
-            " (`classify.min_views`).",
+            f" (`classify.min_views`), or sighted by under {block.get('min_seen_share')} of"
+            " the keyframes whose fan covered it (`classify.min_seen_share`).",
             "",
         ]
     return [*lines, *[f"- **warning:** {w}" for w in block.get("warnings") or []], ""]
