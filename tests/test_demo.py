@@ -109,8 +109,11 @@ def test_demo_on_a_small_scene_then_fully_cached(
     accepted = np.count_nonzero(
         objects.column("class_name").to_numpy(zero_copy_only=False) != "unknown"
     )
+    # Sure (pooled p over the threshold) and accepted differ by what min_views held back.
+    sure = np.count_nonzero(objects.column("probability").to_numpy() > acceptance["threshold"])
     assert acceptance["objects"] == objects.num_rows > 0
-    assert acceptance["pooled_sure_fraction"] == round(accepted / objects.num_rows, 4)
+    assert acceptance["pooled_sure_fraction"] == round(sure / objects.num_rows, 4)
+    assert acceptance["unconfirmed"] == sure - accepted
     assert 0.0 <= acceptance["sure_fraction"] <= 1.0
     assert "## Classifier" in report.read_text()
     pngs = {
