@@ -147,6 +147,8 @@ def test_a_failed_json_command_still_prints_one_document(tmp_path: Path) -> None
     assert res.stderr.strip() == f"error: {doc['error']}"
     plain = runner.invoke(app, ["run", str(missing), "--store", str(tmp_path / "s")])
     assert plain.exit_code == 2 and plain.stdout == ""
+    # Refused before any stage started: no empty progress display, no blank line.
+    assert plain.stderr == f"error: {doc['error']}\n"
 
 
 def test_a_reader_that_closes_stdout_early_is_no_internal_error(tmp_path: Path) -> None:

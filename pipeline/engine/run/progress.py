@@ -30,6 +30,8 @@ class StageProgress:
         self._tasks: dict[str, Any] = {}
 
     def on_start(self, item: PlannedStage) -> None:
+        if not self._tasks:  # shown from the first stage: a run refused before has no bar
+            self._progress.__enter__()
         verb = "cached" if item.hit else f"computing ({item.reason})"
         self._tasks[item.stage.name] = self._progress.add_task(
             f"{item.stage.name:<11} {verb}", total=1
@@ -53,7 +55,6 @@ class StageProgress:
         )
 
     def __enter__(self) -> StageProgress:
-        self._progress.__enter__()
         return self
 
     def __exit__(
@@ -62,4 +63,5 @@ class StageProgress:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self._progress.__exit__(exc_type, exc, tb)
+        if self._tasks:
+            self._progress.__exit__(exc_type, exc, tb)
