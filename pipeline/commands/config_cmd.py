@@ -32,8 +32,8 @@ def check(
     ctx: typer.Context, file: Path = typer.Argument(..., help="Config YAML to validate.")
 ) -> None:
     """Validate a config file; exit 2 with the offending key on error."""
-    from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.commands._config_references import check_references
+    from sonarmap.pipeline.engine.config.load import load_config
 
     graph = cli_graph(ctx)
     config = load_config(graph.config_stages, file, (), graph.extra_sections)
