@@ -21,6 +21,7 @@ __all__ = [
     "default_graph",
     "extra_sections",
     "pipeline_stages",
+    "required_files",
     "stage_by_name",
     "training_stage",
     "without_figures",
@@ -95,6 +96,14 @@ def training_stage() -> Stage:
 def all_stages() -> tuple[Stage, ...]:
     """Every stage of the real pipeline with a config section (mapping plus training)."""
     return default_graph().config_stages
+
+
+def required_files() -> dict[str, frozenset[str]]:
+    """Each real stage's files that every artifact of it holds (its outputs that are not
+    optional): what `pull` and `show --verify` ask of a manifest."""
+    return {
+        s.name: frozenset(o.filename for o in s.outputs if not o.optional) for s in all_stages()
+    }
 
 
 def extra_sections() -> dict[str, Any]:

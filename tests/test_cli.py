@@ -192,3 +192,23 @@ def test_config_check_reads_what_the_config_names_as_a_run_would(
     assert res.exit_code == 2, res.output
     lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and words in lines[0], lines
+
+
+def test_show_verify_refuses_an_artifact_without_a_file_its_stage_always_writes(
+    tmp_path: Path,
+) -> None:
+    """Every file the manifest listed matched, so `--verify` said verified, and the next
+    stage failed on the file the manifest did not list."""
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+
+    def build(tmp: Path) -> dict:
+        (tmp / "notes.txt").write_text("not the fused points\n")
+        return {}
+
+    from sonarmap.pipeline.engine.hashing import recipe_key
+
+    recipe = {"stage": "fuse", "version": 0}
+    ArtifactStore(tmp_path / "s").commit("fuse", recipe_key(recipe), build, {"recipe": recipe})
+    res = runner.invoke(app, ["show", "fuse", "--verify", "--store", str(tmp_path / "s")])
+    assert res.exit_code == 2, res.output
+    assert "lists no 'fused.parquet', which every fuse artifact holds" in res.stderr

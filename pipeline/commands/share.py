@@ -48,12 +48,9 @@ def _check_environment() -> None:
 
 
 def _required() -> dict[str, frozenset[str]]:
-    """Each pipeline stage's files that every artifact of it holds."""
-    from sonarmap.pipeline.graph import all_stages
+    from sonarmap.pipeline.graph import required_files
 
-    return {
-        s.name: frozenset(o.filename for o in s.outputs if not o.optional) for s in all_stages()
-    }
+    return required_files()
 
 
 def push(
