@@ -72,6 +72,14 @@ def _piling_as_seawall(d: dict[str, Any]) -> None:
             ),
             r"images\[1\]\.file_name '.*' is the exported image .* that images\[0\] names too",
         ),
+        (  # 1e308 px became a polygon 5e306 m across
+            lambda d: d["annotations"][0].update(segmentation=[[1e308, 0, 10, 10, 20, 0]]),
+            r"segmentation\[0\]: the point \(1e\+308, 0\) px lies far outside the \d+ x \d+ image",
+        ),
+        (
+            lambda d: d["annotations"][0].update(segmentation=[], bbox=[-9e9, 0, 10, 10]),
+            r"bbox: the point \(-9e\+09, 0\) px lies far outside",
+        ),
         (  # a tool that resized the images: the shapes' pixels no longer map to metres
             lambda d: d["images"][0].update(width=d["images"][0]["width"] // 2),
             r"images\[0\] is \d+ x \d+ pixels, exported at \d+ x \d+: the tool resized it",

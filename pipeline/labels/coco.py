@@ -120,6 +120,19 @@ def _numbers(value: Any, what: str, count: int | None = None) -> list[float]:
     return [float(v) for v in value]
 
 
+def _on_the_image(uv: np.ndarray, g: FanGeometry, what: str) -> np.ndarray:
+    """`uv` [px], refused when a point lies more than the image's own size beyond its edges:
+    no tool draws there, and 1e308 px became a polygon 5e306 m across."""
+    w, h = g.width_px, g.height_px
+    far = ~(
+        (uv[:, 0] >= -w) & (uv[:, 0] <= 2 * w) & (uv[:, 1] >= -h) & (uv[:, 1] <= 2 * h)
+    )  # NaN is far too
+    if far.any():
+        u, v = uv[int(np.argmax(far))]
+        raise CocoError(f"{what}: the point ({u:.6g}, {v:.6g}) px lies far outside the {w} x {h} image")
+    return uv
+
+
 def _shapes(ann: Mapping[str, Any], g: FanGeometry, where: str) -> list[dict[str, Any]]:
     """The sonarmap shapes ({"polygon_m": ...} or {"box_m": ...}) of one COCO annotation."""
     segmentation = ann.get("segmentation") or []
@@ -132,12 +145,14 @@ def _shapes(ann: Mapping[str, Any], g: FanGeometry, where: str) -> list[dict[str
         flat = _numbers(poly, f"{where}.segmentation[{k}]")
         if len(flat) < 6 or len(flat) % 2:
             raise CocoError(f"{where}.segmentation[{k}]: a polygon needs 3 or more (x, y) pairs")
-        xy = pixels_to_metres(np.reshape(flat, (-1, 2)), g)
+        uv = _on_the_image(np.reshape(flat, (-1, 2)), g, f"{where}.segmentation[{k}]")
+        xy = pixels_to_metres(uv, g)
         shapes.append({"polygon_m": _rounded(xy)})
     if shapes:
         return shapes
     u, v, w, h = _numbers(ann.get("bbox"), f"{where}.bbox", 4)
-    corners = pixels_to_metres(np.array([[u, v], [u + w, v + h]]), g)
+    box = _on_the_image(np.array([[u, v], [u + w, v + h]]), g, f"{where}.bbox")
+    corners = pixels_to_metres(box, g)
     (x_hi, y_hi), (x_lo, y_lo) = _rounded(corners)
     return [{"box_m": {"x_min_m": x_lo, "x_max_m": x_hi, "y_min_m": y_lo, "y_max_m": y_hi}}]
 
