@@ -25,6 +25,7 @@ _REMOTE = typer.Argument(
 def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
     """Shipped models (leaves, pinned), models trained in the model cache, and the user's pins."""
     from sonarmap.pipeline.engine.share.trust import TrustPolicy, env_pins
+    from sonarmap.pipeline.graph import required_files
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.shipped import shipped_models
 
@@ -34,7 +35,7 @@ def _policy(pins: list[str], cache: ArtifactStore | None) -> TrustPolicy:
             TrustPolicy.model_sha(r.manifest) for r in cache.iter_artifacts() if r.stage == "train"
         ]
     shipped = shipped_models(TrainingDataConfig().shipped_models)
-    return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped, _required())
+    return TrustPolicy.build([*pins, *env_pins(), *filter(None, local)], shipped, required_files())
 
 
 def _check_environment() -> None:
@@ -45,12 +46,6 @@ def _check_environment() -> None:
 
     remote_timeout_s()
     max_file_bytes()
-
-
-def _required() -> dict[str, frozenset[str]]:
-    from sonarmap.pipeline.graph import required_files
-
-    return required_files()
 
 
 def push(

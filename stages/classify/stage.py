@@ -104,10 +104,10 @@ def _object_rows(
 def _pooled(
     mean: np.ndarray, geometry: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray,
     cfg: ClassifyConfig, fans: Mapping[int, tuple[float, float, float, float]],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:  # fmt: skip
     """Each object's class distribution pooled over its sightings, how many sightings
     pooled, and the share of the keyframes whose fan covered its place that sighted it
-    (`sonarmap.stages.classify.view_pooling`)."""
+    (None when `min_seen_share` is off; `sonarmap.stages.classify.view_pooling`)."""
     keyframes = keyframes.sort_by("keyframe_id")
     kf_ids = keyframes.column("keyframe_id").to_numpy().astype(np.int64)
     cols = [keyframes.column(c) for c in ("x_m", "y_m", "yaw_rad")]
@@ -127,6 +127,8 @@ def _pooled(
         radius_m=cfg.pool_radius_m, window_m=cfg.pool_window_m,
         range_scale_m=cfg.pool_range_scale_m,
     )  # fmt: skip
+    if cfg.min_seen_share <= 0:  # the rule is off: no coverage to count
+        return pooled, n_views, None
     # The horizontal sonar's world pose at each keyframe with an image, and its fan.
     imaged = np.isin(kf_ids, np.fromiter(fans, np.int64, len(fans)))
     origin = view_pooling.sighting_world_xy(np.zeros((imaged.sum(), 2)), pose[imaged], T_base_sonar)
