@@ -41,16 +41,12 @@ def show(
     ref = st.find(target)
     if verify:
         st.verify(ref)
-        from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+        from sonarmap.pipeline.engine.store.integrity import check_required_files
         from sonarmap.pipeline.graph import required_files
 
-        missing = sorted(required_files().get(ref.stage, frozenset()) - set(ref.manifest["files"]))
-        if missing:  # every listed file matched, but one the stage always writes is absent
-            raise ArtifactCorrupt(
-                f"artifact {ref.stage}/{ref.key[:12]}: its manifest lists no '{missing[0]}',"
-                f" which every {ref.stage} artifact holds; recompute it: `sonarmap run"
-                f" RECORDING --force {ref.stage}`"
-            )
+        # Every listed file matched; one the stage always writes may still be unlisted.
+        where = f"artifact {ref.stage}/{ref.key[:12]}"
+        check_required_files(ref.stage, ref.manifest["files"], required_files(), where)
     if json_:
         emit_json({"path": str(ref.path), "verified": verify, "manifest": ref.manifest})
         return

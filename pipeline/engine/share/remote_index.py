@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
@@ -19,6 +18,7 @@ from sonarmap.pipeline.engine.hashing import recipe_key
 from sonarmap.pipeline.engine.share.remotes import open_remote
 from sonarmap.pipeline.engine.share.transfer import max_file_bytes
 from sonarmap.pipeline.engine.share.trust import TrustPolicy, check_not_reserved
+from sonarmap.pipeline.engine.store.artifact import escapes
 from sonarmap.pipeline.engine.store.manifest import parse_manifest
 from sonarmap.pipeline.engine.text import one_line
 
@@ -160,8 +160,7 @@ def remote_manifest(
         raise ArtifactCorrupt(f"{where}: manifest names another artifact")
     policy.check_files(stage, model.files, where)
     for rel in model.files:  # named as the remote's, before a local folder exists
-        parts = Path(rel).parts
-        if not rel.strip() or Path(rel).is_absolute() or ".." in parts:
+        if escapes(rel):
             raise ArtifactCorrupt(
                 f"{where}: manifest lists the file '{one_line(rel, 80)}', a path outside"
                 " the artifact"

@@ -65,12 +65,9 @@ class TrustPolicy:
 
     def check_files(self, stage: str, files: Iterable[str], where: str) -> None:
         """Refuse a manifest that lacks a file every artifact of `stage` has."""
-        missing = sorted(self.required.get(stage, frozenset()) - set(files))
-        if missing:
-            raise ArtifactCorrupt(
-                f"{where}: manifest lists no '{missing[0][:80]}', which every {stage}"
-                " artifact holds"
-            )
+        from sonarmap.pipeline.engine.store.integrity import check_required_files
+
+        check_required_files(stage, files, self.required, where)
 
     @classmethod
     def build(

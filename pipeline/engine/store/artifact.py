@@ -11,7 +11,7 @@ from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 
-__all__ = ["PULL_CACHE", "ArtifactRef", "Problem", "safe_relative"]
+__all__ = ["PULL_CACHE", "ArtifactRef", "Problem", "escapes", "safe_relative"]
 
 
 PULL_CACHE = ".cache/pull"
@@ -19,10 +19,17 @@ PULL_CACHE = ".cache/pull"
 them once stale."""
 
 
+def escapes(relative: str) -> bool:
+    """Whether a manifest's file name leaves its artifact by its text alone: empty,
+    absolute, or climbing out with `..`."""
+    candidate = Path(relative)
+    return relative.strip() == "" or candidate.is_absolute() or ".." in candidate.parts
+
+
 def safe_relative(root: Path, relative: str) -> Path:
     """`root / relative`, refusing absolute paths and anything that escapes `root`."""
     candidate = Path(relative)
-    if candidate.is_absolute() or ".." in candidate.parts or relative.strip() == "":
+    if escapes(relative):
         raise ArtifactCorrupt(f"path '{relative}' escapes the artifact directory {root}")
     resolved = (root / candidate).resolve()
     if not resolved.is_relative_to(root.resolve()):

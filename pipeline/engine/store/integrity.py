@@ -8,7 +8,7 @@ message is one line naming the artifact and saying how to recover.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -19,12 +19,29 @@ from sonarmap.pipeline.engine.store.manifest import parse_manifest
 
 __all__ = [
     "check_parses",
+    "check_required_files",
     "recovery_hint",
     "verify_artifact_dir",
     "verify_file",
 ]
 
 _MANIFEST = "manifest.json"
+
+
+def check_required_files(
+    stage: str, files: Iterable[str], required: Mapping[str, frozenset[str]], where: str
+) -> None:
+    """Refuse a manifest that lacks a file every artifact of `stage` holds (`required`:
+    stage -> such files): every file it lists can match, and the next stage still fails.
+
+    Raises:
+        ArtifactCorrupt: naming the first missing file.
+    """
+    missing = sorted(required.get(stage, frozenset()) - set(files))
+    if missing:
+        raise ArtifactCorrupt(
+            f"{where}: manifest lists no '{missing[0][:80]}', which every {stage} artifact holds"
+        )
 
 
 def recovery_hint(stage: str) -> str:
