@@ -28,10 +28,10 @@ from sonarmap.stages.slam.degeneracy import (
 )
 from sonarmap.stages.slam.frontend import run_slam
 from sonarmap.stages.slam.health import CHI2_99_2DOF, slam_summary
+from sonarmap.stages.slam.loops import view_change_deg
 from sonarmap.stages.slam.pose_graph import se2_between
 from sonarmap.stages.slam.scan_matching import transform_points
 from sonarmap.stages.slam.stage import STAGE
-from sonarmap.stages.slam.viewpoint import covisible_points, view_change_deg
 from tests.test_slam import ate_se2, simulated_slam_inputs
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -236,22 +236,6 @@ def test_view_change_is_the_angle_between_the_two_sightings_of_the_structure() -
     source = transform_points(se2_between(side, np.zeros(3)), piling)
     assert view_change_deg(source, piling, side, 0.5) == pytest.approx(45.0, abs=2.0)
     assert view_change_deg(source + 5.0, piling, side, 0.5) == 0.0
-
-
-def test_covisible_points_keep_what_both_keyframes_see_from_one_side() -> None:
-    """Two pilings 10 m ahead of the target keyframe; the source keyframe stands 20 m
-    ahead, looking back: the piling between them is seen from opposite sides (180 deg)
-    and dropped from both clouds; one 20 m off to the side of both is seen from about
-    50 deg apart and kept at 60 deg, dropped at 45."""
-    between = np.array([[10.0, 0.0], [10.0, 0.2]])
-    aside = np.array([[10.0, 20.0], [10.2, 20.0]])
-    target = np.concatenate([between, aside])
-    behind = np.array([20.0, 0.0, np.pi])
-    source = transform_points(se2_between(behind, np.zeros(3)), target)
-    kept_source, kept_target = covisible_points(source, target, behind, 60.0)
-    np.testing.assert_allclose(kept_target, aside)
-    np.testing.assert_allclose(transform_points(behind, kept_source), aside, atol=1e-9)
-    assert [len(c) for c in covisible_points(source, target, behind, 45.0)] == [0, 0]
 
 
 def test_loop_targets_come_from_the_nearest_candidates_only() -> None:

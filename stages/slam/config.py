@@ -268,14 +268,6 @@ class SlamConfig(StageConfig):
         le=1000000,
         description="chi2(0.999, 3) gate of a loop against the odometry chain",
     )
-    loop_max_point_view_change_deg: float | None = Field(
-        None,
-        gt=0,
-        le=180,
-        description="a loop closure registers only the points both keyframes see from"
-        " directions at most this far apart: a curved hull seen from another side returns"
-        " from another part of its surface; None: every point",
-    )
     loop_max_view_change_deg: float | None = Field(
         None,
         gt=0,

@@ -34,11 +34,10 @@ from sonarmap.stages.slam.scan_matching import (
     icp_with_covariance,
     transform_points,
 )
-from sonarmap.stages.slam.viewpoint import covisible_points, view_change_deg
 
 spatial = lazy("scipy.spatial")
 
-__all__ = ["LoopCandidate", "LoopClosures", "baseline_covariance_factor"]
+__all__ = ["LoopCandidate", "LoopClosures", "baseline_covariance_factor", "view_change_deg"]
 
 _RESOLVE_ITERATIONS = 4
 """Extra iSAM2 iterations of a batch re-solve after the loop re-registration."""
@@ -71,6 +70,24 @@ def baseline_covariance_factor(
     if growth_m is None:
         return 1.0
     return float(((growth_m + baseline_m) / (growth_m + reference_m)) ** 2)
+
+
+def view_change_deg(
+    source: np.ndarray, target: np.ndarray, pose: np.ndarray, gate_m: float
+) -> float:
+    """Median angle [deg] between the directions from which the two keyframes see the
+    structure they match: each source point registered at `pose` (frame of the target's
+    keyframe) and paired within `gate_m`, seen from the origin and from `pose`; 0 unpaired."""
+    if len(source) == 0 or len(target) == 0:
+        return 0.0
+    moved = transform_points(pose, source)
+    dist, _ = spatial.cKDTree(target).query(moved, distance_upper_bound=gate_m)
+    seen = moved[np.isfinite(dist)]
+    if len(seen) == 0:
+        return 0.0
+    from_t = np.arctan2(seen[:, 1], seen[:, 0])
+    from_k = np.arctan2(seen[:, 1] - pose[1], seen[:, 0] - pose[0])
+    return float(np.degrees(np.median(np.abs(wrap_angle(from_t - from_k)))))
 
 
 @dataclass
@@ -165,14 +182,6 @@ class LoopClosures:
         target = self._cloud(range(max(0, t - half_t), min(limit, t + half_t + 1)), t)
         return source, target
 
-    def _covisible_clouds(self, t: int, k: int, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """`_loop_clouds`, less the points the two keyframes (k at `pose` in the frame of t)
-        see from directions more than `loop_max_point_view_change_deg` apart."""
-        source, target = self._loop_clouds(t, k)
-        if self.cfg.loop_max_point_view_change_deg is None:
-            return source, target
-        return covisible_points(source, target, pose, self.cfg.loop_max_point_view_change_deg)
-
     def _loop_closure(self, k: int) -> None:
         rel = self._relative_covariance(0, k)
         targets = self._footprint_targets(
@@ -185,13 +194,13 @@ class LoopClosures:
     def _try_loop(self, t: int, k: int) -> bool:
         """Match keyframe k against the frames around t; queue the loop if it passes."""
         c = self.cfg
-        guess = se2_between(self.est[t], self.est[k])
-        source, target = self._covisible_clouds(t, k, guess)
+        source, target = self._loop_clouds(t, k)
         if len(source) < c.min_points or len(target) < c.min_points:
             return False
         rel = self._relative_covariance(t, k)
         xy = np.clip(5 * np.sqrt(np.linalg.eigvalsh(rel[:2, :2])[-1]), *c.nssm_window_xy_m)
         yaw = np.clip(5 * np.sqrt(rel[2, 2]), *np.deg2rad(c.nssm_window_yaw_deg))
+        guess = se2_between(self.est[t], self.est[k])
         match = self._match(source, target, guess, np.array([xy, xy, yaw]))
         reason = self._check(match, guess, c.nssm_max_translation_m, c.nssm_max_rotation_deg)
         cov = self._floor(match.covariance, self.loop_cov)
@@ -272,7 +281,7 @@ class LoopClosures:
         for _ in range(c.loop_refine_passes):
             for i, row in enumerate(loops):
                 t, k = row["key_from"], row["key_to"]
-                source, target = self._covisible_clouds(t, k, se2_between(self.est[t], self.est[k]))
+                source, target = self._loop_clouds(t, k)
                 pose, overlap, rmse, cov = self._reregister(source, target, t, k)
                 growth = baseline_covariance_factor(
                     float(np.hypot(pose[0], pose[1])),
