@@ -13,16 +13,22 @@ anything interpolated across one is a guess: they are counted and warned.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.readers.source_types import TopicInfo
+
 __all__ = [
     "BACKWARDS_TOLERANCE_NS",
     "GAP_FACTOR",
+    "LAST_STAMP_NS",
     "MIN_GAP_NS",
     "Backwards",
     "backwards",
+    "check_stamp_range",
     "gap_warning",
 ]
 
@@ -35,6 +41,12 @@ GAP_FACTOR = 20.0
 
 MIN_GAP_NS = 1_000_000_000
 """... when it is also at least this long [ns] (a 1 Hz topic missing a sample is not)."""
+
+
+LAST_STAMP_NS = (2**31 - 1) * 1_000_000_000
+"""2038-01-19 03:14:07 UTC: the last second a ROS 2 header stamp (int32 seconds) holds, so
+the last a keyframes artifact's frames can carry. A recording dated later is taken as a
+recorder whose clock is wrong, not mapped with its times cut."""
 
 
 @dataclass(frozen=True)
@@ -53,9 +65,14 @@ class Backwards:
 
     def warning(self, where: str) -> str:
         n, total = int(self.behind.sum()), len(self.behind)
+        first = (
+            f"t_ns={self.first_t_ns}"
+            if self.first_t_ns >= 0
+            else f"t_ns={self.first_t_ns + 2**64}, past 2^63"  # a uint64 time read as int64
+        )
         return (
             f"{where}: the clock runs backwards: dropped {n} of {total} messages recorded "
-            f"after a later time (first at t_ns={self.first_t_ns}, "
+            f"after a later time (first at {first}, "
             f"{self.back_ns * 1e-9:.4g} s back)"
         )
 
@@ -96,3 +113,23 @@ def gap_warning(
         f"{dt[k] * 1e-9:.4g} s after t_ns={int(t[k])}, over {limit * 1e-9:.3g} s); "
         + (consequence or f"{what} across a jump is interpolated")
     )
+
+
+def check_stamp_range(path: object, topics: Iterable[TopicInfo], used: Iterable[str]) -> None:
+    """A SourceError (one line) naming the first of the `used` topics with a log time past
+    `LAST_STAMP_NS`; topics the map does not read are not checked."""
+    wanted = set(used)
+    for info in topics:
+        if info.topic not in wanted or info.first_ns is None or info.last_ns is None:
+            continue
+        if info.first_ns < 0:  # a uint64 time past 2^63 read into int64
+            raise SourceError(
+                f"{path}: {info.topic}: a log time is past 2^63 ns (read as "
+                f"t_ns={info.first_ns}); the recorder's clock was set wrong"
+            )
+        if info.last_ns > LAST_STAMP_NS:
+            raise SourceError(
+                f"{path}: {info.topic}: log time t_ns={info.last_ns} is after 2038-01-19 "
+                "03:14:07 UTC, past what a ROS 2 header stamp holds (int32 seconds); the "
+                "recorder's clock was set wrong"
+            )

@@ -49,10 +49,14 @@ _PREFETCH_CHUNKS = 2
 # (`limits.max_chunk_bytes`), memory stays bounded whatever the chunks declare.
 _CACHE_BYTES = 256 << 20
 _PREFETCH_MAX_BYTES = 32 << 20
+_MIN_INDEXED_BYTES = 8 + 29 + 8
+"""Leading magic, footer record (opcode, length, two offsets, CRC) and trailing magic."""
 
 
 def _summary(path: Path) -> tuple[Summary | None, str | None]:
     """The summary section, or None and why it cannot be used (None: the file has none)."""
+    if path.stat().st_size < _MIN_INDEXED_BYTES:  # no room for a footer to seek back to
+        return None, None
     try:
         with path.open("rb") as f:
             problem = summary_crc_problem(path)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.readers.clock import gap_warning
+from sonarmap.pipeline.readers.clock import check_stamp_range, gap_warning
 from sonarmap.pipeline.readers.dead_reckoning import NavigationSensors
 from sonarmap.pipeline.readers.geometry_checks import (
     MAX_JUMP_M,
@@ -114,6 +114,7 @@ class SourceRecording(NavigationSensors):
         self.options = options
         self._topics = source.topics()
         self.roles = roles or detect_roles(source.path, self._topics, options)
+        check_stamp_range(source.path, self._topics, self.roles.as_dict().values())
         self._types = {t.topic: t.msgtype for t in self._topics}
         self._nav: PoseTrack | None = None
         self._pose_tracks: dict[str, PoseTrack] | None = None
