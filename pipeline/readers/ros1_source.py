@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import bz2
 import logging
+import struct
 from collections import defaultdict
 from collections.abc import Callable, Collection, Iterator, Sequence
 from pathlib import Path
@@ -85,9 +86,10 @@ class Ros1Source(TimeIndexedSource):
             self._reader = AnyReader([path], default_typestore=ros1_typestore())
             self._reader.open()
         except Exception as err:
+            why = str(err) or type(err).__name__
             raise SourceError(
-                f"{path}: cannot read ROS 1 bag ({err}); a bag cut before its index was "
-                "written must be reindexed (rosbag reindex) first"
+                f"{path}: cannot read ROS 1 bag ({why}); its index is missing or damaged "
+                "(a bag cut before its index was written): reindex it (rosbag reindex) first"
             ) from err
         self._bound_chunks()
         self._conns = defaultdict(list)
@@ -172,16 +174,37 @@ class Ros1Source(TimeIndexedSource):
     def messages(
         self, topics: Sequence[str], times: Collection[int] | None = None
     ) -> Iterator[tuple[str, int, Any]]:
+        """As `Source.messages`; an index that points at no message (a damaged bag) or a
+        message its definition does not describe is a SourceError naming it."""
+        from rosbags.rosbag1 import ReaderError
+
         conns = [c for t in topics for c in self._conns.get(t, [])]
         if not conns:
             return
-        if times is None:
-            for conn, t, raw in self._reader.messages(connections=conns):
-                yield conn.topic, t, self._reader.deserialize(raw, conn.msgtype)
-            return
-        for t in sorted(set(times)):
-            for conn, tm, raw in self._reader.messages(connections=conns, start=t, stop=t + 1):
-                yield conn.topic, tm, self._reader.deserialize(raw, conn.msgtype)
+        windows = [(None, None)] if times is None else [(t, t + 1) for t in sorted(set(times))]
+        try:
+            for start, stop in windows:
+                for conn, t, raw in self._reader.messages(
+                    connections=conns, start=start, stop=stop
+                ):
+                    yield conn.topic, t, self._decode(raw, conn, t)
+        except (ReaderError, AssertionError, IndexError, struct.error) as err:
+            # rosbags asserts on a message header its index did not point at
+            raise SourceError(
+                f"{self.path}: the bag's index points at no message of "
+                f"{', '.join(sorted({c.topic for c in conns}))} "
+                f"({type(err).__name__}{': ' + str(err) if str(err) else ''}); "
+                "reindex it (rosbag reindex)"
+            ) from err
+
+    def _decode(self, raw: bytes, conn: Any, t_ns: int) -> Any:
+        try:
+            return self._reader.deserialize(raw, conn.msgtype)
+        except Exception as err:  # rosbags raises several kinds on data it cannot parse
+            raise SourceError(
+                f"{self.path}: {conn.topic}: the {conn.msgtype} message at t_ns={t_ns} does "
+                f"not match the definition it is decoded with ({err})"
+            ) from err
 
     def attachments(self) -> dict[str, bytes]:
         return {}

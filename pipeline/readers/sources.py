@@ -125,6 +125,8 @@ def _listed_files(path: Path, meta: dict[str, Any]) -> list[Path]:
             raise SourceError(
                 f"{where}: relative_file_paths lists {name[:120]!r}, outside the bag directory"
             )
+        if os.path.normpath(path / name) in map(os.path.normpath, files):
+            raise SourceError(f"{where}: relative_file_paths lists {name[:120]!r} twice")
         files.append(path / name)
     return files
 
@@ -146,9 +148,14 @@ def _check_mcap_magic(files: list[Path]) -> None:
 def _open_rosbag2(path: Path, extra_types: dict[str, Any] | None = None) -> Source:
     meta = _bag_metadata(path)
     files = _listed_files(path, meta)
+    if not files:
+        raise SourceError(f"{path / 'metadata.yaml'}: relative_file_paths lists no file")
     missing = [str(f) for f in files if not f.is_file()]
-    if not files or missing:
-        raise SourceError(f"{path}: bag files listed in metadata.yaml are missing: {missing}")
+    if missing:
+        raise SourceError(
+            f"{path}: bag files listed in metadata.yaml are missing: {missing[0]}"
+            + (f" and {len(missing) - 1} more" if len(missing) > 1 else "")
+        )
     # A metadata.yaml listing no topics claims no counts (`follow`'s snapshot of a bag
     # being written cannot know them): nothing to check the messages against.
     indexed = (
