@@ -93,7 +93,7 @@ def check_mcap_start(path: Path) -> None:
     a recorder that has just opened it)."""
     with path.open("rb") as f:
         head = f.read(len(MAGIC))
-    if len(head) == len(MAGIC) and head != MAGIC:
+    if head != MAGIC[: len(head)]:  # not even the start of the magic: it never will be one
         raise SourceError(f"{path}: not an MCAP file (no MCAP magic at byte 0)")
 
 
@@ -173,9 +173,9 @@ class McapSnapshot:
                     " `run` it once it is written"
                 )
             if self.copied_until == 0:
+                check_mcap_start(self.source)
                 if size < len(MAGIC):
                     return Growth(0, 0, None, False)
-                check_mcap_start(self.source)
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.path.write_bytes(MAGIC + TAIL)
                 self.copied_until = len(MAGIC)
@@ -312,10 +312,17 @@ class BagSnapshot:
             listed = sorted(Path(n).name for n in info["relative_file_paths"])
         except (SourceError, KeyError, TypeError):
             return False  # being written, or not yet the final one: look again
-        files = [self._files[n] for n in names]
-        return listed == sorted(names) and all(
-            f.data_ended and mcap_closed(f.source) for f in files
-        )
+        closed = {n for n in names if self._files[n].data_ended and mcap_closed(self.source / n)}
+        if missing := sorted(set(listed) - set(names)):
+            if len(closed) == len(names):  # the recorder is done: the file will not come
+                raise SourceError(
+                    f"{meta}: lists {missing[0]}, which is not in {self.source} "
+                    f"({len(missing)} of {len(listed)} listed files missing)"
+                )
+            return False
+        # Files the metadata does not list (`run` does not read them either) are not
+        # waited for.
+        return bool(listed) and set(listed) <= closed
 
 
 def _split_order(name: str) -> tuple[int, str]:
