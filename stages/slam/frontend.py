@@ -39,6 +39,11 @@ stats = lazy("scipy.stats")
 __all__ = ["SlamResult", "run_slam"]
 
 _FREE_M2 = 1e6
+_LONGEST_STEP_S = 3600.0
+"""A step between keyframes longer than this is a gap in the recording (a clock jump, which
+the reader warns about), not that long under way: its odometry noise is this long's. GTSAM's
+solver fails on a step years long (sigma 73 m beside millimetres), and the dead-reckoned
+motion across a gap is what the navigation reported, not a DVL's drift over years."""
 """Variance [m^2] of the position part of a heading-only prior (unconstrained)."""
 
 
@@ -99,7 +104,8 @@ class _FrontEnd(LoopClosures):
         """(3, 3) white noise of one odometry step: the DVL's position noise grows with the
         square root of the step's duration, the yaw's is that of two AHRS readings."""
         c = self.cfg
-        return _diag_cov(c.odom_sigma_xy_m_sqrt_s * np.sqrt(max(dt_s, 0.01)), c.odom_sigma_yaw_deg)
+        step_s = min(max(dt_s, 0.01), _LONGEST_STEP_S)
+        return _diag_cov(c.odom_sigma_xy_m_sqrt_s * np.sqrt(step_s), c.odom_sigma_yaw_deg)
 
     def _odometry(self, row: dict[str, Any], graph: PlanarPoseGraph) -> None:
         a, b, z, cov = row["key_from"], row["key_to"], row["z"], row["cov"]
@@ -259,7 +265,9 @@ class _FrontEnd(LoopClosures):
                 self._row("heading", k, k, nav, cov)
             else:
                 self.heading_dt_s += dt_s
-                walk = np.deg2rad(c.heading_bias_walk_deg_sqrt_s) * np.sqrt(self.heading_dt_s)
+                walk = min(  # a bias is an angle: past a half turn it is simply unknown
+                    np.deg2rad(c.heading_bias_walk_deg_sqrt_s) * np.sqrt(self.heading_dt_s), np.pi
+                )
                 if self.bias_key is None:
                     bias = float(wrap_angle(guess[2] - nav[2]))
                 else:
