@@ -114,8 +114,8 @@ def _print_sensors(sensors: dict[str, Any]) -> None:
         sources.update({k: v for k, v in info.items() if k == "surface_pressure"})
         parts += [f"{k} from {v}" for k, v in sorted(sources.items())]
         typer.echo(f"{role}: " + ", ".join(parts))
-    for line in sensors.get("reader_warnings") or []:
-        typer.echo(f"reader warning: {line}")
+    # The reader's warnings are not repeated here: the run prints each as a `warning:`
+    # line, from the keyframes stage when it computes, from its artifact when cached.
 
 
 def register(app: typer.Typer) -> None:
