@@ -1,0 +1,135 @@
+"""Adversarial campaign 3 (clocks, readers, follow): times past what the artifacts hold,
+damaged ROS 1 bags, bag metadata that lies, files `follow` would wait on forever, and a
+recording with a years-long gap in its clock."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from test_readers_mcap import odom_msg
+from test_robust_clocks import NAV, S, _pings, _write
+from test_robust_lists_and_recordings import _bag
+
+from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.live.growing import BagSnapshot, McapSnapshot
+from sonarmap.pipeline.readers import open_recording, open_source
+from sonarmap.pipeline.readers.clock import LAST_STAMP_NS, Backwards
+from sonarmap.pipeline.readers.ros1_source import Ros1Source
+from sonarmap.schemas.topics import ODOMETRY_TYPE
+from sonarmap.stages.slam.config import SlamConfig
+from sonarmap.stages.slam.frontend import run_slam
+
+
+def test_log_times_past_2038_are_refused_naming_the_topic(tmp_path: Path) -> None:
+    """ROS 2 header stamps hold int32 seconds: the keyframes artifact could not carry such
+    a time (it failed deep in the stage with a struct error)."""
+    late = LAST_STAMP_NS + S
+    nav = [
+        (late + k * S, NAV, ODOMETRY_TYPE, odom_msg(0, 0.5 * k, 0.0, 0.0, 0.0)) for k in range(5)
+    ]
+    path = _write(tmp_path / "d.mcap", _pings(5) + nav)
+    with pytest.raises(
+        SourceError, match=rf"d\.mcap: {NAV}: log time t_ns={late + 4 * S} is after 2038"
+    ):
+        open_recording(path)
+
+
+def test_a_time_past_2_63_is_named_as_the_recorder_wrote_it() -> None:
+    line = Backwards(np.array([False, True]), -1, 5).warning("x: /nav")
+    assert "t_ns=18446744073709551615, past 2^63" in line
+
+
+def test_follow_refuses_a_short_file_that_cannot_become_an_mcap(tmp_path: Path) -> None:
+    src = tmp_path / "x.mcap"
+    src.write_bytes(b"X")
+    with pytest.raises(SourceError, match="not an MCAP file"):
+        McapSnapshot(src, tmp_path / "s.mcap").update()
+
+
+def _closed_bag(tmp_path: Path, listed: list[str], extra: str | None = None) -> Path:
+    bag = tmp_path / "dive"
+    bag.mkdir()
+    _write(bag / "dive_0.mcap", _pings(3))
+    if extra:
+        _write(bag / extra, _pings(2))
+    meta = {
+        "rosbag2_bagfile_information": {"storage_identifier": "mcap", "relative_file_paths": listed}
+    }
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    return bag
+
+
+def test_follow_of_a_closed_bag_missing_a_listed_file_is_refused(tmp_path: Path) -> None:
+    bag = _closed_bag(tmp_path, ["dive_0.mcap", "dive_1.mcap"])
+    with pytest.raises(SourceError, match=r"lists dive_1\.mcap, which is not in"):
+        BagSnapshot(bag, tmp_path / "scratch").update()
+
+
+def test_follow_of_a_closed_bag_does_not_wait_for_an_unlisted_file(tmp_path: Path) -> None:
+    bag = _closed_bag(tmp_path, ["dive_0.mcap"], extra="stray.mcap")
+    assert BagSnapshot(bag, tmp_path / "scratch").update().closed
+
+
+@pytest.mark.parametrize(
+    ("listed", "message"),
+    [(["dive_0.mcap", "./dive_0.mcap"], "twice"), ([], "lists no file")],
+)
+def test_bag_metadata_listing_a_file_twice_or_none_is_refused(
+    tmp_path: Path, listed: list[str], message: str
+) -> None:
+    bag = _bag(tmp_path, "dive_0.mcap")
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())
+    meta["rosbag2_bagfile_information"]["relative_file_paths"] = listed
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(SourceError, match=message):
+        open_source(bag)
+
+
+def _ros1(reader: Any) -> Ros1Source:
+    source = object.__new__(Ros1Source)
+    source.path, source._reader = Path("dive.bag"), reader
+    source._conns = {NAV: [SimpleNamespace(topic=NAV, msgtype=ODOMETRY_TYPE)]}
+    return source
+
+
+def test_a_ros1_index_pointing_at_no_message_is_one_line() -> None:
+    from rosbags.rosbag1 import ReaderError
+
+    def messages(**_: Any) -> Any:
+        raise ReaderError("Header could not be read from file.")
+        yield
+
+    with pytest.raises(
+        SourceError, match=rf"dive\.bag: the bag's index points at no message of {NAV}"
+    ):
+        list(_ros1(SimpleNamespace(messages=messages)).messages([NAV]))
+
+
+def test_a_ros1_message_its_definition_does_not_describe_names_topic_and_type() -> None:
+    conn = SimpleNamespace(topic=NAV, msgtype=ODOMETRY_TYPE)
+
+    def deserialize(raw: bytes, msgtype: str) -> Any:
+        raise ValueError("ROS1 message size mismatch")
+
+    def messages(**_: Any) -> Any:
+        yield conn, 7, b"\x00"
+
+    source = _ros1(SimpleNamespace(messages=messages, deserialize=deserialize))
+    with pytest.raises(SourceError, match=rf"{NAV}: the {ODOMETRY_TYPE} message at t_ns=7"):
+        list(source.messages([NAV]))
+
+
+def test_slam_across_a_years_long_clock_gap_keeps_the_navigation() -> None:
+    """All streams jump 3 years forward together: the step across the gap is the longest
+    step the odometry's noise model is meant for, and the heading bias's walk is at most a
+    half turn (GTSAM found the system indeterminate before)."""
+    dr = np.column_stack([np.arange(10.0), np.zeros(10), np.zeros(10)])
+    t_s = np.arange(10.0) * 2.0
+    t_s[5:] += 3 * 365.25 * 86400
+    result = run_slam(SlamConfig(), dr, [np.zeros((0, 2))] * 10, t_s)
+    np.testing.assert_allclose(result.poses[:, :2], dr[:, :2], atol=1e-6)
