@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from test_readers_mcap import odom_msg
+from test_readers_mcap import T0, odom_msg
 from test_robust_clocks import NAV, S, _pings, _write
 from test_robust_lists_and_recordings import _bag
 
@@ -133,3 +133,24 @@ def test_slam_across_a_years_long_clock_gap_keeps_the_navigation() -> None:
     t_s[5:] += 3 * 365.25 * 86400
     result = run_slam(SlamConfig(), dr, [np.zeros((0, 2))] * 10, t_s)
     np.testing.assert_allclose(result.poses[:, :2], dr[:, :2], atol=1e-6)
+
+
+def test_one_sample_stamped_an_hour_late_is_dropped_alone(tmp_path: Path) -> None:
+    """The stray time is taken out, not every later sample behind it (40 of 61 were)."""
+    times = [k * 0.5 for k in range(61)]
+    nav = [
+        (
+            T0 + int(s * S) + (3600 * S if k == 20 else 0),
+            NAV,
+            ODOMETRY_TYPE,
+            odom_msg(0, 0.5 * s, 0.0, 0.0, 0.0),
+        )
+        for k, s in enumerate(times)
+    ]
+    rec = open_recording(_write(tmp_path / "d.mcap", _pings(30) + nav))
+    assert len(rec.navigation()) == 60
+    [line] = [w for w in rec.source.warnings if "runs backwards" in w]
+    assert (
+        f"{NAV}: the clock runs backwards: dropped 1 of 61 messages recorded with a time ahead"
+        in line
+    )

@@ -6,6 +6,8 @@ messages with earlier times; sorted by time they interleave with the first run a
 track zig-zags between two places. Such messages (more than `BACKWARDS_TOLERANCE_NS`
 behind the latest time before them) are dropped, counted and named in a warning; a
 recorder's own jitter (a few ms between threads) is within the tolerance and is sorted.
+Where fewer messages are lost by dropping the stray times *ahead* of later ones instead (a
+sample stamped an hour late), those are dropped (`backwards`).
 
 Forward jumps (a gap far longer than the topic's usual interval) lose nothing, but
 anything interpolated across one is a guess: they are counted and warned.
@@ -51,17 +53,21 @@ recorder whose clock is wrong, not mapped with its times cut."""
 
 @dataclass(frozen=True)
 class Backwards:
-    """Messages of one topic behind an earlier one (file order).
+    """Messages of one topic out of time order (file order), those dropped.
 
     Attributes:
         behind: (n,) bool, True for each message dropped, in the order given.
         first_t_ns: log time of the first one dropped.
-        back_ns: how far it is behind the latest time before it.
+        back_ns: how far it is behind the latest time before it (or, `ahead`, ahead of
+            the earliest time after it).
+        ahead: the dropped ones are times ahead of the messages recorded after them (a
+            few stray times), not times behind the ones before them (a clock set back).
     """
 
     behind: np.ndarray
     first_t_ns: int
     back_ns: int
+    ahead: bool = False
 
     def warning(self, where: str) -> str:
         n, total = int(self.behind.sum()), len(self.behind)
@@ -70,6 +76,12 @@ class Backwards:
             if self.first_t_ns >= 0
             else f"t_ns={self.first_t_ns + 2**64}, past 2^63"  # a uint64 time read as int64
         )
+        if self.ahead:
+            return (
+                f"{where}: the clock runs backwards: dropped {n} of {total} messages recorded "
+                f"with a time ahead of later ones (first at {first}, "
+                f"{self.back_ns * 1e-9:.4g} s ahead)"
+            )
         return (
             f"{where}: the clock runs backwards: dropped {n} of {total} messages recorded "
             f"after a later time (first at {first}, "
@@ -78,17 +90,31 @@ class Backwards:
 
 
 def backwards(t_file_order: np.ndarray, tol_ns: int = BACKWARDS_TOLERANCE_NS) -> Backwards | None:
-    """The messages recorded with a time more than `tol_ns` behind an earlier message's,
-    or None when the clock never runs back that far."""
+    """The messages to drop so that the rest are in time order (within `tol_ns`), or None
+    when the clock never runs back that far.
+
+    Two readings each leave the rest in order: drop the messages more than `tol_ns` behind
+    the latest time before them (a clock set back: what comes after the step), or those
+    more than `tol_ns` ahead of the earliest time after them (a few stray times ahead:
+    one sample stamped an hour late would otherwise take every later one with it). The
+    one that drops fewer is taken; the first on a tie.
+    """
     t = np.asarray(t_file_order, np.int64)
     if len(t) < 2:
         return None
     latest = np.maximum.accumulate(t)
-    # Compare with the latest time *before* each message (the first has none).
+    # Compare with the latest time *before* each message (the first has none) ...
     before = np.r_[t[0], latest[:-1]]
     behind = (before - t) > tol_ns
     if not behind.any():
         return None
+    # ... or with the earliest time *after* it (the last has none).
+    earliest = np.minimum.accumulate(t[::-1])[::-1]
+    after = np.r_[earliest[1:], t[-1]]
+    ahead = (t - after) > tol_ns
+    if ahead.sum() < behind.sum():
+        k = int(np.flatnonzero(ahead)[0])
+        return Backwards(ahead, int(t[k]), int(t[k] - after[k]), ahead=True)
     k = int(np.flatnonzero(behind)[0])
     return Backwards(behind, int(t[k]), int(before[k] - t[k]))
 
