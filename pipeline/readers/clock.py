@@ -119,26 +119,49 @@ def backwards(t_file_order: np.ndarray, tol_ns: int = BACKWARDS_TOLERANCE_NS) ->
     return Backwards(behind, int(t[k]), int(before[k] - t[k]))
 
 
+def _jumps(t: np.ndarray) -> tuple[np.ndarray, float]:
+    """(J,) indices k of the jumps forward t[k] -> t[k + 1] of an ascending series, and
+    the interval over which one counts as a jump [ns]."""
+    dt = np.diff(t)
+    limit = max(float(np.median(dt)) * GAP_FACTOR, MIN_GAP_NS)
+    return np.flatnonzero(dt > limit), limit
+
+
 def gap_warning(
-    where: str, t_sorted: np.ndarray, what: str, consequence: str | None = None
+    where: str,
+    t_sorted: np.ndarray,
+    what: str,
+    consequence: str | None = None,
+    pings_ns: np.ndarray | None = None,
 ) -> str | None:
     """A warning for jumps forward in an ascending time series (None when there are
     none): count, the largest and where it starts, then `consequence` (by default that
-    `what` across a jump is interpolated)."""
+    `what` across a jump is interpolated). With `pings_ns` (the horizontal sonar's ping
+    times, for the navigation), how many pings fall inside a jump and are so posed: a
+    sonar whose clock did not jump with the navigation's keeps pinging through it."""
     t = np.asarray(t_sorted, np.int64)
     if len(t) < 3:
         return None
-    dt = np.diff(t)
-    limit = max(float(np.median(dt)) * GAP_FACTOR, MIN_GAP_NS)
-    big = dt > limit
-    if not big.any():
+    big, limit = _jumps(t)
+    if len(big) == 0:
         return None
-    k = int(np.argmax(dt))
-    return (
-        f"{where}: the clock jumps forward {int(big.sum())} time(s) (largest "
-        f"{dt[k] * 1e-9:.4g} s after t_ns={int(t[k])}, over {limit * 1e-9:.3g} s); "
+    k = int(big[np.argmax(t[big + 1] - t[big])])
+    line = (
+        f"{where}: the clock jumps forward {len(big)} time(s) (largest "
+        f"{(t[k + 1] - t[k]) * 1e-9:.4g} s after t_ns={int(t[k])}, over {limit * 1e-9:.3g} s); "
         + (consequence or f"{what} across a jump is interpolated")
     )
+    if pings_ns is not None and len(pings_ns):
+        lo = np.searchsorted(pings_ns, t[big], side="right")
+        hi = np.searchsorted(pings_ns, t[big + 1], side="left")
+        inside = int(np.maximum(hi - lo, 0).sum())
+        if inside:
+            line += (
+                f": {inside} of {len(pings_ns)} horizontal pings fall inside one and are posed"
+                " as if the vehicle moved straight and steadily across it (a sonar whose clock"
+                " did not jump with the navigation's?)"
+            )
+    return line
 
 
 def check_stamp_range(path: object, topics: Iterable[TopicInfo], used: Iterable[str]) -> None:

@@ -33,6 +33,7 @@ from sonarmap.pipeline.readers.sonar_decode import (
     sonar_descriptions,
 )
 from sonarmap.pipeline.readers.source_types import Source
+from sonarmap.pipeline.readers.stamp_offsets import stamp_offset_warnings
 from sonarmap.pipeline.readers.tf_tree import TfConflict, TfTree
 from sonarmap.schemas.recording import PoseTrack
 from sonarmap.schemas.sonar import SonarPing, beam_angles_from_directions
@@ -123,6 +124,7 @@ class SourceRecording(NavigationSensors):
         self._tf: TfTree | None = None
         self._tf_dynamic = False
         self._provenance: dict[str, Any] = {}
+        self._offsets_checked = False
 
     def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
         """Pickles as its path, options and topic roles: a worker process reopens the
@@ -196,7 +198,9 @@ class SourceRecording(NavigationSensors):
             raise SourceError(far)
         kept = [r for r, good in zip(rows, ok.tolist(), strict=True) if good]
         out = pose_track_rows(kept)
-        gap = gap_warning(where, out.t_ns, "a pose")
+        navigating = topic == self.roles.navigation and "horizontal" in self.roles.sonar
+        pings = self.ping_times_ns("horizontal") if navigating else None
+        gap = gap_warning(where, out.t_ns, "a pose", pings_ns=pings)
         if gap:
             self._warn(gap)
         for line in (shared_times(where, track[ok]), sparse_samples(where, out.t_ns)):
@@ -374,6 +378,12 @@ class SourceRecording(NavigationSensors):
         return self.source.attachments()
 
     def describe(self) -> dict[str, object]:
+        if not self._offsets_checked:
+            self._offsets_checked = True
+            for line in stamp_offset_warnings(
+                self.source, self.roles.sonar.values(), self.roles.navigation
+            ):
+                self._warn(line)
         return {
             "path": str(self.source.path),
             "format": self.source.kind,

@@ -21,7 +21,11 @@ STAGE = Stage(
     # it reads of the whole recording is a work unit per dataset
     # 5: the reader warns of navigation samples sharing a time at two poses (sensors.json)
     # and refuses positions beyond any Earth-fixed frame
-    version=5,
+    # 6: the reader drops the fewer of two readings of a topic out of time order (a
+    # sample stamped an hour late goes alone), counts the pings inside a jump of the
+    # navigation's clock, warns of a sonar logged apart from its header stamps, and
+    # refuses log times past what a ROS 2 stamp holds (sensors.json's warnings)
+    version=6,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(
