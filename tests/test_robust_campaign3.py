@@ -190,3 +190,17 @@ def test_pings_inside_a_jump_of_the_navigation_clock_are_counted(tmp_path: Path)
     [line] = [w for w in rec.source.warnings if "jumps forward" in w]
     assert f"{NAV}: the clock jumps forward 1 time(s)" in line
     assert "20 of 30 horizontal pings fall inside one" in line
+
+
+def test_no_pair_says_how_far_apart_the_sonars_ping() -> None:
+    from sonarmap.stages.kernels.pairing import PosedPairs, pair_pings
+    from sonarmap.stages.keyframes.recording_facts import no_keyframe
+
+    h = np.arange(10) * S
+    v = h + S // 4  # the vertical sonar 0.25 s late
+    pairs = pair_pings(h, v, S // 10)
+    posed = PosedPairs(pairs, h, v, np.zeros((0, 6)), np.zeros(0, np.int64))
+    assert "0 sonar pairs" in str(no_keyframe(posed))
+    assert "the pings are a median 0.25 s apart, over keyframes.pair_tolerance_s" in str(
+        no_keyframe(posed)
+    )

@@ -49,12 +49,22 @@ class RecordingFacts:
 
 
 def no_keyframe(posed: PosedPairs) -> StageInputError:
-    """The refusal of a recording none of whose sonar pairs the navigation poses."""
+    """The refusal of a recording none of whose sonar pairs the navigation poses; where no
+    ping pairs at all, how far apart the two sonars' pings are."""
+    hint = ""
+    h, v = posed.h_t_ns, posed.v_t_ns
+    if len(posed.pairs.horizontal) == 0 and len(h) and len(v):
+        right = np.clip(np.searchsorted(v, h), 1, max(len(v) - 1, 1))
+        nearest = np.minimum(np.abs(v[right - 1] - h), np.abs(v[np.minimum(right, len(v) - 1)] - h))
+        hint = (
+            f"; the pings are a median {float(np.median(nearest)) * 1e-9:.3g} s apart, "
+            "over keyframes.pair_tolerance_s"
+        )
     return StageInputError(
         DATASET,
-        f"no keyframe: {len(posed.pairs.horizontal)} sonar pairs ({len(posed.h_t_ns)} "
-        f"horizontal, {len(posed.v_t_ns)} vertical pings), {len(posed.posed)} inside the "
-        "navigation stream",
+        f"no keyframe: {len(posed.pairs.horizontal)} sonar pairs ({len(h)} "
+        f"horizontal, {len(v)} vertical pings), {len(posed.posed)} inside the "
+        "navigation stream" + hint,
     )
 
 
