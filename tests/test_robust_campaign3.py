@@ -204,3 +204,18 @@ def test_no_pair_says_how_far_apart_the_sonars_ping() -> None:
     assert "the pings are a median 0.25 s apart, over keyframes.pair_tolerance_s" in str(
         no_keyframe(posed)
     )
+
+
+def test_one_sonar_has_no_mount_or_warning_for_the_other(shared_data: Path) -> None:
+    """`convert` of an ARIS file (one sonar) warned of a default mount for a vertical
+    sonar the recording does not have."""
+    from sonarmap.pipeline.readers import ReaderOptions, SourceRecording
+    from sonarmap.pipeline.readers.roles import detect_roles
+
+    path = shared_data / "aris" / "sample.aris"
+    source = open_source(path)
+    roles = detect_roles(path, source.topics(), ReaderOptions.from_config(None), require_pair=False)
+    rec = SourceRecording(source, ReaderOptions.from_config(None), roles)
+    assert sorted(rec.mountings()) == ["horizontal"]
+    assert not any("vertical:" in w for w in source.warnings), source.warnings
+    assert any("horizontal:" in w for w in source.warnings), source.warnings

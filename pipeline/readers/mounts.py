@@ -76,6 +76,8 @@ class SensorGeometry:
             self._mounts = {}
             for s in SONARS:
                 topic = self.roles.sonar.get(s)
+                if topic is None and self.roles.sonar:
+                    continue  # `convert` of a single sonar: no mount (or warning) for the other
                 frame = self._frame_of(topic) if topic else ""
                 T, role = self._mount(
                     s,
