@@ -159,7 +159,10 @@ def test_one_sample_stamped_an_hour_late_is_dropped_alone(tmp_path: Path) -> Non
 @pytest.mark.parametrize("late_s", [0.0, 3.0])
 def test_a_sonar_logged_seconds_from_its_stamps_is_warned(tmp_path: Path, late_s: float) -> None:
     """Pings are posed by log time; one sonar's log times 3 s from its header stamps while
-    the navigation's are not is named (the map was 1.4 m off without a word)."""
+    the navigation's are not is named (the map was 1.4 m off without a word). The
+    navigation's offset is a recorded fact of the reading, the sonar's that of a ping."""
+    from sonarmap.stages.keyframes.recording_facts import stamp_offset_warning
+
     late = int(late_s * S)
     pings = [
         (t + (late if "horizontal" in topic else 0), topic, ty, m) for t, topic, ty, m in _pings(20)
@@ -169,13 +172,20 @@ def test_a_sonar_logged_seconds_from_its_stamps_is_warned(tmp_path: Path, late_s
         for k in range(50)
     ]
     rec = open_recording(_write(tmp_path / "d.mcap", pings + nav))
-    lines = [w for w in rec.describe()["warnings"] if "header stamps" in w]
+    rec.navigation()
+    nav_offset = rec.describe()["navigation_stamp_offset_s"]
+    assert nav_offset == 0.0
+    t = int(rec.ping_times_ns("horizontal")[3])
+    next(iter(rec.pings("horizontal", [3], labels=False)))
+    assert rec.stamp_offset_s("horizontal", t) == pytest.approx(late_s)
+    line = stamp_offset_warning(
+        "d.mcap", "horizontal", rec.stamp_offset_s("horizontal", t), nav_offset
+    )
     if late_s:
-        [line] = lines
-        assert "/sonar/horizontal: its log times are +3 s from its header stamps" in line
-        assert f"{NAV}'s +0 s" in line
+        assert line is not None and "d.mcap: horizontal sonar: its log times are +3 s" in line
+        assert "the navigation's +0 s" in line
     else:
-        assert lines == []
+        assert line is None
 
 
 def test_pings_inside_a_jump_of_the_navigation_clock_are_counted(tmp_path: Path) -> None:
@@ -219,3 +229,21 @@ def test_one_sonar_has_no_mount_or_warning_for_the_other(shared_data: Path) -> N
     assert sorted(rec.mountings()) == ["horizontal"]
     assert not any("vertical:" in w for w in source.warnings), source.warnings
     assert any("horizontal:" in w for w in source.warnings), source.warnings
+
+
+def test_a_closed_mcap_damaged_in_the_middle_is_refused_not_read_as_cut(tmp_path: Path) -> None:
+    """A third of a closed file zeroed: its footer and summary are intact, so what cannot
+    be read before them is damage; it was read up to the damage and mapped with a warning
+    that the file was cut (8 s of 30 s)."""
+    path = _write(tmp_path / "d.mcap", _pings(40), chunk=600)
+    data = bytearray(path.read_bytes())
+    third = len(data) // 3
+    data[third : 2 * third] = bytes(third)
+    path.write_bytes(bytes(data))
+    with pytest.raises(
+        SourceError, match=r"d\.mcap: corrupt MCAP: unreadable at byte offset \d+, before"
+    ):
+        open_source(path)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bytes(data[: third + 100]))  # no footer: a power cut, read up to it
+    assert any("truncated or corrupt MCAP" in w for w in open_source(cut).warnings)

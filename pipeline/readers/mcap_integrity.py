@@ -15,7 +15,13 @@ from pathlib import Path
 import numpy as np
 from mcap.records import ChunkIndex
 
-__all__ = ["IndexCorrupt", "message_index_entries", "summary_crc_problem"]
+__all__ = [
+    "IndexCorrupt",
+    "closed_data_end",
+    "message_index_entries",
+    "refuse_damage",
+    "summary_crc_problem",
+]
 
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _MAGIC_SIZE = 8
@@ -49,6 +55,39 @@ def summary_crc_problem(path: Path) -> str | None:
             f"(stored {summary_crc:#010x}, data {actual:#010x})"
         )
     return None
+
+
+def closed_data_end(path: Path) -> int | None:
+    """Where a closed file's data section ends (its summary's offset, or its footer's when
+    it has no summary), when it ends with a footer and the magic as a writer that closed it
+    leaves them; None for a file cut before that (a recorder that lost power)."""
+    size = path.stat().st_size
+    footer = size - _MAGIC_SIZE - _FOOTER_SIZE
+    if footer < _MAGIC_SIZE:
+        return None
+    with path.open("rb") as f:
+        f.seek(footer)
+        tail = f.read(_FOOTER_SIZE + _MAGIC_SIZE)
+    opcode, length, summary_start = struct.unpack_from("<BQQ", tail)
+    if opcode != _OP_FOOTER or length != 20 or not tail.endswith(b"\x89MCAP0\r\n"):
+        return None
+    return summary_start if _MAGIC_SIZE <= summary_start <= footer else footer
+
+
+def refuse_damage(path: Path, good_until: int, problem: str | None) -> None:
+    """A SourceError when a file read sequentially stops at `good_until` before the end of
+    its data though the writer closed it (`closed_data_end`): the bytes it cannot read are
+    damage, not a cut, and what follows them is not lost to a power cut but unread; refused,
+    as a corrupt chunk is. A file cut short (no footer) passes: the caller warns."""
+    from sonarmap.pipeline.engine.errors import SourceError
+
+    end = closed_data_end(path)
+    if end is not None and good_until < end:
+        raise SourceError(
+            f"{path}: corrupt MCAP: unreadable at byte offset {good_until}, before the end "
+            f"of its data at {end}, though the file was closed"
+            + (f" ({problem})" if problem else "")
+        )
 
 
 def message_index_entries(

@@ -27,7 +27,11 @@ from mcap.summary import Summary
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.clock import backwards
 from sonarmap.pipeline.readers.mcap_index import Locations, index_locations
-from sonarmap.pipeline.readers.mcap_integrity import IndexCorrupt, summary_crc_problem
+from sonarmap.pipeline.readers.mcap_integrity import (
+    IndexCorrupt,
+    refuse_damage,
+    summary_crc_problem,
+)
 from sonarmap.pipeline.readers.mcap_scan import (
     ChunkCorrupt,
     ScanResult,
@@ -291,6 +295,8 @@ class McapSource:
             for problem in ([f.index_problem] if f.index_problem else []) + f.clock_warnings:
                 self.warnings.append(problem)
                 log.warning(problem)
+            if f.summary is None and f.scan.unreadable_bytes:
+                refuse_damage(f.path, f.scan.good_until, f.scan.problem)
             if f.summary is None and f.scan.unreadable_bytes:
                 msg = (
                     f"{f.path}: truncated or corrupt MCAP: {f.scan.unreadable_bytes} of "

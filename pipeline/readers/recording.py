@@ -25,18 +25,16 @@ from sonarmap.pipeline.readers.navigation import nav_pose, pose_track_rows
 from sonarmap.pipeline.readers.navigation_checks import far_position, shared_times, sparse_samples
 from sonarmap.pipeline.readers.roles import Roles, detect_roles
 from sonarmap.pipeline.readers.sonar_decode import (
-    IMAGE_SONAR_TYPES,
-    beam_directions,
-    configured_sonar,
     decode_image,
     decode_sonar,
+    label_column_order,
     sonar_descriptions,
 )
 from sonarmap.pipeline.readers.source_types import Source
-from sonarmap.pipeline.readers.stamp_offsets import stamp_offset_warnings
+from sonarmap.pipeline.readers.stamp_offsets import median_offset_s, stamp_ns
 from sonarmap.pipeline.readers.tf_tree import TfConflict, TfTree
 from sonarmap.schemas.recording import PoseTrack
-from sonarmap.schemas.sonar import SonarPing, beam_angles_from_directions
+from sonarmap.schemas.sonar import SonarPing
 from sonarmap.schemas.topics import FRAME_BASE
 from sonarmap.stages.kernels.geometry import matrix_from_quat, se3
 
@@ -124,7 +122,8 @@ class SourceRecording(NavigationSensors):
         self._tf: TfTree | None = None
         self._tf_dynamic = False
         self._provenance: dict[str, Any] = {}
-        self._offsets_checked = False
+        self._nav_offsets_ns: list[int] = []  # log time - header stamp, navigation
+        self._ping_stamps: dict[tuple[str, int], int | None] = {}
 
     def __reduce__(self) -> tuple[Any, tuple[Path, ReaderOptions, Roles]]:
         """Pickles as its path, options and topic roles: a worker process reopens the
@@ -232,6 +231,8 @@ class SourceRecording(NavigationSensors):
             rows: dict[str, list[tuple[float, ...]]] = {t: [] for t in topics}
             for topic, t, m in self.source.messages(topics):
                 rows[topic].append((t, *nav_pose(m)))
+                if topic == self.roles.navigation and (stamp := stamp_ns(m)) is not None:
+                    self._nav_offsets_ns.append(t - stamp)
             self._pose_tracks = {topic: self._checked_rows(topic, r) for topic, r in rows.items()}
         return self._pose_tracks
 
@@ -306,9 +307,10 @@ class SourceRecording(NavigationSensors):
             raise SourceError(f"{where}: the ping at t_ns={t} could not be read")
         msgtype = self._types[self.roles.sonar[sonar]]
         ping = decode_sonar(parts["ping"], msgtype, t, sonar, self.options, where)
+        self._ping_stamps[(sonar, t)] = stamp_ns(parts["ping"])
         if "labels" not in parts and "truth" not in parts:
             return ping
-        order = self._column_order(parts["ping"], msgtype, sonar)
+        order = label_column_order(parts["ping"], msgtype, sonar, self.options)
         labels = truth = None
         try:
             if "labels" in parts:
@@ -323,16 +325,10 @@ class SourceRecording(NavigationSensors):
             ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
         )
 
-    def _column_order(self, msg: Any, msgtype: str, sonar: str) -> np.ndarray:
-        """The column permutation the sonar decoder applied (to apply to label images)."""
-        model = configured_sonar(self.options, sonar) if msgtype in IMAGE_SONAR_TYPES else None
-        if model is not None and model.beam_angles_deg is not None:
-            return np.argsort(model.beam_angles_deg, kind="stable")
-        if msgtype.endswith("ProjectedSonarImage"):
-            d = beam_directions(msg)
-            return np.argsort(beam_angles_from_directions(d), kind="stable")
-        n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
-        return np.arange(n)[::-1]
+    def stamp_offset_s(self, sonar: str, t_ns: int) -> float | None:
+        """Log time - header stamp [s] of a ping decoded by `pings` (None: no stamp)."""
+        stamp = self._ping_stamps.get((sonar, t_ns))
+        return None if stamp is None else (t_ns - stamp) * 1e-9
 
     def tf_tree(self, dynamic: bool = False) -> TfTree:
         """The recording's /tf_static tree; with `dynamic`, /tf's edges too (the first
@@ -378,18 +374,13 @@ class SourceRecording(NavigationSensors):
         return self.source.attachments()
 
     def describe(self) -> dict[str, object]:
-        if not self._offsets_checked:
-            self._offsets_checked = True
-            for line in stamp_offset_warnings(
-                self.source, self.roles.sonar.values(), self.roles.navigation
-            ):
-                self._warn(line)
         return {
             "path": str(self.source.path),
             "format": self.source.kind,
             "topics": self.roles.as_dict(),
             "sonars": sonar_descriptions(self.options, self.roles.sonar, self._types, self.source),
             "warnings": list(self.source.warnings),
+            "navigation_stamp_offset_s": median_offset_s(self._nav_offsets_ns),
         }
 
 

@@ -292,3 +292,15 @@ def decode_sonar(
         return decoder(msg, t_ns, sonar, options)
     except (ValueError, OSError) as err:
         raise SourceError(f"{where}: bad {msgtype} message at t_ns={t_ns} ({err})") from err
+
+
+def label_column_order(msg: Any, msgtype: str, sonar: str, options: Any) -> np.ndarray:
+    """The column permutation `decode_sonar` applied to a ping (to apply to its label and
+    truth images)."""
+    model = configured_sonar(options, sonar) if msgtype in IMAGE_SONAR_TYPES else None
+    if model is not None and model.beam_angles_deg is not None:
+        return np.argsort(model.beam_angles_deg, kind="stable")
+    if msgtype.endswith("ProjectedSonarImage"):
+        return np.argsort(beam_angles_from_directions(beam_directions(msg)), kind="stable")
+    n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
+    return np.arange(n)[::-1]

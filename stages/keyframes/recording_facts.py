@@ -68,6 +68,31 @@ def no_keyframe(posed: PosedPairs) -> StageInputError:
     )
 
 
+STAMP_OFFSET_WARN_S = 0.25
+"""A sonar's log time - header stamp further than this [s] from the navigation's is
+warned of: at the 0.5 m/s of a survey, its pings posed 0.125 m along the track, more than
+a voxel of the map (0.1 m)."""
+
+
+def stamp_offset_warning(
+    name: str, sonar: str, offset_s: float | None, navigation_offset_s: float | None
+) -> str | None:
+    """The warning for a sonar whose log times sit further from its header stamps than
+    the navigation's do (`sonarmap.pipeline.readers.stamp_offsets`); None when they agree
+    or either has no stamps."""
+    if offset_s is None or navigation_offset_s is None:
+        return None
+    apart = abs(offset_s - navigation_offset_s)
+    if apart <= STAMP_OFFSET_WARN_S:
+        return None
+    return (
+        f"{name}: {sonar} sonar: its log times are {offset_s:+.3g} s from its header stamps, "
+        f"the navigation's {navigation_offset_s:+.3g} s: pings are posed by log time, so if "
+        f"the stamps are right they are posed {apart:.3g} s along the track from where they "
+        "were taken (do the recorders' clocks differ?)"
+    )
+
+
 def read_facts(rec: Recording, pair_tolerance_s: float) -> RecordingFacts:
     """Read steps 1-2 from the recording (in the order whose warnings `describe` lists).
 

@@ -40,7 +40,11 @@ from sonarmap.stages.kernels.sonar_geometry import sonar_geometry
 from sonarmap.stages.kernels.time_grid import sampled_by_time
 from sonarmap.stages.keyframes import STAGE
 from sonarmap.stages.keyframes.config import KeyframesConfig
-from sonarmap.stages.keyframes.recording_facts import cached_facts, no_keyframe
+from sonarmap.stages.keyframes.recording_facts import (
+    cached_facts,
+    no_keyframe,
+    stamp_offset_warning,
+)
 
 __all__ = [
     "STAGE",
@@ -222,10 +226,17 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         for s in ("horizontal", "vertical")
     }
     # Where each role's topic, frame and mount came from (recording, config or default).
-    described = facts.described
+    described = dict(facts.described)
+    warnings = list(described.get("warnings") or [])
     for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
         ping = next(iter(rec.pings(s, idx[:1], labels=False)))  # the first keyframe's
         sensors[s].update(sonar_geometry(ping, (described.get("sonars") or {}).get(s)))
+        offset = getattr(rec, "stamp_offset_s", lambda *_: None)(s, ping.t_ns)
+        line = stamp_offset_warning(rec.name, s, offset, described.get("navigation_stamp_offset_s"))
+        if line is not None:
+            log.warning(line)
+            warnings.append(line)
+    described["warnings"] = warnings
     sensors.update(
         provenance=facts.provenance,
         has_ground_truth=truth is not None,
