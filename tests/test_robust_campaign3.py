@@ -247,3 +247,16 @@ def test_a_closed_mcap_damaged_in_the_middle_is_refused_not_read_as_cut(tmp_path
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(bytes(data[: third + 100]))  # no footer: a power cut, read up to it
     assert any("truncated or corrupt MCAP" in w for w in open_source(cut).warnings)
+
+
+def test_a_followed_file_replaced_by_another_is_refused(tmp_path: Path) -> None:
+    """`mv other.mcap dive.mcap` while followed: reading the new file on from the old one's
+    offset splices two recordings (it failed on a 'record' of absurd length instead)."""
+    src = tmp_path / "dive.mcap"
+    _write(src, _pings(5))
+    snap = McapSnapshot(src, tmp_path / "s.mcap")
+    assert snap.update().new_bytes > 0
+    other = _write(tmp_path / "other.mcap", _pings(8))
+    other.replace(src)
+    with pytest.raises(SourceError, match=r"dive\.mcap: replaced by another file while followed"):
+        snap.update()

@@ -12,6 +12,7 @@ complete records are appended where the old tail was, and the tail is written ag
 from __future__ import annotations
 
 import itertools
+import os
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -147,6 +148,7 @@ class McapSnapshot:
         # A record longer than any chunk sonarmap would decompress can only be damage:
         # waiting for it to complete would wait forever.
         self._max_record = 2 * max_chunk_bytes() + (1 << 20)
+        self._identity: tuple[int, int] | None = None  # (device, inode) of the file followed
 
     @property
     def size(self) -> int:
@@ -165,6 +167,13 @@ class McapSnapshot:
         except FileNotFoundError as err:
             raise SourceError(f"{self.source}: no such file") from err
         with f:
+            stat = os.fstat(f.fileno())
+            if self._identity not in (None, (stat.st_dev, stat.st_ino)):
+                raise SourceError(
+                    f"{self.source}: replaced by another file while followed (moved or "
+                    "copied over): what was mapped is another recording's; `run` each"
+                )
+            self._identity = (stat.st_dev, stat.st_ino)
             size = f.seek(0, 2)
             if size < self.copied_until:
                 raise SourceError(
