@@ -260,3 +260,24 @@ def test_a_followed_file_replaced_by_another_is_refused(tmp_path: Path) -> None:
     other.replace(src)
     with pytest.raises(SourceError, match=r"dive\.mcap: replaced by another file while followed"):
         snap.update()
+
+
+def test_an_unchunked_mcap_keeps_its_attachments(tmp_path: Path) -> None:
+    """Its messages are read sequentially (no chunk indexes); its scene mesh was dropped
+    with them, so the evaluation had no ground truth without saying why."""
+    from mcap.writer import CompressionType, Writer
+
+    from sonarmap.pipeline.formats.rosmsg import ros2_typestore
+
+    path = tmp_path / "flat.mcap"
+    with path.open("wb") as f:
+        w = Writer(f, use_chunking=False, compression=CompressionType.NONE)
+        w.start("ros2", "test")
+        schema = w.register_schema("nav_msgs/msg/Odometry", "ros2msg", b"")
+        channel = w.register_channel(NAV, "cdr", schema)
+        msg = odom_msg(T0, 0.0, 0.0, 0.0, 0.0)
+        data = bytes(ros2_typestore().serialize_cdr(msg, ODOMETRY_TYPE))
+        w.add_message(channel, T0, data, T0)
+        w.add_attachment(T0, T0, "scene.ply", "application/octet-stream", b"ply\n")
+        w.finish()
+    assert open_source(path).attachments() == {"scene.ply": b"ply\n"}

@@ -20,12 +20,12 @@ import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
-from mcap.records import Attachment, Channel, Chunk, Message, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Channel, Chunk, Message, Schema
 from mcap.summary import Summary
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.clock import backwards
+from sonarmap.pipeline.readers.mcap_attachments import read_attachments
 from sonarmap.pipeline.readers.mcap_index import Locations, index_locations
 from sonarmap.pipeline.readers.mcap_integrity import (
     IndexCorrupt,
@@ -77,6 +77,9 @@ class _McapFile:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.summary, problem = _summary(path)
+        # Kept when the messages are read sequentially (an unchunked file has no chunk
+        # indexes): the attachments are still where the summary says.
+        self.attachment_indexes = list(self.summary.attachment_indexes) if self.summary else []
         self.scan = ScanResult()
         self.index_problem: str | None = None
         if problem is not None:
@@ -381,17 +384,5 @@ class McapSource:
     def attachments(self) -> dict[str, bytes]:
         out: dict[str, bytes] = {}
         for f in self._files:
-            if f.summary is None:
-                continue
-            try:
-                # By the summary already read (SeekingReader would parse it again).
-                with f.path.open("rb") as fh:
-                    for index in f.summary.attachment_indexes:
-                        fh.seek(index.offset)
-                        att = next(StreamReader(fh, skip_magic=True).records)
-                        if not isinstance(att, Attachment):
-                            raise McapError(f"no attachment at byte offset {index.offset}")
-                        out[att.name] = bytes(att.data)
-            except (McapError, StopIteration, struct.error, ValueError, EOFError) as err:
-                raise SourceError(f"{f.path}: corrupt MCAP attachment ({err})") from err
+            out.update(read_attachments(f.path, f.attachment_indexes))
         return out
