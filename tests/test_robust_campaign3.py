@@ -281,3 +281,19 @@ def test_an_unchunked_mcap_keeps_its_attachments(tmp_path: Path) -> None:
         w.add_attachment(T0, T0, "scene.ply", "application/octet-stream", b"ply\n")
         w.finish()
     assert open_source(path).attachments() == {"scene.ply": b"ply\n"}
+
+
+def test_a_chunk_index_past_the_end_of_the_file_reads_the_file_sequentially(tmp_path: Path) -> None:
+    """Sorted last, its chunk's messages seemed recorded after every other's: a false
+    'clock runs backwards' warning, while `topics` called the file corrupt."""
+    from sonarmap.pipeline.readers.mcap_index import index_locations
+    from sonarmap.pipeline.readers.mcap_integrity import IndexCorrupt
+
+    path = _write(tmp_path / "d.mcap", _pings(6), chunk=600)
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        chunks = list(make_reader(f).get_summary().chunk_indexes)
+    bad = chunks[0].__class__(**{**vars(chunks[0]), "chunk_start_offset": path.stat().st_size})
+    with pytest.raises(IndexCorrupt, match="points past the end of the file"):
+        index_locations(path, [bad, *chunks[1:]])

@@ -52,6 +52,12 @@ def index_locations(path: Path, chunks: list[ChunkIndex]) -> dict[int, Locations
     size = path.stat().st_size
     with path.open("rb") as f:
         for k, chunk in enumerate(chunks):
+            if chunk.chunk_start_offset + chunk.chunk_length > size:
+                # Sorted last, its messages would seem recorded after every other's.
+                raise IndexCorrupt(
+                    f"the chunk index at byte offset {chunk.chunk_start_offset} points past "
+                    "the end of the file"
+                )
             if not chunk.message_index_offsets:
                 continue
             start, block = index_block(f, chunk, size)
