@@ -297,3 +297,17 @@ def test_a_chunk_index_past_the_end_of_the_file_reads_the_file_sequentially(tmp_
     bad = chunks[0].__class__(**{**vars(chunks[0]), "chunk_start_offset": path.stat().st_size})
     with pytest.raises(IndexCorrupt, match="points past the end of the file"):
         index_locations(path, [bad, *chunks[1:]])
+
+
+def test_a_ros1_index_listing_a_message_twice_is_refused() -> None:
+    """A chunk info pointing at the wrong chunk: one chunk read twice, another lost; it
+    was mapped with a warning about duplicate timestamps."""
+    conn = SimpleNamespace(id=1, topic="/sonar/vertical", msgtype="x")
+    entries = [(10, 100, 0), (11, 100, 40), (11, 100, 40), (12, 200, 0)]
+    source = _ros1(SimpleNamespace(readers=[SimpleNamespace(indexes={1: entries})]))
+    with pytest.raises(
+        SourceError, match=r"lists a /sonar/vertical message twice \(chunk at byte offset 100\)"
+    ):
+        source._refuse_repeated_entries(conn)
+    source._reader.readers[0].indexes[1] = entries[:2] + entries[3:]
+    source._refuse_repeated_entries(conn)  # no repeat: nothing to say

@@ -95,6 +95,7 @@ class Ros1Source(TimeIndexedSource):
         self._conns = defaultdict(list)
         for conn in self._reader.connections:
             self._conns[conn.topic].append(conn)
+            self._refuse_repeated_entries(conn)
         # What the index claims, less what a clock set back drops (warned on its own).
         counts = {t: sum(c.msgcount for c in conns) for t, conns in self._conns.items()}
         for topic, conns in self._conns.items():
@@ -106,6 +107,21 @@ class Ros1Source(TimeIndexedSource):
             {topic: conns[0].msgtype for topic, conns in self._conns.items()},
             counts,
         )
+
+    def _refuse_repeated_entries(self, conn: Any) -> None:
+        """A SourceError when the index lists one message of `conn` twice: chunk infos that
+        point at the wrong chunk (one chunk read twice, another lost), not a recording."""
+        entries = self._reader.readers[0].indexes[conn.id]
+        table = np.column_stack(
+            [np.fromiter((e[j] for e in entries), np.int64, len(entries)) for j in range(3)]
+        )
+        unique, first, counts = np.unique(table, axis=0, return_index=True, return_counts=True)
+        if len(unique) < len(table):
+            pos = int(table[first[np.argmax(counts > 1)], 1])
+            raise SourceError(
+                f"{self.path}: the bag's index lists a {conn.topic} message twice (chunk at "
+                f"byte offset {pos}): its chunk infos are damaged; reindex it (rosbag reindex)"
+            )
 
     def _drop_backwards(self, topic: str, conns: list[Any]) -> int:
         """Drop from the index the messages of `topic` recorded behind an earlier time
