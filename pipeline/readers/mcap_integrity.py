@@ -32,21 +32,31 @@ class IndexCorrupt(ValueError):
     """A message index that cannot describe the chunk it belongs to."""
 
 
-def summary_crc_problem(path: Path) -> str | None:
-    """Why the summary section fails its footer CRC (None when it passes, has no CRC, or
-    the file has no readable footer: the caller's summary reader reports that)."""
-    size = path.stat().st_size
-    footer = size - _MAGIC_SIZE - _FOOTER_SIZE
+def _footer(path: Path) -> tuple[int, bytes] | None:
+    """The footer record's offset and its bytes with the trailing magic after them (None:
+    the file is too short to hold them)."""
+    footer = path.stat().st_size - _MAGIC_SIZE - _FOOTER_SIZE
     if footer < _MAGIC_SIZE:
         return None
     with path.open("rb") as f:
         f.seek(footer)
-        opcode, _, summary_start, _, summary_crc = struct.unpack("<BQQQI", f.read(_FOOTER_SIZE))
-        if opcode != _OP_FOOTER or summary_crc == 0:
-            return None
-        start = summary_start or footer
-        if not _MAGIC_SIZE <= start <= footer:
-            return f"the footer's summary offset {summary_start} is outside the file"
+        return footer, f.read(_FOOTER_SIZE + _MAGIC_SIZE)
+
+
+def summary_crc_problem(path: Path) -> str | None:
+    """Why the summary section fails its footer CRC (None when it passes, has no CRC, or
+    the file has no readable footer: the caller's summary reader reports that)."""
+    found = _footer(path)
+    if found is None:
+        return None
+    footer, tail = found
+    opcode, _, summary_start, _, summary_crc = struct.unpack_from("<BQQQI", tail)
+    if opcode != _OP_FOOTER or summary_crc == 0:
+        return None
+    start = summary_start or footer
+    if not _MAGIC_SIZE <= start <= footer:
+        return f"the footer's summary offset {summary_start} is outside the file"
+    with path.open("rb") as f:
         f.seek(start)
         actual = zlib.crc32(f.read(footer + _FOOTER_SIZE - 4 - start))
     if actual != summary_crc:
@@ -61,13 +71,10 @@ def closed_data_end(path: Path) -> int | None:
     """Where a closed file's data section ends (its summary's offset, or its footer's when
     it has no summary), when it ends with a footer and the magic as a writer that closed it
     leaves them; None for a file cut before that (a recorder that lost power)."""
-    size = path.stat().st_size
-    footer = size - _MAGIC_SIZE - _FOOTER_SIZE
-    if footer < _MAGIC_SIZE:
+    found = _footer(path)
+    if found is None:
         return None
-    with path.open("rb") as f:
-        f.seek(footer)
-        tail = f.read(_FOOTER_SIZE + _MAGIC_SIZE)
+    footer, tail = found
     opcode, length, summary_start = struct.unpack_from("<BQQ", tail)
     if opcode != _OP_FOOTER or length != 20 or not tail.endswith(b"\x89MCAP0\r\n"):
         return None
