@@ -186,6 +186,8 @@ def test_a_sonar_logged_seconds_from_its_stamps_is_warned(tmp_path: Path, late_s
         assert "the navigation's +0 s" in line
     else:
         assert line is None
+    # Stamps in another time base (time since boot) are not compared.
+    assert stamp_offset_warning("d.mcap", "horizontal", 1.7e9, 0.0) is None
 
 
 def test_pings_inside_a_jump_of_the_navigation_clock_are_counted(tmp_path: Path) -> None:

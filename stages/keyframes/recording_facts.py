@@ -74,6 +74,11 @@ warned of: at the 0.5 m/s of a survey, its pings posed 0.125 m along the track, 
 a voxel of the map (0.1 m)."""
 
 
+STAMP_OTHER_BASE_S = 86400.0
+"""An offset of log time from header stamps over a day is a driver stamping in another time
+base (time since boot, GPS time), not a clock set wrong: not compared."""
+
+
 def stamp_offset_warning(
     name: str, sonar: str, offset_s: float | None, navigation_offset_s: float | None
 ) -> str | None:
@@ -82,6 +87,8 @@ def stamp_offset_warning(
     or either has no stamps."""
     if offset_s is None or navigation_offset_s is None:
         return None
+    if max(abs(offset_s), abs(navigation_offset_s)) > STAMP_OTHER_BASE_S:
+        return None  # stamps in another time base (since boot, GPS time): not comparable
     apart = abs(offset_s - navigation_offset_s)
     if apart <= STAMP_OFFSET_WARN_S:
         return None
