@@ -310,6 +310,6 @@ def test_a_ros1_index_listing_a_message_twice_is_refused() -> None:
     with pytest.raises(
         SourceError, match=r"lists a /sonar/vertical message twice \(chunk at byte offset 100\)"
     ):
-        source._refuse_repeated_entries(conn)
+        source._refuse_repeated_entries(conn, source._entry_table(conn))
     source._reader.readers[0].indexes[1] = entries[:2] + entries[3:]
-    source._refuse_repeated_entries(conn)  # no repeat: nothing to say
+    source._refuse_repeated_entries(conn, source._entry_table(conn))  # no repeat

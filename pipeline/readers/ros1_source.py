@@ -93,14 +93,16 @@ class Ros1Source(TimeIndexedSource):
             ) from err
         self._bound_chunks()
         self._conns = defaultdict(list)
+        tables = {}  # (time, chunk position, offset) of each connection's index entries
         for conn in self._reader.connections:
             self._conns[conn.topic].append(conn)
-            self._refuse_repeated_entries(conn)
+            tables[conn.id] = self._entry_table(conn)
+            self._refuse_repeated_entries(conn, tables[conn.id])
         # What the index claims, less what a clock set back drops (warned on its own).
         counts = {t: sum(c.msgcount for c in conns) for t, conns in self._conns.items()}
         for topic, conns in self._conns.items():
             if conns[0].msgtype in MAPPED_TYPES:
-                counts[topic] -= self._drop_backwards(topic, conns)
+                counts[topic] -= self._drop_backwards(topic, conns, tables)
         self._set_topics(
             path,
             {topic: self._index_times(conns) for topic, conns in self._conns.items()},
@@ -108,13 +110,17 @@ class Ros1Source(TimeIndexedSource):
             counts,
         )
 
-    def _refuse_repeated_entries(self, conn: Any) -> None:
-        """A SourceError when the index lists one message of `conn` twice: chunk infos that
-        point at the wrong chunk (one chunk read twice, another lost), not a recording."""
+    def _entry_table(self, conn: Any) -> np.ndarray:
+        """(n, 3) int64 time, chunk position and offset of the connection's index entries."""
         entries = self._reader.readers[0].indexes[conn.id]
-        table = np.column_stack(
+        return np.column_stack(
             [np.fromiter((e[j] for e in entries), np.int64, len(entries)) for j in range(3)]
-        )
+        ).reshape(-1, 3)
+
+    def _refuse_repeated_entries(self, conn: Any, table: np.ndarray) -> None:
+        """A SourceError when the index lists one message of `conn` twice (`table`: its
+        `_entry_table`): chunk infos that point at the wrong chunk (one chunk read twice,
+        another lost), not a recording."""
         unique, first, counts = np.unique(table, axis=0, return_index=True, return_counts=True)
         if len(unique) < len(table):
             pos = int(table[first[np.argmax(counts > 1)], 1])
@@ -123,23 +129,16 @@ class Ros1Source(TimeIndexedSource):
                 f"byte offset {pos}): its chunk infos are damaged; reindex it (rosbag reindex)"
             )
 
-    def _drop_backwards(self, topic: str, conns: list[Any]) -> int:
+    def _drop_backwards(self, topic: str, conns: list[Any], tables: dict[int, np.ndarray]) -> int:
         """Drop from the index the messages of `topic` recorded behind an earlier time
-        (file order: chunk position, then offset in the chunk); how many were dropped."""
+        (file order: chunk position, then offset in the chunk); how many were dropped.
+        `tables`: each connection's `_entry_table`."""
         bag: Any = self._reader.readers[0]
         lists = [bag.indexes[c.id] for c in conns]
         if sum(len(x) for x in lists) < 2:
             return 0
         # (time, chunk position, offset) of every message, connection after connection.
-        table = np.concatenate(
-            [
-                np.column_stack(
-                    [np.fromiter((e[j] for e in x), np.int64, len(x)) for j in range(3)]
-                )
-                for x in lists
-                if x
-            ]
-        )
+        table = np.concatenate([tables[c.id] for c in conns])
         order = np.lexsort((table[:, 2], table[:, 1]))
         found = backwards(table[order, 0])
         if found is None:
