@@ -17,6 +17,7 @@ from sonarmap.pipeline.training.model import plan_training, training_simulations
 from sonarmap.pipeline.training.model_cache import model_cache
 from sonarmap.pipeline.training.shipped import (
     LOCK_FILE,
+    lock_disagreements,
     locked_fingerprints,
     shipped_root,
     shipped_store,
@@ -45,3 +46,27 @@ def test_the_shipped_model_is_the_default_sections_model(tmp_path: Path) -> None
     # Exactly one model ships: an old one left beside it is dead weight in every clone.
     assert [p.name for p in (root / "train").iterdir()] == [key]
     assert not list(tmp_path.iterdir()), "planning simulated or wrote something"
+
+
+def test_a_recording_simulated_with_other_bytes_than_the_lock_is_named(tmp_path: Path) -> None:
+    # A machine whose libraries round the simulation differently writes other bytes for a
+    # recipe the lock names: it then plans another key and trains, and must say why.
+    config = load_config(all_stages(), None, [f"training.directory={tmp_path}"], extra_sections())
+    sims = training_simulations(config.training)  # type: ignore[attr-defined]
+    root = tmp_path / "shipped"
+    root.mkdir()
+    lock = {
+        "format": 1,
+        "train_key": "0" * 64,
+        "datasets": [{"file": s.out.name, "recipe": s.recipe(), "sha256": "a" * 64} for s in sims],
+    }
+    (root / LOCK_FILE).write_text(json.dumps(lock))
+    same = {s.out: "a" * 64 for s in sims}
+    assert lock_disagreements(sims, same, str(root)) == []
+    other = {**same, sims[0].out: "b" * 64}
+    (line,) = lock_disagreements(sims, other, str(root))
+    assert line.startswith(f"{sims[0].out}: simulated here with other bytes")
+    assert "bbbbbbbbbbbb… against aaaaaaaaaaaa…" in line
+    # A recording not simulated yet, or a recipe the lock does not name, is not compared.
+    assert lock_disagreements(sims, {}, str(root)) == []
+    assert lock_disagreements(sims, other, str(tmp_path / "no-lock")) == []

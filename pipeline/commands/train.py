@@ -19,6 +19,7 @@ with the lock of its training recordings, to `training.shipped_models`
 from __future__ import annotations
 
 import json
+import logging
 import time
 from pathlib import Path
 
@@ -196,7 +197,7 @@ def _ship(
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_datasets, training_simulations
     from sonarmap.pipeline.training.model_cache import resolve_default_model
-    from sonarmap.pipeline.training.shipped import ship, shipped_root
+    from sonarmap.pipeline.training.shipped import lock_disagreements, ship, shipped_root
 
     resolved = load_config(all_stages(), config, overrides, extra_sections())
     training: TrainingDataConfig = getattr(resolved, "training", TrainingDataConfig())
@@ -210,6 +211,11 @@ def _ship(
     run_store = ArtifactStore(store)
     chosen = resolve_default_model(run_store, resolved)
     fingerprints = [dataset_spec(p, run_store, default_graph()).fingerprint for p in paths]
+    on_disk = dict(zip(paths, fingerprints, strict=True))
+    for line in lock_disagreements(sims, on_disk, training.shipped_models):
+        logging.getLogger(__name__).warning(
+            "%s; --ship writes this machine's bytes in the lock", line
+        )
     ship(chosen.ref, sims, fingerprints, root)
     doc = {"shipped": str(root), "key": chosen.ref.key, "source": chosen.source}
     if json_:

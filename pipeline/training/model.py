@@ -40,6 +40,7 @@ from sonarmap.schemas.classes import DEFAULT_TABLE
 from sonarmap.stages.base import Input, Stage
 
 __all__ = [
+    "dataset_fingerprints",
     "ordered_datasets",
     "plan_training",
     "recorded_datasets",
@@ -236,6 +237,13 @@ def _reading_graph() -> Graph:
     return Graph(
         (keyframes, features), dataset_fingerprint_parts, open_recording, codecs=FRAMES_CODECS
     )
+
+
+def dataset_fingerprints(paths: Iterable[Path], store: ArtifactStore) -> dict[Path, str]:
+    """{path: dataset fingerprint} of training recordings on disk, as training plans them
+    (cached in `store` by size, mtime and inode)."""
+    reading = _reading_graph()
+    return {p: dataset_spec(p, store, reading).fingerprint for p in paths}
 
 
 def _not_on_disk(path: Path) -> Callable[[Path, Any], Any]:

@@ -231,12 +231,14 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
     from sonarmap.pipeline.training.annotations import annotation_path
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import (
+        dataset_fingerprints,
         plan_training,
         train_on,
         training_datasets,
+        training_simulations,
         training_stage_for,
     )
-    from sonarmap.pipeline.training.shipped import shipped_store
+    from sonarmap.pipeline.training.shipped import lock_disagreements, shipped_store
     from sonarmap.pipeline.training.worlds import heldout_count
 
     training: TrainingDataConfig = getattr(config, "training", TrainingDataConfig())
@@ -253,6 +255,10 @@ def resolve_default_model(store: ArtifactStore, config: BaseModel) -> ResolvedMo
         found = _find_or_ship(key, store, cache, shipped)
     source: Source
     if found is None:
+        sims = training_simulations(training)
+        on_disk = dataset_fingerprints([s.out for s in sims], cache)
+        for line in lock_disagreements(sims, on_disk, training.shipped_models):
+            log.warning("%s", line)
         trained = train_on(paths, config, cache, heldout=heldout_count(training))
         ref, source = copy_verified(trained, store), "trained"
     else:

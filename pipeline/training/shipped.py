@@ -43,6 +43,7 @@ from sonarmap.pipeline.training.datasets import Simulation
 __all__ = [
     "LOCK_FILE",
     "PROJECT_ROOT",
+    "lock_disagreements",
     "locked_fingerprints",
     "read_lock",
     "ship",
@@ -122,6 +123,34 @@ def locked_fingerprints(sims: Sequence[Simulation], setting: str | None) -> dict
             return None
         found[sim.out] = sha
     return found
+
+
+def lock_disagreements(
+    sims: Sequence[Simulation], fingerprints: Mapping[Path, str], setting: str | None
+) -> list[str]:
+    """One line for each simulated recording whose bytes differ from those the lock names
+    for the same recipe.
+
+    The lock rests on the simulator's rule that a recipe gives the same bytes. That holds
+    on one machine, but not across every library version and CPU: the ray caster and the
+    noise round differently, and a pixel one rounding step away from the next grey level
+    changes the file. Such a machine plans another `train` key, so it trains its own model
+    (minutes), and that model is not the shipped one: the user is told why.
+    """
+    root = shipped_root(setting)
+    lock = read_lock(root) if root is not None else {}
+    lines = []
+    for sim in sims:
+        want = lock.get(_entry_key(sim.out.name, sim.recipe()))
+        got = fingerprints.get(sim.out)
+        if want is not None and got is not None and want != got:
+            lines.append(
+                f"{sim.out}: simulated here with other bytes than the shipped model's lock"
+                f" names for the same recipe (sha256 {got[:12]}… against {want[:12]}…): this"
+                " machine's libraries or CPU round the simulation differently, so the model"
+                " trained from it is not the shipped one"
+            )
+    return lines
 
 
 def ship(
