@@ -85,3 +85,13 @@ def test_chi2_constant_matches_scipy() -> None:
     from sonarmap.stages.slam.pcm import CHI2_99_3DOF
 
     assert abs(CHI2_99_3DOF - chi2.ppf(0.99, 3)) < 1e-9
+
+
+def test_chi2_quantile_is_scipy_stats_to_the_bit() -> None:
+    from scipy.stats import chi2
+
+    from sonarmap.stages.slam.pcm import chi2_quantile
+
+    for p in (0.5, 0.9, 0.95, 0.99, 0.999):
+        for dof in (1, 2, 3):
+            assert chi2_quantile(p, dof) == chi2.ppf(p, dof)

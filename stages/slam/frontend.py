@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from sonarmap.stages.kernels.lazy import lazy
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.degeneracy import constrained_covariance, degeneracy
 from sonarmap.stages.slam.loops import LoopCandidate, LoopClosures
+from sonarmap.stages.slam.pcm import chi2_quantile
 from sonarmap.stages.slam.pose_graph import (
     PlanarPoseGraph,
     se2_between,
@@ -33,8 +33,6 @@ from sonarmap.stages.slam.scan_matching import (
     transform_points,
     voxel_downsample,
 )
-
-stats = lazy("scipy.stats")
 
 __all__ = ["SlamResult", "run_slam"]
 
@@ -235,7 +233,7 @@ class _FrontEnd(LoopClosures):
         if p is None:
             return ""
         dev = se2_log(se2_between(guess, pose))
-        if dev @ np.linalg.solve(odo + cov, dev) > stats.chi2.ppf(p, 3 - free):
+        if dev @ np.linalg.solve(odo + cov, dev) > chi2_quantile(p, 3 - free):
             return "inconsistent with odometry"
         return ""
 
