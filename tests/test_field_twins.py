@@ -304,3 +304,59 @@ def test_polar_image_twin_with_an_uneven_beam_table_file_maps_the_same_world(
     even = _engine(twin, tmp_path / "even", overrides[:2])
     even_iou = _compare(canonical, even, align=False)[1]
     assert even_iou < iou - 0.1
+
+
+def test_compressed_grey_colour_sonar_images_keep_their_labels_aligned(
+    canonical: Canonical, tmp_path: Path
+) -> None:
+    # Compressed transport carries no width in the message: the label images beside it
+    # were ordered by it and came out 0 columns wide (classify then failed, exit 1).
+    import io
+
+    from mcap.reader import make_reader
+    from PIL import Image
+
+    from sonarmap.pipeline.readers import open_recording
+
+    store = ros2_types()
+    t = store.types
+    rec = open_recording(canonical.path)
+    events: list[tuple[int, str, str, Any]] = []
+    with canonical.path.open("rb") as f:
+        for schema, channel, m in make_reader(f).iter_messages():
+            if not channel.topic.startswith("/sonar/"):
+                msg = store.deserialize_cdr(m.data, schema.name)
+                events.append((m.log_time, channel.topic, schema.name, msg))
+    written = {}
+    for sonar in ("horizontal", "vertical"):
+        times = rec.ping_times_ns(sonar)
+        pings = list(rec.pings(sonar, np.arange(len(times)), labels=True))
+        written[sonar] = pings[:3]
+        for t_ns, ping in zip(times, pings, strict=True):
+            png = io.BytesIO()
+            Image.fromarray(np.repeat(ping.image[..., None], 3, axis=2)).save(png, "PNG")
+            header = ros_header(t, int(t_ns), f"sonar_{sonar}")
+            data = np.frombuffer(png.getvalue(), np.uint8)
+            image = t["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=data)
+            events.append((int(t_ns), f"/sonar/{sonar}", image.__msgtype__, image))
+            h, w = ping.labels.shape
+            labels = t["sensor_msgs/msg/Image"](
+                header=header,
+                height=h,
+                width=w,
+                encoding="mono8",
+                is_bigendian=0,
+                step=w,
+                data=ping.labels.reshape(-1),
+            )
+            events.append((int(t_ns), f"/sonar/{sonar}/labels", labels.__msgtype__, labels))
+    twin = write_bag(tmp_path / "compressed", store, events)
+    topics = {"horizontal_topic": "/sonar/horizontal", "vertical_topic": "/sonar/vertical"}
+    read = open_recording(twin, topics)
+    for sonar, pings in written.items():
+        got = read.pings(sonar, np.arange(len(pings)), labels=True)
+        for ping, back in zip(pings, got, strict=True):
+            # An RGB image with equal channels is its grey level; column 0 is port, as a
+            # polar image's, so both the image and its labels come back mirrored.
+            assert np.array_equal(back.image, ping.image[:, ::-1])
+            assert back.labels is not None and np.array_equal(back.labels, ping.labels[:, ::-1])

@@ -1,8 +1,8 @@
 """Sanity checks on the geometry a recording supplies, applied as it is read.
 
 Sonar pings with non-finite, negative, unordered or absurd ranges, non-finite or zero
-beam directions, or too few beams or range bins cannot be mapped: they are refused
-with the file, topic and time. Navigation samples with a non-finite position or
+beam directions, beam angles in no order or spanning no fan, or too few beams or range
+bins cannot be mapped: they are refused with the file, topic and time. Navigation samples with a non-finite position or
 orientation (or a zero quaternion) are dropped with a count; an isolated sample far
 from both neighbours (a glitch) too; a jump no vehicle makes refuses the recording.
 All checks are vectorised over the arrays of a ping or a whole track.
@@ -17,6 +17,7 @@ __all__ = [
     "MAX_RANGE_M",
     "MAX_SPEED_MPS",
     "MIN_BEAMS",
+    "MIN_FAN_DEG",
     "MIN_RANGE_BINS",
     "beam_direction_problem",
     "navigation_glitches",
@@ -28,6 +29,13 @@ __all__ = [
 MIN_BEAMS = 2
 MIN_RANGE_BINS = 2
 """A ping needs at least two beams and two range bins to span an area."""
+
+MIN_FAN_DEG = 1.0
+"""Imaging sonars' fans span tens of degrees; all beams within a degree is a table read in
+the wrong frame (every beam projected onto one angle)."""
+
+_RANGE_ROUNDING_M = 1e-6
+"""A first range bin at 0 m less float rounding is no negative range."""
 
 MAX_RANGE_M = 10_000.0
 """Imaging sonars reach a few hundred metres; a range beyond this is a corrupt field."""
@@ -63,7 +71,7 @@ def ping_problem(
     a = np.asarray(angles_rad, np.float64)
     if not np.isfinite(r).all():
         return f"{int((~np.isfinite(r)).sum())} of {len(r)} ranges are not finite"
-    if r[0] < 0:
+    if r[0] < -_RANGE_ROUNDING_M:
         return f"negative range {r[0]:.4g} m"
     if not (np.diff(r) > 0).all():
         return "ranges do not increase from near to far"
@@ -71,6 +79,19 @@ def ping_problem(
         return f"range {r[-1]:.4g} m beyond {MAX_RANGE_M:g} m"
     if not np.isfinite(a).all():
         return f"{int((~np.isfinite(a)).sum())} of {len(a)} beam angles are not finite"
+    step = np.sign(np.diff(a))
+    if (step > 0).any() and (step < 0).any():
+        turns = int(np.count_nonzero(np.diff(step[step != 0])))
+        return (
+            f"the beam angles rise and fall across the image ({turns} turns), so the columns"
+            " are in no order of angle: a scrambled beam table, or angles not in radians"
+        )
+    span_deg = float(np.rad2deg(a.max() - a.min()))
+    if span_deg < MIN_FAN_DEG:
+        return (
+            f"the {n_b} beams span {span_deg:.3g} deg of angle, not a fan: beam directions"
+            " in another frame than ProjectedSonarImage's (x up, y right, z forward)?"
+        )
     return None
 
 

@@ -27,6 +27,7 @@ from sonarmap.pipeline.readers.roles import Roles, detect_roles
 from sonarmap.pipeline.readers.sonar_decode import (
     decode_image,
     decode_sonar,
+    fits_ping,
     label_column_order,
     sonar_descriptions,
 )
@@ -68,6 +69,7 @@ class ReaderOptions:
     vertical_sonar: str | None
     horizontal_image_max_range_m: float | None
     vertical_image_max_range_m: float | None
+    image_bits: int | None
     message_definitions: tuple[str, ...]
     horizontal_mount_xyz_m: tuple[float, float, float] | None
     horizontal_mount_rpy_deg: tuple[float, float, float] | None
@@ -310,15 +312,15 @@ class SourceRecording(NavigationSensors):
         self._ping_stamps[(sonar, t)] = stamp_ns(parts["ping"])
         if "labels" not in parts and "truth" not in parts:
             return ping
-        order = label_column_order(parts["ping"], msgtype, sonar, self.options)
+        order = label_column_order(parts["ping"], msgtype, sonar, self.options, ping.image.shape[1])
         labels = truth = None
         try:
             if "labels" in parts:
                 image = decode_image(parts["labels"]).astype(np.uint8)
-                labels = np.ascontiguousarray(image[:, order])
+                labels = np.ascontiguousarray(fits_ping(image, ping.image)[:, order])
             if "truth" in parts:
                 image = decode_image(parts["truth"]).astype(np.float32)
-                truth = np.ascontiguousarray(image[:, order])
+                truth = np.ascontiguousarray(fits_ping(image, ping.image)[:, order])
         except (ValueError, OSError, IndexError) as err:
             raise SourceError(f"{where}: bad label or truth image at t_ns={t} ({err})") from err
         return SonarPing(

@@ -30,6 +30,7 @@ __all__ = [
     "configured_sonar",
     "decode_image",
     "decode_sonar",
+    "fits_ping",
     "oculus_arrays",
     "sonar_descriptions",
 ]
@@ -55,63 +56,131 @@ _IMAGE_DTYPES = {
     "32FC1": np.float32,
     "64FC1": np.float64,
 }
+_COLOUR_CHANNELS = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4}
+"""Colour encodings read when the image is grey (equal colour channels)."""
+_ENCODINGS = ", ".join([*_IMAGE_DTYPES, *(f"grey {e}" for e in _COLOUR_CHANNELS)])
+_PIL_MODES = {"L": np.uint8, "I;16": np.uint16, "I;16B": np.uint16, "I;16L": np.uint16}
+
+
+def _grey(pixels: np.ndarray, what: str) -> np.ndarray:
+    """(h, w, c) colour pixels -> (h, w) grey, when the image is grey stored in colour.
+
+    A false-colour image (a colour map applied to the echoes) is refused: its grey level
+    is no echo intensity, and a colour map cannot be read back without knowing it.
+    """
+    rgb = pixels[..., :3]
+    if np.any(rgb != rgb[..., :1]):
+        raise ValueError(
+            f"{what} image in false colour (its colour channels differ): the echo"
+            " intensities cannot be read back from a colour map; record the sonar's mono8"
+            " or mono16 image"
+        )
+    return np.ascontiguousarray(rgb[..., 0])
+
+
+def _decode_compressed(data: bytes) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            # The header's size is checked before any pixel is decoded.
+            width, height = im.size
+            if width * height > MAX_IMAGE_PIXELS:
+                raise ValueError(
+                    f"compressed image declares {width} x {height} pixels, over the "
+                    f"limit of {MAX_IMAGE_PIXELS}"
+                )
+            mode = im.mode
+            if mode in _PIL_MODES:
+                return np.asarray(im).astype(_PIL_MODES[mode])
+            if mode in ("RGB", "RGBA", "P", "LA", "1"):
+                return _grey(np.asarray(im.convert("RGB")), f"compressed {mode}")
+            raise ValueError(
+                f"compressed image of mode {mode!r} (read: {', '.join(_PIL_MODES)}, RGB)"
+            )
+    except Image.DecompressionBombError as err:
+        raise ValueError(f"compressed image too large ({err})") from err
 
 
 def decode_image(msg: Any) -> np.ndarray:
-    """sensor_msgs Image (single channel) or CompressedImage -> (h, w) array.
+    """sensor_msgs Image or CompressedImage -> (h, w) array of the encoding's type
+    (uint8, uint16 or float); a grey image stored in colour -> its grey level.
 
     Raises:
         ValueError: the image is larger than `MAX_IMAGE_PIXELS`, its buffer does not hold
-            the size it declares, or a compressed image does not decode.
+            the size it declares, its encoding is none of `_ENCODINGS`, it is in false
+            colour, or a compressed image does not decode.
     """
     if hasattr(msg, "format"):
-        from PIL import Image
-
-        try:
-            with Image.open(io.BytesIO(bytes(msg.data))) as im:
-                # The header's size is checked before any pixel is decoded.
-                width, height = im.size
-                if width * height > MAX_IMAGE_PIXELS:
-                    raise ValueError(
-                        f"compressed image declares {width} x {height} pixels, over the "
-                        f"limit of {MAX_IMAGE_PIXELS}"
-                    )
-                return np.asarray(im.convert("L"))
-        except Image.DecompressionBombError as err:
-            raise ValueError(f"compressed image too large ({err})") from err
-    dtype = np.dtype(_IMAGE_DTYPES.get(msg.encoding, np.uint8))
+        return _decode_compressed(bytes(msg.data))
+    encoding = str(msg.encoding)
+    channels = _COLOUR_CHANNELS.get(encoding, 1)
+    if channels == 1 and encoding not in _IMAGE_DTYPES:
+        raise ValueError(f"image encoding {encoding[:20]!r}: sonarmap reads {_ENCODINGS}")
+    dtype = np.dtype(_IMAGE_DTYPES.get(encoding, np.uint8))
     dtype = dtype.newbyteorder(">" if msg.is_bigendian else "<")
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     n_bytes = len(msg.data)
     if height * width > MAX_IMAGE_PIXELS:
         raise ValueError(f"image declares {width} x {height} pixels, over the limit")
-    if step < width * dtype.itemsize or height * step != n_bytes:
+    width_bytes = width * channels * dtype.itemsize
+    if step < width_bytes or height * step != n_bytes:
         raise ValueError(
             f"image declares {height} rows of {step} bytes ({width} pixels of "
-            f"{msg.encoding[:20]!r}) but holds {n_bytes} bytes"
+            f"{encoding[:20]!r}) but holds {n_bytes} bytes"
         )
     rows = np.frombuffer(bytes(msg.data), np.uint8).reshape(height, step)
-    width_bytes = width * dtype.itemsize
-    return (
-        rows[:, :width_bytes]
-        .copy()
-        .view(dtype)
-        .reshape(height, width)
-        .astype(dtype.newbyteorder("="))
-    )
+    pixels = rows[:, :width_bytes].copy().view(dtype).astype(dtype.newbyteorder("="))
+    if channels > 1:
+        return _grey(pixels.reshape(height, width, channels), encoding)
+    return pixels.reshape(height, width)
 
 
-def _to_uint8(image: np.ndarray) -> np.ndarray:
+def _to_uint8(image: np.ndarray, bits: int | None = None) -> np.ndarray:
+    """Echo intensities -> uint8: integers from their `bits` significant bits (None: the
+    whole type), floats from 0..1.
+
+    Raises:
+        ValueError: pixels the conversion would lose: a 16-bit image whose pixels all lie
+            under the 8 bits kept (written with fewer bits), values over `bits`, floats
+            not finite or outside 0..1.
+    """
     if image.dtype == np.uint8:
         return image
     if np.issubdtype(image.dtype, np.integer):
-        shift = 8 * (image.dtype.itemsize - 1)
+        width = 8 * image.dtype.itemsize
+        bits = width if bits is None else min(bits, width)
+        shift = max(0, bits - 8)
+        top = int(image.max(initial=0))
+        if top >> bits:
+            raise ValueError(f"{width}-bit pixels up to {top}, over keyframes.image_bits = {bits}")
+        if shift and top and not top >> shift:
+            raise ValueError(
+                f"every pixel of the {width}-bit image is under {1 << shift} (max {top}), so"
+                f" none survives keeping its top 8 of {bits} bits: if the sonar writes"
+                f" {top.bit_length()}-bit pixels, set keyframes.image_bits={max(8, top.bit_length())}"
+            )
         return (image.astype(np.uint64) >> shift).astype(np.uint8)
-    return np.clip(image * 255.0, 0, 255).astype(np.uint8)
+    finite = np.isfinite(image)
+    low = float(image.min(initial=0.0, where=finite))
+    high = float(image.max(initial=0.0, where=finite))
+    if not finite.all() or low < 0.0 or high > 1.0:
+        bad = int(image.size - np.count_nonzero(finite))
+        odd = f"{bad} of {image.size} pixels not finite, " if bad else ""
+        raise ValueError(
+            f"float image with {odd}values from {low:.4g} to {high:.4g}: sonarmap reads a"
+            " float image as intensities in 0..1 (not dB, not 0..255)"
+        )
+    return (image * 255.0).astype(np.uint8)
 
 
 def _ping(
-    t_ns: int, sonar: str, image: np.ndarray, ranges: np.ndarray, angles: np.ndarray
+    t_ns: int,
+    sonar: str,
+    image: np.ndarray,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    bits: int | None = None,
 ) -> SonarPing:
     problem = ping_problem(image.shape, ranges, angles)
     if problem is not None:
@@ -122,7 +191,7 @@ def _ping(
     return SonarPing(
         t_ns=int(t_ns),
         sonar=sonar,
-        image=np.ascontiguousarray(_to_uint8(image)),
+        image=np.ascontiguousarray(_to_uint8(image, bits)),
         ranges_m=np.asarray(ranges, np.float32),
         angles_rad=np.asarray(angles, np.float32),
     )
@@ -173,7 +242,7 @@ def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
     )
 
 
-def _oculus(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
+def _oculus(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
     image = decode_image(msg.ping)
     n_r, n_b = int(msg.num_ranges), int(msg.num_beams)
     if image.shape != (n_r, n_b) or len(msg.bearings) != n_b:
@@ -181,7 +250,8 @@ def _oculus(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
             f"OculusPing image {image.shape} != (num_ranges {n_r}, num_beams {n_b}) "
             f"or {len(msg.bearings)} bearings"
         )
-    return _ping(t_ns, sonar, *oculus_arrays(image, msg.bearings, float(msg.range_resolution)))
+    arrays = oculus_arrays(image, msg.bearings, float(msg.range_resolution))
+    return _ping(t_ns, sonar, *arrays, getattr(options, "image_bits", None))
 
 
 def _oculus_file(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
@@ -216,7 +286,7 @@ def _polar_image(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
         angles = even_beam_angles(model.fov_deg if model else options.image_fov_deg, n_b)
     max_range = getattr(options, f"{sonar}_image_max_range_m", None) or options.image_max_range_m
     ranges = (np.arange(n_r) + 0.5) * (max_range / n_r)
-    return _ping(t_ns, sonar, image, ranges, angles)
+    return _ping(t_ns, sonar, image, ranges, angles, getattr(options, "image_bits", None))
 
 
 def sonar_descriptions(
@@ -294,13 +364,27 @@ def decode_sonar(
         raise SourceError(f"{where}: bad {msgtype} message at t_ns={t_ns} ({err})") from err
 
 
-def label_column_order(msg: Any, msgtype: str, sonar: str, options: Any) -> np.ndarray:
-    """The column permutation `decode_sonar` applied to a ping (to apply to its label and
-    truth images)."""
+def label_column_order(
+    msg: Any, msgtype: str, sonar: str, options: Any, n_beams: int
+) -> np.ndarray:
+    """The column permutation `decode_sonar` applied to a ping of `n_beams` beams (to apply
+    to its label and truth images)."""
     model = configured_sonar(options, sonar) if msgtype in IMAGE_SONAR_TYPES else None
     if model is not None and model.beam_angles_deg is not None:
         return np.argsort(model.beam_angles_deg, kind="stable")
     if msgtype.endswith("ProjectedSonarImage"):
         return np.argsort(beam_angles_from_directions(beam_directions(msg)), kind="stable")
-    n = int(getattr(msg, "num_beams", 0) or getattr(msg, "width", 0))
-    return np.arange(n)[::-1]
+    # Polar images and Oculus pings: column 0 is port, mirrored (a compressed image's
+    # width is known only once decoded, hence the decoded ping's beam count).
+    return np.arange(n_beams)[::-1]
+
+
+def fits_ping(image: np.ndarray, ping_image: np.ndarray) -> np.ndarray:
+    """`image` (a ping's label or truth image), checked to have the ping's shape.
+
+    Raises:
+        ValueError: another shape (its pixels would be read against the wrong cells).
+    """
+    if image.shape != ping_image.shape:
+        raise ValueError(f"a {image.shape} image beside a ping of {ping_image.shape}")
+    return image

@@ -25,7 +25,10 @@ STAGE = Stage(
     # sample stamped an hour late goes alone), counts the pings inside a jump of the
     # navigation's clock, warns of a sonar logged apart from its header stamps, and
     # refuses log times past what a ROS 2 stamp holds (sensors.json's warnings)
-    version=6,
+    # 7: sonar images: grey colour images read (false colour, unknown encodings, floats
+    # outside 0..1 refused), `image_bits`, beam tables in no order or spanning no fan
+    # refused, a compressed image's labels ordered by its decoded width
+    version=7,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(

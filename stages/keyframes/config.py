@@ -44,6 +44,9 @@ class KeyframesConfig(StageConfig):
             fan, range and vertical aperture in `sensors.json` (None: from the messages).
         horizontal_image_max_range_m, vertical_image_max_range_m: range of that sonar's
             polar images [m] (None: image_max_range_m).
+        image_bits: significant bits of a 16-bit sonar image's pixels (a sonar writing
+            12-bit values in mono16 or a 16-bit PNG: 12); its top 8 bits are the echo
+            intensity (None: all 16).
         message_definitions: `.msg` / `.idl` files of custom ROS 2 message types the
             recording uses (a .msg file's type is its path: pkg/msg/Name.msg).
         base_frame: the vehicle frame mounts are composed from in the recording's tf tree.
@@ -80,6 +83,7 @@ class KeyframesConfig(StageConfig):
     vertical_sonar: str | None = Field(None, min_length=1, max_length=4096)
     horizontal_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
     vertical_image_max_range_m: float | None = Field(None, gt=0.0, le=1000.0)
+    image_bits: int | None = Field(None, ge=8, le=16)
     message_definitions: tuple[Annotated[str, Field(min_length=1, max_length=4096)], ...] = Field(
         (), max_length=64
     )
