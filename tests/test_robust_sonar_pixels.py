@@ -97,3 +97,37 @@ def test_beam_tables_in_no_order_or_spanning_no_fan_are_refused() -> None:
     # A first bin edge at 0 m less float rounding is no negative range.
     assert ping_problem((8, 16), np.r_[-1.9e-9, ranges[1:]], fan) is None
     assert "negative range" in str(ping_problem((8, 16), np.r_[-0.01, ranges[1:]], fan))
+
+
+def test_blank_and_saturated_pings_are_left_out_of_the_calibration() -> None:
+    # A dive whose first pings are all 255 (in air) was refused as "saturated"; all 0 (not
+    # yet pinging) set the thresholds low. They are now left out, with a warning.
+    from sonarmap.schemas.sonar import KeyframeImages, SonarPing
+    from sonarmap.stages.features.calibration import calibrate_sample
+    from sonarmap.stages.features.config import FeaturesConfig
+
+    rng = np.random.default_rng(0)
+    ranges = np.linspace(0.5, 30.0, 200, dtype=np.float32)
+    angles = np.deg2rad(np.linspace(-65.0, 65.0, 64)).astype(np.float32)
+
+    def frame(t: int, image: np.ndarray) -> KeyframeImages:
+        pings = [SonarPing(t, s, image, ranges, angles) for s in ("horizontal", "vertical")]
+        return KeyframeImages(t, t, *pings)
+
+    def speckle() -> np.ndarray:
+        return np.clip(rng.weibull(1.2, (200, 64)) * 40.0, 0, 255).astype(np.uint8)
+
+    good = [frame(t, speckle()) for t in range(10, 16)]
+    air = [frame(t, np.full((200, 64), 255, np.uint8)) for t in range(4)]
+    silent = [frame(t, np.zeros((200, 64), np.uint8)) for t in range(4, 6)]
+    config = FeaturesConfig()
+    clean = calibrate_sample(good, config)
+    doc = calibrate_sample([*air, *silent, *good], config)
+    assert doc["sonars"]["horizontal"]["bands"] == clean["sonars"]["horizontal"]["bands"]
+    assert doc["sonars"]["horizontal"]["constant_t_ns"] == list(range(6))
+    assert any(
+        "horizontal sonar: 6 of 12 calibration pings hold one level in every pixel (0, 255)" in w
+        for w in doc["warnings"]
+    )
+    with pytest.raises(Exception, match="no background to calibrate on"):
+        calibrate_sample(air, config)

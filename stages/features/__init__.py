@@ -25,7 +25,9 @@ STAGE = Stage(
     # 6: calibrated on the ping pairs stage `keyframes` samples on that grid, whatever the
     # keyframe selection (a spacing sweep calibrates once); calibration.json names their
     # times (`sampled_t_ns`).
-    version=6,
+    # 7: sampled pings holding one level in every pixel (blank, saturated) are left out of
+    # the calibration with a warning (`constant_t_ns`).
+    version=7,
     config=FeaturesConfig,
     inputs=(
         Input("keyframes", "frames"),

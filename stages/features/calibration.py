@@ -17,7 +17,10 @@ Warnings (stated rules, not fitted; "warnings" reach the run's warning lines):
   false alarms the calibration expects per ping (the thresholds pass less than the
   background alone gives);
 - budget: keyframes clipped by the feature budget, with the features dropped;
-- bands whose law was borrowed from the nearest fitted band (saturated, constant or empty).
+- bands whose law was borrowed from the nearest fitted band (saturated, constant or empty);
+- sampled pings holding one level in every pixel (blank, saturated), left out of the
+  calibration (`constant_t_ns`): a sonar pinging in air at the start of a dive, or a
+  driver filling dropped pings, would otherwise set the thresholds or refuse the dive.
 """
 
 from __future__ import annotations
@@ -96,12 +99,27 @@ def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str,
     }
     for sonar in SONARS:
         pings = [getattr(f, sonar) for f in picked]
+        constant = [_constant_level(p.image) for p in pings]
+        kept = [p for p, level in zip(pings, constant, strict=True) if level is None]
+        if kept and len(kept) < len(pings):
+            levels = sorted({level for level in constant if level is not None})
+            doc["warnings"].append(
+                f"features: {sonar} sonar: {len(pings) - len(kept)} of {len(pings)} calibration"
+                f" pings hold one level in every pixel ({', '.join(map(str, levels))}), left"
+                " out of the calibration: a sonar not yet pinging or in air, or a driver"
+                " filling dropped pings"
+            )
+            pings = kept  # all constant: the calibration refuses them, naming why
         entry = calibrate_sonar(
             [p.image for p in pings], [np.asarray(p.ranges_m) for p in pings], config, sonar
         ) if pings else None  # fmt: skip
         if entry is None:
             continue
         entry["sampled_t_ns"] = [int(f.t_ns) for f in picked]
+        if len(pings) < len(picked):
+            entry["constant_t_ns"] = [
+                int(f.t_ns) for f, level in zip(picked, constant, strict=True) if level is not None
+            ]
         doc["sonars"][sonar] = entry
         if entry["borrowed_bands"]:
             why = "; ".join(
@@ -112,6 +130,12 @@ def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str,
                 f" be modelled, each assumed its nearest fitted band's law ({why})"
             )
     return doc
+
+
+def _constant_level(image: np.ndarray) -> int | None:
+    """The one level of an image whose pixels are all equal (no echo to fit), else None."""
+    lo, hi = image.min(), image.max()
+    return int(lo) if lo == hi else None
 
 
 def with_measurements(
