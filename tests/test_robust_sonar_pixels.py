@@ -131,3 +131,18 @@ def test_blank_and_saturated_pings_are_left_out_of_the_calibration() -> None:
     )
     with pytest.raises(Exception, match="no background to calibrate on"):
         calibrate_sample(air, config)
+
+
+def test_a_gain_step_during_the_dive_is_warned_with_its_levels_and_times() -> None:
+    # Gain x1.8 half-way: the map 2.4 m off, and the horizontal sonar, with no background
+    # band to measure a rate on, said nothing.
+    from sonarmap.stages.features.calibration import _level_change
+
+    t = [int(k * 10e9) for k in range(8)]
+    steady = [44.0, 43.0, 44.0, 45.0, 43.0, 44.0, 44.0, 43.0]
+    assert _level_change(steady, t) == ""
+    stepped = steady[:4] + [78.0, 77.0, 79.0, 77.0]
+    assert _level_change(stepped, t).startswith(
+        "the sampled pings' median level runs from 43 (at 10 s) to 79 (at 60 s)"
+    )
+    assert _level_change([2.0, 4.0, 3.0], t[:3]) == ""  # dark images move by whole levels

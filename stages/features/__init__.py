@@ -26,7 +26,8 @@ STAGE = Stage(
     # keyframe selection (a spacing sweep calibrates once); calibration.json names their
     # times (`sampled_t_ns`).
     # 7: sampled pings holding one level in every pixel (blank, saturated) are left out of
-    # the calibration with a warning (`constant_t_ns`).
+    # the calibration with a warning (`constant_t_ns`); each sampled ping's median level is
+    # recorded (`median_levels`), and a step by half again warns (a gain or range change).
     version=7,
     config=FeaturesConfig,
     inputs=(

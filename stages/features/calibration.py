@@ -18,6 +18,8 @@ Warnings (stated rules, not fitted; "warnings" reach the run's warning lines):
   background alone gives);
 - budget: keyframes clipped by the feature budget, with the features dropped;
 - bands whose law was borrowed from the nearest fitted band (saturated, constant or empty);
+- sampled pings whose median levels differ by half again: the sensor's gain, range or
+  mode changed during the dive, and one calibration does not fit both parts;
 - sampled pings holding one level in every pixel (blank, saturated), left out of the
   calibration (`constant_t_ns`): a sonar pinging in air at the start of a dive, or a
   driver filling dropped pings, would otherwise set the thresholds or refuse the dive.
@@ -37,6 +39,8 @@ from sonarmap.stages.kernels.time_grid import sampled_by_time
 
 __all__ = [
     "FLOOD_FACTOR",
+    "LEVEL_STEP_FACTOR",
+    "LEVEL_STEP_MIN",
     "MIN_EXPECTED",
     "calibrate",
     "calibrate_sample",
@@ -48,6 +52,9 @@ FLOOD_FACTOR = 3.0
 """A background detection rate over 3x (or under 1/3 of) the stated rate warns."""
 MIN_EXPECTED = 30.0
 """The starve check on background bands needs this many false alarms expected there."""
+LEVEL_STEP_FACTOR = 1.5
+LEVEL_STEP_MIN = 8.0
+"""Sampled pings whose median levels differ by 1.5x and 8 levels warn (`_level_change`)."""
 
 
 DEFAULT_SAMPLE = 24
@@ -116,6 +123,11 @@ def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str,
         if entry is None:
             continue
         entry["sampled_t_ns"] = [int(f.t_ns) for f in picked]
+        medians = [float(np.median(p.image)) for p in pings]
+        entry["median_levels"] = medians
+        change = _level_change(medians, [int(p.t_ns) for p in pings])
+        if change:
+            doc["warnings"].append(f"features: {sonar} sonar: {change}")
         if len(pings) < len(picked):
             entry["constant_t_ns"] = [
                 int(f.t_ns) for f, level in zip(picked, constant, strict=True) if level is not None
@@ -130,6 +142,29 @@ def calibrate_sample(picked: Sequence[KeyframeImages], config: Any) -> dict[str,
                 f" be modelled, each assumed its nearest fitted band's law ({why})"
             )
     return doc
+
+
+def _level_change(medians: Sequence[float], t_ns: Sequence[int]) -> str:
+    """Why the sampled pings' median levels say the sensor's settings changed ("" if not).
+
+    A stationary background's median level moves by a few percent from ping to ping (the
+    clean marina: 43-45 of 255), scenes included; a step by half again (and by more than
+    `LEVEL_STEP_MIN` levels, as dark images move by whole levels) is a change of gain,
+    range or mode.
+    """
+    if len(medians) < 2:
+        return ""
+    lo, hi = int(np.argmin(medians)), int(np.argmax(medians))
+    low, high = medians[lo], medians[hi]
+    if high < LEVEL_STEP_FACTOR * low or high - low < LEVEL_STEP_MIN:
+        return ""
+    t0 = min(t_ns)
+    return (
+        f"the sampled pings' median level runs from {low:.0f} (at {(t_ns[lo] - t0) / 1e9:.0f} s)"
+        f" to {high:.0f} (at {(t_ns[hi] - t0) / 1e9:.0f} s): the sonar's gain, range or mode"
+        " changed during the dive? One calibration serves the whole recording, so the pings"
+        " at the other level are detected at another rate than stated"
+    )
 
 
 def _constant_level(image: np.ndarray) -> int | None:
