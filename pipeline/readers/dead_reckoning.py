@@ -16,6 +16,7 @@ from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.readers.clock import gap_warning
 from sonarmap.pipeline.readers.depth import (
     STANDARD_ATMOSPHERE_PA,
+    depth_doubts,
     depth_kind,
     depth_value,
     pressure_depth,
@@ -45,6 +46,8 @@ class NavigationSensors(SensorGeometry):
         self._provenance["depth"] = info
         if len(t) == 0:
             return nav
+        for line in depth_doubts(t, depth, nav.t_ns):
+            self._warn(f"{self.source.path}: {self.roles.depth}: {line}")
         xyz = nav.xyz_m.copy()
         xyz[:, 2] = -np.interp(nav.t_ns, t, depth)
         return PoseTrack(nav.t_ns, xyz, nav.rpy_rad)
@@ -122,6 +125,9 @@ class NavigationSensors(SensorGeometry):
         omega = np.stack([np.interp(t_dvl, t_imu, w_base[:, i]) for i in range(3)], axis=1)
         v_base = body_velocity(v_dvl, T_dvl[:3, :3], T_dvl[:3, 3], omega)
         dep_t, dep, depth_info = self._depth()
+        if len(dep_t):
+            for line in depth_doubts(dep_t, dep, t_dvl):
+                self._warn(f"{where}: {self.roles.depth}: {line}")
         self._provenance["dvl"] = {
             **self._role(self.roles.dvl),
             **dvl_info,

@@ -16,8 +16,11 @@ from typing import Any
 import numpy as np
 
 __all__ = [
+    "ABOVE_SURFACE_M",
     "FLUID_PRESSURE_TYPE",
     "STANDARD_ATMOSPHERE_PA",
+    "UNCOVERED_SHARE",
+    "depth_doubts",
     "depth_kind",
     "depth_value",
     "pressure_depth",
@@ -62,3 +65,35 @@ def surface_pressure(t_ns: np.ndarray, pressure_pa: np.ndarray, first_s: float) 
     t = np.asarray(t_ns, np.int64)
     early = t <= t[0] + round(first_s * 1e9)
     return float(np.median(np.asarray(pressure_pa, np.float64)[early]))
+
+
+ABOVE_SURFACE_M = 0.5
+"""A vehicle whose median depth is over half a metre above the surface (more than waves
+and the weather's surface pressure explain) has a depth of the wrong sign or reference."""
+UNCOVERED_SHARE = 0.1
+"""Depth samples ending (or starting) over a tenth of the navigation's span away from it."""
+
+
+def depth_doubts(t_ns: np.ndarray, depth_m: np.ndarray, nav_t_ns: np.ndarray) -> list[str]:
+    """Why a depth track (positive down) looks wrong for navigation spanning `nav_t_ns`:
+    the vehicle above the surface for most of the dive, or samples covering only part of
+    the navigation (`np.interp` holds the first / last value outside them)."""
+    out = []
+    median = float(np.median(depth_m))
+    if median < -ABOVE_SURFACE_M:
+        out.append(
+            f"the depth puts the vehicle {-median:.3g} m above the surface (median): a depth"
+            " positive down published as z up (an NED pose), a depth message of the other"
+            " sign, or gauge pressure (set keyframes.surface_pressure_pa: 0)? Every pose's"
+            " z is taken from it"
+        )
+    span = float(nav_t_ns[-1] - nav_t_ns[0])
+    before = max(0.0, float(t_ns[0] - nav_t_ns[0]))
+    after = max(0.0, float(nav_t_ns[-1] - t_ns[-1]))
+    if span > 0 and (before + after) > UNCOVERED_SHARE * span:
+        out.append(
+            f"depth samples cover {100 * (1 - (before + after) / span):.0f} % of the"
+            f" navigation's {span / 1e9:.0f} s ({before / 1e9:.0f} s missing at the start,"
+            f" {after / 1e9:.0f} s at the end): poses there hold the nearest depth sample's"
+        )
+    return out

@@ -13,15 +13,19 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = [
+    "LEVEL_LIMIT_DEG",
     "MAX_JUMP_M",
     "MAX_RANGE_M",
     "MAX_SPEED_MPS",
     "MIN_BEAMS",
     "MIN_FAN_DEG",
     "MIN_RANGE_BINS",
+    "UNPOSED_SHARE",
     "beam_direction_problem",
+    "navigation_doubts",
     "navigation_glitches",
     "navigation_jump",
+    "ned_frame_doubt",
     "ping_problem",
     "valid_pose_rows",
 ]
@@ -139,3 +143,61 @@ def navigation_jump(t_ns: np.ndarray, xyz: np.ndarray) -> int | None:
     k = np.arange(len(t_ns) - 1)
     bad = np.flatnonzero(_implausible(t_ns, xyz, k, k + 1))
     return int(bad[0]) if len(bad) else None
+
+
+LEVEL_LIMIT_DEG = 45.0
+"""ROVs and AUVs keep within a few tens of degrees of level (a glider pitches about 25);
+a navigation rolled or pitched past 45 degrees for most of the dive is read in another
+convention."""
+
+UNPOSED_SHARE = 0.05
+"""Pings outside the navigation's span are not mapped; a few at the edges are usual."""
+
+
+def navigation_doubts(
+    ping_t_ns: np.ndarray, nav_t_ns: np.ndarray, rpy_rad: np.ndarray
+) -> list[str]:
+    """Why a navigation may map wrong though every sample is valid: over UNPOSED_SHARE of
+    the horizontal pings outside its span (not mapped), or the vehicle rolled or pitched
+    past LEVEL_LIMIT_DEG for over half of its samples (another convention)."""
+    out = []
+    if len(ping_t_ns) and len(nav_t_ns):
+        early = ping_t_ns < nav_t_ns[0]
+        late = ping_t_ns > nav_t_ns[-1]
+        share = float(np.mean(early | late))
+        if share > UNPOSED_SHARE:
+            out.append(
+                f"{int(np.count_nonzero(early | late))} of {len(ping_t_ns)} horizontal pings"
+                f" ({100 * share:.0f} %) fall outside the navigation's span"
+                f" ({int(early.sum())} before it starts, {int(late.sum())} after it ends):"
+                " they are not mapped"
+            )
+    if len(rpy_rad):
+        tilt = np.rad2deg(np.abs(np.asarray(rpy_rad, np.float64)[:, :2]))
+        off = float(np.mean(tilt.max(axis=1) > LEVEL_LIMIT_DEG))
+        if off > 0.5:
+            roll, pitch = np.median(tilt, axis=0)
+            out.append(
+                f"the navigation has the vehicle rolled or pitched over {LEVEL_LIMIT_DEG:g} deg"
+                f" for {100 * off:.0f} % of its samples (median |roll| {roll:.0f} deg, |pitch|"
+                f" {pitch:.0f} deg): an orientation in NED/FRD read as ENU/FLU (REP 103), a"
+                " quaternion written in (w, x, y, z) order, or the pose of another frame than"
+                " the vehicle's? The sonars' fans are placed by it"
+            )
+    return out
+
+
+def ned_frame_doubt(message: object) -> str | None:
+    """Why a navigation message's frames look NED/FRD (REP 105 names them `*_ned`,
+    `*_frd`), which sonarmap would read as ENU/FLU; None when they do not."""
+    header = getattr(message, "header", None)
+    names = [str(getattr(header, "frame_id", "")), str(getattr(message, "child_frame_id", ""))]
+    ned = [n for n in names if n.lower().rstrip("/").endswith(("_ned", "_frd")) or n == "ned"]
+    if not ned:
+        return None
+    return (
+        f"its frames are named {' and '.join(repr(n) for n in ned)}, NED/FRD by REP 105's"
+        " names, but navigation is read as ENU/FLU (x east or forward, z up): the map"
+        " comes out mirrored and the vehicle above the water; publish ENU (x, y swapped,"
+        " z negated) or use the ENU topic"
+    )

@@ -16,8 +16,10 @@ from sonarmap.pipeline.readers.dead_reckoning import NavigationSensors
 from sonarmap.pipeline.readers.geometry_checks import (
     MAX_JUMP_M,
     MAX_SPEED_MPS,
+    navigation_doubts,
     navigation_glitches,
     navigation_jump,
+    ned_frame_doubt,
     valid_pose_rows,
 )
 from sonarmap.pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
@@ -231,10 +233,14 @@ class SourceRecording(NavigationSensors):
         if self._pose_tracks is None:
             topics = sorted({t for t in (self.roles.navigation, self.roles.ground_truth) if t})
             rows: dict[str, list[tuple[float, ...]]] = {t: [] for t in topics}
+            first = None
             for topic, t, m in self.source.messages(topics):
                 rows[topic].append((t, *nav_pose(m)))
+                first = m if first is None and topic == self.roles.navigation else first
                 if topic == self.roles.navigation and (stamp := stamp_ns(m)) is not None:
                     self._nav_offsets_ns.append(t - stamp)
+            if first is not None and (doubt := ned_frame_doubt(first)) is not None:
+                self._warn(f"{self.source.path}: {self.roles.navigation}: {doubt}")
             self._pose_tracks = {topic: self._checked_rows(topic, r) for topic, r in rows.items()}
         return self._pose_tracks
 
@@ -265,6 +271,8 @@ class SourceRecording(NavigationSensors):
                 f"{int(nav.t_ns[-1])} but no ping of {topic} (t_ns={int(t[0])}..{int(t[-1])}) "
                 "falls inside it, so no ping can be posed"
             )
+        for line in navigation_doubts(t, nav.t_ns, nav.rpy_rad):
+            self._warn(f"{self.source.path}: {line}")
 
     def ground_truth(self) -> PoseTrack | None:
         return None if self.roles.ground_truth is None else self._tracks()[self.roles.ground_truth]

@@ -32,6 +32,9 @@ _HINTS = {
     "vertical": ("vertical", "vert", "m1200d"),
 }
 _GT_HINTS = ("ground_truth", "groundtruth", "gt_")
+_DEPTH_HINTS = ("depth", "pressure", "bar30", "baro")
+"""A pose topic named like a depth sensor's (/bar30/pose, /depth) is not navigation
+when a DVL and an IMU can dead-reckon."""
 IMU_TYPE = "sensor_msgs/msg/Imu"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 
@@ -175,6 +178,13 @@ def _navigation(
         )
         return
     nav = [t for t in nav if t != roles.ground_truth and not any(h in t.lower() for h in _GT_HINTS)]
+    # A depth sensor's pose (only z set, as robot_localization takes depth) is no
+    # navigation: with a DVL and an IMU to dead-reckon from, it is the depth.
+    depth_poses = [t for t in nav if t == roles.depth or _named_depth(t)]
+    if depth_poses and _can_dead_reckon(topics):
+        nav = [t for t in nav if t not in depth_poses]
+        if not nav and roles.depth is None and len(depth_poses) == 1:
+            roles.depth = depth_poses[0]
     if TOPIC_DEAD_RECKONING in nav or len(nav) == 1:
         roles.navigation = TOPIC_DEAD_RECKONING if TOPIC_DEAD_RECKONING in nav else nav[0]
         return
@@ -236,6 +246,16 @@ def _pick(
     return found[0] if found else None
 
 
+def _named_depth(topic: str) -> bool:
+    return any(h in topic.lower() for h in _DEPTH_HINTS)
+
+
+def _can_dead_reckon(topics: dict[str, TopicInfo]) -> bool:
+    return any(_is_dvl(t, i.msgtype) for t, i in topics.items()) and any(
+        _is_imu(t, i.msgtype) for t, i in topics.items()
+    )
+
+
 def _dead_reckoning_inputs(
     path: Path, topics: dict[str, TopicInfo], options: Any, roles: Roles
 ) -> None:
@@ -243,6 +263,8 @@ def _dead_reckoning_inputs(
     imu = _pick(path, topics, options, "imu_topic", _is_imu)
     if dvl and imu:
         roles.dvl, roles.imu = dvl, imu
+        if roles.depth is not None:  # a depth sensor's pose, set aside as navigation
+            return
         roles.depth = _pick(
             path,
             topics,

@@ -1,0 +1,77 @@
+"""Campaign 5 (navigation as field recordings publish it): conventions that mapped metres
+off with exit 0 and no word. Each is now read right or warned, naming the cause."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+
+from sonarmap.pipeline.readers.depth import depth_doubts
+from sonarmap.pipeline.readers.geometry_checks import navigation_doubts, ned_frame_doubt
+from sonarmap.pipeline.readers.recording import ReaderOptions
+from sonarmap.pipeline.readers.roles import detect_roles
+from sonarmap.pipeline.readers.source_types import TopicInfo
+
+SONARS = [
+    TopicInfo("/sonar/horizontal", "marine_acoustic_msgs/msg/ProjectedSonarImage", 10, 0, 9, 10),
+    TopicInfo("/sonar/vertical", "marine_acoustic_msgs/msg/ProjectedSonarImage", 10, 0, 9, 10),
+]
+DVL = TopicInfo("/dvl/twist", "geometry_msgs/msg/TwistWithCovarianceStamped", 10, 0, 9, 10)
+IMU = TopicInfo("/imu/data", "sensor_msgs/msg/Imu", 10, 0, 9, 10)
+
+
+def _pose(topic: str) -> TopicInfo:
+    return TopicInfo(topic, "geometry_msgs/msg/PoseWithCovarianceStamped", 10, 0, 9, 10)
+
+
+def test_a_depth_sensors_pose_beside_a_dvl_and_an_imu_is_the_depth_not_the_navigation() -> None:
+    # BlueROV2 style: depth fed as a pose with only z set. It became the navigation (the
+    # DVL and IMU ignored): 1 keyframe, the map 5.4 m off.
+    path = Path("dive.mcap")
+    options = ReaderOptions.from_config(None)
+    roles = detect_roles(path, [*SONARS, DVL, IMU, _pose("/bar30/depth")], options)
+    assert (roles.navigation, roles.dvl, roles.imu) == (None, "/dvl/twist", "/imu/data")
+    assert roles.depth == "/bar30/depth"
+    # Configured as the depth topic, a pose is never also the navigation.
+    options = ReaderOptions.from_config({"depth_topic": "/bar30/pose_ned"})
+    roles = detect_roles(path, [*SONARS, DVL, IMU, _pose("/bar30/pose_ned")], options)
+    assert (roles.navigation, roles.depth, roles.dvl) == (None, "/bar30/pose_ned", "/dvl/twist")
+    # Without a DVL and an IMU there is nothing else to navigate by: it stays navigation.
+    roles = detect_roles(
+        path, [*SONARS, _pose("/odometry/depth_fused")], ReaderOptions.from_config(None)
+    )
+    assert roles.navigation == "/odometry/depth_fused"
+
+
+def test_a_depth_above_the_surface_or_covering_part_of_the_dive_is_warned() -> None:
+    t = np.arange(100, dtype=np.int64) * 10**9
+    assert depth_doubts(t, np.full(100, 2.0), t) == []
+    (above,) = depth_doubts(t, np.full(100, -2.0), t)  # z up read as depth: 2 m above
+    assert above.startswith("the depth puts the vehicle 2 m above the surface (median)")
+    (part,) = depth_doubts(t[:30], np.full(30, 2.0), t)  # the sensor stopped at 30 %
+    assert part.startswith("depth samples cover 29 % of the navigation's 99 s")
+
+
+def test_pings_outside_the_navigation_and_a_vehicle_on_its_side_are_warned() -> None:
+    t = np.arange(100, dtype=np.int64)
+    level = np.zeros((70, 3))
+    (late,) = navigation_doubts(t, t[30:], level)
+    assert late.startswith("30 of 100 horizontal pings (30 %) fall outside the navigation's span")
+    assert navigation_doubts(t, t[2:], level) == []  # a few at the edges are usual
+    upside_down = np.tile([np.pi, 0.0, 0.3], (70, 1))  # FRD read as FLU, or a (w, x, y, z)
+    (tilted,) = navigation_doubts(t[30:], t[30:], upside_down)
+    assert "rolled or pitched over 45 deg for 100 % of its samples (median |roll| 180" in tilted
+    glider = np.tile([0.0, np.deg2rad(-25.0), 0.0], (70, 1))
+    assert navigation_doubts(t[30:], t[30:], glider) == []
+
+
+def test_navigation_in_frames_named_ned_is_warned() -> None:
+    def odometry(frame: str, child: str) -> SimpleNamespace:
+        return SimpleNamespace(header=SimpleNamespace(frame_id=frame), child_frame_id=child)
+
+    doubt = ned_frame_doubt(odometry("odom_ned", "base_link_frd"))
+    assert doubt is not None and "'odom_ned' and 'base_link_frd', NED/FRD" in doubt
+    assert ned_frame_doubt(odometry("odom", "base_link")) is None
+    assert ned_frame_doubt(SimpleNamespace(header=SimpleNamespace(frame_id="map"))) is None
