@@ -27,7 +27,9 @@ STAGE = Stage(
     # refuses log times past what a ROS 2 stamp holds (sensors.json's warnings)
     # 7: sonar images: grey colour images read (false colour, unknown encodings, floats
     # outside 0..1 refused), `image_bits`, beam tables in no order or spanning no fan
-    # refused, a compressed image's labels ordered by its decoded width
+    # refused, a compressed image's labels ordered by its decoded width; a depth sensor's
+    # pose beside a DVL and an IMU is the depth, not the navigation; navigation warnings
+    # (NED frame names, a vehicle on its side, depth above the surface, unposed pings)
     version=7,
     config=KeyframesConfig,
     inputs=(DATASET,),
