@@ -141,7 +141,7 @@ def test_a_gain_step_during_the_dive_is_warned_with_its_levels_and_times() -> No
     t = [int(k * 10e9) for k in range(8)]
     steady = [44.0, 43.0, 44.0, 45.0, 43.0, 44.0, 44.0, 43.0]
     assert _level_change(steady, t) == ""
-    stepped = steady[:4] + [78.0, 77.0, 79.0, 77.0]
+    stepped = [*steady[:4], 78.0, 77.0, 79.0, 77.0]
     assert _level_change(stepped, t).startswith(
         "the sampled pings' median level runs from 43 (at 10 s) to 79 (at 60 s)"
     )
