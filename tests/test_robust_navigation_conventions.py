@@ -75,3 +75,12 @@ def test_navigation_in_frames_named_ned_is_warned() -> None:
     assert doubt is not None and "'odom_ned' and 'base_link_frd', NED/FRD" in doubt
     assert ned_frame_doubt(odometry("odom", "base_link")) is None
     assert ned_frame_doubt(SimpleNamespace(header=SimpleNamespace(frame_id="map"))) is None
+
+
+def test_only_frames_named_ned_or_frd_count() -> None:
+    def pose(frame: str) -> SimpleNamespace:
+        return SimpleNamespace(header=SimpleNamespace(frame_id=frame))
+
+    assert ned_frame_doubt(pose("NED")) is not None
+    assert ned_frame_doubt(pose("map_aligned")) is None  # "...ned" is no NED frame
+    assert ned_frame_doubt(pose("pinned")) is None

@@ -187,12 +187,16 @@ def navigation_doubts(
     return out
 
 
+def _ned_name(name: str) -> bool:
+    return name.endswith(("_ned", "_frd")) or name in ("ned", "frd")
+
+
 def ned_frame_doubt(message: object) -> str | None:
     """Why a navigation message's frames look NED/FRD (REP 105 names them `*_ned`,
     `*_frd`), which sonarmap would read as ENU/FLU; None when they do not."""
     header = getattr(message, "header", None)
     names = [str(getattr(header, "frame_id", "")), str(getattr(message, "child_frame_id", ""))]
-    ned = [n for n in names if n.lower().rstrip("/").endswith(("_ned", "_frd")) or n == "ned"]
+    ned = [n for n in names if _ned_name(n.lower().rstrip("/"))]
     if not ned:
         return None
     return (
