@@ -84,3 +84,20 @@ def test_only_frames_named_ned_or_frd_count() -> None:
     assert ned_frame_doubt(pose("NED")) is not None
     assert ned_frame_doubt(pose("map_aligned")) is None  # "...ned" is no NED frame
     assert ned_frame_doubt(pose("pinned")) is None
+
+
+def test_imu_rates_in_degrees_per_second_are_warned() -> None:
+    # A 2-goal dive's IMU in deg/s: dead reckoning 7.7 m off, only the generic SLAM warning.
+    from scipy.spatial.transform import Rotation
+
+    from sonarmap.pipeline.readers.navigation_checks import rate_unit_doubt
+
+    t = np.arange(200, dtype=np.int64) * 10**8  # 10 Hz
+    yaw_rate = np.where(np.arange(200) < 100, 0.2, -0.1)  # rad/s: turns both ways
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (yaw_rate[:-1] + yaw_rate[1:]) * 0.1)])
+    q = Rotation.from_euler("z", yaw[:, None]).as_quat()
+    w = np.stack([np.zeros(200), np.zeros(200), yaw_rate], axis=1)
+    assert rate_unit_doubt(t, q, w) is None
+    doubt = rate_unit_doubt(t, q, np.rad2deg(w))
+    assert doubt is not None and doubt.startswith("its angular rates add up to 57x the turn")
+    assert rate_unit_doubt(t, np.tile([0, 0, 0, 1.0], (200, 1)), np.rad2deg(w)) is None  # no turn

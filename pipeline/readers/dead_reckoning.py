@@ -26,6 +26,7 @@ from sonarmap.pipeline.readers.dvl import body_velocity, dvl_velocity, gate_velo
 from sonarmap.pipeline.readers.geometry_checks import valid_pose_rows
 from sonarmap.pipeline.readers.mounts import SensorGeometry, message_frame
 from sonarmap.pipeline.readers.navigation import dead_reckon
+from sonarmap.pipeline.readers.navigation_checks import rate_unit_doubt
 from sonarmap.pipeline.readers.tf_tree import normalise_frame
 from sonarmap.schemas.recording import PoseTrack
 
@@ -93,6 +94,8 @@ class NavigationSensors(SensorGeometry):
         ok_q = valid_pose_rows(w_all, q)
         self._drop_warning(self.roles.imu, ok_q)
         q, w_imu, t_imu = q[ok_q], w_all[ok_q], np.asarray(imu_t, np.int64)[ok_q]
+        if (doubt := rate_unit_doubt(t_imu, q, w_imu)) is not None:
+            self._warn(f"{where}: {self.roles.imu}: {doubt}")
         for topic, times in ((self.roles.imu, t_imu), (self.roles.dvl, dvl_t)):
             gap = gap_warning(f"{where}: {topic}", np.sort(np.asarray(times, np.int64)), "motion")
             if gap:

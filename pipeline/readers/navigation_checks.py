@@ -8,8 +8,10 @@ import numpy as np
 
 __all__ = [
     "MAX_COORDINATE_M",
+    "RATE_UNIT_RATIO",
     "SPARSE_NAVIGATION_S",
     "far_position",
+    "rate_unit_doubt",
     "shared_times",
     "sparse_samples",
 ]
@@ -23,6 +25,36 @@ SPARSE_NAVIGATION_S = 5.0
 """A navigation whose samples are this far apart (median) is warned about: a vehicle at
 1 m/s moves 5 m between them and its turns there are lost to the interpolation (DVLs
 report at 1-10 Hz, inertial navigation at 10-200 Hz)."""
+
+
+RATE_UNIT_RATIO = 20.0
+"""An IMU whose angular rates add up to this many times the turn of its own orientation
+reports them in another unit (degrees per second: 57.3x); gyro noise stays far below it
+once the vehicle has turned MIN_TURN_DEG."""
+MIN_TURN_DEG = 90.0
+
+
+def rate_unit_doubt(t_ns: np.ndarray, q_xyzw: np.ndarray, w: np.ndarray) -> str | None:
+    """Why an IMU's angular rates (n, 3) disagree with its orientations (n, 4) at times
+    `t_ns` by a unit, or None (also when it turned too little to tell)."""
+    from scipy.spatial.transform import Rotation
+
+    if len(t_ns) < 3:
+        return None
+    dt = np.diff(np.asarray(t_ns, np.int64)) * 1e-9
+    r = Rotation.from_quat(q_xyzw)
+    turned = np.linalg.norm((r[:-1].inv() * r[1:]).as_rotvec(), axis=1)
+    integrated = np.linalg.norm(0.5 * (w[:-1] + w[1:]), axis=1) * dt
+    if np.rad2deg(turned.sum()) < MIN_TURN_DEG:
+        return None
+    ratio = float(integrated.sum() / turned.sum())
+    if ratio < RATE_UNIT_RATIO:
+        return None
+    return (
+        f"its angular rates add up to {ratio:.0f}x the turn its own orientation makes:"
+        " degrees per second, not radians (sensor_msgs/Imu's unit)? The DVL's lever-arm"
+        " correction uses them"
+    )
 
 
 def far_position(where: str, rows: np.ndarray) -> str | None:
