@@ -141,12 +141,14 @@ def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
     with canonical.path.open("rb") as f:
         for schema, channel, m in make_reader(f).iter_messages():
             if channel.topic in rename or (
-                navigation == "odometry" and channel.topic == "/odometry/dead_reckoning"
+                navigation.startswith("odometry") and channel.topic == "/odometry/dead_reckoning"
             ):
                 msg = store.deserialize_cdr(m.data, schema.name)
                 topic, frame = rename.get(channel.topic, ("/bluerov2/odometry", ""))
                 if frame:
                     msg.header.frame_id = frame
+                elif navigation == "odometry_ned":
+                    _to_ned_frd(msg)
                 events.append((m.log_time, topic, schema.name, msg))
     t0 = int(canonical.run.trajectory["t_ns"][0])
     inv_mount = np.linalg.inv(T_BASE_MOUNT)
@@ -171,6 +173,17 @@ def write_twin(canonical: Canonical, out: Path, navigation: str) -> Path:
         )
     )
     return write_bag(out, store, events)
+
+
+def _to_ned_frd(odometry: Any) -> None:
+    """An ENU / FLU Odometry message rewritten as a NED / FRD driver publishes it (REP 105)."""
+    enu_to_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    p, o = odometry.pose.pose.position, odometry.pose.pose.orientation
+    p.x, p.y, p.z = p.y, p.x, -p.z
+    r = Rotation.from_quat([o.x, o.y, o.z, o.w]).as_matrix()
+    q = Rotation.from_matrix(enu_to_ned @ r @ np.diag([1.0, -1.0, -1.0])).as_quat()
+    o.x, o.y, o.z, o.w = (float(v) for v in q)
+    odometry.header.frame_id, odometry.child_frame_id = "odom_ned", "base_link_frd"
 
 
 def _compare(canonical: Canonical, arts: dict[str, Path], align: bool) -> tuple[float, float]:
@@ -217,6 +230,16 @@ def test_odometry_twin_with_renamed_topics_frames_and_tf_chain_maps_the_same_wor
         "source": "recording",
     }
     assert sensors["source"]["warnings"] == []
+
+
+def test_odometry_in_ned_and_frd_maps_the_same_world(canonical: Canonical, tmp_path: Path) -> None:
+    # Read as ENU it mapped mirrored, the vehicle 2 m above the water (1.97 m off), silently.
+    twin = write_twin(canonical, tmp_path / "bluerov2_ned", "odometry_ned")
+    arts = _engine(twin, tmp_path / "store")
+    sensors = json.loads((arts["keyframes"] / "sensors.json").read_text())
+    assert any("NED (world) and FRD (body)" in w for w in sensors["source"]["warnings"])
+    dz, iou = _compare(canonical, arts, align=False)
+    assert dz <= 0.05 and iou >= 0.95, (dz, iou)
 
 
 def test_dvl_imu_pressure_twin_in_mounted_frames_maps_the_same_world(

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from sonarmap.pipeline.readers.depth import depth_doubts
-from sonarmap.pipeline.readers.geometry_checks import navigation_doubts, ned_frame_doubt
+from sonarmap.pipeline.readers.geometry_checks import navigation_doubts, ned_convention
 from sonarmap.pipeline.readers.recording import ReaderOptions
 from sonarmap.pipeline.readers.roles import detect_roles
 from sonarmap.pipeline.readers.source_types import TopicInfo
@@ -67,23 +67,34 @@ def test_pings_outside_the_navigation_and_a_vehicle_on_its_side_are_warned() -> 
     assert navigation_doubts(t[30:], t[30:], glider) == []
 
 
-def test_navigation_in_frames_named_ned_is_warned() -> None:
-    def odometry(frame: str, child: str) -> SimpleNamespace:
+def test_frames_named_ned_or_frd_by_rep_105_are_recognised() -> None:
+    def odometry(frame: str, child: str = "") -> SimpleNamespace:
         return SimpleNamespace(header=SimpleNamespace(frame_id=frame), child_frame_id=child)
 
-    doubt = ned_frame_doubt(odometry("odom_ned", "base_link_frd"))
-    assert doubt is not None and "'odom_ned' and 'base_link_frd', NED/FRD" in doubt
-    assert ned_frame_doubt(odometry("odom", "base_link")) is None
-    assert ned_frame_doubt(SimpleNamespace(header=SimpleNamespace(frame_id="map"))) is None
+    assert ned_convention(odometry("odom_ned", "base_link_frd")) == (True, True)
+    assert ned_convention(odometry("NED", "base_link")) == (True, False)
+    assert ned_convention(odometry("odom", "base_link")) == (False, False)
+    assert ned_convention(odometry("map_aligned")) == (False, False)  # "...ned" is no NED frame
+    assert ned_convention(odometry("pinned")) == (False, False)
+    assert ned_convention(None) == (False, False)
 
 
-def test_only_frames_named_ned_or_frd_count() -> None:
-    def pose(frame: str) -> SimpleNamespace:
-        return SimpleNamespace(header=SimpleNamespace(frame_id=frame))
+def test_a_pose_in_ned_and_frd_is_the_same_pose_in_enu_and_flu() -> None:
+    from scipy.spatial.transform import Rotation
 
-    assert ned_frame_doubt(pose("NED")) is not None
-    assert ned_frame_doubt(pose("map_aligned")) is None  # "...ned" is no NED frame
-    assert ned_frame_doubt(pose("pinned")) is None
+    from sonarmap.pipeline.readers.navigation import FLU_TO_FRD, NED_TO_ENU, enu_flu
+
+    # A vehicle 2 m deep, 10 m east and 5 m north, heading north-east, pitched 10 deg nose up.
+    xyz_enu = np.array([[10.0, 5.0, -2.0]])
+    r_enu_flu = Rotation.from_euler("ZYX", [45.0, -10.0, 0.0], degrees=True)
+    xyz_ned = xyz_enu @ NED_TO_ENU  # NED_TO_ENU is its own inverse
+    r_ned_frd = Rotation.from_matrix(NED_TO_ENU @ r_enu_flu.as_matrix() @ FLU_TO_FRD)
+    assert np.allclose(xyz_ned, [[5.0, 10.0, 2.0]])  # north, east, down
+    # NED heading of north-east is 45 deg clockwise from north: the same 45 deg.
+    assert np.isclose(r_ned_frd.as_euler("ZYX", degrees=True)[0], 45.0)
+    xyz, q = enu_flu(xyz_ned, r_ned_frd.as_quat()[None], True, True)
+    assert np.allclose(xyz, xyz_enu)
+    assert np.allclose(Rotation.from_quat(q).as_matrix()[0], r_enu_flu.as_matrix(), atol=1e-12)
 
 
 def test_imu_rates_in_degrees_per_second_are_warned() -> None:

@@ -25,7 +25,8 @@ __all__ = [
     "navigation_doubts",
     "navigation_glitches",
     "navigation_jump",
-    "ned_frame_doubt",
+    "ned_convention",
+    "no_overlap",
     "ping_problem",
     "valid_pose_rows",
 ]
@@ -191,17 +192,21 @@ def _ned_name(name: str) -> bool:
     return name.endswith(("_ned", "_frd")) or name in ("ned", "frd")
 
 
-def ned_frame_doubt(message: object) -> str | None:
-    """Why a navigation message's frames look NED/FRD (REP 105 names them `*_ned`,
-    `*_frd`), which sonarmap would read as ENU/FLU; None when they do not."""
+def ned_convention(message: object) -> tuple[bool, bool]:
+    """Whether a navigation message's world frame is NED and its body frame FRD by their
+    REP 105 names (`*_ned`, `*_frd`, `ned`, `frd`); (False, False) for None."""
     header = getattr(message, "header", None)
-    names = [str(getattr(header, "frame_id", "")), str(getattr(message, "child_frame_id", ""))]
-    ned = [n for n in names if _ned_name(n.lower().rstrip("/"))]
-    if not ned:
+    world = str(getattr(header, "frame_id", "")).lower().rstrip("/")
+    body = str(getattr(message, "child_frame_id", "")).lower().rstrip("/")
+    return _ned_name(world), _ned_name(body)
+
+
+def no_overlap(ping_t_ns: np.ndarray, nav_t_ns: np.ndarray) -> str | None:
+    """Why no ping can be posed: the navigation spans none of them (None when some)."""
+    t, n = ping_t_ns, nav_t_ns
+    if len(t) == 0 or len(n) == 0 or ((t >= n[0]) & (t <= n[-1])).any():
         return None
     return (
-        f"its frames are named {' and '.join(repr(n) for n in ned)}, NED/FRD by REP 105's"
-        " names, but navigation is read as ENU/FLU (x east or forward, z up): the map"
-        " comes out mirrored and the vehicle above the water; publish ENU (x, y swapped,"
-        " z negated) or use the ENU topic"
+        f"the navigation spans t_ns={int(n[0])}..{int(n[-1])} but no horizontal ping"
+        f" (t_ns={int(t[0])}..{int(t[-1])}) falls inside it, so no ping can be posed"
     )

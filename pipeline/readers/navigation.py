@@ -19,9 +19,13 @@ from sonarmap.schemas.recording import PoseTrack
 from sonarmap.stages.kernels.geometry import rpy_from_quat
 
 __all__ = [
+    "FLU_TO_FRD",
     "NAV_TYPES",
+    "NED_TO_ENU",
     "dead_reckon",
+    "enu_flu",
     "nav_pose",
+    "ned_note",
     "pose_track",
     "pose_track_rows",
 ]
@@ -47,15 +51,53 @@ def pose_track(samples: Iterable[tuple[int, Any]]) -> PoseTrack:
     return pose_track_rows([(t, *nav_pose(m)) for t, m in samples])
 
 
-def pose_track_rows(rows: Sequence[tuple[float, ...]]) -> PoseTrack:
-    """(t_ns, x, y, z, qx, qy, qz, qw) rows -> PoseTrack (as `pose_track`)."""
+def pose_track_rows(
+    rows: Sequence[tuple[float, ...]], world_ned: bool = False, body_frd: bool = False
+) -> PoseTrack:
+    """(t_ns, x, y, z, qx, qy, qz, qw) rows -> PoseTrack (as `pose_track`); a world frame in
+    NED or a body frame in FRD (REP 105) converted to the project's ENU / FLU (REP 103)."""
     if not rows:
         return PoseTrack(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
     t = np.array([r[0] for r in rows], np.int64)
     v = np.array([r[1:] for r in rows], np.float64)
     t, first = np.unique(t, return_index=True)
-    v = v[first]
-    return PoseTrack(t, v[:, :3], rpy_from_quat(v[:, 3:]))
+    xyz, q = v[first, :3], v[first, 3:]
+    if world_ned or body_frd:
+        xyz, q = enu_flu(xyz, q, world_ned, body_frd)
+    return PoseTrack(t, xyz, rpy_from_quat(q))
+
+
+NED_TO_ENU = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+"""v_enu = NED_TO_ENU v_ned (x, y swapped, z negated)."""
+FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
+"""v_frd = FLU_TO_FRD v_flu (y and z negated)."""
+
+
+def enu_flu(
+    xyz: np.ndarray, q_xyzw: np.ndarray, world_ned: bool, body_frd: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, 3) and orientations (n, 4) in NED and/or FRD -> ENU and FLU:
+    p_enu = C p_ned, R_enu_flu = C R_ned_frd D (C = NED_TO_ENU, D = FLU_TO_FRD)."""
+    from scipy.spatial.transform import Rotation
+
+    r = Rotation.from_quat(q_xyzw)
+    if world_ned:
+        xyz = xyz @ NED_TO_ENU.T
+        r = Rotation.from_matrix(NED_TO_ENU) * r
+    if body_frd:
+        r = r * Rotation.from_matrix(FLU_TO_FRD)
+    return xyz, r.as_quat()
+
+
+def ned_note(world_ned: bool, body_frd: bool) -> str:
+    """The line that says a navigation was converted from NED / FRD by its frames' names."""
+    named = " and ".join(
+        n for n, on in (("NED (world)", world_ned), ("FRD (body)", body_frd)) if on
+    )
+    return (
+        f"its frames are {named} by REP 105's names (*_ned, *_frd): converted to ENU / FLU"
+        " (REP 103), as sonarmap maps; rename the frames if they are not"
+    )
 
 
 def dead_reckon(

@@ -19,11 +19,12 @@ from sonarmap.pipeline.readers.geometry_checks import (
     navigation_doubts,
     navigation_glitches,
     navigation_jump,
-    ned_frame_doubt,
+    ned_convention,
+    no_overlap,
     valid_pose_rows,
 )
 from sonarmap.pipeline.readers.mounts import DEFAULT_SONAR_MOUNTS, mounting_matrix
-from sonarmap.pipeline.readers.navigation import nav_pose, pose_track_rows
+from sonarmap.pipeline.readers.navigation import nav_pose, ned_note, pose_track_rows
 from sonarmap.pipeline.readers.navigation_checks import far_position, shared_times, sparse_samples
 from sonarmap.pipeline.readers.roles import Roles, detect_roles
 from sonarmap.pipeline.readers.sonar_decode import (
@@ -176,7 +177,9 @@ class SourceRecording(NavigationSensors):
         self.source.warnings.append(message)
         log.warning(message)
 
-    def _checked_rows(self, topic: str, rows: list[tuple[float, ...]]) -> PoseTrack:
+    def _checked_rows(
+        self, topic: str, rows: list[tuple[float, ...]], ned: tuple[bool, ...] = ()
+    ) -> PoseTrack:
         """A navigation topic's rows as a PoseTrack, bad samples dropped with a warning:
         non-finite positions or orientations, zero quaternions and isolated glitches.
 
@@ -200,7 +203,8 @@ class SourceRecording(NavigationSensors):
         if (far := far_position(where, track[ok])) is not None:
             raise SourceError(far)
         kept = [r for r, good in zip(rows, ok.tolist(), strict=True) if good]
-        out = pose_track_rows(kept)
+        # The navigation's frames named NED / FRD (world, body): converted to ENU / FLU.
+        out = pose_track_rows(kept, *(ned if topic == self.roles.navigation else ()))
         navigating = topic == self.roles.navigation and "horizontal" in self.roles.sonar
         pings = self.ping_times_ns("horizontal") if navigating else None
         gap = gap_warning(where, out.t_ns, "a pose", pings_ns=pings)
@@ -239,19 +243,17 @@ class SourceRecording(NavigationSensors):
                 first = m if first is None and topic == self.roles.navigation else first
                 if topic == self.roles.navigation and (stamp := stamp_ns(m)) is not None:
                     self._nav_offsets_ns.append(t - stamp)
-            if first is not None and (doubt := ned_frame_doubt(first)) is not None:
-                self._warn(f"{self.source.path}: {self.roles.navigation}: {doubt}")
-            self._pose_tracks = {topic: self._checked_rows(topic, r) for topic, r in rows.items()}
+            if any(ned := ned_convention(first)):
+                self._warn(f"{self.source.path}: {self.roles.navigation}: {ned_note(*ned)}")
+            self._pose_tracks = {k: self._checked_rows(k, r, ned) for k, r in rows.items()}
         return self._pose_tracks
 
     def navigation(self) -> PoseTrack:
         if self._nav is None:
             if self.roles.navigation is not None:
                 self._nav = self._with_depth(self._tracks()[self.roles.navigation])
-                self._provenance["navigation"] = {
-                    **self._role(self.roles.navigation),
-                    "source": "recording",
-                }
+                role = self._role(self.roles.navigation)
+                self._provenance["navigation"] = {**role, "source": "recording"}
             elif self.roles.dvl is not None:
                 self._nav = self._dead_reckoning()
             else:
@@ -265,12 +267,8 @@ class SourceRecording(NavigationSensors):
         if len(nav) == 0 or topic is None:
             return
         t = self.ping_times_ns("horizontal")
-        if len(t) and not ((t >= nav.t_ns[0]) & (t <= nav.t_ns[-1])).any():
-            raise SourceError(
-                f"{self.source.path}: the navigation spans t_ns={int(nav.t_ns[0])}.."
-                f"{int(nav.t_ns[-1])} but no ping of {topic} (t_ns={int(t[0])}..{int(t[-1])}) "
-                "falls inside it, so no ping can be posed"
-            )
+        if (problem := no_overlap(t, nav.t_ns)) is not None:
+            raise SourceError(f"{self.source.path}: {topic}: {problem}")
         for line in navigation_doubts(t, nav.t_ns, nav.rpy_rad):
             self._warn(f"{self.source.path}: {line}")
 
