@@ -29,7 +29,8 @@ STAGE = Stage(
     # outside 0..1 refused), `image_bits`, beam tables in no order or spanning no fan
     # refused, a compressed image's labels ordered by its decoded width; a depth sensor's
     # pose beside a DVL and an IMU is the depth, not the navigation; navigation warnings
-    # (NED frame names, a vehicle on its side, depth above the surface, unposed pings)
+    # (a vehicle on its side, depth above the surface, unposed pings); NED / FRD frames
+    # by their REP 105 names converted to ENU / FLU
     version=7,
     config=KeyframesConfig,
     inputs=(DATASET,),
