@@ -70,8 +70,7 @@ class ProceduralTraining(ConfigModel):
     """
 
     generator: ProceduralConfig = Field(
-        default_factory=ProceduralConfig,
-        description="the generator's ranges (`sonarmap.sim.procedural`)",
+        default_factory=ProceduralConfig, description="the generator's ranges (`sonarmap.sim.procedural`)"
     )
     worlds: int = Field(
         6,
