@@ -14,6 +14,8 @@
   navigation's predicted drift; where the two trajectories part by more than its 99 %
   bound (sqrt(chi2(0.99, 2)) times the largest position standard deviation), either the
   navigation is worse than its noise model says, or scan matching went wrong: a warning.
+- No scan match accepted (mode `slam`, at least one proposed): the trajectory is dead
+  reckoning's, bit for bit, where the user asked for SLAM: a warning naming the reasons.
 """
 
 from __future__ import annotations
@@ -95,6 +97,16 @@ def slam_summary(
             " slam.odom_chain_sigma_xy_m says, or scan matching went wrong"
             f" ({found} of {ssm['proposed'] + loop['proposed']} matches found degenerate);"
             " compare the two trajectories before trusting the map"
+        )
+    proposed = ssm["proposed"] + loop["proposed"]
+    if fell_back and config.mode == "slam" and proposed:
+        reasons = Counter(r["reason"] for r in rows if r["status"] == "rejected" and r["reason"])
+        why = ", ".join(f"{reason}: {n}" for reason, n in reasons.most_common())
+        warnings.append(
+            f"slam: none of the {proposed} scan matches proposed was accepted ({why}): the"
+            " trajectory is dead reckoning's, not SLAM's; a scene too sparse for the"
+            " horizontal sonar, or its features flooded or starved (the features stage's"
+            " calibration)"
         )
     # The share the outlier filter drops is recorded, not warned: at the front end's stated
     # false-alarm rate a sparse scene (lone pilings in open water) has most of its points
