@@ -19,7 +19,12 @@ from sonarmap.pipeline.engine.errors import ArtifactCorrupt
 from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
 from sonarmap.pipeline.engine.run.session import make_context
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
-from sonarmap.pipeline.engine.store.units import UnitMemo, iter_unit_files, unit_path
+from sonarmap.pipeline.engine.store.units import (
+    UnitMemo,
+    iter_pulled_unit_files,
+    iter_unit_files,
+    unit_path,
+)
 from sonarmap.stages.base import DATASET, UNITS_INPUT, Output, Stage, StageConfig
 
 CHUNK = 16
@@ -243,7 +248,10 @@ def test_push_and_pull_carry_the_units_and_pull_refuses_an_altered_one(tmp_path:
     bob = ArtifactStore(tmp_path / "bob")
     (ref,) = pull(bob, str(remote), ["chunks"])
     bob.verify(ref)
-    assert {key for _, key, _ in iter_unit_files(bob.root)} == set(listed)
+    # in the pulled pool, by content: never among the units a run here may reuse
+    assert not list(iter_unit_files(bob.root))
+    shas = {entry["sha256"] for entry in listed.values()}
+    assert {sha for _, sha, _ in iter_pulled_unit_files(bob.root)} == shas
     victim = unit_path(remote, "chunks", sorted(listed)[0])
     raw = bytearray(victim.read_bytes())
     raw[-1] ^= 1
@@ -251,3 +259,71 @@ def test_push_and_pull_carry_the_units_and_pull_refuses_an_altered_one(tmp_path:
     with pytest.raises(ArtifactCorrupt):
         pull(ArtifactStore(tmp_path / "carol"), str(remote), ["chunks"])
     assert not list(iter_unit_files(tmp_path / "carol"))
+
+
+def test_a_remote_s_swapped_units_never_enter_a_run_here(tmp_path: Path) -> None:
+    """A remote can vouch for its artifacts' files, not for what a unit of a key must
+    hold: units swapped (with their manifest entries) on a remote passed `pull` and
+    `--verify`, and a later run here assembled its artifact from them (other bytes under
+    the honest key). Pulled units now serve only the artifacts that list them."""
+    import json
+
+    from sonarmap.pipeline.engine.share.push_pull import pull, push
+
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    honest = _bytes(_run(data, tmp_path / "alice"))
+    remote = tmp_path / "remote"
+    push(ArtifactStore(tmp_path / "alice"), str(remote), ["chunks"], create=True)
+    (manifest_path,) = (remote / "chunks").glob("*/manifest.json")
+    manifest = json.loads(manifest_path.read_text())
+    a, b = sorted(manifest["units"])[:2]
+    pa_, pb_ = unit_path(remote, "chunks", a), unit_path(remote, "chunks", b)
+    raw_a, raw_b = pa_.read_bytes(), pb_.read_bytes()
+    pa_.write_bytes(raw_b)
+    pb_.write_bytes(raw_a)
+    manifest["units"][a], manifest["units"][b] = manifest["units"][b], manifest["units"][a]
+    manifest_path.write_text(json.dumps(manifest))
+    bob = ArtifactStore(tmp_path / "bob")
+    (ref,) = pull(bob, str(remote), ["chunks"])
+    bob.verify(ref)  # the remote's own word holds together
+    COMPUTED.clear()
+    again = _run(data, tmp_path / "bob", force=("chunks",))
+    assert COMPUTED["chunks"] == 4  # every unit computed here, none taken from the remote
+    assert _bytes(again) == honest
+
+
+def test_gc_broken_removes_an_artifact_whose_unit_is_gone(tmp_path: Path) -> None:
+    """`--verify` refused it and named `gc --broken`, which found nothing to remove."""
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    store = ArtifactStore(tmp_path / "st")
+    ref = _run(data, store.root).artifacts["chunks"]
+    unit_path(store.root, "chunks", sorted(ref.manifest["units"])[0]).unlink()
+    with pytest.raises(ArtifactCorrupt, match="missing"):
+        store.verify(ref)
+    out = store.gc(broken=True)
+    assert out["removed"] == [f"chunks/{ref.key}"] and "missing" in out["broken"][0]
+    assert store.get("chunks", ref.key) is None
+
+
+def test_a_unit_that_is_a_link_is_refused_not_followed(tmp_path: Path) -> None:
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    store = ArtifactStore(tmp_path / "st")
+    ref = _run(data, store.root).artifacts["chunks"]
+    victim = unit_path(store.root, "chunks", sorted(ref.manifest["units"])[0])
+    outside = tmp_path / "outside"
+    outside.write_bytes(victim.read_bytes())
+    victim.unlink()
+    victim.symlink_to(outside)  # the same bytes, out of the store
+    with pytest.raises(ArtifactCorrupt, match="not a plain file"):
+        store.verify(ref)
+    victim.unlink()
+    victim.symlink_to("/dev/zero")  # read whole, it never ends
+    with pytest.raises(ArtifactCorrupt, match="not a plain file"):
+        store.verify(ref)
+    COMPUTED.clear()
+    again = _run(data, store.root, force=("chunks",))  # a run recomputes it, with a line
+    assert COMPUTED["chunks"] == 1 and not victim.is_symlink()
+    assert "not a plain file" in again.artifacts["chunks"].manifest["unit_warnings"][0]

@@ -18,10 +18,11 @@ def ls(store: Path = STORE_OPT, json_: bool = JSON_OPT) -> None:
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
     from sonarmap.pipeline.engine.text import display_path
 
+    opened = ArtifactStore(store)  # a file there is refused, naming it
     if not store.is_dir():  # a mistyped --store would otherwise look like an empty one
         where = display_path(store)
         typer.echo(f"warning: {where}: no store there yet (no run has written to it)", err=True)
-    items = list(ArtifactStore(store).scan())
+    items = list(opened.scan())
     rows: list[dict[str, Any]] = [
         {
             "stage": r.stage,

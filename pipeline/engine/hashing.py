@@ -12,6 +12,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -119,11 +120,23 @@ class FingerprintCache:
         self._lock = FileLock(str(cache_file) + ".lock")
 
     def _load(self) -> dict[str, Any]:
+        """The remembered digests; the whole file or an entry of another shape than
+        {"stat": [...], "sha256": 64 hex digits} is dropped (it is derived data: damaged,
+        it costs a hash, never a failed run)."""
         try:
-            data: dict[str, Any] = json.loads(self._file.read_text())
-            return data
+            data = json.loads(self._file.read_text())
         except (OSError, ValueError):
             return {}
+        if not isinstance(data, dict):
+            return {}
+        return {
+            path: entry
+            for path, entry in data.items()
+            if isinstance(entry, dict)
+            and isinstance(entry.get("stat"), list)
+            and isinstance(entry.get("sha256"), str)
+            and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])
+        }
 
     def file_digest(self, path: Path) -> str:
         """sha256 of `path`, from the cache when its stat identity is unchanged."""

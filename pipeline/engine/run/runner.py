@@ -30,7 +30,7 @@ from sonarmap.pipeline.engine.run.planner import plan
 from sonarmap.pipeline.engine.run.run_records import record_run
 from sonarmap.pipeline.engine.run.workers import Slots
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
-from sonarmap.pipeline.engine.store.disk import delete_entry, disk_error
+from sonarmap.pipeline.engine.store.disk import discard_artifact, disk_error
 from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.pipeline.engine.text import display_path
 from sonarmap.stages.base import Input, Stage
@@ -154,7 +154,7 @@ def _execute(
             if ref is not None:
                 return ref, "hit"
         if item.reason == "forced":
-            _discard(store, name, item.key)
+            discard_artifact(store, name, item.key)
         manifest_extra = {
             "version": item.stage.version,
             "recipe": item.recipe,
@@ -250,14 +250,3 @@ def _execute(
         result.stages.append(finished[item.stage.name])
     record_run(store, dataset, config, planned, external)
     return result
-
-
-def _discard(store: ArtifactStore, stage: str, key: str) -> None:
-    """Move a forced artifact out of sight atomically, then delete it."""
-    with store.lock(stage, key):
-        path = store.artifact_dir(stage, key)
-        if path.exists() or path.is_symlink():
-            trash = store.tmp_path(f"forced-{stage}")
-            trash.parent.mkdir(parents=True, exist_ok=True)
-            path.rename(trash)
-            delete_entry(trash)

@@ -11,15 +11,15 @@ Pull trusts nothing the remote says until it has checked it (`sonarmap.pipeline.
 the stage is not a reserved store folder and equals the recipe's and the path's, the key
 is the hash of the recipe, a model's file sha256 is pinned, every file is streamed with
 its declared size as a hard limit and hashed on the way, parses as the kind its name
-says (`model.pt` is loaded weights-only), and only then is anything committed. Manifests
-are JSON; nothing is ever unpickled. Work units travel with their artifact (`unit_share`).
+says (`model.pt` is loaded weights-only), and only then is anything committed (and
+recorded: `pull_local`). Manifests are JSON; nothing is ever unpickled. Work units travel
+with their artifact (`unit_share`).
 """
 
 from __future__ import annotations
 
 import errno
 import logging
-import os
 import re
 import shutil
 import uuid
@@ -28,7 +28,12 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
-from sonarmap.pipeline.engine.hashing import sha256_file
+from sonarmap.pipeline.engine.share.pull_local import (
+    download_job,
+    forget_cached,
+    record_pull,
+    to_fetch,
+)
 from sonarmap.pipeline.engine.share.remote_index import (
     list_remote,
     remote_manifest,
@@ -46,7 +51,6 @@ from sonarmap.pipeline.engine.share.remotes import (
 from sonarmap.pipeline.engine.share.transfer import (
     Job,
     TransferStats,
-    download,
     os_error,
     run_jobs,
     upload,
@@ -154,6 +158,8 @@ def push(
     """
     policy = policy or TrustPolicy()
     stats = stats if stats is not None else TransferStats()
+    if not store.root.is_dir():  # a mistyped --store would push nothing and say so as a success
+        raise StoreError(f"{store.root}: no store there (check --store)")
     if read_only(remote):
         raise StoreError(
             f"remote {display(remote)} is read-only (http); push to a path, s3:// or sftp://"
@@ -291,6 +297,8 @@ def _pull(
 ) -> list[ArtifactRef]:
     if not read_only(remote) and not fs.exists(root):
         raise StoreError(f"remote {display(remote)} does not exist")
+    if not read_only(remote) and fs.isfile(root):
+        raise StoreError(f"remote {display(remote)} is a file, not a folder of artifacts")
     stages = list(targets) or remote_stages(fs, root)
     if not stages and read_only(remote):
         # A web server without directory listings looks empty.
@@ -308,7 +316,7 @@ def _pull(
         return manifests[(stage, key)]
 
     order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
-    missing = [(s, k) for s, k in order if store.get(s, k) is None]
+    missing = to_fetch(store, order)
     units = {(s, k): unit_entries(manifest_of(s, k), f"remote {s}/{k[:12]}") for s, k in missing}
     need = sum(int(e["size"]) for s, k in missing for e in manifest_of(s, k)["files"].values())
     need += sum(int(e["size"]) for listed in units.values() for e in listed.values())
@@ -326,12 +334,12 @@ def _pull(
                 dst = safe_relative(local, rel)
                 dst.parent.mkdir(parents=True, exist_ok=True)
                 jobs.append(
-                    _download_job(
+                    download_job(
                         fs, f"{root}/{stage}/{key}/{rel}", dst, entry, f"{stage}/{key}", rel, cache
                     )
                 )
             for rel, dst, entry in staged_units(staging, stage, units[(stage, key)]):
-                jobs.append(_download_job(fs, f"{root}/{rel}", dst, entry, rel, "", cache))
+                jobs.append(download_job(fs, f"{root}/{rel}", dst, entry, rel, "", cache))
         run_jobs(jobs, f"pull {display(remote)}", stats)
         for stage, key in missing:
             # Sizes and sha256s were checked while streaming, the key before any download.
@@ -344,57 +352,13 @@ def _pull(
                     check_model_file(path, where)
         install_units(store.root, staging, units)  # before the artifacts listing them
         refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
-        _forget(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
+        forget_cached(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
     except ArtifactCorrupt:
         # A refused file is not worth resuming (it would be refused again).
-        _forget(cache, [manifest_of(s, k) for s, k in missing])
+        forget_cached(cache, [manifest_of(s, k) for s, k in missing])
         raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    record_pull(store, display(remote), wanted)
     log.info("pulled %d artifacts from %s", len(refs), display(remote))
     return refs
-
-
-def _forget(cache: Path, manifests: Iterable[Mapping[str, Any]]) -> None:
-    for manifest in manifests:
-        for entry in manifest["files"].values():
-            (cache / str(entry["sha256"])).unlink(missing_ok=True)
-
-
-def _download_job(
-    fs: Any,
-    src: str,
-    dst: Path,
-    entry: Mapping[str, Any],
-    address: str,
-    rel: str,
-    cache: Path,
-) -> Job:
-    """Fetch one file into the store's resume cache (named by its sha256), then link it
-    into the staging directory; a file an interrupted pull already verified is reused."""
-    size, sha = int(entry["size"]), str(entry["sha256"])
-    folder, _, name = address.rpartition("/")  # stage/key of an artifact, or a unit's path
-    where = f"remote {folder[:60]}/{name[:12]}" + (f": file '{rel[:80]}'" if rel else "")
-    cached = cache / sha
-
-    def run(progress: Callable[[int], None]) -> bool:
-        sent = not (
-            cached.is_file() and cached.stat().st_size == size and sha256_file(cached) == sha
-        )
-        if sent:
-            cache.mkdir(parents=True, exist_ok=True)
-            part = cache / f".{sha[:16]}.{uuid.uuid4().hex[:8]}.part"
-            try:
-                download(fs, src, part, size, sha, where, progress)
-                os.replace(part, cached)
-            finally:
-                part.unlink(missing_ok=True)
-        else:
-            progress(size)
-        try:
-            os.link(cached, dst)
-        except OSError:
-            shutil.copyfile(cached, dst)
-        return sent
-
-    return Job(run, size)

@@ -158,6 +158,8 @@ def download(
         ArtifactCorrupt: missing, larger or smaller than `size`, or another sha256
             (`where` names the artifact and file).
     """
+    if size < 0:  # a read of size - written + 1 bytes would read it all at once
+        raise ArtifactCorrupt(f"{where}: its manifest declares {size} bytes")
     digest = hashlib.sha256()
     written = 0
     try:

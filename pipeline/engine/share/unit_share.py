@@ -2,7 +2,8 @@
 as in a store (`sonarmap.pipeline.engine.store.units`), listed with their sha256 and size
 by the artifact's manifest. `push` sends them before the manifest; `pull` streams them
 with the listed size as a hard limit and the sha256 checked, decodes each, and puts them
-in place before committing the artifacts that list them."""
+in the store's pulled pool (never among the units computed there) before committing the
+artifacts that list them."""
 
 from __future__ import annotations
 
@@ -11,7 +12,12 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef, safe_relative
-from sonarmap.pipeline.engine.store.units import install_unit, unit_entries, unit_path
+from sonarmap.pipeline.engine.store.units import (
+    held_unit_path,
+    install_pulled_unit,
+    unit_entries,
+    unit_path,
+)
 
 __all__ = ["install_units", "staged_units", "unit_files"]
 
@@ -20,8 +26,8 @@ def unit_files(ref: ArtifactRef) -> Iterator[tuple[Path, str, dict[str, Any]]]:
     """(local path, path relative to the store root, manifest entry) of each listed unit."""
     held = ref.path.parent.parent  # the store holding the artifact (or a fallback)
     for key, entry in unit_entries(ref.manifest, f"{ref.stage}/{ref.key[:12]}").items():
-        src = unit_path(held, ref.stage, key)
-        yield src, src.relative_to(held).as_posix(), entry
+        src = held_unit_path(held, ref.stage, key, entry)
+        yield src, unit_path(Path("."), ref.stage, key).as_posix(), entry
 
 
 def staged_units(
@@ -41,9 +47,10 @@ def staged_units(
 def install_units(
     root: Path, staging: Path, units: Mapping[tuple[str, str], Mapping[str, Any]]
 ) -> None:
-    """Check each fetched unit decodes and put it in the store at `root`."""
+    """Check each fetched unit is what its artifact lists and decodes, and put it in the
+    pulled pool of the store at `root`."""
     for (stage, _), listed in units.items():
-        for key in listed:
+        for key, entry in listed.items():
             rel = unit_path(Path("."), stage, key).as_posix()
             data = safe_relative(staging, rel).read_bytes()
-            install_unit(root, stage, key, data, f"remote {rel}")
+            install_pulled_unit(root, stage, entry, data, f"remote {rel}")

@@ -92,6 +92,8 @@ class ArtifactStore:
 
     def __init__(self, root: Path) -> None:
         self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():  # every command would misread it
+            raise StoreError(f"{self.root}: a file, not a store folder (check --store)")
 
     # -- layout -------------------------------------------------------------------------
     def artifact_dir(self, stage: str, key: str) -> Path:
@@ -149,17 +151,20 @@ class ArtifactStore:
 
         A directory without a manifest (its manifest deleted, or copied in by hand) is
         not an artifact; neither is one whose manifest does not validate. Names the
-        store could never have written (not a stage identifier, not a hex key) are not
-        ours and are left alone.
+        store could never have written (not a stage identifier, not a 64-digit hex key)
+        are not ours and are left alone (a user's `exports/2024/` is no artifact), and
+        so is a stage folder that is a symbolic link (it may lead anywhere).
         """
         if not self.root.is_dir():
             return
         for stage_dir in sorted(p for p in self.root.iterdir() if p.is_dir()):
             if not stage_dir.name.isidentifier() or stage_dir.name in (_RUNS, UNITS):
                 continue
+            if stage_dir.is_symlink():
+                continue
             for key_dir in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
                 stage, key = stage_dir.name, key_dir.name
-                if not key or key.strip("0123456789abcdef"):
+                if len(key) != 64 or key.strip("0123456789abcdef"):
                     continue
                 try:
                     ref = self._load(stage, key)
@@ -343,10 +348,16 @@ class ArtifactStore:
         A record removed meanwhile is skipped either way.
         """
         runs = self.root / _RUNS
-        if not runs.is_dir():
+        try:  # not a glob: it reads an unreadable folder, or a file, as an empty folder
+            files = sorted(p for p in runs.iterdir() if p.suffix == ".json" and p.name[0] != ".")
+        except FileNotFoundError:
+            return []
+        except OSError as err:  # gc would remove every artifact such records may name
+            if strict:
+                raise StoreError(f"{runs}: unreadable run records ({_reason(err)})") from err
             return []
         records = []
-        for f in sorted(runs.glob("*.json")):
+        for f in files:
             try:
                 text = f.read_bytes()
                 record = json.loads(text) if text.strip() else None

@@ -12,11 +12,12 @@ import errno
 import os
 import shutil
 from pathlib import Path
+from typing import Any
 
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.text import display_path
 
-__all__ = ["delete_entry", "disk_error", "free_bytes"]
+__all__ = ["delete_entry", "discard_artifact", "disk_error", "free_bytes"]
 
 
 def disk_error(err: OSError, where: object = None) -> StoreError:
@@ -60,3 +61,15 @@ def delete_entry(path: Path) -> None:
     else:
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
+
+
+def discard_artifact(store: Any, stage: str, key: str) -> None:
+    """Move an artifact of `store` (an `ArtifactStore`) out of sight atomically, under its
+    key's lock, then delete it (one forced to recompute, or a damaged copy replaced)."""
+    with store.lock(stage, key):
+        path = store.artifact_dir(stage, key)
+        if path.exists() or path.is_symlink():
+            trash = store.tmp_path(f"discard-{stage}")
+            trash.parent.mkdir(parents=True, exist_ok=True)
+            path.rename(trash)
+            delete_entry(trash)

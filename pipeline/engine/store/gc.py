@@ -1,6 +1,6 @@
 """`sonarmap gc`: what the store keeps, and the leftovers it heals.
 
-Kept: every artifact a run record names or a live run's lease holds
+Kept: every artifact a run record (or a pull's record) names or a live run's lease holds
 (`sonarmap.pipeline.engine.store.leases`), and everything reachable from those through their
 manifests' `input_artifacts` (a `train` model keeps the keyframes and features of
 every dataset it learnt from, so `push train` still finds them). Runs record each
@@ -20,14 +20,15 @@ Removed:
 - unreferenced artifacts;
 - directories that are not artifacts: no manifest (deleted by hand, or a crash of an
   older version), or a manifest that does not validate;
-- with `broken=True`, artifacts whose files no longer match their manifest's sha256;
+- with `broken=True`, artifacts whose files or work units no longer match their
+  manifest's sha256 (or are missing);
 - leftovers of killed processes: `.tmp/<name>-<pid>-<hex>` commits, pulls and discards,
   `runs/.<id>.<pid>.tmp`, `.cache/fingerprints.tmp<pid>` and `.leases/.<pid>-<hex>.*.tmp`,
   once that pid is gone; leases whose owner is gone (their flock is free).
   Temporaries of live processes are never touched; names without a pid (older
   versions) go when older than `stale_tmp_s`.
-- per-keyframe work units (`sonarmap.pipeline.engine.store.units`) that no kept artifact's
-  manifest lists; none while a run is live (its units are listed only once it commits)
+- per-keyframe work units (`sonarmap.pipeline.engine.store.units`, computed here or
+  pulled) that no kept artifact's manifest lists; none while a run is live (its units are listed only once it commits)
   and none written after `gc` started.
 Every removal is a rename out of sight first, so a reader never sees half a directory.
 """
@@ -49,7 +50,14 @@ from sonarmap.pipeline.engine.store.disk import delete_entry
 from sonarmap.pipeline.engine.store.integrity import verify_artifact_dir
 from sonarmap.pipeline.engine.store.leases import LEASES, pid_alive, scan_leases
 from sonarmap.pipeline.engine.store.manifest import ADDRESS_PATTERN
-from sonarmap.pipeline.engine.store.units import UNITS, iter_unit_files
+from sonarmap.pipeline.engine.store.units import (
+    PULLED_UNITS,
+    UNITS,
+    iter_pulled_unit_files,
+    iter_unit_files,
+    unit_entries,
+    verify_units,
+)
 
 
 class CollectedStore(Protocol):
@@ -88,6 +96,10 @@ def _upstream(ref: ArtifactRef) -> Iterator[tuple[str, str]]:
 def _roots(records: Iterable[Mapping[str, Any]]) -> set[tuple[str, str]]:
     roots = set()
     for record in records:
+        for address in record.get("artifacts") or ():  # a pull's record
+            if isinstance(address, str) and re.fullmatch(ADDRESS_PATTERN, address):
+                stage, _, key = address.partition("/")
+                roots.add((stage, key))
         stages = record.get("stages")
         if not isinstance(stages, Mapping):
             continue
@@ -211,7 +223,7 @@ def _store_marks(store: CollectedStore) -> bool:
     leases, key locks, commits in progress, the dataset fingerprint cache (a run killed
     early leaves only those), work units, a pull's resume cache. Without any, only an
     artifact with a manifest (a pulled store may have no runs) makes it a store."""
-    marks = ("runs", LEASES, ".locks", ".tmp", UNITS, PULL_CACHE)
+    marks = ("runs", LEASES, ".locks", ".tmp", UNITS, PULLED_UNITS, PULL_CACHE)
     if any((store.root / name).is_dir() for name in marks):
         return True
     return any((store.root / ".cache").glob("fingerprints*"))  # a run's first write
@@ -255,6 +267,7 @@ def collect(
         if broken:
             try:
                 verify_artifact_dir(item.path, item.manifest)
+                verify_units(store.root, item.stage, item.manifest)
             except StoreError as err:
                 reason = str(err).removeprefix(f"{item.path}: ")
                 bad.append(Problem(item.stage, item.key, item.path, reason))
@@ -307,19 +320,23 @@ def _collect_units(
     dry_run: bool,
     started_ns: int,
 ) -> tuple[int, int]:
-    """Remove the units no kept artifact lists: (how many, bytes)."""
-    listed = {
-        (ref.stage, str(key)) for ref in kept for key in dict(ref.manifest.get("units") or {})
-    }
+    """Remove the units no kept artifact lists (computed here: by key; pulled: by
+    sha256): (how many, bytes)."""
+    listed: set[tuple[str, str]] = set()
+    for ref in kept:
+        with contextlib.suppress(StoreError):  # a malformed list keeps nothing extra
+            for key, entry in unit_entries(ref.manifest, ref.stage).items():
+                listed |= {(ref.stage, key), (ref.stage, entry["sha256"])}
     removed = freed = 0
-    for stage, key, path in list(iter_unit_files(store.root)):
+    files = [*iter_unit_files(store.root), *iter_pulled_unit_files(store.root)]
+    for stage, key, path in files:
         if (stage, key) in listed:
             continue
         roots.holds(("", ""))  # reads leases again if a run started meanwhile
         if roots.live_runs:
             break
         try:
-            st = path.stat()
+            st = path.lstat()
             if st.st_mtime_ns >= started_ns:
                 continue
             if not dry_run:

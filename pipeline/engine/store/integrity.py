@@ -12,7 +12,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError
+from sonarmap.pipeline.engine.errors import ArtifactCorrupt, PipelineError, StoreError
 from sonarmap.pipeline.engine.hashing import recipe_key, sha256_file
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef, safe_relative
 from sonarmap.pipeline.engine.store.manifest import parse_manifest
@@ -56,9 +56,12 @@ def verify_file(ref: ArtifactRef, name: str) -> Path:
     byte is refused before anything is computed from it (and committed under a
     key that claims clean inputs).
     """
-    path = ref.file(name)
-    entry = ref.manifest["files"][name]
     where = f"artifact {ref.stage}/{ref.key[:12]}: '{name}'"
+    try:
+        path = ref.file(name)
+    except StoreError as err:  # a link leading out of the artifact, a name not listed
+        raise ArtifactCorrupt(f"{where}: {err}; {recovery_hint(ref.stage)}") from err
+    entry = ref.manifest["files"][name]
     try:
         size = path.stat().st_size
         digest = sha256_file(path) if size == int(entry["size"]) else ""

@@ -14,6 +14,13 @@ recomputed with a warning on a local run; `verify_units` refuses it on `--verify
 The artifact a stage commits lists the units it was assembled from in its manifest
 (`"units": {key: {"sha256", "size"}}`), so `gc` keeps the units of kept artifacts and removes the
 rest, and `push`/`pull` carry them beside the artifact.
+
+Units fetched by `pull` go to their own pool, `<store>/units-pulled/<stage>/<sha[:2]>/<sha>`
+(named by their content's sha256), never under `units/`: a run reuses only units computed
+in this store. A remote can vouch for its artifacts' files, not for what a unit of a given
+key must hold, so a pulled unit serves only the pulled artifacts that list it (their
+`--verify`, `push` on), and a remote's unit never enters a computation made here. Unit
+files are plain files: a symbolic link or a device in either pool is refused, never read.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import hashlib
 import json
 import logging
 import os
+import stat
 import uuid
 from collections.abc import Iterator, Mapping
 from pathlib import Path
@@ -32,14 +40,18 @@ from sonarmap.pipeline.engine.errors import ArtifactCorrupt
 
 __all__ = [
     "MAGIC",
+    "PULLED_UNITS",
     "UNITS",
     "UnitMemo",
     "copy_units",
     "decode_unit",
     "encode_unit",
     "file_entry",
-    "install_unit",
+    "held_unit_path",
+    "install_pulled_unit",
+    "iter_pulled_unit_files",
     "iter_unit_files",
+    "pulled_unit_path",
     "unit_entries",
     "unit_path",
     "verify_units",
@@ -49,6 +61,8 @@ log = logging.getLogger(__name__)
 
 UNITS = "units"
 """The store folder of the units (never a stage's folder: the store scan skips it)."""
+PULLED_UNITS = "units-pulled"
+"""The store folder of units fetched by `pull` (by sha256; not an identifier: no stage)."""
 MAGIC = b"SMUNIT1\n"
 _HEX = frozenset("0123456789abcdef")
 
@@ -58,6 +72,33 @@ def unit_path(root: Path, stage: str, key: str) -> Path:
     if not stage.isidentifier() or len(key) != 64 or not set(key) <= _HEX:
         raise ArtifactCorrupt(f"invalid unit address {stage[:40]}/{key[:70]}")
     return Path(root) / UNITS / stage / key[:2] / key
+
+
+def pulled_unit_path(root: Path, stage: str, sha256: str) -> Path:
+    """Where a pulled unit whose content has sha256 `sha256` lives in the store at `root`."""
+    if not stage.isidentifier() or len(sha256) != 64 or not set(sha256) <= _HEX:
+        raise ArtifactCorrupt(f"invalid unit address {stage[:40]}/{sha256[:70]}")
+    return Path(root) / PULLED_UNITS / stage / sha256[:2] / sha256
+
+
+def held_unit_path(root: Path, stage: str, key: str, entry: Mapping[str, Any]) -> Path:
+    """The file of unit `key` an artifact lists with `entry` (its sha256): the pulled copy
+    of that content when the store holds one, else the unit computed here."""
+    pulled = pulled_unit_path(root, stage, str(entry["sha256"]))
+    return pulled if pulled.exists() or pulled.is_symlink() else unit_path(root, stage, key)
+
+
+def _read_plain(path: Path, where: str, size: int | None = None) -> bytes:
+    """A unit file's bytes: refused (one line) when it is not a plain file, or when its
+    size is not `size`; `FileNotFoundError` when absent."""
+    st = path.lstat()
+    if not stat.S_ISREG(st.st_mode):
+        raise ArtifactCorrupt(
+            f"{where}: not a plain file (a symbolic link or a device; the store writes plain files)"
+        )
+    if size is not None and st.st_size != size:
+        raise ArtifactCorrupt(f"{where}: {st.st_size} bytes, its artifact's manifest says {size}")
+    return path.read_bytes()
 
 
 def encode_unit(arrays: Mapping[str, Any]) -> bytes:
@@ -124,10 +165,17 @@ def file_entry(data: bytes) -> dict[str, Any]:
     return {"sha256": hashlib.sha256(data).hexdigest(), "size": len(data)}
 
 
-def install_unit(root: Path, stage: str, key: str, data: bytes, where: str) -> None:
-    """Put a unit fetched from elsewhere (`pull`) in place, after checking it decodes."""
+def install_pulled_unit(
+    root: Path, stage: str, entry: Mapping[str, Any], data: bytes, where: str
+) -> None:
+    """Put a unit fetched by `pull` in the pulled pool, after checking it is the content
+    its artifact lists (`entry`) and decodes; a unit computed here is never replaced."""
+    if file_entry(data) != {"sha256": entry["sha256"], "size": entry["size"]}:
+        raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
     decode_unit(data, where)
-    _write_atomic(root, unit_path(root, stage, key), data)
+    path = pulled_unit_path(root, stage, str(entry["sha256"]))
+    if not path.exists():
+        _write_atomic(root, path, data)
 
 
 def unit_entries(manifest: Mapping[str, Any], where: str) -> dict[str, dict[str, Any]]:
@@ -138,7 +186,8 @@ def unit_entries(manifest: Mapping[str, Any], where: str) -> dict[str, dict[str,
     out = {}
     for key, entry in raw.items():
         ok = isinstance(key, str) and len(key) == 64 and set(key) <= _HEX
-        ok = ok and isinstance(entry, Mapping) and isinstance(entry.get("size"), int)
+        size = entry.get("size") if isinstance(entry, Mapping) else None
+        ok = ok and isinstance(size, int) and not isinstance(size, bool) and size >= 0
         sha = entry.get("sha256") if isinstance(entry, Mapping) else None
         if not ok or not isinstance(sha, str) or len(sha) != 64 or not set(sha) <= _HEX:
             raise ArtifactCorrupt(f"{where}: manifest lists a malformed unit {str(key)[:70]!r}")
@@ -165,13 +214,13 @@ class UnitMemo:
     def get(self, key: str) -> dict[str, Any] | None:
         """The unit's arrays, or None (absent, or altered: then it is recomputed)."""
         path = unit_path(self.root, self.stage, key)
+        where = f"unit {self.stage}/{key[:12]}"
         try:
-            data = path.read_bytes()
+            data = _read_plain(path, where)
+            arrays = decode_unit(data, where)
         except FileNotFoundError:
             self.misses += 1
             return None
-        try:
-            arrays = decode_unit(data, f"unit {self.stage}/{key[:12]}")
         except ArtifactCorrupt as err:
             log.warning("%s: recomputing it", err)
             self.warnings.append(f"{err}: recomputed")
@@ -202,17 +251,23 @@ class UnitMemo:
         return fields
 
 
-def iter_unit_files(root: Path) -> Iterator[tuple[str, str, Path]]:
-    """Every unit file in the store: (stage, key, path); other names are left alone."""
-    base = Path(root) / UNITS
-    if not base.is_dir():
+def iter_unit_files(root: Path, pool: str = UNITS) -> Iterator[tuple[str, str, Path]]:
+    """Every unit file in one pool of the store (`UNITS`: (stage, key, path); `PULLED_UNITS`:
+    (stage, sha256, path)); other names are left alone, and no link is followed."""
+    base = Path(root) / pool
+    if not base.is_dir() or base.is_symlink():
         return
-    for stage_dir in sorted(p for p in base.iterdir() if p.is_dir()):
-        for shard in sorted(p for p in stage_dir.iterdir() if p.is_dir()):
+    for stage_dir in sorted(p for p in base.iterdir() if p.is_dir() and not p.is_symlink()):
+        for shard in sorted(p for p in stage_dir.iterdir() if p.is_dir() and not p.is_symlink()):
             for f in sorted(shard.iterdir()):
                 key = f.name
-                if len(key) == 64 and set(key) <= _HEX and key[:2] == shard.name and f.is_file():
+                if len(key) == 64 and set(key) <= _HEX and key[:2] == shard.name:
                     yield stage_dir.name, key, f
+
+
+def iter_pulled_unit_files(root: Path) -> Iterator[tuple[str, str, Path]]:
+    """Every pulled unit file in the store: (stage, sha256, path)."""
+    return iter_unit_files(root, PULLED_UNITS)
 
 
 def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
@@ -220,10 +275,10 @@ def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
     both its own digest and the sha256 and size the manifest recorded."""
     art = f"artifact {stage}/{str(manifest.get('key'))[:12]}"
     for key, entry in unit_entries(manifest, art).items():
-        path = unit_path(root, stage, key)
+        path = held_unit_path(root, stage, key, entry)
         where = f"unit {stage}/{key[:12]} of {art}"
         try:
-            data = path.read_bytes()
+            data = _read_plain(path, where, entry["size"])
         except FileNotFoundError as err:
             raise ArtifactCorrupt(f"{where}: missing") from err
         if file_entry(data) != entry:
@@ -240,7 +295,11 @@ def copy_units(src_root: Path, dest_root: Path, stage: str, manifest: Mapping[st
         ArtifactCorrupt: a listed unit is missing or altered in the source store.
     """
     verify_units(src_root, stage, manifest)
-    for key in unit_entries(manifest, f"artifact {stage}"):
-        dest = unit_path(dest_root, stage, key)
+    for key, entry in unit_entries(manifest, f"artifact {stage}").items():
+        src = held_unit_path(src_root, stage, key, entry)
+        pulled = src.parent.parent.parent.name == PULLED_UNITS
+        dest = (pulled_unit_path if pulled else unit_path)(
+            dest_root, stage, str(entry["sha256"]) if pulled else key
+        )
         if not dest.exists():
-            _write_atomic(dest_root, dest, unit_path(src_root, stage, key).read_bytes())
+            _write_atomic(dest_root, dest, src.read_bytes())
