@@ -18,7 +18,7 @@ from typer.core import TyperGroup
 
 from sonarmap.pipeline import __version__
 from sonarmap.pipeline.commands import COMMAND_MODULES
-from sonarmap.pipeline.commands._common import GraphChoice, emit_error_json
+from sonarmap.pipeline.commands._common import GraphChoice, emit_error_json, json_requested
 from sonarmap.pipeline.commands._errors import MAX_LINE_CHARS, one_line, os_error_line
 from sonarmap.pipeline.engine.errors import PipelineError
 from sonarmap.pipeline.engine.text import scrub_userinfo
@@ -33,7 +33,9 @@ class _ErrorMappingGroup(TyperGroup):
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         """The top level's own options (`sonarmap --bogus`): one line, as a command's."""
         try:
-            return super().parse_args(ctx, args)
+            rest = super().parse_args(ctx, args)
+            ctx.meta[_COMMAND_ARGS] = list(rest)  # the command's own, for its error handler
+            return rest
         except Exception as err:
             if _usage_error(err) and type(err).__name__ != "NoArgsIsHelpError":
                 _fail(err.format_message() + " (sonarmap --help)", 2, err)  # type: ignore[attr-defined]
@@ -58,13 +60,19 @@ class _ErrorMappingGroup(TyperGroup):
         except Exception as err:  # the last resort: one line, credentials scrubbed
             if _usage_error(err):
                 # A bad option value or an unknown option of a command: one line, as every
-                # other error (click's framed box took 5-12 lines, 12 at 80 columns).
+                # other error (click's framed box took 5-12 lines, 12 at 80 columns). An
+                # unknown option stops parsing before `--json` is read: look for it.
+                if "--json" in ctx.meta.get(_COMMAND_ARGS, ()):
+                    json_requested(ctx)
                 command = ctx.invoked_subcommand or ""
                 hint = f" (sonarmap {command} --help)".replace("  ", " ")
                 _fail(err.format_message() + hint, 2, err, ctx)  # type: ignore[attr-defined]
             if _cli_flow(err):
                 raise
             _internal(err, ctx)
+
+
+_COMMAND_ARGS = "sonarmap.command_args"
 
 
 def _cli_flow(err: BaseException) -> bool:

@@ -27,6 +27,7 @@ __all__ = [
     "Stage",
     "StageConfig",
     "StageInputError",
+    "StageSettingsError",
     "Units",
 ]
 
@@ -130,6 +131,12 @@ class StageInputError(ValueError):
         self.input = input if isinstance(input, Input) else Input.parse(input)
         self.reason = reason
         super().__init__(f"{self.input.name}: {reason}")
+
+
+class StageSettingsError(ValueError):
+    """The stage's settings cannot run on this data (bad input, not a bug in the stage):
+    a solver that cannot solve the graph they make, more memory than a run may take. The
+    engine reports it as a config error (exit 2): one line, naming the settings."""
 
 
 class ConfigModel(BaseModel):

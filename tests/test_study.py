@@ -349,7 +349,10 @@ def test_study_cli_default_and_a_config_side_by_side(tmp_path: Path) -> None:
     assert [p["name"] for p in doc["protocols"]] == ["default", "loose"]
     runs = {r["protocol"]: r for r in doc["runs"]}
     assert set(runs) == {"default", "loose"} and {r["status"] for r in runs.values()} == {"ok"}
-    assert runs["loose"]["config_path"] == str(protocol) and runs["default"]["config_path"] is None
+    # the protocol file as read once, kept with the results (an edit meanwhile changes nothing)
+    kept = Path(runs["loose"]["config_path"])
+    assert kept == (out / "results" / "protocols" / "loose.yaml").resolve()
+    assert kept.read_bytes() == protocol.read_bytes() and runs["default"]["config_path"] is None
     assert all(r["seconds"] > 0 for r in runs.values()) and doc["wall_s"] > 0
     text = (out / "results" / "table_i.md").read_text()
     assert "| default | 4 m | semantic | 1 |" in text and "| loose | 4 m | semantic | 1 |" in text

@@ -54,14 +54,20 @@ _JSON_MODE = "sonarmap.json"
 
 def _json_requested(ctx: typer.Context, value: bool) -> bool:
     if value:
-        ctx.meta[_JSON_MODE] = {"emitted": False}
+        json_requested(ctx)
     return value
+
+
+def json_requested(ctx: Any) -> None:
+    """Promise the failed command's error as its JSON document (`emit_error_json`)."""
+    ctx.meta.setdefault(_JSON_MODE, {"emitted": False})
 
 
 JSON_OPT = typer.Option(
     False,
     "--json",
     callback=_json_requested,
+    is_eager=True,  # before the other options: one that fails still gets its document
     help="Print exactly one JSON document on stdout (on failure: its error and exit code).",
 )
 NO_FIGURES_OPT = typer.Option(
@@ -124,20 +130,15 @@ class GraphChoice:
         return self._graph
 
 
-def cli_graph(ctx: typer.Context, *, figures: bool = True) -> Graph:
+def cli_graph(ctx: typer.Context) -> Graph:
     """The graph this invocation runs (the root command's `GraphChoice`); the real
     pipeline's when the command was invoked without the root (its own Typer app).
-    figures=False: without its figure stages (`--no-figures` of sweep and study)."""
+    `--no-figures` leaves the figure stages out of a run (`RunRequest.figures`), never out
+    of the graph: a config with a `figures` section stays valid either way."""
     choice = ctx.find_root().obj
     if not isinstance(choice, GraphChoice):
         choice = GraphChoice(None)
-    if figures:
-        return choice.graph()
-    from dataclasses import replace
-
-    from sonarmap.pipeline.graph import without_figures
-
-    return replace(choice.graph(), stages=without_figures(choice.graph().stages))
+    return choice.graph()
 
 
 @contextmanager

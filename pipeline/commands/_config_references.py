@@ -14,12 +14,19 @@ __all__ = ["check_references"]
 
 def check_references(config: Any) -> None:
     """Refuse (one line, naming the key) a reference the config makes that a run could not
-    read: a training set's scene, a recorded dataset, a message definition, a model folder.
+    read: a sonar preset or beam table, a training set's scene, a recorded dataset, a
+    message definition, a model folder.
 
     Raises:
         ConfigError: the first unusable reference.
     """
     keyframes = getattr(config, "keyframes", None)
+    for side in ("horizontal_sonar", "vertical_sonar"):
+        spec = getattr(keyframes, side, None) if keyframes is not None else None
+        if spec:
+            from sonarmap.pipeline.readers.sonar_models import load_sonar
+
+            _named(f"keyframes.{side}", load_sonar, spec)
     if keyframes is not None and keyframes.message_definitions:
         from sonarmap.pipeline.readers.typestores import load_message_types
 

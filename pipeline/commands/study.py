@@ -41,6 +41,28 @@ def _protocols(configs: list[Path], with_default: bool) -> list[dict[str, str | 
     return protocols
 
 
+def _spacings(spacings: str, swept: str, base: list[str]) -> list[str]:
+    """The swept spacings, refused (naming --spacings or --fix) before any simulation: a
+    list `sweep` would refuse (empty, a value twice, also fixed), or a --fix of the poses
+    (the study maps with true poses: its tables say so)."""
+    from sonarmap.pipeline.engine.errors import ConfigError
+    from sonarmap.pipeline.experiments.sweep_grid import sweep_axes
+
+    for text in base[1:]:
+        if text.partition("=")[0].strip() == "slam.mode":
+            raise ConfigError(
+                f"--fix '{text}': the study maps with true poses (slam.mode=ground_truth, as"
+                " the paper's); map other poses with `sonarmap sweep`"
+            )
+    try:
+        sweep_axes([], [swept], base)
+    except ConfigError as err:
+        raise ConfigError(
+            str(err).replace(f"--set '{swept}'", f"--spacings '{spacings}'")
+        ) from None
+    return [v.strip() for v in spacings.split(",") if v.strip()]
+
+
 def study(
     ctx: typer.Context,
     trials: int = typer.Option(10, "--trials", min=1, help="Simulated trials (seeds 0..N-1)."),
@@ -83,26 +105,32 @@ def study(
     import time
 
     from sonarmap.pipeline.commands._common import stderr_console
-    from sonarmap.pipeline.commands._errors import check_writable, writes_under
+    from sonarmap.pipeline.commands._errors import check_writable, one_line, writes_under
     from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.experiments.study import write_study
     from sonarmap.pipeline.experiments.sweep import expand, run_sweep
+    from sonarmap.pipeline.experiments.sweep_checks import failure_exit_code
     from sonarmap.pipeline.training.datasets import ensure_simulation, scene_path
 
     check_writable(out)
-    graph = cli_graph(ctx, figures=not no_figures)
+    graph = cli_graph(ctx)
     with writes_under(out, store):
         console = stderr_console()
         t0 = time.perf_counter()
         protocols = _protocols(configs or [], not no_default)
         base = ["slam.mode=ground_truth", *(fixed or ())]
         swept = f"keyframes.spacing_m={spacings}"
-        values = [v.strip() for v in spacings.split(",") if v.strip()]
+        values = _spacings(spacings, swept, base)
         for p in protocols:  # a typo fails now, not in every run
             config = Path(p["config"]) if p["config"] else None
             for v in values:
                 overrides = [*base, f"keyframes.spacing_m={v}"]
                 load_config(graph.config_stages, config, overrides, graph.extra_sections)
+            if config is not None:  # read once: every run maps with the text checked here
+                kept = out / "results" / "protocols" / config.name
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                kept.write_bytes(config.read_bytes())
+                p["config"] = str(kept.resolve())
         scene_file = scene_path(scene)
         datasets = []
         for seed in range(trials):
@@ -122,6 +150,7 @@ def study(
                 config_path=Path(p["config"]) if p["config"] else None,
                 store=store,
                 protocol=p["name"],
+                figures=not no_figures,
             )
         ]
         jobs = min(jobs, len(specs))  # one process per parallel run, never more than runs
@@ -135,11 +164,12 @@ def study(
             executor=executor,
             jobs=jobs,
             address=address,
-            on_done=lambda o: console.print(
-                f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
-                f"{o.seconds:.1f} s {o.error or ''}",
-                markup=False,
-                highlight=False,
+            on_done=lambda o: typer.echo(  # plain lines: a log file keeps each on one line
+                one_line(
+                    f"{o.status} {o.protocol}: {Path(o.dataset).name} {o.overrides} "
+                    f"{o.seconds:.1f} s {o.error or ''}"
+                ),
+                err=True,
             ),
         )
         header = [
@@ -156,8 +186,19 @@ def study(
         else:
             typer.echo(doc["table_i"])
             typer.echo(f"wall time {doc['wall_s']} s; results in {out / 'results'}")
-        if all(o.status != "ok" for o in outcomes):
-            raise typer.Exit(1)
+        failed = [o for o in outcomes if o.status != "ok"]
+        for o in failed:
+            typer.echo(one_line(f"failed: {o.protocol}: {o.dataset}: {o.error}"), err=True)
+        code = failure_exit_code(outcomes)  # as `sweep`: 2 bad input, 1 a bug
+        if code:
+            typer.echo(
+                one_line(
+                    f"error: {len(failed)} of {len(outcomes)} study runs failed, first"
+                    f" {failed[0].protocol}: {failed[0].error} (results in {out / 'results'})"
+                ),
+                err=True,
+            )
+            raise typer.Exit(code)
 
 
 def register(app: typer.Typer) -> None:

@@ -57,7 +57,8 @@ def sweep(
 ) -> None:
     """Run the cross product of DATASETS and --set values; write a mean/std table and plot.
 
-    Every dataset and config point is checked before the first run. Exits non-zero
+    Every dataset and config point is checked before the first run; the --config file is
+    read once (a copy goes into the results folder). Exits non-zero
     when any run failed (2: bad input, 1: a bug), after the others have finished and
     the tables are written.
     """
@@ -74,11 +75,13 @@ def sweep(
         raise ConfigError(f"--jobs {jobs}: at least 1 run at a time")
     if executor not in ("local", "ray"):
         raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
+    from dataclasses import replace
     from functools import partial
 
+    from sonarmap.pipeline.commands._config_references import check_references
     from sonarmap.pipeline.engine.config.load import config_model_for, is_list_key
 
-    graph = cli_graph(ctx, figures=not no_figures)
+    graph = cli_graph(ctx)
     model = config_model_for(graph.config_stages, graph.extra_sections)
     specs = expand(
         datasets,
@@ -87,13 +90,24 @@ def sweep(
         config_path=config,
         store=store,
         is_list_key=partial(is_list_key, model),
+        figures=not no_figures,
     )
     # Every dataset and every point's config before the first run: a missing file or
     # a bad value fails now, not hours in.
-    check_inputs(specs, graph)
-    ident = hashlib.sha256(repr([(s.dataset, s.overrides) for s in specs]).encode()).hexdigest()
+    check_inputs(specs, graph, check_references)
+    # The config file is read once: every point maps with the text checked here, kept in
+    # the results folder (edited during a sweep, it changed the later points' settings).
+    text = config.read_bytes() if config is not None else b""
+    ident = hashlib.sha256(
+        repr([(s.dataset, s.overrides) for s in specs] + [fixed or [], text]).encode()
+    ).hexdigest()
     out_dir = out or Path("data/sweeps") / ident[:12]
     check_writable(out_dir)
+    if config is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        kept = out_dir / "config.yaml"
+        kept.write_bytes(text)
+        specs = [replace(s, config_path=str(kept.resolve())) for s in specs]
     if executor == "local":
         # One process per parallel run, each with its own memory (a run of the demo peaks
         # at about 0.7 GB): never more than there are runs, and said when over the cores.
@@ -111,17 +125,32 @@ def sweep(
         overrides = ", ".join(f"{k}={v}" for k, v in o.overrides.items()) or "(defaults)"
         return f"{display_path(o.dataset)} [{overrides}]"
 
+    finished: list[RunOutcome] = []
+
     def done(o: RunOutcome) -> None:
         # Plain lines (not a rich console): a log file or CI keeps each on one line.
         tail = f": {o.error}" if o.error else units_reused(o.stages)
         typer.echo(one_line(f"{o.status} {describe(o)} {o.seconds:.1f} s{tail}"), err=True)
+        finished.append(o)
 
     from sonarmap.pipeline.commands._errors import writes_under
 
     with writes_under(store, out_dir):
-        outcomes = run_sweep(
-            specs, executor=executor, jobs=jobs, address=address, on_done=done, graph=graph
-        )
+        try:
+            outcomes = run_sweep(
+                specs, executor=executor, jobs=jobs, address=address, on_done=done, graph=graph
+            )
+        except KeyboardInterrupt:
+            # The finished points' rows are written; a rerun takes them from the store.
+            if finished:
+                write_sweep(finished, out_dir)
+            typer.echo(
+                f"sweep: interrupted after {len(finished)} of {len(specs)} runs"
+                + (f"; their table in {out_dir}" if finished else "")
+                + " (a rerun reuses what they computed)",
+                err=True,
+            )
+            raise typer.Exit(130) from None
         doc = write_sweep(outcomes, out_dir)
         if json_:
             emit_json(doc)

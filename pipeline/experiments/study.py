@@ -99,6 +99,18 @@ def table_i(groups: Sequence[Mapping[str, Any]], protocols: Sequence[str] | None
     return "\n".join(_table_i_md(table_i_rows(groups, protocols))) + "\n"
 
 
+def _voxels(runs: Sequence[Mapping[str, Any]]) -> str:
+    """The voxel sizes the runs mapped at ("10 cm"; "10 cm / 50 cm" when protocols differ)."""
+    sizes = sorted(
+        {
+            float(size)
+            for r in runs
+            if (size := ((r.get("summary") or {}).get("metrics") or {}).get("voxel_size_m"))
+        }
+    )
+    return " / ".join(f"{100 * v:g} cm" for v in sizes) or "10 cm"
+
+
 def render_markdown(
     study: Mapping[str, Any], runs: Sequence[Mapping[str, Any]], header: Sequence[str] = ()
 ) -> str:
@@ -108,9 +120,9 @@ def render_markdown(
         "",
         *header,
         "",
-        "10 cm voxels of the standard map (fused points) and the semantic map (fused +",
-        "inferred), true poses (`slam.mode=ground_truth`), mean ± std over trials. The",
-        "paper: 10 trials of 20 random goals in its Gazebo marina.",
+        f"{_voxels(runs)} voxels of the standard map (fused points) and the semantic map",
+        "(fused + inferred), true poses (`slam.mode=ground_truth`), mean ± std over trials.",
+        "The paper: 10 trials of 20 random goals in its Gazebo marina, 10 cm voxels.",
         "",
         *_table_i_md(study["table_i"]),
         "",

@@ -59,6 +59,7 @@ class RunSpec:
     store: str = "data/store"
     protocol: str | None = None
     """A name for the config this run belongs to (`sonarmap study` compares several)."""
+    figures: bool = True
 
     @property
     def override_args(self) -> list[str]:
@@ -104,6 +105,7 @@ def expand(
     store: Path = Path("data/store"),
     protocol: str | None = None,
     is_list_key: Callable[[str], bool] = lambda key: False,
+    figures: bool = True,
 ) -> list[RunSpec]:
     """Cross product: every dataset x every combination of `key=v1,v2,...` values (no
     point twice: `sweep_axes`; a list setting's points in brackets)."""
@@ -117,6 +119,7 @@ def expand(
             config_path=str(config_path) if config_path else None,
             store=str(Path(store).resolve()),
             protocol=protocol,
+            figures=figures,
         )
         for d in datasets
         for combo in combos
@@ -138,6 +141,7 @@ def run_one(spec: RunSpec, graph: Graph | None = None) -> RunOutcome:
                 overrides=spec.override_args,
                 store_dir=Path(spec.store),
                 workers=1,
+                figures=spec.figures,
             ),
             graph,
         )
@@ -185,49 +189,6 @@ def _local(
     return [results[i] for i in range(len(specs))]
 
 
-def _ray(
-    specs: Sequence[RunSpec],
-    jobs: int,
-    address: str | None,
-    done: Callable[[RunOutcome], None],
-    graph: Graph | None,
-) -> list[RunOutcome]:
-    try:
-        import ray
-    except ImportError as err:
-        raise ConfigError(
-            "--executor ray needs the 'ray' package (pip install 'sonarmap[ray]')"
-        ) from err
-    # The graph travels with each task; PYTHONPATH lets workers import its modules.
-    env = {k: v for k, v in os.environ.items() if k in ("PYTHONPATH", "OMP_NUM_THREADS")}
-    started = False
-    if not ray.is_initialized():
-        kwargs: dict[str, Any] = {
-            "include_dashboard": False,
-            "log_to_driver": False,
-            "runtime_env": {"env_vars": env},
-        }
-        if address:
-            ray.init(address=address, **kwargs)
-        else:
-            ray.init(num_cpus=max(jobs, 1), **kwargs)
-        started = True
-    try:
-        remote = ray.remote(num_cpus=1)(run_one)
-        pending = {remote.remote(s, graph): i for i, s in enumerate(specs)}  # type: ignore[call-arg]
-        results: dict[int, RunOutcome] = {}
-        while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1)
-            for ref in ready:
-                i = pending.pop(ref)
-                results[i] = ray.get(ref)
-                done(results[i])
-        return [results[i] for i in range(len(specs))]
-    finally:
-        if started:
-            ray.shutdown()
-
-
 def run_sweep(
     specs: Sequence[RunSpec],
     *,
@@ -243,7 +204,9 @@ def run_sweep(
     if executor == "local":
         return _local(specs, jobs, done, graph)
     if executor == "ray":
-        return _ray(specs, jobs, address, done, graph)
+        from sonarmap.pipeline.experiments.sweep_ray import run_on_ray
+
+        return run_on_ray(specs, jobs, address, done, graph, run_one)
     raise ConfigError(f"--executor {executor}: expected 'local' or 'ray'")
 
 
@@ -324,8 +287,9 @@ def group_label(group: Mapping[str, Any]) -> str:
 def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, Any]], str]:
     """(pyarrow table one row per run, groups with mean/std, markdown of the groups).
 
-    Runs are grouped by (protocol, overrides); groups keep the order protocols first
-    appear in, then sorted overrides. Markdown leaves out the columns no run reported.
+    Runs are grouped by (protocol, overrides), in the order they first appear (the order
+    the values were given: sorted as text, 11 came before 5). Markdown leaves out the
+    columns no run reported, and gives no spread for a group of one run.
     """
     import json
 
@@ -362,7 +326,7 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
     protocols = list(dict.fromkeys(r["protocol"] for r in rows))
     groups = []
     for protocol in protocols:
-        for key in sorted({r["overrides"] for r in rows if r["protocol"] == protocol}):
+        for key in dict.fromkeys(r["overrides"] for r in rows if r["protocol"] == protocol):
             members = [
                 r
                 for r in rows
@@ -386,14 +350,13 @@ def sweep_tables(outcomes: Sequence[RunOutcome]) -> tuple[Any, list[dict[str, An
             groups.append(group)
     shown = [m for m in METRIC_COLUMNS if any(g[m]["mean"] is not None for g in groups)]
     frame = shared_frame(g["headline_frame"] for g in groups)
-    lines = [
-        "| overrides | runs | " + " | ".join(headline_header(m, frame) for m in shown) + " |",
-        "|---|---|" + "---|" * len(shown),
-    ]
+    header = ["overrides", "runs", *(headline_header(m, frame) for m in shown)]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for g in groups:
-        cells = []
+        cells = [group_label(g), str(g["runs"])]
         for m in shown:
             mean, std = g[m]["mean"], g[m]["std"]
-            cells.append("-" if mean is None else f"{mean:.4g} ± {std:.2g}")
-        lines.append(f"| {group_label(g)} | {g['runs']} | " + " | ".join(cells) + " |")
+            spread = f" ± {std:.2g}" if g["runs"] > 1 else ""
+            cells.append("-" if mean is None else f"{mean:.4g}{spread}")
+        lines.append("| " + " | ".join(cells) + " |")
     return table, groups, "\n".join(lines) + "\n"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -15,21 +15,29 @@ if TYPE_CHECKING:
 __all__ = ["check_inputs", "failure_exit_code"]
 
 
-def check_inputs(specs: Sequence[RunSpec], graph: Graph) -> None:
+def check_inputs(
+    specs: Sequence[RunSpec],
+    graph: Graph,
+    check_references: Callable[[Any], None] = lambda config: None,
+) -> None:
     """Refuse (exit 2) before the first run when a dataset or a config point is unusable.
 
-    Every distinct (config file, overrides) point must load (checked first); every
+    Every distinct (config file, overrides) point must load, and what it names outside
+    itself must be there (`check_references(config)`, the CLI's: a model folder, a sonar
+    preset), checked first; every
     dataset must exist and be readable as a recording (its files open, its format is
     recognised, its sonar and navigation topics are found under every point's
     `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
     """
     from sonarmap.pipeline.engine.config.load import load_config
 
-    # Config first (cheap, and what a typo in --set most likely is), then datasets.
+    # Config first (cheap, and what a typo in --set most likely is), with what each point
+    # names outside itself (a model folder, a sonar preset), then datasets.
     readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording
     for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
         path = Path(config_path) if config_path else None
         config = load_config(graph.config_stages, path, args, graph.extra_sections)
+        check_references(config)
         section = getattr(config, "keyframes", None)
         readers.setdefault(repr(section), section)
     for dataset in dict.fromkeys(s.dataset for s in specs):

@@ -43,10 +43,14 @@ def write_sweep(outcomes: Sequence[RunOutcome], out_dir: Path) -> dict[str, Any]
 
     out_dir.mkdir(parents=True, exist_ok=True)
     table, groups, markdown = sweep_tables(outcomes)
-    pq.write_table(table, out_dir / "sweep.parquet")
+    with (out_dir / "sweep.parquet").open("wb") as f:  # (pyarrow cannot take a non-UTF-8 path)
+        pq.write_table(table, f)
     (out_dir / "table.md").write_text(markdown)
+    plot = out_dir / "sweep.png"
     if any(o.status == "ok" for o in outcomes):
-        _plot(groups, out_dir / "sweep.png")
+        _plot(groups, plot)
+    else:  # a results folder never shows an earlier sweep's plot beside this one's table
+        plot.unlink(missing_ok=True)
     doc = {"runs": [o.to_json() for o in outcomes], "groups": groups, "out": str(out_dir)}
     (out_dir / "sweep.json").write_text(dumps_strict(doc))
     return doc

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import platformdirs
 
+from sonarmap.pipeline.engine.errors import ConfigError
+
 __all__ = ["CACHE_ENV", "TRAINING_SUBDIR", "cache_root", "default_training_directory"]
 
 CACHE_ENV = "SONARMAP_CACHE_DIR"
@@ -28,7 +30,10 @@ def cache_root() -> Path:
     override = os.environ.get(CACHE_ENV, "").strip()
     if override:
         # Absolute, so a later change of working directory cannot move the cache.
-        return Path(override).expanduser().absolute()
+        root = Path(override).expanduser().absolute()
+        if root.exists() and not root.is_dir():  # else named as a broken manifest under it
+            raise ConfigError(f"{CACHE_ENV}={override}: a file, not a folder")
+        return root
     return Path(platformdirs.user_cache_dir("sonarmap", appauthor=False))
 
 

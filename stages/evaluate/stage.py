@@ -26,6 +26,7 @@ import pyarrow as pa
 from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable
 from sonarmap.schemas.map import ERRORS_SCHEMA, MAP_NAMES
 from sonarmap.schemas.sensors import Sensors
+from sonarmap.stages.base import StageSettingsError
 from sonarmap.stages.evaluate import STAGE
 from sonarmap.stages.evaluate.class_accounting import per_class_metrics, remember_last
 from sonarmap.stages.evaluate.config import EvaluateConfig
@@ -47,6 +48,7 @@ from sonarmap.stages.kernels.mesh_metrics import (
     mesh_distance,
     nearest_distance,
     raycasting_scene,
+    sampled_area_m2,
     se2_alignment,
     surface_samples,
     visible_mask,
@@ -78,6 +80,11 @@ def map_errors(map_table: pa.Table, mesh: Mesh) -> tuple[pa.Table, dict[str, Any
     return table.cast(ERRORS_SCHEMA), {k: error_stats(err[m]) for k, m in groups.items()}
 
 
+MAX_SURFACE_SAMPLES = 2_000_000
+"""Surface samples one evaluation may draw: about 1.5 GB with the distance queries and
+visibility tests over them (3 million took 2.3 GB). The marina's default: about 30,000."""
+
+
 def surface_metrics(
     map_table: pa.Table,
     errors: pa.Table,
@@ -94,6 +101,13 @@ def surface_metrics(
         (s, 3) surface samples of the completeness classes before the visibility cut.
     """
     ids = np.array([table.ids[c] for c in config.completeness_classes if c in table.ids])
+    wanted = round(sampled_area_m2(mesh, ids) * config.surface_samples_per_m2)
+    if wanted > MAX_SURFACE_SAMPLES:
+        raise StageSettingsError(
+            f"evaluate.surface_samples_per_m2 = {config.surface_samples_per_m2:g} asks for"
+            f" {wanted:,} surface samples, over the {MAX_SURFACE_SAMPLES:,} an evaluation"
+            " holds (bounded memory); lower it"
+        )
     samples = surface_samples(mesh, ids, config.surface_samples_per_m2, config.seed)
     seen = samples[
         visible_mask(

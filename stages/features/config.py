@@ -65,13 +65,13 @@ class FeaturesConfig(StageConfig):
         description="the clutter law is fitted to this quantile range of each band: objects"
         " may fill up to 1 - upper of a band without moving the fit",
     )
-    denoise: Literal[
-        "auto", "box3x3", "box3x5", "box5x3", "box5x5", "beam3", "range3", "none"
-    ] = Field(
-        "auto",
-        description="filter before calibration and detection: auto = a 3x3 (range x beam)"
-        " mean only for a sonar whose unfiltered background puts the stated rate's floor at"
-        " full scale in most bands, else none (by measurement, docs/front-end.md)",
+    denoise: Literal["auto", "box3x3", "box3x5", "box5x3", "box5x5", "beam3", "range3", "none"] = (
+        Field(
+            "auto",
+            description="filter before calibration and detection: auto = a 3x3 (range x beam)"
+            " mean only for a sonar whose unfiltered background puts the stated rate's floor at"
+            " full scale in most bands, else none (by measurement, docs/front-end.md)",
+        )
     )
     max_features_per_keyframe_per_sonar: int | None = Field(
         20000,
@@ -88,4 +88,9 @@ class FeaturesConfig(StageConfig):
             raise ValueError(f"fit_quantiles must satisfy 0 < lo < hi < 1, got {lo}, {hi}")
         if isinstance(self.threshold_factor, float) and not 0.0 < self.threshold_factor <= 1e3:
             raise ValueError("threshold_factor must be in (0, 1000]")
+        if self.method == "os" and self.os_rank > 2 * self.train_cells_per_side:
+            raise ValueError(
+                f"os_rank ({self.os_rank}) must be at most the training cells it ranks,"
+                f" 2 x train_cells_per_side = {2 * self.train_cells_per_side}"
+            )
         return self

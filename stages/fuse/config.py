@@ -54,4 +54,6 @@ class FuseConfig(StageConfig):
     def _ratio_cut_needs_ratio_rule(self) -> FuseConfig:
         if self.max_cost_ratio is not None and self.confidence_rule != "ratio":
             raise ValueError("max_cost_ratio needs confidence_rule 'ratio'")
+        if self.patch_size_px % 2 == 0:  # a patch centred on its pixel (Eq. 5)
+            raise ValueError(f"patch_size_px must be odd, got {self.patch_size_px}")
         return self

@@ -33,6 +33,7 @@ __all__ = [
     "mesh_distance",
     "nearest_distance",
     "raycasting_scene",
+    "sampled_area_m2",
     "se2_alignment",
     "surface_samples",
     "visible_mask",
@@ -80,6 +81,28 @@ def fraction_within(distance_m: np.ndarray, tolerance_m: float) -> float | None:
     return float(np.mean(d <= tolerance_m)) if d.size else None
 
 
+def _sampled_faces(
+    mesh: Mesh, class_ids: np.ndarray, max_abs_normal_z: float
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray] | None:
+    """((a, b, c) corners, areas, which faces `surface_samples` draws from), or None."""
+    tri = mesh.triangles
+    cls = mesh.vertex_properties.get("class_id")
+    if cls is None or len(tri) == 0:
+        return None
+    a, b, c = (mesh.vertices[tri[:, i]] for i in range(3))
+    cross = np.cross(b - a, c - a)
+    area = 0.5 * np.linalg.norm(cross, axis=1)
+    nz = np.abs(cross[:, 2]) / np.maximum(2.0 * area, 1e-12)
+    keep = np.isin(cls[tri[:, 0]], class_ids) & (nz <= max_abs_normal_z) & (area > 0)
+    return (a, b, c), area, keep
+
+
+def sampled_area_m2(mesh: Mesh, class_ids: np.ndarray, max_abs_normal_z: float = 0.5) -> float:
+    """The area `surface_samples` draws from [m2] (its count is this times the density)."""
+    faces = _sampled_faces(mesh, class_ids, max_abs_normal_z)
+    return 0.0 if faces is None else float(faces[1][faces[2]].sum())
+
+
 def surface_samples(
     mesh: Mesh,
     class_ids: np.ndarray,
@@ -96,15 +119,10 @@ def surface_samples(
     Returns:
         (s, 3) float64 world points [m]; the same inputs give the same points.
     """
-    tri = mesh.triangles
-    cls = mesh.vertex_properties.get("class_id")
-    if cls is None or len(tri) == 0:
+    faces = _sampled_faces(mesh, class_ids, max_abs_normal_z)
+    if faces is None:
         return np.empty((0, 3))
-    a, b, c = (mesh.vertices[tri[:, i]] for i in range(3))
-    cross = np.cross(b - a, c - a)
-    area = 0.5 * np.linalg.norm(cross, axis=1)
-    nz = np.abs(cross[:, 2]) / np.maximum(2.0 * area, 1e-12)
-    keep = np.isin(cls[tri[:, 0]], class_ids) & (nz <= max_abs_normal_z) & (area > 0)
+    (a, b, c), area, keep = faces
     total = float(area[keep].sum())
     n = round(total * samples_per_m2)
     if n == 0:

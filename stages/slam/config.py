@@ -6,7 +6,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from sonarmap.stages.base import StageConfig
 
@@ -191,8 +191,10 @@ class SlamConfig(StageConfig):
         " keyframe holds 636 points, so nothing is clipped there); None: no budget",
     )
     leading_edge_only: bool = Field(True, description="first cell of each run along a beam")
-    point_noise_m: float = Field(0.5, gt=0, le=100, description="grid dilation and overlap radius")
-    grid_resolution_m: float = Field(0.25, ge=0.001, le=100, description="consensus grid cell")
+    # Bounded so that the dilated grid and the overlap queries stay bounded: at 30 m the
+    # overlap neighbourhoods took 21 GB, at a 1 cm grid the consensus search minutes.
+    point_noise_m: float = Field(0.5, gt=0, le=5, description="grid dilation and overlap radius")
+    grid_resolution_m: float = Field(0.25, ge=0.05, le=100, description="consensus grid cell")
     max_correspondence_m: float = Field(1.0, gt=0, le=1000, description="ICP correspondence gate")
     search_max_points: int = Field(
         150, ge=10, le=1000000, description="source points scored in the search"
@@ -332,6 +334,17 @@ class SlamConfig(StageConfig):
     plot_max_points: int = Field(
         30000, ge=0, le=100000000, description="features kept in plot_points.parquet (drawn)"
     )
+
+    @model_validator(mode="after")
+    def _bounded_grid(self) -> SlamConfig:
+        # The consensus grid is dilated by a disk of point_noise_m: its cost grows with the
+        # square of their ratio (2 by default).
+        if self.point_noise_m > 40 * self.grid_resolution_m:
+            raise ValueError(
+                f"point_noise_m ({self.point_noise_m:g}) must be at most 40 x"
+                f" grid_resolution_m ({self.grid_resolution_m:g}): the grid's dilation disk"
+            )
+        return self
 
 
 LEGACY_FAN_DEG = 130.0

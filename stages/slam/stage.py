@@ -58,7 +58,7 @@ import numpy as np
 import pyarrow as pa
 
 from sonarmap.schemas.sensors import Sensors
-from sonarmap.stages.base import Input, StageInputError
+from sonarmap.stages.base import Input, StageInputError, StageSettingsError
 from sonarmap.stages.slam import STAGE
 from sonarmap.stages.slam.config import SlamConfig, with_sensor_fan
 from sonarmap.stages.slam.frontend import SlamResult, run_slam
@@ -124,7 +124,16 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             )
         pose6, cov, rows, fell_back = gt, np.zeros((len(ids), 3, 3)), [], False
     else:
-        result = run_slam(config, dr_se2, points, t_s)
+        try:
+            result = run_slam(config, dr_se2, points, t_s)
+        except RuntimeError as err:  # GTSAM's, several lines long
+            if "Indeterminate linear system" not in str(err):
+                raise
+            raise StageSettingsError(
+                "GTSAM cannot solve the pose graph (an indeterminate linear system): the"
+                " slam sigmas (prior_sigma_*, odom_sigma_*, heading_*) span more orders of"
+                " magnitude than its solver takes; bring them nearer the defaults"
+            ) from None
         pose6 = dr.copy()
         pose6[:, [0, 1, 5]] = result.poses
         pose6[:, 5] = wrap_angle(pose6[:, 5])

@@ -206,6 +206,13 @@ def parse_override(model: type[BaseModel], text: str) -> tuple[list[str], Any]:
     annotation = _field_annotation(model, path, where)
     if len(raw) > MAX_OVERRIDE_CHARS:
         raise ConfigError(f"{where}: value of {len(raw)} characters (at most {MAX_OVERRIDE_CHARS})")
+    try:  # a shell's non-UTF-8 bytes arrive as lone surrogates, which no parser encodes
+        raw.encode("utf-8")
+    except UnicodeEncodeError as err:
+        bad = ord(raw[err.start])
+        at = len(raw[: err.start].encode("utf-8", "surrogateescape"))
+        shown = f" (byte {at} is {bad - 0xDC00:#04x})" if 0xDC80 <= bad <= 0xDCFF else ""
+        raise ConfigError(f"{where}: the value is not UTF-8 text{shown}") from None
     if _is_sequence_type(annotation) and not raw.strip().startswith("["):
         return path, [_scalar(v, where) for v in raw.split(",") if v.strip() != ""]
     return path, _scalar(raw, where)
@@ -233,6 +240,22 @@ def _scalar(raw: str, where: str) -> Any:
         if isinstance(err.__cause__, YamlRefused):
             raise
         return raw
+
+
+def _refuse_repeats(parsed: Sequence[tuple[list[str], Any]]) -> None:
+    """Two `--set`s of one setting (or of a section and a setting in it): the last would
+    silently win, as a duplicate key of a YAML file would."""
+    seen: list[list[str]] = []
+    for path, _ in parsed:
+        for other in seen:
+            if path[: len(other)] == other or other[: len(path)] == path:
+                first, second = ".".join(other), ".".join(path)
+                also = "given twice" if first == second else f"and {second} both set"
+                raise ConfigError(
+                    f"--set {one_line(first, MAX_KEY_CHARS)}: {also} (the last would silently"
+                    " win); give each setting once"
+                )
+        seen.append(path)
 
 
 def apply_overrides(data: dict[str, Any], overrides: Iterable[tuple[list[str], Any]]) -> None:
@@ -288,6 +311,7 @@ def load_config(
         data = loaded or {}
         _check_keys(model, data, where, "")
     parsed = [parse_override(model, o) for o in overrides]
+    _refuse_repeats(parsed)
     apply_overrides(data, parsed)
     try:
         config = model.model_validate(data)

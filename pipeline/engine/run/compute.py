@@ -24,7 +24,14 @@ from sonarmap.pipeline.engine.errors import (
 )
 from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
-from sonarmap.stages.base import UNITS_INPUT, Input, Output, Stage, StageInputError
+from sonarmap.stages.base import (
+    UNITS_INPUT,
+    Input,
+    Output,
+    Stage,
+    StageInputError,
+    StageSettingsError,
+)
 
 __all__ = ["ComputeJob", "compute_in_worker", "job_sections", "not_opened", "run_job"]
 
@@ -178,6 +185,8 @@ def run_job(
         raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
     except StageInputError as err:
         raise _rejected_input(err, job) from err
+    except StageSettingsError as err:
+        raise ConfigError(f"stage {stage.name}: {err}") from err
     except Exception as err:
         raise StageFailed(f"stage {stage.name} failed: {type(err).__name__}: {err}") from err
     return {"outputs": facts, **(memo.manifest_fields() if memo is not None else {})}
