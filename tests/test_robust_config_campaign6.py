@@ -102,7 +102,7 @@ def test_a_figure_less_sweep_takes_a_config_with_a_figures_section(tmp_path: Pat
     [
         (["--set", "keyframes.horizontal_topic=/a\udcff"], "not UTF-8 text (byte 2 is 0xff)"),
         (["--set", "keyframes.spacing_m=3", "--set", "keyframes.spacing_m=4"], "given twice"),
-        (["--set", "keyframes.spacing_m=3", "--set", "keyframes={rotation_deg: 10}"], "both set"),
+        (["--set", "keyframes.spacing_m=3", "--set", "keyframes={rotation_deg: 10}"], "then its"),
         (["--set", "fuse.patch_size_px=4"], "patch_size_px must be odd"),
         (["--set", "keyframes.horizontal_sonar=nonexistent_preset"], "neither a preset"),
     ],

@@ -25,7 +25,11 @@ from sonarmap.stages.classify.size_rule import grow, macro_f1, sizes
 
 
 def _training(tmp_path: Path, *overrides: str) -> Any:
-    procedural = ["training.procedural={}", "training.sets=[]"]
+    procedural = [
+        base
+        for base in ("training.procedural={}", "training.sets=[]")
+        if not any(o.startswith(base.split("=")[0] + "=") for o in overrides)
+    ]  # each setting once: a second --set of one would be refused
     config = load_config(
         all_stages(), None, [f"training.directory={tmp_path}", *procedural, *overrides],
         extra_sections(),

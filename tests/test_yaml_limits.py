@@ -120,17 +120,21 @@ def test_a_document_of_too_many_values_is_refused_while_composing() -> None:
         load_yaml_text(text, "x", "v", ConfigError, max_nodes=11)
 
 
-def test_valid_yaml_still_loads_and_the_last_set_wins(tmp_path: Path) -> None:
+def test_valid_yaml_still_loads_and_a_set_overrides_the_file(tmp_path: Path) -> None:
     path = tmp_path / "ok.yaml"
     path.write_text("keyframes: {spacing_m: 7}\n# a comment\nfeatures: {}\n")
-    # Two --set of one key are a deliberate override, not a duplicate in a document.
-    cfg = load_config(
-        all_stages(),
-        path,
-        ["keyframes.spacing_m=3", "keyframes.spacing_m=4"],
-        extra_sections(),
-    )
+    # A --set overrides the file; two --set of one key are refused, as a duplicate key in
+    # a document is (the first would silently go).
+    cfg = load_config(all_stages(), path, ["keyframes.spacing_m=4"], extra_sections())
     assert cfg.keyframes.spacing_m == 4  # type: ignore[attr-defined]
+    with pytest.raises(ConfigError, match="spacing_m: given twice"):
+        load_config(
+            all_stages(), path, ["keyframes.spacing_m=3", "keyframes.spacing_m=4"],
+            extra_sections(),
+        )  # fmt: skip
+    refined = ["keyframes={spacing_m: 5}", "keyframes.rotation_deg=10"]  # a section, refined
+    cfg = load_config(all_stages(), path, refined, extra_sections())
+    assert (cfg.keyframes.spacing_m, cfg.keyframes.rotation_deg) == (5, 10)  # type: ignore[attr-defined]
     assert load_yaml_text("t: 9223372036854775807\n", "x", "v", ConfigError) == {"t": 2**63 - 1}
     with pytest.raises(ConfigError, match=r"^x: v is not valid YAML \(line \d+:\d+: "):
         load_yaml_text("a: [1, 2\n", "x", "v", ConfigError)

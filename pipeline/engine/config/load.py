@@ -243,14 +243,15 @@ def _scalar(raw: str, where: str) -> Any:
 
 
 def _refuse_repeats(parsed: Sequence[tuple[list[str], Any]]) -> None:
-    """Two `--set`s of one setting (or of a section and a setting in it): the last would
-    silently win, as a duplicate key of a YAML file would."""
+    """A `--set` that overwrites an earlier one: the same setting twice, or a section after
+    a setting in it (the earlier value would silently go, as a duplicate key of a YAML
+    file's would). A setting after its section refines it, and is kept."""
     seen: list[list[str]] = []
     for path, _ in parsed:
         for other in seen:
-            if path[: len(other)] == other or other[: len(path)] == path:
+            if other[: len(path)] == path:
                 first, second = ".".join(other), ".".join(path)
-                also = "given twice" if first == second else f"and {second} both set"
+                also = "given twice" if first == second else f"then its section {second}"
                 raise ConfigError(
                     f"--set {one_line(first, MAX_KEY_CHARS)}: {also} (the last would silently"
                     " win); give each setting once"
