@@ -152,6 +152,20 @@ def plan_status(
     readers = [s.name for s in ctx.stages[: last + 1] if "train" in s.upstream]
     if not readers:
         return ctx, _plan_with(ctx, request, request.until, {}), None, []
+    classify = getattr(ctx.config, "classify", None)
+    if classify is not None and classify.model is not None:  # as `run` takes it
+        from sonarmap.pipeline.training.model import training_stage_for
+        from sonarmap.pipeline.training.model_choice import locate_given_model
+
+        given = locate_given_model(
+            classify.model, ctx.store, ctx.config, classify.allow_unvalidated_model
+        )
+        held = ctx.store.get("train", given.key) is not None
+        model = ModelStatus(
+            given.key, held, f"given ({classify.model})" + ("" if held else ": copied on run")
+        )
+        external = {"train": (training_stage_for(1, []), given)}
+        return ctx, _plan_with(ctx, request, request.until, external), model, []
     from sonarmap.pipeline.training.model_cache import located_default_model
 
     key, ref = located_default_model(ctx.store, ctx.config)

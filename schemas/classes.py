@@ -60,6 +60,21 @@ class ClassEntry(BaseModel):
     )
     colour: str = Field("#808080", description="colour in figures, '#rrggbb'")
 
+    @field_validator("id", mode="before")
+    @classmethod
+    def _number_not_boolean(cls, value: Any) -> Any:
+        # strict as every config section is: pydantic's lax mode read `id: true` as 1
+        if isinstance(value, bool):
+            raise ValueError("expected a number, not a boolean")
+        return value
+
+    @field_validator("inferred", "completeness", mode="before")
+    @classmethod
+    def _strict_flag(cls, value: Any) -> Any:
+        if not isinstance(value, bool):  # lax: 1, "true", "yes" read as true
+            raise ValueError("expected true or false")
+        return value
+
     @field_validator("name")
     @classmethod
     def _sane_name(cls, value: str) -> str:

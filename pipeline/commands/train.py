@@ -82,9 +82,14 @@ def train(
 
     with writes_under(out, store):
         t0 = time.perf_counter()
+        seen: dict[Path, Path] = {}
         for path in datasets:
             if not path.exists():
                 raise SourceError(f"{path}: no such dataset")
+            # one recording twice (another path, a link) would count its objects twice
+            if (same := seen.setdefault(path.resolve(), path)) is not path:
+                also = "given twice" if same == path else f"the same recording as {same}"
+                raise SourceError(f"{path}: {also}; give each recording once")
         check_writable(out)  # before training, not after
         request = RunRequest(
             datasets[0],

@@ -144,7 +144,7 @@ def training_stage_for(
 
     def run(config: Any, bound: Mapping[str, Any]) -> Mapping[str, Any]:
         from sonarmap.pipeline.engine.errors import ConfigError
-        from sonarmap.stages.classify.train import TooFewLabels, train_classifier
+        from sonarmap.stages.classify.train import TooFewLabels, UnknownLabel, train_classifier
 
         pairs = [
             (frames(i, bound), bound[f"{pre[i]}features_{i}.features"]) for i in range(n_datasets)
@@ -153,6 +153,8 @@ def training_stage_for(
         table = bound.get("config.classes", DEFAULT_TABLE)
         try:
             return train_classifier(pairs[:n_train], config, table, heldout=pairs[n_train:])
+        except UnknownLabel as err:  # the user's labels or classes, not a bug: exit 2
+            raise ConfigError(f"train: {name(err.dataset)}: {err}") from None
         except TooFewLabels as err:  # the user's labels, not a bug: exit 2
             raise ConfigError(
                 f"train: {err} (by class id); label more objects, of at least two classes"

@@ -46,9 +46,11 @@ __all__ = [
     "describe",
     "located_default_model",
     "model_cache",
+    "model_sha",
     "planned_default_model",
     "resolve_default_model",
     "resolve_model",
+    "same_model",
 ]
 
 log = logging.getLogger(__name__)
@@ -142,19 +144,41 @@ def _record_use(store: ArtifactStore, ref: ArtifactRef, source: Source) -> None:
     store.record_run(f"model-{ref.key[:20]}", record)
 
 
+def model_sha(ref: ArtifactRef) -> str:
+    """The sha256 of a train artifact's `model.pt`, as its manifest lists it ("" if none)."""
+    return str(((ref.manifest.get("files") or {}).get("model.pt") or {}).get("sha256", ""))
+
+
+def same_model(held: ArtifactRef | None, claimed: ArtifactRef, where: str) -> None:
+    """Refuse `claimed` when `held` is another model under the same key: a key is derived
+    from a recipe, which a manifest can copy, so the model's bytes decide which it is (a
+    folder claiming the shipped model's recipe took its place in the store)."""
+    if held is not None and model_sha(held) != model_sha(claimed):
+        raise ArtifactCorrupt(
+            f"{where}: names train/{claimed.key[:12]} (its recipe) but holds another model.pt"
+            f" (sha256 {model_sha(claimed)[:12]}, not {model_sha(held)[:12]}): a model is"
+            " known by its bytes; retrain it (`sonarmap train -o DIR`) for a key of its own"
+        )
+
+
 def _find_or_ship(
     key: str, store: ArtifactStore, cache: ArtifactStore, shipped: ArtifactStore | None
 ) -> tuple[ArtifactRef, Source] | None:
     """The model `key` from the run's store, the model cache or the shipped models (those
-    two copied in, verified), or None when it must be trained."""
+    two copied in, verified), or None when it must be trained. A store's or cache's copy
+    of a shipped key must hold the shipped bytes."""
+    bundled = shipped.get("train", key) if shipped is not None else None
     ref = store.get("train", key)
     if ref is not None:
+        same_model(bundled, ref, f"{ref.path}")
         if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
             copy_verified(ref, cache)
         return ref, "store"
     cached = cache.get("train", key)
+    if cached is not None:
+        same_model(bundled, cached, f"{cached.path}")
     source: Source = "model cache"
-    if cached is None and shipped is not None and (bundled := shipped.get("train", key)):
+    if cached is None and bundled is not None:
         try:
             cached = copy_verified(bundled, cache)
         except ArtifactCorrupt as err:

@@ -26,9 +26,10 @@ from sonarmap.pipeline.training.model_cache import (
     _record_use,
     copy_verified,
     model_cache,
+    same_model,
 )
 
-__all__ = ["resolve_given_model"]
+__all__ = ["locate_given_model", "resolve_given_model"]
 
 
 def _from_folder(folder: Path) -> ArtifactRef:
@@ -77,16 +78,17 @@ def _check_validated(ref: ArtifactRef, allow_unvalidated: bool) -> None:
         )
 
 
-def resolve_given_model(
+def locate_given_model(
     spec: str, store: ArtifactStore, config: BaseModel, allow_unvalidated: bool
-) -> ResolvedModel:
-    """The model `spec` names, verified and copied into `store`.
+) -> ArtifactRef:
+    """The model `spec` names, checked (there, a validated train artifact, no other model
+    under its key) but not copied: what `status` plans with and `run` copies in.
 
     Raises:
         SourceError: nothing there, not a train artifact, or unvalidated (one line).
-        ArtifactCorrupt: its files do not match its manifest.
+        ArtifactCorrupt: another model already holds its key.
     """
-    from sonarmap.pipeline.training.model import training_stage_for
+    from sonarmap.pipeline.training.shipped import shipped_store
 
     cache = model_cache(config)
     if spec.startswith("train/"):
@@ -94,6 +96,26 @@ def resolve_given_model(
     else:
         ref = _from_folder(Path(spec).expanduser())
     _check_validated(ref, allow_unvalidated)
+    shipped = shipped_store(getattr(getattr(config, "training", None), "shipped_models", None))
+    where = f"classify.model: {spec}"
+    for held in (shipped, store, cache):  # never under a key another model holds
+        if held is not None and held.root.resolve() != ref.path.parent.parent.resolve():
+            same_model(held.get("train", ref.key), ref, where)
+    return ref
+
+
+def resolve_given_model(
+    spec: str, store: ArtifactStore, config: BaseModel, allow_unvalidated: bool
+) -> ResolvedModel:
+    """The model `spec` names, verified and copied into `store`.
+
+    Raises:
+        SourceError: nothing there, not a train artifact, or unvalidated (one line).
+        ArtifactCorrupt: its files do not match its manifest, or another model holds its key.
+    """
+    from sonarmap.pipeline.training.model import training_stage_for
+
+    ref = locate_given_model(spec, store, config, allow_unvalidated)
     local = store.get("train", ref.key)
     if local is None or local.path.resolve() != ref.path.resolve():
         try:
@@ -101,4 +123,4 @@ def resolve_given_model(
         except ArtifactCorrupt as err:
             raise ArtifactCorrupt(f"classify.model: {err}") from err
     _record_use(store, local, "given")
-    return ResolvedModel(training_stage_for(1, []), local, "given", cache.root)
+    return ResolvedModel(training_stage_for(1, []), local, "given", model_cache(config).root)

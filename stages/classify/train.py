@@ -254,6 +254,18 @@ class TooFewLabels(ValueError):
     bad input (more labels are needed), not a bug."""
 
 
+class UnknownLabel(ValueError):
+    """A dataset's labels hold a class id the class table lacks (a class left out of the
+    config's `classes`): bad input, naming the dataset (`dataset`: its index)."""
+
+    def __init__(self, label_id: int, dataset: int) -> None:
+        super().__init__(
+            f"its labels hold class id {label_id}, which the class table (config section"
+            " `classes`) does not name: add the class back, or relabel those objects"
+        )
+        self.label_id, self.dataset = label_id, dataset
+
+
 def train_classifier(
     datasets: Sequence[tuple[Iterable[KeyframeImages], pa.Table | None]],
     cfg: TrainConfig,
@@ -292,7 +304,8 @@ def _train_classifier(
     n_ids = max(len(table.names_by_id()), int(samples.class_id.max(initial=0)) + 1)
     outside = sorted(set(np.unique(samples.class_id).tolist()) - set(table.ids.values()))
     if outside:
-        raise ValueError(f"label id {outside[0]} is not in the class table (classes.table)")
+        first = int(samples.dataset[samples.class_id == outside[0]].min())
+        raise UnknownLabel(outside[0], first)
     if heldout:
         val = samples.dataset >= len(datasets)
         train = ~val

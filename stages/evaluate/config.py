@@ -6,7 +6,7 @@ from collections.abc import Iterable
 
 from pydantic import Field, field_validator
 
-from sonarmap.schemas.classes import PILING_CLASSES, known_class_names
+from sonarmap.schemas.classes import DEFAULT_TABLE, ClassTable, known_class_names
 from sonarmap.stages.base import StageConfig
 
 __all__ = ["EvaluateConfig"]
@@ -18,10 +18,10 @@ class EvaluateConfig(StageConfig):
     tolerance_m: float = Field(
         0.1, gt=0.0, le=1000.0, description="precision/completeness distance"
     )
-    completeness_classes: tuple[str, ...] = Field(
-        PILING_CLASSES,
-        description="classes whose surface completeness measures (the default table's"
-        " classes marked `completeness`: the two piling classes)",
+    completeness_classes: tuple[str, ...] | None = Field(
+        None,
+        description="classes whose surface completeness measures; null: the class table's"
+        " classes marked `completeness` (by default the two piling classes)",
     )
     surface_samples_per_m2: float = Field(
         100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
@@ -40,9 +40,16 @@ class EvaluateConfig(StageConfig):
 
     @field_validator("completeness_classes")
     @classmethod
-    def _sane_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        return known_class_names(value)
+    def _sane_classes(cls, value: tuple[str, ...] | None) -> tuple[str, ...] | None:
+        return None if value is None else known_class_names(value)
 
     def class_names_used(self) -> dict[str, Iterable[str]]:
         """Class names by field (checked against the class table when the config loads)."""
-        return {"completeness_classes": self.completeness_classes}
+        return {"completeness_classes": self.completeness_classes or ()}
+
+    def completeness(self, table: ClassTable = DEFAULT_TABLE) -> tuple[str, ...]:
+        """The classes completeness measures: as given, or the table's marked ones (a
+        flag that did nothing while this field defaulted to the default table's)."""
+        if self.completeness_classes is None:
+            return table.completeness
+        return self.completeness_classes

@@ -100,7 +100,8 @@ def surface_metrics(
         precision {"standard", "semantic", "fused", "inferred", "tolerance_m"}, and the
         (s, 3) surface samples of the completeness classes before the visibility cut.
     """
-    ids = np.array([table.ids[c] for c in config.completeness_classes if c in table.ids])
+    classes = config.completeness(table)
+    ids = np.array([table.ids[c] for c in classes if c in table.ids])
     wanted = round(sampled_area_m2(mesh, ids) * config.surface_samples_per_m2)
     if wanted > MAX_SURFACE_SAMPLES:
         raise StageSettingsError(
@@ -124,9 +125,7 @@ def surface_metrics(
         name: fraction_within(nearest_distance(seen, map_xyz(map_table, name), tol), tol)
         for name in MAP_NAMES
     }
-    completeness.update(
-        n_samples=len(seen), classes=list(config.completeness_classes), tolerance_m=tol
-    )
+    completeness.update(n_samples=len(seen), classes=list(classes), tolerance_m=tol)
     err = errors.column("error_m").to_numpy()
     source = np.asarray(errors.column("source").to_pylist(), dtype=object)
     precision: dict[str, Any] = {
