@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 from pydantic import ValidationError
+from test_sweep_faults import _sweep
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
@@ -39,16 +40,6 @@ def _one_error_line(res: Any, *needles: str) -> str:
     for needle in needles:
         assert needle in lines[-1], lines[-1]
     return lines[-1]
-
-
-def _sweep(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "sonarmap.pipeline", "sweep", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=os.environ.copy(),
-    )
 
 
 def test_a_sweep_reads_its_config_once_and_keeps_it_with_the_results(

@@ -9,13 +9,11 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import Any
 
 import pytest
 from test_engine_cache import run_toy
-from typer.testing import CliRunner
+from test_share_trust import _cli, _one_error_line
 
-from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import FingerprintCache, sha256_file
 from sonarmap.pipeline.engine.share.push_pull import pull, push
@@ -23,18 +21,6 @@ from sonarmap.pipeline.engine.share.transfer import download
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.pipeline.engine.store.integrity import verify_file
 from sonarmap.pipeline.engine.store.units import unit_entries
-
-
-def _cli(*args: str) -> Any:
-    return CliRunner().invoke(app, list(args))
-
-
-def _one_error_line(res: Any, *needles: str) -> None:
-    assert res.exit_code == 2, res.output
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error: "), res.stderr
-    for needle in needles:
-        assert needle in lines[0], lines[0]
 
 
 def _store(tmp_path: Path, name: str = "alice") -> ArtifactStore:
