@@ -46,7 +46,6 @@ __all__ = [
     "describe",
     "located_default_model",
     "model_cache",
-    "model_sha",
     "planned_default_model",
     "resolve_default_model",
     "resolve_model",
@@ -144,20 +143,20 @@ def _record_use(store: ArtifactStore, ref: ArtifactRef, source: Source) -> None:
     store.record_run(f"model-{ref.key[:20]}", record)
 
 
-def model_sha(ref: ArtifactRef) -> str:
-    """The sha256 of a train artifact's `model.pt`, as its manifest lists it ("" if none)."""
-    return str(((ref.manifest.get("files") or {}).get("model.pt") or {}).get("sha256", ""))
-
-
 def same_model(held: ArtifactRef | None, claimed: ArtifactRef, where: str) -> None:
     """Refuse `claimed` when `held` is another model under the same key: a key is derived
     from a recipe, which a manifest can copy, so the model's bytes decide which it is (a
     folder claiming the shipped model's recipe took its place in the store)."""
-    if held is not None and model_sha(held) != model_sha(claimed):
+    from sonarmap.pipeline.engine.share.trust import TrustPolicy
+
+    if held is None:
+        return
+    mine, theirs = TrustPolicy.model_sha(claimed.manifest), TrustPolicy.model_sha(held.manifest)
+    if mine != theirs:
         raise ArtifactCorrupt(
             f"{where}: names train/{claimed.key[:12]} (its recipe) but holds another model.pt"
-            f" (sha256 {model_sha(claimed)[:12]}, not {model_sha(held)[:12]}): a model is"
-            " known by its bytes; retrain it (`sonarmap train -o DIR`) for a key of its own"
+            f" (sha256 {mine[:12]}, not {theirs[:12]}): a model is known by its bytes;"
+            " retrain it (`sonarmap train -o DIR`) for a key of its own"
         )
 
 

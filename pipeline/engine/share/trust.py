@@ -85,7 +85,10 @@ class TrustPolicy:
         pins = [p.strip().lower() for p in pins]
         for pin in pins:
             if not _SHA.match(pin):
-                raise StoreError(f"--trust-model: '{pin[:70]}' is not a sha256 (64 hex digits)")
+                raise StoreError(
+                    f"--trust-model (or SONARMAP_TRUSTED_MODELS): '{pin[:70]}' is not a sha256"
+                    " (64 hex digits)"
+                )
         leaf_list = list(leaves)
         return cls(
             frozenset(pins) | {sha for _, _, sha in leaf_list},
