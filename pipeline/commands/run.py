@@ -73,8 +73,15 @@ def print_run(result: Any, summary: dict[str, Any], *, json_: bool, quiet: bool)
     from sonarmap.pipeline.report_cli import front_end_of
 
     front_end = front_end_of(result)
+    trajectory = _trajectory(result)
     if json_:
-        emit_json({**result.to_json(), "summary": {**summary, **sensors, **front_end}})
+        doc = {
+            **summary,
+            **sensors,
+            **front_end,
+            **({"trajectory_source": trajectory} if trajectory else {}),
+        }
+        emit_json({**result.to_json(), "summary": doc})
         return
     from sonarmap.pipeline.report_cli import (
         front_end_lines,
@@ -84,8 +91,22 @@ def print_run(result: Any, summary: dict[str, Any], *, json_: bool, quiet: bool)
 
     print_summary(result, summary, stages_listed=not quiet and progress_shares_stdout())
     _print_sensors(sensors)
+    if trajectory:
+        typer.echo(f"trajectory: {trajectory}")
     for line in front_end_lines(front_end):
         typer.echo(line)
+
+
+def _trajectory(result: Any) -> str:
+    """Where the map's poses came from when SLAM was asked for and fell back ("" else):
+    the slam artifact's `fallback` (its summary.json)."""
+    import json
+
+    ref = result.artifacts.get("slam")
+    path = None if ref is None else Path(ref.path) / "summary.json"
+    if path is None or not path.is_file():
+        return ""
+    return str(json.loads(path.read_text()).get("fallback") or "")
 
 
 def _sensors(result: Any) -> dict[str, Any]:

@@ -39,8 +39,8 @@ STAGE = Stage(
     # summary.json's `points` gains `lone_cells_removed`; loop targets from a k-d tree over
     # the older keyframes' positions, at most nssm_max_candidates (100) nearest ones
     # (`loop_max_view_change_deg`, off by default, rejects loops seen from another side)
-    # 14: summary.json warns when no scan match proposed was accepted (the trajectory is
-    # then dead reckoning's where SLAM was asked for)
+    # 14: summary.json's `fallback` says when no scan match proposed was accepted (the
+    # trajectory is then dead reckoning's where SLAM was asked for), with the reasons
     version=14,
     config=SlamConfig,
     inputs=(

@@ -15,7 +15,9 @@
   bound (sqrt(chi2(0.99, 2)) times the largest position standard deviation), either the
   navigation is worse than its noise model says, or scan matching went wrong: a warning.
 - No scan match accepted (mode `slam`, at least one proposed): the trajectory is dead
-  reckoning's, bit for bit, where the user asked for SLAM: a warning naming the reasons.
+  reckoning's, bit for bit, where the user asked for SLAM. `fallback` says so with the
+  reasons, and `run` prints it as its `trajectory:` line. Not a warning: a short or sparse
+  recording (the first 45 s of the marina) falls back with nothing wrong in it.
 """
 
 from __future__ import annotations
@@ -99,14 +101,13 @@ def slam_summary(
             " compare the two trajectories before trusting the map"
         )
     proposed = ssm["proposed"] + loop["proposed"]
+    fallback = ""
     if fell_back and config.mode == "slam" and proposed:
         reasons = Counter(r["reason"] for r in rows if r["status"] == "rejected" and r["reason"])
         why = ", ".join(f"{reason}: {n}" for reason, n in reasons.most_common())
-        warnings.append(
-            f"slam: none of the {proposed} scan matches proposed was accepted ({why}): the"
-            " trajectory is dead reckoning's, not SLAM's; a scene too sparse for the"
-            " horizontal sonar, or its features flooded or starved (the features stage's"
-            " calibration)"
+        fallback = (
+            f"dead reckoning: none of the {proposed} scan matches proposed was accepted"
+            f" ({why}), so the poses are the navigation's"
         )
     # The share the outlier filter drops is recorded, not warned: at the front end's stated
     # false-alarm rate a sparse scene (lone pilings in open water) has most of its points
@@ -125,6 +126,7 @@ def slam_summary(
         "points": points,
         "keyframes": len(ids),
         "fell_back_to_dead_reckoning": fell_back,
+        "fallback": fallback,
         "scan_matching": {"ssm": ssm, "loop": loop},
         "dead_reckoning_vs_slam": drift,
         "warnings": warnings,

@@ -158,8 +158,6 @@ def push(
     """
     policy = policy or TrustPolicy()
     stats = stats if stats is not None else TransferStats()
-    if not store.root.is_dir():  # a mistyped --store would push nothing and say so as a success
-        raise StoreError(f"{store.root}: no store there (check --store)")
     if read_only(remote):
         raise StoreError(
             f"remote {display(remote)} is read-only (http); push to a path, s3:// or sftp://"
@@ -167,6 +165,8 @@ def push(
     fs, root = open_remote(remote)
     try:
         check_bucket(fs, root, remote, create)
+        if not store.root.is_dir():  # a mistyped --store pushed nothing, exit 0
+            raise StoreError(f"{store.root}: no store there (check --store)")
         return _push(store, fs, root, remote, targets, with_upstream, fallbacks, policy, stats)
     except (StoreError, ArtifactCorrupt):
         raise
