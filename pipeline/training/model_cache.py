@@ -160,22 +160,41 @@ def same_model(held: ArtifactRef | None, claimed: ArtifactRef, where: str) -> No
         )
 
 
+def _substitute(shipped: ArtifactRef | None, held: ArtifactRef) -> None:
+    """Say when a store holds other weights under a shipped model's key: a substitute a
+    user pinned and pulled is allowed (its classify keys are its own), but the run's
+    `classifier:` line names the shipped key, so the bytes are named too."""
+    from sonarmap.pipeline.engine.share.trust import TrustPolicy
+
+    if shipped is None:
+        return
+    theirs, mine = TrustPolicy.model_sha(shipped.manifest), TrustPolicy.model_sha(held.manifest)
+    if theirs != mine:
+        log.warning(
+            "classifier: %s holds a model.pt other than the shipped model's (sha256 %s, not"
+            " %s): a substitute pinned by you; its classes and classify keys are its own",
+            held.path,
+            mine[:12],
+            theirs[:12],
+        )
+
+
 def _find_or_ship(
     key: str, store: ArtifactStore, cache: ArtifactStore, shipped: ArtifactStore | None
 ) -> tuple[ArtifactRef, Source] | None:
     """The model `key` from the run's store, the model cache or the shipped models (those
-    two copied in, verified), or None when it must be trained. A store's or cache's copy
-    of a shipped key must hold the shipped bytes."""
+    two copied in, verified), or None when it must be trained. A copy of a shipped key
+    with other bytes (a substitute the user pinned and pulled) is said (`_substitute`)."""
     bundled = shipped.get("train", key) if shipped is not None else None
     ref = store.get("train", key)
     if ref is not None:
-        same_model(bundled, ref, f"{ref.path}")
+        _substitute(bundled, ref)
         if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
             copy_verified(ref, cache)
         return ref, "store"
     cached = cache.get("train", key)
     if cached is not None:
-        same_model(bundled, cached, f"{cached.path}")
+        _substitute(bundled, cached)
     source: Source = "model cache"
     if cached is None and bundled is not None:
         try:
