@@ -109,6 +109,13 @@ def test_pull_replaces_a_damaged_local_copy(tmp_path: Path) -> None:
     (ref,) = [r for r in bob.iter_artifacts() if r.stage == "double"]
     damaged = ref.path / "d.parquet"
     damaged.write_bytes(damaged.read_bytes()[:100])
+    # a pull that fails changes nothing locally: the damaged copy waits for a good one
+    broken = tmp_path / "broken"
+    shutil.copytree(remote, broken)
+    (broken / "double" / ref.key / "d.parquet").unlink()
+    with pytest.raises(ArtifactCorrupt, match="missing"):
+        pull(bob, str(broken), ["double"])
+    assert bob.get("double", ref.key) is not None and len(damaged.read_bytes()) == 100
     refs = pull(bob, str(remote), ["double"])
     assert [f"{r.stage}/{r.key}" for r in refs] == [f"double/{ref.key}"]
     bob.verify(bob.get("double", ref.key))

@@ -32,15 +32,18 @@ from sonarmap.pipeline.engine.share.transfer import Job, download
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.pipeline.engine.store.disk import discard_artifact
 
-__all__ = ["download_job", "forget_cached", "record_pull", "to_fetch"]
+__all__ = ["download_job", "forget_cached", "record_pull", "replace_damaged", "to_fetch"]
 
 log = logging.getLogger(__name__)
 
 
-def to_fetch(store: ArtifactStore, order: Sequence[tuple[str, str]]) -> list[tuple[str, str]]:
-    """The artifacts of `order` the store lacks or holds damaged (those are discarded
-    here, so the fetched copy takes their place), in `order`'s order."""
-    fetch = []
+def to_fetch(
+    store: ArtifactStore, order: Sequence[tuple[str, str]]
+) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """(the artifacts of `order` the store lacks or holds damaged, in `order`'s order;
+    the damaged ones among them). A damaged copy stays until `replace_damaged`, once
+    every file of the pull is verified: a pull that fails changes nothing locally."""
+    fetch, damaged = [], []
     for stage, key in order:
         try:
             ref = store.get(stage, key)
@@ -54,9 +57,16 @@ def to_fetch(store: ArtifactStore, order: Sequence[tuple[str, str]]) -> list[tup
                 key[:12],
                 str(err).split("; ", 1)[0],
             )
-            discard_artifact(store, stage, key)
+            damaged.append((stage, key))
         fetch.append((stage, key))
-    return fetch
+    return fetch, damaged
+
+
+def replace_damaged(store: ArtifactStore, damaged: Sequence[tuple[str, str]]) -> None:
+    """Move the damaged local copies out of sight, just before their fetched copies are
+    committed in their place (a commit reuses whatever holds its key)."""
+    for stage, key in damaged:
+        discard_artifact(store, stage, key)
 
 
 def record_pull(store: ArtifactStore, remote: str, wanted: Sequence[tuple[str, str]]) -> None:

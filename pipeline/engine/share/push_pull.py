@@ -32,6 +32,7 @@ from sonarmap.pipeline.engine.share.pull_local import (
     download_job,
     forget_cached,
     record_pull,
+    replace_damaged,
     to_fetch,
 )
 from sonarmap.pipeline.engine.share.remote_index import (
@@ -316,7 +317,7 @@ def _pull(
         return manifests[(stage, key)]
 
     order = _upstream_closure(wanted, manifest_of, with_upstream, policy.is_leaf)
-    missing = to_fetch(store, order)
+    missing, damaged = to_fetch(store, order)
     units = {(s, k): unit_entries(manifest_of(s, k), f"remote {s}/{k[:12]}") for s, k in missing}
     need = sum(int(e["size"]) for s, k in missing for e in manifest_of(s, k)["files"].values())
     need += sum(int(e["size"]) for listed in units.values() for e in listed.values())
@@ -351,6 +352,7 @@ def _pull(
                 if path.suffix == ".pt" or rel == MODEL_FILE:
                     check_model_file(path, where)
         install_units(store.root, staging, units)  # before the artifacts listing them
+        replace_damaged(store, damaged)
         refs = [store.import_dir(staging / s / k, manifest_of(s, k)) for s, k in missing]
         forget_cached(cache, [manifest_of(s, k) for s, k in missing])  # committed: not needed
     except ArtifactCorrupt:
