@@ -174,10 +174,14 @@ def plan_status(
         # planned before the model exists: they all miss, and `run` trains it first.
         why = "its training sets simulated and it trained" if not key else "it trained"
         model = ModelStatus(key, False, f"not at hand: `run` needs {why}")
-        first = names.index(readers[0])
-        until = names[first - 1] if first else None
-        planned = _plan_with(ctx, request, until, {}) if until else []
-        return ctx, planned, model, names[first : last + 1]
+        # Stages that read none of the model's readers (slam after classify) are planned.
+        waiting: set[str] = set()
+        for stage in ctx.stages[: last + 1]:
+            if {"train", *waiting} & set(stage.upstream):
+                waiting.add(stage.name)
+        known = [s for s in ctx.stages[: last + 1] if s.name not in waiting]
+        planned = _plan_with(ctx, request, None, {}, known) if known else []
+        return ctx, planned, model, [n for n in names[: last + 1] if n in waiting]
     if ref.path == ctx.store.artifact_dir("train", key):
         model = ModelStatus(key, True, "cached")
     else:
@@ -192,14 +196,17 @@ def _plan_with(
     request: RunRequest,
     until: str | None,
     external: Mapping[str, tuple[Stage, ArtifactRef]],
+    stages: Sequence[Stage] | None = None,
 ) -> list[PlannedStage]:
+    stages = ctx.stages if stages is None else stages
+    left_out = {s.name for s in ctx.stages} - {s.name for s in stages}
     return plan(
-        ctx.stages,
+        stages,
         ctx.config,
         ctx.dataset,
         ctx.store,
         until=until,
-        force=request.force,
+        force=[name for name in request.force if name not in left_out],
         external=external,
         content_keyed=MODEL_INPUTS,
     )

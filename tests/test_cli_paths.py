@@ -269,7 +269,7 @@ def test_json_with_non_finite_values_is_strict(tmp_path: Path) -> None:
 
 def test_status_without_a_plannable_model_lists_every_stage(real_run: dict[str, Path]) -> None:
     """With no shipped lock the model's key needs its training sets simulated: `status`
-    still lists every stage, planning those before the model's readers."""
+    still lists every stage, planning those that read no stage reading the model."""
     res = CliRunner().invoke(
         app,
         [
@@ -281,6 +281,9 @@ def test_status_without_a_plannable_model_lists_every_stage(real_run: dict[str, 
     rows = {r["stage"]: r for r in _strict(res.stdout)["stages"]}
     assert rows["train"]["status"] == "miss" and rows["keyframes"]["status"] == "hit"
     assert rows["evaluate"]["status"] == "miss" and "model" in rows["evaluate"]["reason"]
+    # slam reads no stage that reads the model: planned, and a hit as `run` would find it.
+    assert rows["slam"]["status"] == "hit" and rows["slam"]["key"], rows["slam"]
+    assert list(rows).index("slam") == list(rows).index("classify") + 1  # graph order
 
 
 def test_no_figures_leaves_the_figure_stages_out_and_the_map_needs_no_matplotlib(

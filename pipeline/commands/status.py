@@ -63,6 +63,8 @@ def status(
         }
         for name in unplanned
     ]
+    order = {s.name: i for i, s in enumerate(context.stages)}  # graph order, train first
+    rows.sort(key=lambda r: order.get(r["stage"], -1))
     if json_:
         emit_json({"dataset": str(dataset), "store": str(store), "stages": rows})
         return
