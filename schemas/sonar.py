@@ -59,6 +59,8 @@ class SonarPing:
         labels: optional (n_ranges, n_beams) uint8 ground-truth class ids (0 = none).
         truth_angle_rad: optional (n_ranges, n_beams) float32 true elevation
             (horizontal sonar) or bearing (vertical sonar) of the strongest hit, NaN = none.
+        frequency_hz, sound_speed_m_s: the ping's, as the recording states them (0: not
+            stated; a ProjectedSonarImage's `ping_info` writes them through).
     """
 
     t_ns: int
@@ -68,6 +70,8 @@ class SonarPing:
     angles_rad: np.ndarray
     labels: np.ndarray | None = None
     truth_angle_rad: np.ndarray | None = None
+    frequency_hz: float = 0.0
+    sound_speed_m_s: float = 0.0
 
     @property
     def range_resolution_m(self) -> float:

@@ -200,6 +200,24 @@ def test_symlinked_recording_runs_and_shares_the_target_fingerprint(
     assert _strict(direct.stdout)["stages"] == _strict(linked.stdout)["stages"]
 
 
+def test_a_recording_under_another_name_gives_the_same_bytes(
+    real_run: dict[str, Path], tmp_path: Path
+) -> None:
+    """Keys hold a recording's content, not its name: its keyframes (sensors.json with
+    them) are the same bytes whatever the file is called (campaign 6 #12)."""
+    renamed = tmp_path / "another name é.mcap"
+    renamed.symlink_to(real_run["recording"])
+    store = tmp_path / "store"
+    res = CliRunner().invoke(
+        app, ["run", str(renamed), "--store", str(store), "--until", "keyframes", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    [ours] = (store / "keyframes").glob("*/sensors.json")
+    theirs = real_run["store"] / "keyframes" / ours.parent.name / "sensors.json"
+    assert ours.read_bytes() == theirs.read_bytes()
+    assert b"linked" not in ours.read_bytes() and b"tiny" not in ours.read_bytes()
+
+
 def test_status_plans_every_stage_with_the_model(real_run: dict[str, Path]) -> None:
     res = CliRunner().invoke(
         app, ["status", str(real_run["link"]), "--store", str(real_run["store"]), "--json"]

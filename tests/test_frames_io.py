@@ -110,6 +110,8 @@ def test_fast_cdr_codec_is_byte_identical_to_rosbags() -> None:
             rng.integers(0, 256, (30, n_beams), dtype=np.uint8),
             np.arange(30, dtype=np.float32),
             np.linspace(-1, 1, n_beams).astype(np.float32),
+            frequency_hz=1.2e6 if n_beams else 0.0,  # ping_info written through
+            sound_speed_m_s=1493.5 if n_beams else 0.0,
         )
         generic = bytes(
             ros2_typestore().serialize_cdr(
@@ -117,8 +119,9 @@ def test_fast_cdr_codec_is_byte_identical_to_rosbags() -> None:
             )
         )
         assert sonar_cdr(ping, frame) == generic
-        t, frame_id, dirs, ranges, data = parse_projected_cdr(generic)
+        t, frame_id, dirs, ranges, data, frequency, sound_speed = parse_projected_cdr(generic)
         assert (t, frame_id) == (ping.t_ns, frame)
+        assert (frequency, sound_speed) == (ping.frequency_hz, ping.sound_speed_m_s)
         np.testing.assert_array_equal(
             dirs, beam_directions_from_angles(ping.angles_rad.astype(np.float64))
         )

@@ -160,16 +160,20 @@ def test_a_recording_that_loses_most_horizontal_pings_to_pairing_warns(tmp_path:
         "pairs": 13,
         "unpaired_horizontal": 180,
     }
-    ref = _keyframes_ref(tmp_path, pairing, ["rec.mcap: /nav: dropped 3 of 9 navigation samples"])
-    [line] = recording_warnings(ref, cached=False)
+    kept = "{recording}: /nav: dropped 3 of 9 navigation samples"
+    ref = _keyframes_ref(tmp_path, pairing, [kept])
+    [line] = recording_warnings(ref, cached=False, recording="dives/rec.mcap")
     assert (
         "180 of 193 horizontal pings have no vertical ping within keyframes.pair_tolerance_s"
         in line
     )
     # A cached run repeats the reader's warnings, which only the first run's reader logged.
-    assert recording_warnings(ref, cached=True)[1].endswith("dropped 3 of 9 navigation samples")
+    # The artifact keeps no path (one key, one content): the warning names this run's file.
+    again = recording_warnings(ref, cached=True, recording="dives/rec.mcap")[1]
+    assert again == "dives/rec.mcap: /nav: dropped 3 of 9 navigation samples"
     even = {**pairing, "vertical_pings": 190, "pairs": 190, "unpaired_horizontal": 3}
-    assert recording_warnings(_keyframes_ref(tmp_path / "b", even, []), cached=False) == []
+    empty = _keyframes_ref(tmp_path / "b", even, [])
+    assert recording_warnings(empty, cached=False, recording="r.mcap") == []
 
 
 def test_topics_prints_each_reader_warning_once_on_one_line(

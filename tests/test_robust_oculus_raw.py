@@ -54,10 +54,10 @@ def test_a_ping_claiming_more_than_the_cap_is_refused_unread(
     # payload_size (u32 at byte 10) claims 4 GiB; the file holds one real ping's bytes.
     ping[10:14] = struct.pack("<I", 0xFFFFFFF0)
     huge.write_bytes(bytes(ping))
-    with pytest.raises(SourceError, match=r"huge\.raw: not a raw Oculus capture .*over the limit"):
+    with pytest.raises(SourceError, match=r"huge\.raw: ping at byte 0 declares .*over the limit"):
         open_source(huge)
     monkeypatch.setenv("SONARMAP_MAX_CHUNK_MB", "8192")
-    with pytest.raises(SourceError, match=r"huge\.raw: not a raw Oculus capture .*cut short"):
+    with pytest.raises(SourceError, match=r"huge\.raw: ping at byte 0 is cut short"):
         open_source(huge)
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, overload
 
@@ -68,8 +69,8 @@ def sonar_message(ping: SonarPing, frame_id: str) -> Any:
     return types[PROJECTED_SONAR_TYPE](
         header=_header(ping.t_ns, frame_id),
         ping_info=types["marine_acoustic_msgs/msg/PingInfo"](
-            frequency=0.0,
-            sound_speed=0.0,
+            frequency=float(ping.frequency_hz),
+            sound_speed=float(ping.sound_speed_m_s),
             tx_beamwidths=np.zeros(0, np.float32),
             rx_beamwidths=np.zeros(0, np.float32),
         ),
@@ -87,7 +88,10 @@ def sonar_message(ping: SonarPing, frame_id: str) -> Any:
 def sonar_cdr(ping: SonarPing, frame_id: str) -> bytes:
     """SonarPing -> CDR bytes of the ProjectedSonarImage `sonar_message` would give (fast path)."""
     dirs = beam_directions_from_angles(np.asarray(ping.angles_rad, np.float64))
-    return serialize_projected_cdr(ping.t_ns, frame_id, dirs, ping.ranges_m, ping.image)
+    return serialize_projected_cdr(
+        ping.t_ns, frame_id, dirs, ping.ranges_m, ping.image,
+        (ping.frequency_hz, ping.sound_speed_m_s),
+    )  # fmt: skip
 
 
 def image_message(array: np.ndarray, t_ns: int, frame_id: str) -> Any:
@@ -153,7 +157,10 @@ def _ping(msg: ProjectedArrays, sonar: str) -> SonarPing:
     ranges = np.array(msg.ranges, np.float32)
     image = msg.data.reshape(len(ranges), len(msg.directions)).copy()
     angles = beam_angles_from_directions(msg.directions).astype(np.float32)
-    return SonarPing(msg.stamp_ns, sonar, image, ranges, angles)
+    return SonarPing(
+        msg.stamp_ns, sonar, image, ranges, angles,
+        frequency_hz=msg.frequency_hz, sound_speed_m_s=msg.sound_speed_m_s,
+    )  # fmt: skip
 
 
 def _image(msg: Any) -> np.ndarray:
@@ -189,7 +196,7 @@ class FramesSequence(Sequence[KeyframeImages]):
             p = _ping(parts[(s, "ping")], s)
             labels = _image(parts[(s, "labels")]) if (s, "labels") in parts else None
             truth = _image(parts[(s, "truth")]) if (s, "truth") in parts else None
-            pings[s] = SonarPing(p.t_ns, s, p.image, p.ranges_m, p.angles_rad, labels, truth)
+            pings[s] = replace(p, labels=labels, truth_angle_rad=truth)
         return KeyframeImages(
             int(kid), int(t), pings["horizontal"], pings["vertical"], dict(extras)
         )

@@ -24,6 +24,7 @@ class ProjectedArrays:
         stamp_ns: header stamp [ns]; frame_id: header frame.
         directions: (n_beams, 3) beam unit vectors; ranges: (n_ranges,) float32 [m];
         data: (n_ranges * n_beams,) uint8 range-major image.
+        frequency_hz, sound_speed_m_s: `ping_info`'s (0: not stated).
     """
 
     stamp_ns: int
@@ -31,6 +32,8 @@ class ProjectedArrays:
     directions: np.ndarray
     ranges: np.ndarray
     data: np.ndarray
+    frequency_hz: float = 0.0
+    sound_speed_m_s: float = 0.0
 
     @classmethod
     def from_cdr(cls, data: bytes | memoryview) -> ProjectedArrays:
@@ -49,8 +52,9 @@ def parse_projected_cdr(
 
     Returns:
         (stamp t_ns, frame_id, (n_beams, 3) float64 beam directions, (n_ranges,) float32
-        ranges, (n_ranges * n_beams,) uint8 image data). Raises ValueError when the
-        payload is not little-endian CDR or is inconsistent.
+        ranges, (n_ranges * n_beams,) uint8 image data, ping_info's frequency [Hz] and
+        sound speed [m/s]). Raises ValueError when the payload is not little-endian CDR
+        or is inconsistent.
     """
     buf = memoryview(data)
     if bytes(buf[:2]) != b"\x00\x01":
@@ -58,7 +62,9 @@ def parse_projected_cdr(
     u32 = np.dtype("<u4")
     sec, nsec, n = struct.unpack_from("<iII", buf, 4)
     frame_id = bytes(buf[16 : 16 + n - 1]).decode()
-    pos = _align(16 + n, 4) + 8  # frequency, sound_speed
+    pos = _align(16 + n, 4)
+    frequency, sound_speed = np.frombuffer(buf, "<f4", 2, pos).tolist()
+    pos += 8
     for _ in range(2):  # tx_beamwidths, rx_beamwidths
         pos = _align(pos, 4)
         pos += 4 + 4 * int(np.frombuffer(buf, u32, 1, pos)[0])
@@ -78,14 +84,20 @@ def parse_projected_cdr(
             f"directions, {n_ranges} ranges, {n_data} bytes"
         )
     image = np.frombuffer(buf, np.uint8, n_data, pos + 12)
-    return sec * 1_000_000_000 + nsec, frame_id, dirs, ranges, image
+    return sec * 1_000_000_000 + nsec, frame_id, dirs, ranges, image, frequency, sound_speed
 
 
 def serialize_projected_cdr(
-    stamp_ns: int, frame_id: str, directions: np.ndarray, ranges_m: np.ndarray, image: np.ndarray
+    stamp_ns: int,
+    frame_id: str,
+    directions: np.ndarray,
+    ranges_m: np.ndarray,
+    image: np.ndarray,
+    ping_info: tuple[float, float] = (0.0, 0.0),
 ) -> bytes:
-    """Little-endian CDR of a ProjectedSonarImage (empty ping_info, uint8 range-major image);
-    byte-identical to rosbags' `serialize_cdr` of the same message, without per-beam objects."""
+    """Little-endian CDR of a ProjectedSonarImage (ping_info's frequency [Hz] and sound speed
+    [m/s], no beamwidths; uint8 range-major image); byte-identical to rosbags'
+    `serialize_cdr` of the same message, without per-beam objects."""
     out = bytearray(b"\x00\x01\x00\x00")
 
     def pad(size: int) -> None:
@@ -95,7 +107,7 @@ def serialize_projected_cdr(
     out += np.array([stamp_ns // 1_000_000_000, stamp_ns % 1_000_000_000], "<u4").tobytes()
     out += np.uint32(len(name)).tobytes() + name
     pad(4)
-    out += np.zeros(4, "<u4").tobytes()  # frequency, sound_speed, 0 tx, 0 rx beamwidths
+    out += np.array(ping_info, "<f4").tobytes() + np.zeros(2, "<u4").tobytes()  # 0 tx, 0 rx
     dirs = np.ascontiguousarray(directions, "<f8").reshape(-1, 3)
     out += np.uint32(len(dirs)).tobytes()
     if len(dirs):

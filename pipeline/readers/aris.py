@@ -140,6 +140,7 @@ class ArisSource(TimeIndexedSource):
         self.n_samples = int(first["SamplesPerBeam"])
         self.frame_bytes = HEADER_BYTES + self.n_beams * self.n_samples
         n, rest = divmod(size - HEADER_BYTES, self.frame_bytes)
+        self.frames_misfit = bool(rest)
         if n == 0:
             raise SourceError(
                 f"{path}: cut short: the first frame needs {self.frame_bytes} bytes from byte "
@@ -227,8 +228,19 @@ class ArisSource(TimeIndexedSource):
 
     def _check_frames(self, h: np.ndarray, start: int, first: np.void) -> None:
         """Frames start.. : signature, same size as frame 0, ordered samples, sane timing."""
+        misfit = (
+            f" (frame 0's PingMode {int(first['PingMode'])} and SamplesPerBeam"
+            f" {self.n_samples} make {self.frame_bytes}-byte frames, which do not divide the"
+            " file: is one of them wrong?)"
+            if self.frames_misfit
+            else ""
+        )
         checks = (
-            ("Version", h["Version"] != SIGNATURE, f"signature, expected {SIGNATURE:#010x}"),
+            (
+                "Version",
+                h["Version"] != SIGNATURE,
+                f"signature, expected {SIGNATURE:#010x}{misfit}",
+            ),
             ("PingMode", h["PingMode"] != first["PingMode"], "PingMode differs from frame 0's"),
             (
                 "SamplesPerBeam",

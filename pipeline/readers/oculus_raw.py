@@ -76,7 +76,22 @@ _PING = np.dtype(
 )
 _OCULUS_ID = 0x4F53
 _SIMPLE_PING_RESULT = 0x23
-_SAMPLE_DTYPES = {0: np.uint8, 1: np.uint16, 2: np.uint32, 3: np.uint32}
+_SAMPLE_BYTES = {0: 1, 1: 2, 2: 3, 3: 4}
+"""Bytes of a sample by `dataSize` (liboculus `DataSizeType`: 8, 16, 24, 32 bit)."""
+
+
+class NotAPing(ValueError):
+    """The bytes are not a SimplePingResult at all (another message, another format)."""
+
+
+def _samples(rows: np.ndarray, n_beams: int, size: int) -> np.ndarray:
+    """(n_ranges, n_beams) little-endian unsigned samples of `size` bytes from (n_ranges,
+    n_beams * size) bytes; 24-bit samples widened to 32 bits."""
+    if size == 3:
+        b = rows.reshape(len(rows), n_beams, 3).astype(np.uint32)
+        return b[..., 0] | (b[..., 1] << 8) | (b[..., 2] << 16)
+    dtype = np.dtype({1: "u1", 2: "<u2", 4: "<u4"}[size])
+    return np.ascontiguousarray(rows).view(dtype).reshape(len(rows), n_beams)
 
 
 @dataclass(frozen=True)
@@ -89,6 +104,8 @@ class OculusRawPing:
         bearings_cdeg: (n_beams,) int16 bearings [0.01 deg], ascending.
         range_resolution_m: bin length [m].
         frequency_hz: operating frequency [Hz].
+        sound_speed_m_s: the sound speed the ranges were computed with [m/s].
+        sample_bits: bits of a sample as sent (8, 16, 24 or 32; 24 widened to 32).
     """
 
     ping_id: int
@@ -96,36 +113,55 @@ class OculusRawPing:
     bearings_cdeg: np.ndarray
     range_resolution_m: float
     frequency_hz: float
+    sound_speed_m_s: float = 0.0
+    sample_bits: int = 8
 
 
-def parse_ping(buf: bytes, offset: int = 0) -> tuple[OculusRawPing, int]:
-    """Decode the SimplePingResult at `offset`; returns it and the offset after it.
+def parse_ping(buf: bytes, offset: int = 0, at: int = 0) -> tuple[OculusRawPing, int]:
+    """Decode the SimplePingResult at `offset`; returns it and the offset after it. `at`
+    is where `buf` starts in its file (for the byte offsets in messages).
 
     Raises:
-        ValueError: not a SimplePingResult (v1) or a message cut short.
+        NotAPing: not a SimplePingResult.
+        ValueError: a SimplePingResult (v1) cut short or with a field that does not fit.
     """
+    where = f"ping at byte {at + offset}"
     if len(buf) - offset < _PING.itemsize:
-        raise ValueError(f"{len(buf) - offset} bytes left, a ping header needs {_PING.itemsize}")
+        raise NotAPing(f"{len(buf) - offset} bytes left, a ping header needs {_PING.itemsize}")
     h = np.frombuffer(buf, _PING, 1, offset)[0]
     head = h["head"]
     if head["oculus_id"] != _OCULUS_ID or head["msg_id"] != _SIMPLE_PING_RESULT:
-        raise ValueError(
-            f"message id {int(head['msg_id']):#x} at byte {offset} is not SimplePingResult"
+        raise NotAPing(
+            f"message id {int(head['msg_id']):#x} at byte {at + offset} is not SimplePingResult"
         )
     if head["version"] == 2:
-        raise ValueError("SimplePingResult2 (msgVersion 2) is not supported")
+        raise NotAPing("SimplePingResult2 (msgVersion 2) is not supported")
     end = offset + 16 + int(head["payload_size"])
     n_r, n_b = int(h["n_ranges"]), int(h["n_beams"])
     if end > len(buf):
-        raise ValueError(
-            f"ping at byte {offset} is cut short ({len(buf) - offset} of {end - offset} bytes)"
-        )
-    sample = np.dtype(_SAMPLE_DTYPES.get(int(h["data_size"]), np.uint8)).newbyteorder("<")
+        raise ValueError(f"{where} is cut short ({len(buf) - offset} of {end - offset} bytes)")
+    size = _SAMPLE_BYTES.get(int(h["data_size"]))
+    if size is None:
+        raise ValueError(f"{where}: dataSize {int(h['data_size'])} is none of 0-3 (8-32 bit)")
     gain = 4 if int(h["flags"]) & 0x04 else 0
-    stride = n_b * sample.itemsize + gain
-    start = offset + int(h["image_offset"])
+    stride = n_b * size + gain
+    bearings_end = _PING.itemsize + 2 * n_b
+    image_offset = int(h["image_offset"])
+    if image_offset < bearings_end:
+        raise ValueError(
+            f"{where}: imageOffset {image_offset} points inside the header and the"
+            f" nBeams {n_b} bearings (they end at byte {bearings_end})"
+        )
+    if int(h["image_size"]) < n_r * stride or image_offset + n_r * stride > end - offset:
+        raise ValueError(
+            f"{where}: nRanges {n_r} x nBeams {n_b} x {size} bytes"
+            + (" + a 4-byte gain per row" if gain else "")
+            + f" = {n_r * stride} bytes, more than imageSize {int(h['image_size'])} or the"
+            f" {end - offset - image_offset} bytes after imageOffset"
+        )
+    start = offset + image_offset
     rows = np.frombuffer(buf, np.uint8, n_r * stride, start).reshape(n_r, stride)
-    image = rows[:, gain:].copy().view(sample).reshape(n_r, n_b)
+    image = _samples(rows[:, gain:], n_b, size)
     bearings = np.frombuffer(buf, "<i2", n_b, offset + _PING.itemsize).astype(np.int16)
     ping = OculusRawPing(
         ping_id=int(h["ping_id"]),
@@ -133,6 +169,8 @@ def parse_ping(buf: bytes, offset: int = 0) -> tuple[OculusRawPing, int]:
         bearings_cdeg=bearings,
         range_resolution_m=float(h["range_resolution"]),
         frequency_hz=float(h["frequency"]),
+        sound_speed_m_s=float(h["speed_of_sound_used"]),
+        sample_bits=8 * size,
     )
     return ping, end
 
@@ -158,14 +196,24 @@ class OculusRawSource:
             while pos < size:
                 try:
                     n = self._message(f, pos, size)
-                except ValueError as err:
+                except NotAPing as err:
                     if not self._offsets:
                         raise SourceError(f"{path}: not a raw Oculus capture ({err})") from err
+                    self.warnings.append(f"{path}: {size - pos} trailing bytes unreadable ({err})")
+                    break
+                except ValueError as err:
+                    if not self._offsets:
+                        raise SourceError(f"{path}: {err}") from err
                     self.warnings.append(f"{path}: {size - pos} trailing bytes unreadable ({err})")
                     break
                 self._offsets.append(pos)
                 self._sizes.append(n)
                 pos += n
+        # Each ping's pingStartTime counts from the sonar's power-up, not a clock.
+        self.warnings.append(
+            f"{path}: a raw capture stamps no ping with a clock: its pings are placed"
+            f" {self.period_ns / 1e9:g} s apart from t = 0 (1970)"
+        )
 
     @staticmethod
     def _message(f: Any, pos: int, size: int) -> int:
@@ -184,7 +232,7 @@ class OculusRawSource:
             )
         # A claim past the end of the file is cut short without reading up to it.
         n = min(n, size - pos)
-        parse_ping(head + f.read(n - len(head)) if n > len(head) else head)
+        parse_ping(head + f.read(n - len(head)) if n > len(head) else head, at=pos)
         return n
 
     def topics(self) -> list[TopicInfo]:
@@ -208,7 +256,7 @@ class OculusRawSource:
                 if wanted is None or t in wanted:
                     f.seek(off)
                     try:
-                        ping = parse_ping(f.read(n))[0]
+                        ping = parse_ping(f.read(n), at=off)[0]
                     except ValueError as err:  # the file changed since it was opened
                         raise SourceError(f"{self.path}: ping {k}: {err}") from err
                     yield OCULUS_RAW_TOPIC, t, ping

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -329,9 +329,7 @@ class SourceRecording(NavigationSensors):
                 truth = np.ascontiguousarray(fits_ping(image, ping.image)[:, order])
         except (ValueError, OSError, IndexError) as err:
             raise SourceError(f"{where}: bad label or truth image at t_ns={t} ({err})") from err
-        return SonarPing(
-            ping.t_ns, sonar, ping.image, ping.ranges_m, ping.angles_rad, labels, truth
-        )
+        return replace(ping, labels=labels, truth_angle_rad=truth)
 
     def stamp_offset_s(self, sonar: str, t_ns: int) -> float | None:
         """Log time - header stamp [s] of a ping decoded by `pings` (None: no stamp)."""

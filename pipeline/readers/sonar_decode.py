@@ -181,6 +181,7 @@ def _ping(
     ranges: np.ndarray,
     angles: np.ndarray,
     bits: int | None = None,
+    ping_info: tuple[float, float] = (0.0, 0.0),
 ) -> SonarPing:
     problem = ping_problem(image.shape, ranges, angles)
     if problem is not None:
@@ -194,7 +195,15 @@ def _ping(
         image=np.ascontiguousarray(_to_uint8(image, bits)),
         ranges_m=np.asarray(ranges, np.float32),
         angles_rad=np.asarray(angles, np.float32),
+        frequency_hz=_stated(ping_info[0]),
+        sound_speed_m_s=_stated(ping_info[1]),
     )
+
+
+def _stated(value: float) -> float:
+    """A ping_info figure as stated, 0 where it is not a finite positive number."""
+    v = float(value)
+    return v if np.isfinite(v) and v > 0 else 0.0
 
 
 def oculus_arrays(
@@ -223,7 +232,9 @@ def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
     dirs = beam_directions(msg)
     if isinstance(msg, ProjectedArrays):
         ranges, n_b, data = msg.ranges, len(dirs), msg.data
+        info = (msg.frequency_hz, msg.sound_speed_m_s)
     else:
+        info = (msg.ping_info.frequency, msg.ping_info.sound_speed)
         ranges = np.asarray(msg.ranges, np.float32)
         n_b = int(msg.image.beam_count)
         if msg.image.dtype != 0:
@@ -238,8 +249,9 @@ def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
     if problem is not None:
         raise ValueError(problem)
     return _ping(
-        t_ns, sonar, data.reshape(len(ranges), n_b), ranges, beam_angles_from_directions(dirs)
-    )
+        t_ns, sonar, data.reshape(len(ranges), n_b), ranges, beam_angles_from_directions(dirs),
+        ping_info=info,
+    )  # fmt: skip
 
 
 def _oculus(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
@@ -254,8 +266,10 @@ def _oculus(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
     return _ping(t_ns, sonar, *arrays, getattr(options, "image_bits", None))
 
 
-def _oculus_file(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
-    return _ping(t_ns, sonar, *oculus_arrays(msg.image, msg.bearings_cdeg, msg.range_resolution_m))
+def _oculus_file(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
+    arrays = oculus_arrays(msg.image, msg.bearings_cdeg, msg.range_resolution_m)
+    bits = getattr(options, "image_bits", None) or msg.sample_bits
+    return _ping(t_ns, sonar, *arrays, bits, (msg.frequency_hz, msg.sound_speed_m_s))
 
 
 def configured_sonar(options: Any, sonar: str) -> SonarModel | None:
@@ -322,7 +336,8 @@ def sonar_descriptions(
 
 def _aris(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:
     angles = _table_angles(configured_sonar(options, sonar), len(msg.angles_rad))
-    return _ping(t_ns, sonar, msg.image, msg.ranges_m, msg.angles_rad if angles is None else angles)
+    angles = msg.angles_rad if angles is None else angles
+    return _ping(t_ns, sonar, msg.image, msg.ranges_m, angles, ping_info=(0.0, msg.sound_speed_mps))
 
 
 _DECODERS: dict[str, Callable[[Any, int, str, Any], SonarPing]] = {

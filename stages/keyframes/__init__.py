@@ -31,7 +31,10 @@ STAGE = Stage(
     # pose beside a DVL and an IMU is the depth, not the navigation; navigation warnings
     # (a vehicle on its side, depth above the surface, unposed pings); NED / FRD frames
     # by their REP 105 names converted to ENU / FLU
-    version=7,
+    # 8: sensors.json names no file: the recording's name left out of `source`, and its
+    # warnings begin with "{recording}" where they named the path (same key, same bytes);
+    # keyframes.mcap's pings carry the recording's ping_info (frequency, sound speed)
+    version=8,
     config=KeyframesConfig,
     inputs=(DATASET,),
     outputs=(

@@ -43,6 +43,7 @@ from sonarmap.stages.keyframes.config import KeyframesConfig
 from sonarmap.stages.keyframes.recording_facts import (
     cached_facts,
     no_keyframe,
+    path_free,
     stamp_offset_warning,
 )
 
@@ -227,7 +228,8 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     }
     # Where each role's topic, frame and mount came from (recording, config or default).
     described = dict(facts.described)
-    warnings = list(described.get("warnings") or [])
+    path = str(described.get("path") or "")  # the path the warnings were written with
+    warnings = [path_free(str(w), path) for w in described.get("warnings") or []]
     for s, idx in (("horizontal", h_idx), ("vertical", v_idx)):
         ping = next(iter(rec.pings(s, idx[:1], labels=False)))  # the first keyframe's
         sensors[s].update(sonar_geometry(ping, (described.get("sonars") or {}).get(s)))
@@ -235,16 +237,13 @@ def run(config: KeyframesConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         line = stamp_offset_warning(rec.name, s, offset, described.get("navigation_stamp_offset_s"))
         if line is not None:
             log.warning(line)
-            warnings.append(line)
+            warnings.append(path_free(line, rec.name))
     described["warnings"] = warnings
     sensors.update(
         provenance=facts.provenance,
         has_ground_truth=truth is not None,
         has_labels=bool(rec.has_labels),
-        source={
-            **{k2: v for k2, v in described.items() if k2 not in ("path", "sonars")},
-            "name": rec.name,
-        },
+        source={k2: v for k2, v in described.items() if k2 not in ("path", "sonars")},
         pairing={
             "horizontal_pings": len(h_t),
             "vertical_pings": len(v_t),

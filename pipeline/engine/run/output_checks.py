@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
+from sonarmap.stages.keyframes.recording_facts import RECORDING
 
 __all__ = [
     "CHECKS",
@@ -136,12 +137,12 @@ pings less often, or clocks that are offset)."""
 _SENSORS_MAX_BYTES = 4 << 20
 
 
-def recording_warnings(ref: ArtifactRef | None, cached: bool) -> list[str]:
+def recording_warnings(ref: ArtifactRef | None, cached: bool, recording: str) -> list[str]:
     """What the keyframes artifact's `sensors.json` says the recording lost: most
     horizontal pings without a vertical partner; and, when the artifact was not computed
     by this process (`cached`), the reader's warnings (substitutions and drops) that the
     reader logged only when it read the recording, so that a cached run warns as the
-    first run did."""
+    first run did, naming the `recording` of this run where they name it (`RECORDING`)."""
     if ref is None:
         return []
     path = ref.path / "sensors.json"
@@ -173,5 +174,9 @@ def recording_warnings(ref: ArtifactRef | None, cached: bool) -> list[str]:
     source = doc.get("source")
     lines = source.get("warnings") if isinstance(source, Mapping) and cached else None
     if isinstance(lines, list):
-        found.extend(str(line) for line in lines if isinstance(line, str))
+        found.extend(
+            recording + line[len(RECORDING) :] if line.startswith(RECORDING) else line
+            for line in lines
+            if isinstance(line, str)
+        )
     return found

@@ -193,7 +193,8 @@ def _execute(
             record_run(store, dataset, config, planned, external, done=done)
         warnings = tuple(message for message, is_fatal in found if not is_fatal)
         if name == "keyframes":
-            warnings += tuple(output_checks.recording_warnings(ref, cached=status != "computed"))
+            cached = status != "computed"
+            warnings += tuple(output_checks.recording_warnings(ref, cached, str(dataset.path)))
         units = None
         if status == "computed" and "units" in ref.manifest:
             units = (int(ref.manifest["units_reused"]), int(ref.manifest["units_computed"]))
