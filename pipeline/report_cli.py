@@ -103,7 +103,8 @@ def print_summary(
                 console,
                 "accurate voxels: holding a point within"
                 f" {metrics['per_class'].get('tolerance_m')} m of the true surface;"
-                " completeness: of the visible structure surface (all classes but the seafloor)",
+                " completeness: of the visible structure surface (all classes but the seafloor)"
+                + (", at the SLAM-aligned positions" if aligned else ""),
             )
         submaps = metrics.get("submaps") if isinstance(metrics, dict) else None
         if submaps:

@@ -37,13 +37,31 @@ class SonarMount:
     T_base_sonar: np.ndarray
     details: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
-    @property
-    def fov_deg(self) -> float | None:
-        """The sonar's fan [deg] as the keyframes stage found it (None: not recorded)."""
-        value = self.details.get("fov_deg")
+    def _number(self, key: str) -> float | None:
+        value = self.details.get(key)
         return (
             float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
         )
+
+    @property
+    def fov_deg(self) -> float | None:
+        """The sonar's fan [deg] as the keyframes stage found it (None: not recorded)."""
+        return self._number("fov_deg")
+
+    @property
+    def max_range_m(self) -> float | None:
+        """The far end of the sonar's range window [m] (None: not recorded)."""
+        return self._number("max_range_m")
+
+    @property
+    def min_range_m(self) -> float | None:
+        """The near end of the sonar's range window [m] (None: not recorded)."""
+        return self._number("min_range_m")
+
+    @property
+    def vertical_aperture_deg(self) -> float | None:
+        """The sonar's aperture across its fan [deg] (None: not recorded)."""
+        return self._number("vertical_aperture_deg")
 
     @classmethod
     def from_json(cls, role: str, doc: Any) -> SonarMount:
@@ -83,7 +101,7 @@ class Sensors:
             only in hand-made inputs read by `of` (`sonar` then raises).
         has_ground_truth: the recording carries true poses (a simulation).
         has_labels: its sonar images carry per-pixel class labels.
-        source: the reader's description of the recording (format, topics, name).
+        source: the reader's description of the recording (format, topics, warnings; no file name).
         pairing: counts of the ping pairing (pings, pairs, unpaired, keyframes).
         extra: the file's other entries as written (e.g. `provenance`: where each role's
             topic, frame and mount came from).

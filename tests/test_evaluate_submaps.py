@@ -213,7 +213,7 @@ def test_the_report_has_the_submaps_table_and_its_class_rows() -> None:
     assert "| standard | with submaps | 21 | 21 | 18 | 1.000 | 0.040 |" in section
     assert "| standard | **ratio** | 2.33x | 2.33x | 2.00x |" in section
     assert "| cylindrical_piling | standard | 0 / 12 | 0 / 9 | - | 0.000 / 1.000 |" in section
-    again = render_markdown(evaluate(True)["metrics"], "walls-test", 3)
+    again = render_markdown(evaluate(True)["metrics"], 3)
     assert SECTION in again.decode()
 
 

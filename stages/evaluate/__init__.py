@@ -27,7 +27,8 @@ STAGE = Stage(
     # 12: the report's front-end section (inputs features.calibration, fuse.fused)
     # 13: the report's classifier section (input classify.acceptance)
     # 14: ... with the sure objects `classify.min_views` / `min_seen_share` held back
-    version=14,
+    # 15: report.md names no file (one key, one content whatever the recording is called)
+    version=15,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(

@@ -27,11 +27,13 @@ class EvaluateConfig(StageConfig):
         100.0, gt=0.0, le=1000000.0, description="completeness sampling density (10 cm spacing)"
     )
     seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the surface sampling")
-    max_range_m: float = Field(
-        30.0, gt=0.0, le=1000.0, description="sonar range for the visible surface"
+    max_range_m: float | None = Field(
+        None, gt=0.0, le=1000.0, description="visible surface's range; None: sensors' (else 30)"
     )
     fan_width_deg: float | None = Field(None, gt=0, le=360, description="None: sensors' fov_deg")
-    aperture_deg: float = Field(20.0, gt=0.0, lt=180.0, description="horizontal sonar aperture")
+    aperture_deg: float | None = Field(
+        None, gt=0.0, lt=180.0, description="horizontal sonar's; None: sensors' (else 20)"
+    )
     side_view_pilings: int = Field(3, ge=1, le=8, description="pilings in side_view.png")
     trust_cell_m: float = Field(1.0, gt=0.0, le=100.0, description="trust: world column side")
     trust_height_tolerance_m: float = Field(

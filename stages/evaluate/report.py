@@ -37,7 +37,7 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
         counts["semantic"] = pts["fused"] + pts["inferred"]
     lead = [head["label"]] if head else []
     cols = ["map", "points", "voxels", *lead, f"{raw}median error m", f"{raw}mean error m"]
-    cols += [f"{raw}p90 m", f"{raw}p95 m", "completeness", "precision"]
+    cols += [f"{raw}p90 m", f"{raw}p95 m", f"{raw}completeness", f"{raw}precision"]
     if head and not raw:
         cols.remove("median error m")
     lines = ["| " + " | ".join(cols) + " |", "|---|" + "---:|" * (len(cols) - 1)]
@@ -54,6 +54,9 @@ def _coverage_table(metrics: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+_FRAMES = {"aligned": "SLAM-aligned", "ground_truth_poses": "mapped (true poses)"}
+
+
 def _per_class_table(metrics: dict[str, Any]) -> list[str]:
     """Markdown lines of the per-class accounting (`sonarmap.stages.evaluate.class_accounting`), or none."""
     per_class = metrics.get("per_class") or {}
@@ -65,8 +68,8 @@ def _per_class_table(metrics: dict[str, Any]) -> list[str]:
         "",
         f"Every map point takes the class of the nearest ground-truth surface; accurate voxels"
         f" hold a point within {_fmt(per_class.get('tolerance_m'))} m of it; completeness is of"
-        " the class's visible surface; errors at the "
-        f"{'SLAM-aligned' if per_class.get('frame') == 'aligned' else 'mapped'} positions.",
+        " the class's visible surface; completeness and errors at the "
+        f"{_FRAMES.get(per_class.get('frame'), 'mapped')} positions.",
         "",
         "| class | voxels std | voxels sem | accurate std | accurate sem | gain | completeness"
         " std | completeness sem | median m fused | median m inferred |",
@@ -136,26 +139,50 @@ def _acceptance_markdown(block: Mapping[str, Any] | None) -> list[str]:
     return [*lines, *[f"- **warning:** {w}" for w in block.get("warnings") or []], ""]
 
 
-def render_markdown(
-    metrics: Mapping[str, Any],
-    dataset: str,
-    n_keyframes: int,
-) -> bytes:
-    """`report.md`: dataset, counts, coverage table, errors, trajectory, skipped checks.
+def _visibility_line(view: Mapping[str, Any] | None) -> list[str]:
+    """Where the visible surface (completeness' denominator) ends, and whose figures."""
+    if not view:
+        return []
+    said = view.get("source") or {}
+
+    def part(text: str, name: str) -> str:
+        source = said.get(name, "default")
+        return (
+            f"{text} ({'the recording does not say: default' if source == 'default' else source})"
+        )
+
+    return [
+        "- visible surface: "
+        + ", ".join(
+            (
+                part(
+                    f"{_fmt(view.get('min_range_m'), 1)}-{_fmt(view.get('max_range_m'), 1)} m",
+                    "max_range_m",
+                ),
+                part(f"fan {_fmt(view.get('fan_deg'), 1)} deg", "fan_deg"),
+                part(f"aperture {_fmt(view.get('aperture_deg'), 1)} deg", "aperture_deg"),
+            )
+        )
+    ]
+
+
+def render_markdown(metrics: Mapping[str, Any], n_keyframes: int) -> bytes:
+    """`report.md`: counts, coverage table, errors, trajectory, skipped checks. It names
+    no file: its key holds the recording's content, not its name (the run's record and
+    summary say which file it was).
 
     Args:
         metrics: the evaluate stage's metrics.json dict.
-        dataset: dataset name.
         n_keyframes: number of keyframes.
     """
     voxel = metrics.get("voxel_size_m")
     lines = [
         "# sonarmap report",
         "",
-        f"- dataset: `{dataset}`",
         f"- keyframes: {n_keyframes}",
         f"- voxel size: {_fmt(voxel)} m",
         f"- ground truth: {'yes' if metrics.get('has_ground_truth') else 'no'}",
+        *_visibility_line(metrics.get("visibility")),
         "",
         "## Coverage (paper Table I)",
         "",

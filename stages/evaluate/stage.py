@@ -39,6 +39,7 @@ from sonarmap.stages.evaluate.headline import (
 )
 from sonarmap.stages.evaluate.report import render_markdown
 from sonarmap.stages.evaluate.side_panels import side_panels
+from sonarmap.stages.evaluate.sonar_view import SonarView
 from sonarmap.stages.evaluate.submaps import JudgedMap, has_submap_rows, submap_comparison
 from sonarmap.stages.evaluate.trust import trust_report
 from sonarmap.stages.kernels.mesh_metrics import (
@@ -51,7 +52,6 @@ from sonarmap.stages.kernels.mesh_metrics import (
     sampled_area_m2,
     se2_alignment,
     surface_samples,
-    visible_mask,
 )
 from sonarmap.stages.kernels.ply import Mesh, decode_mesh_ply
 from sonarmap.stages.kernels.voxels import map_xyz
@@ -92,6 +92,7 @@ def surface_metrics(
     T_world_sonar: np.ndarray,
     config: EvaluateConfig,
     table: ClassTable = DEFAULT_TABLE,
+    view: SonarView | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any], np.ndarray]:
     """Completeness and precision of both maps (definitions: `sonarmap.stages.kernels.mesh_metrics`).
 
@@ -110,16 +111,8 @@ def surface_metrics(
             " holds (bounded memory); lower it"
         )
     samples = surface_samples(mesh, ids, config.surface_samples_per_m2, config.seed)
-    seen = samples[
-        visible_mask(
-            samples,
-            T_world_sonar,
-            config.max_range_m,
-            np.deg2rad(config.fan_width_deg or 130.0) / 2,  # 130: artifacts without a fan
-            np.deg2rad(config.aperture_deg) / 2,
-            raycasting_scene(mesh),
-        )
-    ]
+    view = view or SonarView.of(config, None)
+    seen = samples[view.visible(samples, T_world_sonar, raycasting_scene(mesh))]
     tol = config.tolerance_m
     completeness: dict[str, Any] = {
         name: fraction_within(nearest_distance(seen, map_xyz(map_table, name), tol), tol)
@@ -155,7 +148,7 @@ def _matched_xy(
     idx = np.clip(np.searchsorted(pid[order], kf), 0, max(len(pid) - 1, 0))
     found = (pid[order][idx] == kf) if len(pid) else np.zeros(len(kf), bool)
     slam = np.stack([poses.column(c).to_numpy()[order][idx] for c in ("x_m", "y_m")], axis=1)
-    return slam[found], gt[found], dr
+    return slam[found], gt[found], dr[found]
 
 
 def trajectory_errors(keyframes: pa.Table, poses: pa.Table) -> dict[str, float | None] | None:
@@ -257,19 +250,14 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         if aligned is not None:
             eval_xyz, eval_err = aligned[0], mesh_distance(scene, aligned[0])
             metrics["errors_aligned"] = aligned_map_errors(map_table, aligned, eval_err)
+        true_poses = poses_are_ground_truth(keyframes, poses)
         metrics["headline"] = headline_errors(
-            metrics["errors"],
-            metrics.get("errors_aligned"),
-            poses_are_ground_truth(keyframes, poses),
+            metrics["errors"], metrics.get("errors_aligned"), true_poses
         )
         T_ws = visibility_poses(keyframes, poses, sensors.horizontal.T_base_sonar)
-        fan = config.fan_width_deg or sensors.horizontal.fov_deg or 130.0  # one place
-        visible = remember_last(
-            lambda samples: visible_mask(
-                samples, T_ws, config.max_range_m, np.deg2rad(fan) / 2,
-                np.deg2rad(config.aperture_deg) / 2, scene,
-            )
-        )  # fmt: skip
+        view = SonarView.of(config, sensors.horizontal)  # one place
+        metrics["visibility"] = view.as_dict()
+        visible = remember_last(lambda samples: view.visible(samples, T_ws, scene))
 
         def class_figures(rows: pa.Table, xyz: np.ndarray, err: np.ndarray) -> dict[str, Any]:
             return per_class_metrics(
@@ -278,7 +266,8 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             )  # fmt: skip
 
         metrics["per_class"] = {
-            "frame": "raw" if aligned is None else "aligned",
+            # True poses align to themselves: the map is where it was made.
+            "frame": "ground_truth_poses" if true_poses else "raw" if aligned is None else "aligned",
             **class_figures(map_table, eval_xyz, eval_err),
         }
         judged = JudgedMap(
@@ -286,7 +275,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
             metrics["headline"], metrics["per_class"], class_figures,
         )  # fmt: skip
         metrics["completeness"], metrics["precision"], samples = surface_metrics(
-            map_table, errors, mesh, T_ws, config.model_copy(update={"fan_width_deg": fan}), table
+            map_table, errors, mesh, T_ws, config, table, view
         )
         outputs["errors"] = errors
         outputs["side_view"] = side_panels(map_table, mesh, samples, config.side_view_pilings)
@@ -295,7 +284,6 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     if has_submap_rows(map_table):
         stats = inputs.get("submaps.stats") or {}
         metrics["submaps"] = submap_comparison(map_table, voxel_size, stats.get("stride"), judged)
-    dataset = str(sensors.source.get("name", "unknown"))
     metrics["trust"] = trust_report(
         map_table, keyframes, poses, inputs.get("slam.factors"),
         config.trust_cell_m, config.trust_height_tolerance_m, inputs.get("slam.summary"),
@@ -307,7 +295,7 @@ def _run(config: EvaluateConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         keyframes.num_rows,
     )
     metrics["classifier_acceptance"] = inputs.get("classify.acceptance")
-    outputs["report"] = render_markdown(metrics, dataset, keyframes.num_rows)
+    outputs["report"] = render_markdown(metrics, keyframes.num_rows)
     outputs["metrics"] = metrics
     outputs["map_mcap"] = evaluate_map_mcap(inputs, outputs["errors"], mesh)
     return outputs

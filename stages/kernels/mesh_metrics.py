@@ -172,6 +172,7 @@ def visible_mask(
     half_aperture_rad: float,
     scene: o3d.t.geometry.RaycastingScene | None = None,
     occlusion_tolerance_m: float = 0.02,
+    min_range_m: float = 0.0,
 ) -> np.ndarray:
     """(n,) bool: below the surface, inside the sonar's field of view of some keyframe and,
     with `scene`, not hidden behind another surface from that keyframe.
@@ -186,6 +187,7 @@ def visible_mask(
             if the ray from the sonar origin first hits a surface no nearer than its
             range minus `occlusion_tolerance_m` (back faces are hidden by front faces).
         occlusion_tolerance_m: slack for float32 ray casting [m].
+        min_range_m: sonar minimum range [m] (nearer points are not imaged).
     """
     p = np.asarray(points_m, dtype=np.float32).reshape(-1, 3)
     below = p[:, 2] <= 0.0
@@ -204,6 +206,7 @@ def visible_mask(
         cand = (
             (r2 <= max_range_m**2)
             & (r2 > 0)
+            & (r2 >= min_range_m**2)
             & (local[:, 0] >= cos_fan * np.sqrt(r2_xy))
             & (local[:, 2] ** 2 <= sin_aperture**2 * r2)
         )
