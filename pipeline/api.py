@@ -62,13 +62,14 @@ class RunRequest:
     figures: bool = True
 
 
-def _context(request: RunRequest, graph: Graph) -> RunContext:
+def _context(request: RunRequest, graph: Graph, create_store: bool = True) -> RunContext:
     ctx = open_context(
         request.dataset,
         graph,
         config_path=request.config_path,
         overrides=request.overrides,
         store_dir=request.store_dir,
+        create_store=create_store,
     )
     return ctx if request.figures else replace(ctx, stages=without_figures(ctx.stages))
 
@@ -146,7 +147,7 @@ def plan_status(
     the model's key is not known yet (they all miss: `run` trains the model first).
     """
     graph = graph or default_graph()
-    ctx = _context(request, graph)
+    ctx = _context(request, graph, create_store=False)  # no side effect
     names = [s.name for s in ctx.stages]
     last = names.index(request.until) if request.until in names else len(names) - 1
     readers = [s.name for s in ctx.stages[: last + 1] if "train" in s.upstream]

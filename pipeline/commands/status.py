@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
@@ -15,6 +16,10 @@ from sonarmap.pipeline.commands._common import (
     cli_graph,
     emit_json,
 )
+
+if TYPE_CHECKING:
+    from sonarmap.pipeline.engine.run.planned import PlannedStage
+    from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 
 __all__ = ["register", "status"]
 
@@ -46,13 +51,9 @@ def status(
         status = "hit" if model.hit else "miss"
         rows.append({"stage": "train", "key": model.key, "status": status, "reason": model.reason})
     rows += [
-        {
-            "stage": p.stage.name,
-            "key": p.key,
-            "status": "hit" if p.hit else "miss",
-            "reason": p.reason,
-        }
+        {"stage": p.stage.name, "key": p.key, "status": status, "reason": reason}
         for p in planned
+        for status, reason in [_hit_or_damage(context.store, p)]
     ]
     rows += [
         {
@@ -77,8 +78,28 @@ def status(
         f"{dataset} ({context.dataset.fingerprint[:12]})",
         ("stage", "status", "key", "reason"),
         [(r["stage"], r["status"], r["key"][:12], r["reason"]) for r in rows],
-        styles=["green" if r["status"] == "hit" else "yellow" for r in rows],
+        styles=[_STYLES.get(r["status"], "yellow") for r in rows],
     )
+    if not context.store.root.is_dir():  # a mistyped --store reads as a fresh one
+        Console(stderr=True).print(f"no store at {store} yet: `run` creates it", markup=False)
+
+
+_STYLES = {"hit": "green", "damaged": "red"}
+
+
+def _hit_or_damage(store: ArtifactStore, planned: PlannedStage) -> tuple[str, str]:
+    """(status, reason) of a planned stage; a hit whose files are not all there, at their
+    sizes, is "damaged": the run that reads it stops there (a changed byte needs
+    `show --verify`)."""
+    from sonarmap.pipeline.engine.store.integrity import recovery_hint, size_damage
+
+    if not planned.hit:
+        return "miss", planned.reason
+    ref = store.get(planned.stage.name, planned.key)
+    damage = None if ref is None else size_damage(ref)
+    if damage is None:
+        return "hit", planned.reason
+    return "damaged", f"{damage}: a run that reads it stops; {recovery_hint(planned.stage.name)}"
 
 
 def register(app: typer.Typer) -> None:

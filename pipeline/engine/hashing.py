@@ -115,8 +115,9 @@ class FingerprintCache:
     cache is a JSON file guarded by a file lock so concurrent runs do not clobber it.
     """
 
-    def __init__(self, cache_file: Path) -> None:
+    def __init__(self, cache_file: Path, remember: bool = True) -> None:
         self._file = cache_file
+        self._remember = remember  # False: read only (a planner never creates a store)
         self._lock = FileLock(str(cache_file) + ".lock")
 
     def _load(self) -> dict[str, Any]:
@@ -148,7 +149,7 @@ class FingerprintCache:
         if entry and entry.get("stat") == ident:
             return str(entry["sha256"])
         digest = sha256_file(path)
-        if coarse or _stat_identity(path) != ident:
+        if coarse or not self._remember or _stat_identity(path) != ident:
             # Not remembered: coarse timestamps, or written while hashed (which content
             # the digest is of, no stat can say).
             return digest

@@ -147,6 +147,7 @@ class Follower:
             )
         self._last_growth = 0.0
         self._preview_problem = ""
+        self._preview_t_ns = 0  # the log time the preview was last published at
         self._arrived_t: list[int] = []  # the newest log time after each growth ...
         self._arrived_wall: list[float] = []  # ... and when it was seen
         self.updates: list[Update] = []
@@ -211,7 +212,7 @@ class Follower:
         self._say(outcome.line())
         if self.preview is not None and outcome.anchor is not None:
             self.preview.set_anchor(outcome.anchor)
-            self._publish_preview(outcome.t_last_ns or 0)
+            self._publish_preview(outcome.t_last_ns)
 
     def _preview_step(self, clock: Callable[[], float]) -> bool:
         """Map the keyframes newly complete; whether any was."""
@@ -244,12 +245,16 @@ class Follower:
         """The final run's map is out: the preview is cleared from the live view."""
         if self.preview is not None:
             self.preview.keyframes = []
-            self._publish_preview(0)
+            self._publish_preview(None)
 
-    def _publish_preview(self, t_ns: int) -> None:
+    def _publish_preview(self, t_ns: int | None) -> None:
+        """Publish the preview at `t_ns`, or at the last time it was published when
+        later (its log time never goes back: an update's newest keyframe is older than the
+        preview's, and a clear has no time of its own)."""
         if self.preview is None or self._publish is None:
             return
-        messages = self.preview.messages(t_ns)
+        self._preview_t_ns = max(self._preview_t_ns, t_ns or 0)
+        messages = self.preview.messages(self._preview_t_ns)
         self._publish(PREVIEW_TOPICS, lambda: messages)
 
     def _update(self, clock: Callable[[], float]) -> Update:

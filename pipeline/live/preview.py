@@ -23,6 +23,9 @@ update then becomes the new anchor and the preview restarts from its newest keyf
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +41,32 @@ _MARGIN_NS = 2_000_000_000
 """The window starts this long before the last keyframe: the navigation samples around
 it and the vertical ping paired with it are in the window."""
 _POSE = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+
+
+class _AboutFile(logging.Filter):
+    def __init__(self, path: Path) -> None:
+        super().__init__()
+        self.path = str(path)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return self.path not in record.getMessage()
+
+
+@contextmanager
+def _unsaid(window: Path) -> Iterator[None]:
+    """The reader's warnings about the window are not printed: the window is cut from the
+    recording on purpose, so what is missing at its edges (pings past the navigation's
+    end) is no news, and the file is private and gone soon. The full updates read the
+    whole recording and say what is wrong with it."""
+    quiet = _AboutFile(window)
+    handlers = list(logging.getLogger().handlers)
+    for handler in handlers:
+        handler.addFilter(quiet)
+    try:
+        yield
+    finally:
+        for handler in handlers:
+            handler.removeFilter(quiet)
 
 
 @dataclass(frozen=True)
@@ -135,36 +164,39 @@ class Preview:
             return []  # no keyframe can be due yet: the window is not even read
         self._fresh = False
         self.window.write(last_t - _MARGIN_NS, self.window_path)
-        rec = open_recording(self.window_path, kcfg)
-        posed = posed_pairs(rec, kcfg.pair_tolerance_s)
-        if len(posed.h_t_ns) == 0 or len(posed.v_t_ns) == 0:
-            return []
-        t_pair = posed.h_t_ns[posed.pairs.horizontal]
-        horizon = min(posed.h_t_ns[-1], posed.v_t_ns[-1]) - round(kcfg.pair_tolerance_s * 1e9)
-        cand = posed.posed[(t_pair[posed.posed] > last_t) & (t_pair[posed.posed] <= horizon)]
-        new, _ = continue_selection(
-            last_t, last_pose, t_pair[cand], posed.pose[cand], kcfg.spacing_m,
-            np.deg2rad(kcfg.rotation_deg), round(kcfg.min_gap_s * 1e9),
-        )  # fmt: skip
-        if len(new) == 0:
-            return []
-        k = cand[new]
-        h_idx, v_idx = posed.pairs.horizontal[k], posed.pairs.vertical[k]
-        T_world = chained_poses(anchor.T_world, anchor.nav_pose, posed.pose[k])
-        first_id = anchor.keyframe_id + 1 + len(self.keyframes)
-        pings = zip(rec.pings("horizontal", h_idx), rec.pings("vertical", v_idx), strict=True)
-        out = []
-        for i, (hp, vp) in enumerate(pings):
-            frame = KeyframeImages(first_id + i, int(hp.t_ns), hp, vp, {})
-            fu = keyframe_points(
-                frame, self.config.features, anchor.thresholds, anchor.T_h_v, self.config.fuse
-            )
-            xyz = np.stack([fu["x_m"], fu["y_m"], fu["z_m"]], axis=1)
-            pose = pose_from_se3(T_world[i])
-            out.append(PreviewKeyframe(frame.keyframe_id, frame.t_ns, pose, xyz, posed.pose[k[i]]))
-        self.keyframes.extend(out)
-        self._last = (int(t_pair[k[-1]]), posed.pose[k[-1]])
-        return out
+        with _unsaid(self.window_path):
+            rec = open_recording(self.window_path, kcfg)
+            posed = posed_pairs(rec, kcfg.pair_tolerance_s)
+            if len(posed.h_t_ns) == 0 or len(posed.v_t_ns) == 0:
+                return []
+            t_pair = posed.h_t_ns[posed.pairs.horizontal]
+            horizon = min(posed.h_t_ns[-1], posed.v_t_ns[-1]) - round(kcfg.pair_tolerance_s * 1e9)
+            cand = posed.posed[(t_pair[posed.posed] > last_t) & (t_pair[posed.posed] <= horizon)]
+            new, _ = continue_selection(
+                last_t, last_pose, t_pair[cand], posed.pose[cand], kcfg.spacing_m,
+                np.deg2rad(kcfg.rotation_deg), round(kcfg.min_gap_s * 1e9),
+            )  # fmt: skip
+            if len(new) == 0:
+                return []
+            k = cand[new]
+            h_idx, v_idx = posed.pairs.horizontal[k], posed.pairs.vertical[k]
+            T_world = chained_poses(anchor.T_world, anchor.nav_pose, posed.pose[k])
+            first_id = anchor.keyframe_id + 1 + len(self.keyframes)
+            pings = zip(rec.pings("horizontal", h_idx), rec.pings("vertical", v_idx), strict=True)
+            out = []
+            for i, (hp, vp) in enumerate(pings):
+                frame = KeyframeImages(first_id + i, int(hp.t_ns), hp, vp, {})
+                fu = keyframe_points(
+                    frame, self.config.features, anchor.thresholds, anchor.T_h_v, self.config.fuse
+                )
+                xyz = np.stack([fu["x_m"], fu["y_m"], fu["z_m"]], axis=1)
+                pose = pose_from_se3(T_world[i])
+                out.append(
+                    PreviewKeyframe(frame.keyframe_id, frame.t_ns, pose, xyz, posed.pose[k[i]])
+                )
+            self.keyframes.extend(out)
+            self._last = (int(t_pair[k[-1]]), posed.pose[k[-1]])
+            return out
 
     def messages(self, t_ns: int) -> list[Any]:
         """The preview so far as live-view messages (none yet: messages clearing it)."""

@@ -248,11 +248,15 @@ def trajectory_messages(keyframes: pa.Table, poses: pa.Table | None) -> list[Sce
 
 
 def fused_messages(
-    fused: pa.Table, keyframes: pa.Table, T_base_sonar: np.ndarray, topic: str = "/live/fused"
+    fused: pa.Table,
+    keyframes: pa.Table,
+    T_base_sonar: np.ndarray,
+    topic: str = "/live/fused",
+    t_ns: int | None = None,
 ) -> list[SceneMessage]:
     """fuse.fused registered at the dead-reckoning keyframe poses, one cloud at the
-    last keyframe (the map as far as the run knows before SLAM); `follow`'s preview
-    gives its own keyframes and points, and its topic."""
+    last keyframe (the map as far as the run knows before SLAM), or at `t_ns`;
+    `follow`'s preview gives its own keyframes and points, its topic and its time."""
     ids, T = pose_matrices(keyframes)
     kf = fused.column("keyframe_id").to_numpy().astype(np.int64)
     xyz = np.stack([fused.column(c).to_numpy() for c in ("x_m", "y_m", "z_m")], axis=1)
@@ -269,7 +273,7 @@ def fused_messages(
             "class_name": pa.array(np.full(n, NO_CLASS, object), pa.string()),
         }
     )
-    t_end = int(pc.max(keyframes.column("t_ns")).as_py() or 0)
+    t_end = int(pc.max(keyframes.column("t_ns")).as_py() or 0) if t_ns is None else t_ns
     return [SceneMessage(topic, _point_cloud(cloud_records(table), t_end), t_end)]
 
 
@@ -280,7 +284,7 @@ def preview_messages(
     dead-reckoned poses): its points on /map/preview and its keyframes on
     /trajectory/preview, stamped `t_ns`; empty tables clear both."""
     fm = foxglove_messages()
-    cloud = fused_messages(fused, keyframes, T_base_sonar, "/map/preview")[0]
+    cloud = fused_messages(fused, keyframes, T_base_sonar, "/map/preview", t_ns)[0]
     xyz, quat = _poses(keyframes)
     poses = fm.PosesInFrame(
         timestamp=timestamp(t_ns), frame_id=FRAME_MAP, poses=_pose_list(xyz, quat)

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
 
+from sonarmap.pipeline.engine.config.load import READ_SECTIONS_KEY
 from sonarmap.pipeline.engine.hashing import canonical_json
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.stages.base import Input
@@ -88,11 +89,24 @@ def record_run(
 
 
 def _config_diff(stage: str, old: Mapping[str, Any], new: Mapping[str, Any]) -> list[str]:
+    """The settings that differ, each as `section.key old -> new`, nested sections gone
+    into (the sections a stage reads of another's, `@reads`, under their own names)."""
     changes = []
-    for k in sorted(set(old) | set(new)):
-        if old.get(k) != new.get(k):
-            changes.append(f"{stage}.{k} {old.get(k)!r} -> {new.get(k)!r}")
+    for k in sorted(set(old) | set(new), key=str):
+        a, b = old.get(k), new.get(k)
+        if a == b:
+            continue
+        path = "" if k == READ_SECTIONS_KEY else f"{stage}.{k}" if stage else str(k)
+        if isinstance(a, Mapping) and isinstance(b, Mapping):
+            changes += _config_diff(path, a, b)
+        else:
+            changes.append(f"{path} {_short(a)} -> {_short(b)}")
     return changes
+
+
+def _short(value: Any, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def miss_reason(

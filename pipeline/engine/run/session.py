@@ -23,15 +23,19 @@ __all__ = ["DEFAULT_STORE", "RunContext", "dataset_spec", "make_context", "open_
 DEFAULT_STORE = Path("data/store")
 
 
-def dataset_spec(path: Path, store: ArtifactStore, graph: Graph) -> DatasetSpec:
-    """Fingerprint a dataset as `graph` finds its files (cached by size/mtime/inode);
-    the spec carries the graph's opener and codecs."""
+def dataset_spec(
+    path: Path, store: ArtifactStore, graph: Graph, *, create_store: bool = True
+) -> DatasetSpec:
+    """Fingerprint a dataset as `graph` finds its files (cached by size/mtime/inode in
+    the store, which `create_store=False` never creates: `status`, `view`); the spec
+    carries the graph's opener and codecs."""
     if not path.exists():
         raise SourceError(f"{path}: no such file or directory")
     files = list(graph.parts(path))
     if not files:
         raise SourceError(f"{path}: no dataset files found")
-    cache = FingerprintCache(store.root / ".cache" / "fingerprints.json")
+    remember = create_store or store.root.is_dir()
+    cache = FingerprintCache(store.root / ".cache" / "fingerprints.json", remember)
     root = path if path.is_dir() else path.parent
     try:
         fingerprint = cache.dataset_fingerprint(files, root)
@@ -55,11 +59,13 @@ def open_context(
     config_path: Path | None = None,
     overrides: Sequence[str] = (),
     store_dir: Path = DEFAULT_STORE,
+    create_store: bool = True,
 ) -> RunContext:
     """`graph` on `dataset`: validate the config first (cheap), then fingerprint."""
     config = load_config(graph.config_stages, config_path, overrides, graph.extra_sections)
     store = ArtifactStore(store_dir)
-    return RunContext(graph.stages, config, store, dataset_spec(dataset, store, graph))
+    spec = dataset_spec(dataset, store, graph, create_store=create_store)
+    return RunContext(graph.stages, config, store, spec)
 
 
 def make_context(

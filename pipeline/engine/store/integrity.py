@@ -1,13 +1,15 @@
 """Integrity checks: a file or artifact directory against its manifest.
 
 Used when the engine binds an artifact's file to a stage input (`verify_file`), by
-`show --verify`, `push`, `pull` and `gc --broken` (`verify_artifact_dir`). Every
+`show --verify`, `push`, `pull` and `gc --broken` (`verify_artifact_dir`), and by
+`status` on its hits (`size_damage`: sizes only). Every
 message is one line naming the artifact and saying how to recover.
 """
 
 from __future__ import annotations
 
 import json
+import stat
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -21,6 +23,7 @@ __all__ = [
     "check_parses",
     "check_required_files",
     "recovery_hint",
+    "size_damage",
     "verify_artifact_dir",
     "verify_file",
 ]
@@ -80,6 +83,28 @@ def verify_file(ref: ArtifactRef, name: str) -> Path:
             f"{recovery_hint(ref.stage)}"
         )
     return path
+
+
+def size_damage(ref: ArtifactRef) -> str | None:
+    """What a look at the file sizes finds wrong with an artifact (a file missing, not a
+    plain file, or of another size than its manifest's), None when they all match. A
+    stat per file, no hashing: a changed byte needs `verify_file`."""
+    for name, entry in ref.manifest.get("files", {}).items():
+        where = f"artifact {ref.stage}/{ref.key[:12]}: '{name}'"
+        try:
+            path = ref.file(name)
+            st = path.lstat()
+        except StoreError as err:
+            return f"{where}: {err}"
+        except FileNotFoundError:
+            return f"{where} is missing"
+        except OSError as err:
+            return f"{where} unreadable ({err.strerror})"
+        if not stat.S_ISREG(st.st_mode):
+            return f"{where} is not a plain file"
+        if st.st_size != int(entry["size"]):
+            return f"{where} has {st.st_size} bytes, its manifest says {entry['size']}"
+    return None
 
 
 def verify_artifact_dir(path: Path, manifest: Mapping[str, Any]) -> None:
