@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numpy as np
 import pyarrow as pa
 
 from sonarmap.schemas.classes import PILING_CLASSES, UNKNOWN_CLASS
@@ -24,6 +23,8 @@ def classification_scores(objects: pa.Table) -> dict[str, Any]:
     `true_class_name` is present and labels at least one object: an unlabelled recording
     has no precision to report, not a precision of zero.
     """
+    import numpy as np  # not at import: a cached run's summary loads no numpy
+
     n = objects.num_rows
     result: dict[str, Any] = {"objects": n}
     if n == 0 or "true_class_name" not in objects.column_names:

@@ -13,7 +13,7 @@ import queue
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Any
 
 from foxglove.websocket import ServerListener
@@ -139,7 +139,7 @@ class LiveServer:
                 elif kind == "stage":
                     self._stage(*item)
                 elif kind == "subscribe":
-                    self._replay(item)
+                    self._replay([item, *self._queued_subscriptions()])
             except Exception as err:  # a view must never take the run down with it
                 log.warning("live view: %s not published (%s)", kind, str(err)[:200])
 
@@ -162,22 +162,43 @@ class LiveServer:
                 self._latest[topic] = list(batch)
                 self._pending.pop(topic, None)
 
-    def _replay(self, topic: str) -> None:
-        channel = self._channels.get(topic)
-        if channel is None:
-            return
+    def _queued_subscriptions(self) -> list[str]:
+        """The subscriptions queued right behind the one at hand (a client subscribes to
+        every topic at once), taken off the queue to be served with it."""
+        topics = []
+        with self._jobs.mutex:
+            waiting = self._jobs.queue
+            while waiting and waiting[0][0] == "subscribe":
+                topics.append(waiting.popleft()[1])
+        return topics
+
+    def _replay(self, topics: list[str]) -> None:
+        """Serve new subscriptions: each stage whose messages wait for a subscriber is
+        built once (a stage's builder logs all its topics: run per topic, the same
+        subscriber got them again for each), the other topics get their latest messages
+        (the other clients of a topic get those again)."""
+        channels = [(t, self._channels[t]) for t in dict.fromkeys(topics) if t in self._channels]
         deadline = time.monotonic() + _SUBSCRIBE_WAIT_S
-        while not channel.has_sinks() and time.monotonic() < deadline:
+        while not all(c.has_sinks() for _, c in channels) and time.monotonic() < deadline:
             time.sleep(0.01)
         with self._lock:
-            builder = self._pending.get(topic)
-            latest = list(self._latest.get(topic, ()))
-        if builder is not None:
-            self._publish(builder())
-            return
-        # the subscription is new: send what earlier clients saw (others get it again)
-        for data, t in latest:
-            channel.log(data, log_time=t)
+            builders = {id(b): b for t, _ in channels if (b := self._pending.get(t)) is not None}
+        published: set[str] = set()
+
+        def noted(messages: Iterable[SceneMessage]) -> Iterator[SceneMessage]:
+            for m in messages:  # still one at a time: a long mission's images never all held
+                published.add(m.topic)
+                yield m
+
+        for builder in builders.values():
+            self._publish(noted(builder()))
+        for topic, channel in channels:
+            if topic in published:
+                continue
+            with self._lock:
+                latest = list(self._latest.get(topic, ()))
+            for data, t in latest:
+                channel.log(data, log_time=t)
 
 
 class _Listener(ServerListener):

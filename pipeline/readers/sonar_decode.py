@@ -189,21 +189,17 @@ def _ping(
     order = np.argsort(angles, kind="stable")
     if np.any(order != np.arange(len(order))):
         image, angles = image[:, order], angles[order]
+    # ping_info as stated; 0 where it is no finite positive number (not stated)
+    info = [float(v) if np.isfinite(v) and v > 0 else 0.0 for v in ping_info]
     return SonarPing(
         t_ns=int(t_ns),
         sonar=sonar,
         image=np.ascontiguousarray(_to_uint8(image, bits)),
         ranges_m=np.asarray(ranges, np.float32),
         angles_rad=np.asarray(angles, np.float32),
-        frequency_hz=_stated(ping_info[0]),
-        sound_speed_m_s=_stated(ping_info[1]),
+        frequency_hz=info[0],
+        sound_speed_m_s=info[1],
     )
-
-
-def _stated(value: float) -> float:
-    """A ping_info figure as stated, 0 where it is not a finite positive number."""
-    v = float(value)
-    return v if np.isfinite(v) and v > 0 else 0.0
 
 
 def oculus_arrays(
@@ -248,10 +244,8 @@ def _projected(msg: Any, t_ns: int, sonar: str, _: Any) -> SonarPing:
     problem = beam_direction_problem(dirs)
     if problem is not None:
         raise ValueError(problem)
-    return _ping(
-        t_ns, sonar, data.reshape(len(ranges), n_b), ranges, beam_angles_from_directions(dirs),
-        ping_info=info,
-    )  # fmt: skip
+    angles = beam_angles_from_directions(dirs)
+    return _ping(t_ns, sonar, data.reshape(len(ranges), n_b), ranges, angles, ping_info=info)
 
 
 def _oculus(msg: Any, t_ns: int, sonar: str, options: Any) -> SonarPing:

@@ -79,18 +79,6 @@ STAMP_OTHER_BASE_S = 86400.0
 base (time since boot, GPS time), not a clock set wrong: not compared."""
 
 
-RECORDING = "{recording}"
-"""Stands for the recording's path at the start of each warning an artifact keeps. Keys
-hold the recording's content, not where it lies, so one key must hold the same bytes
-whatever the file is called and wherever it is (the runner puts the path back when it
-prints them)."""
-
-
-def path_free(line: str, path: str) -> str:
-    """`line` with a leading `path` replaced by `RECORDING`."""
-    return RECORDING + line[len(path) :] if path and line.startswith(path) else line
-
-
 def stamp_offset_warning(
     name: str, sonar: str, offset_s: float | None, navigation_offset_s: float | None
 ) -> str | None:

@@ -43,9 +43,9 @@ from sonarmap.stages.keyframes.config import KeyframesConfig
 from sonarmap.stages.keyframes.recording_facts import (
     cached_facts,
     no_keyframe,
-    path_free,
     stamp_offset_warning,
 )
+from sonarmap.stages.keyframes.recording_name import path_free
 
 __all__ = [
     "STAGE",

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
-from sonarmap.stages.keyframes.recording_facts import RECORDING
+from sonarmap.stages.keyframes.recording_name import RECORDING
 
 __all__ = [
     "CHECKS",
