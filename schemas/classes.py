@@ -128,6 +128,11 @@ class ClassTable(BaseModel):
     """Stages that read this section hash it only when it differs from the default, so the
     default table leaves every key as it was before the table was configurable."""
 
+    DRAWING_FIELDS: ClassVar[tuple[str, ...]] = ("colour",)
+    """Entry fields that change only how a class is drawn: they enter the keys of the
+    stages that draw (`Stage.draws`), not those of the stages that compute (a new colour
+    must not retrain the classifier)."""
+
     table: tuple[ClassEntry, ...] = Field(
         DEFAULT_ENTRIES,
         description="the classes: none, cylindrical_piling, rectangular_piling, seawall,"

@@ -220,7 +220,9 @@ class Stage:
             change how, never what, it computes (`submaps.workers`; a test holds the
             bytes equal).
         reads_sections: other config sections the stage reads: bound as inputs
-            `config.<section>` and hashed, whole, into its key.
+            `config.<section>` and hashed into its key (a section's `DRAWING_FIELDS`
+            only when the stage `draws`).
+        draws: the stage draws figures with the sections it reads (their colours).
         dataset_section: the section the "dataset" input is opened with (None: its own).
         input_columns: (input, columns) pairs: read only these columns of a Parquet input
             (a stage that needs a few columns of a large table).
@@ -246,6 +248,7 @@ class Stage:
     input_columns: tuple[tuple[Input, tuple[str, ...]], ...] = ()
     off_critical_path: bool = False
     units: bool = False
+    draws: bool = False
 
     def __post_init__(self) -> None:
         def typed(item: Input | str) -> Input:

@@ -76,6 +76,26 @@ def test_a_bad_table_is_refused_in_one_line_naming_it(
     assert "classes.table" in message and says in message
 
 
+def test_a_colour_moves_only_the_key_of_the_stage_that_draws(tmp_path: Path) -> None:
+    """A new colour retrained the classifier and recomputed every class reader (campaign 8)."""
+    from sonarmap.pipeline.engine.config.load import section_dict as keyed
+
+    default = load_config(all_stages(), None, (), extra_sections())
+    table = "\n".join(
+        f"    - {{name: {e.name}, id: {e.id}, frame_kind: {e.frame_kind},"
+        f" inferred: {str(e.inferred).lower()}, completeness: {str(e.completeness).lower()},"
+        f" colour: '{'#123456' if e.name == 'seawall' else e.colour}'}}"
+        for e in DEFAULT_TABLE.table
+    )
+    recoloured = _config(tmp_path, f"classes:\n  table:\n{table}\n")
+    assert recoloured.classes != default.classes  # type: ignore[attr-defined]
+    for name in (*READERS, "figures"):
+        stage = stage_by_name(name)
+        args = (name, stage.key_excludes, stage.reads_sections, stage.draws)
+        same = keyed(default, *args) == keyed(recoloured, *args)  # type: ignore[arg-type]
+        assert same != (name == "figures"), name
+
+
 def test_keys_change_with_the_table_and_the_default_leaves_them_as_they_were(
     tmp_path: Path,
 ) -> None:

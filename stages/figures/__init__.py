@@ -21,6 +21,7 @@ STAGE = Stage(
     version=2,
     config=FiguresConfig,
     reads_sections=("classes", "slam"),
+    draws=True,  # the class table's colours
     inputs=(
         Input("keyframes", "frames"),
         Input("keyframes", "keyframes"),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["RECORDING", "path_free"]
+__all__ = ["RECORDING", "path_free", "with_path"]
 
 RECORDING = "{recording}"
 """Stands for the recording's path at the start of each warning an artifact keeps. Keys
@@ -14,3 +14,8 @@ prints them)."""
 def path_free(line: str, path: str) -> str:
     """`line` with a leading `path` replaced by `RECORDING`."""
     return RECORDING + line[len(path) :] if path and line.startswith(path) else line
+
+
+def with_path(line: str, path: str) -> str:
+    """`line` with a leading `RECORDING` replaced by `path` (`path_free` undone)."""
+    return path + line[len(RECORDING) :] if line.startswith(RECORDING) else line

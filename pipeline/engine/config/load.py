@@ -70,28 +70,42 @@ def section_dict(
     stage: str,
     excludes: Iterable[str] = (),
     reads_sections: Iterable[str] = (),
+    draws: bool = False,
 ) -> dict[str, Any]:
     """A stage's resolved section as plain JSON-compatible data (what its key hashes).
 
     `excludes`: own fields the stage never reads (left out of its key); `reads_sections`:
-    other sections the stage reads, hashed whole under READ_SECTIONS_KEY.
+    other sections the stage reads, hashed under READ_SECTIONS_KEY, their
+    `DRAWING_FIELDS` only for a stage that `draws`.
     """
     section = getattr(config, stage)
     data: dict[str, Any] = section.model_dump(mode="json", exclude=set(excludes) or None)
-    reads = {
-        name: getattr(config, name).model_dump(mode="json")
-        for name in reads_sections
-        if not _omitted_default(getattr(config, name))
-    }
+    reads = {}
+    for name in reads_sections:
+        read = getattr(config, name)
+        dropped = () if draws else getattr(type(read), "DRAWING_FIELDS", ())
+        dump = _without(read.model_dump(mode="json"), dropped)
+        # A section that says so (`KEY_OMITS_DEFAULT`, the class table) is left out of
+        # keys where it equals its default: its default keeps keys as they were.
+        omits_default = getattr(type(read), "KEY_OMITS_DEFAULT", False)
+        if omits_default and dump == _without(type(read)().model_dump(mode="json"), dropped):
+            continue
+        reads[name] = dump
     if reads:
         data[READ_SECTIONS_KEY] = reads
     return data
 
 
-def _omitted_default(section: BaseModel) -> bool:
-    """Whether a read section is left out of keys: one that says so (`KEY_OMITS_DEFAULT`,
-    the class table) and equals its default, so its default keeps keys as they were."""
-    return bool(getattr(type(section), "KEY_OMITS_DEFAULT", False)) and section == type(section)()
+def _without(data: Any, fields: Iterable[str]) -> Any:
+    """`data` (JSON-like) with every mapping's `fields` left out, at any depth."""
+    fields = tuple(fields)
+    if not fields:
+        return data
+    if isinstance(data, dict):
+        return {k: _without(v, fields) for k, v in data.items() if k not in fields}
+    if isinstance(data, list):
+        return [_without(v, fields) for v in data]
+    return data
 
 
 def check_class_names(config: BaseModel, where: str) -> None:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from sonarmap.pipeline.engine.errors import SourceError
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef
-from sonarmap.stages.keyframes.recording_name import RECORDING
+from sonarmap.stages.keyframes.recording_name import with_path
 
 __all__ = [
     "CHECKS",
@@ -174,9 +174,5 @@ def recording_warnings(ref: ArtifactRef | None, cached: bool, recording: str) ->
     source = doc.get("source")
     lines = source.get("warnings") if isinstance(source, Mapping) and cached else None
     if isinstance(lines, list):
-        found.extend(
-            recording + line[len(RECORDING) :] if line.startswith(RECORDING) else line
-            for line in lines
-            if isinstance(line, str)
-        )
+        found.extend(with_path(line, recording) for line in lines if isinstance(line, str))
     return found

@@ -67,7 +67,9 @@ def plan(
         recipe = stage_recipe(
             stage=stage.name,
             version=stage.version,
-            config=section_dict(config, stage.name, stage.key_excludes, stage.reads_sections),
+            config=section_dict(
+                config, stage.name, stage.key_excludes, stage.reads_sections, stage.draws
+            ),
             input_keys=input_keys,
             schema_version=SCHEMA_VERSION,
             dataset_fingerprint=dataset.fingerprint if stage.reads_dataset else None,
