@@ -14,7 +14,7 @@ import re
 from collections.abc import Iterable
 from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 __all__ = [
     "ASSIGNABLE_CLASSES",
@@ -146,8 +146,12 @@ class ClassTable(BaseModel):
     @classmethod
     def _fold_add(cls, data: Any) -> Any:
         if isinstance(data, dict) and data.get("add"):
+            try:
+                added = [ClassEntry.model_validate(e) for e in data["add"]]
+            except (ValidationError, TypeError):
+                return data  # refused as `add` itself: the error names add[i], not table[7+i]
             base = data.get("table", DEFAULT_ENTRIES)
-            data = {**data, "table": (*base, *data["add"]), "add": ()}
+            data = {**data, "table": (*base, *added), "add": ()}
         return data
 
     @model_validator(mode="after")

@@ -117,3 +117,39 @@ def test_one_recording_given_twice_to_train_is_refused(tmp_path: Path) -> None:
         res = runner.invoke(app, ["train", *map(str, args), "-o", str(tmp_path / "m")])
         assert res.exit_code == 2, res.output
         assert needle in res.stderr
+
+
+@pytest.mark.parametrize("damage", ["altered", "missing"])
+def test_a_bad_model_folder_is_named_not_the_stores_temporary_copy(
+    tmp_path: Path, damage: str
+) -> None:
+    """The error named `store/.tmp/train-…` (campaign 8 #10), or was a bare ENOENT."""
+    from sonarmap.pipeline.training.model_cache import copy_verified
+
+    src = ArtifactStore(tmp_path / "src")
+
+    def build(tmp: Path) -> dict[str, Any]:
+        (tmp / "model.pt").write_bytes(b"weights")
+        (tmp / "settings.json").write_text("{}")
+        return {}
+
+    ref = src.commit("train", "ab" * 32, build, {})
+    if damage == "altered":
+        (ref.path / "model.pt").write_bytes(b"WEIGHTS")
+    else:
+        (ref.path / "settings.json").unlink()
+    with pytest.raises(ArtifactCorrupt) as err:
+        copy_verified(ref, ArtifactStore(tmp_path / "dest"))
+    assert str(ref.path) in str(err.value) and ".tmp" not in str(err.value), err.value
+    assert ("model.pt" if damage == "altered" else "settings.json") in str(err.value)
+
+
+def test_an_error_in_classes_add_names_add_not_the_table(tmp_path: Path) -> None:
+    """It said `classes.table[7].colour`, a path the user never wrote (campaign 8 #10)."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "classes:\n  add:\n    - {name: mooring_block, id: 7, frame_kind: object, colour: 12}\n"
+    )
+    res = CliRunner().invoke(app, ["config", "check", str(bad)])
+    assert res.exit_code == 2
+    assert "classes.add[0].colour" in res.output and "table[7]" not in res.output

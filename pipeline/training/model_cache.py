@@ -119,11 +119,18 @@ def copy_verified(ref: ArtifactRef, dest: ArtifactStore) -> ArtifactRef:
     files: Mapping[str, Any] = ref.manifest.get("files") or {}
 
     def copy(tmp: Path) -> Mapping[str, Any]:
+        # Errors name the folder copied from, not the store's temporary one.
         for rel in files:
             target = safe_relative(tmp, rel)
             target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(safe_relative(ref.path, rel), target)
-        verify_artifact_dir(tmp, ref.manifest)
+            try:
+                shutil.copyfile(safe_relative(ref.path, rel), target)
+            except FileNotFoundError:
+                raise ArtifactCorrupt(f"{ref.path}: its manifest lists '{rel}', not there") from None
+        try:
+            verify_artifact_dir(tmp, ref.manifest)
+        except ArtifactCorrupt as err:
+            raise ArtifactCorrupt(str(err).replace(str(tmp), str(ref.path))) from None
         return {}
 
     # its work units first: the committed copy lists them (store.units)
