@@ -153,3 +153,25 @@ def test_an_error_in_classes_add_names_add_not_the_table(tmp_path: Path) -> None
     res = CliRunner().invoke(app, ["config", "check", str(bad)])
     assert res.exit_code == 2
     assert "classes.add[0].colour" in res.output and "table[7]" not in res.output
+
+
+def test_a_class_the_table_infers_but_the_model_lacks_is_warned_of(tmp_path: Path) -> None:
+    """An added class whose labels never reached the model: `run` was silent (#7)."""
+    rec = small_recording(tmp_path / "rec.mcap", duration_s=20.0)
+    config = tmp_path / "mooring.yaml"
+    config.write_text(
+        "classes:\n  add:\n    - {name: mooring_block, id: 7, frame_kind: object,"
+        " inferred: true, colour: '#8c564b'}\n"
+    )
+    args = ["run", str(rec), "--store", str(tmp_path / "s"), "--until", "classify"]
+    res = CliRunner().invoke(app, [*args, "--config", str(config), "--json"])
+    assert res.exit_code == 0, res.output
+    warned = [w for s in json.loads(res.stdout)["stages"] for w in s.get("warnings", [])]
+    assert any("model has no class mooring_block" in w for w in warned), warned
+    plain = CliRunner().invoke(app, [*args, "--json"])
+    assert plain.exit_code == 0, plain.output
+    assert not any(
+        "model has no class" in w
+        for s in json.loads(plain.stdout)["stages"]
+        for w in s.get("warnings", [])
+    )

@@ -358,6 +358,13 @@ def _classify(
     acceptance = acceptance_report(
         single_view_max, sure, inputs.get("train.metrics"), config.threshold
     )
+    unknown = [e.name for e in table.table if e.inferred and e.name not in names]
+    if unknown:  # a class added to the table, its labels never reached the model
+        acceptance["warnings"].append(
+            f"classify: the model has no class {', '.join(unknown)} (inferred in"
+            " classes.table): no object gets it, so it is never inferred; train a model on"
+            " labels of it (docs/labels-and-classes.md)"
+        )
     if single_view_max is not None:
         acceptance["unconfirmed"] = sure - accepted
         acceptance["min_views"] = config.min_views if config.pool_views else 1

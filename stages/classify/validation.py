@@ -104,6 +104,11 @@ def say_what_is_not_learned(
     """Warnings for each labelled class left out for too few objects, and for a model with
     nothing to validate on: neither is ever silent."""
     counts = np.bincount(class_id[train], minlength=len(table.names_by_id()))
+    for entry in table.table:
+        if entry.frame_kind != "none" and counts[entry.id] == 0:
+            log.warning(
+                "class %s: no labelled training object: the model will not know it", entry.name
+            )
     for c in np.flatnonzero(counts > 0):
         if c != 0 and int(c) not in ids:
             log.warning(
