@@ -7,6 +7,7 @@ import hashlib
 import os
 from collections import Counter
 from collections.abc import Mapping
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -99,9 +100,15 @@ def test_unit_assembled_artifact_equals_cold_and_direct(tmp_path: Path) -> None:
     assert len(manifest["units"]) == 13
     assert cold.stages[0].units == (0, 13)
     COMPUTED.clear()
-    warm = _run(data, tmp_path / "st", force=("chunks",))
+    shutil.rmtree(cold.artifacts["chunks"].path)  # the artifact gone, its units kept
+    warm = _run(data, tmp_path / "st")
     assert COMPUTED["chunks"] == 0 and warm.artifacts["chunks"].manifest["units_reused"] == 13
     assert _bytes(warm) == cold_bytes
+    # `--force` recomputes from scratch, the units too (a repair must not reuse them).
+    COMPUTED.clear()
+    forced = _run(data, tmp_path / "st", force=("chunks",))
+    assert COMPUTED["chunks"] == 13 and forced.artifacts["chunks"].manifest["units_reused"] == 0
+    assert _bytes(forced) == cold_bytes
     fresh = _run(data, tmp_path / "other")  # a fresh store: computed whole, same bytes
     assert _bytes(fresh) == cold_bytes
     direct = _chunks(ChunksConfig(), {"dataset": data.read_bytes()})["table"]
@@ -152,12 +159,30 @@ def test_tampered_unit_fails_verify_and_is_recomputed_locally(tmp_path: Path) ->
     with pytest.raises(ArtifactCorrupt, match="unit chunks/"):
         store.verify(cold.artifacts["chunks"])
     COMPUTED.clear()
-    again = _run(data, tmp_path / "st", force=("chunks",))
+    shutil.rmtree(cold.artifacts["chunks"].path)  # as `gc --broken` does
+    again = _run(data, tmp_path / "st")
     manifest = again.artifacts["chunks"].manifest
     assert (manifest["units_reused"], manifest["units_computed"], COMPUTED["chunks"]) == (3, 1, 1)
     assert any("altered on disk, recomputed" in w for w in again.warnings)
     assert _bytes(again) == _bytes(cold)
     store.verify(again.artifacts["chunks"])  # the recomputed unit replaced the altered one
+
+
+def test_another_units_file_in_a_units_place_is_recomputed(tmp_path: Path) -> None:
+    """A valid unit file copied over another key's passed its own digest and was reused:
+    the extension's artifact then held the wrong chunk and verified clean (campaign 11)."""
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    cold = _run(data, tmp_path / "st")
+    store = ArtifactStore(tmp_path / "st")
+    first, second = sorted(cold.artifacts["chunks"].manifest["units"])[:2]
+    shutil.copyfile(unit_path(store.root, "chunks", first), unit_path(store.root, "chunks", second))
+    shutil.rmtree(cold.artifacts["chunks"].path)
+    COMPUTED.clear()
+    again = _run(data, tmp_path / "st")
+    assert COMPUTED["chunks"] == 1
+    assert any("another unit's file" in w for w in again.warnings), again.warnings
+    assert _bytes(again) == _bytes(cold)
 
 
 def test_a_copied_artifact_brings_its_units_and_a_missing_one_is_refused(tmp_path: Path) -> None:
@@ -265,7 +290,8 @@ def test_a_remote_s_swapped_units_never_enter_a_run_here(tmp_path: Path) -> None
     """A remote can vouch for its artifacts' files, not for what a unit of a key must
     hold: units swapped (with their manifest entries) on a remote passed `pull` and
     `--verify`, and a later run here assembled its artifact from them (other bytes under
-    the honest key). Pulled units now serve only the artifacts that list them."""
+    the honest key). Pulled units now serve only the artifacts that list them, and a
+    unit's digest binds it to its key: the swap is refused at `pull`."""
     import json
 
     from sonarmap.pipeline.engine.share.push_pull import pull, push
@@ -285,10 +311,10 @@ def test_a_remote_s_swapped_units_never_enter_a_run_here(tmp_path: Path) -> None
     manifest["units"][a], manifest["units"][b] = manifest["units"][b], manifest["units"][a]
     manifest_path.write_text(json.dumps(manifest))
     bob = ArtifactStore(tmp_path / "bob")
-    (ref,) = pull(bob, str(remote), ["chunks"])
-    bob.verify(ref)  # the remote's own word holds together
+    with pytest.raises(ArtifactCorrupt, match="another unit's file"):
+        pull(bob, str(remote), ["chunks"])
     COMPUTED.clear()
-    again = _run(data, tmp_path / "bob", force=("chunks",))
+    again = _run(data, tmp_path / "bob")
     assert COMPUTED["chunks"] == 4  # every unit computed here, none taken from the remote
     assert _bytes(again) == honest
 
@@ -324,6 +350,7 @@ def test_a_unit_that_is_a_link_is_refused_not_followed(tmp_path: Path) -> None:
     with pytest.raises(ArtifactCorrupt, match="not a plain file"):
         store.verify(ref)
     COMPUTED.clear()
-    again = _run(data, store.root, force=("chunks",))  # a run recomputes it, with a line
+    shutil.rmtree(ref.path)  # as `gc --broken` does
+    again = _run(data, store.root)  # a run recomputes it, with a line
     assert COMPUTED["chunks"] == 1 and not victim.is_symlink()
     assert "not a plain file" in again.artifacts["chunks"].manifest["unit_warnings"][0]

@@ -166,7 +166,9 @@ def run_job(
     memo = None
     if stage.units and job.units_root is not None:
         dataset = job.dataset.fingerprint if stage.reads_dataset else ""
-        memo = inputs[UNITS_INPUT] = UnitMemo(job.units_root, stage.name, dataset)
+        forced = job.item.reason == "forced"  # recomputed from scratch, units too
+        memo = UnitMemo(job.units_root, stage.name, dataset, reuse=not forced)
+        inputs[UNITS_INPUT] = memo
     provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}
     try:
         values = stage.run(job.sections[stage.name], inputs)

@@ -53,4 +53,4 @@ def install_units(
         for key, entry in listed.items():
             rel = unit_path(Path("."), stage, key).as_posix()
             data = safe_relative(staging, rel).read_bytes()
-            install_pulled_unit(root, stage, entry, data, f"remote {rel}")
+            install_pulled_unit(root, stage, key, entry, data, f"remote {rel}")

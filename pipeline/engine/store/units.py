@@ -6,10 +6,14 @@ stage computes the key itself from what the unit depends on (its version and con
 fields, the keyframe's own content, the thresholds it uses); it never sees a path.
 
 Layout: `<store>/units/<stage>/<key[:2]>/<key>`, written atomically (temporary file in
-the store's `.tmp`, fsync, rename). A file is `MAGIC`, the raw sha256 of the payload, then
-the payload: a JSON line naming each array's dtype and shape, then the arrays' raw bytes
-(plain numbers only: never a pickle, and the same arrays always give the same bytes). A unit whose digest does not match (altered on disk) is
-recomputed with a warning on a local run; `verify_units` refuses it on `--verify`/`pull`.
+the store's `.tmp`, fsync, rename). A file is `MAGIC`, the raw sha256 of its key and its
+payload, then the payload: a JSON line naming each array's dtype and shape, then the
+arrays' raw bytes (plain numbers only: never a pickle, and the same arrays always give the
+same bytes). The digest binds the file to its key: a unit whose digest does not match
+(altered on disk, or another unit's file put in its place) is recomputed with a warning on
+a local run; `verify_units` refuses it on `--verify`/`pull`. (Files of the first format,
+`LEGACY_MAGIC`, digest the payload alone; they are still read.) `run --force STAGE`
+recomputes the stage's units, reusing none.
 
 The artifact a stage commits lists the units it was assembled from in its manifest
 (`"units": {key: {"sha256", "size"}}`), so `gc` keeps the units of kept artifacts and removes the
@@ -63,7 +67,9 @@ UNITS = "units"
 """The store folder of the units (never a stage's folder: the store scan skips it)."""
 PULLED_UNITS = "units-pulled"
 """The store folder of units fetched by `pull` (by sha256; not an identifier: no stage)."""
-MAGIC = b"SMUNIT1\n"
+MAGIC = b"SMUNIT2\n"
+LEGACY_MAGIC = b"SMUNIT1\n"
+"""Units written before the digest took in the key: read, never written."""
 _HEX = frozenset("0123456789abcdef")
 
 
@@ -101,9 +107,10 @@ def _read_plain(path: Path, where: str, size: int | None = None) -> bytes:
     return path.read_bytes()
 
 
-def encode_unit(arrays: Mapping[str, Any]) -> bytes:
-    """The file bytes of a unit: magic, sha256 of the payload, the payload (a JSON header
-    line naming each array's dtype and shape, then their raw bytes in that order)."""
+def encode_unit(arrays: Mapping[str, Any], key: str) -> bytes:
+    """The file bytes of unit `key`: magic, sha256 of the key and the payload, the payload
+    (a JSON header line naming each array's dtype and shape, then their raw bytes in that
+    order)."""
     import numpy as np
 
     items = [(k, np.ascontiguousarray(arrays[k])) for k in sorted(arrays)]
@@ -113,19 +120,25 @@ def encode_unit(arrays: Mapping[str, Any]) -> bytes:
     header = [[k, a.dtype.str, list(a.shape)] for k, a in items]
     payload = json.dumps(header, separators=(",", ":")).encode() + b"\n"
     payload += b"".join(a.tobytes() for _, a in items)
-    return MAGIC + hashlib.sha256(payload).digest() + payload
+    return MAGIC + hashlib.sha256(key.encode() + payload).digest() + payload
 
 
-def decode_unit(data: bytes, where: str) -> dict[str, Any]:
-    """The arrays of a unit file; `ArtifactCorrupt` (one line) if altered or not a unit."""
+def decode_unit(data: bytes, where: str, key: str) -> dict[str, Any]:
+    """The arrays of unit `key`'s file; `ArtifactCorrupt` (one line) if altered, another
+    key's, or not a unit."""
     import numpy as np
 
     head = len(MAGIC) + 32
-    if data[: len(MAGIC)] != MAGIC or len(data) < head:
+    magic = data[: len(MAGIC)]
+    if magic not in (MAGIC, LEGACY_MAGIC) or len(data) < head:
         raise ArtifactCorrupt(f"{where}: not a work unit (no magic bytes)")
     payload = data[head:]
-    if hashlib.sha256(payload).digest() != data[len(MAGIC) : head]:
-        raise ArtifactCorrupt(f"{where}: the unit's content does not match its digest")
+    signed = key.encode() + payload if magic == MAGIC else payload
+    if hashlib.sha256(signed).digest() != data[len(MAGIC) : head]:
+        raise ArtifactCorrupt(
+            f"{where}: the unit's content does not match its digest (altered, or another"
+            " unit's file)"
+        )
     line, _, body = payload.partition(b"\n")
     try:
         out, offset = {}, 0
@@ -166,13 +179,13 @@ def file_entry(data: bytes) -> dict[str, Any]:
 
 
 def install_pulled_unit(
-    root: Path, stage: str, entry: Mapping[str, Any], data: bytes, where: str
+    root: Path, stage: str, key: str, entry: Mapping[str, Any], data: bytes, where: str
 ) -> None:
     """Put a unit fetched by `pull` in the pulled pool, after checking it is the content
     its artifact lists (`entry`) and decodes; a unit computed here is never replaced."""
     if file_entry(data) != {"sha256": entry["sha256"], "size": entry["size"]}:
         raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
-    decode_unit(data, where)
+    decode_unit(data, where, key)
     path = pulled_unit_path(root, stage, str(entry["sha256"]))
     if not path.exists():
         _write_atomic(root, path, data)
@@ -202,10 +215,12 @@ class UnitMemo:
     many were found (`hits`) or computed (`misses`); `warnings` says which were altered.
     """
 
-    def __init__(self, root: Path, stage: str, dataset: str = "") -> None:
+    def __init__(self, root: Path, stage: str, dataset: str = "", reuse: bool = True) -> None:
         self.root, self.stage = Path(root), stage
         self.dataset = dataset
         """The content fingerprint of the run's dataset (for a stage reading it)."""
+        self.reuse = reuse
+        """False (`run --force STAGE`): every unit is computed again, none read."""
         self.used: dict[str, dict[str, Any]] = {}
         self.hits = 0
         self.misses = 0
@@ -215,9 +230,12 @@ class UnitMemo:
         """The unit's arrays, or None (absent, or altered: then it is recomputed)."""
         path = unit_path(self.root, self.stage, key)
         where = f"unit {self.stage}/{key[:12]}"
+        if not self.reuse:
+            self.misses += 1
+            return None
         try:
             data = _read_plain(path, where)
-            arrays = decode_unit(data, where)
+            arrays = decode_unit(data, where, key)
         except FileNotFoundError:
             self.misses += 1
             return None
@@ -232,7 +250,7 @@ class UnitMemo:
 
     def put(self, key: str, arrays: Mapping[str, Any]) -> None:
         """Store a computed unit (atomically; the same key always holds the same arrays)."""
-        data = encode_unit(arrays)
+        data = encode_unit(arrays, key)
         _write_atomic(self.root, unit_path(self.root, self.stage, key), data)
         self.used[key] = file_entry(data)
 
@@ -283,7 +301,7 @@ def verify_units(root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
             raise ArtifactCorrupt(f"{where}: missing") from err
         if file_entry(data) != entry:
             raise ArtifactCorrupt(f"{where}: sha256 or size does not match the artifact's manifest")
-        decode_unit(data, where)
+        decode_unit(data, where, key)
 
 
 def copy_units(src_root: Path, dest_root: Path, stage: str, manifest: Mapping[str, Any]) -> None:
