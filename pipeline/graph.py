@@ -41,6 +41,7 @@ def default_graph() -> Graph:
     """
     from sonarmap.pipeline.formats.frames_codec import FRAMES_CODECS
     from sonarmap.pipeline.readers import dataset_fingerprint_parts, open_recording
+    from sonarmap.pipeline.readers.referenced_files import pin_referenced_files
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.schemas.classes import ClassTable
     from sonarmap.stages.classify import STAGE as classify
@@ -64,6 +65,7 @@ def default_graph() -> Graph:
         training=train,
         extra_sections={"training": TrainingDataConfig, "classes": ClassTable},
         codecs=FRAMES_CODECS,
+        pin=pin_referenced_files,
     )
 
 

@@ -110,3 +110,29 @@ def test_the_previews_window_warnings_are_not_printed(
     log.warning("%s: after the preview's read, said again", window)
     said = [r.getMessage() for r in caplog.records]
     assert said == ["another file: kept", f"{window}: after the preview's read, said again"]
+
+
+def test_a_beam_table_file_enters_the_keys_by_its_content(
+    real_run: dict[str, Path], tmp_path: Path
+) -> None:
+    """An edited beam-table file kept every key: stale sensors.json and metrics were
+    served as hits, and the recording-facts unit too (campaign 11 #1)."""
+    table = tmp_path / "hs.yaml"
+
+    def key() -> str:
+        rows = _status(
+            real_run["recording"], real_run["store"],
+            "--set", f"keyframes.horizontal_sonar={table}", "--until", "keyframes",
+        )  # fmt: skip
+        return rows["keyframes"]["key"]
+
+    table.write_text("fov_deg: 130.0\nvertical_aperture_deg: 20.0\nmax_range_m: 120.0\n")
+    first = key()
+    table.write_text("fov_deg: 60.0\nvertical_aperture_deg: 8.0\nmax_range_m: 30.0\n")
+    assert key() != first
+    table.write_text("fov_deg: 130.0\nvertical_aperture_deg: 20.0\nmax_range_m: 120.0\n")
+    assert key() == first
+    # No file named: the default config's keys are those of before the field.
+    from sonarmap.stages.keyframes.config import KeyframesConfig
+
+    assert "files_sha256" not in KeyframesConfig().model_dump(mode="json")

@@ -81,11 +81,12 @@ def _training_simulations(config: Path | None, overrides: Sequence[str], store: 
     from sonarmap.pipeline.engine.config.load import load_config
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
     from sonarmap.pipeline.graph import all_stages, extra_sections
+    from sonarmap.pipeline.readers.referenced_files import pin_referenced_files
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_simulations
     from sonarmap.pipeline.training.model_cache import planned_default_model
 
-    resolved = load_config(all_stages(), config, overrides, extra_sections())
+    resolved = pin_referenced_files(load_config(all_stages(), config, overrides, extra_sections()))
     if planned_default_model(ArtifactStore(store), resolved)[1]:
         return []
     return training_simulations(getattr(resolved, "training", TrainingDataConfig()))

@@ -152,12 +152,15 @@ def _default(
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
     from sonarmap.pipeline.engine.store.integrity import verify_file
     from sonarmap.pipeline.graph import all_stages, extra_sections
+    from sonarmap.pipeline.readers.referenced_files import pin_referenced_files
     from sonarmap.pipeline.training.model_cache import resolve_default_model
 
     with writes_under(out, store):
         t0 = time.perf_counter()
         check_writable(out)
-        resolved = load_config(all_stages(), config, overrides, extra_sections())
+        resolved = pin_referenced_files(
+            load_config(all_stages(), config, overrides, extra_sections())
+        )
         chosen = resolve_default_model(ArtifactStore(store), resolved)
         ref = chosen.ref
         out.mkdir(parents=True, exist_ok=True)
@@ -199,12 +202,13 @@ def _ship(
     from sonarmap.pipeline.engine.run.session import dataset_spec
     from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
     from sonarmap.pipeline.graph import all_stages, default_graph, extra_sections
+    from sonarmap.pipeline.readers.referenced_files import pin_referenced_files
     from sonarmap.pipeline.training.config import TrainingDataConfig
     from sonarmap.pipeline.training.model import training_datasets, training_simulations
     from sonarmap.pipeline.training.model_cache import resolve_default_model
     from sonarmap.pipeline.training.shipped import lock_disagreements, ship, shipped_root
 
-    resolved = load_config(all_stages(), config, overrides, extra_sections())
+    resolved = pin_referenced_files(load_config(all_stages(), config, overrides, extra_sections()))
     training: TrainingDataConfig = getattr(resolved, "training", TrainingDataConfig())
     root = shipped_root(training.shipped_models)
     if root is None:

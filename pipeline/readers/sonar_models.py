@@ -168,6 +168,24 @@ def _shown(spec: str, limit: int = 240) -> str:
 
 
 @functools.lru_cache(maxsize=64)
+def sonar_file(spec: str) -> tuple[Path, bool]:
+    """The file a sonar setting names, and whether it is a shipped preset.
+
+    Raises:
+        ConfigError: neither a preset's name nor a file; one line naming it.
+    """
+    preset = PRESETS_DIR / f"{spec}.yaml"
+    if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec) and preset.is_file():
+        return preset, True
+    path = Path(spec)
+    if not path.is_file():
+        raise ConfigError(
+            f"sonar {_shown(spec)!r}: neither a preset ({', '.join(preset_names())}) nor a "
+            "beam-table file (.csv, .txt, .yaml)"
+        )
+    return path, False
+
+
 def load_sonar(spec: str) -> SonarModel:
     """A preset by name, or a beam-table file (.csv/.txt: angles; .yaml: list or mapping).
 
@@ -176,16 +194,10 @@ def load_sonar(spec: str) -> SonarModel:
     """
     from sonarmap.pipeline.engine.config.yaml_files import read_yaml
 
-    preset = PRESETS_DIR / f"{spec}.yaml"
-    if re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9._-]*", spec) and preset.is_file():
-        doc = read_yaml(preset, "sonar preset", ConfigError)
-        return _from_mapping(doc, spec, f"preset {spec}", str(preset))
-    path = Path(spec)
-    if not path.is_file():
-        raise ConfigError(
-            f"sonar {_shown(spec)!r}: neither a preset ({', '.join(preset_names())}) nor a "
-            "beam-table file (.csv, .txt, .yaml)"
-        )
+    path, is_preset = sonar_file(spec)
+    if is_preset:
+        doc = read_yaml(path, "sonar preset", ConfigError)
+        return _from_mapping(doc, spec, f"preset {spec}", str(path))
     where = str(path)
     if path.suffix.lower() in (".yaml", ".yml"):
         doc = read_yaml(path, "beam table", ConfigError)

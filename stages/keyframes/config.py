@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
-from pydantic import Field
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer
 
 from sonarmap.stages.base import StageConfig
 
@@ -59,6 +59,10 @@ class KeyframesConfig(StageConfig):
         submap_stride: dense submaps (stage `submaps`): every keyframe also maps every
             k-th ping pair recorded between it and the next keyframe; 0 maps keyframes
             only (the paper). Read by `submaps` only, so it is not in this stage's key.
+        files_sha256: filled by sonarmap, never by hand: the sha256 of each file the
+            settings above name (a sonar's preset or beam table, message definitions), so
+            that an edited file changes the keys as an edited setting does. Left out of
+            the config (and its keys) when no setting names a file.
     """
 
     spacing_m: float = Field(2.0, gt=0.0, le=1000.0)
@@ -97,3 +101,11 @@ class KeyframesConfig(StageConfig):
     imu_mount_rpy_deg: tuple[_MountDeg, _MountDeg, _MountDeg] | None = None
     calibration_pairs: int = Field(24, ge=1, le=1000)
     submap_stride: int = Field(0, ge=0, le=10000)
+    files_sha256: dict[str, str] = Field(default_factory=dict, max_length=80)
+
+    @model_serializer(mode="wrap")
+    def _without_empty_files(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data = handler(self)
+        if not data.get("files_sha256"):  # no file named: keys as before the field
+            data.pop("files_sha256", None)
+        return data

@@ -43,6 +43,8 @@ class Graph:
         spec: the `module:attribute` it was loaded from (None: the default graph).
         codecs: output kind -> its `Codec`, for the kinds beyond the engine's own
             (parquet, json, bytes): the real pipeline's `frames`.
+        pin: config -> the config with the contents of the files it names pinned
+            (`sonarmap.pipeline.readers.referenced_files`; None: it names none).
     """
 
     stages: tuple[Stage, ...]
@@ -52,6 +54,7 @@ class Graph:
     extra_sections: Mapping[str, type[BaseModel]] = field(default_factory=dict)
     spec: str | None = None
     codecs: Mapping[str, Codec] = field(default_factory=dict)
+    pin: Callable[[BaseModel], BaseModel] | None = None
 
     @property
     def config_stages(self) -> tuple[Stage, ...]:

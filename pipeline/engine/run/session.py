@@ -63,6 +63,8 @@ def open_context(
 ) -> RunContext:
     """`graph` on `dataset`: validate the config first (cheap), then fingerprint."""
     config = load_config(graph.config_stages, config_path, overrides, graph.extra_sections)
+    pin = getattr(graph, "pin", None)  # a graph given by $SONARMAP_GRAPH may have none
+    config = pin(config) if pin is not None else config
     store = ArtifactStore(store_dir)
     spec = dataset_spec(dataset, store, graph, create_store=create_store)
     return RunContext(graph.stages, config, store, spec)
