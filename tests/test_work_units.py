@@ -354,3 +354,28 @@ def test_a_unit_that_is_a_link_is_refused_not_followed(tmp_path: Path) -> None:
     again = _run(data, store.root)  # a run recomputes it, with a line
     assert COMPUTED["chunks"] == 1 and not victim.is_symlink()
     assert "not a plain file" in again.artifacts["chunks"].manifest["unit_warnings"][0]
+
+
+def test_a_recording_replaced_after_its_fingerprint_is_refused_and_nothing_kept(
+    tmp_path: Path,
+) -> None:
+    """A recording replaced (or still growing) between fingerprinting and reading: every
+    artifact and the dataset's unit were stored under the old content's key, and later
+    runs of the real file were served the other recording's map (campaign 11 #2)."""
+    from sonarmap.pipeline.engine.errors import SourceError
+
+    data = tmp_path / "rec.bin"
+    data.write_bytes(bytes(range(64)))
+    store = tmp_path / "st"
+    ctx = make_context(
+        data, stages=STAGES, overrides=(), store_dir=store,
+        parts=lambda p: [p], opener=lambda _section: data.read_bytes(),
+    )  # fmt: skip
+    planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
+    replacement = tmp_path / "other.bin"
+    replacement.write_bytes(bytes(range(100, 164)))
+    replacement.replace(data)  # as `mv` does: another inode under the name
+    with pytest.raises(SourceError, match="changed while sonarmap read it"):
+        execute(planned, ctx.config, ctx.dataset, ctx.store)
+    assert ArtifactStore(store).get("chunks", planned[0].key) is None
+    assert list(iter_unit_files(store)) == []

@@ -25,6 +25,9 @@ __all__ = [
     "STORE_FORMAT_VERSION",
     "FingerprintCache",
     "canonical_json",
+    "changed_file",
+    "changed_while_read",
+    "file_identities",
     "recipe_key",
     "sha256_file",
     "stage_recipe",
@@ -88,6 +91,36 @@ def sha256_file(path: Path) -> str:
         while chunk := f.read(_CHUNK):
             digest.update(chunk)
     return digest.hexdigest()
+
+
+Identity = tuple[tuple[str, tuple[int, ...]], ...]
+"""Each file of a dataset with its `_stat_identity` at the time it was fingerprinted."""
+
+
+def file_identities(parts: Sequence[Path]) -> Identity:
+    """The stat identity of each file (`_stat_identity`), to tell later whether any changed."""
+    return tuple((str(p), tuple(_stat_identity(p))) for p in parts)
+
+
+def changed_while_read(path: str) -> SourceError:
+    """The error of a dataset file that changed after it was fingerprinted: what was read
+    is not what the keys name, so nothing is kept of it."""
+    return SourceError(
+        f"{path}: changed while sonarmap read it (a recorder still writing it, or a copy"
+        " replacing it): map it once it is closed, or as it grows with `sonarmap follow`"
+    )
+
+
+def changed_file(identity: Identity) -> str | None:
+    """The first file whose stat identity is no longer the one recorded (None: none)."""
+    for path, ident in identity:
+        try:
+            now = tuple(_stat_identity(Path(path)))
+        except SourceError:
+            return path
+        if now != ident:
+            return path
+    return None
 
 
 def _stat_identity(path: Path) -> list[int]:

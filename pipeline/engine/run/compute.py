@@ -22,6 +22,7 @@ from sonarmap.pipeline.engine.errors import (
     SourceError,
     StageFailed,
 )
+from sonarmap.pipeline.engine.hashing import changed_file, changed_while_read
 from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef
 from sonarmap.stages.base import (
@@ -167,12 +168,15 @@ def run_job(
     if stage.units and job.units_root is not None:
         dataset = job.dataset.fingerprint if stage.reads_dataset else ""
         forced = job.item.reason == "forced"  # recomputed from scratch, units too
-        memo = UnitMemo(job.units_root, stage.name, dataset, reuse=not forced)
+        identity = job.dataset.identity if stage.reads_dataset else ()
+        memo = UnitMemo(job.units_root, stage.name, dataset, not forced, identity)
         inputs[UNITS_INPUT] = memo
     provenance = {"stage": stage.name, "version": str(stage.version), "key": job.item.key}
     try:
         values = stage.run(job.sections[stage.name], inputs)
         del inputs
+        if stage.reads_dataset and (changed := changed_file(job.dataset.identity)):
+            raise changed_while_read(changed)  # read is not what the key names
         facts: dict[str, Any] = {}
         for output in stage.outputs:
             value = values.get(output.name)

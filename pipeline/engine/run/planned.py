@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from sonarmap.pipeline.engine.hashing import Identity
 from sonarmap.stages.base import Stage
 
 if TYPE_CHECKING:
@@ -35,6 +36,9 @@ class DatasetSpec:
     fingerprint: str
     open: Callable[[Path, Any], Any]
     codecs: Mapping[str, Codec] = field(default_factory=dict)
+    identity: Identity = ()
+    """Each file's stat identity when fingerprinted: a stage reading the dataset checks
+    it did not change since (`sonarmap.pipeline.engine.hashing.changed_file`)."""
 
 
 @dataclass(frozen=True)

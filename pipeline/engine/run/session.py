@@ -11,7 +11,12 @@ from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.engine.hashing import FingerprintCache
+from sonarmap.pipeline.engine.hashing import (
+    FingerprintCache,
+    changed_file,
+    changed_while_read,
+    file_identities,
+)
 from sonarmap.pipeline.engine.run.graph import Graph
 from sonarmap.pipeline.engine.run.planned import DatasetSpec
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
@@ -37,11 +42,18 @@ def dataset_spec(
     remember = create_store or store.root.is_dir()
     cache = FingerprintCache(store.root / ".cache" / "fingerprints.json", remember)
     root = path if path.is_dir() else path.parent
+    identity = file_identities(files)
     try:
         fingerprint = cache.dataset_fingerprint(files, root)
     except OSError as err:  # the store's cache on a full, read-only or odd filesystem
         raise disk_error(err, store.root / ".cache") from err
-    return DatasetSpec(path=path, fingerprint=fingerprint, open=graph.open, codecs=graph.codecs)
+    changed = changed_file(identity)  # written to while hashed: no content to name
+    if changed is not None:
+        raise changed_while_read(changed)
+    return DatasetSpec(
+        path=path, fingerprint=fingerprint, open=graph.open, codecs=graph.codecs,
+        identity=identity,
+    )  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
+from sonarmap.pipeline.engine.hashing import Identity, changed_file, changed_while_read
 
 __all__ = [
     "MAGIC",
@@ -215,10 +216,20 @@ class UnitMemo:
     many were found (`hits`) or computed (`misses`); `warnings` says which were altered.
     """
 
-    def __init__(self, root: Path, stage: str, dataset: str = "", reuse: bool = True) -> None:
+    def __init__(
+        self,
+        root: Path,
+        stage: str,
+        dataset: str = "",
+        reuse: bool = True,
+        identity: Identity = (),
+    ) -> None:
         self.root, self.stage = Path(root), stage
         self.dataset = dataset
         """The content fingerprint of the run's dataset (for a stage reading it)."""
+        self.identity = identity
+        """Its files' stat identities when fingerprinted: a unit computed from a file
+        changed since is not stored under that fingerprint."""
         self.reuse = reuse
         """False (`run --force STAGE`): every unit is computed again, none read."""
         self.used: dict[str, dict[str, Any]] = {}
@@ -251,6 +262,8 @@ class UnitMemo:
     def put(self, key: str, arrays: Mapping[str, Any]) -> None:
         """Store a computed unit (atomically; the same key always holds the same arrays)."""
         data = encode_unit(arrays, key)
+        if self.identity and (changed := changed_file(self.identity)) is not None:
+            raise changed_while_read(changed)
         _write_atomic(self.root, unit_path(self.root, self.stage, key), data)
         self.used[key] = file_entry(data)
 
