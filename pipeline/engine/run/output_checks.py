@@ -67,8 +67,9 @@ CHECKS: tuple[OutputCheck, ...] = (
     OutputCheck(
         "fuse",
         lambda r: _n(r, "fuse.fused") == 0 and _n(r, "features.features") > 0,
-        "fuse: 0 fused points from {features.features} features: the two sonars' features "
-        "never matched (a navigation jump, or sonar and navigation times that do not overlap)",
+        "fuse: 0 fused points from {features.features} features: no feature of one sonar"
+        " matched one of the other in its keyframe (fans that do not overlap: check the two"
+        " mounts; or fuse.min_confidence / fuse.max_cost_ratio culled every match)",
     ),
     OutputCheck(
         "slam",
