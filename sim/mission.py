@@ -9,12 +9,15 @@ path (turning in place at a fixed yaw rate) or is held constant (strafing).
 from __future__ import annotations
 
 import heapq
+import logging
 from dataclasses import dataclass
 
 import numpy as np
 
 from sonarmap.sim.config import MissionConfig, NavigationNoise
 from sonarmap.sim.world import World
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Occupancy", "Trajectory", "dead_reckoning", "plan_mission"]
 
@@ -135,7 +138,8 @@ def plan_mission(
     """Random start, `n_goals` random free goals, nearest-neighbour order, A* paths, timing.
 
     Raises:
-        ValueError: the scene has no free water at the mission depth.
+        ValueError: the scene has no free water at the mission depth, or no goal can be
+            reached from the start (a pocket of water closed in by obstacles).
     """
     occ = Occupancy.build(world, mission)
     free = np.argwhere(occ.free)
@@ -164,6 +168,17 @@ def plan_mission(
         corners.extend(_shortcut(occ, path)[1:])
         visited.append(tgt)
         cur = tgt
+    if not visited:
+        raise ValueError(
+            "no goal can be reached from the mission's start (a pocket of free water closed"
+            " in by obstacles at mission.depth_m / mission.clearance_m): try another seed"
+        )
+    if len(visited) < mission.n_goals:  # never silent: the mission is shorter than asked
+        log.warning(
+            "mission: %d of the %d goals asked for are reachable from the start (obstacles"
+            " at mission.depth_m / mission.clearance_m, or too little water for"
+            " mission.min_goal_separation_m)", len(visited), mission.n_goals,
+        )  # fmt: skip
     wp = np.array([[occ.xs[i], occ.ys[j]] for i, j in corners])
     goal_xy = np.array([[occ.xs[i], occ.ys[j]] for i, j in visited]).reshape(-1, 2)
     t_k, xy_k, yaw_k = _timing(wp, mission, rng)

@@ -138,3 +138,17 @@ def test_dead_reckoning_drift_grows_with_distance_within_noise() -> None:
         assert np.abs(yaw_err).max() < np.deg2rad(5 * nav.yaw_bias_deg + 5 * nav.yaw_noise_deg)
     assert np.mean(last) > 2 * np.mean(first)
     assert 0.002 < np.median(ratios) < 0.1
+
+
+def test_a_start_from_which_no_goal_can_be_reached_is_refused(tmp_path: Path) -> None:
+    """A start in a pocket of water closed in by pilings: `simulate` wrote a 1.5 s mission
+    that did not move, and `run` then found no map (campaign 12)."""
+    scene = tmp_path / "forest.yaml"
+    scene.write_text(
+        "name: piling_forest\nseafloor_depth_m: 8.0\narea_m: [-18.0, 18.0, -18.0, 18.0]\n"
+        "seafloor_margin_m: 35.0\nobjects:\n  - class: piling_grid\n    name: forest\n"
+        "    origin_m: [-15.0, -15.0]\n    rows: 7\n    cols: 7\n    spacing_m: [5.0, 5.0]\n"
+        "    piling: {shape: cylindrical, radius_m: 0.3}\n"
+    )
+    with pytest.raises(ValueError, match="no goal can be reached from the mission's start"):
+        simulate(load_scene(scene), _short(6), seed=1)

@@ -11,7 +11,6 @@ from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.errors import ConfigError
 from sonarmap.pipeline.engine.hashing import sha256_file
-from sonarmap.pipeline.readers.sonar_models import sonar_file
 
 __all__ = ["pin_referenced_files"]
 
@@ -44,6 +43,9 @@ def _pinned(keyframes: Any, where: str) -> Any:
     for side in ("horizontal", "vertical"):
         spec = getattr(keyframes, f"{side}_sonar")
         if spec is not None:
+            # numpy with it: only where a sonar is named (a cached run imports none)
+            from sonarmap.pipeline.readers.sonar_models import sonar_file
+
             files[f"{side}_sonar"] = sonar_file(spec)[0]
     for i, name in enumerate(keyframes.message_definitions):
         files[f"message_definitions[{i}]"] = Path(name)
