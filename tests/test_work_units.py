@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 from collections import Counter
 from collections.abc import Mapping
-import shutil
 from pathlib import Path
 from typing import Any
 
