@@ -5,7 +5,6 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -72,40 +71,3 @@ def no_matplotlib(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in [n for n in sys.modules if n == "matplotlib" or n.startswith("matplotlib.")]:
         monkeypatch.setitem(sys.modules, name, None)
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-
-
-@pytest.fixture(scope="session")
-def real_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """A 15 s tiny-scene mission mapped once by `sonarmap run` with its output in a log
-    file (not a terminal), through a symlink from another directory (one per session:
-    tests copy the store before damaging it)."""
-    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
-
-    work = tmp_path_factory.mktemp("real")
-    recording = work / "recordings" / "tiny.mcap"
-    ensure_simulations([Simulation(scene_path("tiny"), 2, recording, duration_s=15.0)], 1)
-    link = work / "elsewhere" / "linked.mcap"
-    link.parent.mkdir()
-    link.symlink_to(recording)
-    log = work / "log.txt"
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    env.pop("COLUMNS", None)
-    with log.open("w") as out:
-        res = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "sonarmap.pipeline",
-                "run",
-                str(link),
-                "--store",
-                str(work / "store"),
-            ],
-            stdout=out,
-            stderr=subprocess.STDOUT,
-            cwd=ROOT,
-            env=env,
-            timeout=600,
-        )
-    assert res.returncode == 0, log.read_text()[-3000:]
-    return {"recording": recording, "link": link, "store": work / "store", "log": log}

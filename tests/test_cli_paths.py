@@ -7,6 +7,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -153,6 +154,43 @@ def test_os_error_without_a_file_stays_a_bug(
 # --- a real run on the tiny scene, with the shipped model ------------------------------
 
 
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A 15 s tiny-scene mission mapped once by `sonarmap run` with its output in a log
+    file (not a terminal), through a symlink from another directory; tests copy
+    the store before damaging it."""
+    from sonarmap.pipeline.training.datasets import Simulation, ensure_simulations, scene_path
+
+    work = tmp_path_factory.mktemp("real")
+    recording = work / "recordings" / "tiny.mcap"
+    ensure_simulations([Simulation(scene_path("tiny"), 2, recording, duration_s=15.0)], 1)
+    link = work / "elsewhere" / "linked.mcap"
+    link.parent.mkdir()
+    link.symlink_to(recording)
+    log = work / "log.txt"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env.pop("COLUMNS", None)
+    with log.open("w") as out:
+        res = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "sonarmap.pipeline",
+                "run",
+                str(link),
+                "--store",
+                str(work / "store"),
+            ],
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+            env=env,
+            timeout=600,
+        )
+    assert res.returncode == 0, log.read_text()[-3000:]
+    return {"recording": recording, "link": link, "store": work / "store", "log": log}
+
+
 def test_symlinked_recording_runs_and_shares_the_target_fingerprint(
     real_run: dict[str, Path],
 ) -> None:
@@ -297,3 +335,39 @@ def test_no_figures_leaves_the_figure_stages_out_and_the_map_needs_no_matplotlib
     pngs = {p.name for s in ("figures", "map_figures") for p in Path(stages[s]["path"]).iterdir()}
     assert {"overlay.png", "trajectory.png", "errors.png", "map_topdown.png"} <= pngs
     assert not any(p.suffix == ".png" for p in Path(stages["evaluate"]["path"]).iterdir())
+
+
+# --- campaign 9 and 11: status and keys on the real run --------------------------------
+
+
+def _status(recording: Path, store: Path, *extra: str) -> dict[str, dict[str, str]]:
+    res = CliRunner().invoke(
+        app, ["status", str(recording), "--store", str(store), "--json", *extra]
+    )
+    assert res.exit_code == 0, res.output
+    return {r["stage"]: r for r in json.loads(res.stdout)["stages"]}
+
+
+def test_status_calls_a_hit_with_a_missing_file_damaged(
+    real_run: dict[str, Path], tmp_path: Path
+) -> None:
+    """It said "hit": the run that then read the artifact stopped with exit 2."""
+    store = tmp_path / "store"
+    shutil.copytree(real_run["store"], store)
+    [fused] = (store / "fuse").glob("*/fused.parquet")
+    fused.unlink()
+    rows = _status(real_run["recording"], store)
+    assert rows["fuse"]["status"] == "damaged", rows["fuse"]
+    assert "'fused.parquet' is missing" in rows["fuse"]["reason"]
+    assert "gc --broken" in rows["fuse"]["reason"]
+    assert rows["keyframes"]["status"] == "hit"
+
+
+def test_a_setting_read_by_another_stage_is_named_in_its_miss_reason(
+    real_run: dict[str, Path],
+) -> None:
+    """figures reads the slam section: its reason printed both whole sections (3885 chars)."""
+    rows = _status(real_run["recording"], real_run["store"], "--set", "slam.heading_sigma_deg=0.4")
+    reason = rows["figures"]["reason"]
+    assert reason.startswith("config changed: slam.heading_sigma_deg ") and "-> 0.4" in reason
+    assert len(reason) < 120, reason

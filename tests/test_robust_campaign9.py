@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,48 +14,7 @@ from typer.testing import CliRunner
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.live.preview import _unsaid
 from sonarmap.stages.evaluate.foxglove_scene import preview_messages
-
-
-def _status(recording: Path, store: Path, *extra: str) -> dict[str, dict[str, str]]:
-    res = CliRunner().invoke(
-        app, ["status", str(recording), "--store", str(store), "--json", *extra]
-    )
-    assert res.exit_code == 0, res.output
-    return {r["stage"]: r for r in json.loads(res.stdout)["stages"]}
-
-
-def test_status_calls_a_hit_with_a_missing_file_damaged(
-    real_run: dict[str, Path], tmp_path: Path
-) -> None:
-    """It said "hit": the run that then read the artifact stopped with exit 2."""
-    store = tmp_path / "store"
-    shutil.copytree(real_run["store"], store)
-    [fused] = (store / "fuse").glob("*/fused.parquet")
-    fused.unlink()
-    rows = _status(real_run["recording"], store)
-    assert rows["fuse"]["status"] == "damaged", rows["fuse"]
-    assert "'fused.parquet' is missing" in rows["fuse"]["reason"]
-    assert "gc --broken" in rows["fuse"]["reason"]
-    assert rows["keyframes"]["status"] == "hit"
-
-
-def test_status_on_a_store_that_is_not_there_creates_none(
-    real_run: dict[str, Path], tmp_path: Path
-) -> None:
-    typo = tmp_path / "stroe"
-    rows = _status(real_run["recording"], typo)
-    assert rows["keyframes"]["status"] == "miss"
-    assert not typo.exists()
-
-
-def test_a_setting_read_by_another_stage_is_named_in_its_miss_reason(
-    real_run: dict[str, Path],
-) -> None:
-    """figures reads the slam section: its reason printed both whole sections (3885 chars)."""
-    rows = _status(real_run["recording"], real_run["store"], "--set", "slam.heading_sigma_deg=0.4")
-    reason = rows["figures"]["reason"]
-    assert reason.startswith("config changed: slam.heading_sigma_deg ") and "-> 0.4" in reason
-    assert len(reason) < 120, reason
+from tests.fixtures.recordings import small_recording
 
 
 def test_the_preview_cloud_is_stamped_at_its_log_time() -> None:
@@ -112,16 +70,21 @@ def test_the_previews_window_warnings_are_not_printed(
     assert said == ["another file: kept", f"{window}: after the preview's read, said again"]
 
 
-def test_a_beam_table_file_enters_the_keys_by_its_content(
-    real_run: dict[str, Path], tmp_path: Path
-) -> None:
+def test_status_on_a_store_that_is_not_there_creates_none(tmp_path: Path) -> None:
+    typo = tmp_path / "stroe"
+    rows = _status(_recording(tmp_path), typo)
+    assert rows["keyframes"]["status"] == "miss"
+    assert not typo.exists()
+
+
+def test_a_beam_table_file_enters_the_keys_by_its_content(tmp_path: Path) -> None:
     """An edited beam-table file kept every key: stale sensors.json and metrics were
     served as hits, and the recording-facts unit too (campaign 11 #1)."""
     table = tmp_path / "hs.yaml"
 
     def key() -> str:
         rows = _status(
-            real_run["recording"], real_run["store"],
+            _recording(tmp_path), tmp_path / "store",
             "--set", f"keyframes.horizontal_sonar={table}", "--until", "keyframes",
         )  # fmt: skip
         return rows["keyframes"]["key"]
@@ -136,3 +99,15 @@ def test_a_beam_table_file_enters_the_keys_by_its_content(
     from sonarmap.stages.keyframes.config import KeyframesConfig
 
     assert "files_sha256" not in KeyframesConfig().model_dump(mode="json")
+
+
+def _recording(tmp_path: Path) -> Path:
+    return small_recording(tmp_path / "rec.mcap", duration_s=8.0)
+
+
+def _status(recording: Path, store: Path, *extra: str) -> dict[str, dict[str, str]]:
+    res = CliRunner().invoke(
+        app, ["status", str(recording), "--store", str(store), "--json", *extra]
+    )
+    assert res.exit_code == 0, res.output
+    return {r["stage"]: r for r in json.loads(res.stdout)["stages"]}
