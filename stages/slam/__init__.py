@@ -41,9 +41,7 @@ STAGE = Stage(
     # (`loop_max_view_change_deg`, off by default, rejects loops seen from another side)
     # 14: summary.json's `fallback` says when no scan match proposed was accepted (the
     # trajectory is then dead reckoning's where SLAM was asked for), with the reasons
-    # 15: a loop whose re-registration keeps under min_overlap_points pairs keeps its
-    # first measurement (as an SSM factor does; one-point loops entered the graph)
-    version=15,
+    version=14,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

@@ -8,8 +8,7 @@ from the optimised poses and the whole graph re-solved (`loop_refine_passes`), e
 loop's covariance multiplied by the number of loops that share its sonar data
 (`loop_shared_window`, `_shared_data_counts`) and by its baseline factor
 (`baseline_covariance_factor`); each pass also registers every SSM factor again
-(`ssm_refine_target_frames`). A re-registration left with fewer than
-`min_overlap_points` pairs is not taken: the loop keeps its first measurement.
+(`ssm_refine_target_frames`).
 """
 
 from __future__ import annotations
@@ -284,8 +283,6 @@ class LoopClosures:
                 t, k = row["key_from"], row["key_to"]
                 source, target = self._loop_clouds(t, k)
                 pose, overlap, rmse, cov = self._reregister(source, target, t, k)
-                if overlap < c.min_overlap_points:
-                    continue  # lost its overlap: keeps its first measurement, as SSM's do
                 growth = baseline_covariance_factor(
                     float(np.hypot(pose[0], pose[1])),
                     c.loop_baseline_growth_m,
