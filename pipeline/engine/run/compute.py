@@ -175,8 +175,6 @@ def run_job(
     try:
         values = stage.run(job.sections[stage.name], inputs)
         del inputs
-        if stage.reads_dataset and (changed := changed_file(job.dataset.identity)):
-            raise changed_while_read(changed)  # read is not what the key names
         facts: dict[str, Any] = {}
         for output in stage.outputs:
             value = values.get(output.name)
@@ -187,6 +185,9 @@ def run_job(
             facts[output.name] = write_output(
                 job.tmp, stage.name, output, value, provenance, job.dataset.codecs
             )
+        # After the outputs: a lazy one (the keyframes' images) reads the recording there.
+        if stage.reads_dataset and (changed := changed_file(job.dataset.identity)):
+            raise changed_while_read(changed)  # what was read is not what the key names
     except (PipelineError, OSError):
         raise  # OSError: a full or read-only disk, reported by `execute` (exit 2)
     except StageInputError as err:
