@@ -41,7 +41,10 @@ STAGE = Stage(
     # (`loop_max_view_change_deg`, off by default, rejects loops seen from another side)
     # 14: summary.json's `fallback` says when no scan match proposed was accepted (the
     # trajectory is then dead reckoning's where SLAM was asked for), with the reasons
-    version=14,
+    # 16 (15 was a reverted loop rule): odom_scale_sigma 0.02 -> 0.01, the simulator's
+    # default navigation like the other navigation factors; the summary's predicted drift
+    # adds the scale error's (a dilation of the track about its start)
+    version=16,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

@@ -8,10 +8,13 @@
   axis nearest the direction the scans left unconstrained, `sonarmap.stages.slam.degeneracy`).
 - SLAM against dead reckoning. Both read the same AHRS heading and start at the same pose,
   so they can part only by what SLAM corrected: the odometry's position noise
-  (`odom_chain_sigma_xy_m` per keyframe step, which covers its scale error) and the
-  heading bias's wander since the start (`heading_bias_walk_deg_sqrt_s`). Chained along
-  the dead-reckoned track (`sonarmap.stages.slam.pcm.chain_covariance`), that is the
-  navigation's predicted drift; where the two trajectories part by more than its 99 %
+  (`odom_chain_sigma_xy_m` per keyframe step), the heading bias's wander since the start
+  (`heading_bias_walk_deg_sqrt_s`), chained along the dead-reckoned track
+  (`sonarmap.stages.slam.pcm.chain_covariance`), and the DVL's scale error
+  (`odom_scale_sigma`), which is not a random walk: fixed per body axis, it stretches each
+  step's forward and sideways parts, so its error grows with the distance travelled along
+  each body axis (`scale_drift_covariance`). Together that is the navigation's predicted
+  drift; where the two trajectories part by more than its 99 %
   bound (sqrt(chi2(0.99, 2)) times the largest position standard deviation), either the
   navigation is worse than its noise model says, or scan matching went wrong: a warning.
 - No scan match accepted (mode `slam`, at least one proposed): the trajectory is dead
@@ -30,7 +33,7 @@ import numpy as np
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.pcm import chain_covariance
 
-__all__ = ["CHI2_99_2DOF", "predicted_drift_m", "slam_summary"]
+__all__ = ["CHI2_99_2DOF", "predicted_drift_m", "scale_drift_covariance", "slam_summary"]
 
 CHI2_99_2DOF = 9.210340371976184
 """chi2.ppf(0.99, 2) (a test checks it against scipy)."""
@@ -47,8 +50,28 @@ def predicted_drift_m(config: SlamConfig, dr_se2: np.ndarray, t_s: np.ndarray) -
         step[:, 2, 2] = np.deg2rad(config.heading_bias_walk_deg_sqrt_s) ** 2 * dt
     else:
         step[:, 2, 2] = np.deg2rad(config.odom_sigma_yaw_deg) ** 2
-    chain = chain_covariance(dr_se2, step)
-    return np.sqrt(np.linalg.eigvalsh(chain[:, :2, :2])[:, -1])
+    chain = chain_covariance(dr_se2, step)[:, :2, :2]
+    if config.odom_scale_sigma is not None:
+        chain = chain + scale_drift_covariance(dr_se2, config.odom_scale_sigma)
+    return np.sqrt(np.linalg.eigvalsh(chain)[:, -1])
+
+
+def scale_drift_covariance(dr_se2: np.ndarray, sigma: float) -> np.ndarray:
+    """(K, 2, 2) world-frame position covariance of dead reckoning relative to its first
+    pose from a per-axis odometry scale error (s_x, s_y), each N(0, sigma^2), fixed over the
+    mission: pose k is off by sum_j R_j diag(s) b_j over the steps before it (b_j: step j in
+    the body frame of pose j), i.e. by s_x a_x + s_y a_y with a_x = sum_j R_j e_x (b_j . e_x)
+    (the forward parts of the steps, in the world) and a_y likewise."""
+    out = np.zeros((len(dr_se2), 2, 2))
+    if len(dr_se2) < 2:
+        return out
+    step = np.diff(dr_se2[:, :2], axis=0)
+    c, s = np.cos(dr_se2[:-1, 2]), np.sin(dr_se2[:-1, 2])
+    forward, port = np.stack([c, s], axis=1), np.stack([-s, c], axis=1)
+    a_x = np.cumsum(forward * np.einsum("ij,ij->i", step, forward)[:, None], axis=0)
+    a_y = np.cumsum(port * np.einsum("ij,ij->i", step, port)[:, None], axis=0)
+    out[1:] = sigma**2 * (a_x[:, :, None] * a_x[:, None, :] + a_y[:, :, None] * a_y[:, None, :])
+    return out
 
 
 def _matches(rows: list[dict[str, Any]], kind: str) -> dict[str, Any]:
@@ -96,7 +119,8 @@ def slam_summary(
             f"slam: SLAM and dead reckoning part by {drift['gap_at_worst_m']:.2f} m at keyframe"
             f" {drift['worst_keyframe_id']}, more than the {drift['predicted_bound_at_worst_m']:.2f}"
             " m the navigation's noise model allows there (99 %): the navigation is worse than"
-            " slam.odom_chain_sigma_xy_m says, or scan matching went wrong"
+            " slam.odom_chain_sigma_xy_m and slam.odom_scale_sigma say, or scan matching went"
+            " wrong"
             f" ({found} of {ssm['proposed'] + loop['proposed']} matches found degenerate);"
             " compare the two trajectories before trusting the map"
         )
