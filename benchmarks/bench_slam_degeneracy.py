@@ -54,8 +54,13 @@ point counts off (the stage as version 10 ran, but for version 12's thinning).""
 
 
 def _scene(name: str) -> str:
-    path = ROOT / "configs" / "scenes" / "degenerate" / f"{name}.yaml"
-    return str(path) if path.exists() else name
+    """A scene of configs/scenes/degenerate/, then of slam_probe/ (campaign 12's, confirm
+    only), else a name in configs/scenes/ or a path."""
+    for folder in ("degenerate", "slam_probe"):
+        path = ROOT / "configs" / "scenes" / folder / f"{name}.yaml"
+        if path.exists():
+            return str(path)
+    return name
 
 
 def _xy(table, prefix: str = "") -> np.ndarray:
