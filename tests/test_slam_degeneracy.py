@@ -29,6 +29,7 @@ from sonarmap.stages.slam.degeneracy import (
 from sonarmap.stages.slam.frontend import run_slam
 from sonarmap.stages.slam.health import (
     CHI2_99_2DOF,
+    SIGMAS_99_1DOF,
     predicted_drift_m,
     scale_drift_covariance,
     slam_summary,
@@ -109,6 +110,28 @@ def test_no_pairs_is_degenerate() -> None:
 
 def test_chi2_constant() -> None:
     assert chi2.ppf(0.99, 2) == pytest.approx(CHI2_99_2DOF)
+    assert np.sqrt(chi2.ppf(0.99, 1)) == pytest.approx(SIGMAS_99_1DOF)
+
+
+def test_a_scale_estimate_beyond_its_prior_is_a_warning() -> None:
+    """2.6 sigma of the prior is the 99 % line; the estimate is reported either way."""
+    dr, t_s = _track(30)
+    ids, rows = np.arange(30), [{"type": "ssm", "status": "accepted", "degenerate": ""}]
+    config = SlamConfig(odom_scale_sigma=0.01)
+    within = slam_summary(config, rows, ids, dr, dr, t_s, False, None, np.array([0.025, 0.0]))
+    assert within["warnings"] == []
+    assert within["odometry_scale_error"] == {
+        "forward": 0.025,
+        "sideways": 0.0,
+        "prior_sigma": 0.01,
+        "beyond_prior": False,
+    }
+    beyond = slam_summary(config, rows, ids, dr, dr, t_s, False, None, np.array([0.0, -0.027]))
+    (line,) = beyond["warnings"]
+    assert line.startswith("slam: SLAM reads the odometry's scale error as +0.0 % forward,")
+    assert "-2.7 % sideways, more than slam.odom_scale_sigma (1.0 %)" in line
+    no_state = SlamConfig(odom_scale_sigma=None)
+    assert slam_summary(no_state, rows, ids, dr, dr, t_s, False)["odometry_scale_error"] is None
 
 
 def _track(n: int) -> tuple[np.ndarray, np.ndarray]:

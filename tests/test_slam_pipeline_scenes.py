@@ -7,6 +7,7 @@ corridor the two front ends disagree on whether SLAM slides (`benchmarks/bench_s
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -62,3 +63,6 @@ def test_a_corridor_s_biased_loop_does_not_stretch_the_track(tmp_path: Path) -> 
     dr, slam = ate_se2(_xy(kf), truth), ate_se2(_xy(poses), truth)
     assert len(truth) >= 30
     assert slam <= dr + 0.05, (slam, dr)
+    summary = json.loads((arts["slam"] / "summary.json").read_text())
+    scale = summary["odometry_scale_error"]
+    assert abs(scale["forward"]) < 0.01 and not scale["beyond_prior"], scale

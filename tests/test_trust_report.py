@@ -142,6 +142,12 @@ def test_the_report_counts_agreement_per_class_fused_keyframes_closures_and_drif
             "worst_keyframe_id": 41,
             "exceeds_prediction": True,
         },
+        "odometry_scale_error": {
+            "forward": 0.0142,
+            "sideways": -0.0011,
+            "prior_sigma": 0.01,
+            "beyond_prior": False,
+        },
         "warnings": ["slam: SLAM and dead reckoning part by 2.90 m"],
     }
     trust = trust_report(m, _poses(dead_reckoning), _poses(slam), factors, 1.0, 0.6, summary)
@@ -155,6 +161,9 @@ def test_the_report_counts_agreement_per_class_fused_keyframes_closures_and_drif
     assert "loop closures found degenerate" not in text
     assert "2.9 m apart at keyframe 41, more than its 99 % bound there (1.1 m)" in text
     assert "- **warning:** slam: SLAM and dead reckoning part by 2.90 m" in text
+    assert (
+        "scale error as SLAM estimates it: +1.42 % forward, -0.11 % sideways (prior 1.0 %)" in text
+    )
 
 
 def test_an_unlabelled_recording_reports_no_precision_or_support_at_all() -> None:

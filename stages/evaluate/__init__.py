@@ -28,7 +28,8 @@ STAGE = Stage(
     # 13: the report's classifier section (input classify.acceptance)
     # 14: ... with the sure objects `classify.min_views` / `min_seen_share` held back
     # 15: report.md names no file (one key, one content whatever the recording is called)
-    version=15,
+    # 16: the trust section gives the odometry's scale error as SLAM estimates it
+    version=16,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(

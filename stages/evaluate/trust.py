@@ -186,6 +186,7 @@ def trust_report(
                 for name, sm in (slam.get("scan_matching") or {}).items()
             },
             "drift_check": slam.get("dead_reckoning_vs_slam"),
+            "odometry_scale_error": slam.get("odometry_scale_error"),
         },
         "warnings": list(slam.get("warnings") or []),
         "inference": _inference_agreement(map_table, source, cell_m, height_tolerance_m),
@@ -271,6 +272,13 @@ def _slam_lines(slam: dict[str, Any]) -> list[str]:
             f"- SLAM vs the navigation's predicted drift: {check['gap_at_worst_m']} m apart at"
             f" keyframe {check.get('worst_keyframe_id')}, {verdict} its 99 % bound there"
             f" ({check['predicted_bound_at_worst_m']} m)"
+        )
+    scale = slam.get("odometry_scale_error") or {}
+    if scale.get("prior_sigma"):
+        lines.append(
+            f"- the odometry's scale error as SLAM estimates it: {100 * scale['forward']:+.2f} %"
+            f" forward, {100 * scale['sideways']:+.2f} % sideways (prior"
+            f" {100 * scale['prior_sigma']:.1f} %{', beyond its 99 %' if scale.get('beyond_prior') else ''})"
         )
     if slam.get("fell_back_to_dead_reckoning"):
         lines.append("- no scan match was accepted: the trajectory is dead reckoning's")

@@ -44,7 +44,9 @@ STAGE = Stage(
     # 16 (15 was a reverted loop rule): odom_scale_sigma 0.02 -> 0.01, the simulator's
     # default navigation like the other navigation factors; the summary's predicted drift
     # adds the scale error's (a dilation of the track about its start)
-    version=16,
+    # 17: summary.json's `odometry_scale_error` is the state's estimate, a warning beyond
+    # the prior's 99 %
+    version=17,
     config=SlamConfig,
     inputs=(
         Input("keyframes", "keyframes"),

@@ -51,13 +51,15 @@ def _diag_cov(sigma_xy_m: float, sigma_yaw_deg: float) -> np.ndarray:
 
 @dataclass
 class SlamResult:
-    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts), and
-    whether no scan match was accepted, so the poses are dead reckoning's."""
+    """Poses (K, 3) (x_m, y_m, yaw_rad), covariances (K, 3, 3), factor rows (dicts),
+    whether no scan match was accepted, so the poses are dead reckoning's, and the
+    odometry's scale error (s_x, s_y) as the graph estimates it (None without the state)."""
 
     poses: np.ndarray
     covariances: np.ndarray
     factors: list[dict[str, Any]] = field(default_factory=list)
     fell_back: bool = False
+    odometry_scale: np.ndarray | None = None
 
 
 class _FrontEnd(LoopClosures):
@@ -331,7 +333,8 @@ class _FrontEnd(LoopClosures):
 
     def result(self) -> SlamResult:
         covs = np.array([self.graph.marginal_covariance(k) for k in range(self.graph.size)])
-        return SlamResult(self.est.copy(), covs, self.rows)
+        scale = None if self.cfg.odom_scale_sigma is None else self.graph.scale()
+        return SlamResult(self.est.copy(), covs, self.rows, odometry_scale=scale)
 
 
 def run_slam(
@@ -362,4 +365,5 @@ def run_slam(
         # Nothing from the sonar: the graph holds only the navigation's own factors, and
         # the dead-reckoned poses are what it says (bit for bit, not re-solved).
         result.poses, result.fell_back = np.array(dr_se2, np.float64), True
+        result.odometry_scale = None
     return result

@@ -17,6 +17,10 @@
   drift; where the two trajectories part by more than its 99 %
   bound (sqrt(chi2(0.99, 2)) times the largest position standard deviation), either the
   navigation is worse than its noise model says, or scan matching went wrong: a warning.
+- The odometry's scale error as SLAM estimates it (`odom_scale_sigma`: a state of the
+  graph), per body axis. Beyond the prior's 99 % (sqrt(chi2(0.99, 1)) sigma) either the
+  DVL is worse than the config says or the loops share a bias the state took for the
+  DVL's (they come out short along walls seen at grazing incidence): a warning.
 - No scan match accepted (mode `slam`, at least one proposed): the trajectory is dead
   reckoning's, bit for bit, where the user asked for SLAM. `fallback` says so with the
   reasons, and `run` prints it as its `trajectory:` line. Not a warning: a short or sparse
@@ -33,10 +37,19 @@ import numpy as np
 from sonarmap.stages.slam.config import SlamConfig
 from sonarmap.stages.slam.pcm import chain_covariance
 
-__all__ = ["CHI2_99_2DOF", "predicted_drift_m", "scale_drift_covariance", "slam_summary"]
+__all__ = [
+    "CHI2_99_2DOF",
+    "SIGMAS_99_1DOF",
+    "predicted_drift_m",
+    "scale_drift_covariance",
+    "slam_summary",
+]
 
 CHI2_99_2DOF = 9.210340371976184
 """chi2.ppf(0.99, 2) (a test checks it against scipy)."""
+
+SIGMAS_99_1DOF = 2.5758293035489004
+"""sqrt(chi2.ppf(0.99, 1)): a 99 % two-sided bound in standard deviations."""
 
 
 def predicted_drift_m(config: SlamConfig, dr_se2: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -95,6 +108,7 @@ def slam_summary(
     t_s: np.ndarray,
     fell_back: bool,
     point_counts: dict[str, int] | None = None,
+    odometry_scale: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The stage's summary.json: matches, SLAM vs dead reckoning, the scan-matching points
     (`sonarmap.stages.slam.points.counted_keyframe_points`: what thinning and the outlier
@@ -123,6 +137,16 @@ def slam_summary(
             " wrong"
             f" ({found} of {ssm['proposed'] + loop['proposed']} matches found degenerate);"
             " compare the two trajectories before trusting the map"
+        )
+    scale = _scale_error(config, odometry_scale)
+    if scale is not None and scale["beyond_prior"] and config.mode == "slam":
+        warnings.append(
+            f"slam: SLAM reads the odometry's scale error as {100 * scale['forward']:+.1f} %"
+            f" forward, {100 * scale['sideways']:+.1f} % sideways, more than"
+            f" slam.odom_scale_sigma ({100 * scale['prior_sigma']:.1f} %) allows (99 %): the"
+            " DVL is worse than that says (set it from the DVL's datasheet or calibration),"
+            " or the loops share a bias the state took for the DVL's (long walls seen at"
+            " grazing incidence); compare the two trajectories before trusting the map"
         )
     proposed = ssm["proposed"] + loop["proposed"]
     fallback = ""
@@ -153,5 +177,19 @@ def slam_summary(
         "fallback": fallback,
         "scan_matching": {"ssm": ssm, "loop": loop},
         "dead_reckoning_vs_slam": drift,
+        "odometry_scale_error": scale,
         "warnings": warnings,
+    }
+
+
+def _scale_error(config: SlamConfig, estimate: np.ndarray | None) -> dict[str, Any] | None:
+    """The scale state's estimate against its prior; None without one."""
+    if estimate is None or config.odom_scale_sigma is None:
+        return None
+    sigma = config.odom_scale_sigma
+    return {
+        "forward": round(float(estimate[0]), 5),
+        "sideways": round(float(estimate[1]), 5),
+        "prior_sigma": sigma,
+        "beyond_prior": bool(np.max(np.abs(estimate)) > SIGMAS_99_1DOF * sigma),
     }

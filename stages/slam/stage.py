@@ -123,6 +123,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
                 "slam.mode is ground_truth, but the recording carries no ground truth",
             )
         pose6, cov, rows, fell_back = gt, np.zeros((len(ids), 3, 3)), [], False
+        scale = None
     else:
         try:
             result = run_slam(config, dr_se2, points, t_s)
@@ -138,6 +139,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
         pose6[:, [0, 1, 5]] = result.poses
         pose6[:, 5] = wrap_angle(pose6[:, 5])
         cov, rows, fell_back = result.covariances, result.factors, result.fell_back
+        scale = result.odometry_scale if config.mode == "slam" else None
     loops = np.array(
         [
             (r["key_from"], r["key_to"])
@@ -149,7 +151,7 @@ def run(config: SlamConfig, inputs: Mapping[str, Any]) -> dict[str, Any]:
     n_loops = len(loops)
     log.info("slam (%s): %d keyframes, %d loop closures", config.mode, len(ids), n_loops)
     summary = slam_summary(
-        config, rows, ids, dr_se2, pose6[:, [0, 1, 5]], t_s, fell_back, point_counts
+        config, rows, ids, dr_se2, pose6[:, [0, 1, 5]], t_s, fell_back, point_counts, scale
     )
     # summary["warnings"] are printed by the engine (a JSON output's warnings reach the
     # run's `warning:` lines), also when the artifact is found cached.
