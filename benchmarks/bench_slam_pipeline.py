@@ -82,6 +82,9 @@ CASES: list[tuple[str, str, int, int, str]] = [
     *[("confirm", f"slam_probe/{s}", 3, 6, "default") for s in _PROBE],
     *[("confirm", f"frozen/{s}", 5, 8, "default") for s in _FROZEN],
     *[("confirm", f"degenerate/{s}", 2, 8, "lowcost") for s in _DEGENERATE if s != "open_pilings"],
+    # written after the v16 prior was frozen
+    *[("confirm", "slam_probe/lock_chamber", seed, 6, "default") for seed in (0, 1)],
+    *[("confirm", "slam_probe/fuel_pier", seed, 8, "default") for seed in (0, 1)],
 ]
 
 
