@@ -88,16 +88,18 @@ CASES: list[tuple[str, str, int, int, str]] = [
 ]
 
 
-def _cli(*args: str) -> None:
+def _cli(*args: str) -> str:
     done = subprocess.run(
         [str(Path(sys.executable).parent / "sonarmap"), *args], capture_output=True, text=True
     )
     if done.returncode:
         raise RuntimeError(f"sonarmap {args[0]} exit {done.returncode}: {done.stderr[-400:]}")
+    return done.stdout
 
 
-def _latest(store: Path, stage: str, name: str) -> Path:
-    return max((store / stage).glob(f"*/{name}"), key=lambda p: p.stat().st_mtime)
+def _artifacts(stdout: str) -> dict[str, Path]:
+    """Each stage's artifact folder as `run --json` names it (a cached variant included)."""
+    return {s["stage"]: Path(s["path"]) for s in json.loads(stdout)["stages"]}
 
 
 def run_case(
@@ -127,9 +129,11 @@ def run_case(
     row: dict[str, object] = {"set": kind, "case": name}
     for variant, settings in variants.items():
         sets = [a for s in settings for a in ("-s", s)]
-        _cli("run", str(recording), "--store", str(store), "--until", "slam", *sets)
-        kf = pq.read_table(_latest(store, "keyframes", "keyframes.parquet")).to_pydict()
-        poses = _latest(store, "slam", "poses.parquet")
+        arts = _artifacts(
+            _cli("run", str(recording), "--store", str(store), "--until", "slam", "--json", *sets)
+        )
+        kf = pq.read_table(arts["keyframes"] / "keyframes.parquet").to_pydict()
+        poses = arts["slam"] / "poses.parquet"
         est = pq.read_table(poses).to_pydict()
         factors = pq.read_table(poses.with_name("factors.parquet")).to_pydict()
         truth = np.column_stack([kf["gt_x_m"], kf["gt_y_m"]])
