@@ -172,7 +172,7 @@ class MissionConfig(_Model):
         default=20.0, gt=0.0, description="turn-in-place rate (heading_mode=path)"
     )
     duration_s: float | None = Field(
-        default=None, gt=0.0, description="cut the mission after this time"
+        default=None, gt=0.0, allow_inf_nan=False, description="cut the mission after this time"
     )
     min_goal_separation_m: float = Field(default=4.0, ge=0.0)
 

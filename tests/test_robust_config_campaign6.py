@@ -181,3 +181,33 @@ def test_a_cache_dir_that_is_a_file_is_named(
     monkeypatch.setenv(CACHE_ENV, str(afile))
     with pytest.raises(ConfigError, match="a file, not a folder"):
         cache_root()
+
+
+def test_a_force_after_until_is_refused_not_ignored(toy_cli: Path, tmp_path: Path) -> None:
+    """Campaign 6 #19: `--until double --force summary` ran without recomputing anything."""
+    store = str(tmp_path / "s")
+    res = _cli("run", str(toy_cli), "--store", store, "--until", "double", "--force", "summary")
+    _one_error_line(res, "--force summary", "--until double")
+    assert not (tmp_path / "s" / "double").exists()  # refused before any work
+    assert _cli("run", str(toy_cli), "--store", store, "--until", "summary",
+                "--force", "double", "-q").exit_code == 0  # fmt: skip
+
+
+def test_an_infinite_mission_duration_is_refused(tmp_path: Path) -> None:
+    """Campaign 6 #19: `simulate --duration-s inf` simulated the whole mission, saying nothing."""
+    res = _cli("simulate", "--duration-s", "inf", "--goals", "1", "-o", str(tmp_path / "m.mcap"))
+    _one_error_line(res, "--duration-s inf")
+    assert not (tmp_path / "m.mcap").exists()
+
+
+def test_a_reordered_set_of_classes_keys_the_same_voxel_map() -> None:
+    """Campaign 6 #16: `voxelize.evidence_classes` is a set; its order changed the key."""
+    from sonarmap.stages.voxelize.config import VoxelizeConfig
+
+    one = VoxelizeConfig(evidence_classes=("truss", "seawall"))
+    other = VoxelizeConfig(evidence_classes=("seawall", "truss", "seawall"))
+    assert one.model_dump() == other.model_dump()
+    assert one.evidence_classes == ("seawall", "truss")
+    assert (
+        VoxelizeConfig().evidence_classes == VoxelizeConfig.model_fields["evidence_classes"].default
+    )  # the default, already sorted, keys the map as before

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -105,6 +106,8 @@ def simulate_cmd(
     for path in (output, preview):  # before any work: a FIFO, a device or a folder
         if path is not None:
             check_output_path(path, [scene])
+    if duration_s is not None and not math.isfinite(duration_s):
+        raise ConfigError(f"--duration-s {duration_s}: not a finite number of seconds")
     config = with_settings(sim_config(goals, duration_s, sonars=sonars), settings or ())
     table = _class_table(config_path)
     try:

@@ -49,7 +49,8 @@ class VoxelizeConfig(StageConfig):
     @field_validator("evidence_classes")
     @classmethod
     def _known_classes(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        return known_class_names(value)
+        # A set: one order (sorted, each once), so a reordered list keys the same artifact.
+        return tuple(sorted(set(known_class_names(value))))
 
     def class_names_used(self) -> dict[str, Iterable[str]]:
         """Class names by field (checked against the class table when the config loads)."""

@@ -44,6 +44,9 @@ def plan(
     for name in [until, *force]:
         if name is not None and name not in names:
             raise ConfigError(f"unknown stage '{name}' (stages: {', '.join(names)})")
+    beyond = [f for f in force if until is not None and names.index(f) > names.index(until)]
+    if beyond:  # said, not ignored: the user asked for a recomputation that would not happen
+        raise ConfigError(f"--force {beyond[0]}: after --until {until}, so it would not run")
     external = dict(external or {})
     keys: dict[str, str] = {name: ref.key for name, (_, ref) in external.items()}
     contents = {
