@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import shutil
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from sonarmap.pipeline.engine.config.load import load_config
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.pipeline.graph import all_stages, extra_sections
-from sonarmap.pipeline.training.model_cache import resolve_default_model
+from sonarmap.pipeline.training.model_cache import model_cache, resolve_default_model
 from sonarmap.pipeline.training.model_choice import locate_given_model
 from sonarmap.pipeline.training.shipped import shipped_store
 from sonarmap.schemas.classes import ClassEntry, ClassTable
@@ -65,6 +66,13 @@ def test_a_folder_claiming_the_shipped_recipe_never_takes_its_place(
     with caplog.at_level("WARNING"):
         resolve_default_model(store, _config())
     assert "holds a model.pt other than the shipped model's" in caplog.text
+    # ... and it stays in its store: copied into the model cache under the shipped key, it
+    # made every other store's default run refuse the shipped model
+    cache = model_cache(_config())
+    held = cache.get("train", json.loads((folder / "manifest.json").read_text())["key"])
+    assert (
+        held is None or (held.path / "model.pt").read_bytes() != (folder / "model.pt").read_bytes()
+    )
 
 
 def test_status_plans_with_the_model_a_run_would_use(tmp_path: Path) -> None:
@@ -178,3 +186,30 @@ def test_a_class_the_table_infers_but_the_model_lacks_is_warned_of(tmp_path: Pat
         for s in json.loads(plain.stdout)["stages"]
         for w in s.get("warnings", [])
     )
+
+
+def test_a_cached_model_says_the_training_s_warnings_again(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A second `train` of the same recordings took the model from the store and said
+    nothing of the classes it does not know (campaign 8 #9)."""
+    from sonarmap.pipeline.training.datasets import ensure_simulation
+
+    root = Path(__file__).resolve().parents[1]
+    rec = ensure_simulation(
+        root / "configs/scenes/marina.yaml", 1, tmp_path / "m.mcap", goals=1, duration_s=20.0
+    )
+    args = ["train", str(rec), "--out", str(tmp_path / "model"), "--store", str(tmp_path / "s"),
+            "--set", "train.epochs=1", "--set", "train.mc_passes=2",
+            "--set", "train.min_class_samples=2"]  # fmt: skip
+    said = []
+    for _ in range(2):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            res = CliRunner().invoke(app, args)
+        assert res.exit_code == 0, res.output
+        said.append([r.getMessage() for r in caplog.records if r.levelno == logging.WARNING])
+    assert any("no labelled training object" in w for w in said[0]), said[0]
+    assert said[1] == said[0]
+    metrics = json.loads((tmp_path / "model" / "metrics.json").read_text())
+    assert metrics["warnings"] == said[0]

@@ -291,7 +291,11 @@ def train_on(
     train, external, first = _bind_training(datasets, config, store, compute=True, heldout=heldout)
     planned = plan((train,), config, first, store, external=external)
     log.info("classifier: %s (%s)", "cached" if planned[0].hit else "training", planned[0].reason)
-    return execute(planned, config, first, store, external=external).artifacts["train"]
+    result = execute(planned, config, first, store, external=external)
+    if planned[0].hit:  # a computed model logged its warnings as it trained
+        for line in result.warnings:
+            log.warning("%s", line)
+    return result.artifacts["train"]
 
 
 def training_simulations(training: TrainingDataConfig) -> list[Simulation]:

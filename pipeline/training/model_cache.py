@@ -126,7 +126,9 @@ def copy_verified(ref: ArtifactRef, dest: ArtifactStore) -> ArtifactRef:
             try:
                 shutil.copyfile(safe_relative(ref.path, rel), target)
             except FileNotFoundError:
-                raise ArtifactCorrupt(f"{ref.path}: its manifest lists '{rel}', not there") from None
+                raise ArtifactCorrupt(
+                    f"{ref.path}: its manifest lists '{rel}', not there"
+                ) from None
         try:
             verify_artifact_dir(tmp, ref.manifest)
         except ArtifactCorrupt as err:
@@ -167,14 +169,14 @@ def same_model(held: ArtifactRef | None, claimed: ArtifactRef, where: str) -> No
         )
 
 
-def _substitute(shipped: ArtifactRef | None, held: ArtifactRef) -> None:
+def _substitute(shipped: ArtifactRef | None, held: ArtifactRef) -> bool:
     """Say when a store holds other weights under a shipped model's key: a substitute a
     user pinned and pulled is allowed (its classify keys are its own), but the run's
-    `classifier:` line names the shipped key, so the bytes are named too."""
+    `classifier:` line names the shipped key, so the bytes are named too. True for one."""
     from sonarmap.pipeline.engine.share.trust import TrustPolicy
 
     if shipped is None:
-        return
+        return False
     theirs, mine = TrustPolicy.model_sha(shipped.manifest), TrustPolicy.model_sha(held.manifest)
     if theirs != mine:
         log.warning(
@@ -184,6 +186,8 @@ def _substitute(shipped: ArtifactRef | None, held: ArtifactRef) -> None:
             mine[:12],
             theirs[:12],
         )
+        return True
+    return False
 
 
 def _find_or_ship(
@@ -195,8 +199,14 @@ def _find_or_ship(
     bundled = shipped.get("train", key) if shipped is not None else None
     ref = store.get("train", key)
     if ref is not None:
-        _substitute(bundled, ref)
-        if cache.get("train", key) is None and cache.root.resolve() != store.root.resolve():
+        substitute = _substitute(bundled, ref)
+        # A substitute stays in its store: in the model cache, under the shipped key, every
+        # other store's default run would find it and refuse the shipped model.
+        if (
+            not substitute
+            and cache.get("train", key) is None
+            and cache.root.resolve() != store.root.resolve()
+        ):
             copy_verified(ref, cache)
         return ref, "store"
     cached = cache.get("train", key)

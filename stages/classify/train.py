@@ -312,17 +312,20 @@ def _train_classifier(
     else:
         train, val = split_train_val(samples, cfg)
     ids = _learned_classes(samples.class_id[train], cfg.min_class_samples, n_ids)
+    said: list[str] = []  # the training's warnings, kept in metrics.json
     if NO_STRUCTURE in ids and not (samples.class_id[val] == NO_STRUCTURE).any():
         # Id 0 labels clusters on no structure: a reject class. Learned from a handful of
         # stray clusters that validation cannot measure, it draws probability from the
         # structure classes everywhere (the shipped model with 12 of them: validation
         # accuracy 0.781 against 0.784 without, accepted share 0.53 against 0.61).
         ids.remove(NO_STRUCTURE)
-        log.warning(
-            "class %s: %d training objects and none held out for validation: not learned",
-            table.name_of(NO_STRUCTURE), int((samples.class_id[train] == NO_STRUCTURE).sum()),
-        )  # fmt: skip
-    say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
+        said.append(
+            f"class {table.name_of(NO_STRUCTURE)}: "
+            f"{int((samples.class_id[train] == NO_STRUCTURE).sum())} training objects and none"
+            " held out for validation: not learned"
+        )
+        log.warning("%s", said[-1])
+    said += say_what_is_not_learned(samples.class_id, train, val, ids, cfg.min_class_samples, table)
     if len(ids) < 2:
         raise TooFewLabels(
             f"need two classes with >= {cfg.min_class_samples} training objects, "
@@ -350,6 +353,7 @@ def _train_classifier(
         metrics = score(model)
         curve = one_size(len(datasets), int(train.sum()), metrics["confusion"])
     metrics["size_rule"] = curve
+    metrics["warnings"] = said  # replayed from the manifest when the model is reused
     metrics["n_train"] = int(train.sum())
     metrics["train_support"] = {
         n: int(c)

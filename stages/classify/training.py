@@ -14,7 +14,8 @@ STAGE = Stage(
     # 7: metrics.json names the acceptance threshold of its validation (classify reports a
     # run's share of sure objects beside the validation's)
     # 8: settings.json, the model file's class names and settings (read without torch)
-    version=8,
+    # 9: metrics.json keeps the training's warnings (a cached model says them again)
+    version=9,
     config=TrainConfig,
     inputs=(Input("keyframes", "frames"), Input("features", "features")),
     outputs=(

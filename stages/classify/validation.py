@@ -100,25 +100,29 @@ def confusion_png(confusion: Sequence[Sequence[int]], class_names: Sequence[str]
 def say_what_is_not_learned(
     class_id: np.ndarray, train: np.ndarray, val: np.ndarray, ids: list[int], min_samples: int,
     table: ClassTable = DEFAULT_TABLE,
-) -> None:  # fmt: skip
+) -> list[str]:  # fmt: skip
     """Warnings for each labelled class left out for too few objects, and for a model with
-    nothing to validate on: neither is ever silent."""
+    nothing to validate on: neither is ever silent. Each is logged and returned (the
+    model's metrics keep them, so a cached model says them again)."""
+    said = []
     counts = np.bincount(class_id[train], minlength=len(table.names_by_id()))
     for entry in table.table:
         if entry.frame_kind != "none" and counts[entry.id] == 0:
-            log.warning(
-                "class %s: no labelled training object: the model will not know it", entry.name
+            said.append(
+                f"class {entry.name}: no labelled training object: the model will not know it"
             )
     for c in np.flatnonzero(counts > 0):
         if c != 0 and int(c) not in ids:
-            log.warning(
-                "class %s: %d training objects, under train.min_class_samples=%d: not learned",
-                table.name_of(int(c)), counts[c], min_samples,
-            )  # fmt: skip
+            said.append(
+                f"class {table.name_of(int(c))}: {counts[c]} training objects, under"
+                f" train.min_class_samples={min_samples}: not learned"
+            )
     if not np.isin(class_id[val], ids).any():
-        log.warning(
-            "no validation object of a learned class (%d held out in all): the model's"
-            " figures are empty and it is unvalidated; label more keyframes across the"
-            " recording (validation holds out blocks of keyframe time)",
-            int(val.sum()),
+        said.append(
+            f"no validation object of a learned class ({int(val.sum())} held out in all): the"
+            " model's figures are empty and it is unvalidated; label more keyframes across the"
+            " recording (validation holds out blocks of keyframe time)"
         )
+    for line in said:
+        log.warning("%s", line)
+    return said
