@@ -17,7 +17,13 @@ preview (`/map/preview`, the first holding each new keyframe) median 1.21 s, p90
 max 2.21 s (98 of 99 within the 2 s target); lag of the full map (`/map/standard`)
 median 10.6 s, max 42.6 s, 35 updates (compute median 7.8 s, the last 35.2 s), the
 final map 48.1 s after the file was closed, the final artifacts equal to the batch
-run's. Each full update is a cold run of the recording so far.
+run's. Each full update was then a cold run of the recording so far.
+
+Again 2026-12-07, with the per-keyframe work units (`bench_follow /tmp/m8_full.mcap`, the
+same mission; load average 0.4-1.0): preview lag median 0.86 s, p90 0.99 s, max 1.41 s
+(99 of 99 within 2 s); full map lag median 9.5 s, p90 19.1 s, max 26.3 s, 58 updates
+(compute median 5.0 s, the last 27.0 s: the calibration's period doubled), the final map
+29.5 s after close, the final artifacts equal to the batch run's.
 """
 
 from __future__ import annotations
