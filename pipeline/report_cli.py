@@ -208,9 +208,10 @@ def front_end_lines(summary: dict[str, Any]) -> list[str]:
     """One line per sonar (empty without a calibration)."""
     block = summary.get("front_end") or {}
     pinned = block.get("pinned") or {}
+    whole = "bands" in pinned  # features.pinned_bands: every band's thresholds
     how = {
-        "floor": "pinned" if "intensity_floor" in pinned else "measured",
-        "tau": "pinned" if "threshold_factor" in pinned else "measured",
+        "floor": "pinned" if whole or "intensity_floor" in pinned else "measured",
+        "tau": "pinned" if whole or "threshold_factor" in pinned else "measured",
     }
     lines = []
     for sonar, s in (block.get("sonars") or {}).items():

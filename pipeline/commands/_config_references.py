@@ -44,6 +44,9 @@ def check_references(config: Any) -> None:
                     f"training.recorded[{i}]: {recorded}: no recording there (an MCAP file or"
                     " a rosbag2 folder)"
                 )
+    from sonarmap.pipeline.readers.pinned_calibration import pin_calibration
+
+    pin_calibration(config)  # features.calibration_from: read and checked as a run does
     classify = getattr(config, "classify", None)
     model = getattr(classify, "model", None) if classify is not None else None
     if isinstance(model, str) and model and not model.startswith("train/"):

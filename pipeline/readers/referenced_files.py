@@ -18,11 +18,15 @@ __all__ = ["pin_referenced_files"]
 def pin_referenced_files(config: BaseModel) -> BaseModel:
     """`config` with `files_sha256` of its `keyframes` section (and of the `training`
     section's, which builds the training sets) set from the files their settings name now,
-    whatever they held before: it is never the user's to set.
+    whatever they held before: it is never the user's to set; and with the thresholds of
+    `features.calibration_from` read into `features.pinned_bands`.
 
     Raises:
         ConfigError: a named file is not there or cannot be read (one line naming it).
     """
+    from sonarmap.pipeline.readers.pinned_calibration import pin_calibration
+
+    config = pin_calibration(config)
     updates: dict[str, BaseModel] = {}
     keyframes = getattr(config, "keyframes", None)
     if keyframes is not None and hasattr(keyframes, "files_sha256"):

@@ -27,13 +27,14 @@ Warnings (stated rules, not fitted; "warnings" reach the run's warning lines):
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 
 from sonarmap.schemas.features import SONARS
 from sonarmap.schemas.sonar import KeyframeImages
+from sonarmap.stages.base import StageSettingsError
 from sonarmap.stages.kernels.front_end import calibrate_sonar, rounded
 from sonarmap.stages.kernels.time_grid import sampled_by_time
 
@@ -46,6 +47,7 @@ __all__ = [
     "calibrate_sample",
     "calibration_sample",
     "with_measurements",
+    "with_pinned_bands",
 ]
 
 FLOOD_FACTOR = 3.0
@@ -171,6 +173,42 @@ def _constant_level(image: np.ndarray) -> int | None:
     """The one level of an image whose pixels are all equal (no echo to fit), else None."""
     lo, hi = image.min(), image.max()
     return int(lo) if lo == hi else None
+
+
+def with_pinned_bands(doc: dict[str, Any], pinned: Mapping[str, Any]) -> dict[str, Any]:
+    """The calibration with every band's thresholds and the filter taken from `pinned`
+    (`features.pinned_bands`, per sonar): the measured laws stay, to say whether the
+    pinned thresholds flood or starve on this recording; the rates they expect were
+    measured for other thresholds, so they are dropped.
+
+    Raises:
+        StageSettingsError: the pinned range bands are not this recording's.
+    """
+    out = {**doc, "sonars": {}, "measured": []}
+    out["pinned"] = {**(doc.get("pinned") or {}), "bands": "features.pinned_bands"}
+    for sonar, entry in (doc.get("sonars") or {}).items():
+        pin = pinned[sonar]
+        edges = np.asarray(entry["band_edges_m"], np.float64)
+        given = np.asarray(pin.band_edges_m, np.float64)
+        # the file's edges are rounded to six digits, as are this calibration's
+        if edges.shape != given.shape or not np.allclose(edges, given, rtol=1e-5, atol=1e-6):
+            raise StageSettingsError(
+                f"features.pinned_bands: {sonar} sonar: {len(given) - 1} range bands over"
+                f" {given[0]:.3g}-{given[-1]:.3g} m pinned, this recording's are"
+                f" {len(edges) - 1} over {edges[0]:.3g}-{edges[-1]:.3g} m: pin a calibration"
+                " of the same sonar range and features.range_bands"
+            )
+        bands = [
+            {**b, "threshold_factor": t, "intensity_floor_levels": f,
+             "expected_false_alarm_rate": None, "expected_false_alarms_per_ping": None}
+            for b, t, f in zip(entry["bands"], pin.threshold_factor, pin.intensity_floor_levels,
+                               strict=True)
+        ]  # fmt: skip
+        out["sonars"][sonar] = {
+            **entry, "band_edges_m": list(pin.band_edges_m), "bands": bands,
+            "denoise": pin.denoise, "expected_false_alarms_per_ping": None,
+        }  # fmt: skip
+    return out
 
 
 def with_measurements(

@@ -2,17 +2,49 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-from sonarmap.stages.base import StageConfig
+from sonarmap.stages.base import ConfigModel, StageConfig
 from sonarmap.stages.kernels.choices import CfarMethod
 
-__all__ = ["FeaturesConfig"]
+__all__ = ["FeaturesConfig", "PinnedBands"]
+
+Filter = Literal["box3x3", "box3x5", "box5x3", "box5x5", "beam3", "range3", "none"]
 
 LowerQuantile = Annotated[float, Field(gt=0.0, lt=0.9)]
 UpperQuantile = Annotated[float, Field(ge=0.9, lt=1.0)]
+
+
+class PinnedBands(ConfigModel):
+    """One sonar's thresholds taken whole from an earlier calibration (`calibration.json`
+    of a features artifact, `features.calibration_from`), or written by hand: its range
+    bands' edges [m] and each band's CFAR factor and intensity floor [levels], and the
+    filter it detected on."""
+
+    band_edges_m: tuple[Annotated[float, Field(ge=0.0, le=1e5)], ...] = Field(
+        min_length=2, max_length=65
+    )
+    threshold_factor: tuple[Annotated[float, Field(gt=0.0, le=1e3)], ...] = Field(
+        min_length=1, max_length=64
+    )
+    intensity_floor_levels: tuple[Annotated[float, Field(ge=0.0, le=65535.0)], ...] = Field(
+        min_length=1, max_length=64
+    )
+    denoise: Filter = "none"
+
+    @model_validator(mode="after")
+    def _bands(self) -> PinnedBands:
+        n = len(self.band_edges_m) - 1
+        if any(b <= a for a, b in zip(self.band_edges_m, self.band_edges_m[1:], strict=False)):
+            raise ValueError("band_edges_m must increase")
+        if len(self.threshold_factor) != n or len(self.intensity_floor_levels) != n:
+            raise ValueError(
+                f"{n} bands (band_edges_m) need {n} threshold_factor and intensity_floor_levels"
+                f" values, got {len(self.threshold_factor)} and {len(self.intensity_floor_levels)}"
+            )
+        return self
 
 
 class FeaturesConfig(StageConfig):
@@ -81,6 +113,27 @@ class FeaturesConfig(StageConfig):
         " nearest range, then beam) are kept, and the clipping is warned; null: no budget",
     )
 
+    calibration_from: str | None = Field(
+        None,
+        max_length=4096,
+        description="a calibration.json of an earlier run: its thresholds are pinned"
+        " (pinned_bands, read when the config loads); the file's path is not in the key,"
+        " its thresholds are",
+    )
+    pinned_bands: dict[Literal["horizontal", "vertical"], PinnedBands] | None = Field(
+        None,
+        description="every band's threshold, per sonar, pinned (null: measured); the range"
+        " bands must be the recording's (features.range_bands over its range window)",
+    )
+
+    @model_serializer(mode="wrap")
+    def _keyed(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        data = handler(self)
+        data.pop("calibration_from", None)  # its content is keyed, as pinned_bands
+        if data.get("pinned_bands") is None:  # unpinned: keys as before the field
+            data.pop("pinned_bands", None)
+        return data
+
     @model_validator(mode="after")
     def _quantiles(self) -> FeaturesConfig:
         lo, hi = self.fit_quantiles
@@ -88,6 +141,8 @@ class FeaturesConfig(StageConfig):
             raise ValueError(f"fit_quantiles must satisfy 0 < lo < hi < 1, got {lo}, {hi}")
         if isinstance(self.threshold_factor, float) and not 0.0 < self.threshold_factor <= 1e3:
             raise ValueError("threshold_factor must be in (0, 1000]")
+        if self.pinned_bands is not None and set(self.pinned_bands) != {"horizontal", "vertical"}:
+            raise ValueError("pinned_bands: pin both sonars (horizontal and vertical)")
         if self.method == "os" and self.os_rank > 2 * self.train_cells_per_side:
             raise ValueError(
                 f"os_rank ({self.os_rank}) must be at most the training cells it ranks,"

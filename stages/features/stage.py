@@ -54,6 +54,7 @@ from sonarmap.stages.features.calibration import (
     calibrate_sample,
     calibration_sample,
     with_measurements,
+    with_pinned_bands,
 )
 from sonarmap.stages.features.config import FeaturesConfig
 from sonarmap.stages.features.units import (
@@ -93,6 +94,8 @@ def features_and_calibration(
     """
     picked = list(sample) if sample is not None else calibration_sample(frames, t_ns)
     doc = cached_calibration(picked, config, STAGE.name, STAGE.version, calibrate_sample, units)
+    if config.pinned_bands is not None:
+        doc = with_pinned_bands(doc, config.pinned_bands)
     th = thresholds(doc)
     base = detection_base(STAGE.name, STAGE.version, config, th)
     chunks: list[dict[str, np.ndarray]] = []

@@ -35,13 +35,18 @@ _COUNTS = ("dropped", "band_detections", "band_rows")
 def detection_base(
     name: str, version: int, config: Any, th: Mapping[str, BandThresholds]
 ) -> dict[str, Any]:
-    """What every keyframe's unit key shares: stage, version, config and thresholds."""
+    """What every keyframe's unit key shares: stage, version, config and thresholds (which
+    hold the pinned ones: a pinned run shares the units of a measured one it agrees with)."""
     return {
         "stage": name,
         "version": version,
-        "config": config.model_dump(mode="json"),
+        "config": config.model_dump(mode="json", exclude=_PINS),
         "thresholds": {s: dataclasses.asdict(t) for s, t in sorted(th.items())},
     }
+
+
+_PINS = {"pinned_bands"}
+"""Applied after the measurement (`with_pinned_bands`): keyed through the thresholds."""
 
 
 def _frame_digest(frame: KeyframeImages) -> str:
@@ -96,7 +101,7 @@ def cached_calibration(
         {
             "stage": name,
             "version": version,
-            "config": config.model_dump(mode="json"),
+            "config": config.model_dump(mode="json", exclude=_PINS),  # what is measured
             "calibration_of": [_frame_digest(f) for f in picked],
             "ids": [int(f.keyframe_id) for f in picked],  # the doc names them
         }
