@@ -114,7 +114,11 @@ def test_follow_maps_while_written_and_ends_as_run(
     assert _artifacts(store, keys) == _artifacts(batch_store, keys)
 
 
-def test_ctrl_c_stops_cleanly_with_130(mission: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_ctrl_c_stops_cleanly_with_130(
+    mission: Path, tmp_path: Path, sig: signal.Signals, status: int
+) -> None:
+    """Ctrl-C exits 130, `kill` 143; both say so (campaign 13 #8: SIGTERM said nothing)."""
     cut = tmp_path / "cut.mcap"
     data = mission.read_bytes()
     cut.write_bytes(data[: len(data) // 3])  # a recording that stopped growing, not closed
@@ -129,12 +133,12 @@ def test_ctrl_c_stops_cleanly_with_130(mission: Path, tmp_path: Path) -> None:
         while not line.startswith("follow: update 1:"):  # the first update, mapped or not
             line = follow.stderr.readline()
             assert line, head
-        follow.send_signal(signal.SIGINT)
+        follow.send_signal(sig)
         _, err = follow.communicate(timeout=60)
     finally:
         if follow.poll() is None:
             follow.kill()
-    assert follow.returncode == 130, err
+    assert follow.returncode == status, err
     assert "follow: interrupted" in err and "Traceback" not in err
 
 
@@ -222,3 +226,41 @@ def test_the_preview_maps_keyframes_as_a_batch_run(mission: Path, tmp_path: Path
         [p.pose for p in preview.keyframes], nav[k + 3 : k + 1 + len(new)], atol=1e-9
     )
     assert preview.poll() == []  # nothing newer: none mapped twice
+
+
+def test_a_recorder_that_grows_again_after_the_idle_timeout_is_followed_on(
+    mission: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Campaign 13 #4: a recorder paused longer than --idle-timeout-s, then wrote on; the
+    final run stopped with "changed while sonarmap read it ... use `sonarmap follow`"."""
+    from typer.testing import CliRunner
+
+    import sonarmap.pipeline.api as api
+    from sonarmap.pipeline.cli import app
+    from sonarmap.pipeline.engine.errors import SourceError
+    from sonarmap.pipeline.engine.hashing import changed_while_read
+
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(mission.read_bytes()[:100_000])
+    final_runs: list[int] = []
+
+    def final_run(request: RunRequest, *_: object, **__: object) -> None:
+        if request.until is not None:
+            raise SourceError("an update: no map")  # follow's updates stop at the map
+        final_runs.append(1)
+        if len(final_runs) == 1:
+            raise changed_while_read(str(cut))  # the recorder wrote on during it
+        raise SourceError("second final run reached")
+
+    monkeypatch.setattr(api, "run_dataset", final_run)
+    res = CliRunner().invoke(app, ["follow", str(cut), "--store", str(tmp_path / "s"),
+                                   "--port", "0", "--every-s", "1000", "--poll-s", "0.05",
+                                   "--idle-timeout-s", "0.3"])  # fmt: skip
+    assert res.exit_code == 2 and "second final run reached" in res.stderr, res.output
+    assert "grew again during the final run, after 0.3 s without growth: following on" in (
+        res.stderr
+    )
+    assert (
+        len(final_runs) == 2
+        and len(re.findall(r" idle after \d+ updates: final run", res.stderr)) == 2
+    )

@@ -21,7 +21,8 @@ from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.live.growing import MAGIC, BagSnapshot, McapSnapshot, mcap_closed
+from sonarmap.pipeline.live.bag_snapshot import SETTLE_S, BagSnapshot
+from sonarmap.pipeline.live.growing import MAGIC, McapSnapshot, mcap_closed
 from sonarmap.pipeline.readers import open_source
 
 TOPICS = ("/a", "/b")
@@ -120,7 +121,8 @@ def test_a_bag_directory_is_followed_file_by_file_until_its_metadata(tmp_path: P
     bag, scratch = tmp_path / "dive", tmp_path / "scratch"
     bag.mkdir()
     parts = [_recording(range(0, 30)), _recording(range(30, 60))]
-    snap = BagSnapshot(bag, scratch)
+    now = [0.0]
+    snap = BagSnapshot(bag, scratch, clock=lambda: now[0])
 
     def by_topic(path: Path) -> dict[str, list[int]]:
         source = open_source(path)
@@ -149,6 +151,8 @@ def test_a_bag_directory_is_followed_file_by_file_until_its_metadata(tmp_path: P
         }
     }
     (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    assert not snap.update().closed  # it must look finished for SETTLE_S, with nothing new
+    now[0] += SETTLE_S
     growth = snap.update()
     assert growth.closed and growth.last_log_time_ns == 1_000_000_000 + 59 * 10_000_000
     assert seen() == times(parts[0]) + times(parts[1])
@@ -193,3 +197,85 @@ def test_follow_refuses_what_it_cannot_read_in_one_line(tmp_path: Path, what: st
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "dive.mcap" in lines[0]
+
+
+def test_a_bag_whose_metadata_is_written_at_each_split_is_followed_to_its_end(
+    tmp_path: Path,
+) -> None:
+    """Campaign 13 #1: a recorder writing metadata.yaml at each split (naming only the
+    closed first file) ended follow there, exit 0, with a quarter of the map."""
+    bag, scratch = tmp_path / "dive", tmp_path / "scratch"
+    bag.mkdir()
+    parts = [_recording(range(0, 30)), _recording(range(30, 60))]
+    now = [0.0]
+    snap = BagSnapshot(bag, scratch, clock=lambda: now[0])
+
+    def meta(names: list[str]) -> None:
+        doc = {"rosbag2_bagfile_information": {"storage_identifier": "mcap",
+                                               "relative_file_paths": names}}  # fmt: skip
+        (bag / "metadata.yaml").write_text(yaml.safe_dump(doc))
+
+    (bag / "dive_0.mcap").write_bytes(parts[0])
+    meta(["dive_0.mcap"])  # the first split: its file closed, the next not opened yet
+    assert not snap.update().closed
+    now[0] += SETTLE_S / 2
+    (bag / "dive_1.mcap").write_bytes(parts[1][:500])  # opened: still written
+    assert not snap.update().closed
+    now[0] += 10 * SETTLE_S
+    assert not snap.update().closed  # an unlisted file being written is the next split
+    (bag / "dive_1.mcap").write_bytes(parts[1])
+    assert not snap.update().closed  # closed, but the metadata names it not yet
+    meta(["dive_0.mcap", "dive_1.mcap"])
+    assert not snap.update().closed
+    now[0] += SETTLE_S
+    assert snap.update().closed
+
+
+def test_a_bag_waiting_for_a_footer_says_why(tmp_path: Path) -> None:
+    """Campaign 13 #7: metadata.yaml written, a listed file without its footer: follow
+    waited in silence."""
+    bag = tmp_path / "dive"
+    bag.mkdir()
+    data = _recording(range(0, 30))
+    (bag / "dive_0.mcap").write_bytes(data[: len(data) // 2])
+    doc = {"rosbag2_bagfile_information": {"storage_identifier": "mcap",
+                                           "relative_file_paths": ["dive_0.mcap"]}}  # fmt: skip
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(doc))
+    snap = BagSnapshot(bag, tmp_path / "scratch")
+    assert not snap.update().closed
+    assert "lists every file, but dive_0.mcap has no MCAP footer yet" in snap.waiting
+
+
+def test_a_recording_copied_over_the_followed_one_is_refused(tmp_path: Path) -> None:
+    """Campaign 13 #2, #3: `cp other.mcap followed.mcap` keeps the inode; the new bytes were
+    appended to the old recording's (a splice, silently) or read as a damaged record."""
+    first, second = _recording(range(0, 40)), _recording(range(100, 140))
+    assert first[:30] == second[:30] and first != second  # one writer, one header
+    src = tmp_path / "dive.mcap"
+    src.write_bytes(first[: len(first) // 2])
+    snap = McapSnapshot(src, tmp_path / "snap.mcap")
+    snap.update()
+    with src.open("r+b") as f:  # copied over in place: same inode, longer than before
+        f.write(second[: len(first) // 2 + 100])
+    with pytest.raises(SourceError, match=r"written again while followed \(its bytes before"):
+        snap.update()
+
+
+def test_a_full_temporary_disk_is_named_not_the_store(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Campaign 13 #5: the snapshot's full disk was reported as `STORE: No space left`."""
+    import errno
+
+    from sonarmap.pipeline.engine.errors import OutputError
+
+    src = tmp_path / "dive.mcap"
+    src.write_bytes(_recording(range(0, 30)))
+    snap = McapSnapshot(src, tmp_path / "tmp" / "snap.mcap")
+
+    def full(*_: object) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(McapSnapshot, "_copy", full)
+    with pytest.raises(OutputError, match=r"tmp: No space left on device \(follow's copy"):
+        snap.update()

@@ -16,7 +16,8 @@ from test_robust_clocks import NAV, S, _pings, _write
 from test_robust_lists_and_recordings import _bag
 
 from sonarmap.pipeline.engine.errors import SourceError
-from sonarmap.pipeline.live.growing import BagSnapshot, McapSnapshot
+from sonarmap.pipeline.live.bag_snapshot import SETTLE_S, BagSnapshot
+from sonarmap.pipeline.live.growing import McapSnapshot
 from sonarmap.pipeline.readers import open_recording, open_source
 from sonarmap.pipeline.readers.clock import LAST_STAMP_NS, Backwards
 from sonarmap.pipeline.readers.ros1_source import Ros1Source
@@ -72,7 +73,11 @@ def test_follow_of_a_closed_bag_missing_a_listed_file_is_refused(tmp_path: Path)
 
 def test_follow_of_a_closed_bag_does_not_wait_for_an_unlisted_file(tmp_path: Path) -> None:
     bag = _closed_bag(tmp_path, ["dive_0.mcap"], extra="stray.mcap")
-    assert BagSnapshot(bag, tmp_path / "scratch").update().closed
+    now = [0.0]
+    snap = BagSnapshot(bag, tmp_path / "scratch", clock=lambda: now[0])
+    assert not snap.update().closed  # finished-looking: it must stay so for SETTLE_S
+    now[0] = SETTLE_S
+    assert snap.update().closed
 
 
 @pytest.mark.parametrize(

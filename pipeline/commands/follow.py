@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from pathlib import Path
 
@@ -69,6 +70,7 @@ def follow(
     from sonarmap.pipeline.commands._errors import writes_under
     from sonarmap.pipeline.commands.run import print_run
     from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.engine.hashing import ChangedWhileRead
     from sonarmap.pipeline.engine.run.progress import StageProgress
     from sonarmap.pipeline.live.follow import Follower, FollowOptions
     from sonarmap.pipeline.live.growing import check_followable
@@ -110,27 +112,48 @@ def follow(
                 say=say,
                 options=options,
             )
-            follower.follow()
-            ended = "closed" if follower.closed else "idle"
-            say(f"follow: {dataset} {ended} after {len(follower.updates)} updates: final run")
-            with StageProgress(enabled=not quiet) as progress:
-                result, summary = run_dataset(
-                    request,
-                    graph,
-                    on_start=progress.on_start,
-                    on_stage=view.chain(progress.on_stage),
-                    scores=json_,
-                )
+            while True:
+                follower.follow()
+                ended = "closed" if follower.closed else "idle"
+                say(f"follow: {dataset} {ended} after {len(follower.updates)} updates: final run")
+                try:
+                    with StageProgress(enabled=not quiet) as progress:
+                        result, summary = run_dataset(
+                            request,
+                            graph,
+                            on_start=progress.on_start,
+                            on_stage=view.chain(progress.on_stage),
+                            scores=json_,
+                        )
+                except ChangedWhileRead:
+                    if follower.closed:
+                        raise
+                    # --idle-timeout-s ended a recorder's pause, not its recording
+                    say(
+                        f"follow: {dataset} grew again during the final run, after"
+                        f" {idle_timeout_s:g} s without growth: following on (a recorder"
+                        " that pauses longer wants a longer --idle-timeout-s)"
+                    )
+                    continue
+                break
             follower.clear_preview()
             view.feed.server.drain()
             print_run(result, summary, json_=json_, quiet=quiet)
     except KeyboardInterrupt:
-        print(
-            "follow: interrupted; every stage committed so far stays in the store",
-            file=sys.stderr,
-            flush=True,
-        )
+        _say_interrupted()
         raise typer.Exit(INTERRUPTED) from None
+    except SystemExit as stop:
+        if stop.code == 128 + signal.SIGTERM:  # `kill`: unwound as Ctrl-C is
+            _say_interrupted()
+        raise
+
+
+def _say_interrupted() -> None:
+    print(
+        "follow: interrupted; every stage committed so far stays in the store",
+        file=sys.stderr,
+        flush=True,
+    )
 
 
 def register(app: typer.Typer) -> None:

@@ -102,10 +102,14 @@ def file_identities(parts: Sequence[Path]) -> Identity:
     return tuple((str(p), tuple(_stat_identity(p))) for p in parts)
 
 
+class ChangedWhileRead(SourceError):
+    """A dataset file changed after it was fingerprinted (`changed_while_read`)."""
+
+
 def changed_while_read(path: str) -> SourceError:
     """The error of a dataset file that changed after it was fingerprinted: what was read
     is not what the keys name, so nothing is kept of it."""
-    return SourceError(
+    return ChangedWhileRead(
         f"{path}: changed while sonarmap read it (a recorder still writing it, or a copy"
         " replacing it): map it once it is closed, or as it grows with `sonarmap follow`"
     )

@@ -15,6 +15,7 @@ The loop returns when the recording is closed (its footer and magic written), or
 from __future__ import annotations
 
 import bisect
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -24,7 +25,8 @@ from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
-from sonarmap.pipeline.live.growing import BagSnapshot, Growth, McapSnapshot
+from sonarmap.pipeline.live.bag_snapshot import BagSnapshot
+from sonarmap.pipeline.live.growing import Growth, McapSnapshot
 from sonarmap.pipeline.live.preview import Anchor, Preview, anchor_of
 
 if TYPE_CHECKING:
@@ -36,6 +38,9 @@ MAP_STAGE = "voxelize"
 """The last stage of an update: the map (evaluation and figures wait for the end)."""
 PREVIEW_TOPICS = ("/map/preview", "/trajectory/preview")
 """The preview's topics (`sonarmap.pipeline.live.preview`)."""
+UPDATE_THREAD = "sonarmap-follow-update"
+WAITING_SAY_S = 10.0
+"""A recording that stopped growing without being closed says what it waits for after this."""
 
 
 @dataclass(frozen=True)
@@ -88,7 +93,11 @@ class Update:
             return f"{head}, no map yet ({self.problem})"
         vox = ", ".join(f"{k} {v}" for k, v in sorted(self.voxels.items()))
         lag = "" if self.lag_s is None else f", lag {self.lag_s:.1f} s"
-        warn = f", {self.warnings} warnings (the final run prints them)" if self.warnings else ""
+        warn = (
+            f", {self.warnings} warnings on what has arrived (the final run says those that hold)"
+            if self.warnings
+            else ""
+        )
         return (
             f"{head}, {self.keyframes} keyframes, map voxels: {vox or '-'}; "
             f"computed in {self.compute_s:.1f} s{lag}{warn}"
@@ -146,6 +155,7 @@ class Follower:
                 scratch / "window.mcap",
             )
         self._last_growth = 0.0
+        self._said_waiting = ""
         self._preview_problem = ""
         self._preview_t_ns = 0  # the log time the preview was last published at
         self._arrived_t: list[int] = []  # the newest log time after each growth ...
@@ -164,6 +174,16 @@ class Follower:
             ConfigError: the config is bad (found by the first update).
             KeyboardInterrupt: Ctrl-C (what was committed stays in the store).
         """
+        quiet = _QuietUpdateReader()
+        for handler in logging.getLogger().handlers:
+            handler.addFilter(quiet)
+        try:
+            return self._follow(clock)
+        finally:
+            for handler in logging.getLogger().handlers:
+                handler.removeFilter(quiet)
+
+    def _follow(self, clock: Callable[[], float]) -> list[Update]:
         mapped_size = 0
         last_start = -float("inf")
         self._last_growth = clock()
@@ -181,6 +201,7 @@ class Follower:
                 if growth.closed:
                     self.closed = True
                     return self.updates
+                self._say_why_waiting(now)
                 idle = self.options.idle_timeout_s
                 if idle is not None and now - self._last_growth >= idle:
                     self._say(f"follow: no growth for {idle:g} s: mapping what was written")
@@ -189,12 +210,23 @@ class Follower:
                     last_start, mapped_size = now, self.snapshot.size
                     worker = threading.Thread(
                         target=lambda: done.append(_caught(lambda: self._update(clock))),
-                        name="sonarmap-follow-update",
+                        name=UPDATE_THREAD,
                         daemon=True,  # Ctrl-C ends follow; the store's commits are atomic
                     )
                     worker.start()
             if not self._preview_step(clock):
                 time.sleep(self.options.poll_s)
+
+    def _say_why_waiting(self, now: float) -> None:
+        """Once per reason: what a recording that stopped growing but is not closed waits
+        for (a listed split file, or the file itself, without its footer)."""
+        why = self.snapshot.waiting
+        if why and why != self._said_waiting and now - self._last_growth >= WAITING_SAY_S:
+            self._say(
+                f"follow: {why}: waiting for it (a recorder that died leaves a file so:"
+                " --idle-timeout-s maps what was written)"
+            )
+            self._said_waiting = why
 
     def _note(self, growth: Growth, now: float) -> None:
         if growth.new_bytes:
@@ -301,6 +333,17 @@ class Follower:
             return None
         i = bisect.bisect_left(self._arrived_t, t_ns)
         return self._arrived_wall[i] if i < len(self._arrived_wall) else None
+
+
+class _QuietUpdateReader(logging.Filter):
+    """Drops what the reader says of an update's snapshot (a private copy, named by its
+    temporary path): the final run reads the recording itself and says it of that."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (
+            record.threadName == UPDATE_THREAD
+            and record.name.startswith("sonarmap.pipeline.readers")
+        )
 
 
 def _caught(work: Callable[[], Update]) -> Update | BaseException:

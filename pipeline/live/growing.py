@@ -11,6 +11,7 @@ complete records are appended where the old tail was, and the tail is written ag
 
 from __future__ import annotations
 
+import errno
 import itertools
 import os
 import struct
@@ -18,13 +19,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.errors import OutputError, SourceError
 from sonarmap.pipeline.readers.limits import max_chunk_bytes
 
 __all__ = [
     "MAGIC",
     "TAIL",
-    "BagSnapshot",
     "Growth",
     "McapSnapshot",
     "check_followable",
@@ -46,6 +46,9 @@ TAIL = (
 """What closes the snapshot: DataEnd, a Footer naming no summary, the magic."""
 _READ_BYTES = 8 << 20
 """Largest piece of the source read at once (a big chunk is copied in pieces)."""
+_CHECK_BYTES = 4096
+"""Bytes compared at the start of the copied part and at its end, at each look."""
+_DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 def check_followable(path: Path) -> None:
@@ -149,6 +152,8 @@ class McapSnapshot:
         # waiting for it to complete would wait forever.
         self._max_record = 2 * max_chunk_bytes() + (1 << 20)
         self._identity: tuple[int, int] | None = None  # (device, inode) of the file followed
+        self.waiting = ""
+        """Why a source that stopped growing is not closed yet ("" when nothing to say)."""
 
     @property
     def size(self) -> int:
@@ -181,6 +186,8 @@ class McapSnapshot:
                     " followed (truncated or written again): what was mapped may be gone;"
                     " `run` it once it is written"
                 )
+            if self.copied_until > 0:
+                self._check_unchanged(f)
             if self.copied_until == 0:
                 check_mcap_start(self.source)
                 if size < len(MAGIC):
@@ -188,9 +195,42 @@ class McapSnapshot:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 self.path.write_bytes(MAGIC + TAIL)
                 self.copied_until = len(MAGIC)
-            new_bytes, records = self._copy(f, size)
+            try:
+                new_bytes, records = self._copy(f, size)
+            except OSError as err:
+                if err.errno not in _DISK_FULL:
+                    raise
+                raise OutputError(
+                    f"{self.path.parent}: {err.strerror} (follow's copy of the recording, up to"
+                    " 3x its size with the preview's: set TMPDIR to a folder on a larger disk)"
+                ) from err
         closed = self.data_ended and mcap_closed(self.source)
+        self.waiting = (
+            f"{self.source}: its data section ended but no footer follows yet"
+            if self.data_ended and not closed
+            else ""
+        )
         return Growth(new_bytes, records, self.last_log_time_ns, closed)
+
+    def _check_unchanged(self, f: object) -> None:
+        """Refuse a source whose bytes already copied changed: a recording copied over the
+        followed one (`cp` keeps the inode) or a recorder restarted on its name, whose
+        records would otherwise be appended to the first one's as if one recording."""
+        import io
+
+        assert isinstance(f, io.BufferedReader)
+        n = min(_CHECK_BYTES, self.copied_until)
+        with self.path.open("rb") as copy:
+            for start in (0, self.copied_until - n):
+                f.seek(start)
+                copy.seek(start)
+                if f.read(n) != copy.read(n):
+                    raise SourceError(
+                        f"{self.source}: written again while followed (its bytes before"
+                        f" offset {start + n} changed: another recording copied over it, or"
+                        " a recorder restarted on its name): what was mapped is another"
+                        " recording's; `run` each once it is written"
+                    )
 
     def _copy(self, f: object, size: int) -> tuple[int, int]:
         """Append the complete records between `copied_until` and `size`, then the tail."""
@@ -251,91 +291,3 @@ def _pieces(f: object, length: int) -> Iterator[bytes]:
             raise SourceError("the MCAP file shrank while it was read")
         yield piece
         length -= len(piece)
-
-
-class BagSnapshot:
-    """Keeps `folder` a rosbag2 directory (MCAP storage) of `source`'s complete records.
-
-    A recorder writing a bag directory (`ros2 bag record -s mcap`) opens its split files
-    one after the other and writes `metadata.yaml` when it stops. Each split file found
-    gets its own `McapSnapshot`; the snapshot's own `metadata.yaml` lists those holding
-    something. The bag is closed when its `metadata.yaml` is there, names every MCAP file
-    of the directory, and each of them is closed.
-
-    Args:
-        source: the bag directory being written.
-        folder: where the snapshot directory is made (its name is `source`'s).
-    """
-
-    def __init__(self, source: Path, folder: Path) -> None:
-        self.source = Path(source)
-        self.path = Path(folder) / (self.source.name or "bag")
-        self.path.mkdir(parents=True, exist_ok=True)
-        self._files: dict[str, McapSnapshot] = {}
-        self._listed: list[str] = []
-
-    @property
-    def size(self) -> int:
-        """Bytes of the source's files copied into the snapshot."""
-        return sum(s.size for s in self._files.values())
-
-    def update(self) -> Growth:
-        """Copy the complete records added to the bag's files since the last call."""
-        check_followable(self.source)
-        names = sorted((p.name for p in self.source.glob("*.mcap")), key=_split_order)
-        new_bytes = records = 0
-        for name in names:
-            snap = self._files.setdefault(name, McapSnapshot(self.source / name, self.path / name))
-            if snap.data_ended:
-                continue
-            growth = snap.update()
-            new_bytes, records = new_bytes + growth.new_bytes, records + growth.records
-        listed = [n for n in names if self._files[n].size > 0]
-        if listed != self._listed:
-            self._write_metadata(listed)
-        times = [s.last_log_time_ns for s in self._files.values() if s.last_log_time_ns]
-        return Growth(new_bytes, records, max(times, default=None), self._closed(names))
-
-    def _write_metadata(self, names: list[str]) -> None:
-        import yaml
-
-        doc = {
-            "rosbag2_bagfile_information": {
-                "storage_identifier": "mcap",
-                "relative_file_paths": names,  # no topic counts: they are not known yet
-            }
-        }
-        tmp = self.path / "metadata.yaml.tmp"
-        tmp.write_text(yaml.safe_dump(doc))
-        tmp.replace(self.path / "metadata.yaml")
-        self._listed = names
-
-    def _closed(self, names: list[str]) -> bool:
-        meta = self.source / "metadata.yaml"
-        if not meta.is_file() or not names:
-            return False
-        from sonarmap.pipeline.engine.config.yaml_files import read_yaml
-
-        try:
-            info = read_yaml(meta, "bag metadata", SourceError)["rosbag2_bagfile_information"]
-            listed = sorted(Path(n).name for n in info["relative_file_paths"])
-        except (SourceError, KeyError, TypeError):
-            return False  # being written, or not yet the final one: look again
-        closed = {n for n in names if self._files[n].data_ended and mcap_closed(self.source / n)}
-        if missing := sorted(set(listed) - set(names)):
-            if len(closed) == len(names):  # the recorder is done: the file will not come
-                raise SourceError(
-                    f"{meta}: lists {missing[0]}, which is not in {self.source} "
-                    f"({len(missing)} of {len(listed)} listed files missing)"
-                )
-            return False
-        # Files the metadata does not list (`run` does not read them either) are not
-        # waited for.
-        return bool(listed) and set(listed) <= closed
-
-
-def _split_order(name: str) -> tuple[int, str]:
-    """rosbag2 names its split files `BAG_0.mcap`, `BAG_1.mcap`, ... `BAG_10.mcap`."""
-    stem = name.rsplit(".", 1)[0]
-    index = stem.rsplit("_", 1)[-1]
-    return (int(index) if index.isdigit() else -1, name)
