@@ -279,3 +279,21 @@ def test_a_full_temporary_disk_is_named_not_the_store(
     monkeypatch.setattr(McapSnapshot, "_copy", full)
     with pytest.raises(OutputError, match=r"tmp: No space left on device \(follow's copy"):
         snap.update()
+
+
+def test_a_file_no_writer_closed_is_read_with_a_warning(tmp_path: Path) -> None:
+    """Campaign 13 #7: a file ending on a whole record but without its footer (a recorder
+    that died, or one paused past --idle-timeout-s) was mapped with no word."""
+    data = _recording(range(0, 30))
+    records = _complete_messages(data)
+    end = records[len(records) // 2][0]  # a record boundary inside the data section
+    open_file = tmp_path / "open.mcap"
+    open_file.write_bytes(data[:end])
+    source = open_source(open_file)
+    assert any("not closed (no MCAP footer)" in w for w in source.warnings), source.warnings
+    closed = tmp_path / "closed.mcap"
+    closed.write_bytes(data)
+    assert not any("not closed" in w for w in open_source(closed).warnings)
+    snap = McapSnapshot(open_file, tmp_path / "snap.mcap")  # follow's copy: closed by it
+    snap.update()
+    assert not any("not closed" in w for w in open_source(snap.path).warnings)
