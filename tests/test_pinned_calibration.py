@@ -96,13 +96,15 @@ def test_bands_of_another_range_window_are_refused_in_one_line(
         ("{not json", "not JSON"),
         ('{"sonars": {"horizontal": {}}}', "horizontal sonar: not calibrated in the file"),
         ("[1, 2]", "not a features calibration.json"),
+        (None, "cannot read calibration"),
     ],
 )
 def test_a_file_that_is_not_a_calibration_is_refused_naming_the_setting(
-    tmp_path: Path, content: str, needle: str
+    tmp_path: Path, content: str | None, needle: str
 ) -> None:
     bad = tmp_path / "bad.json"
-    bad.write_text(content)
+    if content is not None:  # None: no such file
+        bad.write_text(content)
     config = tmp_path / "pinned.yaml"
     config.write_text(f"features:\n  calibration_from: {bad}\n")
     res = CliRunner().invoke(app, ["config", "check", str(config)])

@@ -31,7 +31,10 @@ def pin_calibration(config: BaseModel) -> BaseModel:
     if features is None or not source:
         return config
     where = f"features.calibration_from: {source}"
-    data = read_user_file(source, "calibration", ConfigError, CALIBRATION_MAX_BYTES)
+    try:
+        data = read_user_file(source, "calibration", ConfigError, CALIBRATION_MAX_BYTES)
+    except ConfigError as err:
+        raise ConfigError(f"features.calibration_from: {err}") from None
     try:
         doc = json.loads(data)
     except (UnicodeDecodeError, ValueError) as err:
