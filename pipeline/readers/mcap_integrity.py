@@ -21,10 +21,12 @@ __all__ = [
     "message_index_entries",
     "refuse_damage",
     "summary_crc_problem",
+    "unclosed",
 ]
 
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _MAGIC_SIZE = 8
+MAGIC = b"\x89MCAP0\r\n"
 _OP_FOOTER, _OP_MESSAGE_INDEX = 0x02, 0x07
 
 
@@ -124,3 +126,17 @@ def message_index_entries(
     ):
         raise IndexCorrupt(f"{where}: entries outside the chunk at {chunk.chunk_start_offset}")
     return entries
+
+
+def unclosed(path: Path, messages: int) -> str | None:
+    """The warning for a file read to its last whole record that no writer closed (it does
+    not end with the MCAP magic), or None when it ends as a closed file does."""
+    with path.open("rb") as f:
+        size = f.seek(0, 2)
+        f.seek(max(0, size - len(MAGIC)))
+        if f.read() == MAGIC:
+            return None
+    return (
+        f"{path}: not closed (no MCAP footer): its recorder was still writing it, or stopped"
+        f" without closing it; the {messages} messages written so far are mapped"
+    )

@@ -31,8 +31,8 @@ from sonarmap.pipeline.readers.mcap_integrity import (
     IndexCorrupt,
     refuse_damage,
     summary_crc_problem,
+    unclosed,
 )
-from sonarmap.pipeline.readers.mcap_scan import MAGIC as MCAP_MAGIC
 from sonarmap.pipeline.readers.mcap_scan import (
     ChunkCorrupt,
     ScanResult,
@@ -281,14 +281,6 @@ class _McapFile:
             yield cid, t, self._message(self._chunk(k, ahead), off, cid, t, k)
 
 
-def _closed(path: Path) -> bool:
-    """Whether the file ends with the MCAP magic, as a writer that closed it leaves it."""
-    with path.open("rb") as f:
-        size = f.seek(0, 2)
-        f.seek(max(0, size - len(MCAP_MAGIC)))
-        return f.read() == MCAP_MAGIC
-
-
 class McapSource:
     """A ROS 2 recording stored as one or more MCAP files (in time order)."""
 
@@ -320,13 +312,11 @@ class McapSource:
                 log.warning(msg)
             elif f.summary is None and not f.channels and f.scan.good_until <= 8:
                 raise SourceError(f"{f.path}: not a readable MCAP file")
-            elif f.summary is None and f.index_problem is None and not _closed(f.path):
-                # Ends on a whole record, so nothing is unreadable: still, no writer closed it.
-                msg = (
-                    f"{f.path}: not closed (no MCAP footer): its recorder was still writing it,"
-                    f" or stopped without closing it; the {sum(map(len, f.times.values()))}"
-                    " messages written so far are mapped"
-                )
+            elif (  # ends on a whole record, so nothing is unreadable: was it closed?
+                f.summary is None
+                and f.index_problem is None
+                and (msg := unclosed(f.path, sum(map(len, f.times.values()))))
+            ):
                 self.warnings.append(msg)
                 log.warning(msg)
         # A chunk's CRC is checked when it is decompressed, so nothing is computed from a
