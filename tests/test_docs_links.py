@@ -48,7 +48,9 @@ def _source_files() -> list[Path]:
 
 def _slug(heading: str) -> str:
     """Python-Markdown's `toc` slug of a heading (what MkDocs anchors are)."""
-    text = re.sub(r"[`*_]|\[([^\]]*)\]\([^)]*\)", r"\1", heading)
+    # Code spans keep their underscores (extend_units.py -> extend_unitspy): only the
+    # backticks, emphasis stars and a link's target go.
+    text = re.sub(r"[`*]|\[([^\]]*)\]\([^)]*\)", r"\1", heading)
     text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode()
     text = re.sub(r"[^\w\s-]", "", text).strip().lower()
     return re.sub(r"[-\s]+", "-", text)
