@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
-from sonarmap.pipeline.live.preview import _unsaid
+from sonarmap.pipeline.live.preview import unsaid
 from sonarmap.stages.evaluate.foxglove_scene import preview_messages
 from tests.fixtures.recordings import small_recording
 
@@ -62,7 +62,7 @@ def test_the_previews_window_warnings_are_not_printed(
 ) -> None:
     window = tmp_path / "sonarmap-follow-x" / "window.mcap"
     log = logging.getLogger("sonarmap.pipeline.readers.recording")
-    with caplog.at_level(logging.WARNING), _unsaid(window):
+    with caplog.at_level(logging.WARNING), unsaid(window):
         log.warning("%s: 1 of 14 horizontal pings fall outside the navigation's span", window)
         log.warning("another file: kept")
     log.warning("%s: after the preview's read, said again", window)

@@ -15,7 +15,6 @@ The loop returns when the recording is closed (its footer and magic written), or
 from __future__ import annotations
 
 import bisect
-import logging
 import threading
 import time
 from collections.abc import Callable
@@ -27,7 +26,7 @@ from sonarmap.pipeline.api import RunRequest, run_dataset
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
 from sonarmap.pipeline.live.bag_snapshot import BagSnapshot
 from sonarmap.pipeline.live.growing import Growth, McapSnapshot
-from sonarmap.pipeline.live.preview import Anchor, Preview, anchor_of
+from sonarmap.pipeline.live.preview import Anchor, Preview, anchor_of, unsaid
 
 if TYPE_CHECKING:
     from sonarmap.pipeline.engine.run.graph import Graph
@@ -38,7 +37,6 @@ MAP_STAGE = "voxelize"
 """The last stage of an update: the map (evaluation and figures wait for the end)."""
 PREVIEW_TOPICS = ("/map/preview", "/trajectory/preview")
 """The preview's topics (`sonarmap.pipeline.live.preview`)."""
-UPDATE_THREAD = "sonarmap-follow-update"
 WAITING_SAY_S = 10.0
 """A recording that stopped growing without being closed says what it waits for after this."""
 
@@ -174,14 +172,8 @@ class Follower:
             ConfigError: the config is bad (found by the first update).
             KeyboardInterrupt: Ctrl-C (what was committed stays in the store).
         """
-        quiet = _QuietUpdateReader()
-        for handler in logging.getLogger().handlers:
-            handler.addFilter(quiet)
-        try:
+        with unsaid(self.snapshot.path):  # the updates' reader names their private copy
             return self._follow(clock)
-        finally:
-            for handler in logging.getLogger().handlers:
-                handler.removeFilter(quiet)
 
     def _follow(self, clock: Callable[[], float]) -> list[Update]:
         mapped_size = 0
@@ -210,7 +202,7 @@ class Follower:
                     last_start, mapped_size = now, self.snapshot.size
                     worker = threading.Thread(
                         target=lambda: done.append(_caught(lambda: self._update(clock))),
-                        name=UPDATE_THREAD,
+                        name="sonarmap-follow-update",
                         daemon=True,  # Ctrl-C ends follow; the store's commits are atomic
                     )
                     worker.start()
@@ -333,17 +325,6 @@ class Follower:
             return None
         i = bisect.bisect_left(self._arrived_t, t_ns)
         return self._arrived_wall[i] if i < len(self._arrived_wall) else None
-
-
-class _QuietUpdateReader(logging.Filter):
-    """Drops what the reader says of an update's snapshot (a private copy, named by its
-    temporary path): the final run reads the recording itself and says it of that."""
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not (
-            record.threadName == UPDATE_THREAD
-            and record.name.startswith("sonarmap.pipeline.readers")
-        )
 
 
 def _caught(work: Callable[[], Update]) -> Update | BaseException:

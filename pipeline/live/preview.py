@@ -35,7 +35,7 @@ import numpy as np
 from sonarmap.pipeline.live.growing import Growth, McapSnapshot
 from sonarmap.pipeline.live.window import RecordWindow
 
-__all__ = ["Anchor", "Preview", "PreviewKeyframe"]
+__all__ = ["Anchor", "Preview", "PreviewKeyframe", "unsaid"]
 
 _MARGIN_NS = 2_000_000_000
 """The window starts this long before the last keyframe: the navigation samples around
@@ -53,12 +53,12 @@ class _AboutFile(logging.Filter):
 
 
 @contextmanager
-def _unsaid(window: Path) -> Iterator[None]:
-    """The reader's warnings about the window are not printed: the window is cut from the
-    recording on purpose, so what is missing at its edges (pings past the navigation's
-    end) is no news, and the file is private and gone soon. The full updates read the
-    whole recording and say what is wrong with it."""
-    quiet = _AboutFile(window)
+def unsaid(private: Path) -> Iterator[None]:
+    """What is logged naming `private` is not printed: the preview's window (cut from the
+    recording on purpose, so what is missing at its edges is no news) and the full
+    updates' snapshot are private files, gone soon; the final run reads the recording
+    itself and says what is wrong with it."""
+    quiet = _AboutFile(private)
     handlers = list(logging.getLogger().handlers)
     for handler in handlers:
         handler.addFilter(quiet)
@@ -164,7 +164,7 @@ class Preview:
             return []  # no keyframe can be due yet: the window is not even read
         self._fresh = False
         self.window.write(last_t - _MARGIN_NS, self.window_path)
-        with _unsaid(self.window_path):
+        with unsaid(self.window_path):
             rec = open_recording(self.window_path, kcfg)
             posed = posed_pairs(rec, kcfg.pair_tolerance_s)
             if len(posed.h_t_ns) == 0 or len(posed.v_t_ns) == 0:
