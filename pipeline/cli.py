@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import inspect
@@ -197,8 +198,38 @@ def main() -> None:
     Ctrl-C does: the run's lease is released, its unfinished commits are removed and its
     worker processes end, where the default action would kill this process alone."""
     signal.signal(signal.SIGTERM, _terminated)
-    app()
+    try:
+        app()
+    except SystemExit as stop:
+        if stop.code in _INTERRUPTED_STATUSES:
+            _leave_interrupted(stop.code)
+        raise
+
+
+_INTERRUPTED_STATUSES = (128 + signal.SIGINT, 128 + signal.SIGTERM)
+"""Ctrl-C (typer's 130) and SIGTERM (`_terminated`'s 143)."""
 
 
 def _terminated(signum: int, _frame: FrameType | None) -> NoReturn:
     raise SystemExit(128 + signum)
+
+
+def _leave_interrupted(status: int) -> NoReturn:
+    """End an interrupted command with `status`, skipping the C++ static destructors.
+
+    An interrupt abandons the stage running in this process on a daemon thread, with the
+    Open3D tensors it holds. At C++ exit Open3D's memory statistics find them, print a
+    leak report on stdout (into a `--json` document) and call `exit(1)`, so Ctrl-C
+    exited 1 whenever evaluation or inference was running. By now the command has
+    unwound (lease released, unfinished commits removed, workers ended); Python's own
+    exit handlers still run, then the process ends without the C++ teardown.
+    """
+    import atexit
+
+    run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
+    if run_exit_functions is not None:
+        run_exit_functions()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a reader that left, a closed stream
+            stream.flush()
+    os._exit(status)
