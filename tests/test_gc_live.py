@@ -292,14 +292,14 @@ def test_disk_full_mid_commit_exits_2_and_keeps_what_was_committed(
     toy_cli: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     store = tmp_path / "store"
-    real_fsync = sonarmap.pipeline.engine.store.artifact_store._fsync_file
+    real_fsync = sonarmap.pipeline.engine.store.artifact_store.fsync_file
 
     def fsync(path: Path) -> None:
         if path.parent.name.startswith("double-"):  # the second commit, mid-way
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
         real_fsync(path)
 
-    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "_fsync_file", fsync)
+    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "fsync_file", fsync)
     # One worker: count (beside double in the graph) would otherwise commit meanwhile.
     res = cli("run", toy_cli, "--store", store, "-q", "--workers", "1")
     _one_line_error(res, "No space left on device", "(ENOSPC)", ".tmp/double-")
@@ -309,7 +309,7 @@ def test_disk_full_mid_commit_exits_2_and_keeps_what_was_committed(
         live.verify(ref)
     assert not list((store / ".tmp").iterdir()) and not (store / "double").exists()
     assert live.gc()["removed"] == []  # the committed stage is recorded
-    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "_fsync_file", real_fsync)
+    monkeypatch.setattr(sonarmap.pipeline.engine.store.artifact_store, "fsync_file", real_fsync)
     assert cli("run", toy_cli, "--store", store, "-q").exit_code == 0
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
@@ -30,6 +31,7 @@ from sonarmap.pipeline.engine.run.planner import plan
 from sonarmap.pipeline.engine.run.run_records import record_run
 from sonarmap.pipeline.engine.run.workers import Slots
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactRef, ArtifactStore
+from sonarmap.pipeline.engine.store.commit_gate import CommitGate
 from sonarmap.pipeline.engine.store.disk import discard_artifact, disk_error
 from sonarmap.pipeline.engine.store.leases import RunLease
 from sonarmap.pipeline.engine.text import display_path
@@ -142,6 +144,7 @@ def _execute(
     done: dict[str, PlannedStage] = {}
     finished: dict[str, StageResult] = {}
     order = {item.stage.name: i for i, item in enumerate(planned)}
+    gate = CommitGate()
 
     def produce(item: PlannedStage, slots: Slots) -> tuple[ArtifactRef, str]:
         """The stage's artifact: looked up (a hit), or computed and committed."""
@@ -172,7 +175,7 @@ def _execute(
         # Only the stage reading the dataset carries the graph's opener, so the others
         # can travel to a worker process whatever the opener is (a test's lambda).
         spec = dataset if item.stage.reads_dataset else replace(dataset, open=not_opened)
-        with store.staging(name, item.key, manifest_extra) as slot:
+        with store.staging(name, item.key, manifest_extra, gate) as slot:
             if slot.tmp is not None:  # not committed by another process meanwhile
                 sections = job_sections(item.stage, config)
                 produced = {n: outputs_of[n].outputs for n in item.stage.upstream}
@@ -220,6 +223,36 @@ def _execute(
     started: dict[str, float] = {}
     running: dict[Future[tuple[ArtifactRef, str]], PlannedStage] = {}
     failure: BaseException | None = None
+    try:
+        failure = _run_all(
+            waiting, running, started, refs, order, produce, commit, on_start, workers
+        )
+    except (KeyboardInterrupt, SystemExit):
+        _close_interrupted(gate, store, dataset, config, planned, external, done)
+        raise
+    if failure is not None:
+        raise failure
+    for item in planned:  # plan order, whatever order the stages finished in
+        result.artifacts[item.stage.name] = refs[item.stage.name]
+        result.stages.append(finished[item.stage.name])
+    record_run(store, dataset, config, planned, external)
+    return result
+
+
+def _run_all(
+    waiting: list[PlannedStage],
+    running: dict[Future[tuple[ArtifactRef, str]], PlannedStage],
+    started: dict[str, float],
+    refs: Mapping[str, ArtifactRef],
+    order: Mapping[str, int],
+    produce: Callable[[PlannedStage, Slots], tuple[ArtifactRef, str]],
+    commit: Callable[[PlannedStage, ArtifactRef, str, float], None],
+    on_start: Callable[[PlannedStage], None] | None,
+    workers: int,
+) -> BaseException | None:
+    """Start every stage when its inputs are ready, commit each as it ends; the first
+    error, once every running stage has stopped."""
+    failure: BaseException | None = None
     with Slots(workers) as slots:
         while True:
             # Start every stage whose inputs are ready, in plan order, while slots are free.
@@ -244,10 +277,26 @@ def _execute(
                     commit(item, ref, status, seconds)
                 except BaseException as err:  # the first error is reported, once all stop
                     failure = failure or err
-    if failure is not None:
-        raise failure
-    for item in planned:  # plan order, whatever order the stages finished in
-        result.artifacts[item.stage.name] = refs[item.stage.name]
-        result.stages.append(finished[item.stage.name])
-    record_run(store, dataset, config, planned, external)
-    return result
+    return failure
+
+
+def _close_interrupted(
+    gate: CommitGate,
+    store: ArtifactStore,
+    dataset: DatasetSpec,
+    config: BaseModel,
+    planned: Sequence[PlannedStage],
+    external: Mapping[str, tuple[Stage, ArtifactRef]],
+    done: dict[str, PlannedStage],
+) -> None:
+    """Ctrl-C or SIGTERM: no stage commits from now on; one that committed before the
+    interrupt reached this thread enters the run record (else the next `gc` would take
+    it), and the temporary folders of the stages still computing go."""
+    committed, staging = gate.close()
+    by_address = {(p.stage.name, p.key): p for p in planned}
+    late = {a[0]: by_address[a] for a in committed if a in by_address and a[0] not in done}
+    if late:
+        done.update(late)
+        record_run(store, dataset, config, planned, external, done=done)
+    for tmp in staging:
+        shutil.rmtree(tmp, ignore_errors=True)

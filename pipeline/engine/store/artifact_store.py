@@ -25,7 +25,8 @@ from filelock import FileLock
 from sonarmap.pipeline.engine.errors import ArtifactCorrupt, StoreError
 from sonarmap.pipeline.engine.hashing import STORE_FORMAT_VERSION, sha256_file
 from sonarmap.pipeline.engine.store.artifact import ArtifactRef, Problem, safe_relative
-from sonarmap.pipeline.engine.store.disk import disk_error
+from sonarmap.pipeline.engine.store.commit_gate import NEVER_CLOSED, CommitGate
+from sonarmap.pipeline.engine.store.disk import disk_error, fsync_dir, fsync_file
 from sonarmap.pipeline.engine.store.integrity import recovery_hint, verify_artifact_dir, verify_file
 from sonarmap.pipeline.engine.store.manifest import read_manifest
 from sonarmap.pipeline.engine.store.units import UNITS, verify_units
@@ -47,20 +48,6 @@ MANIFEST = "manifest.json"
 _TMP = ".tmp"
 _LOCKS = ".locks"
 _RUNS = "runs"
-
-
-def _fsync_dir(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def _fsync_file(path: Path) -> None:
-    with path.open("rb") as f:
-        os.fsync(f.fileno())
 
 
 @dataclass
@@ -232,7 +219,13 @@ class ArtifactStore:
         return slot.committed(), slot.tmp is None
 
     @contextlib.contextmanager
-    def staging(self, stage: str, key: str, manifest_extra: Mapping[str, Any]) -> Iterator[Staging]:
+    def staging(
+        self,
+        stage: str,
+        key: str,
+        manifest_extra: Mapping[str, Any],
+        gate: CommitGate = NEVER_CLOSED,
+    ) -> Iterator[Staging]:
         """Hold the key's lock; the caller writes the artifact's files into `slot.tmp`
         (None: another process committed it first, reuse it) and sets `slot.extra`
         (manifest fields). On leaving, the files are fsynced, the manifest written
@@ -248,21 +241,23 @@ class ArtifactStore:
                     yield slot
                     return
                 slot.tmp = self.tmp_path(f"{stage}-{key[:16]}")
-                slot.tmp.mkdir(parents=True)
-                try:
-                    t0 = time.perf_counter()
-                    yield slot
-                    self._finish(slot.tmp, stage, key, {**manifest_extra, **slot.extra}, t0)
-                except BaseException:
-                    shutil.rmtree(slot.tmp, ignore_errors=True)
-                    raise
+                with gate.staging(slot.tmp):
+                    slot.tmp.mkdir(parents=True)
+                    try:
+                        t0 = time.perf_counter()
+                        yield slot
+                        with gate.committing(stage, key):
+                            self._finish(slot.tmp, stage, key, {**manifest_extra, **slot.extra}, t0)
+                    except BaseException:
+                        shutil.rmtree(slot.tmp, ignore_errors=True)
+                        raise
         except OSError as err:
             raise disk_error(err, self.artifact_dir(stage, key)) from err
 
     def _finish(self, tmp: Path, stage: str, key: str, extra: Mapping[str, Any], t0: float) -> None:
         files = {}
         for f in sorted(p for p in tmp.rglob("*") if p.is_file()):
-            _fsync_file(f)
+            fsync_file(f)
             rel = f.relative_to(tmp).as_posix()
             files[rel] = {"sha256": sha256_file(f), "size": f.stat().st_size}
         manifest = {
@@ -275,13 +270,13 @@ class ArtifactStore:
             "created_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         }
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2, sort_keys=True))
-        _fsync_file(tmp / MANIFEST)
-        _fsync_dir(tmp)
+        fsync_file(tmp / MANIFEST)
+        fsync_dir(tmp)
         final = self.artifact_dir(stage, key)
         final.parent.mkdir(parents=True, exist_ok=True)
         self._clear_non_artifact(final)
         tmp.rename(final)
-        _fsync_dir(final.parent)
+        fsync_dir(final.parent)
 
     def _clear_non_artifact(self, final: Path) -> None:
         """Move a manifest-less directory at `final` aside (we hold its key's lock).

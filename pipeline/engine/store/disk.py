@@ -17,7 +17,14 @@ from typing import Any
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.text import display_path
 
-__all__ = ["delete_entry", "discard_artifact", "disk_error", "free_bytes"]
+__all__ = [
+    "delete_entry",
+    "discard_artifact",
+    "disk_error",
+    "free_bytes",
+    "fsync_dir",
+    "fsync_file",
+]
 
 
 def disk_error(err: OSError, where: object = None) -> StoreError:
@@ -73,3 +80,20 @@ def discard_artifact(store: Any, stage: str, key: str) -> None:
             trash.parent.mkdir(parents=True, exist_ok=True)
             path.rename(trash)
             delete_entry(trash)
+
+
+def fsync_dir(path: Path) -> None:
+    """Flush a directory's entries (a rename into it) to disk; where the filesystem
+    cannot, nothing."""
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def fsync_file(path: Path) -> None:
+    """Flush a file's data to disk."""
+    with path.open("rb") as f:
+        os.fsync(f.fileno())

@@ -1,0 +1,127 @@
+"""Ctrl-C while a stage computes in the run's own process (campaign 14 #2 and #6): a stage
+that committed just before the interrupt stays referenced, so `gc` keeps it; the stage
+still computing leaves no temporary folder and can no longer commit."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+from test_engine_cache import run_toy
+from toy_stages import TOY_STAGES
+
+import sonarmap.pipeline.engine.run.runner as runner_module
+from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
+from sonarmap.pipeline.engine.run.session import make_context
+from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
+from sonarmap.pipeline.engine.store.commit_gate import CommitGate, GateClosed
+
+
+@pytest.fixture
+def data(tmp_path: Path) -> Path:
+    path = tmp_path / "raw.bin"
+    path.write_bytes(bytes(range(256)) * 4)
+    return path
+
+
+def _run_two_workers(dataset: Path, store: Path) -> RunResult:
+    """The toy pipeline with two stages at a time: the one computed in this process runs
+    on a thread, as in `run -j 2`, and goes on after the interrupt."""
+    ctx = make_context(
+        dataset,
+        stages=TOY_STAGES,
+        overrides=(),
+        store_dir=store,
+        parts=lambda p: [p],
+        opener=lambda _section: dataset.read_bytes(),
+    )
+    planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
+    return execute(planned, ctx.config, ctx.dataset, ctx.store, workers=2)
+
+
+def _interrupt_when(monkeypatch: pytest.MonkeyPatch, ready: Callable[[], bool]) -> None:
+    """Ctrl-C reaches the runner's thread on its first wake-up after `ready()` holds: the
+    moment between a stage thread's work and the runner's own bookkeeping."""
+    real_wait = runner_module.wait
+
+    def wait(futures: Any, **kwargs: Any) -> Any:
+        deadline = time.monotonic() + 30
+        while not ready() and time.monotonic() < deadline:
+            found = real_wait(futures, timeout=0.01, **kwargs)
+            if found[0] and not ready():
+                return found
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(runner_module, "wait", wait)
+
+
+def _committed(store: Path, stage: str) -> list[Path]:
+    return sorted(store.glob(f"{stage}/*/manifest.json"))
+
+
+def test_a_stage_committed_just_before_ctrl_c_stays_in_the_record_and_through_gc(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    store = tmp_path / "store"
+    _interrupt_when(monkeypatch, lambda: bool(_committed(store, "double")))
+    with pytest.raises(KeyboardInterrupt):
+        _run_two_workers(data, store)
+    (manifest,) = _committed(store, "double")
+    report = ArtifactStore(store).gc()
+    assert report["removed"] == []  # was: double/<key>, committed work deleted
+    assert manifest.exists()
+    assert not any((store / ".tmp").iterdir())
+    monkeypatch.undo()
+    assert {r.stage for r in run_toy(data, store).stages if r.status == "hit"} >= {
+        "source",
+        "double",
+    }
+
+
+def test_a_stage_computing_at_ctrl_c_leaves_no_folder_and_never_commits(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    store, calls, gate = tmp_path / "store", tmp_path / "calls.log", tmp_path / "gate"
+    monkeypatch.setenv("TOY_CALL_LOG", str(calls))
+    monkeypatch.setenv("TOY_GATE", str(gate))  # `double` waits for this file
+    _interrupt_when(monkeypatch, lambda: calls.exists() and "double" in calls.read_text())
+    threads = threading.active_count()
+    with pytest.raises(KeyboardInterrupt):
+        _run_two_workers(data, store)
+    assert not any((store / ".tmp").iterdir())  # was: double-<key>-<pid>-<hex>
+    gate.touch()  # the abandoned stage finishes its work now
+    deadline = time.monotonic() + 30
+    while threading.active_count() > threads and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert threading.active_count() == threads
+    assert _committed(store, "double") == []  # its commit was refused
+    assert not any((store / ".tmp").iterdir())
+
+
+def test_the_gate_lets_a_commit_in_progress_finish_and_reports_it() -> None:
+    gate = CommitGate()
+    started, release = threading.Event(), threading.Event()
+    closed: list[Any] = []
+
+    def commit() -> None:
+        with gate.committing("double", "k" * 64):
+            started.set()
+            release.wait(10)
+
+    thread = threading.Thread(target=commit)
+    thread.start()
+    started.wait(10)
+    closer = threading.Thread(target=lambda: closed.append(gate.close()))
+    closer.start()
+    time.sleep(0.05)
+    assert not closed  # close() waits for the commit in progress
+    release.set()
+    thread.join(10)
+    closer.join(10)
+    assert closed == [([("double", "k" * 64)], [])]
+    with pytest.raises(GateClosed), gate.committing("count", "c" * 64):
+        pass
