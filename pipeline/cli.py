@@ -10,6 +10,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from types import FrameType
 from typing import NoReturn
 
@@ -22,6 +23,7 @@ from sonarmap.pipeline.commands import COMMAND_MODULES
 from sonarmap.pipeline.commands._common import GraphChoice, emit_error_json, json_requested
 from sonarmap.pipeline.commands._errors import MAX_LINE_CHARS, one_line, os_error_line
 from sonarmap.pipeline.engine.errors import PipelineError
+from sonarmap.pipeline.engine.run.abandon import abandon_open_runs
 from sonarmap.pipeline.engine.text import scrub_userinfo
 
 __all__ = ["app", "main"]
@@ -198,6 +200,9 @@ def main() -> None:
     Ctrl-C does: the run's lease is released, its unfinished commits are removed and its
     worker processes end, where the default action would kill this process alone."""
     signal.signal(signal.SIGTERM, _terminated)
+    # A closed terminal (SIGHUP) stops the command as `kill` does; `nohup` keeps it going.
+    if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:
+        signal.signal(signal.SIGHUP, _terminated)
     try:
         app()
     except SystemExit as stop:
@@ -206,11 +211,18 @@ def main() -> None:
         raise
 
 
-_INTERRUPTED_STATUSES = (128 + signal.SIGINT, 128 + signal.SIGTERM)
-"""Ctrl-C (typer's 130) and SIGTERM (`_terminated`'s 143)."""
+_INTERRUPTED_STATUSES = (128 + signal.SIGINT, 128 + signal.SIGTERM, 128 + signal.SIGHUP)
+"""Ctrl-C (typer's 130), SIGTERM and SIGHUP (`_terminated`'s 143 and 129)."""
 
 
 def _terminated(signum: int, _frame: FrameType | None) -> NoReturn:
+    if signum == signal.SIGHUP:
+        # The terminal is gone: writing to it would fail (EIO) while the run unwinds.
+        # Output sent to a file still gets the closing lines.
+        devnull = os.open(os.devnull, os.O_RDWR)
+        for fd in (0, 1, 2):
+            if os.isatty(fd):
+                os.dup2(devnull, fd)
     raise SystemExit(128 + signum)
 
 
@@ -226,6 +238,8 @@ def _leave_interrupted(status: int) -> NoReturn:
     """
     import atexit
 
+    abandon_open_runs()  # those an interrupt left on other threads (`follow`'s updates)
+    _end_child_processes()  # multiprocessing's exit handler would wait for them
     run_exit_functions = getattr(atexit, "_run_exitfuncs", None)
     if run_exit_functions is not None:
         run_exit_functions()
@@ -233,3 +247,19 @@ def _leave_interrupted(status: int) -> NoReturn:
         with contextlib.suppress(OSError, ValueError):  # a reader that left, a closed stream
             stream.flush()
     os._exit(status)
+
+
+def _end_child_processes(grace_s: float = 2.0) -> None:
+    """Worker processes still alive after an interrupt (each unwinds on SIGTERM, then
+    ends) are ended within `grace_s`, then killed."""
+    multiprocessing = sys.modules.get("multiprocessing")
+    if multiprocessing is None:
+        return
+    children = multiprocessing.active_children()
+    for child in children:
+        child.terminate()
+    deadline = time.monotonic() + grace_s
+    for child in children:
+        child.join(timeout=max(0.0, deadline - time.monotonic()))
+        if child.is_alive():
+            child.kill()

@@ -1,9 +1,11 @@
-"""Ctrl-C while a stage computes in the run's own process (campaign 14 #2 and #6): a stage
-that committed just before the interrupt stays referenced, so `gc` keeps it; the stage
-still computing leaves no temporary folder and can no longer commit."""
+"""Ctrl-C while a stage computes in the run's own process (campaign 14 #2, #4 and #6): a
+stage that committed just before the interrupt stays referenced, so `gc` keeps it; the
+stage still computing leaves no temporary folder and can no longer commit; a run left on
+another thread gives up its lease."""
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from collections.abc import Callable
@@ -15,6 +17,7 @@ from test_engine_cache import run_toy
 from toy_stages import TOY_STAGES
 
 import sonarmap.pipeline.engine.run.runner as runner_module
+from sonarmap.pipeline.engine.run.abandon import abandon_open_runs
 from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
 from sonarmap.pipeline.engine.run.session import make_context
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
@@ -125,3 +128,37 @@ def test_the_gate_lets_a_commit_in_progress_finish_and_reports_it() -> None:
     assert closed == [([("double", "k" * 64)], [])]
     with pytest.raises(GateClosed), gate.committing("count", "c" * 64):
         pass
+
+
+def test_a_run_left_on_another_thread_is_closed_by_the_interrupted_command(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`follow`'s map update runs on a thread that Ctrl-C does not unwind: its lease and
+    its stage's folder stayed in the store until `gc` (campaign 14 #4)."""
+    store, calls, gate = tmp_path / "store", tmp_path / "calls.log", tmp_path / "gate"
+    monkeypatch.setenv("TOY_CALL_LOG", str(calls))
+    monkeypatch.setenv("TOY_GATE", str(gate))
+    errors: list[BaseException] = []
+
+    def update() -> None:
+        try:
+            run_toy(data, store)
+        except BaseException as err:
+            errors.append(err)
+
+    thread = threading.Thread(target=update, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not (calls.exists() and "double" in calls.read_text()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert list((store / ".leases").glob("*.json")) and any((store / ".tmp").iterdir())
+    assert abandon_open_runs() == 2  # the run's commit gate and its lease
+    assert not list((store / ".leases").iterdir())
+    assert not any((store / ".tmp").iterdir())
+    gate.touch()
+    thread.join(30)
+    assert len(errors) == 1  # its commit refused, or its folder gone under it
+    assert _committed(store, "double") == [] and _committed(store, "source")
+    record = json.loads(next((store / "runs").glob("*.json")).read_text())
+    assert set(record["stages"]) == {"source"}  # kept by gc
+    assert ArtifactStore(store).gc()["removed"] == []

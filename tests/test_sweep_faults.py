@@ -14,6 +14,7 @@ import pytest
 
 from sonarmap.pipeline.experiments.sweep import RunOutcome
 from sonarmap.pipeline.experiments.sweep_checks import failure_exit_code
+from tests.fixtures.signals import default_sigint
 
 TESTS = Path(__file__).resolve().parent
 
@@ -155,6 +156,47 @@ def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path)
         while any(_alive(p) for p in workers) and time.monotonic() < deadline:
             time.sleep(0.1)
         assert not [p for p in workers if _alive(p)], "workers outlived the sweep"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for line in _calls(tmp_path):
+            pid = int(line.split()[1])
+            if _alive(pid) and pid != os.getpid():
+                os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize(
+    ("sig", "status"), [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)]
+)
+def test_an_interrupted_parallel_sweep_stops_now_and_starts_no_queued_run(
+    toy_env: list[Path], tmp_path: Path, sig: signal.Signals, status: int
+) -> None:
+    """Campaign 14 #1, #3, #7: with -j 2 the pool's shutdown waited for every queued run
+    (one still started after Ctrl-C); SIGTERM ended without the line; SIGHUP unwound nothing."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sonarmap.pipeline", "sweep", str(toy_env[0]),
+         "--set", "double.factor=2,3,4", "--set", "double.sleep_s=60",
+         "--store", str(tmp_path / "s"), "--out", str(tmp_path / "o"), "-j", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
+        preexec_fn=default_sigint,
+    )  # fmt: skip
+    try:
+        workers: set[int] = set()
+        deadline = time.monotonic() + 60
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            workers = {int(ln.split()[1]) for ln in _calls(tmp_path) if ln.startswith("double")}
+            time.sleep(0.1)
+        assert len(workers) == 2, "two points should be inside the sleeping stage"
+        t0 = time.monotonic()
+        os.kill(proc.pid, sig)  # the parent alone
+        _, stderr = proc.communicate(timeout=30)
+        assert time.monotonic() - t0 < 15  # not the 60 s the running points would take
+        assert proc.returncode == status, stderr
+        assert "sweep: interrupted after 0 of 3 runs" in stderr
+        assert sum(ln.startswith("double") for ln in _calls(tmp_path)) == 2  # none queued ran
+        assert not [p for p in workers if _alive(p)], "workers outlived the sweep"
+        assert not list((tmp_path / "s" / ".leases").glob("*.json"))
     finally:
         if proc.poll() is None:
             proc.kill()

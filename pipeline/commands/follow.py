@@ -143,7 +143,7 @@ def follow(
         _say_interrupted()
         raise typer.Exit(INTERRUPTED) from None
     except SystemExit as stop:
-        if stop.code == 128 + signal.SIGTERM:  # `kill`: unwound as Ctrl-C is
+        if stop.code in (128 + signal.SIGTERM, 128 + signal.SIGHUP):  # unwound as Ctrl-C is
             _say_interrupted()
         raise
 

@@ -64,6 +64,7 @@ def sweep(
     """
     import hashlib
     import os
+    import signal
 
     from sonarmap.pipeline.commands._errors import check_writable, display_path, one_line
     from sonarmap.pipeline.engine.errors import ConfigError
@@ -140,7 +141,10 @@ def sweep(
             outcomes = run_sweep(
                 specs, executor=executor, jobs=jobs, address=address, on_done=done, graph=graph
             )
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemExit) as stop:
+            status = 130 if isinstance(stop, KeyboardInterrupt) else stop.code
+            if status not in (130, 128 + signal.SIGTERM, 128 + signal.SIGHUP):
+                raise
             # The finished points' rows are written; a rerun takes them from the store.
             if finished:
                 write_sweep(finished, out_dir)
@@ -150,7 +154,7 @@ def sweep(
                 + " (a rerun reuses what they computed)",
                 err=True,
             )
-            raise typer.Exit(130) from None
+            raise typer.Exit(status) from None
         doc = write_sweep(outcomes, out_dir)
         if json_:
             emit_json(doc)

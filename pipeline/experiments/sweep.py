@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sonarmap.pipeline.engine.errors import ConfigError, PipelineError
-from sonarmap.pipeline.engine.run.worker_life import die_with_parent
+from sonarmap.pipeline.engine.run.worker_life import die_with_parent, end_pool
 from sonarmap.pipeline.experiments.headline_columns import (
     frame_of,
     headline_columns,
@@ -168,6 +168,18 @@ def _failure(err: Exception) -> tuple[str, int]:
     return f"{type(err).__name__}: {err}", 1
 
 
+def _run_in_pool(spec: RunSpec, graph: Graph | None) -> RunOutcome:
+    """`run_one` in a pool worker (forked: it has the command's signal handlers). Ctrl-C or
+    SIGTERM unwinds the run (its lease released, its commits closed), then ends the
+    worker: the pool would take the exception as the run's result and start the next."""
+    try:
+        return run_one(spec, graph)
+    except KeyboardInterrupt:
+        os._exit(130)
+    except SystemExit as stop:
+        os._exit(stop.code if isinstance(stop.code, int) else 1)
+
+
 def _local(
     specs: Sequence[RunSpec], jobs: int, done: Callable[[RunOutcome], None], graph: Graph | None
 ) -> list[RunOutcome]:
@@ -179,13 +191,25 @@ def _local(
         return outcomes
     results: dict[int, RunOutcome] = {}
     # Linux forks every worker up front: never more than there are runs.
-    with ProcessPoolExecutor(
+    pool = ProcessPoolExecutor(
         max_workers=min(jobs, len(specs)), initializer=die_with_parent, initargs=(os.getpid(),)
-    ) as pool:
-        futures = {pool.submit(run_one, s, graph): i for i, s in enumerate(specs)}
+    )
+    futures = {pool.submit(_run_in_pool, s, graph): i for i, s in enumerate(specs)}
+    try:
         for fut in as_completed(futures):
             results[futures[fut]] = fut.result()
             done(results[futures[fut]])
+    except BaseException:
+        # Ctrl-C or SIGTERM: a pool's shutdown would wait for every queued run. Those start
+        # no more, the running ones end (each unwound as by its own Ctrl-C), and the runs
+        # that finished meanwhile are still reported.
+        end_pool(pool)
+        for fut, i in futures.items():
+            if i not in results and fut.done() and not fut.cancelled() and not fut.exception():
+                results[i] = fut.result()
+                done(results[i])
+        raise
+    pool.shutdown(wait=True)
     return [results[i] for i in range(len(specs))]
 
 

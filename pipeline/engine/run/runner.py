@@ -25,6 +25,7 @@ from pydantic import BaseModel
 
 from sonarmap.pipeline.engine.errors import StoreError
 from sonarmap.pipeline.engine.run import output_checks
+from sonarmap.pipeline.engine.run.abandon import while_open
 from sonarmap.pipeline.engine.run.compute import ComputeJob, job_sections, not_opened
 from sonarmap.pipeline.engine.run.planned import DatasetSpec, PlannedStage
 from sonarmap.pipeline.engine.run.planner import plan
@@ -110,7 +111,10 @@ def execute(
     the dataset becomes a one-line `StoreError` naming the path (exit 2).
     """
     try:
-        with RunLease(store.root) as lease:
+        with (
+            RunLease(store.root) as lease,
+            while_open(lambda: lease.__exit__(None, None, None)),
+        ):
             lease.add(f"{p.stage.name}/{p.key}" for p in planned)
             lease.add(f"{ref.stage}/{ref.key}" for _, ref in (external or {}).values())
             return _execute(planned, config, dataset, store, external, on_stage, on_start, workers)
@@ -223,12 +227,16 @@ def _execute(
     started: dict[str, float] = {}
     running: dict[Future[tuple[ArtifactRef, str]], PlannedStage] = {}
     failure: BaseException | None = None
+    close = functools.partial(
+        _close_interrupted, gate, store, dataset, config, planned, external, done
+    )
     try:
-        failure = _run_all(
-            waiting, running, started, refs, order, produce, commit, on_start, workers
-        )
+        with while_open(close):  # closed from the main thread if this one is left behind
+            failure = _run_all(
+                waiting, running, started, refs, order, produce, commit, on_start, workers
+            )
     except (KeyboardInterrupt, SystemExit):
-        _close_interrupted(gate, store, dataset, config, planned, external, done)
+        close()
         raise
     if failure is not None:
         raise failure

@@ -10,8 +10,12 @@ import signal
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
-__all__ = ["die_with_parent"]
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
+
+__all__ = ["die_with_parent", "end_pool"]
 
 log = logging.getLogger(__name__)
 
@@ -25,7 +29,7 @@ def die_with_parent(parent_pid: int, death_signal: bool = True) -> None:
     Without it a `kill -9` (or a SIGTERM) of a run or a sweep leaves its workers running,
     each holding a stage's or a run's memory, until their job ends, and then idle for
     good. Linux delivers SIGKILL on the parent's death; elsewhere, and as a fallback, a
-    daemon thread polls the parent pid (once a second).
+    daemon thread polls the parent pid (`PARENT_POLL_S`).
 
     Args:
         parent_pid: the process the worker must not outlive.
@@ -46,7 +50,27 @@ def die_with_parent(parent_pid: int, death_signal: bool = True) -> None:
     ).start()
 
 
+PARENT_POLL_S = 0.2
+"""How often a worker that cannot have Linux's death signal looks for its parent [s]: the
+documented second, with room for a stage that holds the GIL."""
+
+
 def _watch_parent(parent_pid: int) -> None:
     while os.getppid() == parent_pid:
-        time.sleep(1.0)
+        time.sleep(PARENT_POLL_S)
     os._exit(1)  # from a thread: ends the whole worker, whatever it is running
+
+
+def end_pool(pool: ProcessPoolExecutor) -> None:
+    """Ends a pool's worker processes, whatever they are running, and drops its queue."""
+    terminate_workers = getattr(pool, "terminate_workers", None)  # Python >= 3.14
+    if terminate_workers is not None:
+        terminate_workers()
+        return
+    # Before 3.14 the processes have no public handle.
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5.0)

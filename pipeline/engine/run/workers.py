@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 from sonarmap.pipeline.engine.errors import StageFailed
 from sonarmap.pipeline.engine.run.compute import ComputeJob, compute_in_worker, run_job
-from sonarmap.pipeline.engine.run.worker_life import die_with_parent
+from sonarmap.pipeline.engine.run.worker_life import die_with_parent, end_pool
 from sonarmap.stages.kernels.parallel import available_cores, release_memory
 
 if TYPE_CHECKING:  # multiprocessing loads with the first worker process
@@ -147,27 +147,12 @@ class Slots:
             # Ctrl-C or SIGTERM: stop the workers' stages now rather than wait for them (a
             # failed stage, not an interrupt, lets the others finish: nothing computed lost).
             if self._pool is not None:
-                _terminate(self._pool)
+                end_pool(self._pool)
             return
         for thread in self._threads:
             thread.join()
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _terminate(pool: ProcessPoolExecutor) -> None:
-    """Ends a pool's worker processes, whatever they are running."""
-    terminate_workers = getattr(pool, "terminate_workers", None)  # Python >= 3.14
-    if terminate_workers is not None:
-        terminate_workers()
-        return
-    # Before 3.14 the processes have no public handle.
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        process.terminate()
-    for process in processes:
-        process.join(timeout=5.0)
 
 
 def _picklable(job: ComputeJob) -> bool:
