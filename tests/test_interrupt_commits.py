@@ -162,3 +162,24 @@ def test_a_run_left_on_another_thread_is_closed_by_the_interrupted_command(
     record = json.loads(next((store / "runs").glob("*.json")).read_text())
     assert set(record["stages"]) == {"source"}  # kept by gc
     assert ArtifactStore(store).gc()["removed"] == []
+
+
+def test_ctrl_c_after_the_last_commit_keeps_the_last_stage(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The last stage's commit is recorded by the run's final record: Ctrl-C just before
+    it left that stage out, and `gc` deleted it (campaign 14 #2, 5 of 5 with -j 2)."""
+    store = tmp_path / "store"
+    real_record = runner_module.record_run
+
+    def record_run(*args: Any, done: Any = None) -> None:
+        if done is None:  # the final record, after every commit
+            raise KeyboardInterrupt
+        real_record(*args, done=done)
+
+    monkeypatch.setattr(runner_module, "record_run", record_run)
+    with pytest.raises(KeyboardInterrupt):
+        _run_two_workers(data, store)
+    record = json.loads(next((store / "runs").glob("*.json")).read_text())
+    assert set(record["stages"]) == {"source", "double", "summary", "count"}
+    assert ArtifactStore(store).gc()["removed"] == []

@@ -235,6 +235,8 @@ def _execute(
             failure = _run_all(
                 waiting, running, started, refs, order, produce, commit, on_start, workers
             )
+            if failure is None:
+                record_run(store, dataset, config, planned, external)
     except (KeyboardInterrupt, SystemExit):
         close()
         raise
@@ -243,7 +245,6 @@ def _execute(
     for item in planned:  # plan order, whatever order the stages finished in
         result.artifacts[item.stage.name] = refs[item.stage.name]
         result.stages.append(finished[item.stage.name])
-    record_run(store, dataset, config, planned, external)
     return result
 
 
@@ -302,9 +303,8 @@ def _close_interrupted(
     it), and the temporary folders of the stages still computing go."""
     committed, staging = gate.close()
     by_address = {(p.stage.name, p.key): p for p in planned}
-    late = {a[0]: by_address[a] for a in committed if a in by_address and a[0] not in done}
-    if late:
-        done.update(late)
+    done.update((a[0], by_address[a]) for a in committed if a in by_address)
+    if done:  # the last stage's commit waits for the final record, which did not come
         record_run(store, dataset, config, planned, external, done=done)
     for tmp in staging:
         shutil.rmtree(tmp, ignore_errors=True)
