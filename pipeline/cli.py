@@ -196,9 +196,10 @@ for _command in app.registered_commands:
 
 
 def main() -> None:
-    """Console-script entry point. A SIGTERM (`kill`, a batch scheduler's stop) unwinds as
-    Ctrl-C does: the run's lease is released, its unfinished commits are removed and its
-    worker processes end, where the default action would kill this process alone."""
+    """Console-script entry point. A SIGTERM (`kill`, a batch scheduler's stop) or a SIGHUP
+    (the terminal closed) unwinds as Ctrl-C does: the run's lease is released, its
+    unfinished commits are removed and its worker processes end, where the default action
+    would kill this process alone."""
     signal.signal(signal.SIGTERM, _terminated)
     # A closed terminal (SIGHUP) stops the command as `kill` does; `nohup` keeps it going.
     if signal.getsignal(signal.SIGHUP) is not signal.SIG_IGN:

@@ -62,7 +62,16 @@ class CommitGate:
 
 
 class _NeverClosed(CommitGate):
-    """The gate of a commit that belongs to no run (`pull`, `commit`)."""
+    """The gate of a commit that belongs to no run (`pull`, `commit`): no lock, so the
+    commits of parallel transfers do not wait for each other."""
+
+    @contextmanager
+    def staging(self, tmp: Path) -> Iterator[None]:
+        yield
+
+    @contextmanager
+    def committing(self, stage: str, key: str) -> Iterator[None]:
+        yield
 
     def close(self) -> tuple[list[tuple[str, str]], list[Path]]:  # pragma: no cover
         raise TypeError("the shared open gate is never closed")
