@@ -226,10 +226,16 @@ def front_end_lines(summary: dict[str, Any]) -> list[str]:
             f" false alarms stated {_rate(block.get('stated_false_alarm_rate_per_cell'))}/cell,"
             f" measured on background {_rate(measured)};"
             f" {_count(s['features_per_keyframe'])} features/keyframe"
-            f" ({_count(s['expected_false_alarms_per_ping'])} false alarms expected per ping),"
+            f"{_expected(s['expected_false_alarms_per_ping'])},"
             f" {s['keyframes_clipped']} keyframes clipped by the budget"
         )
     return lines
+
+
+def _expected(per_ping: float | None) -> str:
+    """The false alarms the calibration expects per ping; none for pinned thresholds,
+    whose run measured no rate for them."""
+    return "" if per_ping is None else f" ({_count(per_ping)} false alarms expected per ping)"
 
 
 def _filter(denoise: str | None) -> str:

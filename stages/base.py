@@ -20,6 +20,7 @@ from sonarmap.stages.kernels.lazy import resolve
 __all__ = [
     "DATASET",
     "UNITS_INPUT",
+    "USER_SETTINGS",
     "ConfigModel",
     "Input",
     "Output",
@@ -164,6 +165,12 @@ class ConfigModel(BaseModel):
 
 class StageConfig(ConfigModel):
     """Base of every stage config section. Units in field names."""
+
+
+USER_SETTINGS = "user_settings"
+"""Serialisation context flag (`model_dump(context={USER_SETTINGS: True})`): the settings
+as a user gives them (`config dump`), where a key holds what a setting reads instead (the
+thresholds of `features.calibration_from`, not its path)."""
 
 
 @dataclass(frozen=True)

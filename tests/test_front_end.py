@@ -159,7 +159,7 @@ def test_summary_line_and_report_section_name_what_was_pinned_and_the_warnings()
     assert all("floor 254 (pinned)" in ln and "CFAR factor" in ln for ln in lines)
     assert block["pinned"] == {"intensity_floor": 254.0} and block["warnings"] == doc["warnings"]
     report = "\n".join(front_end_markdown(front_end_report(doc, 10, 5, len(tiny_keyframes()))))
-    assert "pinned by config: {'intensity_floor': 254.0}" in report
+    assert "pinned by the config: intensity_floor 254.0" in report
     assert "**warning:** features: horizontal sonar starves" in report
 
 

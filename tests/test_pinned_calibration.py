@@ -14,6 +14,9 @@ from pydantic import ValidationError
 from typer.testing import CliRunner
 
 from sonarmap.pipeline.cli import app
+from sonarmap.pipeline.engine.config.load import load_config
+from sonarmap.pipeline.graph import all_stages, extra_sections
+from sonarmap.pipeline.readers.pinned_calibration import pin_calibration
 from sonarmap.stages.features.config import FeaturesConfig
 from tests.fixtures.recordings import small_recording
 
@@ -94,9 +97,37 @@ def test_bands_of_another_range_window_are_refused_in_one_line(
     ("content", "needle"),
     [
         ("{not json", "not JSON"),
-        ('{"sonars": {"horizontal": {}}}', "horizontal sonar: not calibrated in the file"),
+        ('{"sonars": {"horizontal": {}}}', "sonars.horizontal: not calibrated in the file"),
         ("[1, 2]", "not a features calibration.json"),
         (None, "cannot read calibration"),
+        # campaign 15 #1, #8, #12: an internal error, confusing lines, silent defaults
+        ("[" * 100_000 + "]" * 100_000, "JSON nested too deeply"),
+        ('{"sonars": {}, "sonars": {}}', "the key 'sonars' is given twice"),
+        ('{"sonars": {"sidescan": {}}}', "unknown sonar 'sidescan'"),
+        (
+            json.dumps({"sonars": {"horizontal": {"bands": [], "band_edges_m": [0, 1]}}}),
+            "sonars.horizontal.denoise: expected the filter's name",
+        ),
+        (
+            json.dumps(
+                {
+                    "sonars": {
+                        "horizontal": {"bands": [1], "band_edges_m": [0, 1], "denoise": "none"}
+                    }
+                }
+            ),
+            "sonars.horizontal.bands[0]: expected an object with 'threshold_factor'",
+        ),
+        (
+            json.dumps(
+                {
+                    "sonars": {
+                        "horizontal": {"bands": [], "band_edges_m": "0,3.75", "denoise": "none"}
+                    }
+                }
+            ),
+            "sonars.horizontal.band_edges_m: expected a list of numbers",
+        ),
     ],
 )
 def test_a_file_that_is_not_a_calibration_is_refused_naming_the_setting(
@@ -123,3 +154,61 @@ def test_pinned_bands_are_checked_as_every_setting() -> None:
     with pytest.raises(ValidationError, match="2 bands"):
         FeaturesConfig(pinned_bands={"horizontal": good, "vertical": short})
     assert "pinned_bands" not in FeaturesConfig().model_dump()  # unpinned: keys unchanged
+
+
+def test_a_threshold_set_beside_a_pinned_calibration_is_refused() -> None:
+    """Campaign 15 #2, #5: a floor, factor or filter set beside the pin was ignored, yet
+    recorded as pinned; a pin of another band count passed `config check`."""
+    band = {"band_edges_m": [0, 1, 2], "threshold_factor": [2, 2], "intensity_floor_levels": [9, 9]}
+    pins = {"horizontal": band, "vertical": band}
+    assert FeaturesConfig(pinned_bands=pins, range_bands=2).pinned_bands is not None
+    for name, value in [("intensity_floor", 60.0), ("threshold_factor", 2.0), ("denoise", "none")]:
+        with pytest.raises(ValidationError, match=f"{name} .* cannot be set beside pinned_bands"):
+            FeaturesConfig(pinned_bands=pins, range_bands=2, **{name: value})
+    with pytest.raises(
+        ValidationError, match="horizontal sonar has 2 range bands, range_bands is 8"
+    ):
+        FeaturesConfig(pinned_bands=pins)
+
+
+def test_the_training_sections_calibration_is_read_and_a_home_path_expanded(
+    measured: tuple[Path, Path, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Campaign 15 #3, #10: `training.features.calibration_from` was never read (a missing
+    file passed, the train key did not move); `~` was not expanded."""
+    _, _, features = measured
+    monkeypatch.setenv("HOME", str(features))
+    sets = ["training.features.calibration_from=~/calibration.json"]
+    config = pin_calibration(load_config(all_stages(), None, sets, extra_sections()))
+    assert config.training.features.pinned_bands is not None  # type: ignore[attr-defined]
+    yaml = tmp_path / "c.yaml"
+    yaml.write_text(f"training:\n  features:\n    calibration_from: {tmp_path / 'nope.json'}\n")
+    res = CliRunner().invoke(app, ["config", "check", str(yaml)])
+    assert res.exit_code == 2 and "training.features.calibration_from" in res.stderr, res.output
+
+
+def test_config_dump_keeps_the_pin(tmp_path: Path) -> None:
+    """Campaign 15 #4: the dump left `calibration_from` out, so a dumped config reused
+    measured the thresholds it was meant to pin."""
+    res = CliRunner().invoke(app, ["config", "dump", "--set", "features.calibration_from=c.json"])
+    assert res.exit_code == 0, res.output
+    assert "  calibration_from: c.json\n" in res.stdout
+    assert "calibration_from" not in json.dumps(
+        FeaturesConfig(calibration_from="c.json").model_dump()
+    )
+
+
+def test_the_report_says_a_whole_calibration_is_pinned() -> None:
+    """Campaign 15 #13: it said "calibrated from the recording", printed a dict and None."""
+    from sonarmap.stages.evaluate.front_end import front_end_markdown
+
+    sonar = {"features_per_keyframe": 10.0, "expected_false_alarms_per_ping": None,
+             "background_bands": [0], "background_detection_rate": 0.001,
+             "keyframes_clipped": 0, "features_dropped": 0}  # fmt: skip
+    text = "\n".join(front_end_markdown({
+        "stated_false_alarm_rate_per_cell": 0.001, "measured": [], "sonars": {"horizontal": sonar},
+        "pinned": {"bands": "features.pinned_bands"}, "fused_share_of_horizontal_features": 0.1,
+        "objects_per_keyframe": 1.0}))  # fmt: skip
+    assert "## Front end (detection thresholds pinned by the config)" in text
+    assert "every band's floor, CFAR factor and filter (features.pinned_bands)" in text
+    assert "| horizontal | 10.0 | - |" in text and "None" not in text and "{" not in text

@@ -18,12 +18,12 @@ def dump(
     json_: bool = JSON_OPT,
 ) -> None:
     """Print the effective config (defaults, then the file, then --set)."""
-    from sonarmap.pipeline.engine.config.load import dump_yaml, load_config
+    from sonarmap.pipeline.engine.config.load import dump_yaml, load_config, user_settings
 
     graph = cli_graph(ctx)
     cfg = load_config(graph.config_stages, config, set_ or (), graph.extra_sections)
     if json_:
-        emit_json(cfg.model_dump(mode="json"))
+        emit_json(user_settings(cfg))
     else:
         typer.echo(dump_yaml(cfg), nl=False)
 

@@ -29,7 +29,8 @@ STAGE = Stage(
     # 14: ... with the sure objects `classify.min_views` / `min_seen_share` held back
     # 15: report.md names no file (one key, one content whatever the recording is called)
     # 16: the trust section gives the odometry's scale error as SLAM estimates it
-    version=16,
+    # 17: the front-end section says a whole calibration pinned, in words (not a dict)
+    version=17,
     config=EvaluateConfig,
     reads_sections=("classes",),
     inputs=(

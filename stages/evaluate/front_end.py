@@ -47,22 +47,25 @@ def front_end_markdown(block: dict[str, Any] | None) -> list[str]:
     """The report's "Front end" section."""
     if not block:
         return []
+    pinned = block.get("pinned") or {}
+    how = "pinned by the config" if "bands" in pinned else "calibrated from the recording"
     lines = [
-        "## Front end (detection thresholds calibrated from the recording)",
+        f"## Front end (detection thresholds {how})",
         "",
         f"Stated false-alarm rate: {block['stated_false_alarm_rate_per_cell']} per cell;"
         f" measured from the recording: {', '.join(block.get('measured') or []) or 'nothing'};"
-        f" pinned by config: {block.get('pinned') or 'nothing'}.",
+        f" pinned by the config: {_pins(pinned)}.",
         "",
         "| sonar | features / keyframe | expected false alarms / ping | background bands"
         " | detection rate on background | keyframes clipped | features dropped |",
         "|---|---:|---:|---|---:|---:|---:|",
     ]
     for sonar, s in block["sonars"].items():
+        cells = [s[k] for k in ("features_per_keyframe", "expected_false_alarms_per_ping",
+                                "background_bands", "background_detection_rate",
+                                "keyframes_clipped", "features_dropped")]  # fmt: skip
         lines.append(
-            f"| {sonar} | {s['features_per_keyframe']} | {s['expected_false_alarms_per_ping']}"
-            f" | {s['background_bands']} | {s['background_detection_rate']}"
-            f" | {s['keyframes_clipped']} | {s['features_dropped']} |"
+            f"| {sonar} | " + " | ".join("-" if c is None else str(c) for c in cells) + " |"
         )
     lines += [
         "",
@@ -71,3 +74,13 @@ def front_end_markdown(block: dict[str, Any] | None) -> list[str]:
     ]
     lines += [f"- **warning:** {w}" for w in block.get("warnings") or []]
     return [*lines, ""]
+
+
+def _pins(pinned: dict[str, Any]) -> str:
+    """`name (where), ...` of what the config pinned: every band's thresholds (a whole
+    calibration) or single settings with their values."""
+    if not pinned:
+        return "nothing"
+    if "bands" in pinned:
+        return f"every band's floor, CFAR factor and filter ({pinned['bands']})"
+    return ", ".join(f"{name} {value}" for name, value in sorted(pinned.items()))

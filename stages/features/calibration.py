@@ -194,8 +194,9 @@ def with_pinned_bands(doc: dict[str, Any], pinned: Mapping[str, Any]) -> dict[st
         if edges.shape != given.shape or not np.allclose(edges, given, rtol=1e-5, atol=1e-6):
             raise StageSettingsError(
                 f"features.pinned_bands: {sonar} sonar: {len(given) - 1} range bands over"
-                f" {given[0]:.3g}-{given[-1]:.3g} m pinned, this recording's are"
-                f" {len(edges) - 1} over {edges[0]:.3g}-{edges[-1]:.3g} m: pin a calibration"
+                f" {round(given[0], 3):g} to {round(given[-1], 3):g} m pinned, this recording's"
+                f" are {len(edges) - 1} over {round(edges[0], 3):g} to {round(edges[-1], 3):g} m:"
+                " pin a calibration"
                 " of the same sonar range and features.range_bands"
             )
         bands = [

@@ -4,9 +4,15 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, SerializerFunctionWrapHandler, model_serializer, model_validator
+from pydantic import (
+    Field,
+    SerializationInfo,
+    SerializerFunctionWrapHandler,
+    model_serializer,
+    model_validator,
+)
 
-from sonarmap.stages.base import ConfigModel, StageConfig
+from sonarmap.stages.base import USER_SETTINGS, ConfigModel, StageConfig
 from sonarmap.stages.kernels.choices import CfarMethod
 
 __all__ = ["FeaturesConfig", "PinnedBands"]
@@ -127,12 +133,38 @@ class FeaturesConfig(StageConfig):
     )
 
     @model_serializer(mode="wrap")
-    def _keyed(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+    def _keyed(
+        self, handler: SerializerFunctionWrapHandler, info: SerializationInfo
+    ) -> dict[str, Any]:
         data = handler(self)
-        data.pop("calibration_from", None)  # its content is keyed, as pinned_bands
+        if not (info.context or {}).get(USER_SETTINGS):  # keys: its content is, as pinned_bands
+            data.pop("calibration_from", None)
         if data.get("pinned_bands") is None:  # unpinned: keys as before the field
             data.pop("pinned_bands", None)
         return data
+
+    def _check_pins(self, pinned: dict[str, PinnedBands]) -> None:
+        """A whole calibration pinned leaves no threshold to set beside it: a setting that
+        would be ignored is refused (it was recorded as pinned, yet not applied)."""
+        if set(pinned) != {"horizontal", "vertical"}:
+            raise ValueError("pinned_bands: pin both sonars (horizontal and vertical)")
+        beside = {
+            "intensity_floor": self.intensity_floor,
+            "threshold_factor": self.threshold_factor,
+        }
+        beside["denoise"] = None if self.denoise == "auto" else self.denoise
+        for name, value in beside.items():
+            if value is not None:
+                raise ValueError(
+                    f"{name} ({value}) cannot be set beside pinned_bands (calibration_from),"
+                    " which pins every band's floor, factor and filter"
+                )
+        for sonar, bands in sorted(pinned.items()):
+            if len(bands.band_edges_m) - 1 != self.range_bands:
+                raise ValueError(
+                    f"pinned_bands: {sonar} sonar has {len(bands.band_edges_m) - 1} range bands,"
+                    f" range_bands is {self.range_bands}"
+                )
 
     @model_validator(mode="after")
     def _quantiles(self) -> FeaturesConfig:
@@ -141,8 +173,8 @@ class FeaturesConfig(StageConfig):
             raise ValueError(f"fit_quantiles must satisfy 0 < lo < hi < 1, got {lo}, {hi}")
         if isinstance(self.threshold_factor, float) and not 0.0 < self.threshold_factor <= 1e3:
             raise ValueError("threshold_factor must be in (0, 1000]")
-        if self.pinned_bands is not None and set(self.pinned_bands) != {"horizontal", "vertical"}:
-            raise ValueError("pinned_bands: pin both sonars (horizontal and vertical)")
+        if self.pinned_bands is not None:
+            self._check_pins(self.pinned_bands)
         if self.method == "os" and self.os_rank > 2 * self.train_cells_per_side:
             raise ValueError(
                 f"os_rank ({self.os_rank}) must be at most the training cells it ranks,"

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, create_model
 from sonarmap.pipeline.engine.config.validation import short, validation_message
 from sonarmap.pipeline.engine.errors import ConfigError
 from sonarmap.pipeline.engine.text import one_line
-from sonarmap.stages.base import Stage
+from sonarmap.stages.base import USER_SETTINGS, Stage
 
 __all__ = [
     "apply_overrides",
@@ -30,6 +30,7 @@ __all__ = [
     "load_config",
     "parse_override",
     "section_dict",
+    "user_settings",
 ]
 
 
@@ -346,4 +347,10 @@ def dump_yaml(config: BaseModel) -> str:
     """The effective config as YAML (one section per stage, in stage order)."""
     import yaml
 
-    return yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False)
+    return yaml.safe_dump(user_settings(config), sort_keys=False)
+
+
+def user_settings(config: BaseModel) -> dict[str, Any]:
+    """The config as settings, for a user to read or reuse (a keyed dump leaves out the
+    paths whose content it holds instead)."""
+    return config.model_dump(mode="json", context={USER_SETTINGS: True})
