@@ -76,7 +76,8 @@ def _pinned(features: Any, section: str) -> Any:
     except ValidationError as err:
         first = err.errors()[0]
         at = ".".join(str(p) for p in first["loc"])
-        raise ConfigError(f"{where}: {at + ': ' if at else ''}{first['msg']}") from None
+        message = first["msg"].removeprefix("Value error, ")
+        raise ConfigError(f"{where}: {at + ': ' if at else ''}{message}") from None
     if features.pinned_bands is not None and features.pinned_bands != pinned:
         raise ConfigError(f"{where}: {section}.pinned_bands is given too, with other values")
     return features.model_copy(update={"pinned_bands": pinned})
