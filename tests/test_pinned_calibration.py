@@ -212,3 +212,19 @@ def test_the_report_says_a_whole_calibration_is_pinned() -> None:
     assert "## Front end (detection thresholds pinned by the config)" in text
     assert "every band's floor, CFAR factor and filter (features.pinned_bands)" in text
     assert "| horizontal | 10.0 | - |" in text and "None" not in text and "{" not in text
+
+
+def test_a_sweep_over_two_copies_of_one_calibration_is_refused(
+    measured: tuple[Path, Path, Path], tmp_path: Path
+) -> None:
+    """Campaign 15 #7: two files of one content ran the same point twice."""
+    rec, _, features = measured
+    copy = tmp_path / "copy.json"
+    copy.write_bytes((features / "calibration.json").read_bytes())
+    res = CliRunner().invoke(app, [
+        "sweep", str(rec), "--store", str(tmp_path / "s"), "--out", str(tmp_path / "o"),
+        "--set", f"features.calibration_from={features / 'calibration.json'},{copy}",
+    ])  # fmt: skip
+    assert res.exit_code == 2, res.output
+    assert "are the same point (the files they name hold the same content)" in res.stderr
+    assert not (tmp_path / "s" / "keyframes").exists()  # refused before the first run

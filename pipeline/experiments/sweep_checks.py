@@ -6,7 +6,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from sonarmap.pipeline.engine.errors import SourceError
+from sonarmap.pipeline.engine.errors import ConfigError, SourceError
 from sonarmap.pipeline.experiments.sweep import RunOutcome, RunSpec
 
 if TYPE_CHECKING:
@@ -30,16 +30,27 @@ def check_inputs(
     `keyframes` settings). Raises `ConfigError` / `SourceError` naming the first bad one.
     """
     from sonarmap.pipeline.engine.config.load import load_config
+    from sonarmap.pipeline.readers.pinned_calibration import pin_calibration
 
     # Config first (cheap, and what a typo in --set most likely is), with what each point
     # names outside itself (a model folder, a sonar preset), then datasets.
     readers: dict[str, Any] = {}  # each distinct keyframes section: how it reads a recording
+    points: dict[str, tuple[str, ...]] = {}  # each point's keyed config: its overrides
     for config_path, args in dict.fromkeys((s.config_path, tuple(s.override_args)) for s in specs):
         path = Path(config_path) if config_path else None
         config = load_config(graph.config_stages, path, args, graph.extra_sections)
         check_references(config)
         section = getattr(config, "keyframes", None)
         readers.setdefault(repr(section), section)
+        # Two files of the same content (a calibration copied) key the same runs.
+        keyed = repr(pin_calibration(config).model_dump(mode="json"))
+        if keyed in points:
+            raise ConfigError(
+                f"sweep: [{', '.join(points[keyed])}] and [{', '.join(args)}] are the same"
+                " point (the files they name hold the same content): a repeated run would"
+                " count as a replicate with a spread of 0"
+            )
+        points[keyed] = args
     for dataset in dict.fromkeys(s.dataset for s in specs):
         path = Path(dataset)
         if not path.exists():
