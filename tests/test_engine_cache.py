@@ -31,6 +31,7 @@ def run_toy(
     stages: tuple[Stage, ...] = TOY_STAGES,
     force: tuple[str, ...] = (),
     until: str | None = None,
+    workers: int = 1,
 ) -> RunResult:
     ctx = make_context(
         dataset,
@@ -41,7 +42,7 @@ def run_toy(
         opener=lambda _section: dataset.read_bytes(),
     )
     planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store, force=force, until=until)
-    return execute(planned, ctx.config, ctx.dataset, ctx.store)
+    return execute(planned, ctx.config, ctx.dataset, ctx.store, workers=workers)
 
 
 def did(result: RunResult) -> set[str]:

@@ -14,12 +14,10 @@ from typing import Any
 
 import pytest
 from test_engine_cache import run_toy
-from toy_stages import TOY_STAGES
 
 import sonarmap.pipeline.engine.run.runner as runner_module
 from sonarmap.pipeline.engine.run.abandon import abandon_open_runs
-from sonarmap.pipeline.engine.run.runner import RunResult, execute, plan
-from sonarmap.pipeline.engine.run.session import make_context
+from sonarmap.pipeline.engine.run.runner import RunResult
 from sonarmap.pipeline.engine.store.artifact_store import ArtifactStore
 from sonarmap.pipeline.engine.store.commit_gate import CommitGate, GateClosed
 
@@ -34,16 +32,7 @@ def data(tmp_path: Path) -> Path:
 def _run_two_workers(dataset: Path, store: Path) -> RunResult:
     """The toy pipeline with two stages at a time: the one computed in this process runs
     on a thread, as in `run -j 2`, and goes on after the interrupt."""
-    ctx = make_context(
-        dataset,
-        stages=TOY_STAGES,
-        overrides=(),
-        store_dir=store,
-        parts=lambda p: [p],
-        opener=lambda _section: dataset.read_bytes(),
-    )
-    planned = plan(ctx.stages, ctx.config, ctx.dataset, ctx.store)
-    return execute(planned, ctx.config, ctx.dataset, ctx.store, workers=2)
+    return run_toy(dataset, store, workers=2)
 
 
 def _interrupt_when(monkeypatch: pytest.MonkeyPatch, ready: Callable[[], bool]) -> None:

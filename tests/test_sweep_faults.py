@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -120,6 +121,26 @@ def _alive(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+def _two_workers_in_double(proc: subprocess.Popen[Any], tmp_path: Path) -> set[int]:
+    """The pids of the two pool workers once both are inside the toy's sleeping stage."""
+    workers: set[int] = set()
+    deadline = time.monotonic() + 60
+    while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+        workers = {int(ln.split()[1]) for ln in _calls(tmp_path) if ln.startswith("double")}
+        time.sleep(0.1)
+    assert len(workers) == 2, "both workers should be inside the sleeping stage"
+    return workers
+
+
+def _kill_what_is_left(proc: subprocess.Popen[Any], tmp_path: Path) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    for line in _calls(tmp_path):
+        pid = int(line.split()[1])
+        if _alive(pid) and pid != os.getpid():
+            os.kill(pid, signal.SIGKILL)
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path) -> None:
     proc = subprocess.Popen(
@@ -143,12 +164,7 @@ def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path)
         env=os.environ.copy(),
     )
     try:
-        workers: set[int] = set()
-        deadline = time.monotonic() + 60
-        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
-            workers = {int(ln.split()[1]) for ln in _calls(tmp_path) if ln.startswith("double")}
-            time.sleep(0.1)
-        assert len(workers) == 2, "both workers should be inside the sleeping stage"
+        workers = _two_workers_in_double(proc, tmp_path)
         assert proc.pid not in workers
         os.kill(proc.pid, signal.SIGKILL)  # the parent alone, not its process group
         proc.wait()
@@ -157,12 +173,7 @@ def test_workers_die_with_the_sweep_process(toy_env: list[Path], tmp_path: Path)
             time.sleep(0.1)
         assert not [p for p in workers if _alive(p)], "workers outlived the sweep"
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        for line in _calls(tmp_path):
-            pid = int(line.split()[1])
-            if _alive(pid) and pid != os.getpid():
-                os.kill(pid, signal.SIGKILL)
+        _kill_what_is_left(proc, tmp_path)
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
@@ -182,12 +193,7 @@ def test_an_interrupted_parallel_sweep_stops_now_and_starts_no_queued_run(
         preexec_fn=default_sigint,
     )  # fmt: skip
     try:
-        workers: set[int] = set()
-        deadline = time.monotonic() + 60
-        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
-            workers = {int(ln.split()[1]) for ln in _calls(tmp_path) if ln.startswith("double")}
-            time.sleep(0.1)
-        assert len(workers) == 2, "two points should be inside the sleeping stage"
+        workers = _two_workers_in_double(proc, tmp_path)
         t0 = time.monotonic()
         os.kill(proc.pid, sig)  # the parent alone
         _, stderr = proc.communicate(timeout=30)
@@ -198,9 +204,4 @@ def test_an_interrupted_parallel_sweep_stops_now_and_starts_no_queued_run(
         assert not [p for p in workers if _alive(p)], "workers outlived the sweep"
         assert not list((tmp_path / "s" / ".leases").glob("*.json"))
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        for line in _calls(tmp_path):
-            pid = int(line.split()[1])
-            if _alive(pid) and pid != os.getpid():
-                os.kill(pid, signal.SIGKILL)
+        _kill_what_is_left(proc, tmp_path)
