@@ -111,10 +111,7 @@ def execute(
     the dataset becomes a one-line `StoreError` naming the path (exit 2).
     """
     try:
-        with (
-            RunLease(store.root) as lease,
-            while_open(lambda: lease.__exit__(None, None, None)),
-        ):
+        with RunLease(store.root) as lease, while_open(lease.release):
             lease.add(f"{p.stage.name}/{p.key}" for p in planned)
             lease.add(f"{ref.stage}/{ref.key}" for _, ref in (external or {}).values())
             return _execute(planned, config, dataset, store, external, on_stage, on_start, workers)

@@ -89,6 +89,10 @@ class RunLease:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
+        self.release()
+
+    def release(self) -> None:
+        """Give up the claim (again: nothing); also from another thread than its run's."""
         # The json goes first: a lock without its json is an orphan `gc` cleans.
         for path in (self.json_path, self.lock_path):
             with contextlib.suppress(OSError):
