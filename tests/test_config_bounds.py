@@ -241,3 +241,12 @@ def test_simulate_refuses_a_bad_scene_file_in_one_line(case: str, tmp_path: Path
     line = res.stderr.strip()
     assert "\n" not in line and str(path) in line and words in line, line
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_a_set_text_keeps_its_line_break() -> None:
+    """Campaign 15 #11: YAML folded a line break in a `--set` path into a space, so an
+    existing file `a\\nb.json` was looked for as `a b.json` (a config file kept it)."""
+    sets = ["features.calibration_from=bad/nl\nname.json", "keyframes.spacing_m=3"]
+    config = load_config(all_stages(), None, sets, extra_sections())
+    assert config.features.calibration_from == "bad/nl\nname.json"  # type: ignore[attr-defined]
+    assert config.keyframes.spacing_m == 3.0  # type: ignore[attr-defined]

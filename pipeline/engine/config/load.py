@@ -250,11 +250,14 @@ def _scalar(raw: str, where: str) -> Any:
     from sonarmap.pipeline.engine.config.yaml_files import YamlRefused, load_yaml_text
 
     try:
-        return load_yaml_text(raw, where, "value", ConfigError)
+        value = load_yaml_text(raw, where, "value", ConfigError)
     except ConfigError as err:
         if isinstance(err.__cause__, YamlRefused):
             raise
         return raw
+    if isinstance(value, str) and "\n" in raw:  # YAML folds a line break into a space
+        return raw.strip()
+    return value
 
 
 def _refuse_repeats(parsed: Sequence[tuple[list[str], Any]]) -> None:
