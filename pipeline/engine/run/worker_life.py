@@ -51,8 +51,7 @@ def die_with_parent(parent_pid: int, death_signal: bool = True) -> None:
 
 
 PARENT_POLL_S = 0.2
-"""How often a worker that cannot have Linux's death signal looks for its parent [s]. The
-look waits while the worker's main thread holds the GIL (a large library loading)."""
+"""How often a worker that cannot have Linux's death signal looks for its parent [s]."""
 
 
 def _watch_parent(parent_pid: int) -> None:
